@@ -1,0 +1,172 @@
+"""Gennery's CAHVOR camera model: 3D -> 2D projection with radial distortion and its inverse.
+
+A model is six 3-vectors (Gennery 2001; Yakimovsky & Cunningham's CAHV plus distortion):
+
+C  camera centre (m), A  unit pointing axis, H and V  horizontal and vertical image-plane vectors
+(pixels, they fold in focal length, pixel size and principal point: ``H = hs*H' + hc*A``),
+O  unit optical axis (axis of radial distortion), R = (R0, R1, R2) radial distortion coefficients.
+
+Projection of a point ``P``::
+
+    p = P - C,  zeta = p.O,  lambda = p - zeta*O,  tau = |lambda|^2 / zeta^2
+    mu = R0 + R1*tau + R2*tau^2,  p' = p + mu*lambda
+    x = p'.H / p'.A   (column, pixel centres at integers, (0, 0) the first pixel's centre)
+    y = p'.V / p'.A   (row)
+
+The inverse (2D -> 3D ray) takes the CAHV ray ``(V - y A) x (H - x A)`` (the distorted direction)
+and removes the distortion by Newton iteration on ``u' = u (1 + mu(u^2))``, where ``u`` and
+``u'`` are the tangents of the angle to O before and after distortion (converges to < 1e-12 rad).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Cahvor:
+    """A CAHVOR model; vectors are float arrays of shape (3,), lengths in m, H and V in pixels."""
+
+    c: np.ndarray
+    a: np.ndarray
+    h: np.ndarray
+    v: np.ndarray
+    o: np.ndarray
+    r: np.ndarray
+
+    @property
+    def hc(self) -> float:
+        """Column of the pointing axis (pixels)."""
+        return float(self.h @ self.a)
+
+    @property
+    def vc(self) -> float:
+        """Row of the pointing axis (pixels)."""
+        return float(self.v @ self.a)
+
+    @property
+    def hs(self) -> float:
+        """Horizontal focal length in pixels."""
+        return float(np.linalg.norm(np.cross(self.a, self.h)))
+
+    @property
+    def vs(self) -> float:
+        """Vertical focal length in pixels."""
+        return float(np.linalg.norm(np.cross(self.a, self.v)))
+
+    def transformed(self, rotation_matrix: np.ndarray, translation_m: np.ndarray) -> "Cahvor":
+        """The same camera expressed in another frame: ``X_new = R @ X_old + t``."""
+        rotation_matrix = np.asarray(rotation_matrix, dtype=float)
+        return Cahvor(
+            c=rotation_matrix @ self.c + np.asarray(translation_m, dtype=float),
+            a=rotation_matrix @ self.a,
+            h=rotation_matrix @ self.h,
+            v=rotation_matrix @ self.v,
+            o=rotation_matrix @ self.o,
+            r=self.r.copy(),
+        )
+
+
+def cahvor_from_intrinsics(focal_length_m: float, pixel_pitch_m: float, principal_point_px: tuple[float, float],
+                           radial_distortion: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Cahvor:
+    """A CAHVOR model in the camera frame (C at the origin, A = O = +z, H along +x, V along +y)."""
+    focal_px = focal_length_m / pixel_pitch_m
+    axis = np.array([0.0, 0.0, 1.0])
+    hc, vc = principal_point_px
+    return Cahvor(
+        c=np.zeros(3),
+        a=axis,
+        h=focal_px * np.array([1.0, 0.0, 0.0]) + hc * axis,
+        v=focal_px * np.array([0.0, 1.0, 0.0]) + vc * axis,
+        o=axis.copy(),
+        r=np.asarray(radial_distortion, dtype=float),
+    )
+
+
+def project(model: Cahvor, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project 3D points into the image.
+
+    Parameters
+    ----------
+    model : Cahvor
+    points_m : ndarray, shape (..., 3)
+        Points in the model's frame (m).
+
+    Returns
+    -------
+    pixels : ndarray, shape (..., 2)
+        ``(column, row)``; 0 for points that are not in front of the camera.
+    in_front : ndarray of bool, shape (...)
+        True where the point lies in front of the camera (``p'.A > 0``).
+    """
+    relative = np.asarray(points_m, dtype=float) - model.c
+    zeta = relative @ model.o
+    lam = relative - zeta[..., None] * model.o
+    safe_zeta = np.where(np.abs(zeta) > 1e-300, zeta, 1e-300)
+    tau = np.einsum("...i,...i->...", lam, lam) / safe_zeta**2
+    mu = model.r[0] + model.r[1] * tau + model.r[2] * tau**2
+    distorted = relative + mu[..., None] * lam
+    alpha = distorted @ model.a
+    in_front = (alpha > 0) & (zeta > 0)
+    safe_alpha = np.where(in_front, alpha, 1.0)
+    pixels = np.stack([distorted @ model.h / safe_alpha, distorted @ model.v / safe_alpha], axis=-1)
+    return np.where(in_front[..., None], pixels, 0.0), in_front
+
+
+def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
+              max_iterations: int = 50) -> np.ndarray:
+    """Unit ray directions (model frame) through image points; rays start at ``model.c``.
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (..., 2)
+        ``(column, row)`` image coordinates.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Unit directions, pointing in front of the camera.
+    """
+    pixels = np.asarray(pixels, dtype=float)
+    column = pixels[..., 0:1]
+    row = pixels[..., 1:2]
+    distorted = np.cross(model.v - row * model.a, model.h - column * model.a)
+    distorted = distorted / np.linalg.norm(distorted, axis=-1, keepdims=True)
+    distorted = np.where((distorted @ model.a)[..., None] < 0, -distorted, distorted)
+    if not np.any(model.r):
+        return distorted
+    omega = distorted @ model.o
+    lam_distorted = distorted - omega[..., None] * model.o
+    u_distorted = np.linalg.norm(lam_distorted, axis=-1) / omega
+    u = _undistort_tangent(u_distorted, model.r, tolerance_rad, max_iterations)
+    scale = np.where(u_distorted > 0, u / np.where(u_distorted > 0, u_distorted, 1.0), 1.0)
+    undistorted = omega[..., None] * model.o + scale[..., None] * lam_distorted
+    return undistorted / np.linalg.norm(undistorted, axis=-1, keepdims=True)
+
+
+def _undistort_tangent(u_distorted: np.ndarray, r: np.ndarray, tolerance: float, max_iterations: int) -> np.ndarray:
+    """Solve ``u (1 + R0 + R1 u^2 + R2 u^4) = u_distorted`` for u by Newton's method."""
+    r0, r1, r2 = r
+    u = u_distorted / (1.0 + r0)
+    for _ in range(max_iterations):
+        u2 = u * u
+        residual = u * (1.0 + r0 + r1 * u2 + r2 * u2 * u2) - u_distorted
+        slope = 1.0 + r0 + 3.0 * r1 * u2 + 5.0 * r2 * u2 * u2
+        step = residual / slope
+        u = u - step
+        if np.all(np.abs(step) < tolerance):
+            break
+    return u
+
+
+def field_angle_rad(model: Cahvor, pixels: np.ndarray) -> np.ndarray:
+    """Angle between the (undistorted) ray through each image point and the optical axis O, rad."""
+    rays = unproject(model, pixels)
+    return np.arccos(np.clip(rays @ model.o, -1.0, 1.0))
+
+
+def pixel_grid(width: int, height: int) -> np.ndarray:
+    """Pixel-centre coordinates ``(column, row)`` of a width x height frame, shape (height, width, 2)."""
+    columns, rows = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+    return np.stack([columns, rows], axis=-1)

@@ -1,0 +1,44 @@
+"""Charge generation: pixel response non-uniformity and thermal (dark) electrons.
+
+Stage 2 of the camera chain, acting on generation *rates* (e-/s) of the image area, so that the
+frame-transfer integration in :mod:`simulator.charge_transfer` treats photo and thermal charge alike.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .camera_config import Camera
+
+
+def apply_prnu(rate_e_per_s: np.ndarray, prnu_map: np.ndarray) -> np.ndarray:
+    """Multiply a photo-electron rate by the relative pixel response (in place when float32)."""
+    rate_e_per_s *= prnu_map
+    return rate_e_per_s
+
+
+def dark_rate_e_per_s(camera: Camera, scale: float = 1.0) -> float:
+    """Uniform dark generation rate per pixel at the camera's CCD temperature (e-/s).
+
+    Uses the documented doubling rule of :meth:`Electronics.dark_current_e_per_s`; ``scale``
+    multiplies it (off-nominal "excessive dark current").
+    """
+    return scale * camera.electronics.dark_current_e_per_s()
+
+
+def storage_dark_e(camera: Camera, dark_rate: float) -> np.ndarray:
+    """Dark electrons each binned row gathers in the storage area while it waits to be read out.
+
+    The row nearest the serial register is read first. With charge moving toward the last image row,
+    image row ``height-1`` arrives first and is read first; binned row ``k`` of ``n`` waits
+    ``readout_s * (n - k) / n`` (reversed for the other direction). Binning sums ``binning_rows``
+    pixels, each holding its own dark charge.
+
+    Returns
+    -------
+    ndarray, shape (binned_rows, 1), float32, electrons per binned pixel
+    """
+    rows, _ = camera.binned_shape
+    order = np.arange(rows, dtype=np.float64)
+    waits = (rows - order) / rows if camera.timing.transfer_toward_last_row else (order + 1.0) / rows
+    dark = camera.binning_rows * dark_rate * camera.timing.readout_s * waits
+    return dark.astype(np.float32)[:, None]

@@ -1,0 +1,83 @@
+"""Charge collection and transfer in a frame-transfer CCD, with fast-flush and frame-transfer smear.
+
+Stage 3 of the camera chain. The image area is illuminated during all three periods:
+
+* fast flush (``T_f``): the array is clocked out continuously; the charge packet that ends at row
+  ``r`` entered empty at the far edge and crossed rows ``0..r``, spending ``T_f / N`` in each;
+* exposure (``T_e``): the packet sits at row ``r``;
+* frame transfer (``T_t``): the packet is clocked from row ``r`` across rows ``r..N-1`` into storage.
+
+So with generation rates ``g_f, g_e, g_t`` (e-/s) of the three periods, for charge moving toward the
+last row::
+
+    Q[r] = T_f/N * sum_{i<=r} g_f[i] + T_e * g_e[r] + T_t/N * sum_{i>=r} g_t[i]
+
+(rows reversed when charge moves toward the first row). On-chip binning then sums ``b`` rows in the
+serial register. Because binning only needs block sums, the binned charge is computed exactly from
+block cumulative sums::
+
+    sum_{r in block k} sum_{i<=r} g[i] = b * C[k-1] + sum_j (b - j) g[k*b + j]
+
+where ``C`` is the cumulative sum over whole blocks; no per-row loop and no full-resolution cumulative
+sum is needed unless a pixel can reach full well, when :func:`pixel_charge_e` is used instead.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .camera_config import Timing
+
+
+def _flip(rate: np.ndarray, toward_last_row: bool) -> np.ndarray:
+    return rate if toward_last_row else rate[::-1]
+
+
+def pixel_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
+                   timing: Timing) -> np.ndarray:
+    """Full-resolution charge per pixel (e-) at the end of frame transfer, shape (N, width), float32."""
+    rows = rate_exposure.shape[0]
+    toward_last = timing.transfer_toward_last_row
+    flush_smear = np.cumsum(_flip(rate_flush, toward_last), axis=0, dtype=np.float32)
+    transfer_smear = np.cumsum(_flip(rate_transfer, toward_last)[::-1], axis=0, dtype=np.float32)[::-1]
+    smear = (timing.fast_flush_s / rows) * flush_smear + (timing.frame_transfer_s / rows) * transfer_smear
+    return _flip(smear, toward_last) + timing.exposure_s * rate_exposure
+
+
+def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
+                    timing: Timing, binning_rows: int) -> np.ndarray:
+    """Binned charge (e-) of ``binning_rows``-row blocks, exact, shape (N / b, width), float32."""
+    rows, width = rate_exposure.shape
+    blocks = rows // binning_rows
+    toward_last = timing.transfer_toward_last_row
+    ramp_up = np.arange(binning_rows, 0, -1, dtype=np.float32)   # b, b-1, ..., 1
+    ramp_down = ramp_up[::-1].copy()                                # 1, 2, ..., b
+
+    flush = _flip(rate_flush, toward_last).reshape(blocks, binning_rows, width)
+    flush_blocks = flush.sum(axis=1)
+    flush_before = np.cumsum(flush_blocks, axis=0) - flush_blocks          # blocks strictly before
+    flush_smear = binning_rows * flush_before + np.einsum("j,kjw->kw", ramp_up, flush)
+
+    transfer = _flip(rate_transfer, toward_last).reshape(blocks, binning_rows, width)
+    transfer_blocks = transfer.sum(axis=1)
+    transfer_after = np.cumsum(transfer_blocks[::-1], axis=0)[::-1] - transfer_blocks
+    transfer_smear = binning_rows * transfer_after + np.einsum("j,kjw->kw", ramp_down, transfer)
+
+    smear = (timing.fast_flush_s / rows) * flush_smear + (timing.frame_transfer_s / rows) * transfer_smear
+    exposure = rate_exposure.reshape(blocks, binning_rows, width).sum(axis=1) * np.float32(timing.exposure_s)
+    return (_flip(smear, toward_last) + exposure).astype(np.float32)
+
+
+def bin_rows(charge_e: np.ndarray, binning_rows: int) -> np.ndarray:
+    """Sum charge over blocks of ``binning_rows`` rows (on-chip binning in the serial register)."""
+    rows, width = charge_e.shape
+    return charge_e.reshape(rows // binning_rows, binning_rows, width).sum(axis=1)
+
+
+def max_pixel_charge_bound_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
+                             timing: Timing) -> float:
+    """An upper bound on any pixel's charge, cheap: used to skip the full-resolution path."""
+    rows = rate_exposure.shape[0]
+    flush_column = float(rate_flush.sum(axis=0).max())
+    transfer_column = float(rate_transfer.sum(axis=0).max())
+    return (timing.exposure_s * float(rate_exposure.max()) + timing.fast_flush_s / rows * flush_column
+            + timing.frame_transfer_s / rows * transfer_column)

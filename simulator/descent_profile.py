@@ -1,0 +1,136 @@
+"""Descent profile: the time-tagged lander state along an EDL trajectory, and poses at any time.
+
+Frames and quaternion conventions are those of :mod:`simulator.kinematics` (world: x east, y north,
+z up from the ground plane; attitude: body-to-world quaternion ``(w, x, y, z)``).
+
+Image timing: ``image_times_s[k]`` is the *start of the exposure* of image k. The fast flush occupies
+``[t - T_flush, t]``, the exposure ``[t, t + T_exp]`` and the frame transfer
+``[t + T_exp, t + T_exp + T_transfer]`` (durations from the camera's :class:`~simulator.camera_config.Timing`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .kinematics import quat_normalize, slerp
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Lander state at one instant."""
+
+    time_s: float
+    position_m: np.ndarray          # (3,) world
+    velocity_mps: np.ndarray        # (3,) world
+    attitude_quat: np.ndarray       # (4,) body-to-world
+    angular_rate_radps: np.ndarray  # (3,) body frame
+    heat_shield_position_m: Optional[np.ndarray] = None  # (3,) world, None when not tracked
+
+
+@dataclass(frozen=True)
+class DescentProfile:
+    """Time-tagged lander states (N samples, strictly increasing time).
+
+    Attributes
+    ----------
+    time_s : (N,)
+    position_m : (N, 3) world position of the lander body origin; z is the altitude above ground
+    velocity_mps : (N, 3) world velocity
+    attitude_quat : (N, 4) body-to-world unit quaternions
+    angular_rate_radps : (N, 3) body-frame angular rate
+    wind_mps : (N, 3) steady-state wind in the world frame (truth)
+    heat_shield_position_m : (N, 3) or None, world position of the heat shield centre
+    image_times_s : (K,) start-of-exposure times of the descent images
+    name : str
+    """
+
+    time_s: np.ndarray
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    attitude_quat: np.ndarray
+    angular_rate_radps: np.ndarray
+    wind_mps: np.ndarray
+    heat_shield_position_m: Optional[np.ndarray]
+    image_times_s: np.ndarray
+    name: str = "profile"
+
+    def __post_init__(self):
+        count = len(self.time_s)
+        if count < 2:
+            raise ValueError(f"profile {self.name}: needs at least 2 samples; got {count}")
+        if not np.all(np.diff(self.time_s) > 0):
+            raise ValueError(f"profile {self.name}: time_s must be strictly increasing")
+        for label in ("position_m", "velocity_mps", "angular_rate_radps", "wind_mps"):
+            if np.shape(getattr(self, label)) != (count, 3):
+                raise ValueError(f"profile {self.name}: {label} must have shape ({count}, 3)")
+        if np.shape(self.attitude_quat) != (count, 4):
+            raise ValueError(f"profile {self.name}: attitude_quat must have shape ({count}, 4)")
+        if self.heat_shield_position_m is not None and np.shape(self.heat_shield_position_m) != (count, 3):
+            raise ValueError(f"profile {self.name}: heat_shield_position_m must have shape ({count}, 3)")
+
+    def _locate(self, time_s: float) -> tuple[int, float]:
+        if not (self.time_s[0] <= time_s <= self.time_s[-1]):
+            raise ValueError(f"profile {self.name}: time {time_s:.4f} s outside "
+                             f"[{self.time_s[0]:.4f}, {self.time_s[-1]:.4f}] s")
+        index = int(np.clip(np.searchsorted(self.time_s, time_s, side="right") - 1, 0, len(self.time_s) - 2))
+        fraction = (time_s - self.time_s[index]) / (self.time_s[index + 1] - self.time_s[index])
+        return index, float(fraction)
+
+    def pose(self, time_s: float) -> Pose:
+        """Lander state at ``time_s``: linear interpolation of vectors, slerp of attitude.
+
+        Position uses cubic Hermite interpolation with the sampled velocities, so a profile sampled
+        coarsely still moves consistently with its own velocity.
+        """
+        index, fraction = self._locate(time_s)
+        step = self.time_s[index + 1] - self.time_s[index]
+        p0, p1 = self.position_m[index], self.position_m[index + 1]
+        v0, v1 = self.velocity_mps[index], self.velocity_mps[index + 1]
+        s = fraction
+        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+        position = h00 * p0 + h10 * step * v0 + h01 * p1 + h11 * step * v1
+
+        def lerp(values: np.ndarray) -> np.ndarray:
+            return (1.0 - fraction) * values[index] + fraction * values[index + 1]
+
+        return Pose(
+            time_s=float(time_s),
+            position_m=position,
+            velocity_mps=lerp(self.velocity_mps),
+            attitude_quat=slerp(self.attitude_quat[index], self.attitude_quat[index + 1], fraction),
+            angular_rate_radps=lerp(self.angular_rate_radps),
+            heat_shield_position_m=None if self.heat_shield_position_m is None else lerp(self.heat_shield_position_m),
+        )
+
+    def wind_at(self, time_s: float) -> np.ndarray:
+        """Steady-state wind (world, m/s) at ``time_s``."""
+        index, fraction = self._locate(time_s)
+        return (1.0 - fraction) * self.wind_mps[index] + fraction * self.wind_mps[index + 1]
+
+    def translated(self, offset_m: np.ndarray, name: str | None = None) -> "DescentProfile":
+        """The same profile moved horizontally by ``offset_m`` (east, north) — a placement on a terrain."""
+        shift = np.array([offset_m[0], offset_m[1], 0.0])
+        return DescentProfile(
+            time_s=self.time_s, position_m=self.position_m + shift, velocity_mps=self.velocity_mps,
+            attitude_quat=self.attitude_quat, angular_rate_radps=self.angular_rate_radps, wind_mps=self.wind_mps,
+            heat_shield_position_m=None if self.heat_shield_position_m is None else self.heat_shield_position_m + shift,
+            image_times_s=self.image_times_s, name=name or self.name,
+        )
+
+
+def constant_velocity_profile(start_position_m, velocity_mps, attitude_quat, duration_s: float,
+                              image_times_s, angular_rate_radps=(0.0, 0.0, 0.0), wind_mps=(0.0, 0.0, 0.0),
+                              samples: int = 2, name: str = "constant") -> DescentProfile:
+    """A straight-line profile with fixed attitude (for tests and examples)."""
+    time = np.linspace(0.0, duration_s, samples)
+    velocity = np.asarray(velocity_mps, dtype=float)
+    position = np.asarray(start_position_m, dtype=float) + time[:, None] * velocity
+    return DescentProfile(
+        time_s=time, position_m=position, velocity_mps=np.tile(velocity, (samples, 1)),
+        attitude_quat=np.tile(quat_normalize(attitude_quat), (samples, 1)),
+        angular_rate_radps=np.tile(np.asarray(angular_rate_radps, dtype=float), (samples, 1)),
+        wind_mps=np.tile(np.asarray(wind_mps, dtype=float), (samples, 1)),
+        heat_shield_position_m=None, image_times_s=np.asarray(image_times_s, dtype=float), name=name,
+    )

@@ -1,0 +1,128 @@
+"""Rotations as unit quaternions, and the frames they connect.
+
+Conventions (used everywhere in the project):
+
+* Quaternions are ``(w, x, y, z)`` arrays, Hamilton product, *active* rotations:
+  ``v_out = q * v_in * conj(q)``. ``quat_to_matrix(q) @ v_in`` gives the same ``v_out``.
+* The world frame is the local level frame at the landing site: x east, y north, z up (m); the
+  ground is the plane z = 0.
+* The lander body frame has z along the lander's symmetry axis pointing up (towards the parachute),
+  x and y level when the lander hangs straight. A lander's *attitude* is the body-to-world
+  quaternion, so the identity attitude is a level lander with the camera looking at nadir.
+* The camera frame is the CAHVOR frame: x along image columns (right), y along image rows (down),
+  z along the boresight.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def quat_normalize(quaternion: np.ndarray) -> np.ndarray:
+    """Unit quaternion(s) with non-negative w (the same rotation), shape (..., 4)."""
+    quaternion = np.asarray(quaternion, dtype=float)
+    quaternion = quaternion / np.linalg.norm(quaternion, axis=-1, keepdims=True)
+    return np.where(quaternion[..., :1] < 0, -quaternion, quaternion)
+
+
+def quat_multiply(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Hamilton product ``left * right`` (apply ``right`` first), broadcasting over leading axes."""
+    lw, lx, ly, lz = np.moveaxis(np.asarray(left, dtype=float), -1, 0)
+    rw, rx, ry, rz = np.moveaxis(np.asarray(right, dtype=float), -1, 0)
+    return np.stack([
+        lw * rw - lx * rx - ly * ry - lz * rz,
+        lw * rx + lx * rw + ly * rz - lz * ry,
+        lw * ry - lx * rz + ly * rw + lz * rx,
+        lw * rz + lx * ry - ly * rx + lz * rw,
+    ], axis=-1)
+
+
+def quat_conjugate(quaternion: np.ndarray) -> np.ndarray:
+    """Inverse of a unit quaternion."""
+    return np.asarray(quaternion, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_from_axis_angle(axis: np.ndarray, angle_rad: float | np.ndarray) -> np.ndarray:
+    """Quaternion rotating by ``angle_rad`` (right-handed) about ``axis``."""
+    axis = np.asarray(axis, dtype=float)
+    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+    half = 0.5 * np.asarray(angle_rad, dtype=float)[..., None]
+    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+
+
+def quat_from_rotation_vector(rotation_vector_rad: np.ndarray) -> np.ndarray:
+    """Quaternion of the rotation ``exp([v]x)``: axis ``v/|v|``, angle ``|v|`` (rad)."""
+    rotation_vector_rad = np.asarray(rotation_vector_rad, dtype=float)
+    angle = np.linalg.norm(rotation_vector_rad, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a -> 1/2 as a -> 0 (series keeps full precision for tiny angles)
+    scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
+    return np.concatenate([np.cos(half), scale * rotation_vector_rad], axis=-1)
+
+
+def quat_to_rotation_vector(quaternion: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`quat_from_rotation_vector` (angle in [0, pi])."""
+    quaternion = quat_normalize(quaternion)
+    vector = quaternion[..., 1:]
+    sin_half = np.linalg.norm(vector, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(sin_half, quaternion[..., :1])
+    scale = np.where(sin_half > 1e-12, angle / np.where(sin_half > 1e-12, sin_half, 1.0), 2.0)
+    return scale * vector
+
+
+def quat_to_matrix(quaternion: np.ndarray) -> np.ndarray:
+    """Rotation matrix/matrices (..., 3, 3) of unit quaternion(s)."""
+    w, x, y, z = np.moveaxis(quat_normalize(quaternion), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
+
+
+def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:
+    """Unit quaternion of a 3x3 rotation matrix (Shepperd's method, numerically stable)."""
+    m = np.asarray(matrix, dtype=float)
+    trace = np.trace(m)
+    candidates = np.array([trace, m[0, 0], m[1, 1], m[2, 2]])
+    index = int(np.argmax(candidates))
+    if index == 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif index == 1:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif index == 2:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    return quat_normalize(np.array(q))
+
+
+def rotate(quaternion: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Rotate vectors (..., 3) by a unit quaternion."""
+    return np.asarray(vectors, dtype=float) @ quat_to_matrix(quaternion).T
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, fraction: float | np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation from ``q0`` (fraction 0) to ``q1`` (fraction 1), shortest arc."""
+    q0 = quat_normalize(q0)
+    q1 = quat_normalize(q1)
+    fraction = np.asarray(fraction, dtype=float)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_theta = np.sin(theta)
+    small = sin_theta < 1e-9
+    safe = np.where(small, 1.0, sin_theta)
+    w0 = np.where(small, 1.0 - fraction, np.sin((1.0 - fraction) * theta) / safe)
+    w1 = np.where(small, fraction, np.sin(fraction * theta) / safe)
+    return quat_normalize(w0 * q0 + w1 * q1)
+
+
+def off_nadir_angle_rad(attitude: np.ndarray) -> np.ndarray:
+    """Angle between the lander's -z axis (camera side) and world nadir, rad."""
+    down_in_world = rotate(attitude, np.array([0.0, 0.0, -1.0]))
+    return np.arccos(np.clip(-down_in_world[..., 2], -1.0, 1.0))

@@ -1,0 +1,151 @@
+"""The camera chain in one place: radiance fields of the three CCD periods -> 12-bit binned image.
+
+Follow the light::
+
+    radiance (W m^-2 sr^-1 um^-1)             flush, exposure, transfer fields, (1024, 1024)
+      -> optics.photoelectron_rate            cos^4 falloff, absolute response      (e-/s)
+      -> charge_generation.apply_prnu         pixel response non-uniformity
+      -> + dark rate                          thermal electrons, temperature model   (e-/s)
+      -> charge_transfer.binned_charge_e      fast-flush + exposure + transfer smear, 4-row binning (e-)
+      -> + charge_generation.storage_dark_e   dark gathered while waiting for read-out
+      -> readout.shot_noise_e                 Poisson at binned resolution (exact)
+      -> readout.read_noise_e                 output amplifier
+      -> readout.digitize                     full well, gain, offset, rounding, 12-bit clip -> uint16 (256, 1024)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence, Union
+
+import numpy as np
+
+from . import charge_generation, charge_transfer, optics, readout
+from .camera_config import Camera
+
+PERIODS = ("flush", "exposure", "transfer")
+
+
+@dataclass(frozen=True)
+class CameraEffects:
+    """Switches of the camera chain; all on is the nominal camera."""
+
+    falloff: bool = True
+    prnu: bool = True
+    dark_current: bool = True
+    dark_current_scale: float = 1.0
+    smear: bool = True
+    shot_noise: bool = True
+    read_noise: bool = True
+
+
+@dataclass(frozen=True)
+class RadianceFields:
+    """Radiance seen by each pixel, averaged over each CCD period, W m^-2 sr^-1 um^-1, (height, width)."""
+
+    flush: np.ndarray
+    exposure: np.ndarray
+    transfer: np.ndarray
+
+
+@dataclass(frozen=True)
+class RenderedImage:
+    """A read-out descent image.
+
+    Attributes
+    ----------
+    dn : ndarray, uint16, shape (binned rows, width)
+        The image as the camera returns it, 0 .. 2**bits - 1.
+    expected_dn : ndarray, float32, same shape
+        The noise-free DN (mean of ``dn`` over noise realisations, before rounding).
+    expected_charge_e : ndarray, float32, same shape
+        Mean charge per binned pixel (e-), before full-well and ADC clipping.
+    """
+
+    dn: np.ndarray
+    expected_dn: np.ndarray
+    expected_charge_e: np.ndarray
+
+
+RadianceInput = Union[RadianceFields, Sequence[np.ndarray], Callable[[str], np.ndarray]]
+
+
+def as_radiance_fields(radiance: RadianceInput) -> RadianceFields:
+    """Accept fields, a (flush, exposure, transfer) sequence, or a callable ``period -> field``."""
+    if isinstance(radiance, RadianceFields):
+        return radiance
+    if callable(radiance):
+        return RadianceFields(*(radiance(period) for period in PERIODS))
+    fields = list(radiance)
+    if len(fields) != 3:
+        raise ValueError(f"radiance: expected 3 fields (flush, exposure, transfer); got {len(fields)}")
+    return RadianceFields(*fields)
+
+
+def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generator,
+                 effects: CameraEffects = CameraEffects()) -> RenderedImage:
+    """Render one descent image from the radiance fields of its three CCD periods.
+
+    Parameters
+    ----------
+    camera : Camera
+    radiance : RadianceFields, sequence of 3 arrays, or callable
+        Radiance (W m^-2 sr^-1 um^-1) per pixel, shape (height, width), during fast flush, exposure
+        and frame transfer. Fields that are the same object are converted once.
+    rng : numpy.random.Generator
+        Noise stream of this image (shot noise, then read noise).
+    effects : CameraEffects
+
+    Returns
+    -------
+    RenderedImage
+    """
+    fields = as_radiance_fields(radiance)
+    expected_shape = (camera.height_px, camera.width_px)
+    for period, field in zip(PERIODS, (fields.flush, fields.exposure, fields.transfer)):
+        if np.shape(field) != expected_shape:
+            raise ValueError(f"radiance {period} field has shape {np.shape(field)}; expected {expected_shape}")
+
+    dark_rate = (charge_generation.dark_rate_e_per_s(camera, effects.dark_current_scale)
+                 if effects.dark_current else 0.0)
+    rates: dict[int, np.ndarray] = {}
+
+    def generation_rate(field: np.ndarray) -> np.ndarray:
+        key = id(field)
+        if key not in rates:
+            rate = optics.photoelectron_rate(field, camera, falloff=effects.falloff)
+            if effects.prnu:
+                rate = charge_generation.apply_prnu(rate, camera.prnu_map)
+            if dark_rate:
+                rate += np.float32(dark_rate)
+            rates[key] = np.nan_to_num(rate, nan=0.0, posinf=0.0, neginf=0.0)
+        return rates[key]
+
+    rate_exposure = generation_rate(fields.exposure)
+    if effects.smear:
+        rate_flush, rate_transfer = generation_rate(fields.flush), generation_rate(fields.transfer)
+        timing = camera.timing
+    else:
+        rate_flush = rate_transfer = np.zeros_like(rate_exposure)
+        timing = camera.timing.__class__(0.0, camera.timing.exposure_s, 0.0, camera.timing.readout_s,
+                                         camera.timing.transfer_toward_last_row)
+
+    bound = charge_transfer.max_pixel_charge_bound_e(rate_flush, rate_exposure, rate_transfer, timing)
+    if bound <= camera.electronics.full_well_e:
+        charge = charge_transfer.binned_charge_e(rate_flush, rate_exposure, rate_transfer, timing,
+                                                 camera.binning_rows)
+    else:  # some pixel may saturate: clip each pixel at full well before binning
+        pixel = charge_transfer.pixel_charge_e(rate_flush, rate_exposure, rate_transfer, timing)
+        charge = charge_transfer.bin_rows(np.minimum(pixel, np.float32(camera.electronics.full_well_e)),
+                                          camera.binning_rows)
+    if dark_rate:
+        charge = charge + charge_generation.storage_dark_e(camera, dark_rate)
+
+    electronics = camera.electronics
+    noisy = readout.shot_noise_e(rng, charge) if effects.shot_noise else charge.astype(np.float64)
+    if effects.read_noise and electronics.read_noise_e > 0:
+        noisy = noisy + readout.read_noise_e(rng, noisy.shape, electronics.read_noise_e)
+    return RenderedImage(
+        dn=readout.digitize(noisy, electronics),
+        expected_dn=readout.expected_dn(charge, electronics),
+        expected_charge_e=charge.astype(np.float32),
+    )
