@@ -1,0 +1,1 @@
+"""Reference DIMES (Descent Image Motion Estimation System) velocity estimator."""

@@ -1,0 +1,1 @@
+"""Site data: Gusev and Meridiani sites, cameras, EDL trajectory sets, terrain sources and readers."""
