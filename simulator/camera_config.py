@@ -13,9 +13,9 @@ quantum efficiency ``QE`` over the band ``dlambda`` (um), and photons of effecti
     k = pi T A_pix dlambda QE lambda_eff / (4 N^2 h c)   electrons s^-1 per (W m^-2 sr^-1 um^-1)
 
 For the MER DIMES camera (f/12, 12 um pixels, 400-1100 nm, T = 0.8, band-mean QE 0.12 for a
-front-side illuminated CCD behind its window, lambda_eff = 0.70 um) ``k = 1.78e5`` e-/s per unit
-radiance, i.e. ``909`` e- per unit radiance in the 5.1 ms exposure. A typical Mars scene
-(I/F 0.25 at 1.52 AU, L ~ 40) gives about 3.6e4 e- per pixel in the exposure.
+front-side illuminated CCD behind its window, lambda_eff = 0.70 um) ``k = 1.86e5`` e-/s per unit
+radiance, i.e. ``949`` e- per unit radiance in the 5.1 ms exposure. A typical Mars scene
+(I/F 0.25 at 1.52 AU, L ~ 40) gives about 3.8e4 e- per pixel in the exposure.
 
 Dark current (documented model)
 -------------------------------

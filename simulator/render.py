@@ -117,7 +117,9 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
                 rate = charge_generation.apply_prnu(rate, camera.prnu_map)
             if dark_rate:
                 rate += np.float32(dark_rate)
-            rates[key] = np.nan_to_num(rate, nan=0.0, posinf=0.0, neginf=0.0)
+            if not np.isfinite(rate.sum(dtype=np.float64)):  # one cheap pass; repair only when needed
+                rate = np.nan_to_num(rate, nan=0.0, posinf=0.0, neginf=0.0)
+            rates[key] = rate
         return rates[key]
 
     rate_exposure = generation_rate(fields.exposure)
