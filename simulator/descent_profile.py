@@ -14,7 +14,7 @@ from typing import Optional
 
 import numpy as np
 
-from .kinematics import quat_normalize, slerp
+from .kinematics import quat_from_axis_angle, quat_multiply, quat_normalize, slerp
 
 
 @dataclass(frozen=True)
@@ -120,8 +120,29 @@ class DescentProfile:
         )
 
 
+    def placed(self, heading_rad: float, offset_m: np.ndarray, name: str | None = None) -> "DescentProfile":
+        """The profile turned by ``heading_rad`` about the world vertical through the origin
+        (right-handed about +z: counter-clockwise seen from above), then moved by ``offset_m``
+        (east, north). Positions, velocities, winds, attitudes and the heat shield turn together,
+        so the trajectory is the same flight in another direction; the sun does not turn.
+        """
+        turn = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), heading_rad)
+        cos_h, sin_h = np.cos(heading_rad), np.sin(heading_rad)
+        matrix = np.array([[cos_h, -sin_h, 0.0], [sin_h, cos_h, 0.0], [0.0, 0.0, 1.0]])
+        shift = np.array([offset_m[0], offset_m[1], 0.0])
+        return DescentProfile(
+            time_s=self.time_s, position_m=self.position_m @ matrix.T + shift,
+            velocity_mps=self.velocity_mps @ matrix.T,
+            attitude_quat=quat_normalize(quat_multiply(turn, self.attitude_quat)),
+            angular_rate_radps=self.angular_rate_radps, wind_mps=self.wind_mps @ matrix.T,
+            heat_shield_position_m=(None if self.heat_shield_position_m is None
+                                    else self.heat_shield_position_m @ matrix.T + shift),
+            image_times_s=self.image_times_s, name=name or self.name,
+        )
+
+
 def constant_velocity_profile(start_position_m, velocity_mps, attitude_quat, duration_s: float,
-                              image_times_s, angular_rate_radps=(0.0, 0.0, 0.0), wind_mps=(0.0, 0.0, 0.0),
+                              image_times_s, wind_mps=(0.0, 0.0, 0.0),
                               samples: int = 2, name: str = "constant") -> DescentProfile:
     """A straight-line profile with fixed attitude (for tests and examples)."""
     time = np.linspace(0.0, duration_s, samples)
@@ -130,7 +151,7 @@ def constant_velocity_profile(start_position_m, velocity_mps, attitude_quat, dur
     return DescentProfile(
         time_s=time, position_m=position, velocity_mps=np.tile(velocity, (samples, 1)),
         attitude_quat=np.tile(quat_normalize(attitude_quat), (samples, 1)),
-        angular_rate_radps=np.tile(np.asarray(angular_rate_radps, dtype=float), (samples, 1)),
+        angular_rate_radps=np.zeros((samples, 3)),
         wind_mps=np.tile(np.asarray(wind_mps, dtype=float), (samples, 1)),
         heat_shield_position_m=None, image_times_s=np.asarray(image_times_s, dtype=float), name=name,
     )

@@ -42,6 +42,8 @@ class Table:
         self.data = data
         self.source = source
         self.path = path
+        self._read: set[str] = set()
+        self._children: list[Table] = []
 
     def _name(self, key: str) -> str:
         return f"{self.path}.{key}" if self.path else key
@@ -53,6 +55,7 @@ class Table:
         return key in self.data
 
     def _get(self, key: str, default: Any) -> Any:
+        self._read.add(key)
         if key in self.data:
             return self.data[key]
         if default is _REQUIRED:
@@ -63,7 +66,31 @@ class Table:
         value = self._get(key, _REQUIRED if required else {})
         if not isinstance(value, dict):
             raise self.fail(key, f"must be a table; got {type(value).__name__}")
-        return Table(value, self.source, self._name(key))
+        child = Table(value, self.source, self._name(key))
+        self._children.append(child)
+        return child
+
+    def tables(self, key: str) -> list["Table"]:
+        """An array of tables (``[[key]]``), each remembering its index in error messages."""
+        value = self._get(key, _REQUIRED)
+        if not isinstance(value, list) or not value or not all(isinstance(item, dict) for item in value):
+            raise self.fail(key, "must be a non-empty array of tables ([[...]])")
+        children = [Table(item, self.source, f"{self._name(key)}[{index}]") for index, item in enumerate(value)]
+        self._children.extend(children)
+        return children
+
+    def ignore(self, *keys: str) -> None:
+        """Mark keys as known without reading them (they are read elsewhere)."""
+        self._read.update(keys)
+
+    def reject_unknown(self) -> None:
+        """Raise for the first key (here or in any sub-table read through this one) that nothing read."""
+        unknown = sorted(set(self.data) - self._read)
+        if unknown:
+            known = ", ".join(sorted(self._read)) or "none"
+            raise ConfigError(f"{self.source}: unknown key {self._name(unknown[0])!r}; allowed here: {known}")
+        for child in self._children:
+            child.reject_unknown()
 
     def number(self, key: str, default: Any = None, *, minimum: float | None = None,
                maximum: float | None = None, exclusive_minimum: bool = False,
