@@ -1,0 +1,285 @@
+"""One call renders a descent image: (terrain, profile, camera, image, sun) -> 12-bit image + masks.
+
+Usage::
+
+    from simulator.descent_image import SceneConfig, render_descent_image
+    result = render_descent_image(terrain, profile, camera, 0, sun_world, SceneConfig(), rng)
+    result.dn                 # uint16 (256, 1024), what the camera returns
+    result.sky_mask           # bool (1024, 1024), pixels whose ray misses the ground
+    result.diagnostics.anti_sun_pixel
+
+Every scene effect is a switch in :class:`SceneEffects`; camera effects are the
+:class:`simulator.render.CameraEffects` inside :class:`SceneConfig`. :func:`scene_config_from_table`
+builds a config from a TOML table (degrees only there), e.g.::
+
+    [scene]
+    sun_distance_au = 1.524
+    spectral_ratio = 0.906
+    parachute_distance_m = 30.0
+    heat_shield_cone_angle_deg = 140.0
+    [scene.effects]
+    shadows = true
+    motion_blur = true
+    [scene.camera_effects]
+    dark_current_scale = 1.0
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+from . import ground_mapping, photometry, scene
+from .camera_config import Camera
+from .descent_profile import DescentProfile, Pose
+from .render import CameraEffects, RadianceFields, RenderedImage, render_image
+from .terrain import Terrain
+from .tomlfields import Table
+
+
+@dataclass(frozen=True)
+class SceneEffects:
+    """Switches of the scene model; all on (the defaults) is the nominal simulator.
+
+    Physics switches: ``photometric_correction`` (DIMES/MOC ratio of eq. 1-3, hence the opposition
+    halo), ``spectral_ratio``, ``shadows`` (lander, backshell, parachute, heat shield), ``heat_shield``
+    (drawn when in view), ``motion_blur`` (sub-poses per period). Fidelity shortcuts (switch off for the
+    reference render): ``coarse_ray_grid`` (rays interpolated from a node grid), ``coarse_photometry``
+    (ratio on the node grid), ``share_still_fields`` (one field for all three periods when the image
+    moves by less than ``still_shift_terrain_px``).
+    """
+
+    photometric_correction: bool = True
+    spectral_ratio: bool = True
+    shadows: bool = True
+    heat_shield: bool = True
+    motion_blur: bool = True
+    coarse_ray_grid: bool = True
+    coarse_photometry: bool = True
+    share_still_fields: bool = True
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Scene parameters (SI units) and effect switches. Defaults are documented in the modules:
+    :mod:`simulator.photometry` (sun distance, spectral ratio), :mod:`simulator.shadow` (casters),
+    :mod:`simulator.heat_shield`, :mod:`simulator.motion_blur`."""
+
+    effects: SceneEffects = SceneEffects()
+    camera_effects: CameraEffects = CameraEffects()
+    sun_distance_au: float = photometry.MARS_MEAN_SUN_DISTANCE_AU
+    spectral_ratio: float = 0.906
+    lander_diameter_m: float = 1.9
+    backshell_diameter_m: float = 2.65
+    backshell_distance_m: float = 20.0
+    parachute_diameter_m: float = 15.0
+    parachute_distance_m: float = 30.0
+    shadow_diffuse_fraction: float = 0.3
+    heat_shield_diameter_m: float = 5.3
+    heat_shield_cone_angle_rad: float = float(np.radians(140.0))
+    heat_shield_reflectance: float = 0.07
+    ray_grid_step_px: int = 16
+    photometry_grid_step_px: int = 16
+    max_substeps: int = 16
+    still_shift_terrain_px: float = 1.0
+
+    def with_effects(self, **switches) -> "SceneConfig":
+        """A copy with some scene effect switches changed, e.g. ``config.with_effects(shadows=False)``."""
+        return replace(self, effects=replace(self.effects, **switches))
+
+
+REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False)
+
+
+@dataclass(frozen=True)
+class SceneDiagnostics:
+    """What the scene did for one image.
+
+    Attributes
+    ----------
+    exposure_start_s : float, start of the exposure (s)
+    pose : Pose, lander state at the start of the exposure
+    camera_pose : CameraPose at the exposure mid-time
+    substeps : dict period -> sub-pose count (0: the field is shared or unused)
+    shared_fields : bool, one field stood for all three periods
+    anti_sun_ground_m : (3,) where the sun line through the camera meets the ground
+    anti_sun_pixel : (2,) (column, row) of that point, or None when it is not in the image
+    shadow_centres_m : list of (3,) ground shadow centres of the casters
+    footprint_m : (n, 2) east/north ground polygon of the image border; footprint_hit (n,) bool
+    heat_shield_visible : bool
+    scene_ms, camera_ms : float, wall time of the scene and camera stages (ms)
+    """
+
+    exposure_start_s: float
+    pose: Pose
+    camera_pose: ground_mapping.CameraPose
+    substeps: dict
+    shared_fields: bool
+    anti_sun_ground_m: np.ndarray
+    anti_sun_pixel: np.ndarray | None
+    shadow_centres_m: list
+    footprint_m: np.ndarray
+    footprint_hit: np.ndarray
+    heat_shield_visible: bool
+    scene_ms: float
+    camera_ms: float
+
+
+@dataclass(frozen=True)
+class DescentImage:
+    """A rendered descent image with its radiance fields, masks (full frame, (H, W) bool, exposure
+    period, union over sub-poses) and diagnostics."""
+
+    image: RenderedImage
+    radiance: RadianceFields
+    sky_mask: np.ndarray
+    outside_terrain_mask: np.ndarray
+    heat_shield_mask: np.ndarray
+    diagnostics: SceneDiagnostics
+
+    @property
+    def dn(self) -> np.ndarray:
+        """uint16 (binned rows, width) image as the camera returns it."""
+        return self.image.dn
+
+    def binned_mask(self, mask: np.ndarray, binning_rows: int) -> np.ndarray:
+        """A full-frame mask reduced to the binned image: True where any of the binned rows is True."""
+        height, width = mask.shape
+        return mask.reshape(height // binning_rows, binning_rows, width).any(axis=1)
+
+
+def image_start_time(profile: DescentProfile, image: int | float) -> float:
+    """Start-of-exposure time: an integer is an index into ``profile.image_times_s``, a float a time (s)."""
+    if isinstance(image, (bool, np.bool_)):
+        raise TypeError(f"image: expected an image index (int) or a time in s (float); got {image!r}")
+    if isinstance(image, (int, np.integer)):
+        count = len(profile.image_times_s)
+        if not -count <= image < count:
+            raise IndexError(f"profile {profile.name}: image index {image} out of range; allowed: 0 .. {count - 1}")
+        return float(profile.image_times_s[image])
+    return float(image)
+
+
+def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Camera, image: int | float,
+                         sun_world, config: SceneConfig | None = None,
+                         rng: np.random.Generator | None = None) -> DescentImage:
+    """Render one descent image: scene (all three CCD periods, motion blur) then the camera chain.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        Orbital I/F image with its photometric geometry (world frame: east/north m, ground z = 0).
+    profile : DescentProfile
+        Lander trajectory (world frame), possibly with the heat shield trajectory.
+    camera : Camera
+    image : int or float
+        Index into ``profile.image_times_s`` (int) or start-of-exposure time in s (float).
+    sun_world : (3,) array_like
+        World unit vector toward the sun (x east, y north, z up), z > 0.
+    config : SceneConfig, optional
+        Scene parameters and switches (scene and camera effects); default ``SceneConfig()``.
+    rng : numpy.random.Generator, optional
+        Noise stream of this image (shot and read noise). None renders without noise (shot and read
+        noise switched off, ``dn`` is the rounded expected image).
+
+    Returns
+    -------
+    DescentImage
+        ``.dn`` uint16 (256, 1024); ``.radiance`` the three (1024, 1024) fields (W m^-2 sr^-1 um^-1);
+        ``.sky_mask``, ``.outside_terrain_mask``, ``.heat_shield_mask`` (1024, 1024) bool;
+        ``.diagnostics`` (anti-sun pixel, sub-steps, footprint, timings...).
+    """
+    config = SceneConfig() if config is None else config
+    camera_effects = config.camera_effects
+    if rng is None:
+        camera_effects = replace(camera_effects, shot_noise=False, read_noise=False)
+        rng = np.random.default_rng(0)   # unused: every random draw is switched off
+    sun = scene.sun_unit_vector(sun_world)
+    start_s = image_start_time(profile, image)
+
+    started = time.perf_counter()
+    periods = scene.period_fields(terrain, camera, profile, start_s, sun, config,
+                                  need_smear_fields=camera_effects.smear)
+    scene_ms = 1e3 * (time.perf_counter() - started)
+
+    started = time.perf_counter()
+    rendered = render_image(camera, periods.fields, rng, camera_effects)
+    camera_ms = 1e3 * (time.perf_counter() - started)
+
+    cam = periods.exposure_centre.camera_pose
+    anti_sun = scene.shadow.shadow_centre_m(cam.ray_origin_m, sun) if cam.ray_origin_m[2] > 0 else cam.ray_origin_m
+    pixel, in_front = ground_mapping.world_to_pixels(camera, cam, anti_sun)
+    in_image = bool(in_front) and (-0.5 <= pixel[0] <= camera.width_px - 0.5) and (-0.5 <= pixel[1] <= camera.height_px - 0.5)
+    footprint, hit = ground_mapping.footprint_m(camera, cam)
+    diagnostics = SceneDiagnostics(
+        exposure_start_s=start_s, pose=profile.pose(float(np.clip(start_s, profile.time_s[0], profile.time_s[-1]))),
+        camera_pose=cam, substeps=periods.substeps, shared_fields=periods.shared, anti_sun_ground_m=anti_sun,
+        anti_sun_pixel=pixel if in_image else None, shadow_centres_m=periods.exposure_centre.shadow_centres_m,
+        footprint_m=footprint, footprint_hit=hit, heat_shield_visible=bool(periods.heat_shield.any()),
+        scene_ms=scene_ms, camera_ms=camera_ms,
+    )
+    return DescentImage(rendered, periods.fields, periods.sky, periods.outside, periods.heat_shield, diagnostics)
+
+
+def scene_config_from_table(table: Table) -> SceneConfig:
+    """Build a :class:`SceneConfig` from a TOML table (e.g. ``[scene]``); every field is optional.
+
+    Numbers are range-checked with one-line errors naming file, field and allowed range; the heat
+    shield cone angle is given in degrees (``heat_shield_cone_angle_deg``). Sub-tables ``effects`` and
+    ``camera_effects`` hold the boolean switches (and ``camera_effects.dark_current_scale``).
+    """
+    default = SceneConfig()
+    switches = table.table("effects", required=False)
+    effects = SceneEffects(**{f.name: switches.boolean(f.name, default=getattr(default.effects, f.name))
+                              for f in fields(SceneEffects)})
+    _reject_unknown(switches, {f.name for f in fields(SceneEffects)})
+    cam_table = table.table("camera_effects", required=False)
+    cam_kwargs = {}
+    for f in fields(CameraEffects):
+        current = getattr(default.camera_effects, f.name)
+        if isinstance(current, bool):
+            cam_kwargs[f.name] = cam_table.boolean(f.name, default=current)
+        else:
+            cam_kwargs[f.name] = cam_table.number(f.name, default=current, minimum=0.0, maximum=1e6)
+    _reject_unknown(cam_table, {f.name for f in fields(CameraEffects)})
+
+    def number(key, minimum, maximum, exclusive_minimum=False):
+        return table.number(key, default=getattr(default, key), minimum=minimum, maximum=maximum,
+                            exclusive_minimum=exclusive_minimum)
+
+    def step(key):
+        value = table.integer(key, default=getattr(default, key), minimum=1, maximum=256)
+        if 1024 % value:
+            raise table.fail(key, f"= {value} must divide the 1024-pixel frame; allowed: 1, 2, 4, ..., 256")
+        return value
+
+    config = SceneConfig(
+        effects=effects, camera_effects=CameraEffects(**cam_kwargs),
+        sun_distance_au=number("sun_distance_au", 0.1, 100.0, exclusive_minimum=True),
+        spectral_ratio=number("spectral_ratio", 0.0, 10.0, exclusive_minimum=True),
+        lander_diameter_m=number("lander_diameter_m", 0.0, 20.0),
+        backshell_diameter_m=number("backshell_diameter_m", 0.0, 20.0),
+        backshell_distance_m=number("backshell_distance_m", 0.0, 500.0),
+        parachute_diameter_m=number("parachute_diameter_m", 0.0, 100.0),
+        parachute_distance_m=number("parachute_distance_m", 0.0, 500.0),
+        shadow_diffuse_fraction=number("shadow_diffuse_fraction", 0.0, 1.0),
+        heat_shield_diameter_m=number("heat_shield_diameter_m", 0.0, 50.0, exclusive_minimum=True),
+        heat_shield_cone_angle_rad=float(np.radians(table.number(
+            "heat_shield_cone_angle_deg", default=140.0, minimum=0.0, maximum=180.0,
+            exclusive_minimum=True, exclusive_maximum=True))),
+        heat_shield_reflectance=number("heat_shield_reflectance", 0.0, 1.0),
+        ray_grid_step_px=step("ray_grid_step_px"),
+        photometry_grid_step_px=step("photometry_grid_step_px"),
+        max_substeps=table.integer("max_substeps", default=default.max_substeps, minimum=1, maximum=256),
+        still_shift_terrain_px=number("still_shift_terrain_px", 0.0, 100.0),
+    )
+    _reject_unknown(table, {f.name for f in fields(SceneConfig)} - {"heat_shield_cone_angle_rad"}
+                    | {"heat_shield_cone_angle_deg"})
+    return config
+
+
+def _reject_unknown(table: Table, allowed: set[str]) -> None:
+    for key in table.data:
+        if key not in allowed:
+            raise table.fail(key, f"is not a known field; allowed: {', '.join(sorted(allowed))}")

@@ -1,0 +1,222 @@
+"""Ray-ground mapping: which point of the level ground plane (z = 0) each camera pixel sees.
+
+A pixel's world ray starts at the CAHVOR centre C (moved to the world by the lander pose and the camera
+mounting) and points along ``R_cw @ r``, with ``r`` the pixel's unit ray in the camera frame
+(:attr:`simulator.camera_config.Camera.pixel_rays`). It meets the ground at ``t = -O_z / d_z`` when
+``d_z < 0``; other rays are *sky* (masked, zero radiance, never NaN).
+
+Speed: the unit rays of a camera are fixed, so per pose we only rotate rays. With
+``grid_step_px > 0`` the rays are rotated on a coarse grid of nodes every ``grid_step_px`` pixels and
+interpolated bilinearly (``cv2.resize``) to every pixel *before* the division by ``d_z``; node rays are
+scaled to unit boresight component, which makes them exactly affine in pixel coordinates for a
+distortion-free camera, so the interpolation is exact there and the horizon stays sharp (the division is
+per pixel). Lens distortion adds a small smooth residual (measured by the tests and the benchmark).
+``grid_step_px = 0`` rotates every cached pixel ray (reference).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from . import cahvor
+from .camera_config import Camera
+from .descent_profile import Pose
+from .kinematics import quat_to_matrix
+
+HORIZON_EPSILON = 1e-6      # |d_z| below this (unit ray) counts as sky
+MAX_MAP_COORDINATE = 1.0e7  # map coordinates are clipped here (far beyond any terrain)
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where the camera is and how it is turned, in the world frame.
+
+    Attributes
+    ----------
+    frame_origin_m : (3,) world position of the camera frame origin (lander position + mounting offset)
+    ray_origin_m : (3,) world position of the CAHVOR centre C (origin of every pixel ray)
+    camera_to_world : (3, 3) rotation matrix, ``v_world = camera_to_world @ v_camera``
+    """
+
+    frame_origin_m: np.ndarray
+    ray_origin_m: np.ndarray
+    camera_to_world: np.ndarray
+
+    @property
+    def altitude_m(self) -> float:
+        return float(self.ray_origin_m[2])
+
+    @property
+    def boresight_world(self) -> np.ndarray:
+        return self.camera_to_world[:, 2]
+
+
+def camera_pose(camera: Camera, pose: Pose) -> CameraPose:
+    """The camera's world pose from the lander pose (attitude is body-to-world) and the mounting."""
+    lander_to_world = quat_to_matrix(pose.attitude_quat)
+    camera_to_world = lander_to_world @ camera.camera_to_lander_matrix
+    frame_origin = np.asarray(pose.position_m, dtype=float) + lander_to_world @ camera.camera_position_in_lander_m
+    return CameraPose(frame_origin, frame_origin + camera_to_world @ camera.model.c, camera_to_world)
+
+
+def camera_cache(camera: Camera) -> dict:
+    """A per-camera cache dict (cameras are frozen dataclasses holding arrays, hence unhashable)."""
+    return camera.__dict__.setdefault("_scene_cache", {})
+
+
+def node_positions(size_px: int, step_px: int) -> np.ndarray:
+    """Pixel coordinates of the coarse grid nodes along one axis: ``(k + 0.5) step - 0.5`` for
+    k = -1 .. size/step (one node beyond each edge, the layout that ``cv2.resize`` upsamples)."""
+    if step_px < 1 or size_px % step_px:
+        raise ValueError(f"grid step {step_px} px must be >= 1 and divide the image size {size_px} px")
+    return (np.arange(-1, size_px // step_px + 1) + 0.5) * step_px - 0.5
+
+
+def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_px: int) -> np.ndarray:
+    """Bilinear interpolation of values on the :func:`node_positions` grid to every pixel.
+
+    ``node_values`` has shape (ny, nx) or (ny, nx, channels) with ny = height/step + 2, nx = width/step + 2.
+    Returns float32 of shape (height, width[, channels]).
+    """
+    ny, nx = node_values.shape[:2]
+    big = cv2.resize(np.ascontiguousarray(node_values, dtype=np.float32), (nx * step_px, ny * step_px),
+                     interpolation=cv2.INTER_LINEAR)
+    return big[step_px:step_px + height_px, step_px:step_px + width_px]
+
+
+def node_rays(camera: Camera, step_px: int) -> np.ndarray:
+    """Camera-frame rays at the coarse grid nodes, scaled to unit component along the pointing axis A
+    (cached per camera). Shape (ny, nx, 3), float64."""
+    cache = camera_cache(camera)
+    key = ("node_rays", step_px)
+    if key not in cache:
+        rows = node_positions(camera.height_px, step_px)
+        cols = node_positions(camera.width_px, step_px)
+        grid = np.stack(np.meshgrid(cols, rows), axis=-1)
+        rays = cahvor.unproject(camera.model, grid)
+        cache[key] = rays / (rays @ camera.model.a)[..., None]
+    return cache[key]
+
+
+def pixel_rays_f32(camera: Camera) -> np.ndarray:
+    """The camera's unit pixel rays as float32 (cached), shape (height, width, 3)."""
+    cache = camera_cache(camera)
+    if "pixel_rays_f32" not in cache:
+        cache["pixel_rays_f32"] = np.ascontiguousarray(camera.pixel_rays, dtype=np.float32)
+    return cache["pixel_rays_f32"]
+
+
+def world_rays(camera: Camera, pose: CameraPose, grid_step_px: int) -> np.ndarray:
+    """World ray directions of every pixel, shape (height, width, 3), float32.
+
+    With ``grid_step_px > 0`` they are interpolated from the coarse grid and *not* unit length (each is
+    scaled to unit component along the boresight); with 0 they are the exact unit rays.
+    """
+    rotation = pose.camera_to_world.astype(np.float32)
+    if grid_step_px > 0:
+        nodes = node_rays(camera, grid_step_px) @ pose.camera_to_world.T
+        return upsample_nodes(nodes, grid_step_px, camera.height_px, camera.width_px)
+    rays = pixel_rays_f32(camera)
+    flat = rays.reshape(-1, 3) @ rotation.T
+    return flat.reshape(rays.shape)
+
+
+@dataclass(frozen=True)
+class GroundMap:
+    """Ground points seen by every pixel, as fractional coordinates of a north-up ground grid.
+
+    Attributes
+    ----------
+    col, row : (height, width) float32
+        Grid coordinates ``col = (east - east0)/mpp``, ``row = (north0 - north)/mpp``; sky pixels hold
+        ``-MAX_MAP_COORDINATE``.
+    sky : (height, width) bool
+        True where the ray does not meet the ground.
+    rays : (height, width, 3) float32
+        World ray directions (see :func:`world_rays`).
+    """
+
+    col: np.ndarray
+    row: np.ndarray
+    sky: np.ndarray
+    rays: np.ndarray
+
+
+def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[float, float],
+                       metres_per_pixel: float, grid_step_px: int) -> GroundMap:
+    """Intersect every pixel's ray with the ground and express the points on a ground grid.
+
+    Parameters
+    ----------
+    grid_origin_m : (east0, north0)
+        World coordinates (m) of the grid's (row 0, col 0) pixel centre.
+    metres_per_pixel : float
+        Grid spacing (m).
+    grid_step_px : int
+        Coarse interpolation step (0: exact per-pixel rays).
+    """
+    rays = world_rays(camera, pose, grid_step_px)
+    dz = rays[..., 2]
+    if grid_step_px > 0:
+        # the rays are scaled to unit boresight component; compare with the horizon on unit length
+        sky = dz >= -np.float32(HORIZON_EPSILON) * np.sqrt(np.einsum("...i,...i->...", rays, rays))
+    else:
+        sky = dz >= -np.float32(HORIZON_EPSILON)
+    altitude = np.float32(pose.ray_origin_m[2])
+    if altitude <= 0:   # camera at or below the ground: everything is sky (nothing sensible to see)
+        sky = np.ones_like(sky)
+    scale = np.where(sky, np.float32(0.0), -altitude / np.where(sky, np.float32(-1.0), dz))  # t = -O_z/d_z
+    inv_mpp = np.float32(1.0 / metres_per_pixel)
+    col0 = np.float32((pose.ray_origin_m[0] - grid_origin_m[0]) * inv_mpp)
+    row0 = np.float32((grid_origin_m[1] - pose.ray_origin_m[1]) * inv_mpp)
+    col = col0 + scale * rays[..., 0] * inv_mpp
+    row = row0 - scale * rays[..., 1] * inv_mpp
+    np.clip(col, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=col)
+    np.clip(row, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=row)
+    col[sky] = -MAX_MAP_COORDINATE
+    row[sky] = -MAX_MAP_COORDINATE
+    return GroundMap(col=col, row=row, sky=sky, rays=rays)
+
+
+def ground_points(camera: Camera, pose: CameraPose, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact world ground points (z = 0) seen by given pixels.
+
+    Parameters
+    ----------
+    pixels : (..., 2) ``(column, row)``
+
+    Returns
+    -------
+    points_m : (..., 3) world points (0 where sky); hit : (...) bool, False for sky.
+    """
+    rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) @ pose.camera_to_world.T
+    hit = (rays[..., 2] < -HORIZON_EPSILON) & (pose.ray_origin_m[2] > 0)
+    t = np.where(hit, -pose.ray_origin_m[2] / np.where(hit, rays[..., 2], -1.0), 0.0)
+    points = pose.ray_origin_m + t[..., None] * rays
+    points[..., 2] = 0.0
+    return np.where(hit[..., None], points, 0.0), hit
+
+
+def world_to_pixels(camera: Camera, pose: CameraPose, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project world points into the image: ``(pixels (..., 2) (column, row), in_front (...))``."""
+    in_camera = (np.asarray(points_m, dtype=float) - pose.frame_origin_m) @ pose.camera_to_world
+    return cahvor.project(camera.model, in_camera)
+
+
+def border_pixels(camera: Camera, per_side: int = 16) -> np.ndarray:
+    """Pixel coordinates around the image border (outer pixel edges), closed polygon order, (4*per_side, 2)."""
+    w, h = camera.width_px - 0.5, camera.height_px - 0.5
+    t = np.linspace(0.0, 1.0, per_side, endpoint=False)
+    top = np.stack([-0.5 + t * (w + 0.5), np.full_like(t, -0.5)], axis=-1)
+    right = np.stack([np.full_like(t, w), -0.5 + t * (h + 0.5)], axis=-1)
+    bottom = np.stack([w - t * (w + 0.5), np.full_like(t, h)], axis=-1)
+    left = np.stack([np.full_like(t, -0.5), h - t * (h + 0.5)], axis=-1)
+    return np.concatenate([top, right, bottom, left])
+
+
+def footprint_m(camera: Camera, pose: CameraPose, per_side: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """Ground footprint polygon of the image border: ``(points (n, 2) east/north m, hit (n,) bool)``."""
+    points, hit = ground_points(camera, pose, border_pixels(camera, per_side))
+    return points[:, :2], hit

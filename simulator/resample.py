@@ -1,0 +1,97 @@
+"""Terrain resampling: crop the orbital image to the camera footprint, then bilinear sampling.
+
+The paper resamples the MOC image bilinearly at each camera position (section 2.3). We crop the
+terrain to the footprint's bounding box (plus a margin) so that ``cv2.remap`` reads a small source
+image (and stays under its 32767-pixel source limit), then sample it at the fractional grid
+coordinates of every pixel's ground point. Ground points outside the orbital strip are *flagged*
+(``outside``) and filled with the mean I/F of the sampled area: flat grey, no texture, as in the
+paper's Fig. 10 where the field of view left the MOC image.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .terrain import Terrain
+
+CROP_MARGIN_PX = 2
+
+
+@dataclass(frozen=True)
+class Crop:
+    """Rows ``row0:row1`` and columns ``col0:col1`` of the terrain; empty when ``row1 <= row0``."""
+
+    row0: int
+    row1: int
+    col0: int
+    col1: int
+
+    @property
+    def empty(self) -> bool:
+        return self.row1 <= self.row0 or self.col1 <= self.col0
+
+
+def footprint_crop(terrain: Terrain, footprint_cols: np.ndarray, footprint_rows: np.ndarray,
+                   bounded: bool, margin_px: int = CROP_MARGIN_PX) -> Crop:
+    """Terrain window holding a footprint given in terrain grid coordinates.
+
+    Parameters
+    ----------
+    footprint_cols, footprint_rows : (n,) fractional terrain coordinates of the footprint polygon
+    bounded : bool
+        False when part of the image border sees the sky (the footprint is unbounded): the whole
+        terrain is used.
+    """
+    rows, cols = terrain.shape
+    if not bounded or len(footprint_cols) == 0:
+        return Crop(0, rows, 0, cols)
+    col0 = int(np.floor(np.min(footprint_cols))) - margin_px
+    col1 = int(np.ceil(np.max(footprint_cols))) + margin_px + 1
+    row0 = int(np.floor(np.min(footprint_rows))) - margin_px
+    row1 = int(np.ceil(np.max(footprint_rows))) + margin_px + 1
+    return Crop(max(row0, 0), min(row1, rows), max(col0, 0), min(col1, cols))
+
+
+def outside_mask(terrain: Terrain, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """True where a grid coordinate falls outside the terrain's pixel edges."""
+    rows, cols = terrain.shape
+    return (col < -0.5) | (col > cols - 0.5) | (row < -0.5) | (row > rows - 0.5)
+
+
+def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: np.ndarray,
+                   crop: Crop, may_leave_terrain: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear terrain I/F at fractional grid coordinates.
+
+    Parameters
+    ----------
+    col, row : (H, W) float32 terrain grid coordinates (full terrain frame)
+    invalid : (H, W) bool, pixels that see no ground (sky); they get 0 and are not flagged outside
+    crop : Crop holding every in-strip ground point (see :func:`footprint_crop`)
+    may_leave_terrain : bool
+        False when the caller knows every ground point is inside the strip (skips the mask pass).
+
+    Returns
+    -------
+    reflectance_if : (H, W) float32, MOC I/F (fill value outside the strip, 0 for sky)
+    outside : (H, W) bool, ground points outside the strip
+    """
+    if crop.empty:
+        outside = ~invalid
+        fill = float(np.mean(terrain.reflectance_if[::16, ::16]))
+        return np.where(outside, np.float32(fill), np.float32(0.0)).astype(np.float32), outside
+    source = np.ascontiguousarray(terrain.reflectance_if[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
+    map_x = col - np.float32(crop.col0) if crop.col0 else col
+    map_y = row - np.float32(crop.row0) if crop.row0 else row
+    sampled = cv2.remap(source, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if may_leave_terrain:
+        outside = outside_mask(terrain, col, row) & ~invalid
+        if outside.any():
+            fill = np.float32(np.mean(source))
+            sampled[outside] = fill
+    else:
+        outside = np.zeros(col.shape, dtype=bool)
+    if invalid.any():
+        sampled[invalid] = 0.0
+    return sampled, outside

@@ -1,0 +1,215 @@
+"""Scene model: terrain I/F -> the radiance field the descent camera sees (paper section 4, Fig. 3).
+
+One pose (:func:`radiance_at_pose`)::
+
+    lander pose + camera mounting -> world rays of every pixel (ground_mapping, cached camera rays)
+      -> ground points on z = 0; sky where a ray misses the ground (masked, radiance 0)
+      -> terrain cropped to the footprint, bilinear resampling (resample; outside the strip flagged)
+      -> x photometric ratio DIMES/MOC, eq. (1)-(3) (photometry; gives the opposition halo)
+      -> x spectral ratio MOC->DIMES, x E_band / pi -> radiance W m^-2 sr^-1 um^-1
+      -> shadows of lander, backshell, parachute, heat shield with penumbra (shadow)
+      -> heat shield cone drawn where its footprint meets the field of view (heat_shield)
+
+The three CCD periods (:func:`period_fields`): the fast flush ``[t - T_flush, t]``, exposure
+``[t, t + T_exp]`` and frame transfer ``[t + T_exp, t + T_exp + T_transfer]`` each get the mean of the
+fields at sub-poses spaced by one terrain pixel of image shift (motion_blur). When the whole window moves
+the image by less than ``still_shift_terrain_px`` the exposure-centre field stands for all three (the
+same array object, which the camera chain converts once). Times outside the profile are clamped to its
+ends (the pose is held).
+
+``config`` is a :class:`simulator.descent_image.SceneConfig`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
+from .camera_config import Camera
+from .descent_profile import DescentProfile, Pose
+from .kinematics import quat_to_matrix
+from .render import RadianceFields
+from .terrain import Terrain
+
+
+@dataclass(frozen=True)
+class PoseField:
+    """Radiance at one pose, with its masks (all (H, W))."""
+
+    radiance: np.ndarray               # float32, W m^-2 sr^-1 um^-1
+    sky: np.ndarray                    # bool
+    outside: np.ndarray                # bool, ground outside the terrain strip
+    heat_shield: np.ndarray | None     # bool, or None when the heat shield is not in view
+    camera_pose: ground_mapping.CameraPose
+    shadow_centres_m: list = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class PeriodScene:
+    """Radiance fields of the three CCD periods plus exposure-period masks (union over sub-poses)."""
+
+    fields: RadianceFields
+    sky: np.ndarray
+    outside: np.ndarray
+    heat_shield: np.ndarray
+    substeps: dict                      # period -> number of sub-poses (0 when the field is shared/unused)
+    shared: bool                        # one field stands for all three periods
+    exposure_centre: PoseField          # the field at the exposure mid-time (diagnostics)
+
+
+def sun_unit_vector(sun_world) -> np.ndarray:
+    """Validate a world unit vector toward the sun (above the horizon)."""
+    sun = np.asarray(sun_world, dtype=float)
+    if sun.shape != (3,) or not np.all(np.isfinite(sun)) or abs(np.linalg.norm(sun) - 1.0) > 1e-6 or sun[2] <= 0:
+        raise ValueError(f"sun: must be a world unit 3-vector toward the sun with z > 0 (sun above the horizon); "
+                         f"got {sun_world!r}")
+    return sun
+
+
+def casters(pose: Pose, config) -> list[shadow.Caster]:
+    """Shadow casters at a pose: lander, backshell and parachute along the lander's +z axis, heat shield."""
+    up = quat_to_matrix(pose.attitude_quat)[:, 2]
+    position = np.asarray(pose.position_m, dtype=float)
+    result = [shadow.Caster("lander", position, 0.5 * config.lander_diameter_m)]
+    if config.backshell_diameter_m > 0:
+        result.append(shadow.Caster("backshell", position + config.backshell_distance_m * up,
+                                    0.5 * config.backshell_diameter_m))
+    if config.parachute_diameter_m > 0:
+        result.append(shadow.Caster("parachute", position + config.parachute_distance_m * up,
+                                    0.5 * config.parachute_diameter_m))
+    if config.effects.heat_shield and pose.heat_shield_position_m is not None:
+        result.append(shadow.Caster("heat_shield", np.asarray(pose.heat_shield_position_m, dtype=float),
+                                    0.5 * config.heat_shield_diameter_m))
+    return result
+
+
+def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, rays: np.ndarray,
+                            sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
+    """DIMES/MOC photometric ratio of every pixel (H, W) float32; on the coarse node grid and
+    interpolated when ``grid_step_px > 0``, else exact per pixel from ``rays``."""
+    if grid_step_px > 0:
+        nodes = ground_mapping.node_rays(camera, grid_step_px) @ pose.camera_to_world.T
+        view = -nodes / np.linalg.norm(nodes, axis=-1, keepdims=True)
+        ratio = photometry.photometric_ratio(view, sun, moc_value)
+        return ground_mapping.upsample_nodes(ratio, grid_step_px, camera.height_px, camera.width_px)
+    norm = np.sqrt(np.einsum("...i,...i->...", rays, rays))
+    view = -rays / norm[..., None]
+    return photometry.photometric_ratio(view, sun, moc_value)
+
+
+def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config) -> PoseField:
+    """The radiance field (H, W) the camera sees at one instantaneous pose (see module doc)."""
+    effects = config.effects
+    sun = sun_unit_vector(sun_world)
+    cam = ground_mapping.camera_pose(camera, pose)
+
+    footprint, hit = ground_mapping.footprint_m(camera, cam)
+    foot_rows, foot_cols = terrain.world_to_pixel(footprint[hit, 0], footprint[hit, 1])
+    bounded = bool(hit.all())
+    crop = resample.footprint_crop(terrain, foot_cols, foot_rows, bounded)
+    rows, cols = terrain.shape
+    inside = bounded and (foot_cols.min() > 0.5 and foot_rows.min() > 0.5
+                          and foot_cols.max() < cols - 1.5 and foot_rows.max() < rows - 1.5)
+
+    ray_step = config.ray_grid_step_px if effects.coarse_ray_grid else 0
+    gmap = ground_mapping.map_to_ground_grid(camera, cam, (terrain.origin_m[0], terrain.origin_m[1]),
+                                             terrain.metres_per_pixel, ray_step)
+    moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky, crop,
+                                              may_leave_terrain=not inside)
+
+    irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
+    scale = irradiance / np.pi * (config.spectral_ratio if effects.spectral_ratio else 1.0)
+    radiance = moc_if
+    if effects.photometric_correction:
+        moc_value = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
+                                                     terrain.moc_phase_rad)
+        photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
+        radiance *= photometric_ratio_field(camera, cam, gmap.rays, sun, moc_value, photo_step)
+    radiance *= np.float32(scale)
+
+    centres = []
+    if effects.shadows:
+        centres = shadow.apply_shadows(radiance, gmap.rays, gmap.sky, camera, cam, casters(pose, config), sun,
+                                       photometry.solar_angular_radius_rad(config.sun_distance_au),
+                                       config.shadow_diffuse_fraction)
+    shield = None
+    if effects.heat_shield and pose.heat_shield_position_m is not None:
+        shield = heat_shield.draw_heat_shield(radiance, gmap.rays, gmap.sky, camera, cam,
+                                              np.asarray(pose.heat_shield_position_m, dtype=float), sun,
+                                              irradiance, config.heat_shield_diameter_m,
+                                              config.heat_shield_cone_angle_rad, config.heat_shield_reflectance)
+    if shield is not None:
+        outside &= ~shield
+    return PoseField(radiance, gmap.sky, outside, shield, cam, centres)
+
+
+def _clamped_pose(profile: DescentProfile, time_s: float) -> Pose:
+    return profile.pose(float(np.clip(time_s, profile.time_s[0], profile.time_s[-1])))
+
+
+def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exposure_start_s: float,
+                  sun_world: np.ndarray, config, need_smear_fields: bool = True) -> PeriodScene:
+    """Radiance fields of the fast flush, exposure and frame transfer of one image (see module doc).
+
+    ``need_smear_fields=False`` (the camera's smear switch is off) computes only the exposure field
+    and passes it for all three periods.
+    """
+    effects = config.effects
+    timing = camera.timing
+    t = float(exposure_start_s)
+    windows = {
+        "flush": (t - timing.fast_flush_s, t),
+        "exposure": (t, t + timing.exposure_s),
+        "transfer": (t + timing.exposure_s, t + timing.exposure_s + timing.frame_transfer_s),
+    }
+    mpp = terrain.metres_per_pixel
+
+    def cam_at(time_s):
+        return ground_mapping.camera_pose(camera, _clamped_pose(profile, time_s))
+
+    first = windows["flush"][0] if need_smear_fields else windows["exposure"][0]
+    last = windows["transfer"][1] if need_smear_fields else windows["exposure"][1]
+    total_shift = motion_blur.image_shift(camera, cam_at(first), cam_at(last), mpp)
+    centre = radiance_at_pose(terrain, camera, _clamped_pose(profile, t + 0.5 * timing.exposure_s), sun_world, config)
+
+    def masks(pose_fields):
+        sky = pose_fields[0].sky.copy()
+        outside = pose_fields[0].outside.copy()
+        shield = np.zeros_like(sky)
+        for item in pose_fields:
+            if item is not pose_fields[0]:
+                sky |= item.sky
+                outside |= item.outside
+            if item.heat_shield is not None:
+                shield |= item.heat_shield
+        return sky, outside, shield
+
+    still = effects.share_still_fields and total_shift < config.still_shift_terrain_px
+    if still or not effects.motion_blur and not need_smear_fields:
+        sky, outside, shield = masks([centre])
+        fields = RadianceFields(centre.radiance, centre.radiance, centre.radiance)
+        return PeriodScene(fields, sky, outside, shield, {"flush": 0, "exposure": 1, "transfer": 0}, True, centre)
+
+    averaged, counts, exposure_fields = {}, {}, [centre]
+    for period, (start, end) in windows.items():
+        if period != "exposure" and not need_smear_fields:
+            counts[period] = 0
+            continue
+        count = 1
+        if effects.motion_blur:
+            count = motion_blur.substep_count(motion_blur.image_shift(camera, cam_at(start), cam_at(end), mpp),
+                                              config.max_substeps)
+        counts[period] = count
+        if period == "exposure" and count == 1:
+            pose_fields = [centre]
+        else:
+            pose_fields = [radiance_at_pose(terrain, camera, _clamped_pose(profile, time), sun_world, config)
+                           for time in motion_blur.substep_times(start, end, count)]
+        if period == "exposure":
+            exposure_fields = pose_fields
+        averaged[period] = motion_blur.average_fields([item.radiance for item in pose_fields])
+    sky, outside, shield = masks(exposure_fields)
+    exposure = averaged["exposure"]
+    fields = RadianceFields(averaged.get("flush", exposure), exposure, averaged.get("transfer", exposure))
+    return PeriodScene(fields, sky, outside, shield, counts, False, centre)

@@ -1,0 +1,118 @@
+"""Shadows of the lander, backshell and parachute (and heat shield) on the ground, with penumbra.
+
+Each shadow caster is a disc of configured diameter at its world position. A ground point P sees the
+solar disc (angular radius ``R_s``, 3.05e-3 rad at 1.524 AU) and the caster's disc (angular radius
+``rho = asin(r / |X - P|)``) at angular separation ``theta`` between the sun direction and ``X - P``.
+The fraction of the (uniform, no limb darkening) solar disc hidden is the circle-overlap area over
+``pi R_s^2`` (:func:`occluded_fraction`). The caster is treated as a disc facing the sun (a sphere's
+outline), which ignores the foreshortening of a horizontal canopy by the sun's incidence angle.
+
+Direct sunlight scales by ``1 - occluded``; skylight (dust-scattered, a configured fraction
+``diffuse_fraction`` of the total illumination, ~0.3 on Mars at optical depth ~0.5) still reaches the
+shadow, so the radiance is multiplied by ``1 - (1 - diffuse_fraction) * occluded``.
+
+The opposition halo is *not* modelled here: it comes from f(alpha) in :mod:`simulator.photometry`,
+and the shadows fall at its centre because the casters lie on the sun line through the camera.
+
+Where the casters are (documented defaults, configurable in ``SceneConfig``): the lander disc at the
+profile position; the backshell 20 m above the lander along the lander's +z axis (the MER bridle); the
+parachute canopy ``parachute_distance_m`` (30 m) above the lander along the same axis, 15 m across.
+At 2000 m a 15 m canopy subtends 7.5e-3 rad, barely more than the sun's 6.1e-3 rad, so its shadow is
+a 2.7 m umbra inside a 27 m penumbra; the lander's shadow is a shallow partial eclipse.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import ground_mapping
+from .camera_config import Camera
+
+
+@dataclass(frozen=True)
+class Caster:
+    """A shadow-casting disc: world centre (m) and radius (m)."""
+
+    name: str
+    centre_m: np.ndarray
+    radius_m: float
+
+
+def shadow_centre_m(centre_m: np.ndarray, sun_world: np.ndarray) -> np.ndarray:
+    """Where the sun line through ``centre_m`` meets the ground (z = 0), (3,)."""
+    return centre_m - (centre_m[2] / sun_world[2]) * sun_world
+
+
+def circle_overlap_fraction(sun_radius: np.ndarray, caster_radius: np.ndarray, separation: np.ndarray) -> np.ndarray:
+    """Fraction of a circle of radius ``sun_radius`` covered by a circle of radius ``caster_radius``
+    whose centre is ``separation`` away (same angular units); broadcasting, float, in [0, 1]."""
+    a = np.asarray(sun_radius, dtype=np.float64)
+    b = np.asarray(caster_radius, dtype=np.float64)
+    d = np.asarray(separation, dtype=np.float64)
+    a, b, d = np.broadcast_arrays(a, b, d)
+    full = np.pi * np.minimum(a, b) ** 2
+    safe_d = np.maximum(d, 1e-300)
+    cos_a = np.clip((d * d + a * a - b * b) / (2 * safe_d * a), -1.0, 1.0)
+    cos_b = np.clip((d * d + b * b - a * a) / (2 * safe_d * np.maximum(b, 1e-300)), -1.0, 1.0)
+    kite = np.maximum((-d + a + b) * (d + a - b) * (d - a + b) * (d + a + b), 0.0)
+    lens = a * a * np.arccos(cos_a) + b * b * np.arccos(cos_b) - 0.5 * np.sqrt(kite)
+    area = np.where(d >= a + b, 0.0, np.where(d <= np.abs(a - b), full, lens))
+    return np.clip(area / (np.pi * a * a), 0.0, 1.0)
+
+
+def occluded_fraction(points_m: np.ndarray, caster: Caster, sun_world: np.ndarray,
+                      sun_radius_rad: float) -> np.ndarray:
+    """Fraction of the solar disc hidden by ``caster`` seen from ground points (..., 3); float32."""
+    to_caster = np.asarray(caster.centre_m, dtype=np.float64) - points_m
+    distance = np.sqrt(np.einsum("...i,...i->...", to_caster, to_caster))
+    along = to_caster @ sun_world
+    across = np.sqrt(np.maximum(distance**2 - along**2, 0.0))
+    separation = np.arctan2(across, along)
+    rho = np.arcsin(np.clip(caster.radius_m / np.maximum(distance, 1e-9), 0.0, 1.0))
+    fraction = circle_overlap_fraction(sun_radius_rad, rho, separation)
+    return np.where(along > 0, fraction, 0.0).astype(np.float32)
+
+
+def apply_shadows(radiance: np.ndarray, rays_world: np.ndarray, sky: np.ndarray, camera: Camera,
+                  pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
+                  sun_radius_rad: float, diffuse_fraction: float) -> list[np.ndarray]:
+    """Darken ``radiance`` (H, W) in place inside each caster's shadow.
+
+    Only the image window that can hold the penumbra is computed: the ground circle of radius
+    ``r + D tan(R_s)`` (D the caster's distance to the ground along the sun line) around the shadow
+    centre is projected into the image and its bounding box, padded by 2 pixels, is evaluated exactly.
+
+    Returns the shadow centres (world, m) of the casters above the ground.
+    """
+    height, width = radiance.shape
+    centres = []
+    for caster in casters:
+        if caster.centre_m[2] <= 0:
+            continue
+        centre = shadow_centre_m(caster.centre_m, sun_world)
+        centres.append(centre)
+        reach = float(np.linalg.norm(caster.centre_m - centre))
+        outer = caster.radius_m + reach * np.tan(sun_radius_rad) + 1.0
+        angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+        ring = centre + outer * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1)
+        pixels, in_front = ground_mapping.world_to_pixels(camera, pose, np.vstack([ring, centre]))
+        if not in_front.any():
+            continue
+        if not in_front.all():   # the shadow straddles the image plane: evaluate the whole frame
+            col0, col1, row0, row1 = 0, width, 0, height
+        else:
+            col0 = max(int(np.floor(pixels[:, 0].min())) - 2, 0)
+            col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width)
+            row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
+            row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height)
+        if col1 <= col0 or row1 <= row0:
+            continue
+        rays = rays_world[row0:row1, col0:col1].astype(np.float64)
+        window_sky = sky[row0:row1, col0:col1]
+        dz = np.where(window_sky, -1.0, rays[..., 2])
+        points = pose.ray_origin_m + (-pose.ray_origin_m[2] / dz)[..., None] * rays
+        occluded = occluded_fraction(points, caster, sun_world, sun_radius_rad)
+        occluded[window_sky] = 0.0
+        radiance[row0:row1, col0:col1] *= 1.0 - np.float32(1.0 - diffuse_fraction) * occluded
+    return centres
