@@ -1,12 +1,21 @@
 """The ``campaign`` command line.
 
-Exit codes: 0 success, 1 a run finished but something failed (e.g. a sweep regression),
-2 usage or configuration error (one clear line on stderr, nothing written).
+    campaign submit FILE   plan, run every missing case on dask, store, print the paper's table
+    campaign plan FILE     print the plan and write footprint maps (PNG) without running anything
+    campaign status DIR    done / failed / missing cases, from the store alone
+    campaign table DIR     the paper's table (also written as table.md and table.csv in DIR)
+    campaign report DIR    a Markdown report with PNG plots
+    campaign camera FILE   validate a camera TOML and print its derived numbers
+
+Exit codes: 0 success, 1 a run finished with failures or regressions, 2 usage or configuration
+error (one clear line on stderr, nothing written).
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import time
+from pathlib import Path
 
 from simulator.tomlfields import ConfigError
 
@@ -30,9 +39,92 @@ def _cmd_camera(args) -> int:
     return 0
 
 
+def _load(args):
+    from .config import load_campaign_config
+
+    return load_campaign_config(args.file, output_dir=getattr(args, "output", None),
+                                cases_scale=getattr(args, "cases_scale", None))
+
+
+def _cmd_submit(args) -> int:
+    from .campaign_run import submit
+
+    start = time.perf_counter()
+    config = _load(args)
+    summary, table_text = submit(config, scheduler=args.scheduler, workers=args.workers, fresh=args.fresh,
+                                 progress=not args.no_progress)
+    print(table_text)
+    print(f"results: {config.output_dir}  ({summary.done} done, {summary.failed} failed this run)")
+    print(f"wall time: {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _cmd_plan(args) -> int:
+    from .campaign_run import plan_campaign, write_plan_maps
+
+    config = _load(args)
+    resources, plan = plan_campaign(config)
+    print(f"campaign {config.source} (site {config.site.name}, seed {config.seed}, hash {config.config_hash[:12]})")
+    for class_name, members in plan.groupby("class_name", sort=False):
+        print(f"  {class_name}: {len(members)} cases on {members['terrain_name'].iloc[0]}, "
+              f"{members['profile_index'].nunique()} trajectories, "
+              f"{int(members['footprint_inside'].sum())} with all footprints inside the strip")
+    out_dir = Path(args.out) if args.out else config.output_dir / "plan"
+    for path in write_plan_maps(config, resources, plan, out_dir):
+        print(f"wrote {path}")
+    return 0
+
+
+def _cmd_status(args) -> int:
+    from .store import CampaignStore
+
+    status = CampaignStore(args.dir).status()
+    print(f"{args.dir}: {status.planned} planned, {status.done} done, {status.failed} failed, {status.missing} missing")
+    return 0
+
+
+def _cmd_table(args) -> int:
+    from .campaign_run import write_table
+
+    print(write_table(Path(args.dir)))
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from .report import write_report
+
+    path = write_report(Path(args.dir))
+    print(f"wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="campaign", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="campaign", description="MOC2DIMES Monte Carlo campaigns")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    submit = commands.add_parser("submit", help="run a campaign (only its missing cases)")
+    submit.add_argument("file")
+    submit.add_argument("--output", help="output directory (default: [campaign] output_dir)")
+    submit.add_argument("--scheduler", help="tcp://host:port of an existing dask scheduler")
+    submit.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
+    submit.add_argument("--cases-scale", type=float, help="multiply every class's case count (quick looks)")
+    submit.add_argument("--fresh", action="store_true", help="discard results of another configuration")
+    submit.add_argument("--no-progress", action="store_true")
+    submit.set_defaults(handler=_cmd_submit)
+
+    plan = commands.add_parser("plan", help="print the plan and write footprint maps")
+    plan.add_argument("file")
+    plan.add_argument("--out", help="directory for the PNG maps (default: OUTPUT/plan)")
+    plan.add_argument("--cases-scale", type=float)
+    plan.set_defaults(handler=_cmd_plan)
+
+    for name, handler, text in (("status", _cmd_status, "count done, failed and missing cases"),
+                                ("table", _cmd_table, "print and write the paper's table"),
+                                ("report", _cmd_report, "write a Markdown report with plots")):
+        command = commands.add_parser(name, help=text)
+        command.add_argument("dir")
+        command.set_defaults(handler=handler)
+
     camera = commands.add_parser("camera", help="validate a camera TOML and print its derived numbers")
     camera.add_argument("file")
     camera.set_defaults(handler=_cmd_camera)
@@ -40,11 +132,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .store import StoreError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.handler(args)
-    except ConfigError as exc:
+    except (ConfigError, StoreError) as exc:
         print(f"campaign: error: {exc}", file=sys.stderr)
         return USAGE_ERROR
 

@@ -1,0 +1,108 @@
+"""Plan and submit a campaign: the glue between config, planner, store, dask runner and tables."""
+from __future__ import annotations
+
+import importlib.metadata
+import platform
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from .aggregate import format_table, site_table
+from .case import CampaignContext, load_resources
+from .config import CampaignConfig
+from .planner import ClassPlanInput, plan_class
+from .plots import footprint_map
+from .runner import RunSummary, run_cases, start_client
+from .store import CampaignStore
+
+PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pyarrow",
+            "opencv-contrib-python-headless")
+
+
+def plan_campaign(config: CampaignConfig):
+    """Load what planning needs (camera, trajectories, terrain extents) and plan every class."""
+    resources = load_resources(config)
+    frames = []
+    first = 0
+    for index, entry in enumerate(config.site.classes):
+        count = config.cases_per_class[entry.name]
+        if count == 0:
+            continue
+        terrain = resources.terrain(entry.name)
+        spec = ClassPlanInput(class_name=entry.name, class_index=index, ellipse_fraction=entry.ellipse_fraction,
+                              cases=count, terrain_name=terrain.name, terrain_extent_m=terrain.extent_m,
+                              margin_m=2.0 * terrain.metres_per_pixel)
+        frames.append(plan_class(resources.camera, resources.profiles, spec, config.seed, first))
+        first += count
+    plan = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    return resources, plan
+
+
+def manifest_for(config: CampaignConfig) -> dict:
+    versions = {}
+    for package in PACKAGES:
+        try:
+            versions[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            versions[package] = "not installed"
+    return {
+        "config_file": str(config.source), "config_hash": config.config_hash, "config": config.resolved,
+        "seed": config.seed, "site": config.site.name, "cases_per_class": config.cases_per_class,
+        "ellipse_fractions": {entry.name: entry.ellipse_fraction for entry in config.site.classes},
+        "python": platform.python_version(), "packages": versions,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | None = None,
+           fresh: bool = False, progress: bool = True) -> tuple[RunSummary, str]:
+    """Run every missing case of ``config``, compact the store and return the table text."""
+    resources, plan = plan_campaign(config)
+    store = CampaignStore(config.output_dir)
+    store.prepare(manifest_for(config), plan, fresh=fresh)
+    context = CampaignContext.from_config(config, store.root)
+    client, cluster = start_client(scheduler or config.execution.scheduler or None,
+                                   workers or config.execution.workers or None, config.execution.memory_limit)
+    try:
+        summary = run_cases(context, store, store.plan(), client, progress=progress)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    store.compact()
+    return summary, write_table(store.root)
+
+
+def write_table(root: Path) -> str:
+    """Compute the paper's table from a store; write table.md and table.csv beside it; return the text."""
+    store = CampaignStore(root)
+    manifest = store.manifest()
+    if manifest is None:
+        from .store import StoreError
+
+        raise StoreError(f"{root}: no manifest.json: not a campaign directory")
+    results = store.results()
+    fractions = manifest["ellipse_fractions"]
+    table = site_table(results, fractions, manifest["site"].capitalize(), class_order=list(fractions))
+    status = store.status()
+    heading = (f"{manifest['site'].capitalize()}: {status.done + status.failed} of {status.planned} cases finished"
+               f" ({status.failed} failed, {status.missing} missing), seed {manifest['seed']}")
+    (store.root / "table.md").write_text(f"{heading}\n\n{format_table(table, markdown=True)}\n")
+    table.to_csv(store.root / "table.csv", index=False)
+    return f"{heading}\n{format_table(table)}"
+
+
+def write_plan_maps(config: CampaignConfig, resources, plan: pd.DataFrame, out_dir: Path) -> list[Path]:
+    """One footprint map PNG per class (paper Fig. 5)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for class_name, members in plan.groupby("class_name", sort=False):
+        terrain = resources.terrain(class_name)
+        placed = [resources.placed_profile(row) for row in members.to_dict("records")]
+        path = out_dir / f"footprints-{class_name}.png"
+        footprint_map(terrain, placed, resources.camera, path,
+                      f"{config.site.name} {class_name}: {len(members)} cases (first 60 shown); "
+                      "+ lander at each image, red/orange/cyan image 1/2/3 footprints")
+        paths.append(path)
+    return paths

@@ -1,0 +1,141 @@
+"""Campaign configuration: a site TOML plus campaign tables, validated into typed objects.
+
+A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
+
+``[site]``       site, camera, trajectory set, sun, appearance classes (read by :mod:`sitedata.sites`)
+``[campaign]``   ``seed`` (int), ``output_dir`` (path, relative to the file), ``cases`` (optional
+                 table class -> count overriding the site's counts), ``cases_scale`` (optional factor
+                 applied to every class, e.g. 0.1 for a quick look; at least 1 case per class with a count)
+``[execution]``  ``scheduler`` ("" = embedded LocalCluster, or "tcp://host:port"), ``workers`` (0 = one
+                 per core), ``retries`` (attempts after the first for a case that raises), ``memory_limit``
+``[sensors]``    sensor noise (:mod:`sitedata.sensors`)
+``[estimator]``  estimator parameters (:mod:`dimes_velocity.config`)
+``[scene]``      scene parameters, ``[scene.effects]`` and ``[scene.camera_effects]`` switches
+                 (:mod:`simulator.descent_image`); ``sun_distance_au`` defaults to the site's
+
+Errors are one line naming the file, the field and the allowed values. The configuration hash
+identifies the campaign's *results*: it covers everything that changes them (all tables except
+``[execution]`` and ``output_dir``, and the contents of the camera, trajectory and terrain files),
+so a campaign can be resumed on another cluster but not with another camera.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from simulator.tomlfields import ConfigError, Table, load_toml
+
+TOP_LEVEL_TABLES = ("site", "campaign", "execution", "sensors", "estimator", "scene")
+
+
+@dataclass(frozen=True)
+class ExecutionConfig:
+    scheduler: str
+    workers: int
+    retries: int
+    memory_limit: str
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    """A validated campaign (see the module docstring for the tables)."""
+
+    source: Path
+    site: Any                     # sitedata.sites.Site
+    seed: int
+    output_dir: Path
+    cases_per_class: dict
+    execution: ExecutionConfig
+    sensors: Any                  # sitedata.sensors.SensorConfig
+    estimator: Any                # dimes_velocity.config.EstimatorConfig
+    scene: Any                    # simulator.descent_image.SceneConfig
+    config_hash: str
+    resolved: dict                # the parsed TOML (for the manifest)
+
+
+def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = None,
+                         cases_scale: float | None = None) -> CampaignConfig:
+    """Load and validate a campaign TOML; ``output_dir`` and ``cases_scale`` override the file."""
+    from dimes_velocity.config import config_from_table as estimator_from_table
+    from simulator.descent_image import scene_config_from_table
+    from sitedata.sensors import sensor_config_from_table
+    from sitedata.sites import load_site
+
+    path = Path(path)
+    data = load_toml(path)
+    root = Table(data, str(path))
+    for key in data:
+        if key not in TOP_LEVEL_TABLES:
+            raise ConfigError(f"{path}: unknown table {key!r}; allowed: {', '.join(TOP_LEVEL_TABLES)}")
+    if "site" not in data:
+        raise ConfigError(f"{path}: site is missing (a [site] table with the site, camera, sun and classes)")
+    site = load_site(path)
+
+    campaign = root.table("campaign", required=False)
+    seed = campaign.integer("seed", default=1, minimum=0, maximum=2**63 - 1)
+    base_dir = path.parent
+    out = Path(output_dir) if output_dir is not None else campaign.path_value("output_dir", base_dir,
+                                                                               default=f"runs/{site.name}")
+    scale = cases_scale if cases_scale is not None else campaign.number("cases_scale", default=1.0,
+                                                                        minimum=0.0, maximum=100.0,
+                                                                        exclusive_minimum=True)
+    class_names = [entry.name for entry in site.classes]
+    overrides = campaign.table("cases", required=False)
+    cases = {}
+    for entry in site.classes:
+        count = overrides.integer(entry.name, default=entry.cases, minimum=0, maximum=1_000_000)
+        cases[entry.name] = 0 if count == 0 else max(1, int(math.floor(count * scale + 0.5)))
+    for key in overrides.data:
+        if key not in class_names:
+            raise overrides.fail(key, f"is not a class of site {site.name}; allowed: {', '.join(class_names)}")
+
+    execution_table = root.table("execution", required=False)
+    execution = ExecutionConfig(
+        scheduler=execution_table.string("scheduler", default=""),
+        workers=execution_table.integer("workers", default=0, minimum=0, maximum=1024),
+        retries=execution_table.integer("retries", default=1, minimum=0, maximum=10),
+        memory_limit=execution_table.string("memory_limit", default="1.5GiB"),
+    )
+    if execution.scheduler and not execution.scheduler.startswith(("tcp://", "tls://", "inproc://")):
+        raise execution_table.fail("scheduler", f"= {execution.scheduler!r} is not a scheduler address; "
+                                   "allowed: \"\" (embedded) or tcp://host:port")
+    execution_table.reject_unknown()
+    campaign.reject_unknown()
+
+    sensors = sensor_config_from_table(root.table("sensors", required=False))
+    estimator = estimator_from_table(root.table("estimator", required=False))
+    scene_table = root.table("scene", required=False)
+    effects = scene_config_from_table(scene_table)
+    if not scene_table.has("sun_distance_au"):
+        effects = replace(effects, sun_distance_au=site.heliocentric_distance_au)
+
+    resolved = json.loads(json.dumps(data, default=str))
+    hashed = {key: value for key, value in resolved.items() if key != "execution"}
+    hashed["campaign"] = {k: v for k, v in hashed.get("campaign", {}).items() if k != "output_dir"}
+    hashed["cases_resolved"] = cases
+    hashed["input_digests"] = {str(p): file_digest(p) for p in _input_files(site)}
+    config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
+    return CampaignConfig(source=path, site=site, seed=seed, output_dir=out, cases_per_class=cases,
+                          execution=execution, sensors=sensors, estimator=estimator, scene=effects,
+                          config_hash=config_hash, resolved=resolved)
+
+
+def _input_files(site) -> list[Path]:
+    files = [Path(site.camera_path), Path(site.trajectory_path)]
+    for entry in site.classes:
+        for value in getattr(entry, "input_files", lambda: [])():
+            files.append(Path(value))
+    return files
+
+
+def file_digest(path: Path) -> str:
+    """sha256 of a file's bytes ("missing" when it does not exist: the loader reports that clearly)."""
+    try:
+        with open(path, "rb") as handle:
+            return hashlib.file_digest(handle, "sha256").hexdigest()
+    except FileNotFoundError:
+        return "missing"
