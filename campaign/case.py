@@ -110,3 +110,74 @@ def plan_fields(row: dict, seed: int) -> dict:
 def failed_fields() -> dict:
     """The result columns of a case that produced no answer (nulls, invalid)."""
     return {"valid": False, "reason": "case_failed"}
+
+
+def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
+    """Simulate the three images and measurements of one case, run the estimator, return row fields."""
+    from dimes_velocity import estimate_velocity
+    from simulator.descent_image import render_descent_image
+    from sitedata.sensors import measure
+
+    config = resources.config
+    camera = resources.camera
+    case_id = int(row["case_id"])
+    image_seeds = np.random.SeedSequence([config.seed, case_id]).spawn(IMAGE_COUNT + 1)
+    profile = resources.placed_profile(row)
+    terrain = resources.terrain(str(row["class_name"]))
+    sun = np.asarray(config.site.sun_direction_world, dtype=float)
+
+    images, scene_ms, camera_ms, heat_shield_visible, outside = [], 0.0, 0.0, [], []
+    for index in range(IMAGE_COUNT):
+        rendered = render_descent_image(terrain, profile, camera, index, sun, config.scene,
+                                        np.random.default_rng(image_seeds[index]))
+        images.append(rendered.dn)
+        scene_ms += rendered.diagnostics.scene_ms
+        camera_ms += rendered.diagnostics.camera_ms
+        heat_shield_visible.append(bool(rendered.diagnostics.heat_shield_visible))
+        outside.append(float(rendered.outside_terrain_mask.mean()))
+
+    started = time.perf_counter()
+    measurements, sensor_truth = measure(profile, camera, sun, config.sensors, np.random.default_rng(image_seeds[-1]))
+    sensors_ms = 1e3 * (time.perf_counter() - started)
+
+    started = time.perf_counter()
+    estimate = estimate_velocity(images, measurements, camera, config.estimator)
+    estimator_ms = 1e3 * (time.perf_counter() - started)
+
+    last_time = float(profile.image_times_s[-1])
+    truth_velocity = profile.pose(last_time).velocity_mps
+    wind = profile.wind_at(last_time)
+    valid = bool(estimate.valid)
+    error = (float(np.hypot(estimate.velocity_east_mps - truth_velocity[0],
+                            estimate.velocity_north_mps - truth_velocity[1])) if valid else None)
+    if int(row["case_in_class"]) == 0:
+        _save_examples(Path(store_root), row, images)
+    features = list(getattr(estimate, "features", []) or [])
+    return {
+        "truth_velocity_east_mps": float(truth_velocity[0]), "truth_velocity_north_mps": float(truth_velocity[1]),
+        "wind_east_mps": float(wind[0]), "wind_north_mps": float(wind[1]),
+        "altitude_image1_m": float(profile.pose(float(profile.image_times_s[0])).position_m[2]),
+        "altitude_image3_m": float(profile.pose(last_time).position_m[2]),
+        "estimate_velocity_east_mps": float(estimate.velocity_east_mps) if valid else None,
+        "estimate_velocity_north_mps": float(estimate.velocity_north_mps) if valid else None,
+        "valid": valid, "reason": str(estimate.reason), "velocity_error_mps": error,
+        "heat_shield_in_view": heat_shield_visible, "outside_terrain_fraction": outside,
+        "feature_brightness": [float(f.brightness) for f in features],
+        "feature_contrast": [float(f.contrast) for f in features],
+        "feature_correlation": [float(f.correlation) for f in features],
+        **{f"sensor_{key}": value for key, value in sensor_truth.items()},
+        "t_scene_ms": scene_ms, "t_camera_ms": camera_ms, "t_sensors_ms": sensors_ms, "t_estimator_ms": estimator_ms,
+    }
+
+
+def _save_examples(store_root: Path, row: dict, images: list[np.ndarray]) -> None:
+    """PNG examples of the first case of each class (for the report), written atomically."""
+    from .plots import save_descent_image
+
+    directory = store_root / "examples"
+    directory.mkdir(exist_ok=True)
+    for index, image in enumerate(images):
+        target = directory / f"{row['class_name']}-case{int(row['case_id']):06d}-image{index + 1}.png"
+        temporary = directory / f".tmp-{os.getpid()}-{target.name}"
+        save_descent_image(image, temporary)
+        os.replace(temporary, target)
