@@ -123,7 +123,6 @@ def world_rays(camera: Camera, pose: CameraPose, grid_step_px: int) -> np.ndarra
     return flat.reshape(rays.shape)
 
 
-@dataclass(frozen=True)
 class GroundMap:
     """Ground points seen by every pixel, as fractional coordinates of a north-up ground grid.
 
@@ -134,14 +133,48 @@ class GroundMap:
         ``-MAX_MAP_COORDINATE``.
     sky : (height, width) bool
         True where the ray does not meet the ground.
-    rays : (height, width, 3) float32
-        World ray directions (see :func:`world_rays`).
+    any_sky : bool
+        False when no pixel sees the sky (decided on the node grid or the exact rays).
+
+    :meth:`rays` gives the world ray directions of any window (interpolated from the nodes, so not unit
+    length, when the map was built on the coarse grid; exact unit rays otherwise).
     """
 
-    col: np.ndarray
-    row: np.ndarray
-    sky: np.ndarray
-    rays: np.ndarray
+    def __init__(self, col, row, sky, any_sky, step_px, node_rays_world=None, full_rays=None):
+        self.col, self.row, self.sky, self.any_sky = col, row, sky, any_sky
+        self._step = step_px
+        self._nodes = node_rays_world
+        self._full = full_rays
+
+    def rays(self, row0: int = 0, row1: int | None = None, col0: int = 0, col1: int | None = None) -> np.ndarray:
+        """World ray directions of pixels ``[row0:row1, col0:col1]``, (rows, cols, 3) float32."""
+        height, width = self.col.shape
+        row1 = height if row1 is None else row1
+        col1 = width if col1 is None else col1
+        if self._full is not None:
+            return self._full[row0:row1, col0:col1]
+        if (row0, row1, col0, col1) == (0, height, 0, width):
+            self._full = upsample_nodes(self._nodes, self._step, height, width)
+            return self._full
+        return interpolate_nodes_window(self._nodes, self._step, row0, row1, col0, col1)
+
+
+def interpolate_nodes_window(node_values: np.ndarray, step_px: int, row0: int, row1: int, col0: int,
+                             col1: int) -> np.ndarray:
+    """Bilinear node-grid interpolation (as :func:`upsample_nodes`) of a pixel window only, float32."""
+    def weights(start, stop, count):
+        position = (np.arange(start, stop) + 0.5) / step_px + 0.5    # fractional node index
+        index = np.clip(np.floor(position).astype(int), 0, count - 2)
+        return index, (position - index)[:, None]
+    ny, nx = node_values.shape[:2]
+    r, fr = weights(row0, row1, ny)
+    c, fc = weights(col0, col1, nx)
+    values = np.asarray(node_values, dtype=np.float64)
+    fr = fr[..., None] if values.ndim == 3 else fr
+    fc = fc[None, ...] if values.ndim == 3 else fc.T
+    top = values[r][:, c] * (1 - fc) + values[r][:, c + 1] * fc
+    bottom = values[r + 1][:, c] * (1 - fc) + values[r + 1][:, c + 1] * fc
+    return (top * (1 - fr) + bottom * fr).astype(np.float32)
 
 
 def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[float, float],
@@ -156,28 +189,48 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         Grid spacing (m).
     grid_step_px : int
         Coarse interpolation step (0: exact per-pixel rays).
+
+    Notes
+    -----
+    ``col = col0 - O_z d_x / (d_z mpp)`` is written as ``P_c / d_z`` with ``P_c = col0 d_z - O_z d_x / mpp``
+    (likewise for rows); on the coarse grid ``P_c``, ``P_r`` and ``d_z`` are interpolated and divided per
+    pixel, so the map is exact for a pinhole camera and the horizon is found per pixel.
     """
-    rays = world_rays(camera, pose, grid_step_px)
-    dz = rays[..., 2]
+    height, width = camera.height_px, camera.width_px
+    altitude = float(pose.ray_origin_m[2])
+    inv_mpp = 1.0 / metres_per_pixel
+    col0 = (pose.ray_origin_m[0] - grid_origin_m[0]) * inv_mpp
+    row0 = (grid_origin_m[1] - pose.ray_origin_m[1]) * inv_mpp
+    k = altitude * inv_mpp
     if grid_step_px > 0:
-        # the rays are scaled to unit boresight component; compare with the horizon on unit length
-        sky = dz >= -np.float32(HORIZON_EPSILON) * np.sqrt(np.einsum("...i,...i->...", rays, rays))
+        nodes = node_rays(camera, grid_step_px) @ pose.camera_to_world.T
+        dz_nodes = nodes[..., 2]
+        planes = [col0 * dz_nodes - k * nodes[..., 0], row0 * dz_nodes + k * nodes[..., 1], dz_nodes]
+        col_num, row_num, dz = (upsample_nodes(plane, grid_step_px, height, width) for plane in planes)
+        # interpolation is a convex combination: all nodes below the horizon -> every pixel is
+        unit_dz_max = float(np.max(dz_nodes / np.linalg.norm(nodes, axis=-1)))
+        any_sky = altitude <= 0 or unit_dz_max >= -HORIZON_EPSILON
+        full_rays = None
     else:
+        nodes = None
+        full_rays = world_rays(camera, pose, 0)
+        dz = np.ascontiguousarray(full_rays[..., 2])
+        col_num = np.float32(col0) * dz - np.float32(k) * full_rays[..., 0]
+        row_num = np.float32(row0) * dz + np.float32(k) * full_rays[..., 1]
+        any_sky = altitude <= 0 or float(dz.max()) >= -HORIZON_EPSILON
+    col = cv2.divide(col_num, dz)
+    row = cv2.divide(row_num, dz)
+    if any_sky:
         sky = dz >= -np.float32(HORIZON_EPSILON)
-    altitude = np.float32(pose.ray_origin_m[2])
-    if altitude <= 0:   # camera at or below the ground: everything is sky (nothing sensible to see)
-        sky = np.ones_like(sky)
-    scale = np.where(sky, np.float32(0.0), -altitude / np.where(sky, np.float32(-1.0), dz))  # t = -O_z/d_z
-    inv_mpp = np.float32(1.0 / metres_per_pixel)
-    col0 = np.float32((pose.ray_origin_m[0] - grid_origin_m[0]) * inv_mpp)
-    row0 = np.float32((grid_origin_m[1] - pose.ray_origin_m[1]) * inv_mpp)
-    col = col0 + scale * rays[..., 0] * inv_mpp
-    row = row0 - scale * rays[..., 1] * inv_mpp
-    np.clip(col, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=col)
-    np.clip(row, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=row)
-    col[sky] = -MAX_MAP_COORDINATE
-    row[sky] = -MAX_MAP_COORDINATE
-    return GroundMap(col=col, row=row, sky=sky, rays=rays)
+        if altitude <= 0:   # camera at or below the ground: nothing sensible to see, all sky
+            sky[:] = True
+        np.clip(col, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=col)
+        np.clip(row, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=row)
+        col[sky] = -MAX_MAP_COORDINATE
+        row[sky] = -MAX_MAP_COORDINATE
+    else:
+        sky = np.zeros((height, width), dtype=bool)
+    return GroundMap(col, row, sky, any_sky, grid_step_px, nodes, full_rays)
 
 
 def ground_points(camera: Camera, pose: CameraPose, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -71,7 +71,7 @@ def intersect_cone(origin_m: np.ndarray, rays: np.ndarray, apex_m: np.ndarray, a
     return best, np.isfinite(best)
 
 
-def draw_heat_shield(radiance: np.ndarray, rays_world: np.ndarray, sky: np.ndarray, camera: Camera,
+def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                      pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
                      irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
                      reflectance: float) -> np.ndarray | None:
@@ -98,11 +98,11 @@ def draw_heat_shield(radiance: np.ndarray, rays_world: np.ndarray, sky: np.ndarr
     axis = np.array([0.0, 0.0, 1.0])
     apex = np.asarray(centre_m, dtype=float) - 0.5 * depth * axis
     cos_half = float(np.cos(0.5 * cone_angle_rad))
-    rays = rays_world[row0:row1, col0:col1].astype(np.float64)
+    rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
     t, hit = intersect_cone(pose.ray_origin_m, rays, apex, axis, cos_half, depth)
     # ground hit parameter: the heat shield shows only if it is nearer than the ground
     dz = rays[..., 2]
-    t_ground = np.where(sky[row0:row1, col0:col1] | (dz >= 0), np.inf,
+    t_ground = np.where(ground_map.sky[row0:row1, col0:col1] | (dz >= 0), np.inf,
                         -pose.ray_origin_m[2] / np.where(dz < 0, dz, -1.0))
     hit &= t < t_ground
     if not hit.any():

@@ -84,15 +84,16 @@ def casters(pose: Pose, config) -> list[shadow.Caster]:
     return result
 
 
-def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, rays: np.ndarray,
+def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
     """DIMES/MOC photometric ratio of every pixel (H, W) float32; on the coarse node grid and
-    interpolated when ``grid_step_px > 0``, else exact per pixel from ``rays``."""
+    interpolated when ``grid_step_px > 0``, else per pixel from the ground map's rays."""
     if grid_step_px > 0:
         nodes = ground_mapping.node_rays(camera, grid_step_px) @ pose.camera_to_world.T
         view = -nodes / np.linalg.norm(nodes, axis=-1, keepdims=True)
         ratio = photometry.photometric_ratio(view, sun, moc_value)
         return ground_mapping.upsample_nodes(ratio, grid_step_px, camera.height_px, camera.width_px)
+    rays = ground_map.rays()
     norm = np.sqrt(np.einsum("...i,...i->...", rays, rays))
     view = -rays / norm[..., None]
     return photometry.photometric_ratio(view, sun, moc_value)
@@ -125,17 +126,17 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         moc_value = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
                                                      terrain.moc_phase_rad)
         photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
-        radiance *= photometric_ratio_field(camera, cam, gmap.rays, sun, moc_value, photo_step)
+        radiance *= photometric_ratio_field(camera, cam, gmap, sun, moc_value, photo_step)
     radiance *= np.float32(scale)
 
     centres = []
     if effects.shadows:
-        centres = shadow.apply_shadows(radiance, gmap.rays, gmap.sky, camera, cam, casters(pose, config), sun,
+        centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,
                                        photometry.solar_angular_radius_rad(config.sun_distance_au),
                                        config.shadow_diffuse_fraction)
     shield = None
     if effects.heat_shield and pose.heat_shield_position_m is not None:
-        shield = heat_shield.draw_heat_shield(radiance, gmap.rays, gmap.sky, camera, cam,
+        shield = heat_shield.draw_heat_shield(radiance, gmap, camera, cam,
                                               np.asarray(pose.heat_shield_position_m, dtype=float), sun,
                                               irradiance, config.heat_shield_diameter_m,
                                               config.heat_shield_cone_angle_rad, config.heat_shield_reflectance)

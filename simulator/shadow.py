@@ -74,7 +74,7 @@ def occluded_fraction(points_m: np.ndarray, caster: Caster, sun_world: np.ndarra
     return np.where(along > 0, fraction, 0.0).astype(np.float32)
 
 
-def apply_shadows(radiance: np.ndarray, rays_world: np.ndarray, sky: np.ndarray, camera: Camera,
+def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                   pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
                   sun_radius_rad: float, diffuse_fraction: float) -> list[np.ndarray]:
     """Darken ``radiance`` (H, W) in place inside each caster's shadow.
@@ -108,8 +108,8 @@ def apply_shadows(radiance: np.ndarray, rays_world: np.ndarray, sky: np.ndarray,
             row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height)
         if col1 <= col0 or row1 <= row0:
             continue
-        rays = rays_world[row0:row1, col0:col1].astype(np.float64)
-        window_sky = sky[row0:row1, col0:col1]
+        rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
+        window_sky = ground_map.sky[row0:row1, col0:col1]
         dz = np.where(window_sky, -1.0, rays[..., 2])
         points = pose.ray_origin_m + (-pose.ray_origin_m[2] / dz)[..., None] * rays
         occluded = occluded_fraction(points, caster, sun_world, sun_radius_rad)
