@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .image import OrbitalImage, fail, file_size, read_attached_label, read_raw
-from .layout import RasterLayout, apply_scaling, check_dimensions, decode_band
+from .layout import RasterLayout, apply_scaling, check_dimensions, decode_band, describe_dtype
 from .pvl import Quantity, lookup, to_plain
 
 _VALID_MIN4 = float(np.array([0xFF7FFFFA], dtype="<u4").view("<f4")[0])
@@ -126,7 +126,7 @@ def _read_tiled(path: Path, core: dict, offset: int, layout: RasterLayout, band_
     size = file_size(path)
     if total > size:
         raise fail(path, f"truncated or inconsistent: tiled ISIS3 core ({layout.lines} x {layout.samples} x "
-                         f"{layout.bands} of {layout.dtype.str}, {tile_samples}x{tile_lines} tiles) needs bytes "
+                         f"{layout.bands} of {describe_dtype(layout.dtype)}, {tile_samples}x{tile_lines} tiles) needs bytes "
                          f"{offset}..{total} but the file has {size} bytes")
     if not 0 <= band_index < layout.bands:
         raise fail(path, f"band_index {band_index} is out of range; the file has {layout.bands} band(s)")

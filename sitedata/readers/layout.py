@@ -62,6 +62,16 @@ class RasterLayout:
         return records * self.line_bytes
 
 
+def describe_dtype(dtype: np.dtype) -> str:
+    """'uint8', 'MSB int16', 'LSB float32' ... for error messages."""
+    dtype = np.dtype(dtype)
+    name = {"u": "uint", "i": "int", "f": "float"}.get(dtype.kind, dtype.kind) + str(8 * dtype.itemsize)
+    if dtype.itemsize == 1:
+        return name
+    big = dtype.byteorder == ">" or (dtype.byteorder == "=" and np.little_endian is False)
+    return f"{'MSB' if big else 'LSB'} {name}"
+
+
 def check_dimensions(path: Path, lines, samples, bands, names: tuple[str, str, str]) -> None:
     """Refuse non-integer or non-positive dimensions, naming the keyword."""
     for value, name in zip((lines, samples, bands), names):
@@ -88,8 +98,8 @@ def decode_band(path: Path, offset: int, layout: RasterLayout, band_index: int, 
     end = offset + layout.total_bytes
     if offset < 0 or end > size:
         raise fail(path, f"truncated or inconsistent: {what} ({layout.lines} lines x {layout.samples} samples x "
-                         f"{layout.bands} bands of {layout.dtype.str}, {layout.prefix_bytes}+{layout.suffix_bytes} "
-                         f"prefix+suffix bytes) needs bytes {offset}..{end} but the file has {size} bytes")
+                         f"{layout.bands} bands of {describe_dtype(layout.dtype)}, {layout.prefix_bytes}+{layout.suffix_bytes} "
+                         f"line prefix+suffix bytes) needs bytes {offset}..{end} but the file has {size} bytes")
     item = layout.dtype.itemsize
     if layout.storage == "BSQ":
         band_bytes = layout.lines * layout.line_bytes

@@ -85,7 +85,7 @@ class _Parser:
     def fail(self, message: str) -> LabelSyntaxError:
         snippet = self.text[self.pos:self.pos + 24]
         printable = "".join(c if " " <= c <= "~" else f"\\x{ord(c):02x}" for c in snippet)
-        return LabelSyntaxError(f"{message} at byte {self.pos} (text there: {printable!r})")
+        return LabelSyntaxError(f"{message} at byte {self.pos} (text there: \"{printable}\")")
 
     def skip_space(self) -> None:
         self.pos = _SPACE.match(self.text, self.pos).end()
