@@ -112,6 +112,16 @@ def test_pds3_detached_label_found_beside_data_file(tmp_path):
         assert image.source == tmp_path / "scene.img"
 
 
+def test_pds3_detached_label_with_record_pointer_refers_to_the_data_file(tmp_path):
+    array = np.arange(20, dtype=np.uint8).reshape(4, 5)
+    (tmp_path / "strip.img").write_bytes(b"\xFF" * 10 + array.tobytes())
+    (tmp_path / "strip.lbl").write_text("PDS_VERSION_ID = PDS3\nRECORD_TYPE = FIXED_LENGTH\nRECORD_BYTES = 5\n"
+                                        "^IMAGE = 3\nOBJECT = IMAGE\n LINES = 4\n LINE_SAMPLES = 5\n"
+                                        " SAMPLE_TYPE = UNSIGNED_INTEGER\n SAMPLE_BITS = 8\nEND_OBJECT\nEND\n")
+    image = read_image(tmp_path / "strip.img")
+    np.testing.assert_array_equal(image.pixels, array)
+
+
 def test_isis_tiled_msb_signed_word_partial_tiles_specials_and_scaling(tmp_path):
     rng = np.random.default_rng(3)
     raw = rng.integers(-1000, 1000, size=(1, 9, 10)).astype(np.int16)

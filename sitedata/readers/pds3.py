@@ -84,7 +84,7 @@ def read_pds3(path: str | Path, band_index: int = 0) -> OrbitalImage:
         layout = _image_layout(label_path, tree, image_object)
     else:
         layout = _qube_layout(label_path, image_object)
-    data_path, offset = _resolve_pointer(label_path, tree, pointer_key)
+    data_path, offset = _resolve_pointer(label_path, tree, pointer_key, default_data=path)
     notes: list[str] = []
     if data_path == label_path and offset < parsed.end_offset:
         remaining = file_size(data_path) - parsed.end_offset
@@ -227,8 +227,12 @@ def _qube_layout(path: Path, obj: dict) -> RasterLayout:
                         invalid_raw=invalid, valid_raw_min=valid_min)
 
 
-def _resolve_pointer(label_path: Path, tree: dict, key: str) -> tuple[Path, int]:
-    """(data file, 0-based byte offset) of a pointer."""
+def _resolve_pointer(label_path: Path, tree: dict, key: str, default_data: Path) -> tuple[Path, int]:
+    """(data file, 0-based byte offset) of a pointer.
+
+    A pointer without a file name refers to the label's own file, except when the label is a detached
+    ``.LBL`` found beside the data file the caller named: then it refers to that data file.
+    """
     value = lookup(tree, key)
     file_name, location = None, None
     if isinstance(value, list):
@@ -259,7 +263,10 @@ def _resolve_pointer(label_path: Path, tree: dict, key: str) -> tuple[Path, int]
         raise fail(label_path, f"{key} = {value!r} is not a valid pointer (record number, <BYTES> or file name)")
     if offset < 0:
         raise fail(label_path, f"{key} = {value!r} points before the start of the file")
-    data_path = label_path if file_name is None else _sibling(label_path, file_name, key)
+    if file_name is not None:
+        data_path = _sibling(label_path, file_name, key)
+    else:
+        data_path = default_data if default_data != label_path and default_data.suffix.lower() != ".lbl" else label_path
     return data_path, offset
 
 
