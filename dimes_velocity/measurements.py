@@ -5,6 +5,7 @@ attitude is the lander body-to-world quaternion ``(w, x, y, z)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -25,6 +26,9 @@ class ImageMeasurement:
         Measured altitude of the lander above the ground plane (m).
     imu_velocity_mps : ndarray, shape (3,)
         IMU-propagated world velocity (m/s); its horizontal part carries an unknown constant bias.
+    heat_shield_offset_m : ndarray, shape (3,), or None
+        Predicted position of the heat shield centre relative to the lander (world frame, m), when a
+        prediction exists; the estimator then excludes the heat shield's cone from feature tracking.
     """
 
     time_s: float
@@ -32,6 +36,7 @@ class ImageMeasurement:
     angular_rate_radps: np.ndarray
     radar_altitude_m: float
     imu_velocity_mps: np.ndarray
+    heat_shield_offset_m: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -47,3 +52,49 @@ class DescentMeasurements:
 
     images: tuple[ImageMeasurement, ...]
     sun_direction_world: np.ndarray
+
+
+class MeasurementError(ValueError):
+    """Illegal measurements (wrong shape, not finite, out of range); the message names the field."""
+
+
+def _vector(value, length: int, name: str) -> np.ndarray:
+    array = np.asarray(value, dtype=float) if value is not None else None
+    if array is None or array.shape != (length,):
+        raise MeasurementError(f"{name} must be {length} numbers; got {value!r}")
+    if not np.all(np.isfinite(array)):
+        raise MeasurementError(f"{name} must be finite; got {value!r}")
+    return array
+
+
+def validate_measurements(measurements: DescentMeasurements, image_count: int | None = None) -> None:
+    """Raise :class:`MeasurementError` naming the field if the measurements cannot be used.
+
+    Checks: at least two images (``image_count`` of them if given), strictly increasing times,
+    unit-normable attitude quaternions, finite 3-vectors, radar altitude > 0, sun direction non-zero.
+    """
+    images = measurements.images
+    if image_count is not None and len(images) != image_count:
+        raise MeasurementError(f"images: expected {image_count} image measurements; got {len(images)}")
+    if len(images) < 2:
+        raise MeasurementError(f"images: at least 2 image measurements are needed; got {len(images)}")
+    previous = -np.inf
+    for k, image in enumerate(images):
+        prefix = f"images[{k}]."
+        time_s = float(image.time_s)
+        if not np.isfinite(time_s) or time_s <= previous:
+            raise MeasurementError(f"{prefix}time_s = {image.time_s!r} must be finite and later than the previous image")
+        previous = time_s
+        quaternion = _vector(image.attitude_quat, 4, prefix + "attitude_quat")
+        if not 0.5 < np.linalg.norm(quaternion) < 2.0:
+            raise MeasurementError(f"{prefix}attitude_quat = {image.attitude_quat!r} must be a unit quaternion (w, x, y, z)")
+        _vector(image.angular_rate_radps, 3, prefix + "angular_rate_radps")
+        _vector(image.imu_velocity_mps, 3, prefix + "imu_velocity_mps")
+        altitude = float(image.radar_altitude_m)
+        if not (np.isfinite(altitude) and 0.0 < altitude < 1e6):
+            raise MeasurementError(f"{prefix}radar_altitude_m = {image.radar_altitude_m!r} is out of range; allowed: > 0 and < 1e6 m")
+        if image.heat_shield_offset_m is not None:
+            _vector(image.heat_shield_offset_m, 3, prefix + "heat_shield_offset_m")
+    sun = _vector(measurements.sun_direction_world, 3, "sun_direction_world")
+    if np.linalg.norm(sun) < 1e-9:
+        raise MeasurementError("sun_direction_world must be a non-zero vector")

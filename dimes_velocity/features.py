@@ -1,0 +1,120 @@
+"""Feature selection: corner-like templates on a coarse grid of a rectified image.
+
+The interest of a template centred at a pixel is the smaller eigenvalue of the gradient structure
+tensor summed over the template (Shi-Tomasi "good features to track", ``cv2.cornerMinEigenVal`` with
+``blockSize`` = template size): it is large only when the template is textured in two directions,
+which is what a 2-D correlation needs. The allowed centres (``candidates``) are split into a
+``feature_grid x feature_grid`` grid over their bounding box; each cell offers its most interesting
+centre, and the best offers with enough contrast (template standard deviation over the expected
+pixel noise), at least ``min_feature_spacing_px`` apart, are selected.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .config import EstimatorConfig
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A selected template.
+
+    Attributes
+    ----------
+    column, row : int
+        Template centre in the rectified image.
+    interest : float
+        Minimum structure-tensor eigenvalue (DN^2 per pixel^2 summed over the template).
+    brightness_dn : float
+        Mean of the template (flattened DN).
+    contrast_dn : float
+        Standard deviation of the template (flattened DN).
+    contrast_to_noise : float
+        ``contrast_dn`` over the expected pixel noise at the template.
+    """
+
+    column: int
+    row: int
+    interest: float
+    brightness_dn: float
+    contrast_dn: float
+    contrast_to_noise: float
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Selected templates, and why there are not more (for reason codes).
+
+    ``offered`` counts grid cells with an allowed centre; ``low_contrast`` those rejected for contrast.
+    """
+
+    features: tuple[Candidate, ...]
+    offered: int
+    low_contrast: int
+
+
+def interest_map(image: np.ndarray, config: EstimatorConfig) -> np.ndarray:
+    """Minimum eigenvalue of the gradient structure tensor over a template-sized block, float32."""
+    return cv2.cornerMinEigenVal(image, blockSize=config.template_size_px, ksize=3)
+
+
+def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> tuple[float, float]:
+    """Mean and standard deviation of the (2 half + 1)^2 template at (column, row)."""
+    patch = image[row - half: row + half + 1, column - half: column + half + 1].astype(np.float64)
+    return float(patch.mean()), float(patch.std())
+
+
+def select_features(image: np.ndarray, candidates: np.ndarray, noise_dn_at, config: EstimatorConfig,
+                    interest: np.ndarray | None = None) -> Selection:
+    """Pick up to ``config.features_per_pair`` templates.
+
+    Parameters
+    ----------
+    image : ndarray float32 (N, N)
+        Rectified, flattened image.
+    candidates : ndarray bool (N, N)
+        Where a template centre is allowed (template inside valid ground, search window inside B...).
+    noise_dn_at : callable (column, row) -> float
+        Expected pixel noise (DN) at a rectified position.
+    interest : ndarray, optional
+        Precomputed :func:`interest_map` of ``image``.
+    """
+    if not candidates.any():
+        return Selection((), 0, 0)
+    if interest is None:
+        interest = interest_map(image, config)
+    rows = np.flatnonzero(candidates.any(axis=1))
+    columns = np.flatnonzero(candidates.any(axis=0))
+    row_edges = np.linspace(rows[0], rows[-1] + 1, config.feature_grid + 1).astype(int)
+    column_edges = np.linspace(columns[0], columns[-1] + 1, config.feature_grid + 1).astype(int)
+    scored = np.where(candidates, interest, -1.0)
+    offers = []
+    for top, bottom in zip(row_edges[:-1], row_edges[1:]):
+        for left, right in zip(column_edges[:-1], column_edges[1:]):
+            cell = scored[top:bottom, left:right]
+            if cell.size == 0:
+                continue
+            index = int(np.argmax(cell))
+            row, column = divmod(index, cell.shape[1])
+            if cell[row, column] < 0:
+                continue
+            offers.append((float(cell[row, column]), left + column, top + row))
+    offers.sort(key=lambda offer: -offer[0])
+    half = config.template_size_px // 2
+    chosen: list[Candidate] = []
+    low_contrast = 0
+    for score, column, row in offers:
+        mean, std = template_statistics(image, column, row, half)
+        noise = max(float(noise_dn_at(column, row)), 1e-6)
+        if std / noise < config.min_contrast_to_noise:
+            low_contrast += 1
+            continue
+        if any((column - c.column) ** 2 + (row - c.row) ** 2 < config.min_feature_spacing_px ** 2 for c in chosen):
+            continue
+        chosen.append(Candidate(column, row, score, mean, std, std / noise))
+        if len(chosen) == config.features_per_pair:
+            break
+    return Selection(tuple(chosen), len(offers), low_contrast)

@@ -1,0 +1,208 @@
+"""Geometry: camera poses from the measurements, and rectification of binned images to a level
+ground plane at a common ground sampling.
+
+Frames follow :mod:`simulator.kinematics` (world x east, y north, z up, ground z = 0). The lander's
+horizontal position at image k is the IMU prediction ``P_k`` (trapezoidal integration of the
+measured, biased IMU velocity from image 0, ``P_0 = 0``); its height is the radar altitude. The
+camera frame maps to the world by ``R(attitude) @ R(camera_to_lander)``, and the camera centre is
+``lander + R(attitude) @ camera_position_in_lander_m``.
+
+A rectified image is an ``N x N`` north-up grid on the ground: pixel ``(u, v)`` (column, row) is
+the ground point ``(east, north) = origin + s * (u, -v)``. Binned pixel ``(c, r)`` of the
+``b``-binned image covers full-frame pixels ``b c .. b c + b - 1`` (centre ``b c + (b - 1)/2``),
+so full-frame coordinates map to binned ones by ``(x - (b - 1)/2) / b``.
+
+The ground -> image map is not a homography (CAHVOR radial distortion), so it is evaluated exactly
+on a ``K x K`` grid of knots and interpolated in between by a not-a-knot cubic spline (a fixed linear
+operator ``W``: ``map = W @ knots @ W.T``); ``cv2.remap`` then resamples bilinearly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from simulator import cahvor
+from simulator.camera_config import Camera
+
+from .measurements import DescentMeasurements
+
+
+def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of a ``(w, x, y, z)`` quaternion (normalised here), active convention."""
+    w, x, y, z = np.asarray(quaternion, dtype=float) / np.linalg.norm(quaternion)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def predicted_positions_m(measurements: DescentMeasurements) -> np.ndarray:
+    """IMU-predicted horizontal lander positions (K, 2), m, relative to image 0 (trapezoidal rule)."""
+    times = np.array([image.time_s for image in measurements.images])
+    velocities = np.array([np.asarray(image.imu_velocity_mps, dtype=float)[:2] for image in measurements.images])
+    steps = 0.5 * (velocities[1:] + velocities[:-1]) * np.diff(times)[:, None]
+    return np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """One image's camera as the estimator believes it is (from the measurements).
+
+    Attributes
+    ----------
+    model : Cahvor
+        The camera model in the world frame.
+    centre_m : ndarray (3,)
+        Camera centre (world, m); ``centre_m[2]`` is the camera height above the ground.
+    boresight : ndarray (3,)
+        Unit pointing axis in the world frame.
+    off_nadir_rad : float
+        Angle between the boresight and straight down.
+    """
+
+    model: cahvor.Cahvor
+    centre_m: np.ndarray
+    boresight: np.ndarray
+    off_nadir_rad: float
+
+
+def camera_pose(camera: Camera, attitude_quat: np.ndarray, altitude_m: float,
+                horizontal_position_m: np.ndarray) -> CameraPose:
+    """World-frame camera model for a lander at ``horizontal_position_m`` and ``altitude_m``."""
+    body_to_world = quaternion_matrix(attitude_quat)
+    camera_to_world = body_to_world @ camera.camera_to_lander_matrix
+    lander = np.array([horizontal_position_m[0], horizontal_position_m[1], altitude_m], dtype=float)
+    origin = lander + body_to_world @ camera.camera_position_in_lander_m
+    model = camera.model.transformed(camera_to_world, origin)
+    boresight = model.a / np.linalg.norm(model.a)
+    return CameraPose(model=model, centre_m=model.c.copy(), boresight=boresight,
+                      off_nadir_rad=float(np.arccos(np.clip(-boresight[2], -1.0, 1.0))))
+
+
+def binned_focal_px(camera: Camera) -> float:
+    """Focal length in binned pixels (geometric mean of the CAHVOR hs and vs over the binning)."""
+    return float(np.sqrt(camera.model.hs * camera.model.vs)) / camera.binning_rows
+
+
+@lru_cache(maxsize=8)
+def spline_operator(size: int, knots: int) -> np.ndarray:
+    """Matrix (size, knots) taking values at ``linspace(0, size - 1, knots)`` to every integer position."""
+    positions = np.linspace(0.0, size - 1.0, knots)
+    if knots < 4:
+        return np.stack([np.interp(np.arange(size), positions, np.eye(knots)[k]) for k in range(knots)], axis=1)
+    return np.ascontiguousarray(CubicSpline(positions, np.eye(knots), axis=0)(np.arange(size, dtype=float)))
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """Map from a rectified ground grid into one binned image.
+
+    Attributes
+    ----------
+    origin_m : ndarray (2,)
+        Ground (east, north) of rectified pixel (0, 0), m.
+    sample_m : float
+        Ground sampling (m per rectified pixel).
+    map_x, map_y : ndarray float32 (N, N)
+        Binned-image column and row of each rectified pixel.
+    visible : ndarray uint8 (N, N)
+        1 where the ground point is in front of the camera and inside the image.
+    excluded_zone : ndarray uint8 (N, N)
+        1 inside the zero-phase zone or the heat shield cone.
+    """
+
+    origin_m: np.ndarray
+    sample_m: float
+    map_x: np.ndarray
+    map_y: np.ndarray
+    visible: np.ndarray
+    excluded_zone: np.ndarray
+
+    def ground_of(self, column: float, row: float) -> np.ndarray:
+        """Ground (east, north), m, of a rectified pixel position."""
+        return self.origin_m + self.sample_m * np.array([column, -row])
+
+    def pixel_of(self, ground_m: np.ndarray) -> np.ndarray:
+        """Rectified (column, row) of a ground point (east, north)."""
+        offset = (np.asarray(ground_m, dtype=float) - self.origin_m) / self.sample_m
+        return np.array([offset[0], -offset[1]])
+
+
+def _upsample(operator: np.ndarray, knot_values: np.ndarray) -> np.ndarray:
+    """``operator @ knot_values @ operator.T`` with OpenCV's single-call GEMM (NumPy's BLAS may start
+    threads that stall on a busy machine: 20 ms instead of 0.1 ms)."""
+    values = np.ascontiguousarray(knot_values, dtype=np.float64)
+    rows = cv2.gemm(operator, values, 1.0, None, 0.0)
+    return cv2.gemm(rows, operator, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
+
+
+def ground_centre_m(pose: CameraPose, max_off_nadir_rad: float) -> np.ndarray:
+    """Where the rectified grid is centred: the boresight's ground point (tilt capped)."""
+    horizontal = pose.boresight[:2]
+    norm = float(np.linalg.norm(horizontal))
+    tilt = min(pose.off_nadir_rad, max_off_nadir_rad)
+    if norm < 1e-12:
+        return pose.centre_m[:2].copy()
+    return pose.centre_m[:2] + pose.centre_m[2] * np.tan(tilt) * horizontal / norm
+
+
+def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, centre_m: np.ndarray,
+                knots: int, anti_sun: np.ndarray | None, zero_phase_half_angle_rad: float,
+                heat_shield_m: np.ndarray | None = None, heat_shield_half_angle_rad: float = 0.0) -> Rectification:
+    """Rectification of one image onto a ``size x size`` ground grid centred at ``centre_m``.
+
+    Parameters
+    ----------
+    anti_sun : ndarray (3,) or None
+        Unit vector from the sun's direction reversed (-sun); the zero-phase zone is the set of rays
+        within ``zero_phase_half_angle_rad`` of it (None: no zone).
+    heat_shield_m : ndarray (3,) or None
+        Predicted heat shield centre (world, m); rays within ``heat_shield_half_angle_rad`` of it
+        are excluded.
+    """
+    b = camera.binning_rows
+    n_cols, n_rows = camera.width_px // b, camera.height_px // b
+    half = 0.5 * (size - 1)
+    origin = np.asarray(centre_m, dtype=float) + sample_m * np.array([-half, half])
+    knot_px = np.linspace(0.0, size - 1.0, knots)
+    east = origin[0] + sample_m * knot_px[None, :] + 0.0 * knot_px[:, None]
+    north = origin[1] - sample_m * knot_px[:, None] + 0.0 * knot_px[None, :]
+    ground = np.stack([east, north, np.zeros_like(east)], axis=-1)           # (K, K, 3)
+    pixels, in_front = cahvor.project(pose.model, ground)
+    binned = (pixels - 0.5 * (b - 1)) / b
+    pad = 2.0 * size / (knots - 1)
+    inside = (in_front & (binned[..., 0] > -pad) & (binned[..., 0] < n_cols - 1 + pad)
+              & (binned[..., 1] > -pad) & (binned[..., 1] < n_rows - 1 + pad))
+    binned = np.where(inside[..., None], binned, -pad)
+    operator = spline_operator(size, knots)
+    map_x = _upsample(operator, binned[..., 0]).astype(np.float32)
+    map_y = _upsample(operator, binned[..., 1]).astype(np.float32)
+    cells = inside[:-1, :-1] & inside[1:, :-1] & inside[:-1, 1:] & inside[1:, 1:]
+    cell_index = np.minimum((np.arange(size) * (knots - 1)) // (size - 1), knots - 2)
+    visible = (cells[cell_index[:, None], cell_index[None, :]]
+               & (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1))
+
+    rays = ground - pose.centre_m
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    excluded = np.zeros((size, size), dtype=bool)
+    if anti_sun is not None and zero_phase_half_angle_rad > 0:
+        cosine = _upsample(operator, rays @ anti_sun)
+        excluded |= cosine > np.cos(zero_phase_half_angle_rad)
+    if heat_shield_m is not None and heat_shield_half_angle_rad > 0:
+        shield = np.asarray(heat_shield_m, dtype=float) - pose.centre_m
+        shield /= max(float(np.linalg.norm(shield)), 1e-9)
+        cosine = _upsample(operator, rays @ shield)
+        excluded |= cosine > np.cos(heat_shield_half_angle_rad)
+    return Rectification(origin_m=origin, sample_m=float(sample_m), map_x=map_x, map_y=map_y,
+                         visible=visible.astype(np.uint8), excluded_zone=excluded.astype(np.uint8))
+
+
+def warp(image: np.ndarray, rectification: Rectification, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """Resample a binned image (float32 or uint8) onto the rectified grid (0 outside the image)."""
+    return cv2.remap(image, rectification.map_x, rectification.map_y, interpolation,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)

@@ -1,0 +1,232 @@
+"""Template matching: two-level pyramid, normalised correlation, sub-pixel peak, quality measures.
+
+A template from rectified image A is searched for in rectified image B around a predicted position:
+
+1. coarse level (``cv2.pyrDown`` of both images, half resolution): a ``coarse_template_size_px``
+   template (twice the ground extent of the fine one) is correlated over the whole search window
+   (``cv2.matchTemplate``, ``TM_CCOEFF_NORMED``); the best and the second-best peak (outside
+   ``second_peak_exclusion_px`` of the best) are kept;
+2. fine level: the ``template_size_px`` template is correlated within ``fine_search_radius_px`` of
+   twice the coarse peak;
+3. sub-pixel: a biquadratic ``z = a + b x + c y + d x^2 + e x y + f y^2`` is fitted (least squares)
+   to the 3 x 3 correlation values around the peak; its maximum is the sub-pixel offset and its
+   Hessian the peak sharpness. The fit is biased (the correlation surface is not symmetric about
+   its peak, and a parabola "locks" toward integer positions: errors up to ~0.1 px), so the offset
+   is then refined by ``subpixel_iterations`` Gauss-Newton (Lucas-Kanade) steps that match the
+   template to bicubically re-sampled B with a gain and a bias; the reported correlation is the
+   normalised correlation at the refined position.
+
+Positions are ``(column, row)`` of template centres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .config import EstimatorConfig
+
+_OFFSETS = np.array([(x, y) for y in (-1, 0, 1) for x in (-1, 0, 1)], dtype=float)
+_DESIGN = np.column_stack([np.ones(9), _OFFSETS[:, 0], _OFFSETS[:, 1], _OFFSETS[:, 0] ** 2,
+                           _OFFSETS[:, 0] * _OFFSETS[:, 1], _OFFSETS[:, 1] ** 2])
+_FIT = np.linalg.pinv(_DESIGN)   # (6, 9): biquadratic coefficients from a raveled 3 x 3 patch
+
+
+@dataclass(frozen=True)
+class Match:
+    """Outcome of one template search.
+
+    Attributes
+    ----------
+    status : str
+        "ok", or why the match was rejected: "search_outside" (window leaves the image),
+        "search_border" (best peak on the edge of the search window), "low_correlation",
+        "ambiguous_match" (second peak too close to the best), "flat_peak" (curvature too small).
+    position_px : ndarray (2,)
+        Sub-pixel template centre in image B (column, row); the prediction when not found.
+    correlation : float
+        Normalised correlation at the fine-level peak (-1 .. 1).
+    second_peak_ratio : float
+        Second coarse peak / best coarse peak (1 when undefined).
+    curvature_per_px2 : float
+        Smallest principal curvature of the fitted peak (>= 0; 0 when not a maximum).
+    """
+
+    status: str
+    position_px: np.ndarray
+    correlation: float
+    second_peak_ratio: float
+    curvature_per_px2: float
+
+
+def _correlate(window: np.ndarray, template: np.ndarray) -> np.ndarray:
+    result = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
+    return np.nan_to_num(result, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def _crop(image: np.ndarray, column: int, row: int, half: int) -> np.ndarray | None:
+    """The (2 half + 1)^2 square centred at (column, row), or None when it leaves the image."""
+    if row - half < 0 or column - half < 0 or row + half >= image.shape[0] or column + half >= image.shape[1]:
+        return None
+    return image[row - half: row + half + 1, column - half: column + half + 1]
+
+
+def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Biquadratic fit to a 3 x 3 correlation patch centred on its maximum.
+
+    Returns
+    -------
+    offset : ndarray (2,)
+        Sub-pixel (column, row) position of the maximum relative to the centre, clipped to +-1.
+    peak_value : float
+        Fitted value at the maximum (clipped to [-1, 1]).
+    curvature : float
+        Smallest principal curvature ``min(-eig(Hessian))`` (0 when the surface is not a maximum).
+    """
+    a, bx, by, dxx, exy, fyy = _FIT @ patch.astype(float).ravel()
+    hessian = np.array([[2.0 * dxx, exy], [exy, 2.0 * fyy]])
+    eigenvalues = np.linalg.eigvalsh(hessian)
+    if eigenvalues[1] < 0.0:
+        offset = np.linalg.solve(hessian, -np.array([bx, by]))
+        curvature = float(-eigenvalues[1])
+    else:  # not a maximum: separable parabolas, and report no curvature
+        offset = np.zeros(2)
+        for axis, (slope, second) in enumerate(((bx, 2 * dxx), (by, 2 * fyy))):
+            offset[axis] = -slope / second if second < 0 else 0.0
+        curvature = 0.0
+    offset = np.clip(offset, -1.0, 1.0)
+    value = a + bx * offset[0] + by * offset[1] + dxx * offset[0] ** 2 + exy * offset[0] * offset[1] + fyy * offset[1] ** 2
+    return offset, float(np.clip(value, -1.0, 1.0)), curvature
+
+
+def _keys_weights(fraction: float) -> np.ndarray:
+    """Keys (a = -1/2) cubic convolution weights of the samples at -1, 0, 1, 2 for a point at ``fraction``."""
+    t = fraction
+    return np.array([
+        ((-0.5 * t + 1.0) * t - 0.5) * t,
+        (1.5 * t - 2.5) * t * t + 1.0,
+        ((-1.5 * t + 2.0) * t + 0.5) * t,
+        (0.5 * t - 0.5) * t * t,
+    ])
+
+
+def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.ndarray:
+    """Sample a square ``window`` at ``(x + offset_x, y + offset_y)`` by Keys cubic convolution.
+
+    Returns the central ``out_size`` square (float64), exact in sub-pixel position (no fixed-point
+    quantisation of the coordinates, unlike ``cv2.warpAffine``, which rounds to 1/32 pixel). The
+    window must extend ``|offset| + 2`` pixels beyond the output on every side.
+    """
+    first_out = window.shape[0] // 2 - out_size // 2
+    data = window.astype(np.float64)
+    for axis, value in ((1, offset[0]), (0, offset[1])):
+        whole = int(np.floor(value))
+        weights = _keys_weights(value - whole)
+        first = first_out + whole - 1
+        data = sum(weights[k] * np.take(data, np.arange(first + k, first + k + out_size), axis=axis)
+                   for k in range(4))
+    return data
+
+
+def _refine(image_b: np.ndarray, template: np.ndarray, peak: np.ndarray, offset: np.ndarray,
+            iterations: int) -> tuple[np.ndarray, float]:
+    """Gauss-Newton (Lucas-Kanade) refinement of the sub-pixel offset with gain and bias.
+
+    Minimises ``sum (T(x) - g B(x + p) - o)^2`` over the shift ``p`` (and gain ``g``, bias ``o``),
+    re-sampling B bicubically at each step; for a pure translation the fixed point is the true shift
+    whatever the asymmetry of the correlation surface. Returns the offset relative to ``peak`` and
+    the normalised correlation there (NaN when the window leaves the image).
+    """
+    half = template.shape[0] // 2
+    window = _crop(image_b, int(peak[0]), int(peak[1]), half + 5)
+    if window is None:
+        return offset, float("nan")
+    target = template.astype(np.float64).ravel()
+    core = None
+    for _ in range(iterations + 1):
+        moved = shift_window(window, offset, template.shape[0] + 2)   # centred on the shifted template
+        core = moved[1:-1, 1:-1]
+        if _ == iterations:
+            break
+        grad_x = 0.5 * (moved[1:-1, 2:] - moved[1:-1, :-2])
+        grad_y = 0.5 * (moved[2:, 1:-1] - moved[:-2, 1:-1])
+        design = np.column_stack([core.ravel(), np.ones(core.size), grad_x.ravel(), grad_y.ravel()])
+        solution, *_ = np.linalg.lstsq(design, target, rcond=None)
+        if not np.all(np.isfinite(solution)) or abs(solution[0]) < 1e-6:
+            break
+        delta = solution[2:] / solution[0]
+        offset = np.clip(offset + delta, -1.5, 1.5)
+        if np.max(np.abs(delta)) < 1e-3:
+            break
+    centred = core.ravel() - core.mean()
+    reference = target - target.mean()
+    norm = float(np.sqrt((centred @ centred) * (reference @ reference)))
+    correlation = float(centred @ reference) / norm if norm > 0 else 0.0
+    return offset, correlation
+
+
+def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray, b_coarse: np.ndarray,
+                   centre_a: tuple[int, int], predicted_b: np.ndarray, search_radius_px: float,
+                   config: EstimatorConfig) -> Match:
+    """Find the template of A centred at ``centre_a`` in B near ``predicted_b`` (module docstring)."""
+    predicted_b = np.asarray(predicted_b, dtype=float)
+    u, v = int(centre_a[0]), int(centre_a[1])
+    half_c = config.coarse_template_size_px // 2
+    half_f = config.template_size_px // 2
+
+    def failed(status: str, correlation: float = 0.0, ratio: float = 1.0) -> Match:
+        return Match(status, predicted_b.copy(), float(correlation), float(ratio), 0.0)
+
+    # coarse level
+    parity = np.array([u % 2, v % 2])
+    template_c = _crop(a_coarse, u // 2, v // 2, half_c)
+    radius_c = int(np.ceil(search_radius_px / 2.0)) + 1
+    centre_c = np.rint((predicted_b - parity) / 2.0).astype(int)
+    window_c = _crop(b_coarse, int(centre_c[0]), int(centre_c[1]), half_c + radius_c)
+    if template_c is None or window_c is None:
+        return failed("search_outside")
+    surface = _correlate(window_c, template_c)
+    _, best, _, (i_col, i_row) = cv2.minMaxLoc(surface)
+    excluded = surface.copy()
+    gap = config.second_peak_exclusion_px
+    excluded[max(i_row - gap, 0): i_row + gap + 1, max(i_col - gap, 0): i_col + gap + 1] = -1.0
+    second = float(excluded.max()) if excluded.size > (2 * gap + 1) ** 2 else -1.0
+    ratio = float(np.clip(second / best, -1.0, 1.0)) if best > 1e-6 else 1.0
+    last = surface.shape[0] - 1
+    if i_row in (0, last) or i_col in (0, last):
+        return failed("search_border", best, ratio)
+
+    # fine level (re-centred at most twice when the peak sits on the window's edge)
+    template_f = _crop(a_fine, u, v, half_f)
+    guess = 2 * (centre_c - radius_c + np.array([i_col, i_row])) + parity
+    radius_f = config.fine_search_radius_px
+    for _ in range(3):
+        window_f = _crop(b_fine, int(guess[0]), int(guess[1]), half_f + radius_f)
+        if template_f is None or window_f is None:
+            return failed("search_outside", best, ratio)
+        fine = _correlate(window_f, template_f)
+        _, _, _, (j_col, j_row) = cv2.minMaxLoc(fine)
+        step = np.array([j_col, j_row]) - radius_f
+        guess = guess + step
+        if abs(step[0]) < radius_f and abs(step[1]) < radius_f:
+            break
+    else:
+        return failed("search_border", best, ratio)
+    offset, correlation, curvature = fit_peak(fine[j_row - 1: j_row + 2, j_col - 1: j_col + 2])
+    if config.subpixel_iterations > 0:
+        refined, value = _refine(b_fine, template_f, guess, offset, config.subpixel_iterations)
+        if np.isfinite(value):
+            offset, correlation = refined, value
+    if np.any(np.abs(predicted_b - (guess + offset)) > search_radius_px + 2.0):
+        return failed("search_border", correlation, ratio)
+    position = guess + offset
+    if correlation < config.min_correlation:
+        status = "low_correlation"
+    elif ratio > config.max_second_peak_ratio:
+        status = "ambiguous_match"
+    elif curvature < config.min_peak_curvature:
+        status = "flat_peak"
+    else:
+        status = "ok"
+    return Match(status, position.astype(float), float(correlation), ratio, float(curvature))

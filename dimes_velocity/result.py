@@ -1,0 +1,163 @@
+"""What the estimator returns: the velocity, a valid flag with a reason code, and diagnostics.
+
+Reason codes (``VelocityEstimate.reason``; ``PairResult.reason``)
+-----------------------------------------------------------------
+ok                      valid estimate
+bad_attitude            an image's boresight is further than ``max_off_nadir_deg`` from nadir
+sky                     too little of the rectified ground grid is seen by the camera (mostly sky)
+no_signal               too much of the ground has no signal (dark image, sky)
+saturated               too much of the ground is saturated
+excluded_zone           the zero-phase zone / heat shield cover too much of the ground
+no_overlap              no template fits in the overlap of the pair together with its search window
+low_contrast            no template has enough contrast over noise (bland or textureless scene)
+search_outside          (every tracked template failed, most often for this reason:) the search
+                        window left the image
+search_border           the correlation peak was on the edge of the search window
+low_correlation         the correlation peak was below ``min_correlation``
+ambiguous_match         the second correlation peak was too close to the best
+flat_peak               the correlation peak was not sharp enough
+match_in_excluded_area  the match fell on excluded ground (zone, saturated, no signal, off image)
+features_disagree       the matches of one pair do not agree (no majority within tolerance)
+pairs_disagree          the IMU velocity biases from the image pairs disagree beyond tolerance
+
+When the estimate is invalid, the velocity is the uncorrected IMU velocity at the last image and
+the bias is zero (never NaN).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+REASONS = (
+    "ok", "bad_attitude", "sky", "no_signal", "saturated", "excluded_zone", "no_overlap", "low_contrast",
+    "search_outside", "search_border", "low_correlation", "ambiguous_match", "flat_peak",
+    "match_in_excluded_area", "features_disagree", "pairs_disagree",
+)
+
+
+@dataclass(frozen=True)
+class FeatureMetrics:
+    """One tracked template (paper Table 3: brightness, contrast, correlation) and its match.
+
+    Attributes
+    ----------
+    pair, index : int
+        Image pair (0: images 0-1, 1: images 1-2) and rank of the template in the pair.
+    column_px, row_px : int
+        Template centre in the rectified first image of the pair.
+    east_m, north_m : float
+        Its ground position in the estimator's frame (IMU-predicted lander at image 0 at the origin).
+    brightness_dn, contrast_dn : float
+        Mean and standard deviation of the template (flattened, binned DN).
+    contrast_to_noise : float
+        ``contrast_dn`` over the expected pixel noise.
+    correlation : float
+        Normalised correlation at the sub-pixel peak.
+    second_peak_ratio : float
+        Second-best / best coarse correlation peak.
+    peak_curvature_per_px2 : float
+        Smallest principal curvature of the correlation peak.
+    displacement_east_m, displacement_north_m : float
+        Ground offset of the match from the IMU prediction (m); zero when not matched.
+    status : str
+        "ok" or the rejection reason of this match.
+    used : bool
+        Part of the agreeing group that gives the pair's displacement.
+    """
+
+    pair: int
+    index: int
+    column_px: int
+    row_px: int
+    east_m: float
+    north_m: float
+    brightness_dn: float
+    contrast_dn: float
+    contrast_to_noise: float
+    correlation: float
+    second_peak_ratio: float
+    peak_curvature_per_px2: float
+    displacement_east_m: float
+    displacement_north_m: float
+    status: str
+    used: bool
+
+
+@dataclass(frozen=True)
+class PairResult:
+    """One image pair.
+
+    ``displacement_*_m`` is the ground offset of the matches from their IMU-predicted positions
+    (mean of the agreeing group), ``bias_*_mps`` = displacement / time between the images, the
+    pair's estimate of the IMU horizontal velocity bias. Zero when the pair is not valid.
+    """
+
+    first_image: int
+    second_image: int
+    valid: bool
+    reason: str
+    displacement_east_m: float
+    displacement_north_m: float
+    bias_east_mps: float
+    bias_north_mps: float
+    search_radius_px: float
+    features_matched: int
+    features_used: int
+
+
+@dataclass(frozen=True)
+class StageTimings:
+    """Wall time of each stage, ms."""
+
+    preprocess_ms: float
+    rectify_ms: float
+    select_ms: float
+    match_ms: float
+    solve_ms: float
+    total_ms: float
+
+
+@dataclass(frozen=True)
+class VelocityEstimate:
+    """The estimator's answer.
+
+    Attributes
+    ----------
+    velocity_east_mps, velocity_north_mps : float
+        Horizontal velocity at the last image (IMU velocity minus the estimated bias).
+    valid : bool
+    reason : str
+        "ok" when valid, else one of :data:`REASONS`.
+    imu_bias_east_mps, imu_bias_north_mps : float
+        Estimated constant bias of the IMU horizontal velocity.
+    ground_sample_m : float
+        Ground sampling of the rectified images (m per pixel).
+    pairs : tuple of PairResult
+    features : tuple of FeatureMetrics
+    timings : StageTimings
+    """
+
+    velocity_east_mps: float
+    velocity_north_mps: float
+    valid: bool
+    reason: str
+    imu_bias_east_mps: float
+    imu_bias_north_mps: float
+    ground_sample_m: float
+    pairs: tuple[PairResult, ...]
+    features: tuple[FeatureMetrics, ...]
+    timings: StageTimings
+
+    def to_dict(self) -> dict:
+        """Plain JSON-ready dictionary (floats finite, nested lists for pairs and features)."""
+        return _finite(asdict(self))
+
+
+def _finite(value):
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return 0.0
+    return value
