@@ -13,7 +13,6 @@ Geographic (degree) CRSs leave ``metres_per_pixel`` unknown; non-square pixels a
 from __future__ import annotations
 
 import math
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,38 +36,18 @@ def read_raster(path: str | Path, band_index: int = 0) -> OrbitalImage:
     """Read a grayscale PNG/TIFF/GeoTIFF. ``band_index`` selects a page of a multi-page TIFF."""
     path = Path(path)
     size = file_size(path)
-    ImageFile.LOAD_TRUNCATED_IMAGES = False
+    previous_setting = ImageFile.LOAD_TRUNCATED_IMAGES
+    ImageFile.LOAD_TRUNCATED_IMAGES = False      # a truncated file must raise, never pad with zeros
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", Image.DecompressionBombWarning)
-            with Image.open(path) as probe:
-                file_format = probe.format
-                if file_format == "PNG":
-                    probe.verify()
-            with Image.open(path) as image:
-                pages = getattr(image, "n_frames", 1)
-                if not 0 <= band_index < pages:
-                    raise fail(path, f"band_index {band_index} is out of range; the file has {pages} page(s)")
-                image.seek(band_index)
-                notes: list[str] = []
-                metres = None
-                if file_format == "TIFF":
-                    _check_tiff_extents(path, image, size)
-                    metres = _geotiff_metres_per_pixel(path, image, notes)
-                mode = image.mode
-                if mode not in _MODE_DTYPES:
-                    raise fail(path, f"{file_format} mode {mode!r} is not supported (terrain must be one grayscale "
-                                     f"band); allowed modes: {', '.join(_MODE_DTYPES)}")
-                image.load()
-                array = np.asarray(image)
-                tags = {int(k): _plain(v) for k, v in getattr(image, "tag_v2", {}).items()} if file_format == "TIFF" else {}
-                info = {k: _plain(v) for k, v in image.info.items() if isinstance(v, (int, float, str, tuple))}
+        array, mode, file_format, pages, metres, notes, tags, info = _decode(path, size, band_index)
     except ReaderError:
         raise
     except UnidentifiedImageError:
         raise fail(path, "not a readable PNG/TIFF image (unrecognised format)") from None
-    except (OSError, SyntaxError, ValueError, Image.DecompressionBombWarning) as exc:
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as exc:
         raise fail(path, f"image data are corrupt or truncated (Pillow: {exc})") from None
+    finally:
+        ImageFile.LOAD_TRUNCATED_IMAGES = previous_setting
     if mode == "LA":
         valid = array[..., 1] > 0
         array = array[..., 0]
@@ -81,6 +60,33 @@ def read_raster(path: str | Path, band_index: int = 0) -> OrbitalImage:
     kind = "GeoTIFF" if _TAG_GEOKEYS in tags or _TAG_PIXEL_SCALE in tags else file_format
     return OrbitalImage(pixels=pixels, valid=valid, source=path, file_format=kind, label=label,
                         metres_per_pixel=metres, band_index=band_index, band_count=pages, notes=tuple(notes))
+
+
+def _decode(path: Path, size: int, band_index: int):
+    """Verify and decode one page: (array, mode, format, pages, metres/pixel, notes, tags, info)."""
+    with Image.open(path) as probe:
+        file_format = probe.format
+        if file_format == "PNG":
+            probe.verify()                       # chunk CRCs
+    with Image.open(path) as image:
+        pages = getattr(image, "n_frames", 1)
+        if not 0 <= band_index < pages:
+            raise fail(path, f"band_index {band_index} is out of range; the file has {pages} page(s)")
+        image.seek(band_index)
+        notes: list[str] = []
+        metres = None
+        if file_format == "TIFF":
+            _check_tiff_extents(path, image, size)
+            metres = _geotiff_metres_per_pixel(path, image, notes)
+        mode = image.mode
+        if mode not in _MODE_DTYPES:
+            raise fail(path, f"{file_format} mode {mode!r} is not supported (terrain must be one grayscale "
+                             f"band); allowed modes: {', '.join(_MODE_DTYPES)}")
+        image.load()
+        array = np.asarray(image)
+        tags = {int(k): _plain(v) for k, v in image.tag_v2.items()} if file_format == "TIFF" else {}
+        info = {k: _plain(v) for k, v in image.info.items() if isinstance(v, (int, float, str, tuple))}
+    return array, mode, file_format, pages, metres, notes, tags, info
 
 
 def _plain(value):
