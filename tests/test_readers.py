@@ -180,3 +180,16 @@ def test_real_moc_example_campaign_terrain():
     dn = raw_bytes(image_path, 4 * 672, 4864 * 672).reshape(4864, 672)
     np.testing.assert_allclose(terrain.reflectance_if, dn * sidecar["dn_to_if_scale"], rtol=1e-6)
     assert 0.1 < terrain.reflectance_if.mean() < 0.3 and np.isfinite(terrain.reflectance_if).all()
+
+
+def test_inspect_command_reports_missing_terrain_facts(capsys):
+    from sitedata.readers.__main__ import main
+
+    good, compressed = real("moc_na/M0100115_decompressed.img"), real("moc_na/M0100115.imq")
+    assert main([str(good)]) == 0
+    out = capsys.readouterr().out
+    assert "4864 rows x 672 cols" in out and "metres_per_pixel  unknown (side-car needed)" in out
+    assert main([str(good), "--sidecar", str(EXAMPLES / "M0100115.sidecar.toml")]) == 0
+    assert "metres_per_pixel  4.5 m" in capsys.readouterr().out
+    assert main([str(compressed)]) == 1
+    assert "ENCODING_TYPE" in capsys.readouterr().err

@@ -140,10 +140,3 @@ def read_raw(path: Path, offset: int, count: int, dtype: np.dtype, what: str) ->
         handle.seek(offset)
         return np.fromfile(handle, dtype=dtype, count=count)
 
-
-def select_band(array: np.ndarray, band_index: int, band_count: int, path: Path) -> np.ndarray:
-    """``array[band_index]`` of a (bands, rows, cols) array with a clear error for a bad index."""
-    if not 0 <= band_index < band_count:
-        raise fail(path, f"band_index {band_index} is out of range; the file has {band_count} band(s) "
-                         f"(allowed 0..{band_count - 1})")
-    return array[band_index]
