@@ -60,14 +60,15 @@ def outside_mask(terrain: Terrain, col: np.ndarray, row: np.ndarray) -> np.ndarr
     return (col < -0.5) | (col > cols - 0.5) | (row < -0.5) | (row > rows - 0.5)
 
 
-def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: np.ndarray,
+def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: np.ndarray | None,
                    crop: Crop, may_leave_terrain: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Bilinear terrain I/F at fractional grid coordinates.
 
     Parameters
     ----------
     col, row : (H, W) float32 terrain grid coordinates (full terrain frame)
-    invalid : (H, W) bool, pixels that see no ground (sky); they get 0 and are not flagged outside
+    invalid : (H, W) bool or None, pixels that see no ground (sky); they get 0 and are not flagged
+        outside. None: every pixel sees the ground.
     crop : Crop holding every in-strip ground point (see :func:`footprint_crop`)
     may_leave_terrain : bool
         False when the caller knows every ground point is inside the strip (skips the mask pass).
@@ -77,6 +78,11 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
     reflectance_if : (H, W) float32, MOC I/F (fill value outside the strip, 0 for sky)
     outside : (H, W) bool, ground points outside the strip
     """
+    if invalid is None:
+        invalid = np.zeros(col.shape, dtype=bool)
+        any_invalid = False
+    else:
+        any_invalid = bool(invalid.any())
     if crop.empty:
         outside = ~invalid
         fill = float(np.mean(terrain.reflectance_if[::16, ::16]))
@@ -92,6 +98,6 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
             sampled[outside] = fill
     else:
         outside = np.zeros(col.shape, dtype=bool)
-    if invalid.any():
+    if any_invalid:
         sampled[invalid] = 0.0
     return sampled, outside

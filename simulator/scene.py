@@ -116,8 +116,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     ray_step = config.ray_grid_step_px if effects.coarse_ray_grid else 0
     gmap = ground_mapping.map_to_ground_grid(camera, cam, (terrain.origin_m[0], terrain.origin_m[1]),
                                              terrain.metres_per_pixel, ray_step)
-    moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky, crop,
-                                              may_leave_terrain=not inside)
+    moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky if gmap.any_sky else None,
+                                              crop, may_leave_terrain=not inside)
 
     irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
     scale = irradiance / np.pi * (config.spectral_ratio if effects.spectral_ratio else 1.0)
@@ -126,8 +126,10 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         moc_value = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
                                                      terrain.moc_phase_rad)
         photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
-        radiance *= photometric_ratio_field(camera, cam, gmap, sun, moc_value, photo_step)
-    radiance *= np.float32(scale)
+        # the radiometric scale is folded into the ratio (on the node grid when coarse): one full-frame pass
+        radiance *= photometric_ratio_field(camera, cam, gmap, sun, moc_value / scale, photo_step)
+    else:
+        radiance *= np.float32(scale)
 
     centres = []
     if effects.shadows:
