@@ -1,0 +1,78 @@
+"""Scene model: ms per radiance field and per full image (scene + camera), nadir from 2000 m.
+
+Also the error of the default fidelity shortcuts (coarse ray grid, coarse photometry) against the
+reference field (exact per-pixel rays and photometry), as max and 99th-percentile relative error.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from simulator import scene
+from simulator.camera_config import load_camera
+from simulator.descent_image import REFERENCE_EFFECTS, SceneConfig, render_descent_image
+from simulator.descent_profile import DescentProfile, constant_velocity_profile
+from simulator.example import crater_field, example_profile
+from simulator.kinematics import quat_from_axis_angle
+
+CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _median_ms(function, repeats: int = 9) -> float:
+    function()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def _rotating_profile(rate_deg_s: float) -> DescentProfile:
+    time_s = np.array([0.0, 1.0])
+    attitude = np.stack([quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(rate_deg_s) * (t - 0.5)) for t in time_s])
+    return DescentProfile(time_s, np.tile([0.0, 0.0, 2000.0], (2, 1)), np.zeros((2, 3)), attitude,
+                          np.tile([np.radians(rate_deg_s), 0.0, 0.0], (2, 1)), np.zeros((2, 3)), None,
+                          np.array([0.5]), "rotating")
+
+
+def run() -> list[dict]:
+    camera = load_camera(CAMERA)
+    terrain = crater_field(seed=1)
+    incidence, azimuth = np.radians(25.0), np.radians(200.0)
+    sun = np.array([np.sin(incidence) * np.sin(azimuth), np.sin(incidence) * np.cos(azimuth), np.cos(incidence)])
+    still = constant_velocity_profile([0.0, 0.0, 2000.0], [10.0, 5.0, -72.0], LEVEL, 8.0,
+                                      [0.0, 275.0 / 72.0, 550.0 / 72.0])
+    pose = still.pose(0.0)
+    default = SceneConfig()
+    reference = default.with_effects(**REFERENCE_EFFECTS)
+    rows = []
+
+    field_ms = _median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, default), 15)
+    exact = scene.radiance_at_pose(terrain, camera, pose, sun, reference).radiance
+    fast = scene.radiance_at_pose(terrain, camera, pose, sun, default).radiance
+    relative = np.abs(fast - exact) / np.maximum(exact, 1e-6)
+    rows.append({"name": "scene/radiance_field_nadir_2000m_default", "ms": field_ms,
+                 "max_rel_error_vs_reference": float(relative.max()),
+                 "p99_rel_error_vs_reference": float(np.percentile(relative, 99))})
+    rows.append({"name": "scene/radiance_field_nadir_2000m_reference",
+                 "ms": _median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, reference), 3)})
+
+    def image(profile, index, config=default):
+        return render_descent_image(terrain, profile, camera, index, sun, config, np.random.default_rng(7))
+
+    for name, profile, index in (("full_image_still_nadir_2000m", still, 0),
+                                 ("full_image_60dps_rotation", _rotating_profile(60.0), 0),
+                                 ("full_image_example_tilted_heat_shield_halo", example_profile(), 0)):
+        result = image(profile, index)
+        ms = _median_ms(lambda: image(profile, index), 5)
+        rows.append({"name": f"scene/{name}", "ms": ms, "scene_ms": result.diagnostics.scene_ms,
+                     "camera_ms": result.diagnostics.camera_ms,
+                     "fields": sum(result.diagnostics.substeps.values()),
+                     "exposure_substeps": result.diagnostics.substeps["exposure"]})
+    rows.append({"name": "scene/case_3_images_still_nadir", "ms": _median_ms(lambda: [image(still, k) for k in range(3)], 3),
+                 "target_ms_incl_estimator": 80.0})
+    return rows
