@@ -174,7 +174,10 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
         Lander trajectory (world frame), possibly with the heat shield trajectory.
     camera : Camera
     image : int or float
-        Index into ``profile.image_times_s`` (int) or start-of-exposure time in s (float).
+        Index into ``profile.image_times_s`` (int) or start-of-exposure time in s (float). The fast
+        flush starts ``camera.timing.fast_flush_s`` earlier and the frame transfer ends
+        ``exposure_s + frame_transfer_s`` later; poses outside the profile's time span are held at
+        its ends.
     sun_world : (3,) array_like
         World unit vector toward the sun (x east, y north, z up), z > 0.
     config : SceneConfig, optional

@@ -80,7 +80,8 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
     """Darken ``radiance`` (H, W) in place inside each caster's shadow.
 
     Only the image window that can hold the penumbra is computed: the ground circle of radius
-    ``r + D tan(R_s)`` (D the caster's distance to the ground along the sun line) around the shadow
+    ``(r + D tan(R_s)) / cos(i)`` (D the caster's distance to the ground along the sun line, i the
+    sun's incidence angle) around the shadow
     centre is projected into the image and its bounding box, padded by 2 pixels, is evaluated exactly.
 
     Returns the shadow centres (world, m) of the casters above the ground.
@@ -93,7 +94,8 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
         centre = shadow_centre_m(caster.centre_m, sun_world)
         centres.append(centre)
         reach = float(np.linalg.norm(caster.centre_m - centre))
-        outer = caster.radius_m + reach * np.tan(sun_radius_rad) + 1.0
+        # penumbra radius across the sun line, stretched by 1/cos(incidence) along it on the ground
+        outer = (caster.radius_m + reach * np.tan(sun_radius_rad)) / sun_world[2] + 1.0
         angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
         ring = centre + outer * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1)
         pixels, in_front = ground_mapping.world_to_pixels(camera, pose, np.vstack([ring, centre]))
