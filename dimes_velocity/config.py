@@ -40,7 +40,12 @@ class EstimatorConfig:
     Rectification
         rectified_size_px [256]: side of the square rectified (level ground) image.
         ground_sample_scale [1.0]: ground sampling = this x the nadir sampling of the highest image.
-        rectification_knots [17]: exact CAHVOR projection on a knots x knots grid, bicubic in between.
+        equalize_resolution [True]: before rectification, blur each image with a Gaussian of
+            ``resolution_blur * sqrt(r^2 - 1)`` binned pixels, r = common ground sampling / the image's
+            own nadir sampling, so that images from different altitudes have the same resolution on
+            the ground grid (and less aliasing when the lower images are down-sampled).
+        resolution_blur [0.5]: see equalize_resolution (0.5 = box pixel plus bilinear kernel).
+        rectification_knots [17]: exact CAHVOR projection on a knots x knots grid, Catmull-Rom in between.
         max_off_nadir_deg [60.0]: boresight further than this from nadir -> the image is unusable.
         min_ground_coverage [0.25]: minimum valid fraction of a rectified image.
     Feature selection
@@ -68,8 +73,8 @@ class EstimatorConfig:
         subpixel_iterations [5]: Gauss-Newton (Lucas-Kanade) steps refining the sub-pixel peak.
     Quality checks
         min_correlation [0.7]: normalised correlation peak at full resolution.
-        max_second_peak_ratio [0.9]: second coarse-level peak / main peak.
-        second_peak_exclusion_px [3]: coarse pixels around the main peak ignored for the second peak.
+        max_second_peak_ratio [0.9]: second-highest coarse-level local maximum / main peak.
+        second_peak_exclusion_px [2]: local maxima this close (coarse pixels) to the main peak are not a second peak.
         min_peak_curvature [0.02]: smallest principal curvature of the correlation peak (1/px^2).
     Solution
         feature_agreement_px [1.5]: features of one pair must agree within this (fine pixels).
@@ -86,6 +91,8 @@ class EstimatorConfig:
     min_signal_dn: float = 40.0
     rectified_size_px: int = 256
     ground_sample_scale: float = 1.0
+    equalize_resolution: bool = True
+    resolution_blur: float = 0.5
     rectification_knots: int = 17
     max_off_nadir_deg: float = 60.0
     min_ground_coverage: float = 0.25
@@ -109,7 +116,7 @@ class EstimatorConfig:
     subpixel_iterations: int = 5
     min_correlation: float = 0.7
     max_second_peak_ratio: float = 0.9
-    second_peak_exclusion_px: int = 3
+    second_peak_exclusion_px: int = 2
     min_peak_curvature: float = 0.02
     feature_agreement_px: float = 1.5
     require_feature_majority: bool = True
@@ -153,6 +160,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "min_signal_dn": (0.0, 1e6),
     "rectified_size_px": (64, 1024),
     "ground_sample_scale": (0.25, 4.0),
+    "resolution_blur": (0.0, 4.0),
     "rectification_knots": (3, 129),
     "max_off_nadir_deg": (0.0, 85.0),
     "min_ground_coverage": (0.0, 1.0),

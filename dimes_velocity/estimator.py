@@ -41,11 +41,14 @@ class RectifiedImage:
     """One image on the ground grid, with its pyramid, masks and unusable-ground diagnosis."""
 
     def __init__(self, flat: FlatImage, rectification: geometry.Rectification, pose: geometry.CameraPose,
-                 config: EstimatorConfig):
+                 config: EstimatorConfig, blur_px: float = 0.0):
         self.rectification = rectification
         self.pose = pose
         self.flat = flat
-        stacked = np.dstack([flat.signal_dn, (flat.excluded & 1).astype(np.float32),
+        signal = flat.signal_dn
+        if blur_px > 0.05:
+            signal = cv2.GaussianBlur(signal, (0, 0), blur_px, borderType=cv2.BORDER_REPLICATE)
+        stacked = np.dstack([signal, (flat.excluded & 1).astype(np.float32),
                              (flat.signal_dn < config.min_signal_dn).astype(np.float32)])
         warped = geometry.warp(stacked, rectification)
         self.image = np.ascontiguousarray(warped[..., 0])
@@ -157,7 +160,9 @@ class DimesEstimator:
                 pose, self.camera, config.rectified_size_px, sample_m,
                 geometry.ground_centre_m(pose, config.max_off_nadir_rad), config.rectification_knots,
                 anti_sun, config.zero_phase_half_angle_rad, shield, half_angle)
-            rectified.append(RectifiedImage(flat, rectification, pose, config))
+            ratio = sample_m * self.focal_px / pose.centre_m[2]
+            blur = config.resolution_blur * np.sqrt(max(ratio * ratio - 1.0, 0.0)) if config.equalize_resolution else 0.0
+            rectified.append(RectifiedImage(flat, rectification, pose, config, blur))
         t_rect = time.perf_counter()
 
         times = np.array([m.time_s for m in measurements.images])

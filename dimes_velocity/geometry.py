@@ -13,8 +13,10 @@ the ground point ``(east, north) = origin + s * (u, -v)``. Binned pixel ``(c, r)
 so full-frame coordinates map to binned ones by ``(x - (b - 1)/2) / b``.
 
 The ground -> image map is not a homography (CAHVOR radial distortion), so it is evaluated exactly
-on a ``K x K`` grid of knots and interpolated in between by a not-a-knot cubic spline (a fixed linear
-operator ``W``: ``map = W @ knots @ W.T``); ``cv2.remap`` then resamples bilinearly.
+on a ``(K + 2) x (K + 2)`` grid of knots and interpolated in between by Catmull-Rom cubic convolution
+(a fixed linear operator ``W``: ``map = W @ knots @ W.T``; 17 knots on 256 pixels: < 0.01 pixel);
+``cv2.remap`` then resamples bilinearly. Points behind the camera spoil only the cells next to them,
+which are marked not visible.
 """
 from __future__ import annotations
 
@@ -23,7 +25,6 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from simulator import cahvor
 from simulator.camera_config import Camera
@@ -90,12 +91,31 @@ def binned_focal_px(camera: Camera) -> float:
 
 
 @lru_cache(maxsize=8)
-def spline_operator(size: int, knots: int) -> np.ndarray:
-    """Matrix (size, knots) taking values at ``linspace(0, size - 1, knots)`` to every integer position."""
-    positions = np.linspace(0.0, size - 1.0, knots)
-    if knots < 4:
-        return np.stack([np.interp(np.arange(size), positions, np.eye(knots)[k]) for k in range(knots)], axis=1)
-    return np.ascontiguousarray(CubicSpline(positions, np.eye(knots), axis=0)(np.arange(size, dtype=float)))
+def knot_operator(size: int, knots: int) -> tuple[np.ndarray, np.ndarray]:
+    """Catmull-Rom interpolation from knots to every integer position of ``0 .. size - 1``.
+
+    The knots are ``linspace(0, size - 1, knots)`` plus one more spacing beyond each end. Returns
+    ``(positions (knots + 2,), operator (size, knots + 2))``; position ``p`` in interval ``j`` (between
+    inner knots ``j`` and ``j + 1``) depends only on extended knots ``j .. j + 3``, so an unusable knot
+    spoils only the cells around it.
+    """
+    spacing = (size - 1.0) / (knots - 1)
+    positions = np.concatenate([[-spacing], np.linspace(0.0, size - 1.0, knots), [size - 1.0 + spacing]])
+    pixel = np.arange(size, dtype=float)
+    cell = np.minimum(np.floor(pixel / spacing).astype(int), knots - 2)
+    t = pixel / spacing - cell
+    weights = np.stack([((-0.5 * t + 1.0) * t - 0.5) * t, (1.5 * t - 2.5) * t * t + 1.0,
+                        ((-1.5 * t + 2.0) * t + 0.5) * t, (0.5 * t - 0.5) * t * t], axis=1)
+    operator = np.zeros((size, knots + 2))
+    for k in range(4):
+        operator[np.arange(size), cell + k] = weights[:, k]
+    return positions, operator
+
+
+def cell_of_pixel(size: int, knots: int) -> np.ndarray:
+    """Interval index (0 .. knots - 2) of every integer position (see :func:`knot_operator`)."""
+    spacing = (size - 1.0) / (knots - 1)
+    return np.minimum(np.floor(np.arange(size) / spacing).astype(int), knots - 2)
 
 
 @dataclass(frozen=True)
@@ -169,21 +189,19 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
     n_cols, n_rows = camera.width_px // b, camera.height_px // b
     half = 0.5 * (size - 1)
     origin = np.asarray(centre_m, dtype=float) + sample_m * np.array([-half, half])
-    knot_px = np.linspace(0.0, size - 1.0, knots)
+    knot_px, operator = knot_operator(size, knots)
     east = origin[0] + sample_m * knot_px[None, :] + 0.0 * knot_px[:, None]
     north = origin[1] - sample_m * knot_px[:, None] + 0.0 * knot_px[None, :]
-    ground = np.stack([east, north, np.zeros_like(east)], axis=-1)           # (K, K, 3)
+    ground = np.stack([east, north, np.zeros_like(east)], axis=-1)           # (K+2, K+2, 3)
     pixels, in_front = cahvor.project(pose.model, ground)
     binned = (pixels - 0.5 * (b - 1)) / b
-    pad = 2.0 * size / (knots - 1)
-    inside = (in_front & (binned[..., 0] > -pad) & (binned[..., 0] < n_cols - 1 + pad)
-              & (binned[..., 1] > -pad) & (binned[..., 1] < n_rows - 1 + pad))
-    binned = np.where(inside[..., None], binned, -pad)
-    operator = spline_operator(size, knots)
+    usable = in_front & np.all(np.abs(binned) < 1e5, axis=-1)
+    binned = np.where(usable[..., None], binned, 0.0)
     map_x = _upsample(operator, binned[..., 0]).astype(np.float32)
     map_y = _upsample(operator, binned[..., 1]).astype(np.float32)
-    cells = inside[:-1, :-1] & inside[1:, :-1] & inside[:-1, 1:] & inside[1:, 1:]
-    cell_index = np.minimum((np.arange(size) * (knots - 1)) // (size - 1), knots - 2)
+    rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
+    cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
+    cell_index = cell_of_pixel(size, knots)
     visible = (cells[cell_index[:, None], cell_index[None, :]]
                & (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1))
 

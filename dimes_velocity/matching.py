@@ -4,8 +4,8 @@ A template from rectified image A is searched for in rectified image B around a 
 
 1. coarse level (``cv2.pyrDown`` of both images, half resolution): a ``coarse_template_size_px``
    template (twice the ground extent of the fine one) is correlated over the whole search window
-   (``cv2.matchTemplate``, ``TM_CCOEFF_NORMED``); the best and the second-best peak (outside
-   ``second_peak_exclusion_px`` of the best) are kept;
+   (``cv2.matchTemplate``, ``TM_CCOEFF_NORMED``); the best peak and the highest other local maximum
+   (further than ``second_peak_exclusion_px`` from the best) are kept;
 2. fine level: the ``template_size_px`` template is correlated within ``fine_search_radius_px`` of
    twice the coarse peak;
 3. sub-pixel: a biquadratic ``z = a + b x + c y + d x^2 + e x y + f y^2`` is fitted (least squares)
@@ -70,6 +70,17 @@ def _crop(image: np.ndarray, column: int, row: int, half: int) -> np.ndarray | N
     if row - half < 0 or column - half < 0 or row + half >= image.shape[0] or column + half >= image.shape[1]:
         return None
     return image[row - half: row + half + 1, column - half: column + half + 1]
+
+
+def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -> float:
+    """Highest local maximum (3 x 3 neighbourhood) of ``surface`` further than ``exclusion_px`` from the
+    best peak at ``best`` (column, row) in either direction; -1 when there is none. Points on the
+    flanks of a broad main peak are not local maxima, so they do not count as a second peak."""
+    dilated = cv2.dilate(surface, np.ones((3, 3), np.uint8))
+    local = surface >= dilated
+    column, row = best
+    local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = False
+    return float(surface[local].max()) if local.any() else -1.0
 
 
 def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -151,8 +162,11 @@ def _refine(image_b: np.ndarray, template: np.ndarray, peak: np.ndarray, offset:
             break
         grad_x = 0.5 * (moved[1:-1, 2:] - moved[1:-1, :-2])
         grad_y = 0.5 * (moved[2:, 1:-1] - moved[:-2, 1:-1])
-        design = np.column_stack([core.ravel(), np.ones(core.size), grad_x.ravel(), grad_y.ravel()])
-        solution, *_ = np.linalg.lstsq(design, target, rcond=None)
+        design = np.stack([core.ravel(), np.ones(core.size), grad_x.ravel(), grad_y.ravel()])
+        normal = design @ design.T
+        if not np.linalg.cond(normal) < 1e12:
+            break
+        solution = np.linalg.solve(normal, design @ target)
         if not np.all(np.isfinite(solution)) or abs(solution[0]) < 1e-6:
             break
         delta = solution[2:] / solution[0]
@@ -188,10 +202,7 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
         return failed("search_outside")
     surface = _correlate(window_c, template_c)
     _, best, _, (i_col, i_row) = cv2.minMaxLoc(surface)
-    excluded = surface.copy()
-    gap = config.second_peak_exclusion_px
-    excluded[max(i_row - gap, 0): i_row + gap + 1, max(i_col - gap, 0): i_col + gap + 1] = -1.0
-    second = float(excluded.max()) if excluded.size > (2 * gap + 1) ** 2 else -1.0
+    second = second_peak(surface, (i_col, i_row), config.second_peak_exclusion_px)
     ratio = float(np.clip(second / best, -1.0, 1.0)) if best > 1e-6 else 1.0
     last = surface.shape[0] - 1
     if i_row in (0, last) or i_col in (0, last):
