@@ -155,3 +155,23 @@ def test_sun_must_be_a_unit_vector_above_the_horizon():
         scene.sun_unit_vector([0.0, 0.0, -1.0])
     with pytest.raises(ValueError, match="sun"):
         scene.sun_unit_vector([0.0, 0.5, 0.5])
+
+
+def test_shadow_windows_hold_the_whole_penumbra():
+    """The windowed shadows equal the occlusion evaluated over the whole frame (nothing is cut off)."""
+    sun = sun_vector(20.0, 300.0)
+    config = SceneConfig().with_effects(heat_shield=False, **REFERENCE_EFFECTS)
+    terrain = uniform_terrain()
+    pose = nadir_pose(1200.0)
+    lit = scene.radiance_at_pose(terrain, CAMERA, pose, sun, config.with_effects(shadows=False))
+    shaded = scene.radiance_at_pose(terrain, CAMERA, pose, sun, config)
+    columns, rows = np.meshgrid(np.arange(1024.0), np.arange(1024.0))
+    points, _ = ground_mapping.ground_points(CAMERA, lit.camera_pose, np.stack([columns, rows], axis=-1))
+    expected = np.ones((1024, 1024))
+    sun_radius = photometry.solar_angular_radius_rad(config.sun_distance_au)
+    for caster in scene.casters(pose, config):
+        occluded = shadow.occluded_fraction(points, caster, sun, sun_radius)
+        expected *= 1.0 - (1.0 - config.shadow_diffuse_fraction) * occluded
+    ratio = shaded.radiance / lit.radiance
+    assert np.count_nonzero(expected < 0.999) > 200        # the shadows are in view
+    assert np.max(np.abs(ratio - expected)) < 1e-4
