@@ -299,6 +299,7 @@ def cached_reflectance(params: ClassTerrainParams, seed: int, cache_dir: Path | 
         directory.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=directory, suffix=".tmp", delete=False) as handle:
             np.save(handle, data)
+        os.chmod(handle.name, 0o644)
         os.replace(handle.name, path)
     except OSError:
         pass                                                # read-only cache: still return the data
