@@ -46,11 +46,11 @@ class Resources:
 
     def __init__(self, config):
         from simulator.camera_config import load_camera
-        from sitedata.trajectory_io import read_trajectory_set
+        from sitedata.trajectory_io import read_profiles
 
         self.config = config
         self.camera = load_camera(config.site.camera_path)
-        self.profiles: list[DescentProfile] = read_trajectory_set(config.site.trajectory_path)
+        self.profiles: list[DescentProfile] = read_profiles(config.site.trajectory_path)
         self._terrains: dict = {}
 
     def terrain(self, class_name: str):
@@ -58,7 +58,7 @@ class Resources:
             from sitedata.sites import load_class_terrain
 
             entry = next(entry for entry in self.config.site.classes if entry.name == class_name)
-            self._terrains[class_name] = load_class_terrain(entry)
+            self._terrains[class_name] = load_class_terrain(entry.terrain)
         return self._terrains[class_name]
 
     def placed_profile(self, row: dict) -> DescentProfile:
@@ -114,7 +114,7 @@ def failed_fields() -> dict:
 
 def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
     """Simulate the three images and measurements of one case, run the estimator, return row fields."""
-    from dimes_velocity import estimate_velocity
+    from dimes_velocity.estimator import estimate_velocity
     from simulator.descent_image import render_descent_image
     from sitedata.sensors import measure
 
@@ -162,8 +162,8 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
         "estimate_velocity_north_mps": float(estimate.velocity_north_mps) if valid else None,
         "valid": valid, "reason": str(estimate.reason), "velocity_error_mps": error,
         "heat_shield_in_view": heat_shield_visible, "outside_terrain_fraction": outside,
-        "feature_brightness": [float(f.brightness) for f in features],
-        "feature_contrast": [float(f.contrast) for f in features],
+        "feature_brightness": [float(f.brightness_dn) for f in features],
+        "feature_contrast": [float(f.contrast_dn) for f in features],
         "feature_correlation": [float(f.correlation) for f in features],
         **{f"sensor_{key}": value for key, value in sensor_truth.items()},
         "t_scene_ms": scene_ms, "t_camera_ms": camera_ms, "t_sensors_ms": sensors_ms, "t_estimator_ms": estimator_ms,

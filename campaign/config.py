@@ -127,8 +127,9 @@ def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = No
 def _input_files(site) -> list[Path]:
     files = [Path(site.camera_path), Path(site.trajectory_path)]
     for entry in site.classes:
-        for value in getattr(entry, "input_files", lambda: [])():
-            files.append(Path(value))
+        for value in (entry.terrain.path, entry.terrain.sidecar):
+            if value is not None:
+                files.append(Path(value))
     return files
 
 
