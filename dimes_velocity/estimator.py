@@ -35,6 +35,7 @@ from .matching import match_template
 from .measurements import DescentMeasurements, MeasurementError, validate_measurements
 from .preprocess import FlatImage, flatten, make_flattening
 from .result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
+from .solution import combine_pairs, consensus, weighted_displacement
 
 
 class RectifiedImage:
@@ -254,18 +255,11 @@ class DimesEstimator:
         t2 = time.perf_counter()
 
         good = [i for i, record in enumerate(records) if record[2] == "ok"]
-        used: list[int] = []
-        if good:
-            tolerance = config.feature_agreement_px * sample
-            points = np.array([records[i][4] for i in good])
-            close = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1) <= tolerance
-            counts = close.sum(axis=1)
-            best = int(np.argmax(counts + 1e-3 * np.array([records[i][1].correlation for i in good])))
-            group = [good[j] for j in np.flatnonzero(close[best])]
-            enough = len(group) >= config.min_features_per_pair
-            majority = (2 * len(group) > len(good)) or not config.require_feature_majority
-            if enough and majority:
-                used = group
+        group = consensus(np.array([records[i][4] for i in good]).reshape(-1, 2),
+                          np.array([records[i][1].correlation for i in good]),
+                          config.feature_agreement_px * sample, config.min_features_per_pair,
+                          config.require_feature_majority)
+        used = [good[j] for j in group]
         features = [FeatureMetrics(
             pair=index, index=rank, column_px=int(f.column), row_px=int(f.row), east_m=float(g[0]), north_m=float(g[1]),
             brightness_dn=f.brightness_dn, contrast_dn=f.contrast_dn, contrast_to_noise=f.contrast_to_noise,
@@ -277,22 +271,15 @@ class DimesEstimator:
             return result(reason, radius), features, t1 - t0, t2 - t1
         if not used:
             return result("features_disagree", radius, len(good)), features, t1 - t0, t2 - t1
-        weights = np.array([max(records[i][1].correlation, 1e-3) for i in used])
-        displacement = (weights[:, None] * np.array([records[i][4] for i in used])).sum(axis=0) / weights.sum()
+        displacement = weighted_displacement(np.array([records[i][4] for i in used]),
+                                             np.array([records[i][1].correlation for i in used]))
         return result("ok", radius, len(good), len(used), displacement), features, t1 - t0, t2 - t1
 
     def _solve(self, pairs: list[PairResult]) -> tuple[bool, str, np.ndarray]:
         """Combine the pairs' bias estimates: (valid, reason, bias (2,) m/s)."""
-        config = self.config
-        valid_pairs = [p for p in pairs if p.valid]
-        failed = [p for p in pairs if not p.valid]
-        if not valid_pairs or (config.require_both_pairs and failed):
-            return False, failed[0].reason, np.zeros(2)
-        biases = np.array([[p.bias_east_mps, p.bias_north_mps] for p in valid_pairs])
-        spread = np.linalg.norm(biases[:, None, :] - biases[None, :, :], axis=-1).max()
-        if spread > config.pair_agreement_mps:
-            return False, "pairs_disagree", np.zeros(2)
-        return True, "ok", biases.mean(axis=0)
+        return combine_pairs(np.array([[p.bias_east_mps, p.bias_north_mps] for p in pairs]),
+                             np.array([p.valid for p in pairs]), [p.reason for p in pairs],
+                             self.config.pair_agreement_mps, self.config.require_both_pairs)
 
 
 _CACHE: dict[int, tuple[Camera, EstimatorConfig, DimesEstimator]] = {}

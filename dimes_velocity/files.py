@@ -1,0 +1,158 @@
+"""Reading the estimator's inputs from files: images (16-bit PNG, .npy, raw) and measurements (JSON).
+
+Measurements JSON schema
+------------------------
+::
+
+    {
+      "sun_direction_world": [east, north, up],        # toward the sun, any non-zero length
+      "images": [                                       # one object per image, in time order
+        {
+          "time_s": 0.0,                                # start of exposure (s)
+          "attitude_quat": [w, x, y, z],                # lander body-to-world, measured
+          "radar_altitude_m": 2000.0,                   # measured altitude above ground (m)
+          "imu_velocity_mps": [east, north, up],        # IMU-propagated velocity (m/s), biased
+          "angular_rate_radps": [x, y, z],              # optional, body frame (default 0)
+          "heat_shield_offset_m": [east, north, up]     # optional, predicted heat shield - lander (m)
+        },
+        ...
+      ]
+    }
+
+Frames: world x east, y north, z up; attitude as in :mod:`simulator.kinematics`. Unknown keys are
+errors (a misspelt optional field must not be silently ignored).
+
+Images
+------
+``.png`` (16-bit or 8-bit grey), ``.npy`` (2-D integer or float array), anything else is raw:
+``rows x columns`` unsigned 16-bit samples, little-endian by default, with no header.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .measurements import DescentMeasurements, ImageMeasurement, MeasurementError, validate_measurements
+
+_REQUIRED = ("time_s", "attitude_quat", "radar_altitude_m", "imu_velocity_mps")
+_OPTIONAL = ("angular_rate_radps", "heat_shield_offset_m")
+
+
+class InputFileError(ValueError):
+    """An input file cannot be used; the one-line message names the file and the field."""
+
+
+def load_image(path: str | Path, shape: tuple[int, int], big_endian: bool = False) -> np.ndarray:
+    """Read a raw descent image of ``shape`` (rows, columns) from PNG, .npy or raw uint16."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: file not found")
+    suffix = path.suffix.lower()
+    if suffix == ".png":
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise InputFileError(f"{path}: not a readable PNG image")
+        if image.ndim == 3:
+            raise InputFileError(f"{path}: image has {image.shape[2]} channels; expected a single grey channel")
+    elif suffix == ".npy":
+        try:
+            image = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise InputFileError(f"{path}: not a readable .npy array ({exc})") from None
+        if image.dtype.kind not in "uif":
+            raise InputFileError(f"{path}: array dtype {image.dtype}; expected integers or floats")
+    else:
+        data = path.read_bytes()
+        expected = shape[0] * shape[1] * 2
+        if len(data) != expected:
+            raise InputFileError(f"{path}: raw image has {len(data)} bytes; expected {expected} "
+                                 f"({shape[0]} x {shape[1]} uint16, no header)")
+        image = np.frombuffer(data, dtype=">u2" if big_endian else "<u2").reshape(shape).astype(np.uint16)
+    if image.shape != tuple(shape):
+        raise InputFileError(f"{path}: image shape {image.shape}; expected {tuple(shape)} (rows, columns)")
+    if image.dtype.kind == "f" and not np.all(np.isfinite(image)):
+        raise InputFileError(f"{path}: image contains non-finite values")
+    return image
+
+
+def measurements_from_dict(data: dict, source: str = "<measurements>") -> DescentMeasurements:
+    """Build and validate :class:`DescentMeasurements` from the JSON schema above."""
+    def fail(field: str, message: str) -> InputFileError:
+        return InputFileError(f"{source}: {field} {message}")
+
+    if not isinstance(data, dict):
+        raise InputFileError(f"{source}: top level must be an object with 'sun_direction_world' and 'images'")
+    for key in data:
+        if key not in ("sun_direction_world", "images"):
+            raise fail(key, "is not a measurements field; allowed: sun_direction_world, images")
+    for key in ("sun_direction_world", "images"):
+        if key not in data:
+            raise fail(key, "is missing")
+    if not isinstance(data["images"], list):
+        raise fail("images", "must be a list of image objects")
+    records = []
+    for k, item in enumerate(data["images"]):
+        prefix = f"images[{k}]"
+        if not isinstance(item, dict):
+            raise fail(prefix, "must be an object")
+        for key in item:
+            if key not in _REQUIRED + _OPTIONAL:
+                raise fail(f"{prefix}.{key}", f"is not an image field; allowed: {', '.join(_REQUIRED + _OPTIONAL)}")
+        for key in _REQUIRED:
+            if key not in item:
+                raise fail(f"{prefix}.{key}", "is missing")
+        for key in ("time_s", "radar_altitude_m"):
+            if isinstance(item[key], bool) or not isinstance(item[key], (int, float)):
+                raise fail(f"{prefix}.{key}", f"must be a number; got {item[key]!r}")
+        records.append(ImageMeasurement(
+            time_s=float(item["time_s"]), attitude_quat=_numbers(item["attitude_quat"], 4, f"{prefix}.attitude_quat", fail),
+            angular_rate_radps=_numbers(item.get("angular_rate_radps", [0.0, 0.0, 0.0]), 3, f"{prefix}.angular_rate_radps", fail),
+            radar_altitude_m=float(item["radar_altitude_m"]),
+            imu_velocity_mps=_numbers(item["imu_velocity_mps"], 3, f"{prefix}.imu_velocity_mps", fail),
+            heat_shield_offset_m=(None if item.get("heat_shield_offset_m") is None else
+                                  _numbers(item["heat_shield_offset_m"], 3, f"{prefix}.heat_shield_offset_m", fail)),
+        ))
+    measurements = DescentMeasurements(
+        images=tuple(records),
+        sun_direction_world=_numbers(data["sun_direction_world"], 3, "sun_direction_world", fail))
+    try:
+        validate_measurements(measurements)
+    except MeasurementError as exc:
+        raise InputFileError(f"{source}: {exc}") from None
+    return measurements
+
+
+def _numbers(value, length: int, field: str, fail) -> np.ndarray:
+    if (not isinstance(value, list) or len(value) != length
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
+        raise fail(field, f"must be a list of {length} numbers; got {value!r}")
+    return np.asarray(value, dtype=float)
+
+
+def load_measurements(path: str | Path) -> DescentMeasurements:
+    """Read a measurements JSON file (schema in the module docstring)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputFileError(f"{path}: file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputFileError(f"{path}: invalid JSON: {exc}") from None
+    return measurements_from_dict(data, str(path))
+
+
+def measurements_to_dict(measurements: DescentMeasurements) -> dict:
+    """The JSON form of :class:`DescentMeasurements` (inverse of :func:`measurements_from_dict`)."""
+    images = []
+    for image in measurements.images:
+        record = {"time_s": float(image.time_s), "attitude_quat": [float(v) for v in image.attitude_quat],
+                  "radar_altitude_m": float(image.radar_altitude_m),
+                  "imu_velocity_mps": [float(v) for v in image.imu_velocity_mps],
+                  "angular_rate_radps": [float(v) for v in image.angular_rate_radps]}
+        if image.heat_shield_offset_m is not None:
+            record["heat_shield_offset_m"] = [float(v) for v in image.heat_shield_offset_m]
+        images.append(record)
+    return {"sun_direction_world": [float(v) for v in measurements.sun_direction_world], "images": images}
