@@ -111,7 +111,7 @@ def load_edl_parameters(path: str | Path) -> EdlParameters:
     if abs(coarse / dense - round(coarse / dense)) > 1e-9:
         raise sa.fail("coarse_step_s", f"= {coarse:g} must be a whole multiple of dense_step_s = {dense:g}")
     positive = dict(minimum=0.0, exclusive_minimum=True)
-    return EdlParameters(
+    params = EdlParameters(
         name=s.string("name"), seed=s.integer("seed", minimum=0), profiles=s.integer("profiles", minimum=1),
         output_path=s.path_value("output", path.parent),
         image_altitudes_m=tuple(float(a) for a in altitudes),
@@ -148,6 +148,8 @@ def load_edl_parameters(path: str | Path) -> EdlParameters:
         angular_rate_max_radps=li.number("angular_rate_max_dps", **positive) * _DEG,
         horizontal_speed_max_mps=li.number("horizontal_speed_max_mps", **positive),
     )
+    root.reject_unknown()
+    return params
 
 
 @dataclass(frozen=True)

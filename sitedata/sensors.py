@@ -1,0 +1,196 @@
+"""Sensor models: what the MER flight system would have measured at each descent image (paper section 5).
+
+From a true :class:`~simulator.descent_profile.DescentProfile`, :func:`measure` draws the inputs the
+DIMES estimator gets besides the images (a :class:`~dimes_velocity.measurements.DescentMeasurements`)
+and returns the errors it drew (the truth for the case's result row).
+
+Error models (sigmas per axis; each can be set to 0 = perfect, or ``perfect = true`` for all)
+---------------------------------------------------------------------------------------------
+* Attitude, ``q_meas_k = exp(b + r_k) * q_true_k * exp(a)`` (rotation vectors, ``exp`` = quaternion
+  of a rotation vector):
+
+  - ``b``: absolute attitude-knowledge bias, world frame, sigma 1 deg, constant over the images;
+  - ``r_k``: between-image random error (timing accuracy), world frame, sigma 0.05 deg, new per image;
+  - ``a``: camera-to-lander alignment error, *body* frame, sigma 0.1 deg, constant. The renderer
+    images with the camera file's nominal mounting and the estimator uses the same nominal mounting,
+    so a body-frame rotation of the measured attitude is exactly a camera misaligned by ``-a``
+    relative to its calibration: a pointing error fixed to the lander, which turns in the world
+    frame as the lander swings (unlike ``b``).
+* Angular rate (body frame): true rate + white noise per image (default 0.1 deg/s, an assumption:
+  the paper gives no number).
+* Radar altitude: lander altitude ``z * (1 + e_k)``, ``e_k`` sigma 0.03 % (measured radar
+  performance), independent per image.
+* IMU velocity (world): true velocity + an unknown constant bias (default sigma 2 m/s per horizontal
+  axis, 0 vertical: an assumption, the paper gives none) + an optional random walk accumulated from
+  image 1 (default 0). The bias is the same at every image, so velocity *changes* between images are
+  the true ones: the IMU propagates consistently and only its initial velocity is unknown.
+* Heat-shield prediction (optional, ``heat_shield_prediction = true`` by default): the heat shield's
+  position relative to the lander, as the flight system would predict it from the separation
+  dynamics, = truth + an error per axis per image (default sigma 10 m, an assumption). Omitted
+  (None) when off or when the profile carries no heat shield.
+
+Timing: ``ImageMeasurement.time_s`` is the start of exposure (the profile's image time); the states
+are sampled at mid-exposure (``state_time = "mid_exposure"``, the instant the image represents) or at
+the start (``"exposure_start"``). Randomness: one ``standard_normal`` draw of fixed size from the
+Generator passed in, whatever the sigmas, so switching one sensor to perfect leaves the others'
+errors unchanged.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dimes_velocity.measurements import DescentMeasurements, ImageMeasurement
+from simulator.descent_profile import DescentProfile
+from simulator.kinematics import quat_conjugate, quat_from_rotation_vector, quat_multiply, quat_normalize, quat_to_rotation_vector
+from simulator.tomlfields import Table
+
+_DEG = np.pi / 180.0
+STATE_TIMES = ("mid_exposure", "exposure_start")
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Sensor error sigmas (SI: rad, rad/s, fraction, m/s). Defaults: the paper's numbers where it gives them."""
+
+    attitude_bias_sigma_rad: float = 1.0 * _DEG
+    attitude_random_sigma_rad: float = 0.05 * _DEG
+    alignment_sigma_rad: float = 0.1 * _DEG
+    angular_rate_noise_sigma_radps: float = 0.1 * _DEG
+    radar_altitude_sigma_fraction: float = 0.0003
+    imu_velocity_bias_sigma_mps: float = 2.0
+    imu_vertical_velocity_bias_sigma_mps: float = 0.0
+    imu_velocity_random_walk_mps_per_sqrt_s: float = 0.0
+    state_time: str = "mid_exposure"
+    heat_shield_prediction: bool = True
+    heat_shield_prediction_sigma_m: float = 10.0
+
+    @classmethod
+    def perfect(cls, state_time: str = "mid_exposure", heat_shield_prediction: bool = True) -> "SensorConfig":
+        """Every sensor exact."""
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, state_time, heat_shield_prediction, 0.0)
+
+
+def sensor_config_from_table(table: Table) -> SensorConfig:
+    """Build a :class:`SensorConfig` from a campaign's ``[sensors]`` table (degrees at this edge).
+
+    Keys (all optional): ``perfect`` (bool, overrides the sigmas), ``attitude_bias_sigma_deg`` (1.0),
+    ``attitude_random_sigma_deg`` (0.05), ``alignment_sigma_deg`` (0.1), ``angular_rate_noise_sigma_dps``
+    (0.1), ``radar_altitude_sigma_percent`` (0.03), ``imu_velocity_bias_sigma_mps`` (2.0, per horizontal
+    axis), ``imu_vertical_velocity_bias_sigma_mps`` (0.0), ``imu_velocity_random_walk_mps_per_sqrt_s``
+    (0.0), ``state_time`` ("mid_exposure" or "exposure_start"), ``heat_shield_prediction`` (true),
+    ``heat_shield_prediction_sigma_m`` (10.0). Unknown keys are refused.
+    """
+    d = SensorConfig()
+    ranged = dict(minimum=0.0)
+    perfect = table.boolean("perfect", default=False)
+    config = SensorConfig(
+        attitude_bias_sigma_rad=table.number("attitude_bias_sigma_deg", d.attitude_bias_sigma_rad / _DEG,
+                                             maximum=30.0, **ranged) * _DEG,
+        attitude_random_sigma_rad=table.number("attitude_random_sigma_deg", d.attitude_random_sigma_rad / _DEG,
+                                               maximum=10.0, **ranged) * _DEG,
+        alignment_sigma_rad=table.number("alignment_sigma_deg", d.alignment_sigma_rad / _DEG, maximum=10.0, **ranged) * _DEG,
+        angular_rate_noise_sigma_radps=table.number("angular_rate_noise_sigma_dps",
+                                                    d.angular_rate_noise_sigma_radps / _DEG, maximum=60.0, **ranged) * _DEG,
+        radar_altitude_sigma_fraction=table.number("radar_altitude_sigma_percent", d.radar_altitude_sigma_fraction * 100.0,
+                                                   maximum=10.0, **ranged) / 100.0,
+        imu_velocity_bias_sigma_mps=table.number("imu_velocity_bias_sigma_mps", d.imu_velocity_bias_sigma_mps,
+                                                 maximum=50.0, **ranged),
+        imu_vertical_velocity_bias_sigma_mps=table.number("imu_vertical_velocity_bias_sigma_mps",
+                                                          d.imu_vertical_velocity_bias_sigma_mps, maximum=50.0, **ranged),
+        imu_velocity_random_walk_mps_per_sqrt_s=table.number("imu_velocity_random_walk_mps_per_sqrt_s",
+                                                             d.imu_velocity_random_walk_mps_per_sqrt_s, maximum=10.0, **ranged),
+        state_time=table.string("state_time", d.state_time, choices=STATE_TIMES),
+        heat_shield_prediction=table.boolean("heat_shield_prediction", d.heat_shield_prediction),
+        heat_shield_prediction_sigma_m=table.number("heat_shield_prediction_sigma_m", d.heat_shield_prediction_sigma_m,
+                                                    maximum=1000.0, **ranged),
+    )
+    table.reject_unknown()
+    return SensorConfig.perfect(config.state_time, config.heat_shield_prediction) if perfect else config
+
+
+def _state_times(profile: DescentProfile, camera, config: SensorConfig) -> np.ndarray:
+    times = np.asarray(profile.image_times_s, dtype=float)
+    if config.state_time == "exposure_start":
+        return times
+    if camera is None:
+        raise ValueError("sensors: state_time = 'mid_exposure' needs the camera (for its exposure time)")
+    return times + 0.5 * float(camera.timing.exposure_s)
+
+
+def measure(profile: DescentProfile, camera, sun_direction_world: np.ndarray, config: SensorConfig,
+            rng: np.random.Generator) -> tuple[DescentMeasurements, dict[str, float]]:
+    """Measurements at every image of ``profile`` and the errors drawn.
+
+    Parameters
+    ----------
+    profile : DescentProfile
+        True trajectory (already placed on the terrain).
+    camera : simulator.camera_config.Camera or None
+        Used for its exposure time (``state_time = "mid_exposure"``); may be None with "exposure_start".
+    sun_direction_world : (3,)
+        Unit vector from the ground toward the sun (known from ephemeris; passed through exactly).
+    config : SensorConfig
+    rng : numpy Generator, seeded per case by the caller.
+
+    Returns
+    -------
+    measurements : DescentMeasurements
+    truth : dict of float
+        The drawn errors (SI units in the names): ``attitude_bias_{east,north,up}_rad``,
+        ``alignment_{x,y,z}_rad`` (body), per image k (from 1) ``attitude_random_image{k}_{east,north,up}_rad``,
+        ``attitude_error_image{k}_rad`` (total angle between measured and true attitude),
+        ``angular_rate_noise_image{k}_{x,y,z}_radps``, ``radar_altitude_error_image{k}_m``,
+        ``imu_velocity_error_image{k}_{east,north,up}_mps``, ``heat_shield_prediction_error_image{k}_m``
+        (norm; 0 when no prediction) and ``imu_velocity_bias_{east,north,up}_mps``.
+    """
+    state_times = _state_times(profile, camera, config)
+    count = len(state_times)
+    normals = rng.standard_normal(9 + 13 * count)
+    bias = config.attitude_bias_sigma_rad * normals[0:3]
+    alignment = config.alignment_sigma_rad * normals[3:6]
+    imu_bias = normals[6:9] * np.array([config.imu_velocity_bias_sigma_mps, config.imu_velocity_bias_sigma_mps,
+                                        config.imu_vertical_velocity_bias_sigma_mps])
+    per_image = normals[9:9 + 10 * count].reshape(count, 10)
+    shield_noise = config.heat_shield_prediction_sigma_m * normals[9 + 10 * count:].reshape(count, 3)
+    random_attitude = config.attitude_random_sigma_rad * per_image[:, 0:3]
+    rate_noise = config.angular_rate_noise_sigma_radps * per_image[:, 3:6]
+    altitude_noise = config.radar_altitude_sigma_fraction * per_image[:, 6]
+    intervals = np.diff(np.concatenate([[state_times[0]], state_times]))
+    walk = np.cumsum(config.imu_velocity_random_walk_mps_per_sqrt_s * np.sqrt(intervals)[:, None] * per_image[:, 7:10], axis=0)
+
+    images, truth = [], {}
+    for name, values in (("attitude_bias", bias), ("imu_velocity_bias", imu_bias)):
+        for axis, label in enumerate(("east", "north", "up")):
+            truth[f"{name}_{label}_mps" if name.startswith("imu") else f"{name}_{label}_rad"] = float(values[axis])
+    for axis, label in enumerate("xyz"):
+        truth[f"alignment_{label}_rad"] = float(alignment[axis])
+    alignment_quat = quat_from_rotation_vector(alignment)
+    for k, time_s in enumerate(state_times):
+        pose = profile.pose(float(time_s))
+        true_attitude = quat_normalize(pose.attitude_quat)
+        world_error = quat_from_rotation_vector(bias + random_attitude[k])
+        measured = quat_normalize(quat_multiply(quat_multiply(world_error, true_attitude), alignment_quat))
+        altitude = float(pose.position_m[2])
+        velocity_error = imu_bias + walk[k]
+        shield = None
+        if config.heat_shield_prediction and pose.heat_shield_position_m is not None:
+            shield = pose.heat_shield_position_m - pose.position_m + shield_noise[k]
+        images.append(ImageMeasurement(
+            time_s=float(profile.image_times_s[k]), attitude_quat=measured,
+            angular_rate_radps=np.asarray(pose.angular_rate_radps, dtype=float) + rate_noise[k],
+            radar_altitude_m=altitude * (1.0 + float(altitude_noise[k])),
+            imu_velocity_mps=np.asarray(pose.velocity_mps, dtype=float) + velocity_error, heat_shield_offset_m=shield))
+        n = k + 1
+        for axis, label in enumerate(("east", "north", "up")):
+            truth[f"attitude_random_image{n}_{label}_rad"] = float(random_attitude[k, axis])
+            truth[f"imu_velocity_error_image{n}_{label}_mps"] = float(velocity_error[axis])
+        for axis, label in enumerate("xyz"):
+            truth[f"angular_rate_noise_image{n}_{label}_radps"] = float(rate_noise[k, axis])
+        error = quat_to_rotation_vector(quat_multiply(measured, quat_conjugate(true_attitude)))
+        truth[f"attitude_error_image{n}_rad"] = float(np.linalg.norm(error))
+        truth[f"radar_altitude_error_image{n}_m"] = altitude * float(altitude_noise[k])
+        truth[f"heat_shield_prediction_error_image{n}_m"] = float(np.linalg.norm(shield_noise[k])) if shield is not None else 0.0
+    sun = np.asarray(sun_direction_world, dtype=float)
+    return DescentMeasurements(images=tuple(images), sun_direction_world=sun / np.linalg.norm(sun)), truth
