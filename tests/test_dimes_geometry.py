@@ -1,0 +1,103 @@
+"""Estimator geometry: poses, IMU-predicted positions, rectification maps and exclusion zones."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dimes_velocity import geometry
+from dimes_velocity.measurements import DescentMeasurements, ImageMeasurement
+from simulator import cahvor
+from simulator.kinematics import quat_from_axis_angle, quat_to_matrix
+
+
+def test_quaternion_matrix_matches_kinematics():
+    rng = np.random.default_rng(0)
+    for quaternion in rng.normal(size=(20, 4)):
+        assert np.allclose(geometry.quaternion_matrix(quaternion), quat_to_matrix(quaternion), atol=1e-12)
+
+
+def test_predicted_positions_integrate_linear_velocity_exactly():
+    """Trapezoidal integration is exact for a velocity linear in time: x = v0 t + a t^2 / 2."""
+    v0, acceleration = np.array([3.0, -2.0, -70.0]), np.array([0.5, 0.25, -1.0])
+    times = [0.0, 3.7, 7.5]
+    images = tuple(ImageMeasurement(t, np.array([1.0, 0, 0, 0]), np.zeros(3), 2000.0 - 72 * t, v0 + acceleration * t)
+                   for t in times)
+    positions = geometry.predicted_positions_m(DescentMeasurements(images, np.array([0, 0, 1.0])))
+    expected = np.array([(v0 * t + 0.5 * acceleration * t * t)[:2] for t in times])
+    assert np.allclose(positions, expected, atol=1e-12)
+
+
+def test_camera_pose_level_lander_looks_down(mer_a):
+    pose = geometry.camera_pose(mer_a, np.array([1.0, 0, 0, 0]), 2000.0, np.array([10.0, -5.0]))
+    assert np.allclose(pose.centre_m, [10.0, -5.0, 1999.5])          # camera 0.5 m below the lander origin
+    assert np.allclose(pose.boresight, [0, 0, -1])
+    assert pose.off_nadir_rad == pytest.approx(0.0, abs=1e-12)
+    # nadir ground point projects to the principal point
+    pixel, _ = cahvor.project(pose.model, np.array([10.0, -5.0, 0.0]))
+    assert np.allclose(pixel, [511.5, 511.5], atol=1e-9)
+
+
+@pytest.mark.parametrize("altitude, tilt_deg", [(2000.0, 0.0), (1450.0, 20.0), (1725.0, 40.0)])
+def test_rectification_map_matches_exact_projection(mer_a, altitude, tilt_deg):
+    attitude = quat_from_axis_angle(np.array([1.0, 0.4, 0.0]), np.radians(tilt_deg))
+    pose = geometry.camera_pose(mer_a, attitude, altitude, np.zeros(2))
+    sample = 2000.0 / geometry.binned_focal_px(mer_a)
+    rect = geometry.rectify_map(pose, mer_a, 256, sample, geometry.ground_centre_m(pose, np.radians(60)), 17,
+                                None, 0.0)
+    columns, rows = np.meshgrid(np.arange(256.0), np.arange(256.0))
+    ground = np.stack([rect.origin_m[0] + sample * columns, rect.origin_m[1] - sample * rows, 0 * rows], axis=-1)
+    pixels, in_front = cahvor.project(pose.model, ground)
+    binned = (pixels - 1.5) / 4.0                      # full-frame -> 4x4 binned pixel coordinates
+    inside = in_front & np.all((binned >= 0) & (binned <= 255), axis=-1)
+    nearly_inside = in_front & np.all((binned >= -0.01) & (binned <= 255.01), axis=-1)
+    visible = rect.visible.astype(bool)
+    assert visible.mean() > 0.4
+    assert not (visible & ~nearly_inside).any()        # never claims an invisible ground point
+    assert (inside & ~visible).mean() < 0.02           # and loses little at the footprint edge
+    error = np.hypot(binned[..., 0] - rect.map_x, binned[..., 1] - rect.map_y)[visible]
+    assert error.max() < 0.01
+    # ground_of / pixel_of are inverse
+    assert np.allclose(rect.pixel_of(rect.ground_of(12.25, 200.5)), [12.25, 200.5])
+
+
+def test_zero_phase_zone_is_a_4_3_degree_cone_around_the_anti_sun_ray(mer_a):
+    pose = geometry.camera_pose(mer_a, np.array([1.0, 0, 0, 0]), 2000.0, np.zeros(2))
+    elevation, azimuth = np.radians(80.0), np.radians(40.0)
+    sun = np.array([np.cos(elevation) * np.sin(azimuth), np.cos(elevation) * np.cos(azimuth), np.sin(elevation)])
+    sample = 2000.0 / geometry.binned_focal_px(mer_a)
+    half_angle = np.radians(4.3)
+    rect = geometry.rectify_map(pose, mer_a, 256, sample, np.zeros(2), 17, -sun, half_angle)
+    centre = pose.centre_m
+    anti_sun_ground = centre - sun * centre[2] / sun[2]          # where the anti-sun ray meets z = 0
+    zone = rect.excluded_zone.astype(bool)
+    column, row = np.rint(rect.pixel_of(anti_sun_ground[:2])).astype(int)
+    assert zone[row, column]
+    # along a ground line through the anti-sun point, the zone ends where the ray angle is 4.3 deg
+    angles = []
+    for step in np.arange(0, 80):
+        point = anti_sun_ground[:2] + step * sample * np.array([1.0, 0.0])
+        c, r = np.rint(rect.pixel_of(point)).astype(int)
+        if not zone[r, c]:
+            ray = np.append(point, 0.0) - centre
+            angles.append(np.degrees(np.arccos(ray @ -sun / np.linalg.norm(ray))))
+            break
+    assert angles and 4.2 < angles[0] < 4.5
+    assert 0.005 < zone.mean() < 0.1
+
+
+def test_heat_shield_cone_is_excluded(mer_a):
+    pose = geometry.camera_pose(mer_a, np.array([1.0, 0, 0, 0]), 2000.0, np.zeros(2))
+    shield = np.array([60.0, -40.0, 2000.0 - 170.0])             # 170 m below, 72 m to the side
+    sample = 2000.0 / geometry.binned_focal_px(mer_a)
+    half_angle = np.arctan2(2.65, np.linalg.norm(shield - pose.centre_m)) + np.radians(1.0)
+    rect = geometry.rectify_map(pose, mer_a, 256, sample, np.zeros(2), 17, None, 0.0, shield, half_angle)
+    zone = rect.excluded_zone.astype(bool)
+    direction = (shield - pose.centre_m) / np.linalg.norm(shield - pose.centre_m)
+    behind = pose.centre_m - direction * pose.centre_m[2] / direction[2]     # ground point hidden by the shield
+    column, row = np.rint(rect.pixel_of(behind[:2])).astype(int)
+    assert zone[row, column]
+    # a narrow cone at angle theta from the vertical cuts the ground in an ellipse of area
+    # pi (H tan a)^2 / cos^3(theta)
+    cos_theta = -direction[2]
+    expected_area_px = np.pi * (pose.centre_m[2] * np.tan(half_angle) / sample) ** 2 / cos_theta ** 3
+    assert zone.sum() == pytest.approx(expected_area_px, rel=0.05)
