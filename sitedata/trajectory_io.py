@@ -51,6 +51,8 @@ from simulator.descent_profile import DescentProfile
 from simulator.tomlfields import ConfigError, Table
 
 QUATERNION_NORM_TOLERANCE = 1e-6
+# pandas >= 3 parses CSV floats round-trip exactly by default (and deprecates the option)
+_CSV_OPTIONS = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
 VECTOR_COLUMNS = {
     "position_m": ("x_m", "y_m", "z_m"),
     "velocity_mps": ("vx_mps", "vy_mps", "vz_mps"),
@@ -64,6 +66,11 @@ REQUIRED_COLUMNS = ("profile_id", "t_s") + tuple(c for cols in VECTOR_COLUMNS.va
 
 class TrajectoryFileError(ConfigError):
     """A trajectory file is unreadable or breaks the schema (one-line message)."""
+
+
+def _plain(value):
+    """A numpy scalar as the Python value (for readable error messages)."""
+    return value.item() if hasattr(value, "item") else value
 
 
 def image_column(k: int) -> str:
@@ -143,7 +150,7 @@ def read_profiles(path: str | Path) -> list[DescentProfile]:
         if path.suffix == ".parquet":
             frame = pq.read_table(path).to_pandas()
         elif path.suffix == ".csv":
-            frame = pd.read_csv(path, float_precision="round_trip")
+            frame = pd.read_csv(path, **_CSV_OPTIONS)
         else:
             raise TrajectoryFileError(f"{path}: unknown trajectory file type {path.suffix!r}; allowed: .parquet, .csv")
     except TrajectoryFileError:
@@ -189,13 +196,13 @@ def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "prof
         bad = np.nonzero(~np.isfinite(numeric))[0]
         if len(bad):
             row = int(bad[0])
-            raise TrajectoryFileError(f"{source}: row {row + 1} column {name!r} = {column.iloc[row]!r} is not a finite "
+            raise TrajectoryFileError(f"{source}: row {row + 1} column {name!r} = {_plain(column.iloc[row])!r} is not a finite "
                                       "number; allowed: finite numbers")
         values[name] = numeric
     ids = values["profile_id"]
     fractional = np.nonzero(ids != np.round(ids))[0]
     if len(fractional):
-        raise TrajectoryFileError(f"{source}: row {fractional[0] + 1} column 'profile_id' = {ids[fractional[0]]!r} "
+        raise TrajectoryFileError(f"{source}: row {fractional[0] + 1} column 'profile_id' = {float(ids[fractional[0]])!r} "
                                   "is not an integer; allowed: integers")
     starts = np.concatenate([[0], np.nonzero(np.diff(ids))[0] + 1])
     ends = np.concatenate([starts[1:], [len(ids)]])
@@ -212,8 +219,8 @@ def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "prof
     backwards = np.nonzero(same_profile & (np.diff(time) <= 0))[0]
     if len(backwards):
         row = int(backwards[0]) + 1
-        raise TrajectoryFileError(f"{source}: row {row + 1} column 't_s' = {time[row]!r} does not follow "
-                                  f"{time[row - 1]!r} (profile_id {int(ids[row])}); allowed: strictly increasing "
+        raise TrajectoryFileError(f"{source}: row {row + 1} column 't_s' = {float(time[row])!r} does not follow "
+                                  f"{float(time[row - 1])!r} (profile_id {int(ids[row])}); allowed: strictly increasing "
                                   "t_s within each profile")
     quat = np.stack([values[c] for c in VECTOR_COLUMNS["attitude_quat"]], axis=1)
     norm = np.sqrt(np.sum(quat * quat, axis=1))
@@ -232,11 +239,11 @@ def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "prof
         for c in images:
             changed = np.nonzero(values[c][start:end] != values[c][start])[0]
             if len(changed):
-                raise TrajectoryFileError(f"{source}: row {start + changed[0] + 1} column {c!r} = {values[c][start + changed[0]]!r} "
-                                          f"differs from the profile's first row ({values[c][start]!r}); allowed: one value per profile")
+                raise TrajectoryFileError(f"{source}: row {start + changed[0] + 1} column {c!r} = {float(values[c][start + changed[0]])!r} "
+                                          f"differs from the profile's first row ({float(values[c][start])!r}); allowed: one value per profile")
         if np.any(np.diff(image_times) <= 0) or image_times[0] < time[start] or image_times[-1] > time[end - 1]:
             raise TrajectoryFileError(f"{source}: row {start + 1} image times {image_times.tolist()} (profile_id {pid}); "
-                                      f"allowed: strictly increasing, inside [{time[start]!r}, {time[end - 1]!r}] s")
+                                      f"allowed: strictly increasing, inside [{float(time[start])!r}, {float(time[end - 1])!r}] s")
         block = slice(start, end)
 
         def stack(names: Sequence[str]) -> np.ndarray:
