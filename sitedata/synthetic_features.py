@@ -200,8 +200,13 @@ def cast_shadow_fraction(height_m: np.ndarray, metres_per_pixel: float, sun_azim
     col_grid = np.arange(cols, dtype=np.float32)[None, :]
     map_row = (np.arange(sheared_rows, dtype=np.float32)[:, None] - offset + np.float32(slope) * col_grid)
     map_col = np.broadcast_to(col_grid, map_row.shape).astype(np.float32)
-    low = float(height.min()) - 1e6
-    sheared = cv2.remap(height, map_col, map_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=low)
+    low = np.float32(float(height.min()) - 1e6)
+    # interpolate with replicated edges (no blending with the fill value at the border), then mark the
+    # canvas samples that lie wholly outside the image as unable to cast shadows
+    sheared = cv2.remap(height, map_col, map_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inside = cv2.remap(np.ones_like(height), map_col, map_row, cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    sheared[inside <= 0.0] = low
     path_m = metres_per_pixel * np.hypot(1.0, slope)
     toward_sun_m = (direction * path_m) * np.arange(cols, dtype=np.float32)[None, :]
     potential = sheared - np.float32(np.tan(sun_elevation_rad)) * toward_sun_m

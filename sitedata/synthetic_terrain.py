@@ -45,7 +45,7 @@ from . import synthetic_features as feat
 from .synthetic_classes import CLASS_PRESETS, OUTER_SCALE_M, ClassTerrainParams
 
 #: Bump when the generator's output for given parameters changes (invalidates caches).
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 #: Gaussian sigma of the MOC NA point spread function at the strip scale (px).
 MOC_PSF_SIGMA_PX = 0.5
 #: Rim height / rim-to-floor depth of simple craters (fresh: rim 0.04 D, depth 0.2 D; Pike 1977).
