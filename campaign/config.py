@@ -3,7 +3,8 @@
 A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
 
 ``[site]``       site, camera, trajectory set, sun, appearance classes (read by :mod:`sitedata.sites`)
-``[campaign]``   ``seed`` (int), ``output_dir`` (path, relative to the file), ``cases`` (optional
+``[campaign]``   ``seed`` (int), ``output_dir`` (relative to the working directory; default
+                 ``runs/<site>``), ``cases`` (optional
                  table class -> count overriding the site's counts), ``cases_scale`` (optional factor
                  applied to every class, e.g. 0.1 for a quick look; at least 1 case per class with a count)
 ``[execution]``  ``scheduler`` ("" = embedded LocalCluster, or "tcp://host:port"), ``workers`` (0 = one
@@ -77,9 +78,8 @@ def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = No
 
     campaign = root.table("campaign", required=False)
     seed = campaign.integer("seed", default=1, minimum=0, maximum=2**63 - 1)
-    base_dir = path.parent
-    out = Path(output_dir) if output_dir is not None else campaign.path_value("output_dir", base_dir,
-                                                                               default=f"runs/{site.name}")
+    out = Path(output_dir) if output_dir is not None else Path(
+        campaign.string("output_dir", default=f"runs/{site.name.lower()}"))
     scale = cases_scale if cases_scale is not None else campaign.number("cases_scale", default=1.0,
                                                                         minimum=0.0, maximum=100.0,
                                                                         exclusive_minimum=True)

@@ -101,8 +101,8 @@ def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:
 
 
 def rotate(quaternion: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Rotate vectors (..., 3) by a unit quaternion."""
-    return np.asarray(vectors, dtype=float) @ quat_to_matrix(quaternion).T
+    """Rotate vectors (..., 3) by unit quaternion(s) (..., 4), broadcasting over leading axes."""
+    return np.einsum("...ij,...j->...i", quat_to_matrix(quaternion), np.asarray(vectors, dtype=float))
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, fraction: float | np.ndarray) -> np.ndarray:
