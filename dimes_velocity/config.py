@@ -57,7 +57,8 @@ class EstimatorConfig:
         features_per_pair [4]: templates tracked per image pair.
         min_feature_spacing_px [12]: minimum distance between selected template centres.
         border_margin_px [4]: templates keep this far from the rectified image's valid border.
-        min_contrast_to_noise [2.5]: template standard deviation / expected pixel noise (shot + read).
+        min_contrast_to_noise [2.5]: standard deviation of the template minus its best-fit plane / expected
+            pixel noise (shot + read).
         zero_phase_half_angle_deg [4.3]: half angle of the excluded zone around the zero-phase
             (anti-sun) direction (paper section 3).
         heat_shield_radius_m [2.65]: heat shield radius (5.3 m diameter) for its exclusion cone.
@@ -70,7 +71,7 @@ class EstimatorConfig:
         search_margin_px [2.0]: added to the search radius.
         max_search_radius_px [48]: cap on the search radius (fine-level pixels).
         fine_search_radius_px [2]: full-resolution refinement range around the coarse peak.
-        subpixel_iterations [5]: Gauss-Newton (Lucas-Kanade) steps refining the sub-pixel peak.
+        subpixel_iterations [3]: Gauss-Newton (Lucas-Kanade) steps refining the sub-pixel peak.
     Quality checks
         min_correlation [0.7]: normalised correlation peak at full resolution.
         max_second_peak_ratio [0.9]: second-highest coarse-level local maximum / main peak.
@@ -113,7 +114,7 @@ class EstimatorConfig:
     search_margin_px: float = 2.0
     max_search_radius_px: int = 48
     fine_search_radius_px: int = 2
-    subpixel_iterations: int = 5
+    subpixel_iterations: int = 3
     min_correlation: float = 0.7
     max_second_peak_ratio: float = 0.9
     second_peak_exclusion_px: int = 2

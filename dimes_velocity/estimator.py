@@ -49,14 +49,15 @@ class RectifiedImage:
         signal = flat.signal_dn
         if blur_px > 0.05:
             signal = cv2.GaussianBlur(signal, (0, 0), blur_px, borderType=cv2.BORDER_REPLICATE)
-        stacked = np.dstack([signal, (flat.excluded & 1).astype(np.float32),
-                             (flat.signal_dn < config.min_signal_dn).astype(np.float32)])
-        warped = geometry.warp(stacked, rectification)
-        self.image = np.ascontiguousarray(warped[..., 0])
+        self.image = geometry.warp(signal, rectification)
+        # codes: 1 saturated, 2 no signal; dilated (max) so that every rectified pixel whose bilinear
+        # support touches a bad block is bad, then carried over by nearest neighbour
+        codes = np.where(flat.signal_dn < config.min_signal_dn, 2, flat.excluded).astype(np.uint8)
+        codes = geometry.warp(cv2.dilate(codes, np.ones((3, 3), np.uint8)), rectification, cv2.INTER_NEAREST)
         visible = rectification.visible.astype(bool)
-        bad_pixel = warped[..., 1] > 0.01
-        dark = warped[..., 2] > 0.01
-        saturated = bad_pixel & ~dark
+        bad_pixel = codes > 0
+        dark = codes == 2
+        saturated = codes == 1
         zone = rectification.excluded_zone.astype(bool)
         self.valid = visible & ~bad_pixel & ~zone
         self.coverage = float(self.valid.mean())
@@ -133,7 +134,7 @@ class DimesEstimator:
             shape = np.shape(image)
             if shape != self.flattening.raw_shape:
                 raise MeasurementError(f"image {k}: shape {shape}; expected {self.flattening.raw_shape}")
-            if not np.all(np.isfinite(image)):
+            if np.asarray(image).dtype.kind == "f" and not np.isfinite(image).all():
                 raise MeasurementError(f"image {k}: contains non-finite values")
         flats = [flatten(image, self.flattening, config) for image in images]
         t_pre = time.perf_counter()

@@ -5,8 +5,9 @@ tensor summed over the template (Shi-Tomasi "good features to track", ``cv2.corn
 ``blockSize`` = template size): it is large only when the template is textured in two directions,
 which is what a 2-D correlation needs. The allowed centres (``candidates``) are split into a
 ``feature_grid x feature_grid`` grid over their bounding box; each cell offers its most interesting
-centre, and the best offers with enough contrast (template standard deviation over the expected
-pixel noise), at least ``min_feature_spacing_px`` apart, are selected.
+centre, and the best offers with enough contrast (standard deviation of the template minus its
+best-fit plane, over the expected pixel noise), at least ``min_feature_spacing_px`` apart, are
+selected.
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ class Candidate:
     contrast_dn : float
         Standard deviation of the template (flattened DN).
     contrast_to_noise : float
-        ``contrast_dn`` over the expected pixel noise at the template.
+        Detrended standard deviation (best-fit plane removed) over the expected pixel noise.
     """
 
     column: int
@@ -61,10 +62,18 @@ def interest_map(image: np.ndarray, config: EstimatorConfig) -> np.ndarray:
     return cv2.cornerMinEigenVal(image, blockSize=config.template_size_px, ksize=3)
 
 
-def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> tuple[float, float]:
-    """Mean and standard deviation of the (2 half + 1)^2 template at (column, row)."""
+def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> tuple[float, float, float]:
+    """Mean, standard deviation and detrended standard deviation of the (2 half + 1)^2 template at
+    (column, row). The detrended value removes the best-fit plane: a smooth brightness ramp (the
+    photometric function, the opposition halo's flank) has contrast but nothing to correlate on."""
     patch = image[row - half: row + half + 1, column - half: column + half + 1].astype(np.float64)
-    return float(patch.mean()), float(patch.std())
+    offsets = np.arange(-half, half + 1, dtype=np.float64)
+    norm = (2 * half + 1) * float(offsets @ offsets)
+    mean = float(patch.mean())
+    slope_x = float((patch.sum(axis=0) @ offsets) / norm)
+    slope_y = float((patch.sum(axis=1) @ offsets) / norm)
+    residual = patch - mean - slope_x * offsets[None, :] - slope_y * offsets[:, None]
+    return mean, float(patch.std()), float(residual.std())
 
 
 def select_features(image: np.ndarray, candidates: np.ndarray, noise_dn_at, config: EstimatorConfig,
@@ -107,14 +116,14 @@ def select_features(image: np.ndarray, candidates: np.ndarray, noise_dn_at, conf
     chosen: list[Candidate] = []
     low_contrast = 0
     for score, column, row in offers:
-        mean, std = template_statistics(image, column, row, half)
-        noise = max(float(noise_dn_at(column, row)), 1e-6)
-        if std / noise < config.min_contrast_to_noise:
-            low_contrast += 1
-            continue
         if any((column - c.column) ** 2 + (row - c.row) ** 2 < config.min_feature_spacing_px ** 2 for c in chosen):
             continue
-        chosen.append(Candidate(column, row, score, mean, std, std / noise))
+        mean, std, detrended = template_statistics(image, column, row, half)
+        noise = max(float(noise_dn_at(column, row)), 1e-6)
+        if detrended / noise < config.min_contrast_to_noise:
+            low_contrast += 1
+            continue
+        chosen.append(Candidate(column, row, score, mean, std, detrended / noise))
         if len(chosen) == config.features_per_pair:
             break
     return Selection(tuple(chosen), len(offers), low_contrast)

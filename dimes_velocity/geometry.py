@@ -14,7 +14,7 @@ so full-frame coordinates map to binned ones by ``(x - (b - 1)/2) / b``.
 
 The ground -> image map is not a homography (CAHVOR radial distortion), so it is evaluated exactly
 on a ``(K + 2) x (K + 2)`` grid of knots and interpolated in between by Catmull-Rom cubic convolution
-(a fixed linear operator ``W``: ``map = W @ knots @ W.T``; 17 knots on 256 pixels: < 0.01 pixel);
+(separable, four knots per axis; 17 knots on 256 pixels: < 0.01 pixel);
 ``cv2.remap`` then resamples bilinearly. Points behind the camera spoil only the cells next to them,
 which are marked not visible.
 """
@@ -91,25 +91,22 @@ def binned_focal_px(camera: Camera) -> float:
 
 
 @lru_cache(maxsize=8)
-def knot_operator(size: int, knots: int) -> tuple[np.ndarray, np.ndarray]:
+def knot_operator(size: int, knots: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Catmull-Rom interpolation from knots to every integer position of ``0 .. size - 1``.
 
     The knots are ``linspace(0, size - 1, knots)`` plus one more spacing beyond each end. Returns
-    ``(positions (knots + 2,), operator (size, knots + 2))``; position ``p`` in interval ``j`` (between
-    inner knots ``j`` and ``j + 1``) depends only on extended knots ``j .. j + 3``, so an unusable knot
-    spoils only the cells around it.
+    ``(positions (knots + 2,), first (size,), weights (size, 4))``: position ``p`` in interval ``j``
+    (between inner knots ``j`` and ``j + 1``) is ``sum_k weights[p, k] * value[first[p] + k]`` over
+    extended knots ``j .. j + 3`` (``first = j``), so an unusable knot spoils only the cells around it.
     """
     spacing = (size - 1.0) / (knots - 1)
     positions = np.concatenate([[-spacing], np.linspace(0.0, size - 1.0, knots), [size - 1.0 + spacing]])
     pixel = np.arange(size, dtype=float)
-    cell = np.minimum(np.floor(pixel / spacing).astype(int), knots - 2)
+    cell = cell_of_pixel(size, knots)
     t = pixel / spacing - cell
     weights = np.stack([((-0.5 * t + 1.0) * t - 0.5) * t, (1.5 * t - 2.5) * t * t + 1.0,
                         ((-1.5 * t + 2.0) * t + 0.5) * t, (0.5 * t - 0.5) * t * t], axis=1)
-    operator = np.zeros((size, knots + 2))
-    for k in range(4):
-        operator[np.arange(size), cell + k] = weights[:, k]
-    return positions, operator
+    return positions, cell, weights
 
 
 def cell_of_pixel(size: int, knots: int) -> np.ndarray:
@@ -153,12 +150,36 @@ class Rectification:
         return np.array([offset[0], -offset[1]])
 
 
-def _upsample(operator: np.ndarray, knot_values: np.ndarray) -> np.ndarray:
-    """``operator @ knot_values @ operator.T`` with OpenCV's single-call GEMM (NumPy's BLAS may start
-    threads that stall on a busy machine: 20 ms instead of 0.1 ms)."""
-    values = np.ascontiguousarray(knot_values, dtype=np.float64)
-    rows = cv2.gemm(operator, values, 1.0, None, 0.0)
-    return cv2.gemm(rows, operator, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
+def _upsample(operator: tuple[np.ndarray, np.ndarray, np.ndarray], knot_values: np.ndarray) -> np.ndarray:
+    """Knot values (K+2, K+2, C) -> (C, size, size) float32 by separable Catmull-Rom (:func:`knot_operator`).
+
+    One small matrix product per knot interval and axis (4 knots each): O(size^2) work, and no
+    large BLAS call (a single big product may start BLAS threads that stall for ~20 ms on a busy
+    machine)."""
+    _, first, weights = operator
+    values = np.asarray(knot_values, dtype=np.float64)
+    extended, channels = values.shape[0], values.shape[2]
+    size = len(first)
+    starts = np.flatnonzero(np.diff(first, prepend=-1))
+    ends = np.append(starts[1:], size)
+    flat = values.reshape(extended, extended * channels)
+    rows = np.empty((size, extended * channels))
+    for lo, hi in zip(starts, ends):
+        rows[lo:hi] = weights[lo:hi] @ flat[first[lo]: first[lo] + 4]
+    rows = np.ascontiguousarray(rows.reshape(size, extended, channels).transpose(2, 0, 1))   # (C, size, K+2)
+    out = np.empty((channels, size, size), dtype=np.float32)
+    for lo, hi in zip(starts, ends):
+        out[:, :, lo:hi] = rows[:, :, first[lo]: first[lo] + 4] @ weights[lo:hi].T
+    return out
+
+
+def field_radius_rad(camera: Camera) -> float:
+    """Largest angle between the boresight and the rays of the frame's corners."""
+    corners = np.array([[0.0, 0.0], [camera.width_px - 1.0, 0.0], [0.0, camera.height_px - 1.0],
+                        [camera.width_px - 1.0, camera.height_px - 1.0]])
+    rays = cahvor.unproject(camera.model, corners)
+    axis = camera.model.a / np.linalg.norm(camera.model.a)
+    return float(np.arccos(np.clip(rays @ axis, -1.0, 1.0)).max())
 
 
 def ground_centre_m(pose: CameraPose, max_off_nadir_rad: float) -> np.ndarray:
@@ -189,33 +210,37 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
     n_cols, n_rows = camera.width_px // b, camera.height_px // b
     half = 0.5 * (size - 1)
     origin = np.asarray(centre_m, dtype=float) + sample_m * np.array([-half, half])
-    knot_px, operator = knot_operator(size, knots)
+    operator = knot_operator(size, knots)
+    knot_px = operator[0]
     east = origin[0] + sample_m * knot_px[None, :] + 0.0 * knot_px[:, None]
     north = origin[1] - sample_m * knot_px[:, None] + 0.0 * knot_px[None, :]
     ground = np.stack([east, north, np.zeros_like(east)], axis=-1)           # (K+2, K+2, 3)
     pixels, in_front = cahvor.project(pose.model, ground)
     binned = (pixels - 0.5 * (b - 1)) / b
     usable = in_front & np.all(np.abs(binned) < 1e5, axis=-1)
-    binned = np.where(usable[..., None], binned, 0.0)
-    map_x = _upsample(operator, binned[..., 0]).astype(np.float32)
-    map_y = _upsample(operator, binned[..., 1]).astype(np.float32)
+    channels = [np.where(usable, binned[..., 0], 0.0), np.where(usable, binned[..., 1], 0.0)]
+    rays = ground - pose.centre_m
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    reach = field_radius_rad(camera) + np.radians(2.0)       # only cones that can meet the frame
+    cones = []
+    if anti_sun is not None and zero_phase_half_angle_rad > 0:
+        cones.append((np.asarray(anti_sun, dtype=float), zero_phase_half_angle_rad))
+    if heat_shield_m is not None and heat_shield_half_angle_rad > 0:
+        shield = np.asarray(heat_shield_m, dtype=float) - pose.centre_m
+        cones.append((shield / max(float(np.linalg.norm(shield)), 1e-9), heat_shield_half_angle_rad))
+    cones = [(axis, cone_half) for axis, cone_half in cones
+             if np.arccos(np.clip(axis @ pose.boresight, -1.0, 1.0)) < reach + cone_half]
+    channels += [rays @ axis for axis, _ in cones]
+    maps = _upsample(operator, np.stack(channels, axis=-1))
+    map_x, map_y = maps[0], maps[1]
     rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
     cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
     cell_index = cell_of_pixel(size, knots)
     visible = (cells[cell_index[:, None], cell_index[None, :]]
                & (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1))
-
-    rays = ground - pose.centre_m
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
     excluded = np.zeros((size, size), dtype=bool)
-    if anti_sun is not None and zero_phase_half_angle_rad > 0:
-        cosine = _upsample(operator, rays @ anti_sun)
-        excluded |= cosine > np.cos(zero_phase_half_angle_rad)
-    if heat_shield_m is not None and heat_shield_half_angle_rad > 0:
-        shield = np.asarray(heat_shield_m, dtype=float) - pose.centre_m
-        shield /= max(float(np.linalg.norm(shield)), 1e-9)
-        cosine = _upsample(operator, rays @ shield)
-        excluded |= cosine > np.cos(heat_shield_half_angle_rad)
+    for cosine, (_, cone_half) in zip(maps[2:], cones):
+        excluded |= cosine > np.cos(cone_half)
     return Rectification(origin_m=origin, sample_m=float(sample_m), map_x=map_x, map_y=map_y,
                          visible=visible.astype(np.uint8), excluded_zone=excluded.astype(np.uint8))
 

@@ -12,9 +12,9 @@ A template from rectified image A is searched for in rectified image B around a 
    to the 3 x 3 correlation values around the peak; its maximum is the sub-pixel offset and its
    Hessian the peak sharpness. The fit is biased (the correlation surface is not symmetric about
    its peak, and a parabola "locks" toward integer positions: errors up to ~0.1 px), so the offset
-   is then refined by ``subpixel_iterations`` Gauss-Newton (Lucas-Kanade) steps that match the
-   template to bicubically re-sampled B with a gain and a bias; the reported correlation is the
-   normalised correlation at the refined position.
+   is then refined by up to ``subpixel_iterations`` inverse-compositional Gauss-Newton
+   (Lucas-Kanade) steps that match the normalised template to bicubically re-sampled, normalised B;
+   the reported correlation is the normalised correlation at the refined position.
 
 Positions are ``(column, row)`` of template centres.
 """
@@ -62,7 +62,9 @@ class Match:
 
 def _correlate(window: np.ndarray, template: np.ndarray) -> np.ndarray:
     result = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
-    return np.nan_to_num(result, nan=0.0, posinf=0.0, neginf=0.0)
+    if not np.isfinite(result).all():       # flat window or template
+        result = np.nan_to_num(result, nan=0.0, posinf=0.0, neginf=0.0)
+    return result
 
 
 def _crop(image: np.ndarray, column: int, row: int, half: int) -> np.ndarray | None:
@@ -130,53 +132,64 @@ def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.nd
     window must extend ``|offset| + 2`` pixels beyond the output on every side.
     """
     first_out = window.shape[0] // 2 - out_size // 2
-    data = window.astype(np.float64)
-    for axis, value in ((1, offset[0]), (0, offset[1])):
-        whole = int(np.floor(value))
-        weights = _keys_weights(value - whole)
-        first = first_out + whole - 1
-        data = sum(weights[k] * np.take(data, np.arange(first + k, first + k + out_size), axis=axis)
-                   for k in range(4))
-    return data
+    whole_x, whole_y = int(np.floor(offset[0])), int(np.floor(offset[1]))
+    wx, wy = _keys_weights(offset[0] - whole_x), _keys_weights(offset[1] - whole_y)
+    fx, fy = first_out + whole_x - 1, first_out + whole_y - 1
+    rows = window[fy: fy + out_size + 3].astype(np.float64)
+    columns = (wx[0] * rows[:, fx: fx + out_size] + wx[1] * rows[:, fx + 1: fx + 1 + out_size]
+               + wx[2] * rows[:, fx + 2: fx + 2 + out_size] + wx[3] * rows[:, fx + 3: fx + 3 + out_size])
+    return (wy[0] * columns[0:out_size] + wy[1] * columns[1:out_size + 1]
+            + wy[2] * columns[2:out_size + 2] + wy[3] * columns[3:out_size + 3])
 
 
-def _refine(image_b: np.ndarray, template: np.ndarray, peak: np.ndarray, offset: np.ndarray,
-            iterations: int) -> tuple[np.ndarray, float]:
-    """Gauss-Newton (Lucas-Kanade) refinement of the sub-pixel offset with gain and bias.
+def _refine(image_a: np.ndarray, image_b: np.ndarray, centre_a: tuple[int, int], peak: np.ndarray,
+            offset: np.ndarray, half: int, iterations: int) -> tuple[np.ndarray, float]:
+    """Inverse-compositional Gauss-Newton (Lucas-Kanade) refinement of the sub-pixel shift.
 
-    Minimises ``sum (T(x) - g B(x + p) - o)^2`` over the shift ``p`` (and gain ``g``, bias ``o``),
-    re-sampling B bicubically at each step; for a pure translation the fixed point is the true shift
-    whatever the asymmetry of the correlation surface. Returns the offset relative to ``peak`` and
-    the normalised correlation there (NaN when the window leaves the image).
+    Both the template ``T`` (from A) and the re-sampled window of B are normalised to zero mean and
+    unit variance (so gain and bias do not matter); the shift update is
+    ``dp = H^-1 sum grad T (B_n(x + p) - T_n(x))`` with ``H = sum grad T grad T^T`` computed once, and
+    ``p <- p + dp``. For a pure translation the fixed point is the true shift whatever the asymmetry
+    of the correlation surface. Returns the offset relative to ``peak`` and the normalised correlation
+    there (NaN when a window leaves the image or the template is flat).
     """
-    half = template.shape[0] // 2
-    window = _crop(image_b, int(peak[0]), int(peak[1]), half + 5)
-    if window is None:
+    window = _crop(image_b, int(peak[0]), int(peak[1]), half + 4)
+    padded = _crop(image_a, int(centre_a[0]), int(centre_a[1]), half + 1)
+    if window is None or padded is None:
         return offset, float("nan")
-    target = template.astype(np.float64).ravel()
-    core = None
-    for _ in range(iterations + 1):
-        moved = shift_window(window, offset, template.shape[0] + 2)   # centred on the shifted template
-        core = moved[1:-1, 1:-1]
-        if _ == iterations:
+    padded = padded.astype(np.float64)
+    template = padded[1:-1, 1:-1]
+    mean, spread = template.mean(), template.std()
+    if not spread > 0:
+        return offset, float("nan")
+    target = (template - mean) / spread
+    grad_x = (0.5 / spread) * (padded[1:-1, 2:] - padded[1:-1, :-2])
+    grad_y = (0.5 / spread) * (padded[2:, 1:-1] - padded[:-2, 1:-1])
+    hessian = np.array([[np.sum(grad_x * grad_x), np.sum(grad_x * grad_y)],
+                        [np.sum(grad_x * grad_y), np.sum(grad_y * grad_y)]])
+    determinant = hessian[0, 0] * hessian[1, 1] - hessian[0, 1] ** 2
+    if not determinant > 1e-12 * max(hessian[0, 0] * hessian[1, 1], 1e-300):
+        return offset, float("nan")
+    inverse = np.array([[hessian[1, 1], -hessian[0, 1]], [-hessian[0, 1], hessian[0, 0]]]) / determinant
+    size = template.shape[0]
+    correlation = float("nan")
+    for step in range(iterations + 1):
+        moved = shift_window(window, offset, size)
+        moved_std = moved.std()
+        if not moved_std > 0:
+            return offset, float("nan")
+        normalised = (moved - moved.mean()) / moved_std
+        correlation = float(np.sum(normalised * target)) / normalised.size
+        if step == iterations:
             break
-        grad_x = 0.5 * (moved[1:-1, 2:] - moved[1:-1, :-2])
-        grad_y = 0.5 * (moved[2:, 1:-1] - moved[:-2, 1:-1])
-        design = np.stack([core.ravel(), np.ones(core.size), grad_x.ravel(), grad_y.ravel()])
-        normal = design @ design.T
-        if not np.linalg.cond(normal) < 1e12:
+        error = normalised - target
+        delta = inverse @ np.array([np.sum(grad_x * error), np.sum(grad_y * error)])
+        offset = np.clip(offset - delta, -1.5, 1.5)
+        if max(abs(delta[0]), abs(delta[1])) < 1e-3:
+            moved = shift_window(window, offset, size)
+            normalised = (moved - moved.mean()) / max(moved.std(), 1e-300)
+            correlation = float(np.sum(normalised * target)) / normalised.size
             break
-        solution = np.linalg.solve(normal, design @ target)
-        if not np.all(np.isfinite(solution)) or abs(solution[0]) < 1e-6:
-            break
-        delta = solution[2:] / solution[0]
-        offset = np.clip(offset + delta, -1.5, 1.5)
-        if np.max(np.abs(delta)) < 1e-3:
-            break
-    centred = core.ravel() - core.mean()
-    reference = target - target.mean()
-    norm = float(np.sqrt((centred @ centred) * (reference @ reference)))
-    correlation = float(centred @ reference) / norm if norm > 0 else 0.0
     return offset, correlation
 
 
@@ -226,7 +239,7 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
         return failed("search_border", best, ratio)
     offset, correlation, curvature = fit_peak(fine[j_row - 1: j_row + 2, j_col - 1: j_col + 2])
     if config.subpixel_iterations > 0:
-        refined, value = _refine(b_fine, template_f, guess, offset, config.subpixel_iterations)
+        refined, value = _refine(a_fine, b_fine, (u, v), guess, offset, half_f, config.subpixel_iterations)
         if np.isfinite(value):
             offset, correlation = refined, value
     if np.any(np.abs(predicted_b - (guess + offset)) > search_radius_px + 2.0):

@@ -74,6 +74,13 @@ class Flattening:
     exposure_s: float
     saturation_dn: float
 
+    @property
+    def inverse_response(self) -> np.ndarray:
+        return self._inverse_response
+
+    def __post_init__(self):
+        object.__setattr__(self, "_inverse_response", (1.0 / self.response).astype(np.float32))
+
 
 def make_flattening(camera: Camera, config: EstimatorConfig) -> Flattening:
     """Constants of :func:`flatten` for ``camera`` (touches ``camera.falloff_map`` once: ~0.5 s)."""
@@ -148,14 +155,15 @@ def unsmear(charge_e: np.ndarray, flattening: Flattening) -> np.ndarray:
     alpha, beta, gamma = flattening.alpha_s, flattening.beta_s, flattening.gamma_s
     if beta == 0.0 and gamma == 0.0:
         return charge_e / np.float32(alpha)
-    q = charge_e if flattening.toward_last_row else charge_e[::-1]
     d = alpha - gamma
     ratio = (beta - gamma) / d
-    n_rows = q.shape[0]
+    n_rows = charge_e.shape[0]
+    if ratio == 0.0:   # equal flush and transfer times (MER): G_k = (Q_k - gamma S) / d
+        total = charge_e.sum(axis=0, dtype=np.float64) / (d + n_rows * gamma)
+        return ((charge_e - (gamma * total).astype(np.float32)[None, :]) / np.float32(d)).astype(np.float32)
+    q = charge_e if flattening.toward_last_row else charge_e[::-1]
 
     def solve(u: np.ndarray) -> np.ndarray:
-        if ratio == 0.0:
-            return u
         running = lfilter([1.0], [1.0, -(1.0 - ratio)], u, axis=0)   # P_{k+1}
         before = np.zeros_like(running)
         before[1:] = running[:-1]
@@ -181,14 +189,12 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
     summed_dn = bin_columns(raw, b) - np.float32(b * flattening.adc_offset_dn) - flattening.storage_dark_dn
     charge_e = summed_dn * gain
     rates = unsmear(charge_e, flattening) - np.float32(flattening.area_dark_e_per_s)
-    to_dn = np.float32(flattening.exposure_s) / gain
-    signal = rates * to_dn / flattening.response
-    variance_e = np.maximum(charge_e, 0.0) + np.float32(b * flattening.read_noise_e**2 + b * gain**2 / 12.0)
-    noise = np.sqrt(variance_e) * np.float32(flattening.exposure_s / flattening.alpha_s) / gain / flattening.response
+    inverse_response = flattening.inverse_response
+    signal = rates * (np.float32(flattening.exposure_s) / gain) * inverse_response
+    variance_e = np.maximum(charge_e, np.float32(0.0)) + np.float32(b * flattening.read_noise_e**2 + b * gain**2 / 12.0)
+    noise = np.sqrt(variance_e) * (np.float32(flattening.exposure_s / flattening.alpha_s) / gain) * inverse_response
     dark = signal < np.float32(config.min_signal_dn)
     excluded = (saturated | dark).astype(np.uint8)
-    return FlatImage(
-        signal_dn=np.nan_to_num(signal, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32),
-        noise_dn=np.nan_to_num(noise, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32),
-        excluded=excluded, saturated_fraction=float(saturated.mean()), dark_fraction=float(dark.mean()),
-    )
+    return FlatImage(signal_dn=signal, noise_dn=noise, excluded=excluded,
+                     saturated_fraction=float(np.count_nonzero(saturated)) / saturated.size,
+                     dark_fraction=float(np.count_nonzero(dark)) / dark.size)

@@ -50,7 +50,7 @@ class FeatureMetrics:
     brightness_dn, contrast_dn : float
         Mean and standard deviation of the template (flattened, binned DN).
     contrast_to_noise : float
-        ``contrast_dn`` over the expected pixel noise.
+        Standard deviation of the template minus its best-fit plane, over the expected pixel noise.
     correlation : float
         Normalised correlation at the sub-pixel peak.
     second_peak_ratio : float

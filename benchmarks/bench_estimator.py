@@ -1,0 +1,79 @@
+"""Reference DIMES estimator: ms per case (target <= 10 ms), per stage, with the velocity error.
+
+Cases are simulator images (``render_descent_image`` on a synthetic Gusev dark-cratered-plains
+strip, camera noise on) with measurements from the sensor models (paper noise): a nadir and a
+tilted descent, a descent with the zero-phase halo in view, and a blank scene (invalid, early exit).
+Each case is timed as the median of repeated estimates on the same inputs (the estimator's
+per-camera constants are built once, as in a campaign worker).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from dimes_velocity import DimesEstimator
+from simulator.camera_config import load_camera
+from simulator.descent_image import render_descent_image
+from simulator.descent_profile import constant_velocity_profile
+from simulator.kinematics import quat_from_axis_angle
+from simulator.terrain import Terrain
+from sitedata.sensors import SensorConfig, measure
+from sitedata.synthetic_terrain import synthetic_terrain
+
+CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
+TIMES_S = np.array([0.0, 275.0 / 72.0, 550.0 / 72.0])
+REPEATS = 25
+
+
+def _sun(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
+    elevation, azimuth = np.radians(elevation_deg), np.radians(azimuth_deg)
+    return np.array([np.cos(elevation) * np.sin(azimuth), np.cos(elevation) * np.cos(azimuth), np.sin(elevation)])
+
+
+def _case(camera, terrain, seed: int, tilt_deg: float, sun: np.ndarray):
+    rng = np.random.default_rng(np.random.SeedSequence([77, seed]))
+    velocity = np.array([14.0, -9.0, -72.0])
+    attitude = quat_from_axis_angle(np.array([1.0, 0.5, 0.0]), np.radians(tilt_deg))
+    profile = constant_velocity_profile([0.0, -1500.0, 2000.0], velocity, attitude, 10.0, TIMES_S)
+    images = [render_descent_image(terrain, profile, camera, k, sun, None, rng).dn for k in range(3)]
+    measurements, _ = measure(profile, camera, sun, SensorConfig(), rng)
+    return images, measurements, velocity
+
+
+def run() -> list[dict]:
+    camera = load_camera(CAMERA)
+    estimator = DimesEstimator(camera)
+    terrain = synthetic_terrain("gdcp", 3)
+    blank = Terrain(np.full((400, 400), 0.2, np.float32), 15.0, np.array([-3000.0, 3000.0]),
+                    terrain.moc_incidence_rad, terrain.moc_emission_rad, terrain.moc_phase_rad, "blank")
+    cases = {
+        "nadir_gdcp": _case(camera, terrain, 1, 0.0, _sun(55.0, 120.0)),
+        "tilt15_gdcp": _case(camera, terrain, 2, 15.0, _sun(55.0, 120.0)),
+        "halo_in_view_gdcp": _case(camera, terrain, 3, 5.0, _sun(78.0, 200.0)),
+        "blank_scene": _case(camera, blank, 4, 0.0, _sun(55.0, 120.0)),
+    }
+    rows = []
+    for name, (images, measurements, velocity) in cases.items():
+        result = estimator.estimate(images, measurements)
+        totals, stages = [], []
+        for _ in range(REPEATS):
+            start = time.perf_counter()
+            result = estimator.estimate(images, measurements)
+            totals.append(time.perf_counter() - start)
+            stages.append(result.timings)
+        middle = stages[int(np.argsort(totals)[len(totals) // 2])]
+        rows.append({
+            "name": f"estimator/{name}", "ms": 1e3 * float(np.median(totals)), "min_ms": 1e3 * float(np.min(totals)),
+            "preprocess_ms": middle.preprocess_ms, "rectify_ms": middle.rectify_ms, "select_ms": middle.select_ms,
+            "match_ms": middle.match_ms, "valid": result.valid, "reason": result.reason,
+            "velocity_error_mps": float(np.hypot(result.velocity_east_mps - velocity[0],
+                                                 result.velocity_north_mps - velocity[1])),
+        })
+    return rows
+
+
+if __name__ == "__main__":
+    for row in run():
+        print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
