@@ -137,7 +137,7 @@ _MERIDIANI_MOC = dict(moc_incidence_deg=40.0, moc_sun_azimuth_deg=260.0, haze_op
 CLASS_PRESETS: dict[str, ClassTerrainParams] = {
     "gcp": ClassTerrainParams(
         name="gcp", description="Gusev cratered plains: bright, smooth, few craters, bright rims, low contrast",
-        normal_albedo_mean=0.27, albedo_relative_spread=0.022, rms_slope_deg=2.5,
+        normal_albedo_mean=0.27, albedo_relative_spread=0.024, rms_slope_deg=2.5,
         crater_density_per_km2=30.0, crater_max_diameter_m=400.0, crater_depth_to_diameter=(0.02, 0.12),
         crater_rim_albedo_contrast=0.06, **_GUSEV_MOC),
     "gdcp": ClassTerrainParams(
@@ -162,10 +162,10 @@ CLASS_PRESETS: dict[str, ClassTerrainParams] = {
         crater_density_per_km2=70.0, crater_depth_to_diameter=(0.03, 0.15), **_MERIDIANI_MOC),
     "heb": ClassTerrainParams(
         name="heb", description="Meridiani hematite ejecta blanket: apron around a large crater",
-        normal_albedo_mean=0.16, albedo_relative_spread=0.03, rms_slope_deg=3.0,
+        normal_albedo_mean=0.16, albedo_relative_spread=0.025, rms_slope_deg=3.0,
         crater_density_per_km2=60.0, crater_depth_to_diameter=(0.03, 0.15),
         ejecta_crater_diameter_m=2000.0, ejecta_crater_spacing_m=6000.0, ejecta_extent_radii=3.0,
-        ejecta_ray_albedo_contrast=0.12, ejecta_blanket_albedo_contrast=0.1, ejecta_relief_rms_m=3.0,
+        ejecta_ray_albedo_contrast=0.1, ejecta_blanket_albedo_contrast=0.1, ejecta_relief_rms_m=3.0,
         secondary_density_per_km2=150.0,
         **_MERIDIANI_MOC),
 }
