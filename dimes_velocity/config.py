@@ -71,7 +71,7 @@ class EstimatorConfig:
         search_margin_px [2.0]: added to the search radius.
         max_search_radius_px [48]: cap on the search radius (fine-level pixels).
         fine_search_radius_px [2]: full-resolution refinement range around the coarse peak.
-        subpixel_iterations [3]: Gauss-Newton (Lucas-Kanade) steps refining the sub-pixel peak.
+        subpixel_iterations [2]: Gauss-Newton (Lucas-Kanade) steps refining the sub-pixel peak.
     Quality checks
         min_correlation [0.7]: normalised correlation peak at full resolution.
         max_second_peak_ratio [0.9]: second-highest coarse-level local maximum / main peak.
@@ -114,7 +114,7 @@ class EstimatorConfig:
     search_margin_px: float = 2.0
     max_search_radius_px: int = 48
     fine_search_radius_px: int = 2
-    subpixel_iterations: int = 3
+    subpixel_iterations: int = 2
     min_correlation: float = 0.7
     max_second_peak_ratio: float = 0.9
     second_peak_exclusion_px: int = 2

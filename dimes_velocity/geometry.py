@@ -173,13 +173,23 @@ def _upsample(operator: tuple[np.ndarray, np.ndarray, np.ndarray], knot_values: 
     return out
 
 
+_FIELD_RADIUS: dict[int, tuple[Camera, float]] = {}
+
+
 def field_radius_rad(camera: Camera) -> float:
-    """Largest angle between the boresight and the rays of the frame's corners."""
+    """Largest angle between the boresight and the rays of the frame's corners (cached per camera)."""
+    cached = _FIELD_RADIUS.get(id(camera))
+    if cached is not None and cached[0] is camera:
+        return cached[1]
     corners = np.array([[0.0, 0.0], [camera.width_px - 1.0, 0.0], [0.0, camera.height_px - 1.0],
                         [camera.width_px - 1.0, camera.height_px - 1.0]])
     rays = cahvor.unproject(camera.model, corners)
     axis = camera.model.a / np.linalg.norm(camera.model.a)
-    return float(np.arccos(np.clip(rays @ axis, -1.0, 1.0)).max())
+    radius = float(np.arccos(np.clip(rays @ axis, -1.0, 1.0)).max())
+    if len(_FIELD_RADIUS) > 16:
+        _FIELD_RADIUS.clear()
+    _FIELD_RADIUS[id(camera)] = (camera, radius)
+    return radius
 
 
 def ground_centre_m(pose: CameraPose, max_off_nadir_rad: float) -> np.ndarray:
@@ -235,9 +245,10 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
     map_x, map_y = maps[0], maps[1]
     rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
     cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
-    cell_index = cell_of_pixel(size, knots)
-    visible = (cells[cell_index[:, None], cell_index[None, :]]
-               & (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1))
+    visible = (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1)
+    if not cells.all():
+        counts = np.bincount(cell_of_pixel(size, knots), minlength=knots - 1)
+        visible &= np.repeat(np.repeat(cells, counts, axis=0), counts, axis=1)
     excluded = np.zeros((size, size), dtype=bool)
     for cosine, (_, cone_half) in zip(maps[2:], cones):
         excluded |= cosine > np.cos(cone_half)

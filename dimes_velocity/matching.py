@@ -97,20 +97,21 @@ def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
     curvature : float
         Smallest principal curvature ``min(-eig(Hessian))`` (0 when the surface is not a maximum).
     """
-    a, bx, by, dxx, exy, fyy = _FIT @ patch.astype(float).ravel()
-    hessian = np.array([[2.0 * dxx, exy], [exy, 2.0 * fyy]])
-    eigenvalues = np.linalg.eigvalsh(hessian)
-    if eigenvalues[1] < 0.0:
-        offset = np.linalg.solve(hessian, -np.array([bx, by]))
-        curvature = float(-eigenvalues[1])
+    a, bx, by, dxx, exy, fyy = (float(c) for c in _FIT @ patch.astype(float).ravel())
+    hxx, hxy, hyy = 2.0 * dxx, exy, 2.0 * fyy                          # Hessian of the fit
+    larger = 0.5 * (hxx + hyy) + float(np.hypot(0.5 * (hxx - hyy), hxy))   # its larger eigenvalue
+    if larger < 0.0:                                                   # both negative: a maximum
+        determinant = hxx * hyy - hxy * hxy
+        x = (-bx * hyy + by * hxy) / determinant
+        y = (-by * hxx + bx * hxy) / determinant
+        curvature = -larger
     else:  # not a maximum: separable parabolas, and report no curvature
-        offset = np.zeros(2)
-        for axis, (slope, second) in enumerate(((bx, 2 * dxx), (by, 2 * fyy))):
-            offset[axis] = -slope / second if second < 0 else 0.0
+        x = -bx / hxx if hxx < 0 else 0.0
+        y = -by / hyy if hyy < 0 else 0.0
         curvature = 0.0
-    offset = np.clip(offset, -1.0, 1.0)
-    value = a + bx * offset[0] + by * offset[1] + dxx * offset[0] ** 2 + exy * offset[0] * offset[1] + fyy * offset[1] ** 2
-    return offset, float(np.clip(value, -1.0, 1.0)), curvature
+    x, y = min(max(x, -1.0), 1.0), min(max(y, -1.0), 1.0)
+    value = a + bx * x + by * y + dxx * x * x + exy * x * y + fyy * y * y
+    return np.array([x, y]), min(max(value, -1.0), 1.0), curvature
 
 
 def _keys_weights(fraction: float) -> np.ndarray:
@@ -158,37 +159,43 @@ def _refine(image_a: np.ndarray, image_b: np.ndarray, centre_a: tuple[int, int],
     if window is None or padded is None:
         return offset, float("nan")
     padded = padded.astype(np.float64)
-    template = padded[1:-1, 1:-1]
-    mean, spread = template.mean(), template.std()
+    template = padded[1:-1, 1:-1].ravel()
+    count = template.size
+    centred = template - template.mean()
+    spread = float(np.sqrt(np.dot(centred, centred) / count))
     if not spread > 0:
         return offset, float("nan")
-    target = (template - mean) / spread
-    grad_x = (0.5 / spread) * (padded[1:-1, 2:] - padded[1:-1, :-2])
-    grad_y = (0.5 / spread) * (padded[2:, 1:-1] - padded[:-2, 1:-1])
-    hessian = np.array([[np.sum(grad_x * grad_x), np.sum(grad_x * grad_y)],
-                        [np.sum(grad_x * grad_y), np.sum(grad_y * grad_y)]])
-    determinant = hessian[0, 0] * hessian[1, 1] - hessian[0, 1] ** 2
-    if not determinant > 1e-12 * max(hessian[0, 0] * hessian[1, 1], 1e-300):
+    target = centred / spread
+    grad_x = ((0.5 / spread) * (padded[1:-1, 2:] - padded[1:-1, :-2])).ravel()
+    grad_y = ((0.5 / spread) * (padded[2:, 1:-1] - padded[:-2, 1:-1])).ravel()
+    hxx, hxy, hyy = np.dot(grad_x, grad_x), np.dot(grad_x, grad_y), np.dot(grad_y, grad_y)
+    determinant = hxx * hyy - hxy * hxy
+    if not determinant > 1e-12 * max(hxx * hyy, 1e-300):
         return offset, float("nan")
-    inverse = np.array([[hessian[1, 1], -hessian[0, 1]], [-hessian[0, 1], hessian[0, 0]]]) / determinant
-    size = template.shape[0]
+    size = 2 * half + 1
+
+    def normalised_at(shift: np.ndarray) -> np.ndarray | None:
+        moved = shift_window(window, shift, size).ravel()
+        moved = moved - moved.mean()
+        norm = float(np.sqrt(np.dot(moved, moved) / count))
+        return moved / norm if norm > 0 else None
+
     correlation = float("nan")
     for step in range(iterations + 1):
-        moved = shift_window(window, offset, size)
-        moved_std = moved.std()
-        if not moved_std > 0:
+        normalised = normalised_at(offset)
+        if normalised is None:
             return offset, float("nan")
-        normalised = (moved - moved.mean()) / moved_std
-        correlation = float(np.sum(normalised * target)) / normalised.size
+        correlation = float(np.dot(normalised, target)) / count
         if step == iterations:
             break
         error = normalised - target
-        delta = inverse @ np.array([np.sum(grad_x * error), np.sum(grad_y * error)])
-        offset = np.clip(offset - delta, -1.5, 1.5)
+        ex, ey = np.dot(grad_x, error), np.dot(grad_y, error)
+        delta = np.array([hyy * ex - hxy * ey, hxx * ey - hxy * ex]) / determinant
+        offset = np.minimum(np.maximum(offset - delta, -1.5), 1.5)
         if max(abs(delta[0]), abs(delta[1])) < 1e-3:
-            moved = shift_window(window, offset, size)
-            normalised = (moved - moved.mean()) / max(moved.std(), 1e-300)
-            correlation = float(np.sum(normalised * target)) / normalised.size
+            normalised = normalised_at(offset)
+            if normalised is not None:
+                correlation = float(np.dot(normalised, target)) / count
             break
     return offset, correlation
 
@@ -216,7 +223,7 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     surface = _correlate(window_c, template_c)
     _, best, _, (i_col, i_row) = cv2.minMaxLoc(surface)
     second = second_peak(surface, (i_col, i_row), config.second_peak_exclusion_px)
-    ratio = float(np.clip(second / best, -1.0, 1.0)) if best > 1e-6 else 1.0
+    ratio = min(max(second / best, -1.0), 1.0) if best > 1e-6 else 1.0
     last = surface.shape[0] - 1
     if i_row in (0, last) or i_col in (0, last):
         return failed("search_border", best, ratio)
