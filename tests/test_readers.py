@@ -158,26 +158,24 @@ def test_load_terrain_refuses_unknown_scale_and_angles():
 
 def test_real_moc_example_campaign_terrain():
     real("moc_na/M0100115_decompressed.img")
+    from sitedata.sites import load_class_terrain, load_site
+
     toml_path = EXAMPLES / "real_moc.toml"
-    with toml_path.open("rb") as handle:
-        site = tomllib.load(handle)["site"]
-    (klass,) = site["classes"]
-    assert klass["terrain"]["kind"] == "file" and klass["ellipse_fraction"] == 1.0
-    image_path = toml_path.parent / klass["terrain"]["path"]
-    sidecar_path = toml_path.parent / klass["terrain"]["sidecar"]
-    for key in ("camera", "trajectory_set"):
-        assert (toml_path.parent / site[key]).parent.is_dir()
-    terrain = load_terrain(image_path, sidecar_path)
-    with sidecar_path.open("rb") as handle:
+    site = load_site(toml_path)
+    (klass,) = site.classes
+    assert klass.terrain.kind == "file" and klass.ellipse_fraction == 1.0 and 0 < klass.cases <= 50
+    assert site.camera_path.is_file()
+    terrain = load_class_terrain(klass.terrain)
+    with klass.terrain.sidecar.open("rb") as handle:
         sidecar = tomllib.load(handle)
     assert terrain.shape == (4864, 672)
     assert terrain.metres_per_pixel == sidecar["metres_per_pixel"] == pytest.approx(4.5, abs=0.5)
     west, east, south, north = terrain.extent_m
     assert east - west == pytest.approx(672 * 4.5) and north - south == pytest.approx(4864 * 4.5)
-    assert west == pytest.approx(-(east)) and south == pytest.approx(-north)       # centred on (0, 0)
+    assert west == pytest.approx(-east) and south == pytest.approx(-north)       # centred on (0, 0)
     assert terrain.moc_incidence_rad == pytest.approx(math.radians(sidecar["incidence_deg"]))
     assert terrain.moc_phase_rad == pytest.approx(math.radians(sidecar["phase_deg"]))
-    dn = raw_bytes(image_path, 4 * 672, 4864 * 672).reshape(4864, 672)
+    dn = raw_bytes(klass.terrain.path, 4 * 672, 4864 * 672).reshape(4864, 672)
     np.testing.assert_allclose(terrain.reflectance_if, dn * sidecar["dn_to_if_scale"], rtol=1e-6)
     assert 0.1 < terrain.reflectance_if.mean() < 0.3 and np.isfinite(terrain.reflectance_if).all()
 
