@@ -52,26 +52,30 @@ class RectifiedImage:
         self.image = geometry.warp(signal, rectification)
         # codes: 1 saturated, 2 no signal; dilated (max) so that every rectified pixel whose bilinear
         # support touches a bad block is bad, then carried over by nearest neighbour
-        codes = np.where(flat.signal_dn < config.min_signal_dn, 2, flat.excluded).astype(np.uint8)
-        codes = geometry.warp(cv2.dilate(codes, np.ones((3, 3), np.uint8)), rectification, cv2.INTER_NEAREST)
         visible = rectification.visible.astype(bool)
-        bad_pixel = codes > 0
-        dark = codes == 2
-        saturated = codes == 1
         zone = rectification.excluded_zone.astype(bool)
+        if flat.excluded.any():
+            codes = np.where(flat.signal_dn < config.min_signal_dn, 2, flat.excluded).astype(np.uint8)
+            codes = geometry.warp(cv2.dilate(codes, np.ones((3, 3), np.uint8)), rectification, cv2.INTER_NEAREST)
+        else:
+            codes = np.zeros(visible.shape, np.uint8)
+        bad_pixel = codes > 0
         self.valid = visible & ~bad_pixel & ~zone
-        self.coverage = float(self.valid.mean())
-        losses = {"sky": 1.0 - float(visible.mean()), "saturated": float((visible & saturated).mean()),
-                  "no_signal": float((visible & dark).mean()),
-                  "excluded_zone": float((visible & zone & ~bad_pixel).mean())}
-        self.unusable_reason = max(losses, key=losses.get)
+        self.coverage = float(np.count_nonzero(self.valid)) / self.valid.size
+        self.unusable_reason = "ok"
+        if self.coverage < config.min_ground_coverage:
+            losses = {"sky": 1.0 - float(visible.mean()), "saturated": float((visible & (codes == 1)).mean()),
+                      "no_signal": float((visible & (codes == 2)).mean()),
+                      "excluded_zone": float((visible & zone & ~bad_pixel).mean())}
+            self.unusable_reason = max(losses, key=losses.get)
         self.coarse = cv2.pyrDown(self.image)
 
     def noise_at(self, column: int, row: int) -> float:
         """Expected pixel noise (DN) of the source pixel seen at a rectified position."""
-        source_column = int(np.clip(round(float(self.rectification.map_x[row, column])), 0, self.flat.noise_dn.shape[1] - 1))
-        source_row = int(np.clip(round(float(self.rectification.map_y[row, column])), 0, self.flat.noise_dn.shape[0] - 1))
-        return float(self.flat.noise_dn[source_row, source_column])
+        rows, columns = self.flat.signal_dn.shape
+        source_column = min(max(int(round(float(self.rectification.map_x[row, column]))), 0), columns - 1)
+        source_row = min(max(int(round(float(self.rectification.map_y[row, column]))), 0), rows - 1)
+        return self.flat.noise_dn_at(source_row, source_column)
 
 
 def _erode(mask: np.ndarray, half: int) -> np.ndarray:

@@ -78,8 +78,15 @@ class Flattening:
     def inverse_response(self) -> np.ndarray:
         return self._inverse_response
 
+    @property
+    def noise_scale(self) -> np.ndarray:
+        return self._noise_scale
+
     def __post_init__(self):
-        object.__setattr__(self, "_inverse_response", (1.0 / self.response).astype(np.float32))
+        inverse = (1.0 / self.response).astype(np.float32)
+        object.__setattr__(self, "_inverse_response", inverse)
+        scale = self.exposure_s / self.alpha_s / self.gain_e_per_dn
+        object.__setattr__(self, "_noise_scale", (scale * inverse).astype(np.float32))
 
 
 def make_flattening(camera: Camera, config: EstimatorConfig) -> Flattening:
@@ -126,19 +133,35 @@ class FlatImage:
     ----------
     signal_dn : ndarray, float32, (n, n)
         Exposure-only signal of each binned block (DN), radiance-proportional.
-    noise_dn : ndarray, float32, (n, n)
-        Expected noise standard deviation of ``signal_dn`` (shot + read + quantisation), DN.
     excluded : ndarray, uint8, (n, n)
         1 where a block is saturated or has no signal.
     saturated_fraction, dark_fraction : float
         Fractions of blocks saturated / below ``min_signal_dn``.
+    charge_e : ndarray, float32, (n, n)
+        Collected charge of each block before flattening (e-), for the noise model.
+    variance_floor_e2 : float
+        Read and quantisation noise variance of a block (e-^2).
+    noise_scale : ndarray, float32, (n, n)
+        Converts the charge noise (e-) of a block into flattened DN.
     """
 
     signal_dn: np.ndarray
-    noise_dn: np.ndarray
     excluded: np.ndarray
     saturated_fraction: float
     dark_fraction: float
+    charge_e: np.ndarray
+    variance_floor_e2: float
+    noise_scale: np.ndarray
+
+    @property
+    def noise_dn(self) -> np.ndarray:
+        """Expected noise standard deviation of ``signal_dn`` (shot + read + quantisation), DN, (n, n)."""
+        return np.sqrt(np.maximum(self.charge_e, 0.0) + np.float32(self.variance_floor_e2)) * self.noise_scale
+
+    def noise_dn_at(self, row: int, column: int) -> float:
+        """:attr:`noise_dn` of one block."""
+        charge = max(float(self.charge_e[row, column]), 0.0)
+        return float(np.sqrt(charge + self.variance_floor_e2) * self.noise_scale[row, column])
 
 
 def bin_columns(raw_dn: np.ndarray, binning: int) -> np.ndarray:
@@ -182,19 +205,22 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
     b = flattening.binning
     gain = np.float32(flattening.gain_e_per_dn)
     raw = np.asarray(raw_dn)
-    brightest = raw[:, 0::b]
-    for offset in range(1, b):
-        brightest = np.maximum(brightest, raw[:, offset::b])
-    saturated = brightest >= flattening.saturation_dn
+    if raw.max() >= flattening.saturation_dn:
+        brightest = raw[:, 0::b]
+        for offset in range(1, b):
+            brightest = np.maximum(brightest, raw[:, offset::b])
+        saturated = brightest >= flattening.saturation_dn
+    else:
+        saturated = np.zeros((raw.shape[0], raw.shape[1] // b), dtype=bool)
     summed_dn = bin_columns(raw, b) - np.float32(b * flattening.adc_offset_dn) - flattening.storage_dark_dn
     charge_e = summed_dn * gain
     rates = unsmear(charge_e, flattening) - np.float32(flattening.area_dark_e_per_s)
     inverse_response = flattening.inverse_response
     signal = rates * (np.float32(flattening.exposure_s) / gain) * inverse_response
-    variance_e = np.maximum(charge_e, np.float32(0.0)) + np.float32(b * flattening.read_noise_e**2 + b * gain**2 / 12.0)
-    noise = np.sqrt(variance_e) * (np.float32(flattening.exposure_s / flattening.alpha_s) / gain) * inverse_response
     dark = signal < np.float32(config.min_signal_dn)
     excluded = (saturated | dark).astype(np.uint8)
-    return FlatImage(signal_dn=signal, noise_dn=noise, excluded=excluded,
+    return FlatImage(signal_dn=signal, excluded=excluded,
                      saturated_fraction=float(np.count_nonzero(saturated)) / saturated.size,
-                     dark_fraction=float(np.count_nonzero(dark)) / dark.size)
+                     dark_fraction=float(np.count_nonzero(dark)) / dark.size, charge_e=charge_e,
+                     variance_floor_e2=float(b * flattening.read_noise_e**2 + b * flattening.gain_e_per_dn**2 / 12.0),
+                     noise_scale=flattening.noise_scale)

@@ -1,0 +1,125 @@
+"""`python -m dimes_velocity`: three image files + measurements JSON -> result JSON; bad input -> exit 2."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from dimes_velocity.__main__ import main
+from dimes_velocity.files import InputFileError, load_image, measurements_from_dict, measurements_to_dict
+from dimes_velocity.synthetic import constant_velocity_descent, random_ground
+
+VELOCITY = (12.0, -7.0, -72.0)
+BIAS = (6.0, -3.0)
+
+
+@pytest.fixture(scope="module")
+def case_files(mer_a, tmp_path_factory):
+    """Images as PNG, .npy and raw; measurements with a known IMU bias."""
+    directory = tmp_path_factory.mktemp("dimes_cli")
+    descent = constant_velocity_descent(mer_a, random_ground(np.random.default_rng(21)), np.random.default_rng(22),
+                                        velocity_mps=VELOCITY)
+    paths = [directory / "image1.png", directory / "image2.npy", directory / "image3.raw"]
+    cv2.imwrite(str(paths[0]), descent.images[0])
+    np.save(paths[1], descent.images[1])
+    descent.images[2].astype("<u2").tofile(paths[2])
+    data = measurements_to_dict(descent.truth)
+    for image in data["images"]:
+        image["imu_velocity_mps"][0] += BIAS[0]
+        image["imu_velocity_mps"][1] += BIAS[1]
+    measurements = directory / "measurements.json"
+    measurements.write_text(json.dumps(data))
+    return paths, measurements, data, descent
+
+
+def run_cli(args, capsys):
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_cli_prints_the_velocity_as_json(case_files, mer_a_path, capsys):
+    paths, measurements, _, _ = case_files
+    code, out, err = run_cli([*paths, measurements, "--camera", mer_a_path], capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["valid"] and result["reason"] == "ok"
+    assert np.hypot(result["velocity_east_mps"] - VELOCITY[0], result["velocity_north_mps"] - VELOCITY[1]) < 0.5
+    assert np.hypot(result["imu_bias_east_mps"] - BIAS[0], result["imu_bias_north_mps"] - BIAS[1]) < 0.5
+    assert {"brightness_dn", "contrast_dn", "correlation"} <= set(result["features"][0])
+    assert set(result["timings"]) >= {"preprocess_ms", "rectify_ms", "select_ms", "match_ms", "total_ms"}
+
+
+def test_cli_reads_estimator_parameters_from_toml(case_files, mer_a_path, tmp_path, capsys):
+    paths, measurements, _, _ = case_files
+    config = tmp_path / "site.toml"
+    config.write_text("[estimator]\nfeatures_per_pair = 2\nmin_correlation = 0.8\n")
+    code, out, err = run_cli([*paths, measurements, "--camera", mer_a_path, "--config", config], capsys)
+    assert code == 0, err
+    assert max(f["index"] for f in json.loads(out)["features"]) == 1
+    config.write_text("[estimator]\nfeatures_per_pair = 0\n")
+    code, out, err = run_cli([*paths, measurements, "--camera", mer_a_path, "--config", config], capsys)
+    assert code == 2 and f"{config}: estimator.features_per_pair = 0 is out of range" in err
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["images"][1].pop("radar_altitude_m"), r"images[1].radar_altitude_m is missing"),
+    (lambda d: d["images"][0].__setitem__("attitude_quat", [1, 0, 0]), r"images[0].attitude_quat must be a list of 4 numbers"),
+    (lambda d: d["images"][2].__setitem__("time_s", 0.0), r"images[2].time_s"),
+    (lambda d: d["images"][0].__setitem__("radar_altitude", 5.0), r"images[0].radar_altitude is not an image field"),
+    (lambda d: d.__setitem__("sun_direction_world", [0, 0, 0]), r"sun_direction_world must be a non-zero vector"),
+])
+def test_bad_measurements_exit_2_naming_file_and_field(case_files, mer_a_path, tmp_path, capsys, edit, message):
+    paths, _, data, _ = case_files
+    broken = json.loads(json.dumps(data))
+    edit(broken)
+    path = tmp_path / "broken.json"
+    path.write_text(json.dumps(broken))
+    code, out, err = run_cli([*paths, path, "--camera", mer_a_path], capsys)
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and str(path) in err and message in err
+
+
+def test_bad_image_exits_2_naming_the_file(case_files, mer_a_path, tmp_path, capsys):
+    paths, measurements, _, descent = case_files
+    wrong = tmp_path / "wrong.npy"
+    np.save(wrong, descent.images[0][:, :512])
+    code, _, err = run_cli([paths[0], wrong, paths[2], measurements, "--camera", mer_a_path], capsys)
+    assert code == 2 and str(wrong) in err and "shape (256, 512)" in err
+    short = tmp_path / "short.raw"
+    short.write_bytes(b"\0" * 1000)
+    code, _, err = run_cli([paths[0], paths[1], short, measurements, "--camera", mer_a_path], capsys)
+    assert code == 2 and str(short) in err and "1000 bytes" in err
+    code, _, err = run_cli([paths[0], paths[1], tmp_path / "missing.png", measurements, "--camera", mer_a_path], capsys)
+    assert code == 2 and "missing.png: file not found" in err
+
+
+def test_raw_big_endian_and_png_round_trip(case_files, tmp_path):
+    _, _, _, descent = case_files
+    path = tmp_path / "big.img"
+    descent.images[0].astype(">u2").tofile(path)
+    assert np.array_equal(load_image(path, (256, 1024), big_endian=True), descent.images[0])
+    with pytest.raises(InputFileError, match="channels"):
+        colour = tmp_path / "colour.png"
+        cv2.imwrite(str(colour), np.zeros((256, 1024, 3), np.uint8))
+        load_image(colour, (256, 1024))
+
+
+def test_measurements_json_round_trip(case_files):
+    _, _, data, _ = case_files
+    again = measurements_to_dict(measurements_from_dict(data))
+    assert again == data
+
+
+def test_module_entry_point_runs(case_files, mer_a_path):
+    paths, measurements, _, _ = case_files
+    completed = subprocess.run([sys.executable, "-m", "dimes_velocity", *map(str, paths), str(measurements),
+                                "--camera", str(mer_a_path), "--summary"], capture_output=True, text=True, timeout=120)
+    assert completed.returncode == 0, completed.stderr
+    summary = json.loads(completed.stdout)
+    assert set(summary) == {"velocity_east_mps", "velocity_north_mps", "valid", "reason", "imu_bias_east_mps",
+                            "imu_bias_north_mps"}
