@@ -27,6 +27,7 @@ inside ``[site]`` are errors. Every error is one line naming the file, the field
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -209,7 +210,24 @@ def class_terrain_params(spec: TerrainSpec) -> ClassTerrainParams:
 
 
 def load_class_terrain(spec: TerrainSpec, cache: bool = True) -> Terrain:
-    """Build (synthetic, cached on disk) or read (file) the terrain of one appearance class."""
+    """Build (synthetic, cached on disk) or read (file) the terrain of one appearance class.
+
+    With ``cache`` the last few terrains are also kept in memory (a worker builds or reads each
+    terrain once, not once per case); their reflectance arrays are read-only.
+    """
+    if cache:
+        return _memoised_class_terrain(spec)
+    return _class_terrain(spec, cache=False)
+
+
+@functools.lru_cache(maxsize=4)
+def _memoised_class_terrain(spec: TerrainSpec) -> Terrain:
+    terrain = _class_terrain(spec, cache=True)
+    terrain.reflectance_if.setflags(write=False)
+    return terrain
+
+
+def _class_terrain(spec: TerrainSpec, cache: bool) -> Terrain:
     if spec.kind == "synthetic":
         from .synthetic_terrain import synthetic_terrain
         return synthetic_terrain(class_terrain_params(spec), spec.seed, cache=cache)

@@ -65,7 +65,7 @@ def gaussian_random_field(shape: tuple[int, int], spectral_exponent: float, oute
 def splat_features(shape: tuple[int, int], centre_rc: np.ndarray, semi_axes_px: np.ndarray,
                    orientation_rad: np.ndarray, reach: float,
                    profiles: Sequence[tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]],
-                   max_entries: int = 4_000_000) -> list[np.ndarray]:
+                   max_entries: int = 2_000_000) -> list[np.ndarray]:
     """Sum elliptical features, each a radial profile of its normalised radius, onto image grids.
 
     Feature ``i`` contributes ``weight_i * profile(rho)`` with
@@ -217,6 +217,7 @@ def cast_shadow_fraction(height_m: np.ndarray, metres_per_pixel: float, sun_azim
         running = np.maximum.accumulate(potential, axis=1)
         occluder = np.concatenate([np.full((sheared_rows, 1), low, np.float32), running[:, :-1]], axis=1)
     shadow_sheared = (occluder > potential + 1e-3).astype(np.float32)
+    del sheared, inside, potential, running, occluder, map_row, map_col
     back_row = (np.arange(rows, dtype=np.float32)[:, None] + offset - np.float32(slope) * col_grid)
     back_col = np.broadcast_to(col_grid, back_row.shape).astype(np.float32)
     shadow = cv2.remap(shadow_sheared, back_col, back_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)

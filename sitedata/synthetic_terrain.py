@@ -250,16 +250,19 @@ def generate_reflectance(params: ClassTerrainParams, seed: int) -> np.ndarray:
     height, albedo = surface_fields(params, seed)
     mpp = params.metres_per_pixel
     sun, view, inc, emi, phase = moc_geometry_rad(params)
+    sunlit = 1.0 - feat.cast_shadow_fraction(height, mpp, np.radians(params.moc_sun_azimuth_deg), 0.5 * np.pi - inc)
     d_row, d_col = np.gradient(height, mpp)             # rows run south: dh/dnorth = -dh/drow
+    del height
     nx, ny = -d_col, d_row                              # normal ~ (-dh/deast, -dh/dnorth, 1)
-    norm = np.sqrt(nx * nx + ny * ny + 1.0)
-    mu0 = np.clip((nx * sun[0] + ny * sun[1] + sun[2]) / norm, 0.0, 1.0)
-    mu = np.clip((nx * view[0] + ny * view[1] + view[2]) / norm, 0.05, 1.0)
+    inv_norm = 1.0 / np.sqrt(nx * nx + ny * ny + 1.0)
+    mu0 = np.clip((nx * sun[0] + ny * sun[1] + sun[2]) * inv_norm, 0.0, 1.0)
+    mu = np.clip((nx * view[0] + ny * view[1] + view[2]) * inv_norm, 0.05, 1.0)
+    del d_row, d_col, nx, ny, inv_norm
     phase_factor = feat.phase_function(phase) / feat.phase_function(0.0)
-    shadow = feat.cast_shadow_fraction(height, mpp, np.radians(params.moc_sun_azimuth_deg), 0.5 * np.pi - inc)
     direct = np.exp(-params.haze_optical_depth / max(np.cos(inc), 0.05))
     flat = 2.0 * np.cos(inc) / (np.cos(emi) + np.cos(inc))
-    lit = direct * (1.0 - shadow) * (2.0 * mu0 / (mu + mu0 + 1e-6)) + (1.0 - direct) * flat
+    lit = direct * sunlit * (2.0 * mu0 / (mu + mu0 + 1e-6)) + (1.0 - direct) * flat
+    del sunlit, mu0, mu
     surface = albedo * phase_factor * lit
     transmission = np.exp(-params.haze_optical_depth / np.cos(emi))
     observed = transmission * surface + (1.0 - transmission) * float(surface.mean()) + params.haze_path_if

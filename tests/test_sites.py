@@ -99,6 +99,15 @@ def test_good_site_loads_with_relative_paths_and_overrides(tmp_path):
         site.class_named("zz")
 
 
+def test_class_terrain_is_built_once_per_process(tmp_path, monkeypatch):
+    monkeypatch.setenv("MOC2DIMES_CACHE", str(tmp_path / "cache"))
+    spec = load_site(write_site(tmp_path, GOOD)).class_named("b").terrain
+    first = load_class_terrain(spec)
+    assert load_class_terrain(spec) is first and not first.reflectance_if.flags.writeable
+    fresh = load_class_terrain(spec, cache=False)
+    assert fresh is not first and fresh.reflectance_if.tobytes() == first.reflectance_if.tobytes()
+
+
 BROKEN = [
     (lambda t: t.replace("ellipse_fraction = 0.75", "ellipse_fraction = 0.7"),
      r"site.toml: site.classes ellipse_fraction values sum to 0.95; allowed: 1 within 1e-06"),
