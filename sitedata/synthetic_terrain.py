@@ -133,13 +133,13 @@ def _add_craters(shape, centres, diameters_m, depth_ratio, mpp, height, rim_albe
 
 
 def _add_ejecta_craters(params: ClassTerrainParams, rng, height, albedo_mod, rim_albedo, relief_unit) -> None:
-    """Large fresh craters centred 0.6 radius beyond alternate strip edges, with continuous ejecta, rays and secondaries.
+    """Large fresh craters (depth 0.15-0.2 D) centred 0.6 radius beyond alternate strip edges.
 
     Ejecta thickness falls as r^-3 from the rim to ``ejecta_extent_radii`` (part of the crater
-    profile); the blanket albedo changes by ``ejecta_blanket_albedo_contrast`` x (R/r)^2 and radial
-    patchy bright rays (40 random azimuths, 1.5-5 deg wide) by ``ejecta_ray_albedo_contrast`` x R/r; the blanket is
-    hummocky (RMS ``ejecta_relief_rms_m`` at the rim, falling as (R/r)^1.5); secondary
-    craters (SFD exponent 3, up to 60 m) are scattered over the apron at ``secondary_density_per_km2``.
+    profile); the blanket albedo changes by ``ejecta_blanket_albedo_contrast`` x (R/r)^2, and patchy
+    bright rays (40 random azimuths, 1.5-5 deg wide) add ``ejecta_ray_albedo_contrast`` x R/r; the
+    blanket is hummocky (RMS ``ejecta_relief_rms_m`` at the rim, falling as (R/r)^1.5); secondary
+    craters (SFD exponent 3, 9-60 m, fresh) cover the apron at ``secondary_density_per_km2``.
     """
     shape, mpp = height.shape, params.metres_per_pixel
     radius_px = 0.5 * params.ejecta_crater_diameter_m / mpp
@@ -225,7 +225,8 @@ def surface_fields(params: ClassTerrainParams, seed: int) -> tuple[np.ndarray, n
     if params.knob_density_per_km2 > 0:
         _add_knobs(params, rng["knobs"], relief, height, albedo_mod)
 
-    albedo = params.normal_albedo_mean * (1.0 + albedo_mod) * (1.0 + params.crater_rim_albedo_contrast * np.minimum(rim_albedo, 1.5))
+    rim_brightening = 1.0 + params.crater_rim_albedo_contrast * np.minimum(rim_albedo, 1.5)
+    albedo = params.normal_albedo_mean * (1.0 + albedo_mod) * rim_brightening
     if params.track_length_per_km2 > 0:
         tracks = feat.draw_tracks(shape, params.track_length_per_km2 * params.area_km2 * 1000.0 / mpp,
                                   tuple(w / mpp for w in params.track_width_m), np.radians(params.track_azimuth_deg),
