@@ -78,8 +78,8 @@ def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = No
 
     campaign = root.table("campaign", required=False)
     seed = campaign.integer("seed", default=1, minimum=0, maximum=2**63 - 1)
-    out = Path(output_dir) if output_dir is not None else Path(
-        campaign.string("output_dir", default=f"runs/{site.name.lower()}"))
+    configured_output = Path(campaign.string("output_dir", default=f"runs/{site.name.lower()}"))
+    out = Path(output_dir) if output_dir is not None else configured_output
     scale = cases_scale if cases_scale is not None else campaign.number("cases_scale", default=1.0,
                                                                         minimum=0.0, maximum=100.0,
                                                                         exclusive_minimum=True)
