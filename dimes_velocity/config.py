@@ -81,7 +81,11 @@ class EstimatorConfig:
         feature_agreement_px [1.5]: features of one pair must agree within this (fine pixels).
         require_feature_majority [True]: the agreeing group must hold more than half the matches.
         min_features_per_pair [1]: agreeing features needed for a pair to count.
-        pair_agreement_mps [3.0]: the IMU bias from the two pairs must agree within this.
+        pair_agreement_mps [4.0]: the IMU bias from the two pairs must agree within this. The
+            image-to-image attitude noise alone (0.05 deg per axis) makes the difference scatter by
+            sqrt(H1^2 + 4 H2^2 + H3^2) * 0.05 deg / dt ~ 1 m/s per axis at 2000/1725/1450 m, so 4 m/s
+            is ~4 sigma (a false rejection in ~0.03 % of cases); a wrong match is off by several
+            pixels (>= 2 m/s per pixel of 6.5 m over 3.8 s).
         require_both_pairs [True]: both pairs must be valid (else one valid pair is enough).
     """
 
@@ -122,7 +126,7 @@ class EstimatorConfig:
     feature_agreement_px: float = 1.5
     require_feature_majority: bool = True
     min_features_per_pair: int = 1
-    pair_agreement_mps: float = 3.0
+    pair_agreement_mps: float = 4.0
     require_both_pairs: bool = True
 
     def __post_init__(self):
