@@ -13,7 +13,8 @@ Measurements JSON schema
           "radar_altitude_m": 2000.0,                   # measured altitude above ground (m)
           "imu_velocity_mps": [east, north, up],        # IMU-propagated velocity (m/s), biased
           "angular_rate_radps": [x, y, z],              # optional, body frame (default 0)
-          "heat_shield_offset_m": [east, north, up]     # optional, predicted heat shield - lander (m)
+          "heat_shield_offset_m": [east, north, up],    # optional, predicted heat shield - lander (m)
+          "imu_position_m": [east, north, up]           # optional, IMU-propagated position (m)
         },
         ...
       ]
@@ -38,7 +39,7 @@ import numpy as np
 from .measurements import DescentMeasurements, ImageMeasurement, MeasurementError, validate_measurements
 
 _REQUIRED = ("time_s", "attitude_quat", "radar_altitude_m", "imu_velocity_mps")
-_OPTIONAL = ("angular_rate_radps", "heat_shield_offset_m")
+_OPTIONAL = ("angular_rate_radps", "heat_shield_offset_m", "imu_position_m")
 
 
 class InputFileError(ValueError):
@@ -114,6 +115,8 @@ def measurements_from_dict(data: dict, source: str = "<measurements>") -> Descen
             imu_velocity_mps=_numbers(item["imu_velocity_mps"], 3, f"{prefix}.imu_velocity_mps", fail),
             heat_shield_offset_m=(None if item.get("heat_shield_offset_m") is None else
                                   _numbers(item["heat_shield_offset_m"], 3, f"{prefix}.heat_shield_offset_m", fail)),
+            imu_position_m=(None if item.get("imu_position_m") is None else
+                            _numbers(item["imu_position_m"], 3, f"{prefix}.imu_position_m", fail)),
         ))
     measurements = DescentMeasurements(
         images=tuple(records),
@@ -154,5 +157,7 @@ def measurements_to_dict(measurements: DescentMeasurements) -> dict:
                   "angular_rate_radps": [float(v) for v in image.angular_rate_radps]}
         if image.heat_shield_offset_m is not None:
             record["heat_shield_offset_m"] = [float(v) for v in image.heat_shield_offset_m]
+        if image.imu_position_m is not None:
+            record["imu_position_m"] = [float(v) for v in image.imu_position_m]
         images.append(record)
     return {"sun_direction_world": [float(v) for v in measurements.sun_direction_world], "images": images}

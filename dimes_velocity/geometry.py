@@ -2,8 +2,9 @@
 ground plane at a common ground sampling.
 
 Frames follow :mod:`simulator.kinematics` (world x east, y north, z up, ground z = 0). The lander's
-horizontal position at image k is the IMU prediction ``P_k`` (trapezoidal integration of the
-measured, biased IMU velocity from image 0, ``P_0 = 0``); its height is the radar altitude. The
+horizontal position at image k is the IMU prediction ``P_k`` relative to image 0 (``P_0 = 0``): the
+IMU-propagated positions when given, else the trapezoidal integration of the measured, biased IMU
+velocity; its height is the radar altitude. The
 camera frame maps to the world by ``R(attitude) @ R(camera_to_lander)``, and the camera centre is
 ``lander + R(attitude) @ camera_position_in_lander_m``.
 
@@ -43,7 +44,11 @@ def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
 
 
 def predicted_positions_m(measurements: DescentMeasurements) -> np.ndarray:
-    """IMU-predicted horizontal lander positions (K, 2), m, relative to image 0 (trapezoidal rule)."""
+    """IMU-predicted horizontal lander positions (K, 2), m, relative to image 0: from the IMU positions
+    when every image has one, else by trapezoidal integration of the IMU velocities."""
+    if all(image.imu_position_m is not None for image in measurements.images):
+        positions = np.array([np.asarray(image.imu_position_m, dtype=float)[:2] for image in measurements.images])
+        return positions - positions[0]
     times = np.array([image.time_s for image in measurements.images])
     velocities = np.array([np.asarray(image.imu_velocity_mps, dtype=float)[:2] for image in measurements.images])
     steps = 0.5 * (velocities[1:] + velocities[:-1]) * np.diff(times)[:, None]

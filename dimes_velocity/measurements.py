@@ -29,6 +29,12 @@ class ImageMeasurement:
     heat_shield_offset_m : ndarray, shape (3,), or None
         Predicted position of the heat shield centre relative to the lander (world frame, m), when a
         prediction exists; the estimator then excludes the heat shield's cone from feature tracking.
+    imu_position_m : ndarray, shape (3,), or None
+        IMU-propagated lander position (world frame, m, any fixed origin), integrated at the IMU rate
+        from the same biased velocity. When every image has it, the estimator takes the predicted
+        displacement between images from it; otherwise it integrates ``imu_velocity_mps`` between
+        the image times by the trapezoidal rule (exact for constant acceleration; a swinging lander
+        makes that off by up to ~0.6 m/s equivalent on Gusev profiles).
     """
 
     time_s: float
@@ -37,6 +43,7 @@ class ImageMeasurement:
     radar_altitude_m: float
     imu_velocity_mps: np.ndarray
     heat_shield_offset_m: Optional[np.ndarray] = None
+    imu_position_m: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -95,6 +102,8 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
             raise MeasurementError(f"{prefix}radar_altitude_m = {image.radar_altitude_m!r} is out of range; allowed: > 0 and < 1e6 m")
         if image.heat_shield_offset_m is not None:
             _vector(image.heat_shield_offset_m, 3, prefix + "heat_shield_offset_m")
+        if image.imu_position_m is not None:
+            _vector(image.imu_position_m, 3, prefix + "imu_position_m")
     sun = _vector(measurements.sun_direction_world, 3, "sun_direction_world")
     if np.linalg.norm(sun) < 1e-9:
         raise MeasurementError("sun_direction_world must be a non-zero vector")

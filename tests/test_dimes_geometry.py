@@ -101,3 +101,17 @@ def test_heat_shield_cone_is_excluded(mer_a):
     cos_theta = -direction[2]
     expected_area_px = np.pi * (pose.centre_m[2] * np.tan(half_angle) / sample) ** 2 / cos_theta ** 3
     assert zone.sum() == pytest.approx(expected_area_px, rel=0.05)
+
+
+def test_predicted_positions_prefer_imu_positions():
+    """With IMU-propagated positions the displacement is theirs (a swinging lander is not linear)."""
+    times = [0.0, 3.8, 7.6]
+    positions = [np.array([100.0, 50.0, 2000.0]), np.array([131.0, 40.0, 1725.0]), np.array([170.0, 35.0, 1450.0])]
+    images = tuple(ImageMeasurement(t, np.array([1.0, 0, 0, 0]), np.zeros(3), p[2], np.array([9.0, -2.0, -72.0]),
+                                    imu_position_m=p) for t, p in zip(times, positions))
+    predicted = geometry.predicted_positions_m(DescentMeasurements(images, np.array([0, 0, 1.0])))
+    assert np.allclose(predicted, [[0, 0], [31, -10], [70, -15]])
+    partial = (images[0], images[1], ImageMeasurement(7.6, np.array([1.0, 0, 0, 0]), np.zeros(3), 1450.0,
+                                                      np.array([9.0, -2.0, -72.0])))
+    fallback = geometry.predicted_positions_m(DescentMeasurements(partial, np.array([0, 0, 1.0])))
+    assert np.allclose(fallback, [[0, 0], [34.2, -7.6], [68.4, -15.2]])
