@@ -43,7 +43,8 @@ class EstimatorConfig:
         equalize_resolution [True]: before rectification, blur each image with a Gaussian of
             ``resolution_blur * sqrt(r^2 - 1)`` binned pixels, r = common ground sampling / the image's
             own nadir sampling, so that images from different altitudes have the same resolution on
-            the ground grid (and less aliasing when the lower images are down-sampled).
+            the ground grid (and less aliasing when the lower images are down-sampled); capped at
+            8 binned pixels.
         resolution_blur [0.5]: see equalize_resolution (0.5 = box pixel plus bilinear kernel).
         rectification_knots [17]: exact CAHVOR projection on a knots x knots grid, Catmull-Rom in between.
         max_off_nadir_deg [60.0]: boresight further than this from nadir -> the image is unusable.

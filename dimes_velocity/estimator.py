@@ -38,6 +38,9 @@ from .result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
 from .solution import combine_pairs, consensus, weighted_displacement
 
 
+MAX_BLUR_PX = 8.0   # cap on the resolution-equalising blur (images from very different altitudes)
+
+
 class RectifiedImage:
     """One image on the ground grid, with its pyramid, masks and unusable-ground diagnosis."""
 
@@ -168,6 +171,7 @@ class DimesEstimator:
                 anti_sun, config.zero_phase_half_angle_rad, shield, half_angle)
             ratio = sample_m * self.focal_px / pose.centre_m[2]
             blur = config.resolution_blur * np.sqrt(max(ratio * ratio - 1.0, 0.0)) if config.equalize_resolution else 0.0
+            blur = min(blur, MAX_BLUR_PX)
             rectified.append(RectifiedImage(flat, rectification, pose, config, blur))
         t_rect = time.perf_counter()
 
@@ -215,8 +219,8 @@ class DimesEstimator:
         t0 = time.perf_counter()
 
         def result(reason: str, radius: float = 0.0, matched: int = 0, used: int = 0,
-                   displacement=np.zeros(2)) -> PairResult:
-            ok = reason == "ok"
+                   displacement: np.ndarray | None = None) -> PairResult:
+            ok = reason == "ok" and displacement is not None
             d = displacement if ok else np.zeros(2)
             return PairResult(index, index + 1, ok, reason, float(d[0]), float(d[1]), float(d[0] / dt_s),
                               float(d[1] / dt_s), float(radius), matched, used)

@@ -3,7 +3,8 @@
 Reason codes (``VelocityEstimate.reason``; ``PairResult.reason``)
 -----------------------------------------------------------------
 ok                      valid estimate
-bad_attitude            an image's boresight is further than ``max_off_nadir_deg`` from nadir
+bad_attitude            an image's boresight is further than ``max_off_nadir_deg`` from nadir (or
+                        the camera would be below the ground)
 sky                     too little of the rectified ground grid is seen by the camera (mostly sky)
 no_signal               too much of the ground has no signal (dark image, sky)
 saturated               too much of the ground is saturated
