@@ -33,6 +33,8 @@ def default_worker_count() -> int:
 def start_client(scheduler: str | None, workers: int | None, memory_limit: str = "1.5GiB",
                  quiet: bool = False) -> tuple[Client, LocalCluster | None]:
     """Connect to ``scheduler`` or start an embedded LocalCluster of single-threaded worker processes."""
+    for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(variable, "1")  # one thread per worker process: idle BLAS threads stall on 2 cores
     if scheduler:
         client = Client(scheduler, timeout="30s")
         cluster = None
