@@ -1,25 +1,15 @@
 """Camera chain: ms per 1024x1024 -> 1024x256 image (target <= 20 ms on one core)."""
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.timing import median_ms
 from simulator.camera_config import load_camera
 from simulator.render import RadianceFields, render_image
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
-
-
-def _median_ms(function, repeats: int = 15) -> float:
-    function()  # warm caches (PRNU, falloff)
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
 
 
 def run() -> list[dict]:
@@ -32,6 +22,6 @@ def run() -> list[dict]:
     rows = []
     for name, fields in (("still_camera_1_field", still), ("moving_3_fields", moving),
                          ("saturating_full_res_path", RadianceFields(bright, bright, bright))):
-        ms = _median_ms(lambda: render_image(camera, fields, np.random.default_rng(1)))
+        ms = median_ms(lambda: render_image(camera, fields, np.random.default_rng(1)), 15)
         rows.append({"name": f"camera_chain/{name}", "ms_per_image": ms, "target_ms": 20.0})
     return rows

@@ -5,11 +5,11 @@ reference field (exact per-pixel rays and photometry), as max and 99th-percentil
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.timing import median_ms
 from simulator import scene
 from simulator.camera_config import load_camera
 from simulator.descent_image import REFERENCE_EFFECTS, SceneConfig, render_descent_image
@@ -19,16 +19,6 @@ from simulator.kinematics import quat_from_axis_angle
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
-
-
-def _median_ms(function, repeats: int = 9) -> float:
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
 
 
 def _rotating_profile(rate_deg_s: float) -> DescentProfile:
@@ -51,7 +41,7 @@ def run() -> list[dict]:
     reference = default.with_effects(**REFERENCE_EFFECTS)
     rows = []
 
-    field_ms = _median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, default), 15)
+    field_ms = median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, default), 15)
     exact = scene.radiance_at_pose(terrain, camera, pose, sun, reference).radiance
     fast = scene.radiance_at_pose(terrain, camera, pose, sun, default).radiance
     relative = np.abs(fast - exact) / np.maximum(exact, 1e-6)
@@ -59,7 +49,7 @@ def run() -> list[dict]:
                  "max_rel_error_vs_reference": float(relative.max()),
                  "p99_rel_error_vs_reference": float(np.percentile(relative, 99))})
     rows.append({"name": "scene/radiance_field_nadir_2000m_reference",
-                 "ms": _median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, reference), 3)})
+                 "ms": median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, reference), 3)})
 
     def image(profile, index, config=default):
         return render_descent_image(terrain, profile, camera, index, sun, config, np.random.default_rng(7))
@@ -68,11 +58,11 @@ def run() -> list[dict]:
                                  ("full_image_60dps_rotation", _rotating_profile(60.0), 0),
                                  ("full_image_example_tilted_heat_shield_halo", example_profile(), 0)):
         result = image(profile, index)
-        ms = _median_ms(lambda: image(profile, index), 5)
+        ms = median_ms(lambda: image(profile, index), 5)
         rows.append({"name": f"scene/{name}", "ms": ms, "scene_ms": result.diagnostics.scene_ms,
                      "camera_ms": result.diagnostics.camera_ms,
                      "fields": sum(result.diagnostics.substeps.values()),
                      "exposure_substeps": result.diagnostics.substeps["exposure"]})
-    rows.append({"name": "scene/case_3_images_still_nadir", "ms": _median_ms(lambda: [image(still, k) for k in range(3)], 3),
+    rows.append({"name": "scene/case_3_images_still_nadir", "ms": median_ms(lambda: [image(still, k) for k in range(3)], 3),
                  "target_ms_incl_estimator": 80.0})
     return rows
