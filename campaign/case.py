@@ -11,6 +11,7 @@ so a case is bit-for-bit reproducible whatever the worker count or order.
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import socket
 import time
@@ -67,9 +68,28 @@ class Resources:
                               name=f"{profile.name}@case{int(row['case_id'])}")
 
 
+def keep_freed_memory_for_reuse() -> bool:
+    """Ask glibc to recycle freed image buffers instead of returning them to the kernel at once.
+
+    dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also freezes glibc's
+    mmap threshold at 128 KiB: every 1024 x 1024 array is then a fresh ``mmap`` whose pages the
+    kernel zero-fills on first touch, and a case runs 2.5 times slower (measured: 311 vs 125 ms),
+    most of it as system time. Raising both thresholds (trim 256 MiB, mmap 32 MiB, the largest glibc
+    accepts) keeps a worker's few hundred MiB of scratch in its heap. Returns False where there is no
+    glibc (the setting is then simply not needed).
+    """
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3
+    return bool(libc.mallopt(m_trim_threshold, 256 << 20)) and bool(libc.mallopt(m_mmap_threshold, 32 << 20))
+
+
 def load_resources(config) -> Resources:
     """The per-process resources of a campaign (created on first use)."""
     if config.config_hash not in _WORKER_RESOURCES:
+        keep_freed_memory_for_reuse()
         _WORKER_RESOURCES[config.config_hash] = Resources(config)
     return _WORKER_RESOURCES[config.config_hash]
 
