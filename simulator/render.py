@@ -8,8 +8,8 @@ Follow the light::
       -> + dark rate                          thermal electrons, temperature model   (e-/s)
       -> charge_transfer.binned_charge_e      fast-flush + exposure + transfer smear, 4-row binning (e-)
       -> + charge_generation.storage_dark_e   dark gathered while waiting for read-out
-      -> readout.shot_noise_e                 Poisson at binned resolution (exact)
-      -> readout.read_noise_e                 output amplifier
+      -> readout.noisy_charge_e               shot noise at binned resolution (Poisson; Gaussian above
+                                              1000 e- unless exact_poisson) + output amplifier noise
       -> readout.digitize                     full well, gain, offset, rounding, 12-bit clip -> uint16 (256, 1024)
 """
 from __future__ import annotations
@@ -36,6 +36,7 @@ class CameraEffects:
     smear: bool = True
     shot_noise: bool = True
     read_noise: bool = True
+    exact_poisson: bool = False   # False: Gaussian shot noise above readout.GAUSSIAN_MIN_MEAN_E (fidelity shortcut)
 
 
 @dataclass(frozen=True)
@@ -143,9 +144,8 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         charge = charge + charge_generation.storage_dark_e(camera, dark_rate)
 
     electronics = camera.electronics
-    noisy = readout.shot_noise_e(rng, charge) if effects.shot_noise else charge.astype(np.float64)
-    if effects.read_noise and electronics.read_noise_e > 0:
-        noisy = noisy + readout.read_noise_e(rng, noisy.shape, electronics.read_noise_e)
+    noisy = readout.noisy_charge_e(rng, charge, electronics.read_noise_e, effects.shot_noise,
+                                   effects.read_noise, effects.exact_poisson)
     return RenderedImage(
         dn=readout.digitize(noisy, electronics),
         expected_dn=readout.expected_dn(charge, electronics),

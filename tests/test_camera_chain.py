@@ -148,3 +148,32 @@ def test_callable_and_sequence_inputs_match(mer_a):
     assert np.array_equal(by_list, by_callable)
     with pytest.raises(ValueError, match="shape"):
         render_image(mer_a, [field[:10], field, field], np.random.default_rng(9))
+
+
+@pytest.mark.parametrize("exact_poisson", [False, True])
+def test_noise_modes_match_poisson_moments_and_stay_exact_when_dim(exact_poisson):
+    from simulator.readout import GAUSSIAN_MIN_MEAN_E, noisy_charge_e
+
+    rng = np.random.default_rng(11)
+    bright_mean, dim_mean, read_sigma = 5.0e4, 3.0, 0.0
+    mean = np.concatenate([np.full(200_000, bright_mean), np.full(200_000, dim_mean)])
+    assert dim_mean < GAUSSIAN_MIN_MEAN_E < bright_mean
+    noisy = noisy_charge_e(rng, mean, read_sigma, exact_poisson=exact_poisson)
+    bright, dim = noisy[:200_000], noisy[200_000:]
+    # moments of Poisson(mean): standard errors sqrt(m / n) and ~m sqrt(2 / n)
+    assert abs(bright.mean() - bright_mean) < 4 * np.sqrt(bright_mean / bright.size)
+    assert bright.var() == pytest.approx(bright_mean, rel=4 * np.sqrt(2 / bright.size))
+    # dim pixels are exact Poisson in both modes: integers with P(0) = exp(-m)
+    assert np.all(dim == np.round(dim))
+    p_zero = np.exp(-dim_mean)
+    assert abs((dim == 0).mean() - p_zero) < 4 * np.sqrt(p_zero * (1 - p_zero) / dim.size)
+
+
+def test_noise_with_read_noise_only_adds_its_variance():
+    from simulator.readout import noisy_charge_e
+
+    mean = np.full(400_000, 2.0e4)
+    noisy = noisy_charge_e(np.random.default_rng(12), mean, 30.0)
+    assert noisy.var() == pytest.approx(2.0e4 + 30.0**2, rel=4 * np.sqrt(2 / mean.size))
+    quiet = noisy_charge_e(np.random.default_rng(12), mean, 30.0, shot_noise=False)
+    assert quiet.var() == pytest.approx(30.0**2, rel=4 * np.sqrt(2 / mean.size))
