@@ -22,6 +22,9 @@ builds a config from a TOML table (degrees only there), e.g.::
     motion_blur = true
     [scene.camera_effects]
     dark_current_scale = 1.0
+    [scene.off_nominal]            # see simulator.off_nominal for every key
+    dust_particle_count = 0
+    angular_rate_multiplier = 1.0
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ import numpy as np
 from . import ground_mapping, photometry, scene
 from .camera_config import Camera
 from .descent_profile import DescentProfile, Pose
+from .off_nominal import OffNominalConfig, off_nominal_config_from_table
 from .render import CameraEffects, RadianceFields, RenderedImage, render_image
 from .terrain import Terrain
 from .tomlfields import Table
@@ -68,6 +72,7 @@ class SceneConfig:
 
     effects: SceneEffects = SceneEffects()
     camera_effects: CameraEffects = CameraEffects()
+    off_nominal: OffNominalConfig = OffNominalConfig()
     sun_distance_au: float = photometry.MARS_MEAN_SUN_DISTANCE_AU
     spectral_ratio: float = 0.906
     lander_diameter_m: float = 1.9
@@ -230,7 +235,8 @@ def scene_config_from_table(table: Table) -> SceneConfig:
 
     Numbers are range-checked with one-line errors naming file, field and allowed range; the heat
     shield cone angle is given in degrees (``heat_shield_cone_angle_deg``). Sub-tables ``effects`` and
-    ``camera_effects`` hold the boolean switches (and ``camera_effects.dark_current_scale``).
+    ``camera_effects`` hold the boolean switches (and ``camera_effects.dark_current_scale``);
+    ``off_nominal`` the off-nominal effects (:mod:`simulator.off_nominal`).
     """
     default = SceneConfig()
     switches = table.table("effects", required=False)
@@ -259,6 +265,7 @@ def scene_config_from_table(table: Table) -> SceneConfig:
 
     config = SceneConfig(
         effects=effects, camera_effects=CameraEffects(**cam_kwargs),
+        off_nominal=off_nominal_config_from_table(table.table("off_nominal", required=False)),
         sun_distance_au=number("sun_distance_au", 0.1, 100.0, exclusive_minimum=True),
         spectral_ratio=number("spectral_ratio", 0.0, 10.0, exclusive_minimum=True),
         lander_diameter_m=number("lander_diameter_m", 0.0, 20.0),
