@@ -51,7 +51,9 @@ class SceneEffects:
     (drawn when in view), ``motion_blur`` (sub-poses per period). Fidelity shortcuts (switch off for the
     reference render): ``coarse_ray_grid`` (rays interpolated from a node grid), ``coarse_photometry``
     (ratio on the node grid), ``share_still_fields`` (one field for all three periods when the image
-    moves by less than ``still_shift_terrain_px``).
+    moves by less than ``still_shift_terrain_px``), ``warp_smear_fields`` (fast-flush and frame-transfer
+    fields warped from the exposure-centre field along the ground-plane flow instead of re-rendered,
+    see :func:`simulator.scene.warped_field`).
     """
 
     photometric_correction: bool = True
@@ -62,6 +64,7 @@ class SceneEffects:
     coarse_ray_grid: bool = True
     coarse_photometry: bool = True
     share_still_fields: bool = True
+    warp_smear_fields: bool = True
 
 
 @dataclass(frozen=True)
@@ -94,7 +97,8 @@ class SceneConfig:
         return replace(self, effects=replace(self.effects, **switches))
 
 
-REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False)
+REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
+                         warp_smear_fields=False)
 
 
 @dataclass(frozen=True)

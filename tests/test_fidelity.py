@@ -1,0 +1,99 @@
+"""Fidelity shortcuts against exact answers: smear-field warping."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from simulator import ground_mapping, scene
+from simulator.camera_config import load_camera
+from simulator.descent_image import SceneConfig, render_descent_image
+from simulator.descent_profile import DescentProfile, constant_velocity_profile
+from simulator.kinematics import quat_from_axis_angle
+from simulator.terrain import Terrain
+
+ROOT = Path(__file__).resolve().parents[1]
+CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
+SUN = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])
+ALTITUDE_M = 2000.0
+
+
+def smooth_terrain(size=1800, mpp=3.0, seed=5) -> Terrain:
+    """Band-limited texture (correlation ~3 terrain px) so bilinear resampling is nearly exact."""
+    rng = np.random.default_rng(seed)
+    noise = rng.standard_normal((size, size))
+    spectrum = np.fft.rfft2(noise)
+    fy = np.fft.fftfreq(size)[:, None]
+    fx = np.fft.rfftfreq(size)[None, :]
+    smooth = np.fft.irfft2(spectrum * np.exp(-(fx**2 + fy**2) / (2 * 0.06**2)), s=(size, size))
+    values = 0.2 + 0.03 * smooth / smooth.std()
+    half = 0.5 * (size - 1) * mpp
+    return Terrain(values.astype(np.float32), mpp, np.array([-half, half]), np.radians(30), 0.0, np.radians(30), "smooth")
+
+
+def turning_profile(rate_deg_s: float = 40.0) -> DescentProfile:
+    """Descending at 72 m/s with 25 m/s drift while turning about the lander x axis."""
+    time = np.array([0.0, 1.0])
+    attitude = np.stack([quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(rate_deg_s) * (t - 0.5)) for t in time])
+    velocity = np.array([25.0, -15.0, -72.0])
+    position = np.array([0.0, 0.0, ALTITUDE_M]) + (time - 0.5)[:, None] * velocity
+    return DescentProfile(time, position, np.tile(velocity, (2, 1)), attitude,
+                          np.tile([np.radians(rate_deg_s), 0.0, 0.0], (2, 1)), np.zeros((2, 3)), None,
+                          np.array([0.5]), "turning")
+
+
+def test_flow_of_a_translating_nadir_camera_is_the_ground_shift_over_the_gsd():
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [60.0, 0.0, 0.0], LEVEL, 1.0, [0.5])
+    source = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
+    target = ground_mapping.camera_pose(CAMERA, profile.pose(0.51))
+    flow = scene.flow_map(CAMERA, source, target)
+    assert flow is not None
+    grid = np.stack(np.meshgrid(np.arange(CAMERA.width_px), np.arange(CAMERA.height_px)), axis=-1)
+    shift = flow - grid
+    # at the principal point the camera moved 0.6 m over 2000 m: 0.6/2000 rad = f * 0.6/2000 pixels
+    focal_px = 0.01467 / 12e-6
+    centre = shift[511:513, 511:513].reshape(-1, 2).mean(axis=0)
+    assert abs(np.hypot(*centre) - focal_px * 0.6 / ALTITUDE_M) < 2e-3
+    # the ground point seen by a target pixel projects to the flow position in the source image
+    pixels = np.array([[100.0, 900.0], [800.0, 200.0], [512.0, 512.0]])
+    points, hit = ground_mapping.ground_points(CAMERA, target, pixels)
+    expected, _ = ground_mapping.world_to_pixels(CAMERA, source, points)
+    got = flow[pixels[:, 1].astype(int), pixels[:, 0].astype(int)]
+    assert hit.all() and np.abs(got - expected).max() < 0.01
+
+
+def test_flow_is_refused_when_the_horizon_is_in_view():
+    tilted = np.array([np.cos(np.radians(40.0)), np.sin(np.radians(40.0)), 0.0, 0.0])  # 80 deg off nadir
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], tilted, 1.0, [0.5])
+    pose = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
+    assert scene.flow_map(CAMERA, pose, pose) is None
+
+
+def test_warped_smear_fields_match_rendered_ones_in_column_sums():
+    terrain = smooth_terrain()
+    profile = turning_profile()
+    exact_config = SceneConfig().with_effects(warp_smear_fields=False, share_still_fields=False)
+    warped_config = SceneConfig().with_effects(share_still_fields=False)
+    exact = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, exact_config)
+    warped = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, warped_config)
+    assert warped.fields.exposure is not warped.fields.flush
+    for period in ("flush", "transfer"):
+        reference, fast = getattr(exact.fields, period), getattr(warped.fields, period)
+        interior = (slice(8, -8), slice(8, -8))
+        texture = reference[interior].std()
+        assert np.abs(fast[interior] - reference[interior]).mean() < 0.05 * texture
+        # (the exposure field itself is far off: the scene moved by pixels meanwhile)
+        assert np.abs(warped.fields.exposure[interior] - reference[interior]).mean() > 0.2 * texture
+        # smear sees column sums: agree to 1e-3 of the column sum
+        sums_exact = reference[interior].sum(axis=0)
+        assert np.abs(fast[interior].sum(axis=0) - sums_exact).max() < 1e-3 * sums_exact.mean()
+
+
+def test_warped_smear_changes_the_expected_image_by_far_less_than_half_a_dn():
+    terrain = smooth_terrain()
+    profile = turning_profile()
+    exact = render_descent_image(terrain, profile, CAMERA, 0, SUN,
+                                 SceneConfig().with_effects(warp_smear_fields=False)).image.expected_dn
+    fast = render_descent_image(terrain, profile, CAMERA, 0, SUN, SceneConfig()).image.expected_dn
+    assert np.sqrt(np.mean((fast - exact) ** 2)) < 0.1
