@@ -233,6 +233,30 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
     return GroundMap(col, row, sky, any_sky, grid_step_px, nodes, full_rays)
 
 
+CACHED_RAY_SETS = 64            # distinct small pixel sets whose camera rays are kept per camera
+CACHED_RAY_SET_MAX_PIXELS = 20_000
+
+
+def camera_frame_rays(camera: Camera, pixels: np.ndarray) -> np.ndarray:
+    """Camera-frame unit rays of pixels ``(..., 2)`` (column, row), float64, shape ``(..., 3)``.
+
+    Rays do not depend on the pose, so the rays of small pixel sets used at every pose (motion-blur
+    sample grid, footprint border, flow nodes) are cached per camera, keyed by the exact coordinates.
+    """
+    pixels = np.asarray(pixels, dtype=float)
+    if pixels.size > 2 * CACHED_RAY_SET_MAX_PIXELS:
+        return cahvor.unproject(camera.model, pixels)
+    cache = camera_cache(camera).setdefault("frame_rays", {})
+    key = (pixels.shape, pixels.tobytes())
+    rays = cache.get(key)
+    if rays is None:
+        rays = cahvor.unproject(camera.model, pixels)
+        rays.setflags(write=False)
+        if len(cache) < CACHED_RAY_SETS:
+            cache[key] = rays
+    return rays
+
+
 def ground_points(camera: Camera, pose: CameraPose, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact world ground points (z = 0) seen by given pixels.
 
@@ -244,7 +268,7 @@ def ground_points(camera: Camera, pose: CameraPose, pixels: np.ndarray) -> tuple
     -------
     points_m : (..., 3) world points (0 where sky); hit : (...) bool, False for sky.
     """
-    rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) @ pose.camera_to_world.T
+    rays = camera_frame_rays(camera, pixels) @ pose.camera_to_world.T
     hit = (rays[..., 2] < -HORIZON_EPSILON) & (pose.ray_origin_m[2] > 0)
     t = np.where(hit, -pose.ray_origin_m[2] / np.where(hit, rays[..., 2], -1.0), 0.0)
     points = pose.ray_origin_m + t[..., None] * rays
