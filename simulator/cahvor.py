@@ -16,6 +16,9 @@ Projection of a point ``P``::
 The inverse (2D -> 3D ray) takes the CAHV ray ``(V - y A) x (H - x A)`` (the distorted direction)
 and removes the distortion by Newton iteration on ``u' = u (1 + mu(u^2))``, where ``u`` and
 ``u'`` are the tangents of the angle to O before and after distortion (converges to < 1e-12 rad).
+With negative R1 or R2 the distortion ``u -> u'`` stops increasing at a turning point ``u*``
+(:func:`distortion_turning_point`); pixels beyond ``u'(u*)`` are seen by no ray, and
+:func:`unproject` returns the ray at ``u*`` for them (the model's outermost ray, on the pixel's side).
 """
 from __future__ import annotations
 
@@ -96,21 +99,29 @@ def project(model: Cahvor, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray
     Returns
     -------
     pixels : ndarray, shape (..., 2)
-        ``(column, row)``; 0 for points that are not in front of the camera.
+        ``(column, row)``; 0 for points that are not imaged.
     in_front : ndarray of bool, shape (...)
-        True where the point lies in front of the camera (``p'.A > 0``).
+        True where the point is imaged: in front of the camera (``zeta > 0`` and ``p'.A > 0``) and
+        inside the field the distortion model covers (undistorted tangent ``sqrt(tau)`` below the
+        turning point :func:`distortion_turning_point`; beyond it the polynomial folds back and
+        would put far off-axis points inside the frame).
     """
     relative = np.asarray(points_m, dtype=float) - model.c
     zeta = relative @ model.o
     lam = relative - zeta[..., None] * model.o
-    safe_zeta = np.where(np.abs(zeta) > 1e-300, zeta, 1e-300)
-    tau = np.einsum("...i,...i->...", lam, lam) / safe_zeta**2
+    turning = distortion_turning_point(model.r)
+    with np.errstate(all="ignore"):   # points at or beside the centre give inf/NaN here; masked below
+        tangent = lam / zeta[..., None]
+        tau = np.einsum("...i,...i->...", tangent, tangent)
+        imaged = (zeta > 0) & np.isfinite(tau) & (tau <= turning * turning)
+    tau = np.where(imaged, tau, 0.0)
     mu = model.r[0] + model.r[1] * tau + model.r[2] * tau**2
     distorted = relative + mu[..., None] * lam
     alpha = distorted @ model.a
-    in_front = (alpha > 0) & (zeta > 0)
+    in_front = imaged & (alpha > 0)
     safe_alpha = np.where(in_front, alpha, 1.0)
-    pixels = np.stack([distorted @ model.h / safe_alpha, distorted @ model.v / safe_alpha], axis=-1)
+    with np.errstate(all="ignore"):
+        pixels = np.stack([distorted @ model.h / safe_alpha, distorted @ model.v / safe_alpha], axis=-1)
     return np.where(in_front[..., None], pixels, 0.0), in_front
 
 
@@ -145,18 +156,39 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
     return undistorted / np.linalg.norm(undistorted, axis=-1, keepdims=True)
 
 
+def distortion_turning_point(r: np.ndarray) -> float:
+    """Smallest undistorted tangent ``u* > 0`` where ``d/du [u (1 + R0 + R1 u^2 + R2 u^4)] = 0``;
+    ``inf`` when the distortion increases for every ``u`` (e.g. R1, R2 >= 0)."""
+    r0, r1, r2 = (float(value) for value in r)
+    # slope = (1 + R0) + 3 R1 s + 5 R2 s^2 with s = u^2
+    roots = np.roots([5.0 * r2, 3.0 * r1, 1.0 + r0]) if (r1 or r2) else np.zeros(0)
+    positive = [root.real for root in np.atleast_1d(roots) if abs(root.imag) < 1e-12 and root.real > 0]
+    return float(np.sqrt(min(positive))) if positive else float("inf")
+
+
 def _undistort_tangent(u_distorted: np.ndarray, r: np.ndarray, tolerance: float, max_iterations: int) -> np.ndarray:
-    """Solve ``u (1 + R0 + R1 u^2 + R2 u^4) = u_distorted`` for u by Newton's method."""
+    """Solve ``u (1 + R0 + R1 u^2 + R2 u^4) = u_distorted`` for u by Newton's method.
+
+    Iterates stay in ``[0, u*]`` (:func:`distortion_turning_point`), where the map increases; a
+    ``u_distorted`` beyond the largest distorted value returns ``u*``.
+    """
     r0, r1, r2 = r
-    u = u_distorted / (1.0 + r0)
-    for _ in range(max_iterations):
-        u2 = u * u
-        residual = u * (1.0 + r0 + r1 * u2 + r2 * u2 * u2) - u_distorted
-        slope = 1.0 + r0 + 3.0 * r1 * u2 + 5.0 * r2 * u2 * u2
-        step = residual / slope
-        u = u - step
-        if np.all(np.abs(step) < tolerance):
-            break
+    turning = distortion_turning_point(r)
+    u = np.minimum(u_distorted / (1.0 + r0), turning)
+    if np.isfinite(turning):
+        beyond = u_distorted >= turning * (1.0 + r0 + r1 * turning**2 + r2 * turning**4)
+        u = np.where(beyond, turning, u)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for _ in range(max_iterations):
+            u2 = u * u
+            residual = u * (1.0 + r0 + r1 * u2 + r2 * u2 * u2) - u_distorted
+            slope = 1.0 + r0 + 3.0 * r1 * u2 + 5.0 * r2 * u2 * u2
+            step = np.where(slope > 0, residual / np.where(slope > 0, slope, 1.0), 0.0)
+            updated = np.clip(u - step, 0.0, turning)
+            change = np.abs(updated - u)
+            u = updated
+            if np.all(change < tolerance):
+                break
     return u
 
 
