@@ -18,9 +18,15 @@ import numpy as np
 
 
 def quat_normalize(quaternion: np.ndarray) -> np.ndarray:
-    """Unit quaternion(s) with non-negative w (the same rotation), shape (..., 4)."""
+    """Unit quaternion(s) with non-negative w (the same rotation), shape (..., 4).
+
+    Raises ValueError for a zero or non-finite quaternion (no rotation to normalise to).
+    """
     quaternion = np.asarray(quaternion, dtype=float)
-    quaternion = quaternion / np.linalg.norm(quaternion, axis=-1, keepdims=True)
+    norm = np.linalg.norm(quaternion, axis=-1, keepdims=True)
+    if not np.all((norm > 0) & np.isfinite(norm)):
+        raise ValueError(f"quaternion (w, x, y, z) must be finite with a non-zero norm; got {quaternion!r}")
+    quaternion = quaternion / norm
     return np.where(quaternion[..., :1] < 0, -quaternion, quaternion)
 
 
@@ -42,9 +48,13 @@ def quat_conjugate(quaternion: np.ndarray) -> np.ndarray:
 
 
 def quat_from_axis_angle(axis: np.ndarray, angle_rad: float | np.ndarray) -> np.ndarray:
-    """Quaternion rotating by ``angle_rad`` (right-handed) about ``axis``."""
+    """Quaternion rotating by ``angle_rad`` (right-handed) about ``axis`` (finite, non-zero)."""
     axis = np.asarray(axis, dtype=float)
-    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
+    if not np.all((norm > 0) & np.isfinite(norm)) or not np.all(np.isfinite(angle_rad)):
+        raise ValueError(f"rotation axis must be a finite non-zero 3-vector and the angle finite; "
+                         f"got axis {axis!r}, angle {angle_rad!r}")
+    axis = axis / norm
     half = 0.5 * np.asarray(angle_rad, dtype=float)[..., None]
     return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
 
@@ -53,6 +63,8 @@ def quat_from_rotation_vector(rotation_vector_rad: np.ndarray) -> np.ndarray:
     """Quaternion of the rotation ``exp([v]x)``: axis ``v/|v|``, angle ``|v|`` (rad)."""
     rotation_vector_rad = np.asarray(rotation_vector_rad, dtype=float)
     angle = np.linalg.norm(rotation_vector_rad, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(angle)):
+        raise ValueError(f"rotation vector (rad) must be finite; got {rotation_vector_rad!r}")
     half = 0.5 * angle
     # sin(a/2)/a -> 1/2 as a -> 0 (series keeps full precision for tiny angles)
     scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
