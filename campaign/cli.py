@@ -6,6 +6,7 @@
     campaign table DIR     the paper's table (also written as table.md and table.csv in DIR)
     campaign report DIR    a Markdown report with PNG plots
     campaign camera FILE   validate a camera TOML and print its derived numbers
+    campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR
 
 Exit codes: 0 success, 1 a run finished with failures or regressions, 2 usage or configuration
 error (one clear line on stderr, nothing written).
@@ -98,6 +99,31 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_sweep(args) -> int:
+    from .sweep import compare_to_baseline, read_baseline, run_sweep, write_outputs
+    from .sweep_config import load_sweep
+
+    start = time.perf_counter()
+    spec = load_sweep(args.file, output_dir=args.output)           # validates everything, writes nothing
+    baseline = read_baseline(args.baseline) if args.baseline else None
+    run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    table, text = write_outputs(spec, run)
+    print(text)
+    print(f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused; {run.done} cases done, "
+          f"{run.failed} failed this run)")
+    print(f"wall time: {time.perf_counter() - start:.1f} s")
+    if baseline is None:
+        return 0
+    regressions, compared = compare_to_baseline(spec, table, baseline, spec.tolerances)
+    for line in regressions:
+        print(f"regression: {line}")
+    if regressions:
+        print(f"{len(regressions)} regressions against {args.baseline} ({compared} points compared)")
+        return 1
+    print(f"no regression ({compared} points compared against {args.baseline})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="campaign", description="MOC2DIMES Monte Carlo campaigns")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -124,6 +150,15 @@ def build_parser() -> argparse.ArgumentParser:
         command = commands.add_parser(name, help=text)
         command.add_argument("dir")
         command.set_defaults(handler=handler)
+
+    sweep = commands.add_parser("sweep", help="run a sensitivity sweep (see campaign/sweep_config.py)")
+    sweep.add_argument("file")
+    sweep.add_argument("--output", help="output directory (default: [sweep] output_dir)")
+    sweep.add_argument("--baseline", help="a previous sweep's output directory; exit 1 on a regression")
+    sweep.add_argument("--scheduler", help="tcp://host:port of an existing dask scheduler")
+    sweep.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
+    sweep.add_argument("--no-progress", action="store_true")
+    sweep.set_defaults(handler=_cmd_sweep)
 
     camera = commands.add_parser("camera", help="validate a camera TOML and print its derived numbers")
     camera.add_argument("file")

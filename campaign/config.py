@@ -61,20 +61,33 @@ class CampaignConfig:
 def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = None,
                          cases_scale: float | None = None) -> CampaignConfig:
     """Load and validate a campaign TOML; ``output_dir`` and ``cases_scale`` override the file."""
+    path = Path(path)
+    return campaign_config_from_data(load_toml(path), path, output_dir=output_dir, cases_scale=cases_scale)
+
+
+def campaign_config_from_data(data: dict, path: str | Path, *, source: str | None = None, site: Any = None,
+                              output_dir: str | Path | None = None,
+                              cases_scale: float | None = None) -> CampaignConfig:
+    """Validate an already parsed campaign TOML ``data`` (e.g. a base campaign with sweep overrides).
+
+    ``path`` is the campaign file the data came from (its ``[site]`` is read from there, relative paths
+    resolve against it); ``source`` names the data in error messages (default: ``path``); ``site``
+    may pass the already loaded site of ``path``. Same hash semantics as :func:`load_campaign_config`.
+    """
     from dimes_velocity.config import config_from_table as estimator_from_table
     from simulator.descent_image import scene_config_from_table
     from sitedata.sensors import sensor_config_from_table
     from sitedata.sites import load_site
 
     path = Path(path)
-    data = load_toml(path)
-    root = Table(data, str(path))
+    label = source or str(path)
+    root = Table(data, label)
     for key in data:
         if key not in TOP_LEVEL_TABLES:
-            raise ConfigError(f"{path}: unknown table {key!r}; allowed: {', '.join(TOP_LEVEL_TABLES)}")
+            raise ConfigError(f"{label}: unknown table {key!r}; allowed: {', '.join(TOP_LEVEL_TABLES)}")
     if "site" not in data:
-        raise ConfigError(f"{path}: site is missing (a [site] table with the site, camera, sun and classes)")
-    site = load_site(path)
+        raise ConfigError(f"{label}: site is missing (a [site] table with the site, camera, sun and classes)")
+    site = load_site(path) if site is None else site
 
     campaign = root.table("campaign", required=False)
     seed = campaign.integer("seed", default=1, minimum=0, maximum=2**63 - 1)
