@@ -7,7 +7,8 @@ carry the small :class:`CampaignContext` and one plan row.
 
 Randomness: case ``k`` of a campaign with seed ``s`` draws everything from
 ``SeedSequence([s, k]).spawn(...)``: one stream per image (scene + camera noise), one for the sensors,
-so a case is bit-for-bit reproducible whatever the worker count or order.
+one for the off-nominal artefacts (dust, hot pixels, per-image particle hits; drawn only when
+configured), so a case is bit-for-bit reproducible whatever the worker count or order.
 """
 from __future__ import annotations
 
@@ -141,15 +142,27 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
     config = resources.config
     camera = resources.camera
     case_id = int(row["case_id"])
-    image_seeds = np.random.SeedSequence([config.seed, case_id]).spawn(IMAGE_COUNT + 1)
+    # children 0..IMAGE_COUNT-1: images, IMAGE_COUNT: sensors, IMAGE_COUNT+1: off-nominal artefacts
+    # (spawned children do not depend on the count, so adding the last one changed no other stream)
+    image_seeds = np.random.SeedSequence([config.seed, case_id]).spawn(IMAGE_COUNT + 2)
     profile = resources.placed_profile(row)
     terrain = resources.terrain(str(row["class_name"]))
     sun = np.asarray(config.site.sun_direction_world, dtype=float)
+    artefacts = [None] * IMAGE_COUNT
+    off_nominal = config.scene.off_nominal
+    if off_nominal.needs_case_artefacts:
+        from simulator.off_nominal import draw_case_artefacts, with_particle_hits
+
+        # artefact child 0: dust and hot pixels (the same in every image); 1 + k: particle hits of image k
+        artefact_seeds = image_seeds[IMAGE_COUNT + 1].spawn(1 + IMAGE_COUNT)
+        fixed = draw_case_artefacts(camera, off_nominal, np.random.default_rng(artefact_seeds[0]))
+        artefacts = [with_particle_hits(fixed, camera, off_nominal, np.random.default_rng(artefact_seeds[1 + k]))
+                     for k in range(IMAGE_COUNT)]
 
     images, scene_ms, camera_ms, heat_shield_visible, outside = [], 0.0, 0.0, [], []
     for index in range(IMAGE_COUNT):
         rendered = render_descent_image(terrain, profile, camera, index, sun, config.scene,
-                                        np.random.default_rng(image_seeds[index]))
+                                        np.random.default_rng(image_seeds[index]), artefacts[index])
         images.append(rendered.dn)
         scene_ms += rendered.diagnostics.scene_ms
         camera_ms += rendered.diagnostics.camera_ms
@@ -157,7 +170,8 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
         outside.append(float(rendered.outside_terrain_mask.mean()))
 
     started = time.perf_counter()
-    measurements, sensor_truth = measure(profile, camera, sun, config.sensors, np.random.default_rng(image_seeds[-1]))
+    measurements, sensor_truth = measure(profile, camera, sun, config.sensors,
+                                         np.random.default_rng(image_seeds[IMAGE_COUNT]))
     sensors_ms = 1e3 * (time.perf_counter() - started)
 
     started = time.perf_counter()

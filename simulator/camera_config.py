@@ -37,6 +37,11 @@ from .tomlfields import ConfigError, Table, load_toml
 PLANCK_J_S = 6.62607015e-34
 SPEED_OF_LIGHT_M_S = 2.99792458e8
 ZERO_CELSIUS_K = 273.15
+#: Largest full well / summing well (e-): keeps every Poisson mean far below numpy's limit (~9e18).
+MAX_WELL_E = 1e10
+#: Largest dark current at the CCD temperature (e-/s per pixel): such a pixel fills any well in
+#: microseconds; the storage dark of a binned row (<= 64 x 1e13 x 100 s) stays a valid Poisson mean.
+MAX_DARK_CURRENT_E_PER_S = 1e13
 
 
 @dataclass(frozen=True)
@@ -94,7 +99,8 @@ class Electronics:
         """Dark current per pixel at ``temperature_k`` (default: the configured CCD temperature)."""
         temperature_k = self.ccd_temperature_k if temperature_k is None else temperature_k
         exponent = (temperature_k - self.dark_reference_temperature_k) / self.dark_doubling_temperature_k
-        return self.dark_current_ref_e_per_s * 2.0**exponent
+        with np.errstate(over="ignore"):
+            return float(self.dark_current_ref_e_per_s * np.exp2(exponent))   # inf, not OverflowError
 
 
 @dataclass(frozen=True)
@@ -216,8 +222,8 @@ def load_camera(path: str | Path) -> Camera:
 
     ele = root.table("electronics")
     electronics = Electronics(
-        full_well_e=ele.number("full_well_e", minimum=0.0, exclusive_minimum=True),
-        binned_full_well_e=ele.number("binned_full_well_e", minimum=0.0, exclusive_minimum=True),
+        full_well_e=ele.number("full_well_e", minimum=0.0, maximum=MAX_WELL_E, exclusive_minimum=True),
+        binned_full_well_e=ele.number("binned_full_well_e", minimum=0.0, maximum=MAX_WELL_E, exclusive_minimum=True),
         adc_gain_e_per_dn=ele.number("adc_gain_e_per_dn", minimum=0.0, maximum=1e6, exclusive_minimum=True),
         adc_offset_dn=ele.number("adc_offset_dn", default=0.0, minimum=0.0, maximum=65535.0),
         adc_bits=ele.integer("adc_bits", minimum=1, maximum=16),
@@ -227,6 +233,14 @@ def load_camera(path: str | Path) -> Camera:
         dark_doubling_temperature_k=ele.number("dark_doubling_temperature_k", minimum=0.0, maximum=100.0, exclusive_minimum=True),
         ccd_temperature_k=ele.number("ccd_temperature_c", minimum=-273.15, maximum=200.0) + ZERO_CELSIUS_K,
     )
+
+    dark = electronics.dark_current_e_per_s()
+    if not dark <= MAX_DARK_CURRENT_E_PER_S:
+        raise ConfigError(f"{path}: electronics: dark current at ccd_temperature_c = "
+                          f"{electronics.ccd_temperature_k - ZERO_CELSIUS_K:g} is {dark:.3g} e-/s per pixel "
+                          f"(dark_current_ref_e_per_s, dark_reference_temperature_c, dark_doubling_temperature_k); "
+                          f"allowed: <= {MAX_DARK_CURRENT_E_PER_S:g} e-/s")
+    _check_distortion_increases_to_corners(model, width, height, path)
 
     camera = Camera(
         name=meta.string("name"), source=str(path), width_px=width, height_px=height, pixel_pitch_m=pitch,
@@ -238,6 +252,22 @@ def load_camera(path: str | Path) -> Camera:
         raise ConfigError(f"{path}: geometry gives a field of view of {horizontal_fov:.1f} x {vertical_fov:.1f} deg; "
                           "allowed: 1 to 170 deg (check focal_length_m and pixel_pitch_m)")
     return camera
+
+
+def _check_distortion_increases_to_corners(model: cahvor.Cahvor, width: int, height: int, path: Path) -> None:
+    """The radial distortion must keep increasing out to the frame corners (else rays fold back and
+    several field angles share one pixel); raises ConfigError naming geometry.radial_distortion."""
+    turning = cahvor.distortion_turning_point(model.r)
+    if not np.isfinite(turning):
+        return
+    r0, r1, r2 = model.r
+    largest = turning * (1.0 + r0 + r1 * turning**2 + r2 * turning**4)          # distorted tangent
+    corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5], [width - 0.5, height - 0.5]])
+    corner = float(np.max(np.hypot((corners[:, 0] - model.hc) / model.hs, (corners[:, 1] - model.vc) / model.vs)))
+    if corner >= largest:
+        raise ConfigError(f"{path}: geometry.radial_distortion = [{', '.join(f'{value:g}' for value in model.r)}] stops increasing "
+                          f"{largest * model.hs:.0f} px from the principal point, inside the frame (corner at "
+                          f"{corner * model.hs:.0f} px); allowed: a distortion that increases out to the frame corners")
 
 
 def _explicit_cahvor(table: Table) -> cahvor.Cahvor:

@@ -33,10 +33,10 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from . import ground_mapping, photometry, scene
+from . import ground_mapping, heat_shield, motion_blur, photometry, scene
 from .camera_config import Camera
-from .descent_profile import DescentProfile, Pose
-from .off_nominal import OffNominalConfig, off_nominal_config_from_table
+from .descent_profile import DescentProfile, Pose, scale_angular_rates
+from .off_nominal import OffNominalArtefacts, OffNominalConfig, off_nominal_config_from_table
 from .render import CameraEffects, RadianceFields, RenderedImage, render_image
 from .terrain import Terrain
 from .tomlfields import Table
@@ -172,7 +172,8 @@ def image_start_time(profile: DescentProfile, image: int | float) -> float:
 
 def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Camera, image: int | float,
                          sun_world, config: SceneConfig | None = None,
-                         rng: np.random.Generator | None = None) -> DescentImage:
+                         rng: np.random.Generator | None = None,
+                         artefacts: OffNominalArtefacts | None = None) -> DescentImage:
     """Render one descent image: scene (all three CCD periods, motion blur) then the camera chain.
 
     Parameters
@@ -194,6 +195,11 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     rng : numpy.random.Generator, optional
         Noise stream of this image (shot and read noise). None renders without noise (shot and read
         noise switched off, ``dn`` is the rounded expected image).
+    artefacts : OffNominalArtefacts, optional
+        The case's dust and hot pixels plus this image's particle hits
+        (:func:`simulator.off_nominal.draw_case_artefacts`, :func:`~simulator.off_nominal.with_particle_hits`);
+        required when ``config.off_nominal`` asks for any of them. The heat-shield glint, blooming and
+        the angular rate multiplier of ``config.off_nominal`` need no artefacts.
 
     Returns
     -------
@@ -209,14 +215,20 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
         rng = np.random.default_rng(0)   # unused: every random draw is switched off
     sun = scene.sun_unit_vector(sun_world)
     start_s = image_start_time(profile, image)
+    off_nominal = config.off_nominal
+    artefacts = _camera_artefacts(off_nominal, artefacts)
+    profile = scale_angular_rates(profile, off_nominal.angular_rate_multiplier, start_s + 0.5 * camera.timing.exposure_s)
 
     started = time.perf_counter()
     periods = scene.period_fields(terrain, camera, profile, start_s, sun, config,
                                   need_smear_fields=camera_effects.smear)
+    if (off_nominal.heat_shield_glint and config.effects.heat_shield and profile.heat_shield_position_m is not None
+            and off_nominal.heat_shield_specular_reflectance > 0):
+        _add_glint(periods, camera, profile, start_s, sun, config)
     scene_ms = 1e3 * (time.perf_counter() - started)
 
     started = time.perf_counter()
-    rendered = render_image(camera, periods.fields, rng, camera_effects)
+    rendered = render_image(camera, periods.fields, rng, camera_effects, artefacts)
     camera_ms = 1e3 * (time.perf_counter() - started)
 
     cam = periods.exposure_centre.camera_pose
@@ -232,6 +244,48 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
         scene_ms=scene_ms, camera_ms=camera_ms,
     )
     return DescentImage(rendered, periods.fields, periods.sky, periods.outside, periods.heat_shield, diagnostics)
+
+
+def _camera_artefacts(off_nominal: OffNominalConfig, artefacts: OffNominalArtefacts | None) -> OffNominalArtefacts | None:
+    """The artefacts the camera chain applies: the given ones with the configured blooming switch."""
+    if artefacts is None:
+        if off_nominal.needs_case_artefacts:
+            raise ValueError("scene.off_nominal asks for dust, hot pixels or particle hits but no artefacts were "
+                             "given; draw them with simulator.off_nominal.draw_case_artefacts (once per case) and "
+                             "with_particle_hits (per image)")
+        return None if off_nominal.blooming else OffNominalArtefacts(blooming=False)
+    return artefacts if artefacts.blooming == off_nominal.blooming else replace(artefacts, blooming=off_nominal.blooming)
+
+
+def _add_glint(periods: scene.PeriodScene, camera: Camera, profile: DescentProfile, start_s: float,
+               sun: np.ndarray, config: SceneConfig) -> None:
+    """Add the heat-shield specular glint to the period fields in place, averaged over the same
+    sub-poses as the scene (:mod:`simulator.motion_blur`); a field standing for several periods gets
+    the glint of the exposure (or of the first period it stands for)."""
+    timing = camera.timing
+    windows = {"flush": (start_s - timing.fast_flush_s, start_s),
+               "exposure": (start_s, start_s + timing.exposure_s),
+               "transfer": (start_s + timing.exposure_s, start_s + timing.exposure_s + timing.frame_transfer_s)}
+    by_field: dict[int, list[str]] = {}
+    for period in ("exposure", "flush", "transfer"):
+        by_field.setdefault(id(getattr(periods.fields, period)), []).append(period)
+    irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
+    off_nominal = config.off_nominal
+    for periods_of_field in by_field.values():
+        period = periods_of_field[0]
+        field_array = getattr(periods.fields, period)
+        count = 1 if periods.shared else max(int(periods.substeps.get(period, 1)), 1)
+        times = ([start_s + 0.5 * timing.exposure_s] if periods.shared
+                 else motion_blur.substep_times(*windows[period], count))
+        for time_s in times:
+            pose = profile.pose(float(np.clip(time_s, profile.time_s[0], profile.time_s[-1])))
+            glint = heat_shield.glint_window(
+                camera, ground_mapping.camera_pose(camera, pose), np.asarray(pose.heat_shield_position_m, dtype=float),
+                sun, irradiance, config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad,
+                off_nominal.heat_shield_specular_reflectance, off_nominal.heat_shield_specular_roughness_rad)
+            if glint is not None:
+                row0, col0, window = glint
+                field_array[row0:row0 + window.shape[0], col0:col0 + window.shape[1]] += window * np.float32(1.0 / len(times))
 
 
 def scene_config_from_table(table: Table) -> SceneConfig:

@@ -9,12 +9,13 @@ Image timing: ``image_times_s[k]`` is the *start of the exposure* of image k. Th
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import Optional
 
 import numpy as np
 
-from .kinematics import quat_from_axis_angle, quat_multiply, quat_normalize, slerp
+from .kinematics import (quat_conjugate, quat_from_axis_angle, quat_from_rotation_vector, quat_multiply,
+                         quat_normalize, quat_to_rotation_vector, slerp)
 
 
 @dataclass(frozen=True)
@@ -155,3 +156,39 @@ def constant_velocity_profile(start_position_m, velocity_mps, attitude_quat, dur
         wind_mps=np.tile(np.asarray(wind_mps, dtype=float), (samples, 1)),
         heat_shield_position_m=None, image_times_s=np.asarray(image_times_s, dtype=float), name=name,
     )
+
+
+@dataclass(frozen=True)
+class RateScaledProfile(DescentProfile):
+    """A profile whose rotation about ``rate_centre_s`` runs ``rate_multiplier`` times faster
+    (off-nominal "high motion blur"); positions, velocities and the heat shield are unchanged.
+
+    Attitude: ``q'(t) = q(tc) * exp(k * log(q(tc)^-1 q(t)))`` with ``tc = rate_centre_s`` and
+    ``k = rate_multiplier``, so the attitude at ``tc`` is unchanged and the rotation relative to it is
+    scaled by ``k`` (exactly ``k`` times the angle for rotation about a fixed body axis). The body
+    angular rate reported is ``k`` times the profile's. Valid near ``tc`` (one image's flush, exposure
+    and transfer): far from it the scaled relative rotation can exceed half a turn and wrap.
+    Use :func:`scale_angular_rates` to build one; ``translated``/``placed`` return an unscaled profile.
+    """
+
+    rate_multiplier: float = 1.0
+    rate_centre_s: float = 0.0
+
+    def pose(self, time_s: float) -> Pose:
+        base = super().pose(time_s)
+        centre_s = float(np.clip(self.rate_centre_s, self.time_s[0], self.time_s[-1]))
+        centre = super().pose(centre_s).attitude_quat
+        relative = quat_to_rotation_vector(quat_multiply(quat_conjugate(centre), base.attitude_quat))
+        attitude = quat_normalize(quat_multiply(centre, quat_from_rotation_vector(self.rate_multiplier * relative)))
+        return replace(base, attitude_quat=attitude, angular_rate_radps=self.rate_multiplier * base.angular_rate_radps)
+
+
+def scale_angular_rates(profile: DescentProfile, multiplier: float, centre_time_s: float) -> DescentProfile:
+    """The profile with its angular rates scaled by ``multiplier`` about ``centre_time_s`` (see
+    :class:`RateScaledProfile`); the profile itself when ``multiplier == 1``."""
+    if multiplier == 1.0:
+        return profile
+    if not (np.isfinite(multiplier) and multiplier >= 0):
+        raise ValueError(f"angular rate multiplier: must be finite and >= 0; got {multiplier!r}")
+    values = {f.name: getattr(profile, f.name) for f in fields(DescentProfile)}
+    return RateScaledProfile(**values, rate_multiplier=float(multiplier), rate_centre_s=float(centre_time_s))

@@ -10,7 +10,23 @@ interior, lined with carbon-loaded black Kapton.
 Shading: Lambertian with hemispherical reflectance ``reflectance`` (0.07 for carbon-loaded black
 Kapton, solar absorptance ~0.93), ``L = reflectance * E_band / pi * max(0, n.s)`` with ``n`` the surface
 normal on the side the camera sees; the rim's cast shadow on the interior (only for sun elevations
-below the 20 deg wall slope) and specular glints are not modelled.
+below the 20 deg wall slope) is not modelled.
+
+Specular glint (off-nominal, :func:`glint_window`, added to the radiance by
+:func:`simulator.descent_image.render_descent_image` when ``heat_shield_glint`` is on): the Kapton
+film is glossy; its quilted, wrinkled blanket is a surface of mirror facets whose slopes are
+Gaussian (Beckmann distribution, rms slope ``tan(sigma)``). Torrance-Sparrow reflection of the sun
+(a point source: its 0.17 deg radius at Mars is small against sigma >= 0.5 deg), with constant
+Fresnel factor ``rho_s`` (``heat_shield_specular_reflectance``) and no facet shadowing::
+
+    L = rho_s E_band D(theta_h) / (4 cos theta_v),  D = exp(-tan^2 theta_h / m^2) / (pi m^2 cos^4 theta_h)
+
+with ``m = tan(sigma)``, ``theta_h`` the angle between the normal and the half vector of sun and
+camera directions and ``theta_v`` the view angle; ``D`` is normalised (``int D cos theta_h dw = 1``),
+so a narrow lobe reflects ``rho_s E cos theta_i`` in total. Its peak ``rho_s E / (4 pi m^2 cos
+theta_v)`` is ~1.4 E (about 600 W m^-2 sr^-1 um^-1, 15 times the terrain) for rho_s = 0.05 and
+sigma = 3 deg: well above full well in the 5.1 ms exposure, hence blooming. A glint appears when
+the half vector lies within a few sigma of the lining's normals (20 deg from the cone axis).
 
 Cost: the cone is projected into the image first; only when that footprint meets the field of view are
 the rays of its bounding box intersected with the cone (:func:`draw_heat_shield`).
@@ -71,16 +87,10 @@ def intersect_cone(origin_m: np.ndarray, rays: np.ndarray, apex_m: np.ndarray, a
     return best, np.isfinite(best)
 
 
-def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
-                     pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
-                     irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
-                     reflectance: float) -> np.ndarray | None:
-    """Paint the heat shield into ``radiance`` (H, W) in place where it hides the ground or sky.
-
-    Returns the (H, W) bool mask of heat-shield pixels, or None when its footprint misses the image
-    (nothing computed beyond the projection of its outline).
-    """
-    height, width = radiance.shape
+def _bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, diameter_m: float,
+                  cone_angle_rad: float) -> tuple[int, int, int, int] | None:
+    """Pixel window (row0, row1, col0, col1) that can show the cone, or None when it misses the image."""
+    height, width = camera.height_px, camera.width_px
     outline = cone_outline_m(centre_m, diameter_m, cone_angle_rad)
     pixels, in_front = ground_mapping.world_to_pixels(camera, pose, outline)
     if not in_front.any():
@@ -94,16 +104,21 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
         col0, col1, row0, row1 = 0, width, 0, height
     if col1 <= col0 or row1 <= row0:
         return None
+    return row0, row1, col0, col1
+
+
+def _visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.ndarray, centre_m: np.ndarray,
+                     diameter_m: float, cone_angle_rad: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where rays (h, w, 3) see the cone nearer than the ground: (hit (h, w) bool, facing unit normal
+    (h, w, 3) on the camera's side of the surface), or None when no ray does."""
     depth = cone_depth_m(diameter_m, cone_angle_rad)
     axis = np.array([0.0, 0.0, 1.0])
     apex = np.asarray(centre_m, dtype=float) - 0.5 * depth * axis
     cos_half = float(np.cos(0.5 * cone_angle_rad))
-    rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
     t, hit = intersect_cone(pose.ray_origin_m, rays, apex, axis, cos_half, depth)
     # ground hit parameter: the heat shield shows only if it is nearer than the ground
     dz = rays[..., 2]
-    t_ground = np.where(ground_map.sky[row0:row1, col0:col1] | (dz >= 0), np.inf,
-                        -pose.ray_origin_m[2] / np.where(dz < 0, dz, -1.0))
+    t_ground = np.where(sky | (dz >= 0), np.inf, -pose.ray_origin_m[2] / np.where(dz < 0, dz, -1.0))
     hit &= t < t_ground
     if not hit.any():
         return None
@@ -112,6 +127,29 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     normal = (relative @ axis)[..., None] * axis - cos_half**2 * relative   # interior-side normal
     normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
     facing = np.where((np.einsum("...i,...i->...", normal, rays) > 0)[..., None], -normal, normal)
+    return hit, facing
+
+
+def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
+                     pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
+                     irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
+                     reflectance: float) -> np.ndarray | None:
+    """Paint the heat shield into ``radiance`` (H, W) in place where it hides the ground or sky.
+
+    Returns the (H, W) bool mask of heat-shield pixels, or None when its footprint misses the image
+    (nothing computed beyond the projection of its outline).
+    """
+    height, width = radiance.shape
+    box = _bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
+    if box is None:
+        return None
+    row0, row1, col0, col1 = box
+    rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
+    surface = _visible_surface(rays, pose, ground_map.sky[row0:row1, col0:col1], centre_m, diameter_m,
+                               cone_angle_rad)
+    if surface is None:
+        return None
+    hit, facing = surface
     cos_sun = np.maximum(facing @ sun_world, 0.0)
     value = (reflectance * irradiance_w_m2_um / np.pi) * cos_sun
     window = radiance[row0:row1, col0:col1]
@@ -119,3 +157,45 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     mask = np.zeros((height, width), dtype=bool)
     mask[row0:row1, col0:col1] = hit
     return mask
+
+
+def specular_radiance(normal: np.ndarray, to_sun: np.ndarray, to_camera: np.ndarray, irradiance_w_m2_um: float,
+                      reflectance: float, roughness_rad: float) -> np.ndarray:
+    """Radiance (W m^-2 sr^-1 um^-1) of the specular lobe (module doc), shape (...).
+
+    ``normal``, ``to_camera`` (..., 3) and ``to_sun`` (3,) are unit vectors; ``irradiance_w_m2_um`` is
+    the solar band irradiance normal to the sun; ``roughness_rad`` the rms facet slope angle.
+    """
+    half = to_sun + to_camera
+    half /= np.linalg.norm(half, axis=-1, keepdims=True)
+    cos_h = np.clip(np.einsum("...i,...i->...", normal, half), 1e-6, 1.0)
+    cos_view = np.einsum("...i,...i->...", normal, to_camera)
+    cos_sun = normal @ to_sun
+    slope2 = np.tan(roughness_rad) ** 2
+    tan2_h = (1.0 - cos_h**2) / cos_h**2
+    facets = np.exp(-tan2_h / slope2) / (np.pi * slope2 * cos_h**4)
+    lit = (cos_view > 0) & (cos_sun > 0)
+    return np.where(lit, reflectance * irradiance_w_m2_um * facets / (4.0 * np.where(lit, cos_view, 1.0)), 0.0)
+
+
+def glint_window(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
+                 irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float, reflectance: float,
+                 roughness_rad: float) -> tuple[int, int, np.ndarray] | None:
+    """The specular glint of the heat-shield lining at one camera pose.
+
+    Returns ``(row0, col0, radiance)`` with ``radiance`` a float32 (h, w) window of the image (0 off the
+    shield; exact per-pixel rays), or None when the shield is not in view.
+    """
+    box = _bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
+    if box is None:
+        return None
+    row0, row1, col0, col1 = box
+    rays = camera.pixel_rays[row0:row1, col0:col1] @ pose.camera_to_world.T
+    surface = _visible_surface(rays, pose, np.zeros(rays.shape[:2], dtype=bool), centre_m, diameter_m,
+                               cone_angle_rad)
+    if surface is None:
+        return None
+    hit, facing = surface
+    value = specular_radiance(facing, np.asarray(sun_world, dtype=float), -rays, irradiance_w_m2_um,
+                              reflectance, roughness_rad)
+    return row0, col0, np.where(hit, value, 0.0).astype(np.float32)

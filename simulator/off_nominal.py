@@ -40,6 +40,10 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from .dust import DustParticles, draw_particles, transmission_map
+from .hot_pixels import HotPixels, draw_hot_pixels
+from .particle_hits import ParticleHits, draw_particle_hits
+from .camera_config import Camera
 from .tomlfields import Table
 
 
@@ -69,6 +73,57 @@ class OffNominalConfig:
         return self.dust_particle_count > 0 or self.hot_pixel_fraction > 0 or self.particle_hit_rate_per_cm2_s > 0
 
 
+@dataclass(frozen=True)
+class OffNominalArtefacts:
+    """What the camera chain applies for the off-nominal effects of one image.
+
+    Attributes
+    ----------
+    dust_transmission : (H, W) float32 or None, relative transmission of the front element (case-fixed)
+    hot_pixels : HotPixels or None, extra dark rate of the hot pixels (case-fixed)
+    particle_hits : ParticleHits or None, this image's particle charge
+    blooming : bool, charge above full well spills along the columns (else it is clipped)
+    dust_particles : DustParticles or None, the particles behind ``dust_transmission`` (diagnostics)
+    """
+
+    dust_transmission: np.ndarray | None = None
+    hot_pixels: HotPixels | None = None
+    particle_hits: ParticleHits | None = None
+    blooming: bool = True
+    dust_particles: DustParticles | None = None
+
+
+def draw_case_artefacts(camera: Camera, config: OffNominalConfig, rng: np.random.Generator) -> OffNominalArtefacts:
+    """The case-fixed artefacts (dust, then hot pixels, from ``rng``); no particle hits yet.
+
+    Effects at their defaults draw nothing, so adding an effect never changes another's draws
+    except by its own position in the stream (dust first, hot pixels second).
+    """
+    transmission = particles = hot = None
+    if config.dust_particle_count > 0:
+        particles = draw_particles(camera, rng, config.dust_particle_count, config.dust_particle_diameter_mean_m,
+                                   config.dust_particle_diameter_max_m, config.dust_lens_distance_m)
+        if particles.diameters_m.size:
+            transmission = transmission_map(camera, particles, config.dust_lens_distance_m)
+    if config.hot_pixel_fraction > 0:
+        hot = draw_hot_pixels(camera, rng, config.hot_pixel_fraction, config.hot_pixel_amplitude_mean_e_per_s)
+    return OffNominalArtefacts(dust_transmission=transmission, hot_pixels=hot, blooming=config.blooming,
+                               dust_particles=particles)
+
+
+def with_particle_hits(artefacts: OffNominalArtefacts | None, camera: Camera, config: OffNominalConfig,
+                       rng: np.random.Generator) -> OffNominalArtefacts:
+    """The case artefacts plus one image's particle hits drawn from that image's own ``rng``
+    (nothing is drawn when the hit rate is 0)."""
+    artefacts = OffNominalArtefacts(blooming=config.blooming) if artefacts is None else artefacts
+    if config.particle_hit_rate_per_cm2_s <= 0:
+        return artefacts
+    hits = draw_particle_hits(camera, rng, config.particle_hit_rate_per_cm2_s,
+                                            config.particle_hit_charge_e_per_m, config.particle_hit_depth_m,
+                                            config.particle_hit_max_track_length_m)
+    return replace(artefacts, particle_hits=hits)
+
+
 def off_nominal_config_from_table(table: Table) -> OffNominalConfig:
     """Build an :class:`OffNominalConfig` from a ``[scene.off_nominal]`` table; every key is optional.
 
@@ -96,7 +151,7 @@ def off_nominal_config_from_table(table: Table) -> OffNominalConfig:
         heat_shield_specular_reflectance=number("heat_shield_specular_reflectance", 0.0, 1.0),
         heat_shield_specular_roughness_rad=float(np.radians(table.number(
             "heat_shield_specular_roughness_deg", default=float(np.degrees(default.heat_shield_specular_roughness_rad)),
-            minimum=0.01, maximum=45.0))),
+            minimum=0.5, maximum=45.0))),
         blooming=table.boolean("blooming", default=default.blooming),
         angular_rate_multiplier=number("angular_rate_multiplier", 0.0, 100.0),
     )

@@ -5,8 +5,10 @@ Follow the light::
     radiance (W m^-2 sr^-1 um^-1)             flush, exposure, transfer fields, (1024, 1024)
       -> optics.photoelectron_rate            cos^4 falloff, absolute response      (e-/s)
       -> charge_generation.apply_prnu         pixel response non-uniformity
-      -> + dark rate                          thermal electrons, temperature model   (e-/s)
+      -> x dust transmission (off-nominal)    simulator.dust
+      -> + dark rate (+ hot pixels)           thermal electrons, temperature model   (e-/s)
       -> charge_transfer.binned_charge_e      fast-flush + exposure + transfer smear, 4-row binning (e-)
+         (+ particle hits; per pixel with blooming at full well when a pixel may saturate)
       -> + charge_generation.storage_dark_e   dark gathered while waiting for read-out
       -> readout.noisy_charge_e               shot noise at binned resolution (Poisson; Gaussian above
                                               1000 e- unless exact_poisson) + output amplifier noise
@@ -19,7 +21,7 @@ from typing import Callable, Sequence, Union
 
 import numpy as np
 
-from . import charge_generation, charge_transfer, optics, readout
+from . import blooming, charge_generation, charge_transfer, hot_pixels, optics, particle_hits, readout
 from .camera_config import Camera
 
 PERIODS = ("flush", "exposure", "transfer")
@@ -83,7 +85,7 @@ def as_radiance_fields(radiance: RadianceInput) -> RadianceFields:
 
 
 def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generator,
-                 effects: CameraEffects = CameraEffects()) -> RenderedImage:
+                 effects: CameraEffects = CameraEffects(), artefacts=None) -> RenderedImage:
     """Render one descent image from the radiance fields of its three CCD periods.
 
     Parameters
@@ -95,6 +97,10 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     rng : numpy.random.Generator
         Noise stream of this image (shot noise, then read noise).
     effects : CameraEffects
+    artefacts : simulator.off_nominal.OffNominalArtefacts, optional
+        Off-nominal artefacts of this image: dust transmission (on the photo-electron rate, after
+        falloff), hot pixels (extra dark rate), particle-hit charge, blooming (else per-pixel clip).
+        None: none of them, blooming on.
 
     Returns
     -------
@@ -109,15 +115,22 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     dark_rate = (charge_generation.dark_rate_e_per_s(camera, effects.dark_current_scale)
                  if effects.dark_current else 0.0)
     rates: dict[int, np.ndarray] = {}
+    dust = artefacts.dust_transmission if artefacts is not None else None
+    hot = artefacts.hot_pixels if artefacts is not None else None
+    hits = artefacts.particle_hits if artefacts is not None and artefacts.particle_hits is not None else None
 
     def generation_rate(field: np.ndarray) -> np.ndarray:
         key = id(field)
         if key not in rates:
             rate = optics.photoelectron_rate(field, camera, falloff=effects.falloff)
+            if dust is not None:
+                rate *= dust
             if effects.prnu:
                 rate = charge_generation.apply_prnu(rate, camera.prnu_map)
             if dark_rate:
                 rate += np.float32(dark_rate)
+            if hot is not None:
+                hot_pixels.add_to_rate(rate, hot)
             if not np.isfinite(rate.sum(dtype=np.float64)):  # one cheap pass; repair only when needed
                 rate = np.nan_to_num(rate, nan=0.0, posinf=0.0, neginf=0.0)
             rates[key] = rate
@@ -133,13 +146,22 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
                                          camera.timing.transfer_toward_last_row)
 
     bound = charge_transfer.max_pixel_charge_bound_e(rate_flush, rate_exposure, rate_transfer, timing)
+    if hits is not None:
+        bound += hits.max_pixel_charge_e
     if bound <= camera.electronics.full_well_e:
         charge = charge_transfer.binned_charge_e(rate_flush, rate_exposure, rate_transfer, timing,
                                                  camera.binning_rows)
-    else:  # some pixel may saturate: clip each pixel at full well before binning
+        if hits is not None:
+            particle_hits.add_to_binned(charge, hits, camera.binning_rows)
+    else:  # some pixel may saturate: bloom (or clip) each pixel at full well before binning
         pixel = charge_transfer.pixel_charge_e(rate_flush, rate_exposure, rate_transfer, timing)
-        charge = charge_transfer.bin_rows(np.minimum(pixel, np.float32(camera.electronics.full_well_e)),
-                                          camera.binning_rows)
+        if hits is not None:
+            particle_hits.add_to_pixels(pixel, hits)
+        if artefacts is None or artefacts.blooming:
+            pixel = blooming.bloom_columns(pixel, camera.electronics.full_well_e)[0]
+        else:
+            pixel = np.minimum(pixel, np.float32(camera.electronics.full_well_e))
+        charge = charge_transfer.bin_rows(pixel, camera.binning_rows)
     if dark_rate:
         charge = charge + charge_generation.storage_dark_e(camera, dark_rate)
 

@@ -1,0 +1,142 @@
+"""Dust on the front lens element: a fixed transmission map of soft, out-of-focus particle shadows.
+
+Model (paper 3.3, "a random number of random sized particles distributed randomly on the front
+surface"; lengths in m, image coordinates in pixels):
+
+* Optics: focal length ``f`` (from the CAHVOR model, ``f = sqrt(hs vs) * pixel_pitch``), focal ratio
+  ``N`` (f/12), so the entrance pupil has diameter ``D = f / N`` (1.22 mm for MER) and radius
+  ``R = D / 2``. The front element is a plane perpendicular to the optical axis at ``d``
+  (``dust_lens_distance_m``) in front of the entrance pupil.
+* Light bundle of a pixel: light from a distant scene point reaches the pixel as a collimated beam
+  filling the entrance pupil. On the front-element plane that beam is a disc of radius ``R``
+  (the pupil's cos(theta) foreshortening and the plane's 1/cos(theta) stretch cancel) centred on
+  the chief ray, at ``c = d * (tan theta_x, tan theta_y)`` where ``(tan theta_x, tan theta_y)`` are
+  the pixel ray's components across the axis divided by its axial component (distortion included,
+  from :attr:`Camera.pixel_rays`).
+* A particle is an opaque disc of radius ``a`` at ``p`` on the front element. It removes the
+  overlapping area of the two discs from the bundle::
+
+      t(c) = 1 - A_overlap(R, a, |c - p|) / (pi R^2)
+
+  ``A_overlap`` is the circle-circle intersection (lens) area. For ``a < R`` the shadow is a disc of
+  flat depth ``(a / R)^2`` out to ``|c - p| = R - a``, rising to 1 at ``R + a``; in the image it is
+  centred where the chief ray meets ``p`` (tan theta = p / d) with radius ``(R + a) f_px / d``
+  pixels (about 95 px for R = 0.61 mm, d = 8 mm) - the soft disc seen in real out-of-focus dust.
+  For ``a > R`` the core is black. The area integral of ``1 - t`` over the image plane is the
+  particle area magnified by ``f_px / d``: ``pi a^2 (f_px / d)^2`` pixels (tested).
+* Several particles: independent obscurations multiply, ``t = prod_k t_k``.
+* Population (per case, fixed for the three images): the count is Poisson with mean
+  ``dust_particle_count``; positions are uniform over the front element's clear aperture, the disc
+  of radius ``d * tan(theta_corner) + R`` that every image pixel's beam lies in; diameters follow an
+  exponential distribution of scale ``dust_particle_diameter_mean_m`` truncated at
+  ``dust_particle_diameter_max_m`` (the truncated mean is slightly below the scale).
+
+Diffraction by the particle edge and the glass's own reflections are neglected (geometric optics:
+the particle is hundreds of wavelengths across and ~5000 pupil-to-wavelength Fresnel numbers away).
+
+Cost: each particle touches only the bounding box of its shadow; no full-frame pass per particle.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import cahvor
+from .camera_config import Camera
+
+
+@dataclass(frozen=True)
+class DustParticles:
+    """Particles on the front element: positions (n, 2) m across the axis (along the image columns
+    and rows), diameters (n,) m."""
+
+    positions_m: np.ndarray
+    diameters_m: np.ndarray
+
+
+def focal_length_m(camera: Camera) -> float:
+    """Effective focal length of the CAHVOR model (m)."""
+    return float(np.sqrt(camera.model.hs * camera.model.vs)) * camera.pixel_pitch_m
+
+
+def entrance_pupil_radius_m(camera: Camera) -> float:
+    """Radius of the entrance pupil, ``f / (2 N)`` (m)."""
+    return 0.5 * focal_length_m(camera) / camera.radiometry.f_number
+
+
+def _axis_basis(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit vectors (e1 along the image columns, e2 along the rows, optical axis O)."""
+    axis = camera.model.o / np.linalg.norm(camera.model.o)
+    e1 = camera.model.h - (camera.model.h @ axis) * axis
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(axis, e1), axis
+
+
+def beam_centres_m(camera: Camera, distance_m: float, rows: slice = slice(None),
+                   cols: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    """Where each pixel's chief ray crosses the front-element plane, (x, y) each (h, w) m."""
+    e1, e2, axis = _axis_basis(camera)
+    rays = camera.pixel_rays[rows, cols]
+    along = rays @ axis
+    return distance_m * (rays @ e1) / along, distance_m * (rays @ e2) / along
+
+
+def clear_aperture_radius_m(camera: Camera, distance_m: float) -> float:
+    """Radius of the front-element region crossed by any pixel's beam (m)."""
+    corners = (slice(0, None, camera.height_px - 1), slice(0, None, camera.width_px - 1))
+    x, y = beam_centres_m(camera, distance_m, *corners)
+    return float(np.hypot(x, y).max()) + entrance_pupil_radius_m(camera)
+
+
+def overlap_area(radius_a: float | np.ndarray, radius_b: float | np.ndarray, separation) -> np.ndarray:
+    """Intersection area of two discs of radii ``radius_a``, ``radius_b`` whose centres are
+    ``separation`` apart (same length unit, area in its square)."""
+    ra, rb = np.asarray(radius_a, dtype=float), np.asarray(radius_b, dtype=float)
+    s = np.asarray(separation, dtype=float)
+    small, large = np.minimum(ra, rb), np.maximum(ra, rb)
+    inside = s <= large - small
+    apart = s >= ra + rb
+    safe = np.where(inside | apart, 1.0, s)
+    cos_a = np.clip((safe**2 + ra**2 - rb**2) / (2 * safe * ra), -1.0, 1.0)
+    cos_b = np.clip((safe**2 + rb**2 - ra**2) / (2 * safe * rb), -1.0, 1.0)
+    kite = (-safe + ra + rb) * (safe + ra - rb) * (safe - ra + rb) * (safe + ra + rb)
+    lens = ra**2 * np.arccos(cos_a) + rb**2 * np.arccos(cos_b) - 0.5 * np.sqrt(np.maximum(kite, 0.0))
+    return np.where(apart, 0.0, np.where(inside, np.pi * small**2, lens))
+
+
+def draw_particles(camera: Camera, rng: np.random.Generator, mean_count: float, diameter_scale_m: float,
+                   diameter_max_m: float, distance_m: float) -> DustParticles:
+    """A random dust population on the front element (module doc: Poisson count, uniform positions
+    over the clear aperture, truncated exponential diameters)."""
+    count = int(rng.poisson(mean_count))
+    radius = clear_aperture_radius_m(camera, distance_m)
+    uniform = rng.random((count, 3))
+    r = radius * np.sqrt(uniform[:, 0])
+    phi = 2.0 * np.pi * uniform[:, 1]
+    kept = -np.expm1(-diameter_max_m / diameter_scale_m)         # CDF at the maximum
+    diameters = -diameter_scale_m * np.log1p(-uniform[:, 2] * kept)
+    return DustParticles(np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1), diameters)
+
+
+def transmission_map(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
+    """Relative transmission of every pixel (H, W) float32, 1 where no particle shadows it."""
+    transmission = np.ones((camera.height_px, camera.width_px), dtype=np.float32)
+    pupil = entrance_pupil_radius_m(camera)
+    e1, e2, axis = _axis_basis(camera)
+    focal_px = max(camera.model.hs, camera.model.vs)
+    for (px, py), diameter in zip(particles.positions_m, particles.diameters_m):
+        a = 0.5 * float(diameter)
+        direction = (px * e1 + py * e2) / distance_m + axis
+        centre, in_front = cahvor.project(camera.model, camera.model.c + direction)
+        if not in_front:
+            continue
+        half = 1.1 * (pupil + a) / distance_m * focal_px + 3.0
+        col0, col1 = max(int(centre[0] - half), 0), min(int(centre[0] + half) + 2, camera.width_px)
+        row0, row1 = max(int(centre[1] - half), 0), min(int(centre[1] + half) + 2, camera.height_px)
+        if col1 <= col0 or row1 <= row0:
+            continue
+        x, y = beam_centres_m(camera, distance_m, slice(row0, row1), slice(col0, col1))
+        blocked = overlap_area(pupil, a, np.hypot(x - px, y - py)) / (np.pi * pupil**2)
+        transmission[row0:row1, col0:col1] *= (1.0 - blocked).astype(np.float32)
+    return transmission

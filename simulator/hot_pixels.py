@@ -1,0 +1,65 @@
+"""Hot pixels ("dark spikes"): a sparse set of image-area pixels with a large extra dark current.
+
+Model (units e-/s per pixel):
+
+* Which pixels: each of the ``H * W`` image-area pixels is hot independently with probability
+  ``hot_pixel_fraction``; the count is drawn as Binomial(H W, fraction) and the positions uniformly
+  without replacement (the same distribution).
+* Amplitude: an extra dark generation rate drawn from an exponential distribution with mean
+  ``hot_pixel_amplitude_mean_e_per_s`` *at the camera's dark reference temperature*; it follows the
+  same doubling rule as the ordinary dark current (:meth:`Electronics.dark_current_e_per_s`)::
+
+      D_hot(T) = D_hot,ref * 2 ** ((T - T_ref) / T_double)
+
+* Where it acts: the rate is added to the pixel's generation rate in all three CCD periods, so a hot
+  pixel also smears along its column during fast flush and frame transfer, exactly as a bright
+  scene pixel would. Defects of the storage area are not modelled. Hot pixels are a fixed defect
+  of the case (the same in the three images) and are independent of the ``dark_current`` switch
+  and ``dark_current_scale``.
+
+Cost: a sparse add of ``count`` values per generation-rate map; nothing full-frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera_config import Camera
+
+
+@dataclass(frozen=True)
+class HotPixels:
+    """Hot pixels: ``flat_index`` (n,) int64 into the (H, W) image area (row-major, sorted) and their
+    extra dark rate ``rate_e_per_s`` (n,) float32 at the camera's CCD temperature."""
+
+    flat_index: np.ndarray
+    rate_e_per_s: np.ndarray
+
+
+def temperature_factor(camera: Camera) -> float:
+    """Dark-rate multiplier from the reference temperature to the CCD temperature (doubling rule)."""
+    electronics = camera.electronics
+    return float(2.0 ** ((electronics.ccd_temperature_k - electronics.dark_reference_temperature_k)
+                         / electronics.dark_doubling_temperature_k))
+
+
+def draw_hot_pixels(camera: Camera, rng: np.random.Generator, fraction: float,
+                    amplitude_mean_e_per_s: float) -> HotPixels:
+    """Draw the hot pixels of one case (module doc)."""
+    pixels = camera.height_px * camera.width_px
+    count = int(rng.binomial(pixels, fraction))
+    flat_index = np.sort(rng.choice(pixels, size=count, replace=False)).astype(np.int64)
+    rate = rng.exponential(amplitude_mean_e_per_s, size=count) * temperature_factor(camera)
+    return HotPixels(flat_index, rate.astype(np.float32))
+
+
+def add_to_rate(rate_e_per_s: np.ndarray, hot: HotPixels) -> np.ndarray:
+    """Add the hot pixels' dark rate to a (H, W) generation-rate map in place; returns it."""
+    flat = rate_e_per_s.reshape(-1)
+    if not np.shares_memory(flat, rate_e_per_s):   # not contiguous: index in 2-D instead
+        rows, cols = np.divmod(hot.flat_index, rate_e_per_s.shape[1])
+        rate_e_per_s[rows, cols] += hot.rate_e_per_s
+        return rate_e_per_s
+    flat[hot.flat_index] += hot.rate_e_per_s     # indices are unique
+    return rate_e_per_s
