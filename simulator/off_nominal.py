@@ -149,9 +149,9 @@ def off_nominal_config_from_table(table: Table) -> OffNominalConfig:
         particle_hit_max_track_length_m=number("particle_hit_max_track_length_m", 0.0, 0.05, exclusive_minimum=True),
         heat_shield_glint=table.boolean("heat_shield_glint", default=default.heat_shield_glint),
         heat_shield_specular_reflectance=number("heat_shield_specular_reflectance", 0.0, 1.0),
-        heat_shield_specular_roughness_rad=float(np.radians(table.number(
-            "heat_shield_specular_roughness_deg", default=float(np.degrees(default.heat_shield_specular_roughness_rad)),
-            minimum=0.5, maximum=45.0))),
+        heat_shield_specular_roughness_rad=(float(np.radians(table.number(
+            "heat_shield_specular_roughness_deg", minimum=0.5, maximum=45.0)))
+            if table.has("heat_shield_specular_roughness_deg") else default.heat_shield_specular_roughness_rad),
         blooming=table.boolean("blooming", default=default.blooming),
         angular_rate_multiplier=number("angular_rate_multiplier", 0.0, 100.0),
     )
