@@ -61,6 +61,11 @@ class DescentMeasurements:
     sun_direction_world: np.ndarray
 
 
+#: Largest IMU speed accepted (m/s): above Mars entry speed (~6 km/s); beyond it the ground offsets
+#: of the predicted positions overflow the estimator's pixel arithmetic.
+MAX_SPEED_MPS = 1e4
+
+
 class MeasurementError(ValueError):
     """Illegal measurements (wrong shape, not finite, out of range); the message names the field."""
 
@@ -96,7 +101,10 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
         if not 0.5 < np.linalg.norm(quaternion) < 2.0:
             raise MeasurementError(f"{prefix}attitude_quat = {image.attitude_quat!r} must be a unit quaternion (w, x, y, z)")
         _vector(image.angular_rate_radps, 3, prefix + "angular_rate_radps")
-        _vector(image.imu_velocity_mps, 3, prefix + "imu_velocity_mps")
+        velocity = _vector(image.imu_velocity_mps, 3, prefix + "imu_velocity_mps")
+        if not np.linalg.norm(velocity) < MAX_SPEED_MPS:
+            raise MeasurementError(f"{prefix}imu_velocity_mps = {image.imu_velocity_mps!r} is out of range; "
+                                   f"allowed: speed < {MAX_SPEED_MPS:g} m/s")
         altitude = float(image.radar_altitude_m)
         if not (np.isfinite(altitude) and 0.0 < altitude < 1e6):
             raise MeasurementError(f"{prefix}radar_altitude_m = {image.radar_altitude_m!r} is out of range; allowed: > 0 and < 1e6 m")
