@@ -133,7 +133,7 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None) -> SweepS
                                            output_dir=out)
         if config.config_hash in seen:
             raise ConfigError(f"{label}: axes: points {seen[config.config_hash]} and p{index:03d} are the same "
-                              f"configuration ({values}); allowed: distinct values")
+                              f"configuration ({values}); allowed: distinct points")
         seen[config.config_hash] = f"p{index:03d}"
         config = replace(config, output_dir=point_store_dir(out, config.config_hash))
         points.append(SweepPoint(point_id=f"p{index:03d}", values=values, config=config))
@@ -197,8 +197,6 @@ def _axis_values(field: str, value: Any, label: str) -> list:
         raise ConfigError(f"{name}: values {value!r} mix types; allowed: all numbers, all booleans or all strings")
     if any(isinstance(item, float) and not math.isfinite(item) for item in value):
         raise ConfigError(f"{name}: values {value!r} must be finite")
-    if len(set(value)) != len(value):
-        raise ConfigError(f"{name}: values {value!r} repeat; allowed: distinct values")
     return list(value)
 
 
@@ -222,6 +220,10 @@ def _combinations(axes: dict, mode: str, label: str) -> list[dict]:
                               "(or mode = \"grid\")")
         combos = [dict(zip(names, values)) for values in zip(*axes.values())]
     else:
+        for name, values in axes.items():
+            if len(set(values)) != len(values):
+                raise ConfigError(f"{label}: axes.{name}: values {values!r} repeat; allowed: distinct values "
+                                  "in a grid")
         combos = [dict(zip(names, values)) for values in itertools.product(*axes.values())]
     if len(combos) > MAX_POINTS:
         raise ConfigError(f"{label}: axes make {len(combos)} points; allowed: at most {MAX_POINTS}")

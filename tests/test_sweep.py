@@ -153,6 +153,13 @@ def test_rerun_computes_nothing_and_a_changed_value_only_its_point(first_sweep, 
     assert {k: after[k] for k in before} == before and len(after) == len(before) + 5
     results = pd.read_parquet(out / "results.parquet")
     assert sorted(results["scene.camera_effects.dark_current_scale"].unique()) == [1.0, 3.0]
+    lost = sorted(set(after) - set(before))[:2]   # as if a killed sweep had not written two cases yet
+    for name in lost:
+        (out / name).unlink()
+    code, stdout, _ = _run(capsys, changed, "--output", out, "--scheduler", scheduler)
+    assert code == 0 and "2 cases done" in stdout
+    assert set(_case_files(out)) == set(after)
+    assert pd.read_parquet(out / "results.parquet").equals(results)
 
 
 def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, capsys, tmp_path):
@@ -176,3 +183,34 @@ def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, ca
     assert any(line.startswith("regression: p000 (scene.camera_effects.dark_current_scale=1)") for line in lines)
     assert any(line.startswith("regression: p001 (scene.camera_effects.dark_current_scale=2)") for line in lines)
     assert "regressions against" in stdout
+
+
+# --- issue 7, done when: the estimator degrades with lens dust and with the angular rate multiplier ----
+def test_estimator_degrades_with_dust_and_rate_multiplier(tmp_path, scheduler, capsys):
+    """Nominal vs 300 dust particles (their shadows cover much of the frame) and vs 100x angular rates
+    (tens of pixels of blur in 5.1 ms): each must lose >= 30 points of % valid or gain >= 1 m/s of error."""
+    path = tmp_path / "effects.toml"
+    path.write_text(f'''[sweep]
+base = "{GUSEV}"
+mode = "list"
+[sweep.cases]
+gcp = 6
+gdcp = 0
+gkep = 0
+[axes]
+"scene.off_nominal.dust_particle_count" = [0, 300, 0]
+"scene.off_nominal.angular_rate_multiplier" = [1.0, 1.0, 100.0]
+''')
+    out = tmp_path / "out"
+    code, stdout, _ = _run(capsys, path, "--output", out, "--scheduler", scheduler)
+    assert code == 0, stdout
+    table = pd.read_csv(out / "sensitivity.csv").set_index(["point_id", "class"])
+    nominal, dusty, blurred = (table.loc[(point, "gcp")] for point in ("p000", "p001", "p002"))
+    for label, degraded in (("dust", dusty), ("rate multiplier", blurred)):
+        drop = nominal["pct_valid"] - degraded["pct_valid"]
+        rise = degraded["error_mean_3sigma_mps"] - nominal["error_mean_3sigma_mps"]
+        assert drop >= 30.0 or rise >= 1.0, f"{label}: % valid {nominal['pct_valid']} -> {degraded['pct_valid']}, " \
+                                             f"error {nominal['error_mean_3sigma_mps']} -> {degraded['error_mean_3sigma_mps']}"
+    for metric in ("pct_valid", "error_mean_3sigma_mps"):
+        for axis in ("dust_particle_count", "angular_rate_multiplier"):
+            assert (out / "plots" / f"{metric}-vs-scene.off_nominal.{axis}.png").is_file()
