@@ -1,6 +1,11 @@
 """`make bench`: run every benchmarks/bench_*.py module's run() and print its rows (also as CSV)."""
 from __future__ import annotations
 
+import os
+
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")     # budgets are per core: one thread everywhere
+
 import csv
 import importlib
 import pkgutil
@@ -12,6 +17,9 @@ import benchmarks
 
 
 def main(argv: list[str]) -> int:
+    import cv2
+
+    cv2.setNumThreads(1)
     selected = set(argv)
     output_dir = Path("bench-results")
     output_dir.mkdir(exist_ok=True)

@@ -53,7 +53,9 @@ class SceneEffects:
     (ratio on the node grid), ``share_still_fields`` (one field for all three periods when the image
     moves by less than ``still_shift_terrain_px``), ``warp_smear_fields`` (fast-flush and frame-transfer
     fields warped from the exposure-centre field along the ground-plane flow instead of re-rendered,
-    see :func:`simulator.scene.warped_field`).
+    see :func:`simulator.scene.warped_field`), ``pixel_area_filter`` (the pixel-area integral of the
+    terrain approximated from point samples, see :func:`simulator.scene.pixel_area_average`; the reference
+    supersamples instead).
     """
 
     photometric_correction: bool = True
@@ -65,6 +67,7 @@ class SceneEffects:
     coarse_photometry: bool = True
     share_still_fields: bool = True
     warp_smear_fields: bool = True
+    pixel_area_filter: bool = True
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,8 @@ class SceneConfig:
     photometry_grid_step_px: int = 16
     max_substeps: int = 16
     still_shift_terrain_px: float = 1.0
+    substeps_per_terrain_px: float = 1.0   # motion sub-poses per terrain pixel of image shift
+    supersample: int = 1                   # s x s sub-pixel rays per pixel (reference render)
 
     def with_effects(self, **switches) -> "SceneConfig":
         """A copy with some scene effect switches changed, e.g. ``config.with_effects(shadows=False)``."""
@@ -98,7 +103,7 @@ class SceneConfig:
 
 
 REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
-                         warp_smear_fields=False)
+                         warp_smear_fields=False, pixel_area_filter=False)
 
 
 @dataclass(frozen=True)
@@ -341,6 +346,8 @@ def scene_config_from_table(table: Table) -> SceneConfig:
         photometry_grid_step_px=step("photometry_grid_step_px"),
         max_substeps=table.integer("max_substeps", default=default.max_substeps, minimum=1, maximum=256),
         still_shift_terrain_px=number("still_shift_terrain_px", 0.0, 100.0),
+        substeps_per_terrain_px=number("substeps_per_terrain_px", 0.1, 64.0),
+        supersample=table.integer("supersample", default=default.supersample, minimum=1, maximum=8),
     )
     _reject_unknown(table, {f.name for f in fields(SceneConfig)} - {"heat_shield_cone_angle_rad"}
                     | {"heat_shield_cone_angle_deg"})

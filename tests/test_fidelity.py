@@ -97,3 +97,51 @@ def test_warped_smear_changes_the_expected_image_by_far_less_than_half_a_dn():
                                  SceneConfig().with_effects(warp_smear_fields=False)).image.expected_dn
     fast = render_descent_image(terrain, profile, CAMERA, 0, SUN, SceneConfig()).image.expected_dn
     assert np.sqrt(np.mean((fast - exact) ** 2)) < 0.1
+
+
+def test_pixel_area_filter_is_the_exact_box_mean_of_a_quadratic():
+    rows, cols = np.mgrid[0:64, 0:64].astype(np.float64)
+    field = (0.3 * (cols - 20.0) ** 2 + 0.1 * (rows - 40.0) ** 2 + 2.0 * cols).astype(np.float32)
+    # mean of a x^2 over [c - 1/2, c + 1/2] is a (c^2 + 1/12): the point value plus a / 12 per axis
+    box_mean = field + (0.3 + 0.1) / 12.0
+    filtered = scene.pixel_area_average(field)
+    assert np.allclose(filtered[1:-1, 1:-1], box_mean[1:-1, 1:-1], rtol=0, atol=2e-3)
+
+
+def test_supersampled_pixel_on_a_step_edge_reads_its_coverage():
+    """A bright/dark step on the ground along a north line: the pixel the edge crosses reads the mean
+    weighted by the fraction of its 3 x 3 sub-samples on each side."""
+    size, mpp = 1800, 3.0
+    values = np.full((size, size), 0.1, dtype=np.float32)
+    values[:, size // 2:] = 0.3
+    half = 0.5 * (size - 1) * mpp
+    terrain = Terrain(values, mpp, np.array([-half, half]), np.radians(30), 0.0, np.radians(30), "step")
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.5])
+    base = SceneConfig().with_effects(shadows=False, heat_shield=False, photometric_correction=False,
+                                      spectral_ratio=False, coarse_ray_grid=False, pixel_area_filter=False)
+    from dataclasses import replace
+    point = scene.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, base).radiance
+    fine = scene.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, replace(base, supersample=3)).radiance
+    row = point[512]
+    low, high = row.min(), row.max()
+    # away from the edge (flat on both sides, bilinear ramp is one terrain pixel wide) nothing changes
+    flat = (np.abs(row - low) < 1e-6 * high) | (np.abs(row - high) < 1e-6 * high)
+    flat &= np.convolve(flat, np.ones(5), mode="same") == 5
+    assert np.allclose(fine[512][flat], row[flat], rtol=1e-5)
+    # supersampling averages the ramp: the mean across the edge is conserved to the sub-sample error
+    edge = slice(int(np.argmax(row > low + 1e-3 * high)) - 3, int(np.argmax(row >= high - 1e-3 * high)) + 4)
+    assert abs(fine[512][edge].sum() - row[edge].sum()) < 0.02 * (high - low)
+
+
+def test_presets_order_cost_and_unknown_names_are_refused():
+    import pytest
+
+    from simulator.fidelity import PRESETS, preset_config
+
+    assert PRESETS == ("reference", "high", "default", "fast")
+    reference, default = preset_config("reference"), preset_config("default")
+    assert reference.supersample == 3 and reference.camera_effects.exact_poisson
+    assert not reference.effects.coarse_ray_grid and not reference.effects.warp_smear_fields
+    assert default == SceneConfig()                    # the default preset is the nominal configuration
+    with pytest.raises(ValueError, match="allowed: reference, high, default, fast"):
+        preset_config("ultra")

@@ -1,0 +1,109 @@
+"""Fidelity presets: run time against error on a fixed set of Gusev campaign scenes.
+
+For each preset (simulator/fidelity.py) and a fixed set of cases (two per Gusev class, seed 1 plan, all
+three images): ms per image and per case (single thread), the per-stage breakdown (scene, camera,
+estimator), the RMS and max DN error of the expected (noise-free) image against the ``reference``
+preset, and the change of the estimated velocity against the reference preset's estimate on the same
+noise seeds. Budgets (DESIGN.md): <= 20 ms per image (camera), <= 80 ms per case, expected-image RMS
+error < 0.5 DN at the default preset.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from simulator.fidelity import PRESETS, preset_config
+
+REPO = Path(__file__).resolve().parents[1]
+CASES_PER_CLASS = 2
+TIMING_REPEATS = 3
+
+
+def _cases():
+    from campaign.campaign_run import plan_campaign
+    from campaign.config import load_campaign_config
+
+    config = load_campaign_config(REPO / "sitedata" / "gusev.toml")
+    resources, plan = plan_campaign(config)
+    chosen = plan[plan["case_in_class"] < CASES_PER_CLASS]
+    return config, resources, chosen.to_dict("records")
+
+
+def _render_case(config, resources, row, scene_config):
+    """Three images (noisy with the case's seeds) and the estimate; returns per-image results and timings."""
+    from dimes_velocity.estimator import estimate_velocity
+    from simulator.descent_image import render_descent_image
+    from sitedata.sensors import measure
+
+    seeds = np.random.SeedSequence([config.seed, int(row["case_id"])]).spawn(4)
+    profile = resources.placed_profile(row)
+    terrain = resources.terrain(str(row["class_name"]))
+    sun = np.asarray(config.site.sun_direction_world, dtype=float)
+    images = []
+    started = time.perf_counter()
+    for index in range(3):
+        images.append(render_descent_image(terrain, profile, resources.camera, index, sun, scene_config,
+                                           np.random.default_rng(seeds[index])))
+    render_s = time.perf_counter() - started
+    measurements, _ = measure(profile, resources.camera, sun, config.sensors, np.random.default_rng(seeds[3]))
+    started = time.perf_counter()
+    estimate = estimate_velocity([image.dn for image in images], measurements, resources.camera, config.estimator)
+    estimator_s = time.perf_counter() - started
+    velocity = np.array([estimate.velocity_east_mps, estimate.velocity_north_mps]) if estimate.valid else None
+    return images, velocity, render_s, estimator_s
+
+
+def run() -> list[dict]:
+    import cv2
+
+    cv2.setNumThreads(1)
+    config, resources, rows = _cases()
+    results = {}
+    for preset in ("reference",) + tuple(p for p in PRESETS if p != "reference"):
+        scene_config = preset_config(preset, config.scene)
+        _render_case(config, resources, rows[0], scene_config)       # warm caches (rays of the preset)
+        per_case = []
+        for row in rows:
+            repeats = 1 if preset == "reference" else TIMING_REPEATS
+            best = None
+            for _ in range(repeats):      # min over repeats: these machines are noisy
+                outcome = _render_case(config, resources, row, scene_config)
+                if best is None or outcome[2] + outcome[3] < best[2] + best[3]:
+                    best = outcome
+            per_case.append(best)
+        results[preset] = per_case
+
+    reference = results["reference"]
+    table = []
+    for preset in PRESETS:
+        per_case = results[preset]
+        rms, peak, dv, scene_ms, camera_ms = [], [], [], [], []
+        for (images, velocity, _, _), (ref_images, ref_velocity, _, _) in zip(per_case, reference):
+            for image, ref_image in zip(images, ref_images):
+                error = image.image.expected_dn.astype(np.float64) - ref_image.image.expected_dn
+                rms.append(float(np.sqrt(np.mean(error ** 2))))
+                peak.append(float(np.abs(error).max()))
+                scene_ms.append(image.diagnostics.scene_ms)
+                camera_ms.append(image.diagnostics.camera_ms)
+            if velocity is not None and ref_velocity is not None:
+                dv.append(float(np.hypot(*(velocity - ref_velocity))))
+        case_ms = [1e3 * (render + estimate) for _, _, render, estimate in per_case]
+        image_ms = [s + c for s, c in zip(scene_ms, camera_ms)]
+        valid = sum(velocity is not None for _, velocity, _, _ in per_case)
+        row = {"name": f"fidelity/{preset}", "cases": len(per_case), "images": len(image_ms),
+               "ms_per_image": float(np.median(image_ms)), "scene_ms": float(np.median(scene_ms)),
+               "camera_ms": float(np.median(camera_ms)),
+               "estimator_ms": float(np.median([1e3 * e for _, _, _, e in per_case])),
+               "ms_per_case": float(np.median(case_ms)),
+               "rms_dn_vs_reference_mean": float(np.mean(rms)), "rms_dn_vs_reference_max": float(np.max(rms)),
+               "max_dn_vs_reference": float(np.max(peak)), "valid": valid,
+               "dv_vs_reference_mean_mps": float(np.mean(dv)) if dv else float("nan"),
+               "dv_vs_reference_max_mps": float(np.max(dv)) if dv else float("nan")}
+        if preset == "default":
+            row.update(budget_camera_ms=20.0, budget_case_ms=80.0, budget_rms_dn=0.5,
+                       meets_budgets=bool(row["camera_ms"] <= 20.0 and row["ms_per_case"] <= 80.0
+                                          and row["rms_dn_vs_reference_max"] < 0.5))
+        table.append(row)
+    return table

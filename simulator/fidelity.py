@@ -1,0 +1,68 @@
+"""Fidelity presets: named sets of the documented shortcuts, from the exact reference render to fast.
+
+Every shortcut is a switch of :class:`simulator.descent_image.SceneConfig` (scene) or
+:class:`simulator.render.CameraEffects` (camera), and each is decided per scene where it can be (a
+still image shares one field; sub-poses follow the actual image shift; the heat shield is drawn only
+when its footprint meets the view; smear fields are warped only when no pixel sees the sky).
+
+=================  =========  =====  =======  =====
+shortcut           reference  high   default  fast
+=================  =========  =====  =======  =====
+supersample        3 x 3      1      1        1
+pixel-area filter  no         yes    yes      yes     (second-order stand-in for supersampling)
+sub-poses/px shift 4          1      1        1 (max 4)
+ray grid           exact      exact  16 px    32 px
+photometry grid    exact      exact  16 px    32 px
+still fields       no         no     < 1 px   < 2 px
+warped smear       no         no     yes      yes
+shot noise         Poisson    Poiss. Gauss.   Gauss.  (Gaussian above 1000 e-, see readout)
+=================  =========  =====  =======  =====
+
+Physics switches (shadows, heat shield, photometric correction, ...) and off-nominal effects are not
+part of a preset: a preset changes how exactly the same physics is computed, never which physics.
+``make bench`` (benchmarks/bench_fidelity.py) measures each preset's run time against its error.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+PRESETS = ("reference", "high", "default", "fast")
+DEFAULT_PRESET = "default"
+
+_EXACT_SCENE = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
+                    warp_smear_fields=False, pixel_area_filter=False)
+
+
+def apply_preset(config, name: str):
+    """``config`` (a :class:`~simulator.descent_image.SceneConfig`) with the shortcuts of preset ``name``.
+
+    Raises
+    ------
+    ValueError
+        Unknown preset name (the message lists the allowed names).
+    """
+    if name not in PRESETS:
+        raise ValueError(f"fidelity preset {name!r} is unknown; allowed: {', '.join(PRESETS)}")
+    camera_effects = config.camera_effects
+    if name == "reference":
+        return replace(config, effects=replace(config.effects, **_EXACT_SCENE), supersample=3,
+                       substeps_per_terrain_px=4.0, max_substeps=max(config.max_substeps, 64),
+                       camera_effects=replace(camera_effects, exact_poisson=True))
+    if name == "high":
+        return replace(config, effects=replace(config.effects, **{**_EXACT_SCENE, "pixel_area_filter": True}),
+                       supersample=1,
+                       substeps_per_terrain_px=1.0, camera_effects=replace(camera_effects, exact_poisson=True))
+    shortcuts = replace(config.effects, coarse_ray_grid=True, coarse_photometry=True, share_still_fields=True,
+                        warp_smear_fields=True, pixel_area_filter=True)
+    fast = name == "fast"
+    return replace(config, effects=shortcuts, supersample=1, substeps_per_terrain_px=1.0,
+                   ray_grid_step_px=32 if fast else 16, photometry_grid_step_px=32 if fast else 16,
+                   still_shift_terrain_px=2.0 if fast else 1.0, max_substeps=4 if fast else config.max_substeps,
+                   camera_effects=replace(camera_effects, exact_poisson=False))
+
+
+def preset_config(name: str, base=None):
+    """The :class:`~simulator.descent_image.SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
+    from .descent_image import SceneConfig
+
+    return apply_preset(SceneConfig() if base is None else base, name)
