@@ -25,7 +25,8 @@ def photoelectron_rate(radiance_w_m2_sr_um: np.ndarray, camera: Camera, falloff:
     -------
     ndarray, shape (height, width), float32, e-/s
     """
-    rate = np.asarray(radiance_w_m2_sr_um, dtype=np.float32) * np.float32(camera.responsivity_e_per_s)
+    with np.errstate(over="ignore"):   # an overflowing rate becomes inf, which the chain saturates
+        rate = np.asarray(radiance_w_m2_sr_um, dtype=np.float32) * np.float32(camera.responsivity_e_per_s)
     if falloff:
         rate *= camera.falloff_map
     return rate

@@ -20,11 +20,20 @@ from .camera_config import Electronics
 
 
 def shot_noise_e(rng: np.random.Generator, mean_e: np.ndarray) -> np.ndarray:
-    """Poisson draw of the photo + thermal electrons, float64 (exact for means up to ~1e18)."""
-    return rng.poisson(np.maximum(mean_e, 0.0)).astype(np.float64)
+    """Poisson draw of the photo + thermal electrons, float64; exact for means up to
+    :data:`MAX_POISSON_MEAN_E` (numpy's limit is ~9.2e18), above which the mean itself is returned
+    (relative noise < 1e-9, and any such charge is far beyond every full well)."""
+    mean = np.maximum(mean_e, 0.0)
+    huge = mean > MAX_POISSON_MEAN_E
+    if not huge.any():
+        return rng.poisson(mean).astype(np.float64)
+    noisy = rng.poisson(np.where(huge, 0.0, mean)).astype(np.float64)
+    noisy[huge] = np.asarray(mean, dtype=np.float64)[huge]
+    return noisy
 
 
 GAUSSIAN_MIN_MEAN_E = 1000.0
+MAX_POISSON_MEAN_E = 1.0e18
 
 
 def noisy_charge_e(rng: np.random.Generator, mean_e: np.ndarray, read_noise_sigma_e: float,

@@ -25,6 +25,7 @@ from . import blooming, charge_generation, charge_transfer, hot_pixels, optics, 
 from .camera_config import Camera
 
 PERIODS = ("flush", "exposure", "transfer")
+SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,11 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
             if hot is not None:
                 hot_pixels.add_to_rate(rate, hot)
             if not np.isfinite(rate.sum(dtype=np.float64)):  # one cheap pass; repair only when needed
-                rate = np.nan_to_num(rate, nan=0.0, posinf=0.0, neginf=0.0)
+                # NaN reads black; a rate beyond float32 (or +inf radiance) saturates the pixel
+                rate = np.nan_to_num(rate, nan=0.0, posinf=SATURATING_RATE_E_PER_S, neginf=-1.0)
+            if float(rate.min()) < 0.0:
+                raise ValueError(f"radiance field has negative values (min {float(np.min(field)):.4g} "
+                                 "W m^-2 sr^-1 um^-1); radiance must be >= 0")
             rates[key] = rate
         return rates[key]
 

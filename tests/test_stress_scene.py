@@ -161,8 +161,6 @@ def test_zero_attitude_quaternion_is_refused(mer_a):
         constant_velocity_profile([0.0, 0.0, 2000.0], [0.0, 0.0, -70.0], np.zeros(4), 1.0, [0.1])
 
 
-@pytest.mark.xfail(strict=True, reason="camera below the ground (lander altitude < 0.5 m camera offset) renders "
-                   "silently instead of raising: rays start under z = 0 (scene.py / ground_mapping.py)")
 def test_camera_below_the_ground_is_refused(mer_a):
     profile = constant_velocity_profile([0.0, 0.0, 0.2], [0.0, 0.0, 0.0], np.array([1.0, 0.0, 0.0, 0.0]), 1.0, [0.1])
     with pytest.raises(ValueError, match="altitude|ground"):
