@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import ground_mapping
+from . import cahvor, ground_mapping
 from .camera_config import Camera
 
 
@@ -133,11 +133,15 @@ def _visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.
 def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                      pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
                      irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
-                     reflectance: float) -> np.ndarray | None:
+                     reflectance: float, edge_samples: int = 1) -> np.ndarray | None:
     """Paint the heat shield into ``radiance`` (H, W) in place where it hides the ground or sky.
 
-    Returns the (H, W) bool mask of heat-shield pixels, or None when its footprint misses the image
-    (nothing computed beyond the projection of its outline).
+    ``edge_samples = s > 1`` antialiases the silhouette: pixels on its edge (centre sample differs
+    from a 4-neighbour) are re-sampled with ``s x s`` sub-pixel rays and read
+    ``coverage * shield + (1 - coverage) * background``, the pixel-area mean of a sharp edge.
+
+    Returns the (H, W) bool mask of heat-shield pixels (centre samples), or None when its footprint
+    misses the image (nothing computed beyond the projection of its outline).
     """
     height, width = radiance.shape
     box = _bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
@@ -153,10 +157,46 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     cos_sun = np.maximum(facing @ sun_world, 0.0)
     value = (reflectance * irradiance_w_m2_um / np.pi) * cos_sun
     window = radiance[row0:row1, col0:col1]
+    edge_blend = (_edge_blend(camera, pose, hit, window, ground_map.sky[row0:row1, col0:col1], row0, col0,
+                              centre_m, diameter_m, cone_angle_rad, sun_world,
+                              reflectance * irradiance_w_m2_um / np.pi, edge_samples)
+                  if edge_samples > 1 else None)
     window[hit] = value[hit].astype(np.float32)
+    if edge_blend is not None:
+        edge_rows, edge_cols, blended = edge_blend
+        window[edge_rows, edge_cols] = blended
     mask = np.zeros((height, width), dtype=bool)
     mask[row0:row1, col0:col1] = hit
     return mask
+
+
+def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray, background: np.ndarray,
+                sky: np.ndarray, row0: int, col0: int, centre_m: np.ndarray, diameter_m: float,
+                cone_angle_rad: float, sun_world: np.ndarray, lambert_scale: float, samples: int):
+    """Pixel-area radiance of the silhouette's edge pixels (see :func:`draw_heat_shield`):
+    ``(rows, cols, radiance float32)`` in window coordinates, or None when there is no edge."""
+    padded = np.pad(hit, 1, mode="edge")
+    edge = ((padded[:-2, 1:-1] != hit) | (padded[2:, 1:-1] != hit)
+            | (padded[1:-1, :-2] != hit) | (padded[1:-1, 2:] != hit))
+    rows, cols = np.nonzero(edge)
+    if rows.size == 0:
+        return None
+    offsets = (np.arange(samples) + 0.5) / samples - 0.5
+    d_col, d_row = (axis.ravel() for axis in np.meshgrid(offsets, offsets))
+    pixels = np.stack([(col0 + cols)[:, None] + d_col, (row0 + rows)[:, None] + d_row], axis=-1)
+    rays = cahvor.unproject(camera.model, pixels.reshape(-1, 2)) @ pose.camera_to_world.T
+    surface = _visible_surface(rays[:, None, :], pose, np.repeat(sky[rows, cols], samples * samples)[:, None],
+                               centre_m, diameter_m, cone_angle_rad)
+    if surface is None:
+        sub_hit = np.zeros((rows.size, samples * samples), dtype=bool)
+        shield = np.zeros_like(sub_hit, dtype=float)
+    else:
+        sub_hit = surface[0][:, 0].reshape(rows.size, -1)
+        shield = (lambert_scale * np.maximum(surface[1][:, 0] @ sun_world, 0.0)).reshape(rows.size, -1)
+    coverage = sub_hit.mean(axis=1)
+    shield_mean = np.where(sub_hit, shield, 0.0).sum(axis=1) / np.maximum(sub_hit.sum(axis=1), 1)
+    blended = coverage * shield_mean + (1.0 - coverage) * background[rows, cols]
+    return rows, cols, blended.astype(np.float32)
 
 
 def specular_radiance(normal: np.ndarray, to_sun: np.ndarray, to_camera: np.ndarray, irradiance_w_m2_um: float,

@@ -111,6 +111,14 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
     return photometry.photometric_ratio(view, sun, moc_value)
 
 
+HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not when supersampling)
+
+
+def samples_once(config) -> bool:
+    """True when each pixel is sampled once (no supersampling): area shortcuts then apply."""
+    return int(getattr(config, "supersample", 1)) == 1
+
+
 PIXEL_AREA_KERNEL = np.array([1.0 / 24.0, 11.0 / 12.0, 1.0 / 24.0], dtype=np.float32)
 
 
@@ -173,7 +181,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                              terrain.metres_per_pixel, ray_step)
     moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky if gmap.any_sky else None,
                                               crop, may_leave_terrain=not inside)
-    if getattr(effects, "pixel_area_filter", False) and int(getattr(config, "supersample", 1)) == 1:
+    if getattr(effects, "pixel_area_filter", False) and samples_once(config):
         moc_if = pixel_area_average(moc_if)
         if gmap.any_sky:
             moc_if[gmap.sky] = 0.0        # no terrain bleeding across the horizon
@@ -200,7 +208,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         shield = heat_shield.draw_heat_shield(radiance, gmap, camera, cam,
                                               np.asarray(pose.heat_shield_position_m, dtype=float), sun,
                                               irradiance, config.heat_shield_diameter_m,
-                                              config.heat_shield_cone_angle_rad, config.heat_shield_reflectance)
+                                              config.heat_shield_cone_angle_rad, config.heat_shield_reflectance,
+                                              edge_samples=HEAT_SHIELD_EDGE_SAMPLES if samples_once(config) else 1)
     if shield is not None:
         outside &= ~shield
     return PoseField(radiance, gmap.sky, outside, shield, cam, centres)

@@ -145,3 +145,25 @@ def test_presets_order_cost_and_unknown_names_are_refused():
     assert default == SceneConfig()                    # the default preset is the nominal configuration
     with pytest.raises(ValueError, match="allowed: reference, high, default, fast"):
         preset_config("ultra")
+
+
+def test_heat_shield_edges_read_their_pixel_area_mean():
+    """Antialiased silhouette (3 x 3 edge samples) against the 3 x 3 supersampled render: edge pixels
+    agree to a small fraction of the shield/ground contrast (a hard edge errs by up to the whole of it)."""
+    from dataclasses import replace
+
+    terrain = smooth_terrain()
+    base = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.1])
+    shield = np.tile([20.0, 10.0, ALTITUDE_M - 150.0], (2, 1))
+    profile = DescentProfile(base.time_s, base.position_m, base.velocity_mps, base.attitude_quat,
+                             base.angular_rate_radps, base.wind_mps, shield, base.image_times_s, "shield")
+    config = SceneConfig().with_effects(shadows=False, coarse_ray_grid=False, pixel_area_filter=False)
+    pose = profile.pose(0.1)
+    once = scene.radiance_at_pose(terrain, CAMERA, pose, SUN, config)
+    fine = scene.radiance_at_pose(terrain, CAMERA, pose, SUN, replace(config, supersample=3))
+    from scipy.ndimage import binary_dilation, binary_erosion
+    edge = binary_dilation(once.heat_shield) & ~binary_erosion(once.heat_shield)
+    contrast = np.median(once.radiance[~once.heat_shield]) - np.median(once.radiance[binary_erosion(once.heat_shield)])
+    error = np.abs(once.radiance[edge] - fine.radiance[edge])
+    assert edge.sum() > 100 and contrast > 0
+    assert np.sqrt(np.mean(error ** 2)) < 0.1 * contrast
