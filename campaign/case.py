@@ -91,6 +91,9 @@ def load_resources(config) -> Resources:
     """The per-process resources of a campaign (created on first use)."""
     if config.config_hash not in _WORKER_RESOURCES:
         keep_freed_memory_for_reuse()
+        import cv2
+
+        cv2.setNumThreads(1)   # one worker process per core: OpenCV's own threads would only contend
         _WORKER_RESOURCES[config.config_hash] = Resources(config)
     return _WORKER_RESOURCES[config.config_hash]
 

@@ -299,9 +299,12 @@ def scene_config_from_table(table: Table) -> SceneConfig:
     Numbers are range-checked with one-line errors naming file, field and allowed range; the heat
     shield cone angle is given in degrees (``heat_shield_cone_angle_deg``). Sub-tables ``effects`` and
     ``camera_effects`` hold the boolean switches (and ``camera_effects.dark_current_scale``);
-    ``off_nominal`` the off-nominal effects (:mod:`simulator.off_nominal`).
+    ``off_nominal`` the off-nominal effects (:mod:`simulator.off_nominal`). ``fidelity`` names the
+    preset of shortcuts the other fields start from (:mod:`simulator.fidelity`; default "default").
     """
-    default = SceneConfig()
+    from .fidelity import DEFAULT_PRESET, PRESETS, preset_config
+
+    default = preset_config(table.string("fidelity", default=DEFAULT_PRESET, choices=PRESETS))
     switches = table.table("effects", required=False)
     effects = SceneEffects(**{f.name: switches.boolean(f.name, default=getattr(default.effects, f.name))
                               for f in fields(SceneEffects)})
@@ -350,7 +353,7 @@ def scene_config_from_table(table: Table) -> SceneConfig:
         supersample=table.integer("supersample", default=default.supersample, minimum=1, maximum=8),
     )
     _reject_unknown(table, {f.name for f in fields(SceneConfig)} - {"heat_shield_cone_angle_rad"}
-                    | {"heat_shield_cone_angle_deg"})
+                    | {"heat_shield_cone_angle_deg", "fidelity"})
     return config
 
 

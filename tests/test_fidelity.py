@@ -167,3 +167,19 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
     error = np.abs(once.radiance[edge] - fine.radiance[edge])
     assert edge.sum() > 100 and contrast > 0
     assert np.sqrt(np.mean(error ** 2)) < 0.1 * contrast
+
+
+def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
+    import pytest
+
+    from simulator.descent_image import scene_config_from_table
+    from simulator.tomlfields import ConfigError, Table, load_toml
+
+    path = tmp_path / "scene.toml"
+    path.write_text('[scene]\nfidelity = "reference"\nsupersample = 2\n')
+    config = scene_config_from_table(Table(load_toml(path)["scene"], str(path), "scene"))
+    assert config.supersample == 2 and config.camera_effects.exact_poisson
+    assert not config.effects.warp_smear_fields
+    path.write_text('[scene]\nfidelity = "ultra"\n')
+    with pytest.raises(ConfigError, match=r"scene\.fidelity.*allowed: reference, high, default, fast"):
+        scene_config_from_table(Table(load_toml(path)["scene"], str(path), "scene"))
