@@ -22,6 +22,7 @@ With negative R1 or R2 the distortion ``u -> u'`` stops increasing at a turning 
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,8 +159,12 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
 
 def distortion_turning_point(r: np.ndarray) -> float:
     """Smallest undistorted tangent ``u* > 0`` where ``d/du [u (1 + R0 + R1 u^2 + R2 u^4)] = 0``;
-    ``inf`` when the distortion increases for every ``u`` (e.g. R1, R2 >= 0)."""
-    r0, r1, r2 = (float(value) for value in r)
+    ``inf`` when the distortion increases for every ``u`` (e.g. R1, R2 >= 0). Memoised per R."""
+    return _turning_point(*(float(value) for value in r))
+
+
+@functools.lru_cache(maxsize=64)
+def _turning_point(r0: float, r1: float, r2: float) -> float:
     # slope = (1 + R0) + 3 R1 s + 5 R2 s^2 with s = u^2
     roots = np.roots([5.0 * r2, 3.0 * r1, 1.0 + r0]) if (r1 or r2) else np.zeros(0)
     positive = [root.real for root in np.atleast_1d(roots) if abs(root.imag) < 1e-12 and root.real > 0]

@@ -267,8 +267,18 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
     }
     mpp = terrain.metres_per_pixel
 
+    poses: dict[float, Pose] = {}
+    camera_poses: dict[float, ground_mapping.CameraPose] = {}
+
+    def pose_at(time_s):          # the same instants recur (window ends, mid-times): interpolate once
+        if time_s not in poses:
+            poses[time_s] = _clamped_pose(profile, time_s)
+        return poses[time_s]
+
     def cam_at(time_s):
-        return ground_mapping.camera_pose(camera, _clamped_pose(profile, time_s))
+        if time_s not in camera_poses:
+            camera_poses[time_s] = ground_mapping.camera_pose(camera, pose_at(time_s))
+        return camera_poses[time_s]
 
     camera_height_m = cam_at(t + 0.5 * timing.exposure_s).ray_origin_m[2]
     if not camera_height_m > 0.0:
@@ -277,7 +287,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
     first = windows["flush"][0] if need_smear_fields else windows["exposure"][0]
     last = windows["transfer"][1] if need_smear_fields else windows["exposure"][1]
     total_shift = motion_blur.image_shift(camera, cam_at(first), cam_at(last), mpp)
-    centre = radiance_at_pose(terrain, camera, _clamped_pose(profile, t + 0.5 * timing.exposure_s), sun_world, config)
+    centre = radiance_at_pose(terrain, camera, pose_at(t + 0.5 * timing.exposure_s), sun_world, config)
 
     def masks(pose_fields):
         sky = pose_fields[0].sky.copy()
@@ -315,7 +325,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
                  for time in motion_blur.substep_times(start, end, count)])
             continue
         else:
-            pose_fields = [radiance_at_pose(terrain, camera, _clamped_pose(profile, time), sun_world, config)
+            pose_fields = [radiance_at_pose(terrain, camera, pose_at(float(time)), sun_world, config)
                            for time in motion_blur.substep_times(start, end, count)]
         if period == "exposure":
             exposure_fields = pose_fields
