@@ -107,7 +107,7 @@ def _cmd_sweep(args) -> int:
     spec = load_sweep(args.file, output_dir=args.output)           # validates everything, writes nothing
     baseline = read_baseline(args.baseline) if args.baseline else None
     run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
-    table, text = write_outputs(spec, run)
+    table, text = write_outputs(spec)
     print(text)
     print(f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused; {run.done} cases done, "
           f"{run.failed} failed this run)")

@@ -171,7 +171,7 @@ def _num(value, pattern: str) -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else pattern.format(value)
 
 
-def write_outputs(spec: SweepSpec, run: SweepRun | None = None) -> tuple[pd.DataFrame, str]:
+def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
     """Write sweep.json, results.parquet, the sensitivity table and the plots; return (table, text)."""
     from .sweep_plots import write_sweep_plots
 
