@@ -290,7 +290,20 @@ def _add_glint(periods: scene.PeriodScene, camera: Camera, profile: DescentProfi
                 off_nominal.heat_shield_specular_reflectance, off_nominal.heat_shield_specular_roughness_rad)
             if glint is not None:
                 row0, col0, window = glint
-                field_array[row0:row0 + window.shape[0], col0:col0 + window.shape[1]] += window * np.float32(1.0 / len(times))
+                window = window * np.float32(1.0 / len(times))
+                if field_array.shape[0] != camera.height_px:   # a smear field given as binning-block means
+                    row0, window = _block_mean_window(row0, window, camera.height_px // field_array.shape[0])
+                field_array[row0:row0 + window.shape[0], col0:col0 + window.shape[1]] += window
+
+
+def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[int, np.ndarray]:
+    """A full-resolution window starting at ``row0`` as means of whole ``block_rows``-row blocks:
+    (first block index, (blocks, w) float32)."""
+    first = row0 // block_rows
+    end = -(-(row0 + window.shape[0]) // block_rows)
+    padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)
+    padded[row0 - first * block_rows:row0 - first * block_rows + window.shape[0]] = window
+    return first, padded.reshape(end - first, block_rows, -1).mean(axis=1, dtype=np.float32)
 
 
 def scene_config_from_table(table: Table) -> SceneConfig:

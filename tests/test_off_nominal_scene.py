@@ -207,3 +207,26 @@ def test_case_artefacts_are_fixed_across_images_and_required_when_configured():
     # the charge follows the dust transmission (smear and dark current dilute it by ~1 %)
     assert np.median(ratio / binned_transmission) == pytest.approx(1.0, abs=0.01)
     assert np.corrcoef(ratio.ravel(), binned_transmission.ravel())[0, 1] > 0.95
+
+
+def test_glint_is_added_to_every_period_field_with_its_area_kept():
+    # a descending, turning lander: the smear periods get their own (possibly block-mean) fields
+    terrain = flat_terrain()
+    time = np.linspace(0.0, 1.0, 3)
+    attitude = np.stack([quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(10.0) * t) for t in time])
+    position = np.array([[0.0, 0.0, 2000.0]]) + np.outer(time, [8.0, 0.0, -72.0])
+    profile = DescentProfile(time, position, np.tile([8.0, 0.0, -72.0], (3, 1)), attitude,
+                             np.tile([np.radians(10.0), 0.0, 0.0], (3, 1)), np.zeros((3, 3)),
+                             position + [0.0, 0.0, -150.0], np.array([0.5]), "moving")
+    plain = render_descent_image(terrain, profile, CAMERA, 0, SUN_40, with_off_nominal(), None)
+    glint = render_descent_image(terrain, profile, CAMERA, 0, SUN_40, with_off_nominal(heat_shield_glint=True), None)
+    assert not glint.diagnostics.shared_fields
+    totals = {}
+    for period in ("flush", "exposure", "transfer"):
+        added = getattr(glint.radiance, period).astype(np.float64) - getattr(plain.radiance, period)
+        rows_per_value = CAMERA.height_px // added.shape[0]           # 1, or 4 for a block-mean smear field
+        totals[period] = added.sum() * rows_per_value
+        assert added.min() > -1e-3
+    assert totals["exposure"] > 0
+    for period in ("flush", "transfer"):
+        assert totals[period] == pytest.approx(totals["exposure"], rel=0.2)
