@@ -20,6 +20,9 @@ block cumulative sums::
 
 where ``C`` is the cumulative sum over whole blocks; no per-row loop and no full-resolution cumulative
 sum is needed unless a pixel can reach full well, when :func:`pixel_charge_e` is used instead.
+
+The flush and transfer rates may also be given per block (shape (N / b, width), each block's mean
+rate): smear only sees them through block sums, so that is all the fast path needs.
 """
 from __future__ import annotations
 
@@ -44,8 +47,10 @@ def _flip(rate: np.ndarray, toward_last_row: bool) -> np.ndarray:
 
 def pixel_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
                    timing: Timing) -> np.ndarray:
-    """Full-resolution charge per pixel (e-) at the end of frame transfer, shape (N, width), float32."""
+    """Full-resolution charge per pixel (e-) at the end of frame transfer, shape (N, width), float32.
+    Block-mean smear rates are spread evenly over their blocks' rows."""
     rows = rate_exposure.shape[0]
+    rate_flush, rate_transfer = full_rows(rate_flush, rows), full_rows(rate_transfer, rows)
     toward_last = timing.transfer_toward_last_row
     flush_smear = cumsum_rows(_flip(rate_flush, toward_last))
     transfer_smear = cumsum_rows(_flip(rate_transfer, toward_last)[::-1])[::-1]
@@ -58,14 +63,14 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
     """Binned charge (e-) of ``binning_rows``-row blocks, exact, shape (N / b, width), float32."""
     rows = rate_exposure.shape[0]
     toward_last = timing.transfer_toward_last_row
-    flush_blocks, flush_ramp = _block_sums(_flip(rate_flush, toward_last), binning_rows)
+    flush_blocks, flush_ramp = _block_sums(_flip(rate_flush, toward_last), binning_rows, rows)
     flush_before = cumsum_rows(flush_blocks) - flush_blocks          # blocks strictly before
     flush_smear = binning_rows * flush_before + flush_ramp                  # ramp weights b, b-1, .., 1
 
     if rate_transfer is rate_flush:
         transfer_blocks, transfer_ramp = flush_blocks, flush_ramp
     else:
-        transfer_blocks, transfer_ramp = _block_sums(_flip(rate_transfer, toward_last), binning_rows)
+        transfer_blocks, transfer_ramp = _block_sums(_flip(rate_transfer, toward_last), binning_rows, rows)
     transfer_after = cumsum_rows(transfer_blocks[::-1])[::-1] - transfer_blocks
     # weights 1, 2, .., b  =  (b + 1) * block sum - (weights b, .., 1)
     transfer_smear = binning_rows * transfer_after + ((binning_rows + 1) * transfer_blocks - transfer_ramp)
@@ -75,8 +80,26 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
     return (_flip(smear, toward_last) + np.float32(timing.exposure_s) * exposure_blocks).astype(np.float32)
 
 
-def _block_sums(rate: np.ndarray, binning_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per block: the plain sum of its rows and the sum weighted b, b-1, ..., 1 (first row heaviest)."""
+def is_block_mean(rate: np.ndarray, rows: int, binning_rows: int) -> bool:
+    """True when a smear-period rate is given per ``binning_rows``-row block (shape (rows / b, W), the
+    block's mean) rather than per pixel row (see :func:`simulator.scene.period_fields`)."""
+    return rate.shape[0] * binning_rows == rows and binning_rows > 1
+
+
+def full_rows(rate: np.ndarray, rows: int) -> np.ndarray:
+    """A per-row rate (rows, W): block-mean rates are repeated over their block's rows."""
+    return rate if rate.shape[0] == rows else np.repeat(rate, rows // rate.shape[0], axis=0)
+
+
+def _block_sums(rate: np.ndarray, binning_rows: int, rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per block: the plain sum of its rows and the sum weighted b, b-1, ..., 1 (first row heaviest).
+
+    A block-mean rate (``rows`` given and ``rate`` of shape (rows / b, W)) stands for ``b`` equal rows:
+    sums ``b m`` and ``b (b + 1) / 2 m``.
+    """
+    if rows is not None and is_block_mean(rate, rows, binning_rows):
+        mean = rate.astype(np.float32, copy=False)
+        return mean * np.float32(binning_rows), mean * np.float32(binning_rows * (binning_rows + 1) / 2)
     rows, width = rate.shape
     blocks = rate.reshape(rows // binning_rows, binning_rows, width)
     plain = blocks[:, 0].astype(np.float32, copy=True)
@@ -98,7 +121,7 @@ def max_pixel_charge_bound_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, 
                              timing: Timing) -> float:
     """An upper bound on any pixel's charge, cheap: used to skip the full-resolution path."""
     rows = rate_exposure.shape[0]
-    flush_column = float(rate_flush.sum(axis=0).max())
-    transfer_column = float(rate_transfer.sum(axis=0).max())
+    flush_column = float(rate_flush.sum(axis=0).max()) * rows / rate_flush.shape[0]
+    transfer_column = float(rate_transfer.sum(axis=0).max()) * rows / rate_transfer.shape[0]
     return (timing.exposure_s * float(rate_exposure.max()) + timing.fast_flush_s / rows * flush_column
             + timing.frame_transfer_s / rows * transfer_column)

@@ -209,7 +209,8 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     Returns
     -------
     DescentImage
-        ``.dn`` uint16 (256, 1024); ``.radiance`` the three (1024, 1024) fields (W m^-2 sr^-1 um^-1);
+        ``.dn`` uint16 (256, 1024); ``.radiance`` the three fields (W m^-2 sr^-1 um^-1): exposure
+        (1024, 1024), flush and transfer (1024, 1024) or, when warped, per binning block (256, 1024);
         ``.sky_mask``, ``.outside_terrain_mask``, ``.heat_shield_mask`` (1024, 1024) bool;
         ``.diagnostics`` (anti-sun pixel, sub-steps, footprint, timings...).
     """

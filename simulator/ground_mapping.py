@@ -74,16 +74,20 @@ def node_positions(size_px: int, step_px: int) -> np.ndarray:
     return (np.arange(-1, size_px // step_px + 1) + 0.5) * step_px - 0.5
 
 
-def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_px: int) -> np.ndarray:
+def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_px: int,
+                   row_step_px: int | None = None) -> np.ndarray:
     """Bilinear interpolation of values on the :func:`node_positions` grid to every pixel.
 
-    ``node_values`` has shape (ny, nx) or (ny, nx, channels) with ny = height/step + 2, nx = width/step + 2.
+    ``node_values`` has shape (ny, nx) or (ny, nx, channels) with ny = height/row_step + 2,
+    nx = width/step + 2 (``row_step_px`` defaults to ``step_px``; a different one serves a grid of
+    coarser rows, e.g. binned rows, with the same node layout in its own units).
     Returns float32 of shape (height, width[, channels]).
     """
+    row_step_px = step_px if row_step_px is None else row_step_px
     ny, nx = node_values.shape[:2]
-    big = cv2.resize(np.ascontiguousarray(node_values, dtype=np.float32), (nx * step_px, ny * step_px),
+    big = cv2.resize(np.ascontiguousarray(node_values, dtype=np.float32), (nx * step_px, ny * row_step_px),
                      interpolation=cv2.INTER_LINEAR)
-    return big[step_px:step_px + height_px, step_px:step_px + width_px]
+    return big[row_step_px:row_step_px + height_px, step_px:step_px + width_px]
 
 
 def node_rays(camera: Camera, step_px: int) -> np.ndarray:

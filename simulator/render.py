@@ -94,7 +94,10 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     camera : Camera
     radiance : RadianceFields, sequence of 3 arrays, or callable
         Radiance (W m^-2 sr^-1 um^-1) per pixel, shape (height, width), during fast flush, exposure
-        and frame transfer. Fields that are the same object are converted once.
+        and frame transfer. Fields that are the same object are converted once. The flush and
+        transfer fields may instead be given per binning block, shape (height / b, width), each
+        block's mean radiance: they only enter through smear, i.e. block sums, so the block mean is
+        all that is needed (each block's pixel gains are averaged likewise).
     rng : numpy.random.Generator
         Noise stream of this image (shot noise, then read noise).
     effects : CameraEffects
@@ -109,9 +112,12 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     """
     fields = as_radiance_fields(radiance)
     expected_shape = (camera.height_px, camera.width_px)
+    block_shape = (camera.height_px // camera.binning_rows, camera.width_px)
     for period, field in zip(PERIODS, (fields.flush, fields.exposure, fields.transfer)):
-        if np.shape(field) != expected_shape:
-            raise ValueError(f"radiance {period} field has shape {np.shape(field)}; expected {expected_shape}")
+        allowed = (expected_shape,) if period == "exposure" else (expected_shape, block_shape)
+        if np.shape(field) not in allowed:
+            raise ValueError(f"radiance {period} field has shape {np.shape(field)}; expected "
+                             f"{' or '.join(map(str, allowed))}")
 
     dark_rate = (charge_generation.dark_rate_e_per_s(camera, effects.dark_current_scale)
                  if effects.dark_current else 0.0)
@@ -120,18 +126,40 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     hot = artefacts.hot_pixels if artefacts is not None else None
     hits = artefacts.particle_hits if artefacts is not None and artefacts.particle_hits is not None else None
 
+    def block_gain() -> np.ndarray:
+        """Mean over each binning block of the pixels' photo gain (falloff x dust x PRNU), (H/b, W)."""
+        if "block_gain" not in rates:
+            gain = np.ones(expected_shape, dtype=np.float32)
+            if effects.falloff:
+                gain *= camera.falloff_map
+            if dust is not None:
+                gain *= dust
+            if effects.prnu:
+                gain *= camera.prnu_map
+            rates["block_gain"] = charge_transfer.bin_rows(gain, camera.binning_rows) / np.float32(camera.binning_rows)
+        return rates["block_gain"]
+
     def generation_rate(field: np.ndarray) -> np.ndarray:
         key = id(field)
         if key not in rates:
-            rate = optics.photoelectron_rate(field, camera, falloff=effects.falloff)
-            if dust is not None:
-                rate *= dust
-            if effects.prnu:
-                rate = charge_generation.apply_prnu(rate, camera.prnu_map)
-            if dark_rate:
-                rate += np.float32(dark_rate)
-            if hot is not None:
-                hot_pixels.add_to_rate(rate, hot)
+            if np.shape(field) == block_shape:   # a smear-period field given per binning block (its mean)
+                rate = optics.photoelectron_rate(field, camera, falloff=False)
+                rate *= block_gain()
+                if dark_rate:
+                    rate += np.float32(dark_rate)
+                if hot is not None:
+                    extra = hot_pixels.add_to_rate(np.zeros(expected_shape, dtype=np.float32), hot)
+                    rate += charge_transfer.bin_rows(extra, camera.binning_rows) / np.float32(camera.binning_rows)
+            else:
+                rate = optics.photoelectron_rate(field, camera, falloff=effects.falloff)
+                if dust is not None:
+                    rate *= dust
+                if effects.prnu:
+                    rate = charge_generation.apply_prnu(rate, camera.prnu_map)
+                if dark_rate:
+                    rate += np.float32(dark_rate)
+                if hot is not None:
+                    hot_pixels.add_to_rate(rate, hot)
             if not np.isfinite(rate.sum(dtype=np.float64)):  # one cheap pass; repair only when needed
                 # NaN reads black; a rate beyond float32 (or +inf radiance) saturates the pixel
                 rate = np.nan_to_num(rate, nan=0.0, posinf=SATURATING_RATE_E_PER_S, neginf=-1.0)

@@ -18,10 +18,12 @@ same array object, which the camera chain converts once). Times outside the prof
 ends (the pose is held).
 
 Smear fields (fidelity shortcut ``warp_smear_fields``): the fast-flush and frame-transfer fields only
-enter the image through column sums (smear), and their poses differ from the exposure's by a pixel or
-so. Instead of rendering them, :func:`warped_field` resamples the exposure-centre field along the exact
-ground-plane flow between the two poses (ground point of each pixel at the smear pose, projected with
-the exposure pose), computed on a node grid every :data:`WARP_GRID_STEP_PX` pixels and interpolated.
+enter the image through block sums of columns (smear, then 4-row binning), and their poses differ
+from the exposure's by a pixel or so. Instead of rendering them, :func:`warped_field` resamples the
+block means of the exposure-centre field (shape (H / b, W)) along the exact ground-plane flow between
+the two poses (ground point of each block centre at the smear pose, projected with the exposure pose),
+computed on a node grid every :data:`WARP_GRID_STEP_PX` pixels and interpolated; the camera chain takes
+such block-mean fields directly (:func:`simulator.render.render_image`).
 When any node's ray misses the ground or leaves the exposure image (horizon in view, violent motion)
 the field is rendered exactly instead. Measured error: ``make bench`` (fidelity table).
 
@@ -216,13 +218,16 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
 
 
 def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_mapping.CameraPose,
-             step_px: int = WARP_GRID_STEP_PX) -> np.ndarray | None:
+             step_px: int = WARP_GRID_STEP_PX, block_rows: int = 1) -> np.ndarray | None:
     """Where each pixel of an image taken at ``target`` finds its ground point in an image taken at ``source``.
+
+    With ``block_rows = b > 1`` the map is for blocks of ``b`` rows (row k centred on pixel row
+    ``b k + (b - 1) / 2``) and gives source coordinates in the same block units.
 
     Returns
     -------
-    ndarray (height, width, 2) float32 of (column, row) source coordinates, bilinear from the node grid,
-    or None when a node's ray misses the ground or its point is behind or more than one node step
+    ndarray (height / b, width, 2) float32 of (column, row) source coordinates, bilinear from the node
+    grid, or None when a node's ray misses the ground or its point is behind or more than one node step
     outside the source frame (the flow is then not a small smooth warp).
     """
     rows = ground_mapping.node_positions(camera.height_px, step_px)
@@ -237,7 +242,12 @@ def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_m
             or source_pixels[..., 0].max() > camera.width_px + margin
             or source_pixels[..., 1].max() > camera.height_px + margin):
         return None
-    return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px, camera.width_px)
+    if block_rows == 1:
+        return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px, camera.width_px)
+    # node rows (k + 1/2) s - 1/2 in pixels are (k + 1/2) (s / b) - 1/2 in blocks: the same layout
+    source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (block_rows - 1)) / block_rows
+    return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px // block_rows, camera.width_px,
+                                         row_step_px=step_px // block_rows)
 
 
 def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray) -> np.ndarray:
@@ -307,7 +317,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
         fields = RadianceFields(centre.radiance, centre.radiance, centre.radiance)
         return PeriodScene(fields, sky, outside, shield, {"flush": 0, "exposure": 1, "transfer": 0}, True, centre)
 
-    averaged, counts, exposure_fields = {}, {}, [centre]
+    averaged, counts, exposure_fields, centre_blocks = {}, {}, [centre], None
     for period, (start, end) in windows.items():
         if period != "exposure" and not need_smear_fields:
             counts[period] = 0
@@ -320,9 +330,14 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
         if period == "exposure" and count == 1:
             pose_fields = [centre]
         elif period != "exposure" and effects.warp_smear_fields:
-            averaged[period] = motion_blur.average_fields(
-                [_smear_field(terrain, camera, profile, time, sun_world, config, centre)
-                 for time in motion_blur.substep_times(start, end, count)])
+            if centre_blocks is None:
+                centre_blocks = block_means(centre.radiance, camera.binning_rows)
+            smear = [_smear_field(terrain, camera, pose_at(float(time)), sun_world, config, centre, centre_blocks)
+                     for time in motion_blur.substep_times(start, end, count)]
+            if len({item.shape for item in smear}) > 1:   # some warped, some rendered: average as blocks
+                smear = [item if item.shape[0] != camera.height_px else block_means(item, camera.binning_rows)
+                         for item in smear]
+            averaged[period] = motion_blur.average_fields(smear)
             continue
         else:
             pose_fields = [radiance_at_pose(terrain, camera, pose_at(float(time)), sun_world, config)
@@ -336,12 +351,21 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
     return PeriodScene(fields, sky, outside, shield, counts, False, centre)
 
 
-def _smear_field(terrain: Terrain, camera: Camera, profile: DescentProfile, time_s: float, sun_world: np.ndarray,
-                 config, centre: PoseField) -> np.ndarray:
-    """The radiance field at ``time_s`` for smear: warped from the exposure-centre field when the flow
-    allows (:func:`flow_map`), else rendered exactly."""
-    pose = _clamped_pose(profile, time_s)
-    flow = flow_map(camera, centre.camera_pose, ground_mapping.camera_pose(camera, pose))
-    if flow is None or centre.sky.any():
+def block_means(field: np.ndarray, block_rows: int) -> np.ndarray:
+    """Mean of each ``block_rows``-row block of a field (H, W) -> (H / b, W), float32."""
+    height, width = field.shape
+    return field.reshape(height // block_rows, block_rows, width).mean(axis=1, dtype=np.float32)
+
+
+def _smear_field(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config, centre: PoseField,
+                 centre_blocks: np.ndarray) -> np.ndarray:
+    """The radiance field at ``pose`` for smear: per binning block (block means, (H / b, W)), warped
+    from the exposure-centre field's block means when the flow allows (:func:`flow_map`), else the
+    full field rendered exactly."""
+    block_rows = camera.binning_rows
+    flow = None
+    if not centre.sky.any() and WARP_GRID_STEP_PX % block_rows == 0:
+        flow = flow_map(camera, centre.camera_pose, ground_mapping.camera_pose(camera, pose), block_rows=block_rows)
+    if flow is None:
         return radiance_at_pose(terrain, camera, pose, sun_world, config).radiance
-    return warped_field(centre.radiance, flow)
+    return warped_field(centre_blocks, flow)

@@ -63,6 +63,34 @@ def test_flow_of_a_translating_nadir_camera_is_the_ground_shift_over_the_gsd():
     assert hit.all() and np.abs(got - expected).max() < 0.01
 
 
+def test_block_flow_is_the_pixel_flow_at_block_centres_in_block_units():
+    profile = turning_profile()
+    source = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
+    target = ground_mapping.camera_pose(CAMERA, profile.pose(0.506))
+    pixel_flow = scene.flow_map(CAMERA, source, target)
+    block_flow = scene.flow_map(CAMERA, source, target, block_rows=4)
+    assert block_flow.shape == (256, 1024, 2)
+    # block k is centred on pixel row 4k + 1.5: the mean of the pixel flow of rows 4k+1 and 4k+2
+    centre = 0.5 * (pixel_flow[1::4] + pixel_flow[2::4])
+    assert np.abs(block_flow[..., 0] - centre[..., 0]).max() < 0.02
+    assert np.abs(block_flow[..., 1] - (centre[..., 1] - 1.5) / 4).max() < 0.02 / 4
+
+
+def test_block_mean_smear_fields_give_the_same_charge_as_block_constant_pixel_fields():
+    from simulator.render import CameraEffects, RadianceFields, render_image
+
+    rng = np.random.default_rng(4)
+    blocks = {period: (20.0 + 5.0 * rng.random((256, 1024))).astype(np.float32) for period in ("flush", "transfer")}
+    exposure = (20.0 + 5.0 * rng.random((1024, 1024))).astype(np.float32)
+    quiet = CameraEffects(shot_noise=False, read_noise=False)
+    per_pixel = render_image(CAMERA, RadianceFields(np.repeat(blocks["flush"], 4, axis=0), exposure,
+                                                    np.repeat(blocks["transfer"], 4, axis=0)),
+                             np.random.default_rng(0), quiet)
+    per_block = render_image(CAMERA, RadianceFields(blocks["flush"], exposure, blocks["transfer"]),
+                             np.random.default_rng(0), quiet)
+    assert np.allclose(per_block.expected_charge_e, per_pixel.expected_charge_e, rtol=2e-5)
+
+
 def test_flow_is_refused_when_the_horizon_is_in_view():
     tilted = np.array([np.cos(np.radians(40.0)), np.sin(np.radians(40.0)), 0.0, 0.0])  # 80 deg off nadir
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], tilted, 1.0, [0.5])
@@ -78,13 +106,17 @@ def test_warped_smear_fields_match_rendered_ones_in_column_sums():
     exact = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, exact_config)
     warped = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, warped_config)
     assert warped.fields.exposure is not warped.fields.flush
+    exposure_blocks = scene.block_means(warped.fields.exposure, CAMERA.binning_rows)
     for period in ("flush", "transfer"):
-        reference, fast = getattr(exact.fields, period), getattr(warped.fields, period)
-        interior = (slice(8, -8), slice(8, -8))
+        # the warped smear fields are block means (256, 1024): compare with the exact field's
+        reference = scene.block_means(getattr(exact.fields, period), CAMERA.binning_rows)
+        fast = getattr(warped.fields, period)
+        assert fast.shape == (CAMERA.height_px // CAMERA.binning_rows, CAMERA.width_px)
+        interior = (slice(2, -2), slice(8, -8))
         texture = reference[interior].std()
         assert np.abs(fast[interior] - reference[interior]).mean() < 0.05 * texture
         # (the exposure field itself is far off: the scene moved by pixels meanwhile)
-        assert np.abs(warped.fields.exposure[interior] - reference[interior]).mean() > 0.2 * texture
+        assert np.abs(exposure_blocks[interior] - reference[interior]).mean() > 0.2 * texture
         # smear sees column sums: agree to 1e-3 of the column sum
         sums_exact = reference[interior].sum(axis=0)
         assert np.abs(fast[interior].sum(axis=0) - sums_exact).max() < 1e-3 * sums_exact.mean()

@@ -35,8 +35,10 @@ def check(result, camera):
     """Every output finite, in range, of the documented shape."""
     assert result.dn.shape == camera.binned_shape and result.dn.dtype == np.uint16
     assert result.dn.max() <= camera.electronics.max_dn
+    full, blocks = (camera.height_px, camera.width_px), (camera.height_px // camera.binning_rows, camera.width_px)
+    assert result.radiance.exposure.shape == full
     for field in (result.radiance.flush, result.radiance.exposure, result.radiance.transfer):
-        assert field.shape == (camera.height_px, camera.width_px)
+        assert field.shape in (full, blocks)    # smear fields may be given per binning block
         assert np.all(np.isfinite(field)) and field.min() >= 0.0
     assert np.all(np.isfinite(result.image.expected_dn)) and np.all(np.isfinite(result.image.expected_charge_e))
     for mask in (result.sky_mask, result.outside_terrain_mask, result.heat_shield_mask):
