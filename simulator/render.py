@@ -85,6 +85,23 @@ def as_radiance_fields(radiance: RadianceInput) -> RadianceFields:
     return RadianceFields(*fields)
 
 
+def pixel_gain(camera: Camera, falloff: bool = True, prnu: bool = True, per_block: bool = False) -> np.ndarray:
+    """Photo-electron rate per unit radiance of every pixel, e-/s per W m^-2 sr^-1 um^-1, float32 (H, W)
+    (or its mean over each binning block, (H/b, W)): responsivity x cos^4 falloff x PRNU (cached per camera)."""
+    cache = camera.__dict__.setdefault("_render_cache", {})
+    key = ("gain", bool(falloff), bool(prnu), bool(per_block))
+    if key not in cache:
+        if per_block:
+            full = pixel_gain(camera, falloff, prnu)
+            cache[key] = charge_transfer.bin_rows(full, camera.binning_rows) / np.float32(camera.binning_rows)
+        else:
+            gain = optics.photoelectron_rate(np.ones((camera.height_px, camera.width_px), dtype=np.float32),
+                                             camera, falloff=falloff)
+            cache[key] = charge_generation.apply_prnu(gain, camera.prnu_map) if prnu else gain
+        cache[key].setflags(write=False)
+    return cache[key]
+
+
 def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generator,
                  effects: CameraEffects = CameraEffects(), artefacts=None) -> RenderedImage:
     """Render one descent image from the radiance fields of its three CCD periods.
@@ -126,41 +143,34 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     hot = artefacts.hot_pixels if artefacts is not None else None
     hits = artefacts.particle_hits if artefacts is not None and artefacts.particle_hits is not None else None
 
+    gain = pixel_gain(camera, effects.falloff, effects.prnu)           # responsivity x falloff x PRNU
+    if dust is not None:
+        gain = gain * dust
+
     def block_gain() -> np.ndarray:
-        """Mean over each binning block of the pixels' photo gain (falloff x dust x PRNU), (H/b, W)."""
+        """Mean over each binning block of the pixels' gain (responsivity x falloff x dust x PRNU), (H/b, W)."""
+        if dust is None:
+            return pixel_gain(camera, effects.falloff, effects.prnu, per_block=True)
         if "block_gain" not in rates:
-            gain = np.ones(expected_shape, dtype=np.float32)
-            if effects.falloff:
-                gain *= camera.falloff_map
-            if dust is not None:
-                gain *= dust
-            if effects.prnu:
-                gain *= camera.prnu_map
             rates["block_gain"] = charge_transfer.bin_rows(gain, camera.binning_rows) / np.float32(camera.binning_rows)
         return rates["block_gain"]
 
     def generation_rate(field: np.ndarray) -> np.ndarray:
         key = id(field)
         if key not in rates:
-            if np.shape(field) == block_shape:   # a smear-period field given per binning block (its mean)
-                rate = optics.photoelectron_rate(field, camera, falloff=False)
-                rate *= block_gain()
-                if dark_rate:
-                    rate += np.float32(dark_rate)
-                if hot is not None:
-                    extra = hot_pixels.add_to_rate(np.zeros(expected_shape, dtype=np.float32), hot)
-                    rate += charge_transfer.bin_rows(extra, camera.binning_rows) / np.float32(camera.binning_rows)
-            else:
-                rate = optics.photoelectron_rate(field, camera, falloff=effects.falloff)
-                if dust is not None:
-                    rate *= dust
-                if effects.prnu:
-                    rate = charge_generation.apply_prnu(rate, camera.prnu_map)
-                if dark_rate:
-                    rate += np.float32(dark_rate)
-                if hot is not None:
-                    hot_pixels.add_to_rate(rate, hot)
-            if not np.isfinite(rate.sum(dtype=np.float64)):  # one cheap pass; repair only when needed
+            block = np.shape(field) == block_shape   # a smear-period field given per binning block (its mean)
+            with np.errstate(over="ignore"):          # an overflowing rate becomes inf, saturated below
+                rate = np.multiply(field, block_gain() if block else gain, dtype=np.float32)
+            if dark_rate:
+                rate += np.float32(dark_rate)
+            if hot is not None and block:
+                extra = hot_pixels.add_to_rate(np.zeros(expected_shape, dtype=np.float32), hot)
+                rate += charge_transfer.bin_rows(extra, camera.binning_rows) / np.float32(camera.binning_rows)
+            elif hot is not None:
+                hot_pixels.add_to_rate(rate, hot)
+            with np.errstate(over="ignore"):
+                finite = np.isfinite(rate.sum())   # one cheap pass (a huge finite sum may overflow: harmless)
+            if not finite:  # repair only when needed
                 # NaN reads black; a rate beyond float32 (or +inf radiance) saturates the pixel
                 rate = np.nan_to_num(rate, nan=0.0, posinf=SATURATING_RATE_E_PER_S, neginf=-1.0)
             if float(rate.min()) < 0.0:
