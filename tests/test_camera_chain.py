@@ -177,3 +177,26 @@ def test_noise_with_read_noise_only_adds_its_variance():
     assert noisy.var() == pytest.approx(2.0e4 + 30.0**2, rel=4 * np.sqrt(2 / mean.size))
     quiet = noisy_charge_e(np.random.default_rng(12), mean, 30.0, shot_noise=False)
     assert quiet.var() == pytest.approx(30.0**2, rel=4 * np.sqrt(2 / mean.size))
+
+
+def test_fast_normal_draws_are_standard_and_reproducible_whatever_the_thread_count():
+    import cv2
+
+    from simulator.readout import standard_normal_f32
+
+    threads = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)
+        one = standard_normal_f32(np.random.default_rng(5), (512, 1024))
+        cv2.setNumThreads(2)
+        two = standard_normal_f32(np.random.default_rng(5), (512, 1024))
+    finally:
+        cv2.setNumThreads(threads)
+    assert np.array_equal(one, two)
+    other = standard_normal_f32(np.random.default_rng(6), (512, 1024))
+    assert not np.array_equal(one, other)
+    n = one.size
+    assert abs(one.mean()) < 4 / np.sqrt(n) and abs(one.var() - 1) < 4 * np.sqrt(2 / n)
+    assert abs(np.mean(one ** 3)) < 4 * np.sqrt(15 / n)               # symmetric
+    assert abs(np.mean(one ** 4) - 3) < 4 * np.sqrt(96 / n)          # Gaussian kurtosis
+    assert abs(np.corrcoef(one.ravel()[:-1], one.ravel()[1:])[0, 1]) < 4 / np.sqrt(n)
