@@ -16,11 +16,13 @@ A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
 
 Errors are one line naming the file, the field and the allowed values. The configuration hash
 identifies the campaign's *results*: it covers everything that changes them (all tables except
-``[execution]`` and ``output_dir``, and the contents of the camera, trajectory and terrain files),
-so a campaign can be resumed on another cluster but not with another camera.
+``[execution]`` and ``output_dir``, the contents of the camera, trajectory and terrain files, and a
+digest of the code that computes results, :func:`code_digest`), so a campaign can be resumed on
+another cluster but not with another camera or another version of the simulator or estimator.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -131,6 +133,7 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     hashed["campaign"] = {k: v for k, v in hashed.get("campaign", {}).items() if k != "output_dir"}
     hashed["cases_resolved"] = cases
     hashed["input_digests"] = {str(p): file_digest(p) for p in _input_files(site)}
+    hashed["code_digest"] = code_digest()
     config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
     return CampaignConfig(source=path, site=site, seed=seed, output_dir=out, cases_per_class=cases,
                           execution=execution, sensors=sensors, estimator=estimator, scene=effects,
@@ -144,6 +147,25 @@ def _input_files(site) -> list[Path]:
             if value is not None:
                 files.append(Path(value))
     return files
+
+
+RESULT_CODE = ("simulator", "dimes_velocity", "sitedata", "campaign/case.py")
+
+
+@functools.lru_cache(maxsize=4)
+def code_digest(root: Path = Path(__file__).resolve().parents[1], parts: tuple[str, ...] = RESULT_CODE) -> str:
+    """sha256 over the Python sources that compute a case's result (simulator, estimator, site data and
+    terrain generators, the case task), by path relative to ``root`` and contents. Part of the
+    configuration hash: results of different code are never mixed in one store, and a sweep point is
+    reused only when the code that computed it is unchanged."""
+    digest = hashlib.sha256()
+    for part in parts:
+        base = root / part
+        files = sorted(base.rglob("*.py")) if base.is_dir() else [base]
+        for file in files:
+            digest.update(str(file.relative_to(root).as_posix()).encode())
+            digest.update(file_digest(file).encode())
+    return digest.hexdigest()
 
 
 def file_digest(path: Path) -> str:

@@ -78,10 +78,10 @@ def run_cases(context: CampaignContext, store: CampaignStore, plan: pd.DataFrame
 class ProgressBar:
     """A one-line text progress bar with rate and ETA (plain lines when not on a terminal)."""
 
-    def __init__(self, total: int, enabled: bool = True, stream=sys.stderr):
+    def __init__(self, total: int, enabled: bool = True, stream=None):
         self.total = total
         self.enabled = enabled and total > 0
-        self.stream = stream
+        self.stream = sys.stderr if stream is None else stream   # looked up now, not at import
         self.start = time.perf_counter()
         self.last_print = 0.0
         self.tty = hasattr(stream, "isatty") and stream.isatty()

@@ -63,3 +63,17 @@ def test_default_counts_are_the_papers():
     meridiani = load_campaign_config(REPO / "sitedata" / "meridiani.toml")
     assert meridiani.cases_per_class == {"hbsp": 44, "hdcp": 179, "heb": 31}
     assert gusev.config_hash != meridiani.config_hash
+
+
+def test_code_digest_changes_with_the_result_code_only(tmp_path):
+    from campaign.config import code_digest
+
+    (tmp_path / "simulator").mkdir()
+    (tmp_path / "simulator" / "stage.py").write_text("GAIN = 1.0\n")
+    (tmp_path / "README.md").write_text("docs\n")
+    parts = ("simulator",)
+    first = code_digest(tmp_path, parts)
+    (tmp_path / "README.md").write_text("other docs\n")
+    assert code_digest.__wrapped__(tmp_path, parts) == first
+    (tmp_path / "simulator" / "stage.py").write_text("GAIN = 2.0\n")
+    assert code_digest.__wrapped__(tmp_path, parts) != first
