@@ -137,7 +137,7 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     """Paint the heat shield into ``radiance`` (H, W) in place where it hides the ground or sky.
 
     ``edge_samples = s > 1`` antialiases the silhouette: pixels on its edge (centre sample differs
-    from a 4-neighbour) are re-sampled with ``s x s`` sub-pixel rays and read
+    from one of its 8 neighbours) are re-sampled with ``s x s`` sub-pixel rays and read
     ``coverage * shield + (1 - coverage) * background``, the pixel-area mean of a sharp edge.
 
     Returns the (H, W) bool mask of heat-shield pixels (centre samples), or None when its footprint
@@ -175,9 +175,11 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
                 cone_angle_rad: float, sun_world: np.ndarray, lambert_scale: float, samples: int):
     """Pixel-area radiance of the silhouette's edge pixels (see :func:`draw_heat_shield`):
     ``(rows, cols, radiance float32)`` in window coordinates, or None when there is no edge."""
-    padded = np.pad(hit, 1, mode="edge")
-    edge = ((padded[:-2, 1:-1] != hit) | (padded[2:, 1:-1] != hit)
-            | (padded[1:-1, :-2] != hit) | (padded[1:-1, 2:] != hit))
+    padded = np.pad(hit, 1, mode="edge")   # 8-neighbourhood: corner-covered pixels count too
+    edge = np.zeros_like(hit)
+    for d_row in (0, 1, 2):
+        for d_col in (0, 1, 2):
+            edge |= padded[d_row:d_row + hit.shape[0], d_col:d_col + hit.shape[1]] != hit
     rows, cols = np.nonzero(edge)
     if rows.size == 0:
         return None

@@ -148,17 +148,19 @@ def subpixel_camera(camera: Camera, column_offset_px: float, row_offset_px: floa
     return cache[key]
 
 
-def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config) -> PoseField:
+def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config,
+                     _sub_sample: bool = False) -> PoseField:
     """The radiance field (H, W) the camera sees at one instantaneous pose (see module doc).
 
-    With ``config.supersample = s > 1`` each pixel is the mean of ``s x s`` sub-pixel samples on a
-    regular grid (offsets ``(k + 0.5)/s - 0.5`` px); masks are the union over the samples.
+    With ``config.supersample = s > 1`` each pixel is the mean of ``s x s`` sub-pixel point samples on
+    a regular grid (offsets ``(k + 0.5)/s - 0.5`` px; the samples themselves use no area shortcut);
+    masks are the union over the samples.
     """
     samples = int(getattr(config, "supersample", 1))
     if samples > 1:
         single = replace(config, supersample=1)
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
-        parts = [radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single)
+        parts = [radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single, _sub_sample=True)
                  for dr in offsets for dc in offsets]
         radiance = motion_blur.average_fields([part.radiance for part in parts])
         shields = [part.heat_shield for part in parts if part.heat_shield is not None]
@@ -183,7 +185,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                              terrain.metres_per_pixel, ray_step)
     moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky if gmap.any_sky else None,
                                               crop, may_leave_terrain=not inside)
-    if getattr(effects, "pixel_area_filter", False) and samples_once(config):
+    if getattr(effects, "pixel_area_filter", False) and samples_once(config) and not _sub_sample:
         moc_if = pixel_area_average(moc_if)
         if gmap.any_sky:
             moc_if[gmap.sky] = 0.0        # no terrain bleeding across the horizon
@@ -211,7 +213,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                               np.asarray(pose.heat_shield_position_m, dtype=float), sun,
                                               irradiance, config.heat_shield_diameter_m,
                                               config.heat_shield_cone_angle_rad, config.heat_shield_reflectance,
-                                              edge_samples=HEAT_SHIELD_EDGE_SAMPLES if samples_once(config) else 1)
+                                              edge_samples=1 if _sub_sample else HEAT_SHIELD_EDGE_SAMPLES)
     if shield is not None:
         outside &= ~shield
     return PoseField(radiance, gmap.sky, outside, shield, cam, centres)

@@ -181,7 +181,8 @@ def test_presets_order_cost_and_unknown_names_are_refused():
 
 def test_heat_shield_edges_read_their_pixel_area_mean():
     """Antialiased silhouette (3 x 3 edge samples) against the 3 x 3 supersampled render: edge pixels
-    agree to a small fraction of the shield/ground contrast (a hard edge errs by up to the whole of it)."""
+    agree to a small fraction of the shield/ground contrast (a hard edge errs by up to the whole of it;
+    the reference's own samples must be points, not antialiased again)."""
     from dataclasses import replace
 
     terrain = smooth_terrain()
@@ -198,7 +199,7 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
     contrast = np.median(once.radiance[~once.heat_shield]) - np.median(once.radiance[binary_erosion(once.heat_shield)])
     error = np.abs(once.radiance[edge] - fine.radiance[edge])
     assert edge.sum() > 100 and contrast > 0
-    assert np.sqrt(np.mean(error ** 2)) < 0.1 * contrast
+    assert np.sqrt(np.mean(error ** 2)) < 0.01 * contrast     # (5 % if the reference's samples were blurred)
 
 
 def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
