@@ -51,22 +51,39 @@ class Resources:
         from sitedata.trajectory_io import read_profiles
 
         self.config = config
-        self.camera = load_camera(config.site.camera_path)
-        self.profiles: list[DescentProfile] = read_profiles(config.site.trajectory_path)
-        self._terrains: dict = {}
+        self.camera = _shared("camera", config.site.camera_path, load_camera)
+        self.profiles: list[DescentProfile] = _shared("profiles", config.site.trajectory_path, read_profiles)
 
     def terrain(self, class_name: str):
-        if class_name not in self._terrains:
-            from sitedata.sites import load_class_terrain
+        from sitedata.sites import load_class_terrain
 
-            entry = next(entry for entry in self.config.site.classes if entry.name == class_name)
-            self._terrains[class_name] = load_class_terrain(entry.terrain)
-        return self._terrains[class_name]
+        entry = next(entry for entry in self.config.site.classes if entry.name == class_name)
+        return _shared("terrain", entry.terrain, load_class_terrain)
+
+
 
     def placed_profile(self, row: dict) -> DescentProfile:
         profile = self.profiles[int(row["profile_index"])]
         return profile.placed(float(row["heading_rad"]), np.array([row["offset_east_m"], row["offset_north_m"]]),
                               name=f"{profile.name}@case{int(row['case_id'])}")
+
+
+# Inputs shared by every campaign (or sweep point) a process serves, keyed by what they are read from:
+# the sweep's points differ in scene/sensor/estimator parameters, not in camera, trajectories or terrain.
+_SHARED_INPUTS: dict = {}
+
+
+def _shared(kind: str, source, loader):
+    """``loader(source)``, loaded once per process per source (a path, keyed with its size and mtime so a
+    changed file is read again, or a terrain spec)."""
+    key = (kind, repr(source))
+    path = Path(source) if isinstance(source, (str, Path)) else getattr(source, "path", None)
+    if path is not None and Path(path).exists():
+        stat = Path(path).stat()
+        key += (stat.st_size, stat.st_mtime_ns)
+    if key not in _SHARED_INPUTS:
+        _SHARED_INPUTS[key] = loader(source)
+    return _SHARED_INPUTS[key]
 
 
 def keep_freed_memory_for_reuse() -> bool:
@@ -75,8 +92,9 @@ def keep_freed_memory_for_reuse() -> bool:
     dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also freezes glibc's
     mmap threshold at 128 KiB: every 1024 x 1024 array is then a fresh ``mmap`` whose pages the
     kernel zero-fills on first touch, and a case runs 2.5 times slower (measured: 311 vs 125 ms),
-    most of it as system time. Raising both thresholds (trim 256 MiB, mmap 32 MiB, the largest glibc
-    accepts) keeps a worker's few hundred MiB of scratch in its heap. Returns False where there is no
+    most of it as system time. Raising both thresholds (mmap 32 MiB, the largest glibc accepts; trim
+    64 MiB) keeps a case's image buffers (4-12 MiB each) in the heap for reuse while larger scratch
+    (terrain generation) is still returned at once, so a worker stays well under its memory limit. Returns False where there is no
     glibc (the setting is then simply not needed).
     """
     try:
@@ -84,7 +102,7 @@ def keep_freed_memory_for_reuse() -> bool:
     except OSError:
         return False
     m_trim_threshold, m_mmap_threshold = -1, -3
-    return bool(libc.mallopt(m_trim_threshold, 256 << 20)) and bool(libc.mallopt(m_mmap_threshold, 32 << 20))
+    return bool(libc.mallopt(m_trim_threshold, 64 << 20)) and bool(libc.mallopt(m_mmap_threshold, 32 << 20))
 
 
 def load_resources(config) -> Resources:
