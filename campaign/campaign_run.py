@@ -13,7 +13,7 @@ from .case import CampaignContext, load_resources
 from .config import CampaignConfig
 from .planner import ClassPlanInput, plan_class
 from .plots import footprint_map
-from .runner import RunSummary, run_cases, start_client
+from .runner import RunSummary, connected_client, run_cases
 from .store import CampaignStore
 
 PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pyarrow",
@@ -62,14 +62,9 @@ def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | 
     store = CampaignStore(config.output_dir)
     store.prepare(manifest_for(config), plan, fresh=fresh)
     context = CampaignContext.from_config(config, store.root)
-    client, cluster = start_client(scheduler or config.execution.scheduler or None,
-                                   workers or config.execution.workers or None, config.execution.memory_limit)
-    try:
+    with connected_client(scheduler or config.execution.scheduler or None,
+                          workers or config.execution.workers or None, config.execution.memory_limit) as client:
         summary = run_cases(context, store, store.plan(), client, progress=progress)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
     store.compact()
     return summary, write_table(store.root)
 

@@ -9,7 +9,9 @@ from __future__ import annotations
 import os
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Iterator
 
 import pandas as pd
 from dask.distributed import Client, LocalCluster, as_completed
@@ -48,30 +50,49 @@ def start_client(scheduler: str | None, workers: int | None, memory_limit: str =
     return client, cluster
 
 
-def run_cases(context: CampaignContext, store: CampaignStore, plan: pd.DataFrame, client: Client,
-              progress: bool = True) -> RunSummary:
-    """Submit every planned case that has no row in the store yet; wait for all of them."""
-    start = time.perf_counter()
-    finished = store.finished_case_ids()
-    todo = [row for row in plan.to_dict("records") if int(row["case_id"]) not in finished]
-    bar = ProgressBar(len(todo), enabled=progress)
-    if not todo:
-        bar.close()
-        return RunSummary(0, 0, 0, time.perf_counter() - start)
+@contextmanager
+def connected_client(scheduler: str | None, workers: int | None, memory_limit: str = "1.5GiB",
+                     quiet: bool = False) -> Iterator[Client]:
+    """:func:`start_client` for the duration of a ``with`` block; an embedded cluster is stopped after."""
+    client, cluster = start_client(scheduler, workers, memory_limit, quiet)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def submit_cases(client: Client, context: CampaignContext, rows: list[dict]) -> list:
+    """Submit one :func:`~campaign.case.execute_case` task per plan row (context scattered once)."""
     context_future = client.scatter(context, broadcast=True)
-    futures = client.map(execute_case, [context_future] * len(todo), todo,
-                         key=[f"case-{context.config_hash[:12]}-{int(row['case_id']):06d}" for row in todo],
-                         pure=False)
+    return client.map(execute_case, [context_future] * len(rows), rows,
+                      key=[f"case-{context.config_hash[:12]}-{int(row['case_id']):06d}" for row in rows],
+                      pure=False)
+
+
+def wait_for_cases(futures: list, progress: bool = True) -> tuple[int, int]:
+    """Wait for case tasks as they finish, with a progress bar; return (done, failed) counts."""
+    bar = ProgressBar(len(futures), enabled=progress)
     done = failed = 0
     for future in as_completed(futures):
-        status = future.result()
-        if status == "ok":
+        if future.result() == "ok":
             done += 1
         else:
             failed += 1
         bar.update(done + failed, failed)
         future.release()
     bar.close()
+    return done, failed
+
+
+def run_cases(context: CampaignContext, store: CampaignStore, plan: pd.DataFrame, client: Client,
+              progress: bool = True) -> RunSummary:
+    """Submit every planned case that has no row in the store yet; wait for all of them."""
+    start = time.perf_counter()
+    finished = store.finished_case_ids()
+    todo = [row for row in plan.to_dict("records") if int(row["case_id"]) not in finished]
+    done, failed = wait_for_cases(submit_cases(client, context, todo), progress) if todo else (0, 0)
     return RunSummary(len(todo), done, failed, time.perf_counter() - start)
 
 

@@ -16,15 +16,14 @@ Output directory (``[sweep] output_dir`` or ``--output``)::
 
 Baseline check: points are matched to the baseline's by their axis values; for every class and for
 the weighted site totals, % valid may fall by at most ``pct_valid_drop_points`` and the error
-(mean + 3 sigma) may grow by at most ``error_increase_mps``. The configuration hash does not cover
-the code, so a nightly job meant to test new code runs into a fresh output directory and passes the
-previous night's as ``--baseline``.
+(mean + 3 sigma) may grow by at most ``error_increase_mps``. The configuration hash covers the result
+code (:func:`campaign.config.code_digest`), so after a code change every point is computed afresh; a
+nightly job writes into a fresh output directory and passes the previous night's as ``--baseline``.
 """
 from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,8 +33,8 @@ import pyarrow as pa
 
 from .aggregate import site_table
 from .campaign_run import manifest_for, plan_campaign
-from .case import CampaignContext, execute_case
-from .runner import ProgressBar, start_client
+from .case import CampaignContext
+from .runner import connected_client, submit_cases, wait_for_cases
 from .store import CampaignStore, StoreError, _atomic_write_bytes, _atomic_write_table
 from .sweep_config import SweepSpec, Tolerances
 
@@ -79,36 +78,21 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
     done = failed = 0
     if total:
         execution = spec.base.execution
-        client, cluster = start_client(scheduler or execution.scheduler or None, workers or execution.workers or None,
-                                       execution.memory_limit)
-        try:
-            futures = []
-            for point, store, todo in prepared:
-                if not todo:
-                    continue
-                context = client.scatter(CampaignContext.from_config(point.config, store.root), broadcast=True)
-                futures += client.map(execute_case, [context] * len(todo), todo, pure=False,
-                                      key=[f"case-{point.config_hash[:12]}-{int(row['case_id']):06d}" for row in todo])
-            bar = ProgressBar(total, enabled=progress, stream=sys.stderr)
-            from dask.distributed import as_completed
-
-            for future in as_completed(futures):
-                if future.result() == "ok":
-                    done += 1
-                else:
-                    failed += 1
-                bar.update(done + failed, failed)
-                future.release()
-            bar.close()
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        with connected_client(scheduler or execution.scheduler or None, workers or execution.workers or None,
+                              execution.memory_limit) as client:
+            futures = [future for point, store, todo in prepared if todo
+                       for future in submit_cases(client, CampaignContext.from_config(point.config, store.root), todo)]
+            done, failed = wait_for_cases(futures, progress)
     for _, store, todo in prepared:
         if todo or not store.results_path.exists():
             store.compact()
     reused = sum(1 for _, _, todo in prepared if not todo)
     return SweepRun(len(prepared), reused, total, done, failed, time.perf_counter() - start)
+
+
+def point_keys(point) -> dict:
+    """The columns that identify a sweep point in its rows: point_id, the axis values, config_hash."""
+    return {"point_id": point.point_id, **point.values, "config_hash": point.config_hash}
 
 
 def sweep_results(spec: SweepSpec) -> pd.DataFrame:
@@ -118,7 +102,7 @@ def sweep_results(spec: SweepSpec) -> pd.DataFrame:
         rows = CampaignStore(point.config.output_dir).results().reset_index(drop=True)
         if rows.empty:
             continue
-        keys = {"point_id": point.point_id, **point.values, "config_hash": point.config_hash}
+        keys = point_keys(point)
         frames.append(pd.concat([pd.DataFrame({k: [v] * len(rows) for k, v in keys.items()}), rows], axis=1))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
@@ -131,7 +115,7 @@ def sensitivity_table(spec: SweepSpec, results: pd.DataFrame) -> pd.DataFrame:
     for point in spec.points:
         members = results[results["point_id"] == point.point_id] if not results.empty else results
         table = site_table(members, fractions, site_name, class_order=list(fractions))
-        keys = {"point_id": point.point_id, **point.values, "config_hash": point.config_hash}
+        keys = point_keys(point)
         for position, (key, value) in enumerate(keys.items()):
             table.insert(position, key, [value] * len(table))
         frames.append(table)
