@@ -117,6 +117,12 @@ def bin_rows(charge_e: np.ndarray, binning_rows: int) -> np.ndarray:
     return charge_e.reshape(rows // binning_rows, binning_rows, width).sum(axis=1)
 
 
+def block_means(values: np.ndarray, binning_rows: int) -> np.ndarray:
+    """Mean of each ``binning_rows``-row block, (N, W) -> (N / b, W): the per-block form of a rate or
+    field that the smear only sees through block sums."""
+    return bin_rows(values, binning_rows) / np.float32(binning_rows)
+
+
 def max_pixel_charge_bound_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
                              timing: Timing) -> float:
     """An upper bound on any pixel's charge, cheap: used to skip the full-resolution path."""

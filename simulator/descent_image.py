@@ -29,11 +29,11 @@ builds a config from a TOML table (degrees only there), e.g.::
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from . import ground_mapping, heat_shield, motion_blur, photometry, scene
+from . import charge_transfer, ground_mapping, heat_shield, motion_blur, photometry, scene
 from .camera_config import Camera
 from .descent_profile import DescentProfile, Pose, scale_angular_rates
 from .off_nominal import OffNominalArtefacts, OffNominalConfig, off_nominal_config_from_table
@@ -304,7 +304,7 @@ def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[
     end = -(-(row0 + window.shape[0]) // block_rows)
     padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)
     padded[row0 - first * block_rows:row0 - first * block_rows + window.shape[0]] = window
-    return first, padded.reshape(end - first, block_rows, -1).mean(axis=1, dtype=np.float32)
+    return first, charge_transfer.block_means(padded, block_rows)
 
 
 def scene_config_from_table(table: Table) -> SceneConfig:

@@ -154,12 +154,12 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     if surface is None:
         return None
     hit, facing = surface
-    cos_sun = np.maximum(facing @ sun_world, 0.0)
-    value = (reflectance * irradiance_w_m2_um / np.pi) * cos_sun
+    lambert_scale = reflectance * irradiance_w_m2_um / np.pi
+    value = lambert_radiance(facing, sun_world, lambert_scale)
     window = radiance[row0:row1, col0:col1]
     edge_blend = (_edge_blend(camera, pose, hit, window, ground_map.sky[row0:row1, col0:col1], row0, col0,
                               centre_m, diameter_m, cone_angle_rad, sun_world,
-                              reflectance * irradiance_w_m2_um / np.pi, edge_samples)
+                              lambert_scale, edge_samples)
                   if edge_samples > 1 else None)
     window[hit] = value[hit].astype(np.float32)
     if edge_blend is not None:
@@ -168,6 +168,11 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     mask = np.zeros((height, width), dtype=bool)
     mask[row0:row1, col0:col1] = hit
     return mask
+
+
+def lambert_radiance(normal: np.ndarray, sun_world: np.ndarray, scale_w_m2_sr_um: float) -> np.ndarray:
+    """Radiance of the Lambertian Kapton surface: ``scale * max(n . s, 0)`` with ``scale = rho E / pi``."""
+    return scale_w_m2_sr_um * np.maximum(normal @ sun_world, 0.0)
 
 
 def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray, background: np.ndarray,
@@ -194,7 +199,7 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
         shield = np.zeros_like(sub_hit, dtype=float)
     else:
         sub_hit = surface[0][:, 0].reshape(rows.size, -1)
-        shield = (lambert_scale * np.maximum(surface[1][:, 0] @ sun_world, 0.0)).reshape(rows.size, -1)
+        shield = lambert_radiance(surface[1][:, 0], sun_world, lambert_scale).reshape(rows.size, -1)
     coverage = sub_hit.mean(axis=1)
     shield_mean = np.where(sub_hit, shield, 0.0).sum(axis=1) / np.maximum(sub_hit.sum(axis=1), 1)
     blended = coverage * shield_mean + (1.0 - coverage) * background[rows, cols]

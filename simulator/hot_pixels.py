@@ -63,3 +63,11 @@ def add_to_rate(rate_e_per_s: np.ndarray, hot: HotPixels) -> np.ndarray:
         return rate_e_per_s
     flat[hot.flat_index] += hot.rate_e_per_s     # indices are unique
     return rate_e_per_s
+
+
+def add_to_block_rate(block_rate_e_per_s: np.ndarray, hot: HotPixels, binning_rows: int) -> np.ndarray:
+    """Add the hot pixels' dark rate to a rate given per ``binning_rows``-row block (the block's mean,
+    (H / b, W)) in place: each hot pixel adds ``rate / b`` to its block; returns it."""
+    rows, cols = np.divmod(hot.flat_index, block_rate_e_per_s.shape[1])
+    np.add.at(block_rate_e_per_s, (rows // binning_rows, cols), hot.rate_e_per_s / np.float32(binning_rows))
+    return block_rate_e_per_s

@@ -56,22 +56,23 @@ def noisy_charge_e(rng: np.random.Generator, mean_e: np.ndarray, read_noise_sigm
     """
     mean = np.maximum(mean_e, 0.0)
     read_sigma = read_noise_sigma_e if read_noise and read_noise_sigma_e > 0 else 0.0
-    if not shot_noise:
-        noisy = mean.astype(np.float64)
-        return noisy + read_noise_e(rng, noisy.shape, read_sigma) if read_sigma else noisy
-    if exact_poisson:
-        noisy = shot_noise_e(rng, mean)
-        return noisy + read_noise_e(rng, noisy.shape, read_sigma) if read_sigma else noisy
-    mean32 = mean.astype(np.float32)
+    if shot_noise and not exact_poisson:
+        return _gaussian_shot_and_read_noise_e(rng, mean, read_sigma)
+    noisy = shot_noise_e(rng, mean) if shot_noise else mean.astype(np.float64)
+    return noisy + read_noise_e(rng, noisy.shape, read_sigma) if read_sigma else noisy
+
+
+def _gaussian_shot_and_read_noise_e(rng: np.random.Generator, mean_e: np.ndarray, read_sigma_e: float) -> np.ndarray:
+    """One normal draw of variance ``mean + sigma_read^2`` where the mean is at least
+    :data:`GAUSSIAN_MIN_MEAN_E`; exact Poisson plus read noise for the dimmer pixels (drawn after the
+    bulk, so the stream is fixed)."""
+    mean32 = mean_e.astype(np.float32)
     low = mean32 < np.float32(GAUSSIAN_MIN_MEAN_E)
-    sigma = np.sqrt(mean32 + np.float32(read_sigma ** 2))
+    sigma = np.sqrt(mean32 + np.float32(read_sigma_e ** 2))
     noisy = (mean32 + sigma * standard_normal_f32(rng, mean32.shape)).astype(np.float64)
-    if low.any():  # dim pixels: exact Poisson plus read noise (drawn after the bulk, so the stream is fixed)
-        dim_mean = mean32[low].astype(np.float64)
-        dim = rng.poisson(dim_mean).astype(np.float64)
-        if read_sigma:
-            dim += read_sigma * rng.standard_normal(dim.shape)
-        noisy[low] = dim
+    if low.any():
+        dim = shot_noise_e(rng, mean32[low].astype(np.float64))
+        noisy[low] = dim + read_noise_e(rng, dim.shape, read_sigma_e) if read_sigma_e else dim
     return noisy
 
 

@@ -93,7 +93,7 @@ def pixel_gain(camera: Camera, falloff: bool = True, prnu: bool = True, per_bloc
     if key not in cache:
         if per_block:
             full = pixel_gain(camera, falloff, prnu)
-            cache[key] = charge_transfer.bin_rows(full, camera.binning_rows) / np.float32(camera.binning_rows)
+            cache[key] = charge_transfer.block_means(full, camera.binning_rows)
         else:
             gain = optics.photoelectron_rate(np.ones((camera.height_px, camera.width_px), dtype=np.float32),
                                              camera, falloff=falloff)
@@ -152,7 +152,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         if dust is None:
             return pixel_gain(camera, effects.falloff, effects.prnu, per_block=True)
         if "block_gain" not in rates:
-            rates["block_gain"] = charge_transfer.bin_rows(gain, camera.binning_rows) / np.float32(camera.binning_rows)
+            rates["block_gain"] = charge_transfer.block_means(gain, camera.binning_rows)
         return rates["block_gain"]
 
     def generation_rate(field: np.ndarray) -> np.ndarray:
@@ -164,8 +164,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
             if dark_rate:
                 rate += np.float32(dark_rate)
             if hot is not None and block:
-                extra = hot_pixels.add_to_rate(np.zeros(expected_shape, dtype=np.float32), hot)
-                rate += charge_transfer.bin_rows(extra, camera.binning_rows) / np.float32(camera.binning_rows)
+                hot_pixels.add_to_block_rate(rate, hot, camera.binning_rows)
             elif hot is not None:
                 hot_pixels.add_to_rate(rate, hot)
             with np.errstate(over="ignore"):

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from . import ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
+from . import charge_transfer, ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
 from .camera_config import Camera
 from .descent_profile import DescentProfile, Pose
 from .kinematics import quat_to_matrix
@@ -113,12 +113,7 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
     return photometry.photometric_ratio(view, sun, moc_value)
 
 
-HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not when supersampling)
-
-
-def samples_once(config) -> bool:
-    """True when each pixel is sampled once (no supersampling): area shortcuts then apply."""
-    return int(getattr(config, "supersample", 1)) == 1
+HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not in supersampling's samples)
 
 
 PIXEL_AREA_KERNEL = np.array([1.0 / 24.0, 11.0 / 12.0, 1.0 / 24.0], dtype=np.float32)
@@ -156,7 +151,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     a regular grid (offsets ``(k + 0.5)/s - 0.5`` px; the samples themselves use no area shortcut);
     masks are the union over the samples.
     """
-    samples = int(getattr(config, "supersample", 1))
+    samples = config.supersample
     if samples > 1:
         single = replace(config, supersample=1)
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
@@ -185,7 +180,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                              terrain.metres_per_pixel, ray_step)
     moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky if gmap.any_sky else None,
                                               crop, may_leave_terrain=not inside)
-    if getattr(effects, "pixel_area_filter", False) and samples_once(config) and not _sub_sample:
+    if effects.pixel_area_filter and not _sub_sample:   # (a supersampled render averages point samples)
         moc_if = pixel_area_average(moc_if)
         if gmap.any_sky:
             moc_if[gmap.sky] = 0.0        # no terrain bleeding across the horizon
@@ -333,13 +328,10 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
             pose_fields = [centre]
         elif period != "exposure" and effects.warp_smear_fields:
             if centre_blocks is None:
-                centre_blocks = block_means(centre.radiance, camera.binning_rows)
-            smear = [_smear_field(terrain, camera, pose_at(float(time)), sun_world, config, centre, centre_blocks)
-                     for time in motion_blur.substep_times(start, end, count)]
-            if len({item.shape for item in smear}) > 1:   # some warped, some rendered: average as blocks
-                smear = [item if item.shape[0] != camera.height_px else block_means(item, camera.binning_rows)
-                         for item in smear]
-            averaged[period] = motion_blur.average_fields(smear)
+                centre_blocks = charge_transfer.block_means(centre.radiance, camera.binning_rows)
+            averaged[period] = motion_blur.average_fields(
+                [_smear_field(terrain, camera, pose_at(float(time)), sun_world, config, centre, centre_blocks)
+                 for time in motion_blur.substep_times(start, end, count)])
             continue
         else:
             pose_fields = [radiance_at_pose(terrain, camera, pose_at(float(time)), sun_world, config)
@@ -353,21 +345,16 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
     return PeriodScene(fields, sky, outside, shield, counts, False, centre)
 
 
-def block_means(field: np.ndarray, block_rows: int) -> np.ndarray:
-    """Mean of each ``block_rows``-row block of a field (H, W) -> (H / b, W), float32."""
-    height, width = field.shape
-    return field.reshape(height // block_rows, block_rows, width).mean(axis=1, dtype=np.float32)
-
-
 def _smear_field(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config, centre: PoseField,
                  centre_blocks: np.ndarray) -> np.ndarray:
-    """The radiance field at ``pose`` for smear: per binning block (block means, (H / b, W)), warped
+    """The radiance field at ``pose`` for smear, per binning block (block means, (H / b, W)): warped
     from the exposure-centre field's block means when the flow allows (:func:`flow_map`), else the
-    full field rendered exactly."""
+    block means of the field rendered exactly."""
     block_rows = camera.binning_rows
     flow = None
     if not centre.sky.any() and WARP_GRID_STEP_PX % block_rows == 0:
         flow = flow_map(camera, centre.camera_pose, ground_mapping.camera_pose(camera, pose), block_rows=block_rows)
     if flow is None:
-        return radiance_at_pose(terrain, camera, pose, sun_world, config).radiance
+        return charge_transfer.block_means(radiance_at_pose(terrain, camera, pose, sun_world, config).radiance,
+                                           block_rows)
     return warped_field(centre_blocks, flow)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator import ground_mapping, scene
+from simulator import charge_transfer, ground_mapping, scene
 from simulator.camera_config import load_camera
 from simulator.descent_image import SceneConfig, render_descent_image
 from simulator.descent_profile import DescentProfile, constant_velocity_profile
@@ -106,10 +106,10 @@ def test_warped_smear_fields_match_rendered_ones_in_column_sums():
     exact = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, exact_config)
     warped = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, warped_config)
     assert warped.fields.exposure is not warped.fields.flush
-    exposure_blocks = scene.block_means(warped.fields.exposure, CAMERA.binning_rows)
+    exposure_blocks = charge_transfer.block_means(warped.fields.exposure, CAMERA.binning_rows)
     for period in ("flush", "transfer"):
         # the warped smear fields are block means (256, 1024): compare with the exact field's
-        reference = scene.block_means(getattr(exact.fields, period), CAMERA.binning_rows)
+        reference = charge_transfer.block_means(getattr(exact.fields, period), CAMERA.binning_rows)
         fast = getattr(warped.fields, period)
         assert fast.shape == (CAMERA.height_px // CAMERA.binning_rows, CAMERA.width_px)
         interior = (slice(2, -2), slice(8, -8))
