@@ -31,28 +31,21 @@ def _cases():
     return config, resources, chosen.to_dict("records")
 
 
-def _render_case(config, resources, row, scene_config):
-    """Three images (noisy with the case's seeds) and the estimate; returns per-image results and timings."""
+def _render_case(resources, row, scene_config):
+    """The case's three images (the campaign's seeds, with ``scene_config``) and its estimate:
+    (images, velocity or None, render + sensors seconds, estimator seconds)."""
+    from campaign.case import simulate_case_inputs
     from dimes_velocity.estimator import estimate_velocity
-    from simulator.descent_image import render_descent_image
-    from sitedata.sensors import measure
 
-    seeds = np.random.SeedSequence([config.seed, int(row["case_id"])]).spawn(4)
-    profile = resources.placed_profile(row)
-    terrain = resources.terrain(str(row["class_name"]))
-    sun = np.asarray(config.site.sun_direction_world, dtype=float)
-    images = []
     started = time.perf_counter()
-    for index in range(3):
-        images.append(render_descent_image(terrain, profile, resources.camera, index, sun, scene_config,
-                                           np.random.default_rng(seeds[index])))
+    inputs = simulate_case_inputs(resources, row, scene_config)
     render_s = time.perf_counter() - started
-    measurements, _ = measure(profile, resources.camera, sun, config.sensors, np.random.default_rng(seeds[3]))
     started = time.perf_counter()
-    estimate = estimate_velocity([image.dn for image in images], measurements, resources.camera, config.estimator)
+    estimate = estimate_velocity([image.dn for image in inputs.images], inputs.measurements, resources.camera,
+                                 resources.config.estimator)
     estimator_s = time.perf_counter() - started
     velocity = np.array([estimate.velocity_east_mps, estimate.velocity_north_mps]) if estimate.valid else None
-    return images, velocity, render_s, estimator_s
+    return inputs.images, velocity, render_s, estimator_s
 
 
 def run() -> list[dict]:
@@ -63,13 +56,13 @@ def run() -> list[dict]:
     results = {}
     for preset in ("reference",) + tuple(p for p in PRESETS if p != "reference"):
         scene_config = preset_config(preset, config.scene)
-        _render_case(config, resources, rows[0], scene_config)       # warm caches (rays of the preset)
+        _render_case(resources, rows[0], scene_config)       # warm caches (rays of the preset)
         per_case = []
         for row in rows:
             repeats = 1 if preset == "reference" else TIMING_REPEATS
             best = None
             for _ in range(repeats):      # min over repeats: these machines are noisy
-                outcome = _render_case(config, resources, row, scene_config)
+                outcome = _render_case(resources, row, scene_config)
                 if best is None or outcome[2] + outcome[3] < best[2] + best[3]:
                     best = outcome
             per_case.append(best)

@@ -106,12 +106,13 @@ def keep_freed_memory_for_reuse() -> bool:
 
 
 def load_resources(config) -> Resources:
-    """The per-process resources of a campaign (created on first use)."""
-    if config.config_hash not in _WORKER_RESOURCES:
+    """The per-process resources of a campaign (created on first use; the process is tuned once)."""
+    if not _WORKER_RESOURCES:
         keep_freed_memory_for_reuse()
         import cv2
 
         cv2.setNumThreads(1)   # one worker process per core: OpenCV's own threads would only contend
+    if config.config_hash not in _WORKER_RESOURCES:
         _WORKER_RESOURCES[config.config_hash] = Resources(config)
     return _WORKER_RESOURCES[config.config_hash]
 
@@ -154,13 +155,25 @@ def failed_fields() -> dict:
     return {"valid": False, "reason": "case_failed"}
 
 
-def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
-    """Simulate the three images and measurements of one case, run the estimator, return row fields."""
-    from dimes_velocity.estimator import estimate_velocity
+@dataclass(frozen=True)
+class CaseInputs:
+    """What the estimator gets for one case, and the truth behind it."""
+
+    profile: DescentProfile
+    images: list                 # simulator.descent_image.DescentImage, one per image time
+    measurements: object         # dimes_velocity.measurements.DescentMeasurements
+    sensor_truth: dict
+    sensors_ms: float
+
+
+def simulate_case_inputs(resources: Resources, row: dict, scene_config=None) -> CaseInputs:
+    """Render the three images of one case and draw its sensor measurements (the case's seeds; the
+    campaign's scene configuration unless ``scene_config`` is given, e.g. another fidelity preset)."""
     from simulator.descent_image import render_descent_image
     from sitedata.sensors import measure
 
     config = resources.config
+    scene_config = config.scene if scene_config is None else scene_config
     camera = resources.camera
     case_id = int(row["case_id"])
     # children 0..IMAGE_COUNT-1: images, IMAGE_COUNT: sensors, IMAGE_COUNT+1: off-nominal artefacts
@@ -170,7 +183,7 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
     terrain = resources.terrain(str(row["class_name"]))
     sun = np.asarray(config.site.sun_direction_world, dtype=float)
     artefacts = [None] * IMAGE_COUNT
-    off_nominal = config.scene.off_nominal
+    off_nominal = scene_config.off_nominal
     if off_nominal.needs_case_artefacts:
         from simulator.off_nominal import draw_case_artefacts, with_particle_hits
 
@@ -179,24 +192,31 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
         fixed = draw_case_artefacts(camera, off_nominal, np.random.default_rng(artefact_seeds[0]))
         artefacts = [with_particle_hits(fixed, camera, off_nominal, np.random.default_rng(artefact_seeds[1 + k]))
                      for k in range(IMAGE_COUNT)]
-
-    images, scene_ms, camera_ms, heat_shield_visible, outside = [], 0.0, 0.0, [], []
-    for index in range(IMAGE_COUNT):
-        rendered = render_descent_image(terrain, profile, camera, index, sun, config.scene,
-                                        np.random.default_rng(image_seeds[index]), artefacts[index])
-        images.append(rendered.dn)
-        scene_ms += rendered.diagnostics.scene_ms
-        camera_ms += rendered.diagnostics.camera_ms
-        heat_shield_visible.append(bool(rendered.diagnostics.heat_shield_visible))
-        outside.append(float(rendered.outside_terrain_mask.mean()))
-
+    images = [render_descent_image(terrain, profile, camera, index, sun, scene_config,
+                                   np.random.default_rng(image_seeds[index]), artefacts[index])
+              for index in range(IMAGE_COUNT)]
     started = time.perf_counter()
     measurements, sensor_truth = measure(profile, camera, sun, config.sensors,
                                          np.random.default_rng(image_seeds[IMAGE_COUNT]))
-    sensors_ms = 1e3 * (time.perf_counter() - started)
+    return CaseInputs(profile, images, measurements, sensor_truth, 1e3 * (time.perf_counter() - started))
+
+
+def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
+    """Simulate the three images and measurements of one case, run the estimator, return row fields."""
+    from dimes_velocity.estimator import estimate_velocity
+
+    config = resources.config
+    camera = resources.camera
+    inputs = simulate_case_inputs(resources, row)
+    profile = inputs.profile
+    images = [rendered.dn for rendered in inputs.images]
+    scene_ms = sum(rendered.diagnostics.scene_ms for rendered in inputs.images)
+    camera_ms = sum(rendered.diagnostics.camera_ms for rendered in inputs.images)
+    heat_shield_visible = [bool(rendered.diagnostics.heat_shield_visible) for rendered in inputs.images]
+    outside = [float(rendered.outside_terrain_mask.mean()) for rendered in inputs.images]
 
     started = time.perf_counter()
-    estimate = estimate_velocity(images, measurements, camera, config.estimator)
+    estimate = estimate_velocity(images, inputs.measurements, camera, config.estimator)
     estimator_ms = 1e3 * (time.perf_counter() - started)
 
     last_time = float(profile.image_times_s[-1])
@@ -220,8 +240,9 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
         "feature_brightness": [float(f.brightness_dn) for f in features],
         "feature_contrast": [float(f.contrast_dn) for f in features],
         "feature_correlation": [float(f.correlation) for f in features],
-        **{f"sensor_{key}": value for key, value in sensor_truth.items()},
-        "t_scene_ms": scene_ms, "t_camera_ms": camera_ms, "t_sensors_ms": sensors_ms, "t_estimator_ms": estimator_ms,
+        **{f"sensor_{key}": value for key, value in inputs.sensor_truth.items()},
+        "t_scene_ms": scene_ms, "t_camera_ms": camera_ms, "t_sensors_ms": inputs.sensors_ms,
+        "t_estimator_ms": estimator_ms,
     }
 
 
