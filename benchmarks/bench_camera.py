@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.timing import median_ms
-from simulator.camera_config import load_camera
-from simulator.render import RadianceFields, render_image
+from flight_interface.camera import load_camera
+from simulator.detector.camera_chain import RadianceFields, render_image
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
 

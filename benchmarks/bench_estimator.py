@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from dimes_velocity import DimesEstimator
-from simulator.camera_config import load_camera
+from flight_interface.camera import load_camera
 from simulator.descent_image import render_descent_image
-from simulator.descent_profile import constant_velocity_profile
-from simulator.kinematics import quat_from_axis_angle
-from simulator.terrain import Terrain
-from sitedata.sensors import SensorConfig, measure
+from simulator.scene.descent_profile import constant_velocity_profile
+from flight_interface.frames import quat_from_axis_angle
+from simulator.scene.terrain import Terrain
+from simulator.sensors import SensorConfig, measure
 from sitedata.synthetic_terrain import synthetic_terrain
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.timing import median_ms
-from simulator import scene
-from simulator.camera_config import load_camera
+from simulator.scene import radiance
+from flight_interface.camera import load_camera
 from simulator.descent_image import REFERENCE_EFFECTS, SceneConfig, render_descent_image
-from simulator.descent_profile import DescentProfile, constant_velocity_profile
-from simulator.example import crater_field, example_profile
-from simulator.kinematics import quat_from_axis_angle
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
+from simulator.__main__ import crater_field, example_profile
+from flight_interface.frames import quat_from_axis_angle
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
@@ -41,15 +41,15 @@ def run() -> list[dict]:
     reference = default.with_effects(**REFERENCE_EFFECTS)
     rows = []
 
-    field_ms = median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, default), 15)
-    exact = scene.radiance_at_pose(terrain, camera, pose, sun, reference).radiance
-    fast = scene.radiance_at_pose(terrain, camera, pose, sun, default).radiance
+    field_ms = median_ms(lambda: radiance.radiance_at_pose(terrain, camera, pose, sun, default), 15)
+    exact = radiance.radiance_at_pose(terrain, camera, pose, sun, reference).radiance
+    fast = radiance.radiance_at_pose(terrain, camera, pose, sun, default).radiance
     relative = np.abs(fast - exact) / np.maximum(exact, 1e-6)
     rows.append({"name": "scene/radiance_field_nadir_2000m_default", "ms": field_ms,
                  "max_rel_error_vs_reference": float(relative.max()),
                  "p99_rel_error_vs_reference": float(np.percentile(relative, 99))})
     rows.append({"name": "scene/radiance_field_nadir_2000m_reference",
-                 "ms": median_ms(lambda: scene.radiance_at_pose(terrain, camera, pose, sun, reference), 3)})
+                 "ms": median_ms(lambda: radiance.radiance_at_pose(terrain, camera, pose, sun, reference), 3)})
 
     def image(profile, index, config=default):
         return render_descent_image(terrain, profile, camera, index, sun, config, np.random.default_rng(7))

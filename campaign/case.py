@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.descent_profile import DescentProfile
+from simulator.scene.descent_profile import DescentProfile
 
 from .store import write_case_row
 
@@ -47,7 +47,7 @@ class Resources:
     """Camera, trajectory set and (lazily) terrain strips of one campaign, loaded once per process."""
 
     def __init__(self, config):
-        from simulator.camera_config import load_camera
+        from flight_interface.camera import load_camera
         from sitedata.trajectory_io import read_profiles
 
         self.config = config
@@ -161,7 +161,7 @@ class CaseInputs:
 
     profile: DescentProfile
     images: list                 # simulator.descent_image.DescentImage, one per image time
-    measurements: object         # dimes_velocity.measurements.DescentMeasurements
+    measurements: object         # flight_interface.measurements.DescentMeasurements
     sensor_truth: dict
     sensors_ms: float
 
@@ -170,7 +170,7 @@ def simulate_case_inputs(resources: Resources, row: dict, scene_config=None) -> 
     """Render the three images of one case and draw its sensor measurements (the case's seeds; the
     campaign's scene configuration unless ``scene_config`` is given, e.g. another fidelity preset)."""
     from simulator.descent_image import render_descent_image
-    from sitedata.sensors import measure
+    from simulator.sensors import measure
 
     config = resources.config
     scene_config = config.scene if scene_config is None else scene_config

@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from simulator.tomlfields import ConfigError
+from flight_interface.tomlfields import ConfigError
 
 USAGE_ERROR = 2
 
@@ -29,7 +29,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _cmd_camera(args) -> int:
-    from simulator.camera_config import load_camera
+    from flight_interface.camera import load_camera
 
     camera = load_camera(args.file)
     horizontal, vertical = camera.fov_deg()

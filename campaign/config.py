@@ -9,7 +9,7 @@ A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
                  applied to every class, e.g. 0.1 for a quick look; at least 1 case per class with a count)
 ``[execution]``  ``scheduler`` ("" = embedded LocalCluster, or "tcp://host:port"), ``workers`` (0 = one
                  per core), ``retries`` (attempts after the first for a case that raises), ``memory_limit``
-``[sensors]``    sensor noise (:mod:`sitedata.sensors`)
+``[sensors]``    sensor noise (:mod:`simulator.sensors`)
 ``[estimator]``  estimator parameters (:mod:`dimes_velocity.config`)
 ``[scene]``      scene parameters, ``[scene.effects]`` and ``[scene.camera_effects]`` switches
                  (:mod:`simulator.descent_image`); ``sun_distance_au`` defaults to the site's
@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from simulator.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 TOP_LEVEL_TABLES = ("site", "campaign", "execution", "sensors", "estimator", "scene")
 
@@ -53,7 +53,7 @@ class CampaignConfig:
     output_dir: Path
     cases_per_class: dict
     execution: ExecutionConfig
-    sensors: Any                  # sitedata.sensors.SensorConfig
+    sensors: Any                  # simulator.sensors.SensorConfig
     estimator: Any                # dimes_velocity.config.EstimatorConfig
     scene: Any                    # simulator.descent_image.SceneConfig
     config_hash: str
@@ -78,7 +78,7 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     """
     from dimes_velocity.config import config_from_table as estimator_from_table
     from simulator.descent_image import scene_config_from_table
-    from sitedata.sensors import sensor_config_from_table
+    from simulator.sensors import sensor_config_from_table
     from sitedata.sites import load_site
 
     path = Path(path)
@@ -149,7 +149,7 @@ def _input_files(site) -> list[Path]:
     return files
 
 
-RESULT_CODE = ("simulator", "dimes_velocity", "sitedata", "campaign/case.py")
+RESULT_CODE = ("flight_interface", "simulator", "dimes_velocity", "sitedata", "campaign/case.py")
 
 
 @functools.lru_cache(maxsize=4)

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from simulator.camera_config import Camera
-from simulator.descent_profile import DescentProfile
-from simulator.ground_mapping import border_pixels, camera_pose, ground_points
+from flight_interface.camera import Camera
+from simulator.scene.descent_profile import DescentProfile
+from simulator.scene.ground_mapping import border_pixels, camera_pose, ground_points
 
 PLAN_STREAM = 0x504C414E  # "PLAN": the planner's SeedSequence key, apart from the cases' streams
 HEADING_SEARCH_STEP_RAD = math.radians(10.0)

@@ -10,9 +10,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from simulator.camera_config import Camera  # noqa: E402
-from simulator.descent_profile import DescentProfile  # noqa: E402
-from simulator.terrain import Terrain  # noqa: E402
+from flight_interface.camera import Camera  # noqa: E402
+from simulator.scene.descent_profile import DescentProfile  # noqa: E402
+from simulator.scene.terrain import Terrain  # noqa: E402
 
 from .planner import footprint_outlines  # noqa: E402
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from simulator.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 from .config import CampaignConfig, campaign_config_from_data, load_campaign_config
 

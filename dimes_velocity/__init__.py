@@ -10,7 +10,7 @@ diagnostics out. See :mod:`dimes_velocity.estimator` for the steps and
 """
 from .config import EstimatorConfig, config_from_table
 from .estimator import DimesEstimator, estimate_velocity
-from .measurements import DescentMeasurements, ImageMeasurement, MeasurementError
+from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError
 from .result import REASONS, FeatureMetrics, PairResult, StageTimings, VelocityEstimate
 
 __all__ = [

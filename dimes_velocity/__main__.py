@@ -18,13 +18,13 @@ import argparse
 import json
 import sys
 
-from simulator.camera_config import load_camera
-from simulator.tomlfields import ConfigError, Table, load_toml
+from flight_interface.camera import load_camera
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 from .config import EstimatorConfig, config_from_table
 from .estimator import DimesEstimator
 from .files import InputFileError, load_image, load_measurements
-from .measurements import MeasurementError
+from flight_interface.measurements import MeasurementError
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from simulator.tomlfields import ConfigError, Table
+from flight_interface.tomlfields import ConfigError, Table
 
 
 @dataclass(frozen=True)
@@ -203,7 +203,7 @@ def config_from_table(table: Table) -> EstimatorConfig:
 
     Every field of the dataclass may be given under its own name; missing fields keep their
     defaults; unknown keys, wrong types and out-of-range values raise a one-line
-    :class:`~simulator.tomlfields.ConfigError` naming the file and field.
+    :class:`~flight_interface.tomlfields.ConfigError` naming the file and field.
     """
     defaults = EstimatorConfig()
     known = {field.name: field for field in fields(EstimatorConfig)}

@@ -26,13 +26,13 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from simulator.camera_config import Camera
+from flight_interface.camera import Camera
 
 from . import geometry
 from .config import EstimatorConfig
 from .features import interest_map, select_features
 from .matching import match_template
-from .measurements import DescentMeasurements, MeasurementError, validate_measurements
+from flight_interface.measurements import DescentMeasurements, MeasurementError, validate_measurements
 from .preprocess import FlatImage, flatten, make_flattening
 from .result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
 from .solution import combine_pairs, consensus, weighted_displacement
@@ -106,7 +106,7 @@ class DimesEstimator:
 
     Parameters
     ----------
-    camera : simulator.camera_config.Camera
+    camera : flight_interface.camera.Camera
     config : EstimatorConfig
     """
 

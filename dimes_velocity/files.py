@@ -20,7 +20,7 @@ Measurements JSON schema
       ]
     }
 
-Frames: world x east, y north, z up; attitude as in :mod:`simulator.kinematics`. Unknown keys are
+Frames: world x east, y north, z up; attitude as in :mod:`flight_interface.frames`. Unknown keys are
 errors (a misspelt optional field must not be silently ignored).
 
 Images
@@ -36,7 +36,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .measurements import DescentMeasurements, ImageMeasurement, MeasurementError, validate_measurements
+from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError, validate_measurements
 
 _REQUIRED = ("time_s", "attitude_quat", "radar_altitude_m", "imu_velocity_mps")
 _OPTIONAL = ("angular_rate_radps", "heat_shield_offset_m", "imu_position_m")

@@ -1,7 +1,7 @@
 """Geometry: camera poses from the measurements, and rectification of binned images to a level
 ground plane at a common ground sampling.
 
-Frames follow :mod:`simulator.kinematics` (world x east, y north, z up, ground z = 0). The lander's
+Frames follow :mod:`flight_interface.frames` (world x east, y north, z up, ground z = 0). The lander's
 horizontal position at image k is the IMU prediction ``P_k`` relative to image 0 (``P_0 = 0``): the
 IMU-propagated positions when given, else the trapezoidal integration of the measured, biased IMU
 velocity; its height is the radar altitude. The
@@ -27,20 +27,11 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from simulator import cahvor
-from simulator.camera_config import Camera
+from flight_interface import cahvor
+from flight_interface.frames import quat_to_matrix
+from flight_interface.camera import Camera
 
-from .measurements import DescentMeasurements
-
-
-def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3, 3) of a ``(w, x, y, z)`` quaternion (normalised here), active convention."""
-    w, x, y, z = np.asarray(quaternion, dtype=float) / np.linalg.norm(quaternion)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+from flight_interface.measurements import DescentMeasurements
 
 
 def predicted_positions_m(measurements: DescentMeasurements) -> np.ndarray:
@@ -80,7 +71,7 @@ class CameraPose:
 def camera_pose(camera: Camera, attitude_quat: np.ndarray, altitude_m: float,
                 horizontal_position_m: np.ndarray) -> CameraPose:
     """World-frame camera model for a lander at ``horizontal_position_m`` and ``altitude_m``."""
-    body_to_world = quaternion_matrix(attitude_quat)
+    body_to_world = quat_to_matrix(attitude_quat)
     camera_to_world = body_to_world @ camera.camera_to_lander_matrix
     lander = np.array([horizontal_position_m[0], horizontal_position_m[1], altitude_m], dtype=float)
     origin = lander + body_to_world @ camera.camera_position_in_lander_m

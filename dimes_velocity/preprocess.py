@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from simulator.camera_config import Camera
+from flight_interface.camera import Camera
 
 from .config import EstimatorConfig
 

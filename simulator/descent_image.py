@@ -9,7 +9,7 @@ Usage::
     result.diagnostics.anti_sun_pixel
 
 Every scene effect is a switch in :class:`SceneEffects`; camera effects are the
-:class:`simulator.render.CameraEffects` inside :class:`SceneConfig`. :func:`scene_config_from_table`
+:class:`simulator.detector.camera_chain.CameraEffects` inside :class:`SceneConfig`. :func:`scene_config_from_table`
 builds a config from a TOML table (degrees only there), e.g.::
 
     [scene]
@@ -33,13 +33,14 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from . import charge_transfer, ground_mapping, heat_shield, motion_blur, photometry, scene
-from .camera_config import Camera
-from .descent_profile import DescentProfile, Pose, scale_angular_rates
+from simulator.detector import charge_transfer
+from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, radiance
+from flight_interface.camera import Camera
+from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
 from .off_nominal import OffNominalArtefacts, OffNominalConfig, off_nominal_config_from_table
-from .render import CameraEffects, RadianceFields, RenderedImage, render_image
-from .terrain import Terrain
-from .tomlfields import Table
+from simulator.detector.camera_chain import CameraEffects, RadianceFields, RenderedImage, render_image
+from simulator.scene.terrain import Terrain
+from flight_interface.tomlfields import Table
 
 
 @dataclass(frozen=True)
@@ -53,8 +54,8 @@ class SceneEffects:
     (ratio on the node grid), ``share_still_fields`` (one field for all three periods when the image
     moves by less than ``still_shift_terrain_px``), ``warp_smear_fields`` (fast-flush and frame-transfer
     fields warped from the exposure-centre field along the ground-plane flow instead of re-rendered,
-    see :func:`simulator.scene.warped_field`), ``pixel_area_filter`` (the pixel-area integral of the
-    terrain approximated from point samples, see :func:`simulator.scene.pixel_area_average`; the reference
+    see :func:`simulator.scene.radiance.warped_field`), ``pixel_area_filter`` (the pixel-area integral of the
+    terrain approximated from point samples, see :func:`simulator.scene.radiance.pixel_area_average`; the reference
     supersamples instead).
     """
 
@@ -219,14 +220,14 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     if rng is None:
         camera_effects = replace(camera_effects, shot_noise=False, read_noise=False)
         rng = np.random.default_rng(0)   # unused: every random draw is switched off
-    sun = scene.sun_unit_vector(sun_world)
+    sun = radiance.sun_unit_vector(sun_world)
     start_s = image_start_time(profile, image)
     off_nominal = config.off_nominal
     artefacts = _camera_artefacts(off_nominal, artefacts)
     profile = scale_angular_rates(profile, off_nominal.angular_rate_multiplier, start_s + 0.5 * camera.timing.exposure_s)
 
     started = time.perf_counter()
-    periods = scene.period_fields(terrain, camera, profile, start_s, sun, config,
+    periods = radiance.period_fields(terrain, camera, profile, start_s, sun, config,
                                   need_smear_fields=camera_effects.smear)
     if (off_nominal.heat_shield_glint and config.effects.heat_shield and profile.heat_shield_position_m is not None
             and off_nominal.heat_shield_specular_reflectance > 0):
@@ -238,7 +239,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     camera_ms = 1e3 * (time.perf_counter() - started)
 
     cam = periods.exposure_centre.camera_pose
-    anti_sun = scene.shadow.shadow_centre_m(cam.ray_origin_m, sun) if cam.ray_origin_m[2] > 0 else cam.ray_origin_m
+    anti_sun = radiance.shadow.shadow_centre_m(cam.ray_origin_m, sun) if cam.ray_origin_m[2] > 0 else cam.ray_origin_m
     pixel, in_front = ground_mapping.world_to_pixels(camera, cam, anti_sun)
     in_image = bool(in_front) and (-0.5 <= pixel[0] <= camera.width_px - 0.5) and (-0.5 <= pixel[1] <= camera.height_px - 0.5)
     footprint, hit = ground_mapping.footprint_m(camera, cam)
@@ -263,7 +264,7 @@ def _camera_artefacts(off_nominal: OffNominalConfig, artefacts: OffNominalArtefa
     return artefacts if artefacts.blooming == off_nominal.blooming else replace(artefacts, blooming=off_nominal.blooming)
 
 
-def _add_glint(periods: scene.PeriodScene, camera: Camera, profile: DescentProfile, start_s: float,
+def _add_glint(periods: radiance.PeriodScene, camera: Camera, profile: DescentProfile, start_s: float,
                sun: np.ndarray, config: SceneConfig) -> None:
     """Add the heat-shield specular glint to the period fields in place, averaged over the same
     sub-poses as the scene (:mod:`simulator.motion_blur`); a field standing for several periods gets

@@ -1,7 +1,7 @@
 """Fidelity presets: named sets of the documented shortcuts, from the exact reference render to fast.
 
 Every shortcut is a switch of :class:`simulator.descent_image.SceneConfig` (scene) or
-:class:`simulator.render.CameraEffects` (camera), and each is decided per scene where it can be (a
+:class:`simulator.detector.camera_chain.CameraEffects` (camera), and each is decided per scene where it can be (a
 still image shares one field; sub-poses follow the actual image shift; the heat shield is drawn only
 when its footprint meets the view; smear fields are warped only when no pixel sees the sky).
 

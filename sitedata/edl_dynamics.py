@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulator.kinematics import quat_to_matrix
+from flight_interface.frames import quat_to_matrix
 
 G_MARS_MPS2 = 3.71  # surface gravity of Mars, m s^-2
 

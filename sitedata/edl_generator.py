@@ -24,7 +24,7 @@ Output (see :mod:`sitedata.trajectory_io`): time origin at the first sample; ima
 the lander passes ``altitudes_m``; image 3 ``last_image_after_previous_s`` after image 2; samples
 every ``dense_step_s`` within ``dense_half_window_s`` of each image and every ``coarse_step_s``
 between; x, y = 0 at the lander's nadir point at image 1 (within 1e-4 m). Attitude between coarse
-samples is slerped by :class:`~simulator.descent_profile.DescentProfile`, so use the dense windows
+samples is slerped by :class:`~simulator.scene.descent_profile.DescentProfile`, so use the dense windows
 (where the images are) for anything that needs the attitude to better than ~0.2 deg.
 """
 from __future__ import annotations
@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.descent_profile import DescentProfile
-from simulator.tomlfields import Table, load_toml
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.tomlfields import Table, load_toml
 
 from .edl_dynamics import (G_MARS_MPS2, pendulum_acceleration, project_onto_sphere, swing_twist_attitude,
                            swing_twist_body_rate, tilt_angle_rad, twist_angle_rad)

@@ -3,7 +3,7 @@
 A POST (Program to Optimize Simulated Trajectories) or similar tool prints a table: optional comment
 lines (starting with ``#`` or ``!``), one header line naming the columns, then rows of numbers
 separated by whitespace (Fortran ``1.0D+03`` exponents accepted). A *mapping* (dict or
-:class:`~simulator.tomlfields.Table`, e.g. a TOML file) says which source column feeds each schema
+:class:`~flight_interface.tomlfields.Table`, e.g. a TOML file) says which source column feeds each schema
 column and how to convert it to SI::
 
     [columns]                               # schema column = source
@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from simulator.descent_profile import DescentProfile
-from simulator.kinematics import quat_from_axis_angle, quat_multiply
-from simulator.tomlfields import Table, load_toml
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.frames import quat_from_axis_angle, quat_multiply
+from flight_interface.tomlfields import Table, load_toml
 
 from .trajectory_io import HEAT_SHIELD_COLUMNS, REQUIRED_COLUMNS, TrajectoryFileError, frame_to_profiles, image_column
 

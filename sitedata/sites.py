@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.terrain import Terrain
-from simulator.tomlfields import ConfigError, Table, load_toml
+from simulator.scene.terrain import Terrain
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 from .synthetic_classes import CLASS_PRESETS, ClassTerrainParams
 

@@ -2,7 +2,7 @@
 
 All functions are pure functions of arrays and a numpy Generator; image arrays are (rows, cols)
 with row index increasing southward and column index increasing eastward (north-up, as
-:class:`simulator.terrain.Terrain`). Lengths are in pixels unless a name says otherwise.
+:class:`simulator.scene.terrain.Terrain`). Lengths are in pixels unless a name says otherwise.
 """
 from __future__ import annotations
 

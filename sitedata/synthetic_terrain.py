@@ -39,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simulator.terrain import Terrain
+from simulator.scene.terrain import Terrain
 
 from . import synthetic_features as feat
 from .synthetic_classes import CLASS_PRESETS, OUTER_SCALE_M, ClassTerrainParams

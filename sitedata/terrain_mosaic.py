@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simulator.tomlfields import ConfigError
+from flight_interface.tomlfields import ConfigError
 
 from .sites import load_class_terrain, load_site
 

@@ -2,7 +2,7 @@
 
 Schema (one row per time sample; Parquet ``.parquet`` or CSV ``.csv`` with a header row)
 -----------------------------------------------------------------------------------------
-Frames and conventions of :mod:`simulator.kinematics`: world x east, y north, z up, ground z = 0;
+Frames and conventions of :mod:`flight_interface.frames`: world x east, y north, z up, ground z = 0;
 attitude = lander body-to-world unit quaternion ``(w, x, y, z)``, Hamilton, body z up the lander axis.
 
 ===================  =====================================================================
@@ -47,8 +47,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from simulator.descent_profile import DescentProfile
-from simulator.tomlfields import ConfigError, Table
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.tomlfields import ConfigError, Table
 
 QUATERNION_NORM_TOLERANCE = 1e-6
 # pandas >= 3 parses CSV floats round-trip exactly by default (and deprecates the option)

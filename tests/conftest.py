@@ -15,6 +15,6 @@ def mer_a_path() -> Path:
 
 @pytest.fixture(scope="session")
 def mer_a(mer_a_path):
-    from simulator.camera_config import load_camera
+    from flight_interface.camera import load_camera
 
     return load_camera(mer_a_path)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from simulator import cahvor
+from flight_interface import cahvor
 
 
 @pytest.fixture()

@@ -4,8 +4,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from simulator.camera_config import PLANCK_J_S, SPEED_OF_LIGHT_M_S
-from simulator.render import CameraEffects, RadianceFields, render_image
+from flight_interface.camera import PLANCK_J_S, SPEED_OF_LIGHT_M_S
+from simulator.detector.camera_chain import CameraEffects, RadianceFields, render_image
 
 N_ROWS = 1024
 BIN = 4
@@ -26,7 +26,7 @@ def _responsivity(camera):
 
 def test_documented_responsivity_number(mer_a):
     assert mer_a.responsivity_e_per_s == pytest.approx(_responsivity(mer_a), rel=1e-12)
-    # the number documented in simulator/camera_config.py
+    # the number documented in flight_interface/camera.py
     assert mer_a.responsivity_e_per_s == pytest.approx(1.86e5, rel=0.01)
 
 
@@ -152,7 +152,7 @@ def test_callable_and_sequence_inputs_match(mer_a):
 
 @pytest.mark.parametrize("exact_poisson", [False, True])
 def test_noise_modes_match_poisson_moments_and_stay_exact_when_dim(exact_poisson):
-    from simulator.readout import GAUSSIAN_MIN_MEAN_E, noisy_charge_e
+    from simulator.detector.readout import GAUSSIAN_MIN_MEAN_E, noisy_charge_e
 
     rng = np.random.default_rng(11)
     bright_mean, dim_mean, read_sigma = 5.0e4, 3.0, 0.0
@@ -170,7 +170,7 @@ def test_noise_modes_match_poisson_moments_and_stay_exact_when_dim(exact_poisson
 
 
 def test_noise_with_read_noise_only_adds_its_variance():
-    from simulator.readout import noisy_charge_e
+    from simulator.detector.readout import noisy_charge_e
 
     mean = np.full(400_000, 2.0e4)
     noisy = noisy_charge_e(np.random.default_rng(12), mean, 30.0)
@@ -182,7 +182,7 @@ def test_noise_with_read_noise_only_adds_its_variance():
 def test_fast_normal_draws_are_standard_and_reproducible_whatever_the_thread_count():
     import cv2
 
-    from simulator.readout import standard_normal_f32
+    from simulator.detector.readout import standard_normal_f32
 
     threads = cv2.getNumThreads()
     try:

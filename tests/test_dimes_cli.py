@@ -11,7 +11,7 @@ import pytest
 
 from dimes_velocity.__main__ import main
 from dimes_velocity.files import InputFileError, load_image, measurements_from_dict, measurements_to_dict
-from dimes_velocity.synthetic import constant_velocity_descent, random_ground
+from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 VELOCITY = (12.0, -7.0, -72.0)
 BIAS = (6.0, -3.0)

@@ -6,7 +6,7 @@ import pytest
 
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.preprocess import bin_columns, flatten, make_flattening
-from simulator.render import CameraEffects, render_image
+from simulator.detector.camera_chain import CameraEffects, render_image
 
 NOISE_FREE = CameraEffects(shot_noise=False, read_noise=False)
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from dimes_velocity import DimesEstimator
-from sitedata.sensors import SensorConfig, measure
+from simulator.sensors import SensorConfig, measure
 from sitedata.synthetic_terrain import synthetic_terrain
 from simulator.descent_image import render_descent_image
-from simulator.descent_profile import constant_velocity_profile
-from simulator.kinematics import quat_from_axis_angle
+from simulator.scene.descent_profile import constant_velocity_profile
+from flight_interface.frames import quat_from_axis_angle
 
 ALTITUDES_M = (2000.0, 1725.0, 1450.0)
 DESCENT_RATE_MPS = 72.0

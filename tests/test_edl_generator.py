@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator.kinematics import quat_conjugate, quat_multiply, quat_to_rotation_vector, rotate
-from simulator.tomlfields import ConfigError
+from flight_interface.frames import quat_conjugate, quat_multiply, quat_to_rotation_vector, rotate
+from flight_interface.tomlfields import ConfigError
 from sitedata.edl_dynamics import (G_MARS_MPS2, free_pendulum_swing, swing_twist_attitude, swing_twist_body_rate,
                                    tilt_angle_rad, twist_angle_rad)
 from sitedata.edl_generator import generate_profiles, load_edl_parameters, profile_statistics

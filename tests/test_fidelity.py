@@ -5,12 +5,13 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator import charge_transfer, ground_mapping, scene
-from simulator.camera_config import load_camera
+from simulator.detector import charge_transfer
+from simulator.scene import ground_mapping, radiance
+from flight_interface.camera import load_camera
 from simulator.descent_image import SceneConfig, render_descent_image
-from simulator.descent_profile import DescentProfile, constant_velocity_profile
-from simulator.kinematics import quat_from_axis_angle
-from simulator.terrain import Terrain
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
+from flight_interface.frames import quat_from_axis_angle
+from simulator.scene.terrain import Terrain
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -47,7 +48,7 @@ def test_flow_of_a_translating_nadir_camera_is_the_ground_shift_over_the_gsd():
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [60.0, 0.0, 0.0], LEVEL, 1.0, [0.5])
     source = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
     target = ground_mapping.camera_pose(CAMERA, profile.pose(0.51))
-    flow = scene.flow_map(CAMERA, source, target)
+    flow = radiance.flow_map(CAMERA, source, target)
     assert flow is not None
     grid = np.stack(np.meshgrid(np.arange(CAMERA.width_px), np.arange(CAMERA.height_px)), axis=-1)
     shift = flow - grid
@@ -67,8 +68,8 @@ def test_block_flow_is_the_pixel_flow_at_block_centres_in_block_units():
     profile = turning_profile()
     source = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
     target = ground_mapping.camera_pose(CAMERA, profile.pose(0.506))
-    pixel_flow = scene.flow_map(CAMERA, source, target)
-    block_flow = scene.flow_map(CAMERA, source, target, block_rows=4)
+    pixel_flow = radiance.flow_map(CAMERA, source, target)
+    block_flow = radiance.flow_map(CAMERA, source, target, block_rows=4)
     assert block_flow.shape == (256, 1024, 2)
     # block k is centred on pixel row 4k + 1.5: the mean of the pixel flow of rows 4k+1 and 4k+2
     centre = 0.5 * (pixel_flow[1::4] + pixel_flow[2::4])
@@ -77,7 +78,7 @@ def test_block_flow_is_the_pixel_flow_at_block_centres_in_block_units():
 
 
 def test_block_mean_smear_fields_give_the_same_charge_as_block_constant_pixel_fields():
-    from simulator.render import CameraEffects, RadianceFields, render_image
+    from simulator.detector.camera_chain import CameraEffects, RadianceFields, render_image
 
     rng = np.random.default_rng(4)
     blocks = {period: (20.0 + 5.0 * rng.random((256, 1024))).astype(np.float32) for period in ("flush", "transfer")}
@@ -95,7 +96,7 @@ def test_flow_is_refused_when_the_horizon_is_in_view():
     tilted = np.array([np.cos(np.radians(40.0)), np.sin(np.radians(40.0)), 0.0, 0.0])  # 80 deg off nadir
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], tilted, 1.0, [0.5])
     pose = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
-    assert scene.flow_map(CAMERA, pose, pose) is None
+    assert radiance.flow_map(CAMERA, pose, pose) is None
 
 
 def test_warped_smear_fields_match_rendered_ones_in_column_sums():
@@ -103,8 +104,8 @@ def test_warped_smear_fields_match_rendered_ones_in_column_sums():
     profile = turning_profile()
     exact_config = SceneConfig().with_effects(warp_smear_fields=False, share_still_fields=False)
     warped_config = SceneConfig().with_effects(share_still_fields=False)
-    exact = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, exact_config)
-    warped = scene.period_fields(terrain, CAMERA, profile, 0.5, SUN, warped_config)
+    exact = radiance.period_fields(terrain, CAMERA, profile, 0.5, SUN, exact_config)
+    warped = radiance.period_fields(terrain, CAMERA, profile, 0.5, SUN, warped_config)
     assert warped.fields.exposure is not warped.fields.flush
     exposure_blocks = charge_transfer.block_means(warped.fields.exposure, CAMERA.binning_rows)
     for period in ("flush", "transfer"):
@@ -136,7 +137,7 @@ def test_pixel_area_filter_is_the_exact_box_mean_of_a_quadratic():
     field = (0.3 * (cols - 20.0) ** 2 + 0.1 * (rows - 40.0) ** 2 + 2.0 * cols).astype(np.float32)
     # mean of a x^2 over [c - 1/2, c + 1/2] is a (c^2 + 1/12): the point value plus a / 12 per axis
     box_mean = field + (0.3 + 0.1) / 12.0
-    filtered = scene.pixel_area_average(field)
+    filtered = radiance.pixel_area_average(field)
     assert np.allclose(filtered[1:-1, 1:-1], box_mean[1:-1, 1:-1], rtol=0, atol=2e-3)
 
 
@@ -152,8 +153,8 @@ def test_supersampled_pixel_on_a_step_edge_reads_its_coverage():
     base = SceneConfig().with_effects(shadows=False, heat_shield=False, photometric_correction=False,
                                       spectral_ratio=False, coarse_ray_grid=False, pixel_area_filter=False)
     from dataclasses import replace
-    point = scene.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, base).radiance
-    fine = scene.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, replace(base, supersample=3)).radiance
+    point = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, base).radiance
+    fine = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, replace(base, supersample=3)).radiance
     row = point[512]
     low, high = row.min(), row.max()
     # away from the edge (flat on both sides, bilinear ramp is one terrain pixel wide) nothing changes
@@ -192,8 +193,8 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
                              base.angular_rate_radps, base.wind_mps, shield, base.image_times_s, "shield")
     config = SceneConfig().with_effects(shadows=False, coarse_ray_grid=False, pixel_area_filter=False)
     pose = profile.pose(0.1)
-    once = scene.radiance_at_pose(terrain, CAMERA, pose, SUN, config)
-    fine = scene.radiance_at_pose(terrain, CAMERA, pose, SUN, replace(config, supersample=3))
+    once = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, config)
+    fine = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, replace(config, supersample=3))
     from scipy.ndimage import binary_dilation, binary_erosion
     edge = binary_dilation(once.heat_shield) & ~binary_erosion(once.heat_shield)
     contrast = np.median(once.radiance[~once.heat_shield]) - np.median(once.radiance[binary_erosion(once.heat_shield)])
@@ -206,7 +207,7 @@ def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
     import pytest
 
     from simulator.descent_image import scene_config_from_table
-    from simulator.tomlfields import ConfigError, Table, load_toml
+    from flight_interface.tomlfields import ConfigError, Table, load_toml
 
     path = tmp_path / "scene.toml"
     path.write_text('[scene]\nfidelity = "reference"\nsupersample = 2\n')

@@ -7,11 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator import blooming, dust, hot_pixels, particle_hits
-from simulator.cahvor import cahvor_from_intrinsics
-from simulator.camera_config import load_camera
+from simulator.detector import blooming
+from simulator.off_nominal import dust, hot_pixels, particle_hits
+from flight_interface.cahvor import cahvor_from_intrinsics
+from flight_interface.camera import load_camera
 from simulator.off_nominal import OffNominalArtefacts
-from simulator.render import CameraEffects, render_image
+from simulator.detector.camera_chain import CameraEffects, render_image
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")

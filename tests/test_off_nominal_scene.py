@@ -8,15 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator import ground_mapping, heat_shield, motion_blur, photometry
-from simulator.camera_config import load_camera
+from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry
+from flight_interface.camera import load_camera
 from simulator.descent_image import SceneConfig, render_descent_image, scene_config_from_table
-from simulator.descent_profile import DescentProfile, constant_velocity_profile, scale_angular_rates
-from simulator.kinematics import quat_from_axis_angle, quat_multiply, quat_conjugate, quat_to_rotation_vector
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile, scale_angular_rates
+from flight_interface.frames import quat_from_axis_angle, quat_multiply, quat_conjugate, quat_to_rotation_vector
 from simulator.off_nominal import (OffNominalArtefacts, OffNominalConfig, draw_case_artefacts,
                                    off_nominal_config_from_table, with_particle_hits)
-from simulator.terrain import Terrain
-from simulator.tomlfields import ConfigError, Table
+from simulator.scene.terrain import Terrain
+from flight_interface.tomlfields import ConfigError, Table
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")

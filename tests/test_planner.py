@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from campaign.planner import ClassPlanInput, footprint_points_m, plan_class, stratified_unit_square
-from simulator.descent_profile import DescentProfile
-from simulator.kinematics import quat_from_axis_angle
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.frames import quat_from_axis_angle
 
 
 def _tilted_profile(tilt_deg: float, name: str) -> DescentProfile:

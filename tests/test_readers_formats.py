@@ -13,7 +13,7 @@ from PIL import Image, TiffImagePlugin
 
 from sitedata.readers import (ReaderError, load_terrain, read_image, read_isis3, read_pds3, read_sidecar,
                               read_vicar)
-from simulator.tomlfields import ConfigError
+from flight_interface.tomlfields import ConfigError
 
 ISIS_NULL4, ISIS_HRS4 = 0xFF7FFFFB, 0xFF7FFFFF
 

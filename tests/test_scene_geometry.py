@@ -7,12 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from simulator import ground_mapping, resample, scene
-from simulator.camera_config import load_camera
+from simulator.scene import ground_mapping, resample, radiance
+from flight_interface.camera import load_camera
 from simulator.descent_image import SceneConfig
-from simulator.descent_profile import constant_velocity_profile
-from simulator.kinematics import quat_from_axis_angle
-from simulator.terrain import Terrain
+from simulator.scene.descent_profile import constant_velocity_profile
+from flight_interface.frames import quat_from_axis_angle
+from simulator.scene.terrain import Terrain
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -83,7 +83,7 @@ def test_grating_zero_crossings_land_on_predicted_columns():
     terrain = Terrain(np.tile(grating, (size, 1)), mpp, np.array([-half, half]), np.radians(30), 0.0,
                       np.radians(30), "grating")
     config = SceneConfig().with_effects(photometric_correction=False, shadows=False)
-    field = scene.radiance_at_pose(terrain, CAMERA, nadir_pose(), SUN, config).radiance
+    field = radiance.radiance_at_pose(terrain, CAMERA, nadir_pose(), SUN, config).radiance
     profile = field[510:514].mean(axis=0) - field[510:514].mean()
     sign = np.sign(profile)
     index = np.nonzero(sign[:-1] * sign[1:] < 0)[0]
@@ -105,8 +105,8 @@ def test_ten_metres_per_second_shifts_image_by_predicted_pixels():
     elapsed_s = 6.0 * gsd_m / 10.0
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [10.0, 0.0, 0.0], LEVEL, 2.0, [0.0, 1.0])
     config = SceneConfig().with_effects(photometric_correction=False, shadows=False)
-    first = scene.radiance_at_pose(terrain, CAMERA, profile.pose(0.0), SUN, config).radiance
-    second = scene.radiance_at_pose(terrain, CAMERA, profile.pose(elapsed_s), SUN, config).radiance
+    first = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.0), SUN, config).radiance
+    second = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(elapsed_s), SUN, config).radiance
     centre = first[384:640, 390:646]
     candidates = np.arange(5.80, 6.2001, 0.01)
     misfit = [np.std(cv2.warpAffine(second, np.float32([[1, 0, s], [0, 1, 0]]), (1024, 1024),
@@ -122,7 +122,7 @@ def test_pose_past_horizon_gives_masked_sky_and_no_nan():
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0],
                                         quat_from_axis_angle([1.0, 0.0, 0.0], tilt), 1.0, [0.0])
     terrain = textured_terrain()
-    field = scene.radiance_at_pose(terrain, CAMERA, profile.pose(0.0), SUN, SceneConfig())
+    field = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.0), SUN, SceneConfig())
     assert np.all(np.isfinite(field.radiance))
     assert field.sky.any() and not field.sky.all()
     assert np.all(field.radiance[field.sky] == 0.0)
@@ -139,7 +139,7 @@ def test_pose_past_horizon_gives_masked_sky_and_no_nan():
 
 def test_outside_strip_is_flagged_exactly():
     terrain = uniform_terrain(size=300)   # 900 m strip, smaller than the 1.7 km footprint
-    field = scene.radiance_at_pose(terrain, CAMERA, nadir_pose(), SUN,
+    field = radiance.radiance_at_pose(terrain, CAMERA, nadir_pose(), SUN,
                                    SceneConfig().with_effects(photometric_correction=False, shadows=False))
     pixels = np.stack(np.meshgrid(np.arange(0, 1024, 37.0), np.arange(0, 1024, 41.0)), axis=-1).reshape(-1, 2)
     points, hit = ground_mapping.ground_points(CAMERA, field.camera_pose, pixels)

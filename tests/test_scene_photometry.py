@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator import ground_mapping, photometry, scene, shadow
-from simulator.camera_config import load_camera
+from simulator.scene import ground_mapping, photometry, radiance, shadow
+from flight_interface.camera import load_camera
 from simulator.descent_image import REFERENCE_EFFECTS, SceneConfig
-from simulator.descent_profile import constant_velocity_profile
-from simulator.terrain import Terrain
+from simulator.scene.descent_profile import constant_velocity_profile
+from simulator.scene.terrain import Terrain
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -73,7 +73,7 @@ def test_ratio_is_one_where_dimes_geometry_equals_moc_geometry():
     # pixels see exactly the MOC geometry, so radiance = I/F * spectral ratio * E / pi
     terrain = uniform_terrain(0.2, 30.0, 0.0, 30.0)
     config = SceneConfig().with_effects(shadows=False, heat_shield=False, **REFERENCE_EFFECTS)
-    field = scene.radiance_at_pose(terrain, CAMERA, nadir_pose(), sun, config).radiance
+    field = radiance.radiance_at_pose(terrain, CAMERA, nadir_pose(), sun, config).radiance
     expected = 0.2 * config.spectral_ratio * photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au) / np.pi
     assert float(field[511:513, 511:513].mean()) == pytest.approx(expected, rel=1e-4)
     # away from the centre the geometry differs and so does the radiance
@@ -84,7 +84,7 @@ def test_ratio_is_one_where_dimes_geometry_equals_moc_geometry():
 def test_halo_peak_sits_at_the_anti_sun_point(azimuth_deg):
     sun = sun_vector(15.0, azimuth_deg)
     config = SceneConfig().with_effects(shadows=False, heat_shield=False, **REFERENCE_EFFECTS)
-    field = scene.radiance_at_pose(uniform_terrain(), CAMERA, nadir_pose(), sun, config).radiance
+    field = radiance.radiance_at_pose(uniform_terrain(), CAMERA, nadir_pose(), sun, config).radiance
     # closed form: the anti-sun direction -s seen by a level camera (x east, y south, z down)
     x, y, z = -sun[0], sun[1], sun[2]
     u = np.hypot(x, y) / z
@@ -99,9 +99,9 @@ def test_halo_peak_sits_at_the_anti_sun_point(azimuth_deg):
 def test_coarse_photometry_error_is_small_away_from_the_halo_kink():
     sun = sun_vector(15.0, 135.0)
     base = SceneConfig().with_effects(shadows=False, heat_shield=False)
-    exact = scene.radiance_at_pose(uniform_terrain(), CAMERA, nadir_pose(), sun,
+    exact = radiance.radiance_at_pose(uniform_terrain(), CAMERA, nadir_pose(), sun,
                                    base.with_effects(coarse_photometry=False)).radiance
-    coarse = scene.radiance_at_pose(uniform_terrain(), CAMERA, nadir_pose(), sun, base).radiance
+    coarse = radiance.radiance_at_pose(uniform_terrain(), CAMERA, nadir_pose(), sun, base).radiance
     relative = np.abs(coarse / exact - 1.0)
     assert np.max(relative) < 0.01          # worst at the alpha = 0 kink
     assert np.percentile(relative, 99) < 1e-3
@@ -122,8 +122,8 @@ def test_parachute_umbra_at_low_altitude_leaves_only_skylight():
     sun = sun_vector(15.0, 60.0)
     terrain = uniform_terrain()
     config = SceneConfig().with_effects(heat_shield=False, photometric_correction=False)
-    lit = scene.radiance_at_pose(terrain, CAMERA, nadir_pose(altitude), sun, config.with_effects(shadows=False))
-    shaded = scene.radiance_at_pose(terrain, CAMERA, nadir_pose(altitude), sun, config)
+    lit = radiance.radiance_at_pose(terrain, CAMERA, nadir_pose(altitude), sun, config.with_effects(shadows=False))
+    shaded = radiance.radiance_at_pose(terrain, CAMERA, nadir_pose(altitude), sun, config)
     parachute = np.array([0.0, 0.0, altitude + config.parachute_distance_m])
     centre = parachute - parachute[2] / sun[2] * sun         # sun line through the canopy meets the ground
     pixel, in_front = ground_mapping.world_to_pixels(CAMERA, lit.camera_pose, centre)
@@ -152,9 +152,9 @@ def test_lander_shadow_at_2000_m_is_a_partial_eclipse():
 
 def test_sun_must_be_a_unit_vector_above_the_horizon():
     with pytest.raises(ValueError, match="sun"):
-        scene.sun_unit_vector([0.0, 0.0, -1.0])
+        radiance.sun_unit_vector([0.0, 0.0, -1.0])
     with pytest.raises(ValueError, match="sun"):
-        scene.sun_unit_vector([0.0, 0.5, 0.5])
+        radiance.sun_unit_vector([0.0, 0.5, 0.5])
 
 
 def test_shadow_windows_hold_the_whole_penumbra():
@@ -163,13 +163,13 @@ def test_shadow_windows_hold_the_whole_penumbra():
     config = SceneConfig().with_effects(heat_shield=False, **REFERENCE_EFFECTS)
     terrain = uniform_terrain()
     pose = nadir_pose(1200.0)
-    lit = scene.radiance_at_pose(terrain, CAMERA, pose, sun, config.with_effects(shadows=False))
-    shaded = scene.radiance_at_pose(terrain, CAMERA, pose, sun, config)
+    lit = radiance.radiance_at_pose(terrain, CAMERA, pose, sun, config.with_effects(shadows=False))
+    shaded = radiance.radiance_at_pose(terrain, CAMERA, pose, sun, config)
     columns, rows = np.meshgrid(np.arange(1024.0), np.arange(1024.0))
     points, _ = ground_mapping.ground_points(CAMERA, lit.camera_pose, np.stack([columns, rows], axis=-1))
     expected = np.ones((1024, 1024))
     sun_radius = photometry.solar_angular_radius_rad(config.sun_distance_au)
-    for caster in scene.casters(pose, config):
+    for caster in radiance.casters(pose, config):
         occluded = shadow.occluded_fraction(points, caster, sun, sun_radius)
         expected *= 1.0 - (1.0 - config.shadow_diffuse_fraction) * occluded
     ratio = shaded.radiance / lit.radiance

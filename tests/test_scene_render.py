@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator import heat_shield, motion_blur, photometry, scene
-from simulator.camera_config import load_camera
+from simulator.scene import heat_shield, motion_blur, photometry, radiance
+from flight_interface.camera import load_camera
 from simulator.descent_image import (DescentImage, SceneConfig, render_descent_image,
                                      scene_config_from_table)
-from simulator.descent_profile import DescentProfile, constant_velocity_profile
-from simulator.kinematics import quat_from_axis_angle
-from simulator.terrain import Terrain
-from simulator.tomlfields import ConfigError, Table, load_toml
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
+from flight_interface.frames import quat_from_axis_angle
+from simulator.scene.terrain import Terrain
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -41,7 +41,7 @@ def test_heat_shield_on_axis_covers_the_predicted_pixel_count():
     config = SceneConfig().with_effects(shadows=False)
     axial = 150.0
     profile = profile_with_heat_shield([0.0, 0.0, -axial])
-    field = scene.radiance_at_pose(textured_terrain(), CAMERA, profile.pose(0.0), SUN, config)
+    field = radiance.radiance_at_pose(textured_terrain(), CAMERA, profile.pose(0.0), SUN, config)
     depth = heat_shield.cone_depth_m(5.3, np.radians(140.0))
     assert depth == pytest.approx(2.65 / np.tan(np.radians(70.0)))
     # the rim circle (radius 2.65 m) at (axial + camera offset 0.5 m - depth / 2) below the camera
@@ -70,10 +70,10 @@ def test_heat_shield_on_axis_covers_the_predicted_pixel_count():
 
 def test_heat_shield_outside_the_view_is_not_drawn():
     profile = profile_with_heat_shield([75.0, 0.0, -140.0])    # 28 deg off axis: outside the 22.7 deg half FOV
-    field = scene.radiance_at_pose(textured_terrain(), CAMERA, profile.pose(0.0), SUN, SceneConfig())
+    field = radiance.radiance_at_pose(textured_terrain(), CAMERA, profile.pose(0.0), SUN, SceneConfig())
     assert field.heat_shield is None
     inside = profile_with_heat_shield([50.0, 0.0, -200.0])     # 14 deg off axis: in view
-    field = scene.radiance_at_pose(textured_terrain(), CAMERA, inside.pose(0.0), SUN, SceneConfig())
+    field = radiance.radiance_at_pose(textured_terrain(), CAMERA, inside.pose(0.0), SUN, SceneConfig())
     assert field.heat_shield is not None and field.heat_shield.any()
     cols = np.nonzero(field.heat_shield)[1]
     assert cols.mean() > 511.5 + 0.9 * FOCAL_PX * 50.0 / 200.0   # east of centre, where it should be
@@ -92,11 +92,11 @@ def rotating_profile(rate_deg_s: float) -> DescentProfile:
 def test_substep_count_follows_the_actual_image_shift():
     terrain = textured_terrain()
     config = SceneConfig()
-    still = scene.period_fields(terrain, CAMERA, rotating_profile(0.0), 0.5, SUN, config)
+    still = radiance.period_fields(terrain, CAMERA, rotating_profile(0.0), 0.5, SUN, config)
     assert still.shared and still.fields.flush is still.fields.exposure is still.fields.transfer
 
     rate = 60.0
-    blurred = scene.period_fields(terrain, CAMERA, rotating_profile(rate), 0.5, SUN, config)
+    blurred = radiance.period_fields(terrain, CAMERA, rotating_profile(rate), 0.5, SUN, config)
     # closed form: during the 5.1 ms exposure the sight line of the edge row (field angle theta_e, with
     # distortion) sweeps by rate * T; its ground point moves h (tan(theta_e + d) - tan(theta_e))
     height = 2000.0 - 0.5
@@ -112,7 +112,7 @@ def test_substep_count_follows_the_actual_image_shift():
     # the blurred exposure field is the mean of the sub-pose fields
     times = motion_blur.substep_times(0.5, 0.5 + CAMERA.timing.exposure_s, blurred.substeps["exposure"])
     profile = rotating_profile(rate)
-    mean = np.mean([scene.radiance_at_pose(terrain, CAMERA, profile.pose(t), SUN, config).radiance for t in times], axis=0)
+    mean = np.mean([radiance.radiance_at_pose(terrain, CAMERA, profile.pose(t), SUN, config).radiance for t in times], axis=0)
     assert np.allclose(blurred.fields.exposure, mean, rtol=1e-5, atol=1e-4)
     # blur lowers the pixel-to-pixel contrast of a white-noise terrain
     assert np.std(np.diff(blurred.fields.exposure[400:600, 512])) < np.std(np.diff(still.fields.exposure[400:600, 512]))
@@ -180,7 +180,7 @@ def test_scene_config_from_toml(tmp_path):
 def test_example_command_writes_the_pngs(tmp_path):
     import cv2
 
-    from simulator import example
+    from simulator import __main__ as example
     assert example.main(["--out", str(tmp_path), "--terrain", "own", "--seed", "2"]) == 0
     image = cv2.imread(str(tmp_path / "image_0.png"), cv2.IMREAD_UNCHANGED)
     assert image.shape == (256, 1024) and image.std() > 5

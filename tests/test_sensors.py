@@ -4,10 +4,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from simulator.descent_profile import DescentProfile
-from simulator.kinematics import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector, rotate
-from simulator.tomlfields import ConfigError, Table
-from sitedata.sensors import SensorConfig, measure, sensor_config_from_table
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector, rotate
+from flight_interface.tomlfields import ConfigError, Table
+from simulator.sensors import SensorConfig, measure, sensor_config_from_table
 
 EXPOSURE_S = 0.0051
 DRAWS = 2000

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from simulator.tomlfields import ConfigError
+from flight_interface.tomlfields import ConfigError
 from sitedata import terrain_mosaic
 from sitedata.sites import (ASTRONOMICAL_UNIT_M, class_terrain_params, load_class_terrain, load_site,
                             sun_direction)

@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dimes_velocity import REASONS, DimesEstimator, MeasurementError
-from dimes_velocity.synthetic import constant_velocity_descent, random_ground
-from simulator.descent_profile import constant_velocity_profile
-from simulator.kinematics import quat_from_axis_angle
-from sitedata.sensors import SensorConfig, measure
-from simulator.tomlfields import ConfigError, Table
+from simulator.synthetic_descent import constant_velocity_descent, random_ground
+from simulator.scene.descent_profile import constant_velocity_profile
+from flight_interface.frames import quat_from_axis_angle
+from simulator.sensors import SensorConfig, measure
+from flight_interface.tomlfields import ConfigError, Table
 
 VELOCITY = np.array([12.0, -7.0, -72.0])
 
@@ -175,7 +175,7 @@ def test_sensor_measurements_are_finite_unit_quaternions_at_any_state(mer_a, alt
     ("perfectly", True, r"unknown key 'sensors\.perfectly'"),
 ])
 def test_sensor_config_out_of_range_gives_one_line_errors(key, value, message):
-    from sitedata.sensors import sensor_config_from_table
+    from simulator.sensors import sensor_config_from_table
 
     with pytest.raises(ConfigError, match=message):
         sensor_config_from_table(Table({key: value}, "campaign.toml", "sensors"))

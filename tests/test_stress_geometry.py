@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dimes_velocity import geometry
-from simulator import cahvor
-from simulator.kinematics import (matrix_to_quat, off_nadir_angle_rad, quat_conjugate, quat_from_axis_angle,
+from flight_interface import cahvor
+from flight_interface.frames import (matrix_to_quat, off_nadir_angle_rad, quat_conjugate, quat_from_axis_angle,
                                   quat_from_rotation_vector, quat_multiply, quat_normalize, quat_to_matrix,
                                   quat_to_rotation_vector, rotate, slerp)
 

@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from simulator.descent_image import SceneConfig, render_descent_image
-from simulator.descent_profile import DescentProfile, constant_velocity_profile
-from simulator.kinematics import quat_from_axis_angle, quat_to_matrix
-from simulator.terrain import Terrain
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
+from flight_interface.frames import quat_from_axis_angle, quat_to_matrix
+from simulator.scene.terrain import Terrain
 
 SUN = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])
 HALF_DIAGONAL_FOV = np.radians(31.5)      # MER: corner ray 31.5 deg from the boresight (with distortion)

@@ -5,9 +5,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from simulator.descent_profile import DescentProfile
-from simulator.kinematics import quat_from_axis_angle, rotate
-from simulator.tomlfields import ConfigError
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.frames import quat_from_axis_angle, rotate
+from flight_interface.tomlfields import ConfigError
 from sitedata.post_table import read_post_table
 from sitedata.trajectories_cli import check_set, compare_sites, main, set_statistics
 from sitedata.trajectory_io import TrajectoryFileError, profiles_to_frame, read_profiles, write_profiles

@@ -5,7 +5,7 @@ ISIS3 ``.cub`` (tiled or band-sequential), VICAR, MSSS DDD, PNG, TIFF and GeoTIF
 parsed by hand (:mod:`.pvl`); PNG/TIFF decoding uses Pillow. Every reader returns an
 :class:`OrbitalImage`; every failure is a one-line :class:`ReaderError` naming the file and the
 keyword or format at fault. A side-car TOML (:mod:`.sidecar`) supplies what a file lacks, and
-:func:`load_terrain` turns file + side-car into a :class:`simulator.terrain.Terrain`.
+:func:`load_terrain` turns file + side-car into a :class:`simulator.scene.terrain.Terrain`.
 """
 from .image import OrbitalImage, ReaderError
 from .isis3 import read_isis3

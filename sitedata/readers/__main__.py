@@ -10,7 +10,7 @@ import argparse
 import math
 import sys
 
-from simulator.tomlfields import ConfigError
+from flight_interface.tomlfields import ConfigError
 
 from .terrain_file import load_orbital_image
 

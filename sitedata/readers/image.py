@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from simulator.tomlfields import ConfigError
+from flight_interface.tomlfields import ConfigError
 
 from .pvl import LabelSyntaxError, ParsedLabel, parse_label
 

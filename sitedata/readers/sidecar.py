@@ -27,7 +27,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from simulator.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 from .image import OrbitalImage, fail
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from simulator.terrain import Terrain
+from simulator.scene.terrain import Terrain
 
 from .image import OrbitalImage, fail, file_size
 from .isis3 import looks_like_isis3, read_isis3
@@ -82,7 +82,7 @@ def load_orbital_image(path: str | Path, sidecar: str | Path | Sidecar | None = 
 
 def load_terrain(path: str | Path, sidecar: str | Path | Sidecar | None = None, *,
                  min_valid_fraction: float = 0.5) -> Terrain:
-    """A :class:`simulator.terrain.Terrain` from a real orbital image file.
+    """A :class:`simulator.scene.terrain.Terrain` from a real orbital image file.
 
     Parameters
     ----------

@@ -3,7 +3,7 @@ under which the orbiter observed it.
 
 Grid convention: the image is north-up. Pixel ``(row, col)`` has its centre at world coordinates
 ``x = origin_x_m + col * metres_per_pixel`` (east) and ``y = origin_y_m - row * metres_per_pixel``
-(north); the ground is the plane z = 0 of the local level frame (see :mod:`simulator.kinematics`).
+(north); the ground is the plane z = 0 of the local level frame (see :mod:`flight_interface.frames`).
 """
 from __future__ import annotations
 

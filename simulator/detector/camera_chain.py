@@ -5,7 +5,7 @@ Follow the light::
     radiance (W m^-2 sr^-1 um^-1)             flush, exposure, transfer fields, (1024, 1024)
       -> optics.photoelectron_rate            cos^4 falloff, absolute response      (e-/s)
       -> charge_generation.apply_prnu         pixel response non-uniformity
-      -> x dust transmission (off-nominal)    simulator.dust
+      -> x dust transmission (off-nominal)    simulator.off_nominal.dust
       -> + dark rate (+ hot pixels)           thermal electrons, temperature model   (e-/s)
       -> charge_transfer.binned_charge_e      fast-flush + exposure + transfer smear, 4-row binning (e-)
          (+ particle hits; per pixel with blooming at full well when a pixel may saturate)
@@ -21,8 +21,9 @@ from typing import Callable, Sequence, Union
 
 import numpy as np
 
-from . import blooming, charge_generation, charge_transfer, hot_pixels, optics, particle_hits, readout
-from .camera_config import Camera
+from simulator.detector import blooming, charge_generation, charge_transfer, optics, readout
+from simulator.off_nominal import hot_pixels, particle_hits
+from flight_interface.camera import Camera
 
 PERIODS = ("flush", "exposure", "transfer")
 SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well

@@ -42,8 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import cahvor
-from .camera_config import Camera
+from flight_interface import cahvor
+from flight_interface.camera import Camera
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import cahvor, ground_mapping
-from .camera_config import Camera
+from flight_interface import cahvor
+from simulator.scene import ground_mapping
+from flight_interface.camera import Camera
 
 
 def cone_depth_m(diameter_m: float, cone_angle_rad: float) -> float:

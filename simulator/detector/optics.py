@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera_config import Camera
+from flight_interface.camera import Camera
 
 
 def photoelectron_rate(radiance_w_m2_sr_um: np.ndarray, camera: Camera, falloff: bool = True) -> np.ndarray:

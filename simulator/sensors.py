@@ -1,7 +1,7 @@
 """Sensor models: what the MER flight system would have measured at each descent image (paper section 5).
 
-From a true :class:`~simulator.descent_profile.DescentProfile`, :func:`measure` draws the inputs the
-DIMES estimator gets besides the images (a :class:`~dimes_velocity.measurements.DescentMeasurements`)
+From a true :class:`~simulator.scene.descent_profile.DescentProfile`, :func:`measure` draws the inputs the
+DIMES estimator gets besides the images (a :class:`~flight_interface.measurements.DescentMeasurements`)
 and returns the errors it drew (the truth for the case's result row).
 
 Error models (sigmas per axis; each can be set to 0 = perfect, or ``perfect = true`` for all)
@@ -41,10 +41,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dimes_velocity.measurements import DescentMeasurements, ImageMeasurement
-from simulator.descent_profile import DescentProfile
-from simulator.kinematics import quat_conjugate, quat_from_rotation_vector, quat_multiply, quat_normalize, quat_to_rotation_vector
-from simulator.tomlfields import Table
+from flight_interface.measurements import DescentMeasurements, ImageMeasurement
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.frames import quat_conjugate, quat_from_rotation_vector, quat_multiply, quat_normalize, quat_to_rotation_vector
+from flight_interface.tomlfields import Table
 
 _DEG = np.pi / 180.0
 STATE_TIMES = ("mid_exposure", "exposure_start")
@@ -127,7 +127,7 @@ def measure(profile: DescentProfile, camera, sun_direction_world: np.ndarray, co
     ----------
     profile : DescentProfile
         True trajectory (already placed on the terrain).
-    camera : simulator.camera_config.Camera or None
+    camera : flight_interface.camera.Camera or None
         Used for its exposure time (``state_time = "mid_exposure"``); may be None with "exposure_start".
     sun_direction_world : (3,)
         Unit vector from the ground toward the sun (known from ephemeris; passed through exactly).

@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import cahvor
-from .kinematics import quat_normalize, quat_to_matrix
-from .tomlfields import ConfigError, Table, load_toml
+from flight_interface import cahvor
+from flight_interface.frames import quat_normalize, quat_to_matrix
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 PLANCK_J_S = 6.62607015e-34
 SPEED_OF_LIGHT_M_S = 2.99792458e8

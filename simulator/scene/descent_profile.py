@@ -1,11 +1,11 @@
 """Descent profile: the time-tagged lander state along an EDL trajectory, and poses at any time.
 
-Frames and quaternion conventions are those of :mod:`simulator.kinematics` (world: x east, y north,
+Frames and quaternion conventions are those of :mod:`flight_interface.frames` (world: x east, y north,
 z up from the ground plane; attitude: body-to-world quaternion ``(w, x, y, z)``).
 
 Image timing: ``image_times_s[k]`` is the *start of the exposure* of image k. The fast flush occupies
 ``[t - T_flush, t]``, the exposure ``[t, t + T_exp]`` and the frame transfer
-``[t + T_exp, t + T_exp + T_transfer]`` (durations from the camera's :class:`~simulator.camera_config.Timing`).
+``[t + T_exp, t + T_exp + T_transfer]`` (durations from the camera's :class:`~flight_interface.camera.Timing`).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from typing import Optional
 
 import numpy as np
 
-from .kinematics import (quat_conjugate, quat_from_axis_angle, quat_from_rotation_vector, quat_multiply,
+from flight_interface.frames import (quat_conjugate, quat_from_axis_angle, quat_from_rotation_vector, quat_multiply,
                          quat_normalize, quat_to_rotation_vector, slerp)
 
 

@@ -1,6 +1,6 @@
 """Render an example descent sequence and write PNGs to look at (paper Figs. 1, 2 and 5).
 
-    python -m simulator.example --out DIR [--terrain gdcp|own] [--seed 1]
+    python -m simulator --out DIR [--terrain gdcp|own] [--seed 1]
 
 Writes, for the three images at 2000, 1725 and 1450 m of a tilted, windy descent with the sun 25 deg
 from the zenith and the heat shield falling below:
@@ -23,11 +23,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera_config import load_camera
-from .descent_image import SceneConfig, render_descent_image
-from .descent_profile import DescentProfile
-from .kinematics import quat_from_axis_angle, quat_multiply
-from .terrain import Terrain
+from flight_interface.camera import load_camera
+from simulator.descent_image import SceneConfig, render_descent_image
+from simulator.scene.descent_profile import DescentProfile
+from flight_interface.frames import quat_from_axis_angle, quat_multiply
+from simulator.scene.terrain import Terrain
 
 ROOT = Path(__file__).resolve().parents[1]
 

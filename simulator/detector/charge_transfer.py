@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera_config import Timing
+from flight_interface.camera import Timing
 
 
 def cumsum_rows(values: np.ndarray) -> np.ndarray:
@@ -82,7 +82,7 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
 
 def is_block_mean(rate: np.ndarray, rows: int, binning_rows: int) -> bool:
     """True when a smear-period rate is given per ``binning_rows``-row block (shape (rows / b, W), the
-    block's mean) rather than per pixel row (see :func:`simulator.scene.period_fields`)."""
+    block's mean) rather than per pixel row (see :func:`simulator.scene.radiance.period_fields`)."""
     return rate.shape[0] * binning_rows == rows and binning_rows > 1
 
 

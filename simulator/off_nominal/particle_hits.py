@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera_config import Camera
+from flight_interface.camera import Camera
 
 PIECES_PER_PIXEL = 4
 

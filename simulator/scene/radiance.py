@@ -23,7 +23,7 @@ from the exposure's by a pixel or so. Instead of rendering them, :func:`warped_f
 block means of the exposure-centre field (shape (H / b, W)) along the exact ground-plane flow between
 the two poses (ground point of each block centre at the smear pose, projected with the exposure pose),
 computed on a node grid every :data:`WARP_GRID_STEP_PX` pixels and interpolated; the camera chain takes
-such block-mean fields directly (:func:`simulator.render.render_image`).
+such block-mean fields directly (:func:`simulator.detector.camera_chain.render_image`).
 When any node's ray misses the ground or leaves the exposure image (horizon in view, violent motion)
 the field is rendered exactly instead. Measured error: ``make bench`` (fidelity table).
 
@@ -36,12 +36,13 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from . import charge_transfer, ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
-from .camera_config import Camera
-from .descent_profile import DescentProfile, Pose
-from .kinematics import quat_to_matrix
-from .render import RadianceFields
-from .terrain import Terrain
+from simulator.detector import charge_transfer
+from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
+from flight_interface.camera import Camera
+from simulator.scene.descent_profile import DescentProfile, Pose
+from flight_interface.frames import quat_to_matrix
+from simulator.detector.camera_chain import RadianceFields
+from simulator.scene.terrain import Terrain
 
 
 WARP_GRID_STEP_PX = 32

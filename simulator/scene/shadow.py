@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import ground_mapping
-from .camera_config import Camera
+from simulator.scene import ground_mapping
+from flight_interface.camera import Camera
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera_config import Camera
+from flight_interface.camera import Camera
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .terrain import Terrain
+from simulator.scene.terrain import Terrain
 
 CROP_MARGIN_PX = 2
 

@@ -3,7 +3,7 @@
 Stage 4 of the camera chain, at binned resolution. On-chip binning sums the charge of independent
 pixels before the output amplifier, and a sum of independent Poisson variables is Poisson with the
 summed mean, so drawing shot noise on the binned mean is exact in distribution (as long as no single
-pixel is clipped at full well, which :func:`simulator.render.render_image` handles before binning).
+pixel is clipped at full well, which :func:`simulator.detector.camera_chain.render_image` handles before binning).
 
 Fidelity shortcut (:func:`noisy_charge_e` with ``exact_poisson=False``, the default preset): where the
 binned mean is at least :data:`GAUSSIAN_MIN_MEAN_E` the Poisson draw is replaced by a Gaussian of the
@@ -17,7 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .camera_config import Electronics
+from flight_interface.camera import Electronics
 
 
 def shot_noise_e(rng: np.random.Generator, mean_e: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import ground_mapping
-from .camera_config import Camera
+from simulator.scene import ground_mapping
+from flight_interface.camera import Camera
 
 
 def sample_pixels(camera: Camera, per_axis: int = 9) -> np.ndarray:

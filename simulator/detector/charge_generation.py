@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera_config import Camera
+from flight_interface.camera import Camera
 
 
 def apply_prnu(rate_e_per_s: np.ndarray, prnu_map: np.ndarray) -> np.ndarray:

@@ -3,7 +3,7 @@
 Not used by the estimator. A textured ground plane (a band-limited random reflectance field) is
 seen through the camera's CAHVOR model (per-pixel rays from :attr:`Camera.pixel_rays`, ray-plane
 intersection, bilinear resampling with ``cv2.remap``) from known poses, and the resulting radiance
-is turned into DN by the simulator's public camera chain :func:`simulator.render.render_image`.
+is turned into DN by the simulator's public camera chain :func:`simulator.detector.camera_chain.render_image`.
 The scene is static during each image's flush, exposure and transfer (no motion blur) and there is
 no photometric function, so the truth is exact.
 """
@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simulator.camera_config import Camera
+from flight_interface.camera import Camera
 
-from .geometry import quaternion_matrix
-from .measurements import DescentMeasurements, ImageMeasurement
+from flight_interface.frames import quat_to_matrix
+from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 
 RADIANCE_PER_IF = 160.0   # W m^-2 sr^-1 um^-1 per unit I/F (Mars at 1.52 AU, band 0.4-1.1 um: I/F 0.25 -> 40)
 
@@ -54,7 +54,7 @@ def radiance_field(camera: Camera, ground: Ground, lander_position_m: np.ndarray
                    radiance_per_if: float = RADIANCE_PER_IF) -> np.ndarray:
     """Radiance (W m^-2 sr^-1 um^-1) seen by every full-frame pixel, (height, width) float32; 0 for sky
     and for ground outside the reflectance grid."""
-    body_to_world = quaternion_matrix(attitude_quat)
+    body_to_world = quat_to_matrix(attitude_quat)
     camera_to_world = body_to_world @ camera.camera_to_lander_matrix
     centre = np.asarray(lander_position_m, dtype=float) + body_to_world @ camera.camera_position_in_lander_m
     centre = centre + camera_to_world @ camera.model.c
@@ -101,7 +101,7 @@ def constant_velocity_descent(camera: Camera, ground: Ground, rng: np.random.Gen
     ``attitudes``: body-to-world quaternions, one per image (default level). Images are taken when the
     lander passes each altitude; times start at 0.
     """
-    from simulator.render import CameraEffects, render_image
+    from simulator.detector.camera_chain import CameraEffects, render_image
 
     velocity = np.asarray(velocity_mps, dtype=float)
     altitudes = np.asarray(altitudes_m, dtype=float)

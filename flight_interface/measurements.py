@@ -1,5 +1,5 @@
 """What the flight system measured when each descent image was taken (the estimator's inputs
-besides the images). Frames as in :mod:`simulator.kinematics`: world x east, y north, z up;
+besides the images). Frames as in :mod:`flight_interface.frames`: world x east, y north, z up;
 attitude is the lander body-to-world quaternion ``(w, x, y, z)``.
 """
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 A pixel's world ray starts at the CAHVOR centre C (moved to the world by the lander pose and the camera
 mounting) and points along ``R_cw @ r``, with ``r`` the pixel's unit ray in the camera frame
-(:attr:`simulator.camera_config.Camera.pixel_rays`). It meets the ground at ``t = -O_z / d_z`` when
+(:attr:`flight_interface.camera.Camera.pixel_rays`). It meets the ground at ``t = -O_z / d_z`` when
 ``d_z < 0``; other rays are *sky* (masked, zero radiance, never NaN).
 
 Speed: the unit rays of a camera are fixed, so per pose we only rotate rays. With
@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from . import cahvor
-from .camera_config import Camera
-from .descent_profile import Pose
-from .kinematics import quat_to_matrix
+from flight_interface import cahvor
+from flight_interface.camera import Camera
+from simulator.scene.descent_profile import Pose
+from flight_interface.frames import quat_to_matrix
 
 HORIZON_EPSILON = 1e-6      # |d_z| below this (unit ray) counts as sky
 MAX_MAP_COORDINATE = 1.0e7  # map coordinates are clipped here (far beyond any terrain)

@@ -3,12 +3,12 @@
 Every effect is switched off by its default except CCD blooming (a real CCD blooms; with nothing
 saturating it changes nothing and costs nothing). The physics of each effect lives in its own module:
 
-* dust on the front lens element  -> :mod:`simulator.dust` (transmission map, fixed for the case)
+* dust on the front lens element  -> :mod:`simulator.off_nominal.dust` (transmission map, fixed for the case)
 * hot pixels (dark spikes)        -> :mod:`simulator.hot_pixels` (extra dark rate, fixed for the case)
 * energetic particle hits         -> :mod:`simulator.particle_hits` (charge tracks, new for every image)
 * heat-shield specular glint      -> :mod:`simulator.heat_shield` (drawn into the radiance)
 * blooming                        -> :mod:`simulator.blooming` (charge above full well spills along columns)
-* high motion blur                -> :mod:`simulator.descent_profile` (angular rate multiplier)
+* high motion blur                -> :mod:`simulator.scene.descent_profile` (angular rate multiplier)
 * excessive dark current          -> ``[scene.camera_effects] dark_current_scale`` (already in the chain)
 
 TOML (``[scene.off_nominal]``, parsed by :func:`off_nominal_config_from_table`; SI units, angles in
@@ -40,11 +40,11 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from .dust import DustParticles, draw_particles, transmission_map
-from .hot_pixels import HotPixels, draw_hot_pixels
-from .particle_hits import ParticleHits, draw_particle_hits
-from .camera_config import Camera
-from .tomlfields import Table
+from simulator.off_nominal.dust import DustParticles, draw_particles, transmission_map
+from simulator.off_nominal.hot_pixels import HotPixels, draw_hot_pixels
+from simulator.off_nominal.particle_hits import ParticleHits, draw_particle_hits
+from flight_interface.camera import Camera
+from flight_interface.tomlfields import Table
 
 
 @dataclass(frozen=True)
