@@ -12,7 +12,8 @@ import numpy as np
 from benchmarks.timing import median_ms
 from simulator.scene import radiance
 from flight_interface.camera import load_camera
-from simulator.descent_image import REFERENCE_EFFECTS, SceneConfig, render_descent_image
+from simulator.descent_image import render_descent_image
+from simulator.scene_config import REFERENCE_EFFECTS, SceneConfig
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from simulator.__main__ import crater_field, example_profile
 from flight_interface.frames import quat_from_axis_angle

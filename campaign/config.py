@@ -77,7 +77,7 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     may pass the already loaded site of ``path``. Same hash semantics as :func:`load_campaign_config`.
     """
     from dimes_velocity.config import config_from_table as estimator_from_table
-    from simulator.descent_image import scene_config_from_table
+    from simulator.scene_table import scene_config_from_table
     from simulator.sensors import sensor_config_from_table
     from sitedata.sites import load_site
 

@@ -52,7 +52,7 @@ def footprint_outlines(camera: Camera, profile: DescentProfile, per_side: int = 
     border = border_pixels(camera, per_side)
     outlines = []
     for start in profile.image_times_s:
-        pose = profile.pose(float(start) + 0.5 * camera.timing.exposure_s)
+        pose = profile.pose(camera.timing.exposure_mid_time_s(float(start)))
         points, hit = ground_points(camera, camera_pose(camera, pose), border)
         outlines.append(points[:, :2] if np.all(hit) else None)
     return outlines

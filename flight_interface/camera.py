@@ -54,6 +54,11 @@ class Timing:
     readout_s: float
     transfer_toward_last_row: bool = True  # charge moves toward row height-1 (storage side)
 
+    def exposure_mid_time_s(self, exposure_start_s):
+        """Mid-exposure time(s) (s) of exposures starting at ``exposure_start_s`` (s, scalar or array):
+        the instant an image's pose, footprint and measured state refer to."""
+        return exposure_start_s + 0.5 * self.exposure_s
+
 
 @dataclass(frozen=True)
 class Radiometry:

@@ -24,7 +24,8 @@ import cv2
 import numpy as np
 
 from flight_interface.camera import load_camera
-from simulator.descent_image import SceneConfig, render_descent_image
+from simulator.descent_image import render_descent_image
+from simulator.scene_config import SceneConfig
 from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
 from simulator.scene.terrain import Terrain

@@ -2,34 +2,21 @@
 
 Usage::
 
-    from simulator.descent_image import SceneConfig, render_descent_image
+    from simulator.scene_config import SceneConfig
+    from simulator.descent_image import render_descent_image
     result = render_descent_image(terrain, profile, camera, 0, sun_world, SceneConfig(), rng)
     result.dn                 # uint16 (256, 1024), what the camera returns
     result.sky_mask           # bool (1024, 1024), pixels whose ray misses the ground
     result.diagnostics.anti_sun_pixel
 
-Every scene effect is a switch in :class:`SceneEffects`; camera effects are the
-:class:`simulator.detector.camera_chain.CameraEffects` inside :class:`SceneConfig`. :func:`scene_config_from_table`
-builds a config from a TOML table (degrees only there), e.g.::
-
-    [scene]
-    sun_distance_au = 1.524
-    spectral_ratio = 0.906
-    parachute_distance_m = 30.0
-    heat_shield_cone_angle_deg = 140.0
-    [scene.effects]
-    shadows = true
-    motion_blur = true
-    [scene.camera_effects]
-    dark_current_scale = 1.0
-    [scene.off_nominal]            # see simulator.off_nominal for every key
-    dust_particle_count = 0
-    angular_rate_multiplier = 1.0
+The configuration (:class:`~simulator.scene_config.SceneConfig`: scene parameters, effect switches,
+camera effects, off-nominal effects) is in :mod:`simulator.scene_config`; :mod:`simulator.scene_table`
+reads it from the TOML ``[scene]`` table.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -37,74 +24,10 @@ from simulator.detector import charge_transfer
 from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, radiance
 from flight_interface.camera import Camera
 from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
-from .off_nominal import OffNominalArtefacts, OffNominalConfig, off_nominal_config_from_table
-from simulator.detector.camera_chain import CameraEffects, RadianceFields, RenderedImage, render_image
+from .off_nominal import OffNominalArtefacts, OffNominalConfig
+from .scene_config import SceneConfig
+from simulator.detector.camera_chain import RadianceFields, RenderedImage, render_image
 from simulator.scene.terrain import Terrain
-from flight_interface.tomlfields import Table
-
-
-@dataclass(frozen=True)
-class SceneEffects:
-    """Switches of the scene model; all on (the defaults) is the nominal simulator.
-
-    Physics switches: ``photometric_correction`` (DIMES/MOC ratio of eq. 1-3, hence the opposition
-    halo), ``spectral_ratio``, ``shadows`` (lander, backshell, parachute, heat shield), ``heat_shield``
-    (drawn when in view), ``motion_blur`` (sub-poses per period). Fidelity shortcuts (switch off for the
-    reference render): ``coarse_ray_grid`` (rays interpolated from a node grid), ``coarse_photometry``
-    (ratio on the node grid), ``share_still_fields`` (one field for all three periods when the image
-    moves by less than ``still_shift_terrain_px``), ``warp_smear_fields`` (fast-flush and frame-transfer
-    fields warped from the exposure-centre field along the ground-plane flow instead of re-rendered,
-    see :func:`simulator.scene.radiance.warped_field`), ``pixel_area_filter`` (the pixel-area integral of the
-    terrain approximated from point samples, see :func:`simulator.scene.radiance.pixel_area_average`; the reference
-    supersamples instead).
-    """
-
-    photometric_correction: bool = True
-    spectral_ratio: bool = True
-    shadows: bool = True
-    heat_shield: bool = True
-    motion_blur: bool = True
-    coarse_ray_grid: bool = True
-    coarse_photometry: bool = True
-    share_still_fields: bool = True
-    warp_smear_fields: bool = True
-    pixel_area_filter: bool = True
-
-
-@dataclass(frozen=True)
-class SceneConfig:
-    """Scene parameters (SI units) and effect switches. Defaults are documented in the modules:
-    :mod:`simulator.photometry` (sun distance, spectral ratio), :mod:`simulator.shadow` (casters),
-    :mod:`simulator.heat_shield`, :mod:`simulator.motion_blur`."""
-
-    effects: SceneEffects = SceneEffects()
-    camera_effects: CameraEffects = CameraEffects()
-    off_nominal: OffNominalConfig = OffNominalConfig()
-    sun_distance_au: float = photometry.MARS_MEAN_SUN_DISTANCE_AU
-    spectral_ratio: float = 0.906
-    lander_diameter_m: float = 1.9
-    backshell_diameter_m: float = 2.65
-    backshell_distance_m: float = 20.0
-    parachute_diameter_m: float = 15.0
-    parachute_distance_m: float = 30.0
-    shadow_diffuse_fraction: float = 0.3
-    heat_shield_diameter_m: float = 5.3
-    heat_shield_cone_angle_rad: float = float(np.radians(140.0))
-    heat_shield_reflectance: float = 0.07
-    ray_grid_step_px: int = 16
-    photometry_grid_step_px: int = 16
-    max_substeps: int = 16
-    still_shift_terrain_px: float = 1.0
-    substeps_per_terrain_px: float = 1.0   # motion sub-poses per terrain pixel of image shift
-    supersample: int = 1                   # s x s sub-pixel rays per pixel (reference render)
-
-    def with_effects(self, **switches) -> "SceneConfig":
-        """A copy with some scene effect switches changed, e.g. ``config.with_effects(shadows=False)``."""
-        return replace(self, effects=replace(self.effects, **switches))
-
-
-REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
-                         warp_smear_fields=False, pixel_area_filter=False)
 
 
 @dataclass(frozen=True)
@@ -224,7 +147,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     start_s = image_start_time(profile, image)
     off_nominal = config.off_nominal
     artefacts = _camera_artefacts(off_nominal, artefacts)
-    profile = scale_angular_rates(profile, off_nominal.angular_rate_multiplier, start_s + 0.5 * camera.timing.exposure_s)
+    profile = scale_angular_rates(profile, off_nominal.angular_rate_multiplier, camera.timing.exposure_mid_time_s(start_s))
 
     started = time.perf_counter()
     periods = radiance.period_fields(terrain, camera, profile, start_s, sun, config,
@@ -282,7 +205,7 @@ def _add_glint(periods: radiance.PeriodScene, camera: Camera, profile: DescentPr
         period = periods_of_field[0]
         field_array = getattr(periods.fields, period)
         count = 1 if periods.shared else max(int(periods.substeps.get(period, 1)), 1)
-        times = ([start_s + 0.5 * timing.exposure_s] if periods.shared
+        times = ([timing.exposure_mid_time_s(start_s)] if periods.shared
                  else motion_blur.substep_times(*windows[period], count))
         for time_s in times:
             pose = profile.pose(float(np.clip(time_s, profile.time_s[0], profile.time_s[-1])))
@@ -306,73 +229,3 @@ def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[
     padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)
     padded[row0 - first * block_rows:row0 - first * block_rows + window.shape[0]] = window
     return first, charge_transfer.block_means(padded, block_rows)
-
-
-def scene_config_from_table(table: Table) -> SceneConfig:
-    """Build a :class:`SceneConfig` from a TOML table (e.g. ``[scene]``); every field is optional.
-
-    Numbers are range-checked with one-line errors naming file, field and allowed range; the heat
-    shield cone angle is given in degrees (``heat_shield_cone_angle_deg``). Sub-tables ``effects`` and
-    ``camera_effects`` hold the boolean switches (and ``camera_effects.dark_current_scale``);
-    ``off_nominal`` the off-nominal effects (:mod:`simulator.off_nominal`). ``fidelity`` names the
-    preset of shortcuts the other fields start from (:mod:`simulator.fidelity`; default "default").
-    """
-    from .fidelity import DEFAULT_PRESET, PRESETS, preset_config
-
-    default = preset_config(table.string("fidelity", default=DEFAULT_PRESET, choices=PRESETS))
-    switches = table.table("effects", required=False)
-    effects = SceneEffects(**{f.name: switches.boolean(f.name, default=getattr(default.effects, f.name))
-                              for f in fields(SceneEffects)})
-    _reject_unknown(switches, {f.name for f in fields(SceneEffects)})
-    cam_table = table.table("camera_effects", required=False)
-    cam_kwargs = {}
-    for f in fields(CameraEffects):
-        current = getattr(default.camera_effects, f.name)
-        if isinstance(current, bool):
-            cam_kwargs[f.name] = cam_table.boolean(f.name, default=current)
-        else:
-            cam_kwargs[f.name] = cam_table.number(f.name, default=current, minimum=0.0, maximum=1e6)
-    _reject_unknown(cam_table, {f.name for f in fields(CameraEffects)})
-
-    def number(key, minimum, maximum, exclusive_minimum=False):
-        return table.number(key, default=getattr(default, key), minimum=minimum, maximum=maximum,
-                            exclusive_minimum=exclusive_minimum)
-
-    def step(key):
-        value = table.integer(key, default=getattr(default, key), minimum=1, maximum=256)
-        if 1024 % value:
-            raise table.fail(key, f"= {value} must divide the 1024-pixel frame; allowed: 1, 2, 4, ..., 256")
-        return value
-
-    config = SceneConfig(
-        effects=effects, camera_effects=CameraEffects(**cam_kwargs),
-        off_nominal=off_nominal_config_from_table(table.table("off_nominal", required=False)),
-        sun_distance_au=number("sun_distance_au", 0.1, 100.0, exclusive_minimum=True),
-        spectral_ratio=number("spectral_ratio", 0.0, 10.0, exclusive_minimum=True),
-        lander_diameter_m=number("lander_diameter_m", 0.0, 20.0),
-        backshell_diameter_m=number("backshell_diameter_m", 0.0, 20.0),
-        backshell_distance_m=number("backshell_distance_m", 0.0, 500.0),
-        parachute_diameter_m=number("parachute_diameter_m", 0.0, 100.0),
-        parachute_distance_m=number("parachute_distance_m", 0.0, 500.0),
-        shadow_diffuse_fraction=number("shadow_diffuse_fraction", 0.0, 1.0),
-        heat_shield_diameter_m=number("heat_shield_diameter_m", 0.0, 50.0, exclusive_minimum=True),
-        heat_shield_cone_angle_rad=float(np.radians(table.number(
-            "heat_shield_cone_angle_deg", default=140.0, minimum=0.0, maximum=180.0,
-            exclusive_minimum=True, exclusive_maximum=True))),
-        heat_shield_reflectance=number("heat_shield_reflectance", 0.0, 1.0),
-        ray_grid_step_px=step("ray_grid_step_px"),
-        photometry_grid_step_px=step("photometry_grid_step_px"),
-        max_substeps=table.integer("max_substeps", default=default.max_substeps, minimum=1, maximum=256),
-        still_shift_terrain_px=number("still_shift_terrain_px", 0.0, 100.0),
-        substeps_per_terrain_px=number("substeps_per_terrain_px", 0.1, 64.0),
-        supersample=table.integer("supersample", default=default.supersample, minimum=1, maximum=8),
-    )
-    _reject_unknown(table, {f.name for f in fields(SceneConfig)} - {"heat_shield_cone_angle_rad"}
-                    | {"heat_shield_cone_angle_deg", "fidelity"})
-    return config
-
-
-def _reject_unknown(table: Table, allowed: set[str]) -> None:
-    for key in table.data:
-        if key not in allowed:
-            raise table.fail(key, f"is not a known field; allowed: {', '.join(sorted(allowed))}")

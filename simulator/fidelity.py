@@ -1,6 +1,6 @@
 """Fidelity presets: named sets of the documented shortcuts, from the exact reference render to fast.
 
-Every shortcut is a switch of :class:`simulator.descent_image.SceneConfig` (scene) or
+Every shortcut is a switch of :class:`simulator.scene_config.SceneConfig` (scene) or
 :class:`simulator.detector.camera_chain.CameraEffects` (camera), and each is decided per scene where it can be (a
 still image shares one field; sub-poses follow the actual image shift; the heat shield is drawn only
 when its footprint meets the view; smear fields are warped only when no pixel sees the sky).
@@ -26,15 +26,13 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from .scene_config import REFERENCE_EFFECTS, SceneConfig
+
 PRESETS = ("reference", "high", "default", "fast")
 DEFAULT_PRESET = "default"
 
-_EXACT_SCENE = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
-                    warp_smear_fields=False, pixel_area_filter=False)
-
-
 def apply_preset(config, name: str):
-    """``config`` (a :class:`~simulator.descent_image.SceneConfig`) with the shortcuts of preset ``name``.
+    """``config`` (a :class:`~simulator.scene_config.SceneConfig`) with the shortcuts of preset ``name``.
 
     Raises
     ------
@@ -45,11 +43,11 @@ def apply_preset(config, name: str):
         raise ValueError(f"fidelity preset {name!r} is unknown; allowed: {', '.join(PRESETS)}")
     camera_effects = config.camera_effects
     if name == "reference":
-        return replace(config, effects=replace(config.effects, **_EXACT_SCENE), supersample=3,
+        return replace(config, effects=replace(config.effects, **REFERENCE_EFFECTS), supersample=3,
                        substeps_per_terrain_px=4.0, max_substeps=max(config.max_substeps, 64),
                        camera_effects=replace(camera_effects, exact_poisson=True))
     if name == "high":
-        return replace(config, effects=replace(config.effects, **{**_EXACT_SCENE, "pixel_area_filter": True}),
+        return replace(config, effects=replace(config.effects, **{**REFERENCE_EFFECTS, "pixel_area_filter": True}),
                        supersample=1,
                        substeps_per_terrain_px=1.0, camera_effects=replace(camera_effects, exact_poisson=True))
     shortcuts = replace(config.effects, coarse_ray_grid=True, coarse_photometry=True, share_still_fields=True,
@@ -62,7 +60,5 @@ def apply_preset(config, name: str):
 
 
 def preset_config(name: str, base=None):
-    """The :class:`~simulator.descent_image.SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
-    from .descent_image import SceneConfig
-
+    """The :class:`~simulator.scene_config.SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
     return apply_preset(SceneConfig() if base is None else base, name)

@@ -116,7 +116,7 @@ def _state_times(profile: DescentProfile, camera, config: SensorConfig) -> np.nd
         return times
     if camera is None:
         raise ValueError("sensors: state_time = 'mid_exposure' needs the camera (for its exposure time)")
-    return times + 0.5 * float(camera.timing.exposure_s)
+    return camera.timing.exposure_mid_time_s(times)
 
 
 def measure(profile: DescentProfile, camera, sun_direction_world: np.ndarray, config: SensorConfig,

@@ -7,7 +7,7 @@ import pytest
 from dimes_velocity import geometry
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 from flight_interface import cahvor
-from flight_interface.frames import quat_from_axis_angle, quat_to_matrix
+from flight_interface.frames import quat_from_axis_angle
 
 
 def test_predicted_positions_integrate_linear_velocity_exactly():

@@ -8,7 +8,8 @@ import numpy as np
 from simulator.detector import charge_transfer
 from simulator.scene import ground_mapping, radiance
 from flight_interface.camera import load_camera
-from simulator.descent_image import SceneConfig, render_descent_image
+from simulator.descent_image import render_descent_image
+from simulator.scene_config import SceneConfig
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
 from simulator.scene.terrain import Terrain
@@ -206,7 +207,7 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
 def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
     import pytest
 
-    from simulator.descent_image import scene_config_from_table
+    from simulator.scene_table import scene_config_from_table
     from flight_interface.tomlfields import ConfigError, Table, load_toml
 
     path = tmp_path / "scene.toml"

@@ -10,7 +10,9 @@ import pytest
 
 from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry
 from flight_interface.camera import load_camera
-from simulator.descent_image import SceneConfig, render_descent_image, scene_config_from_table
+from simulator.descent_image import render_descent_image
+from simulator.scene_config import SceneConfig
+from simulator.scene_table import scene_config_from_table
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile, scale_angular_rates
 from flight_interface.frames import quat_from_axis_angle, quat_multiply, quat_conjugate, quat_to_rotation_vector
 from simulator.off_nominal import (OffNominalArtefacts, OffNominalConfig, draw_case_artefacts,

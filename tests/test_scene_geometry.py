@@ -9,7 +9,7 @@ import pytest
 
 from simulator.scene import ground_mapping, resample, radiance
 from flight_interface.camera import load_camera
-from simulator.descent_image import SceneConfig
+from simulator.scene_config import SceneConfig
 from simulator.scene.descent_profile import constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
 from simulator.scene.terrain import Terrain

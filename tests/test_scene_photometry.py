@@ -8,7 +8,7 @@ import pytest
 
 from simulator.scene import ground_mapping, photometry, radiance, shadow
 from flight_interface.camera import load_camera
-from simulator.descent_image import REFERENCE_EFFECTS, SceneConfig
+from simulator.scene_config import REFERENCE_EFFECTS, SceneConfig
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.scene.terrain import Terrain
 

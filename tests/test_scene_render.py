@@ -8,8 +8,9 @@ import pytest
 
 from simulator.scene import heat_shield, motion_blur, photometry, radiance
 from flight_interface.camera import load_camera
-from simulator.descent_image import (DescentImage, SceneConfig, render_descent_image,
-                                     scene_config_from_table)
+from simulator.descent_image import DescentImage, render_descent_image
+from simulator.scene_config import SceneConfig
+from simulator.scene_table import scene_config_from_table
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
 from simulator.scene.terrain import Terrain

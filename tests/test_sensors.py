@@ -6,6 +6,7 @@ import pytest
 
 from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector, rotate
+from flight_interface.camera import Timing
 from flight_interface.tomlfields import ConfigError, Table
 from simulator.sensors import SensorConfig, measure, sensor_config_from_table
 
@@ -13,13 +14,9 @@ EXPOSURE_S = 0.0051
 DRAWS = 2000
 
 
-class _Timing:
-    exposure_s = EXPOSURE_S
-
-
 class _Camera:
-    """The only camera property the sensors use (exposure time); a real Camera works the same."""
-    timing = _Timing()
+    """The only camera property the sensors use (its timing); a real Camera works the same."""
+    timing = Timing(fast_flush_s=0.0051, exposure_s=EXPOSURE_S, frame_transfer_s=0.0051, readout_s=0.2)
 
 
 def _swinging_profile() -> DescentProfile:

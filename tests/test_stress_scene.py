@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simulator.descent_image import SceneConfig, render_descent_image
+from simulator.descent_image import render_descent_image
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle, quat_to_matrix
 from simulator.scene.terrain import Terrain

@@ -288,14 +288,14 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
             camera_poses[time_s] = ground_mapping.camera_pose(camera, pose_at(time_s))
         return camera_poses[time_s]
 
-    camera_height_m = cam_at(t + 0.5 * timing.exposure_s).ray_origin_m[2]
+    camera_height_m = cam_at(timing.exposure_mid_time_s(t)).ray_origin_m[2]
     if not camera_height_m > 0.0:
         raise ValueError(f"profile {profile.name}: the camera is at {camera_height_m:.3f} m, at or below the "
                          "ground (z = 0) at the exposure; the simulator needs it above the ground")
     first = windows["flush"][0] if need_smear_fields else windows["exposure"][0]
     last = windows["transfer"][1] if need_smear_fields else windows["exposure"][1]
     total_shift = motion_blur.image_shift(camera, cam_at(first), cam_at(last), mpp)
-    centre = radiance_at_pose(terrain, camera, pose_at(t + 0.5 * timing.exposure_s), sun_world, config)
+    centre = radiance_at_pose(terrain, camera, pose_at(timing.exposure_mid_time_s(t)), sun_world, config)
 
     def masks(pose_fields):
         sky = pose_fields[0].sky.copy()
