@@ -18,3 +18,21 @@ def mer_a(mer_a_path):
     from flight_interface.camera import load_camera
 
     return load_camera(mer_a_path)
+
+
+@pytest.fixture(scope="session")
+def site_strips(tmp_path_factory):
+    """The shipped classes of both sites (preset + seed from the site files), full size:
+    ``{class: (site name, ellipse fraction, Terrain)}``, built once per session in a fresh cache."""
+    from sitedata import synthetic_terrain
+    from sitedata.sites import class_terrain_params, load_site
+
+    cache = tmp_path_factory.mktemp("terrain_cache")
+    strips = {}
+    for site_file in (REPO / "sitedata" / "gusev.toml", REPO / "sitedata" / "meridiani.toml"):
+        site = load_site(site_file)
+        for site_class in site.classes:
+            params = class_terrain_params(site_class.terrain)
+            terrain = synthetic_terrain.synthetic_terrain(params, site_class.terrain.seed, cache_dir=cache)
+            strips[site_class.name] = (site.name, site_class.ellipse_fraction, terrain)
+    return strips

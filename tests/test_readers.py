@@ -46,12 +46,25 @@ def test_moc_na_decompressed_strip_matches_its_bytes():
     assert detect_format(path) == "PDS3"
 
 
-def test_moc_compressed_imq_is_refused_naming_encoding_type():
-    path = real("moc_na/M0100115.imq")
+def test_moc_predictively_compressed_imq_decodes_to_the_msss_decompressed_product():
+    # pdr's port of the MSSS decompressor against the MSSS-decompressed product, read as raw bytes
+    compressed, decompressed = real("moc_na/M0100115.imq"), real("moc_na/M0100115_decompressed.img")
+    image = read_image(compressed)
+    expected = raw_bytes(decompressed, 4 * 672, 4864 * 672).reshape(4864, 672)   # RECORD_BYTES 672, ^IMAGE = 5
+    assert image.shape == (4864, 672) and image.valid.all()
+    np.testing.assert_array_equal(image.pixels, expected.astype(np.float32))
+    assert any("MOC-PRED-X-5" in note and "pdr" in note for note in image.notes)
+    assert image.label["IMAGE"]["ENCODING_TYPE"] == "MOC-PRED-X-5"
+
+
+def test_moc_transform_compression_is_still_refused_naming_encoding_type(tmp_path):
+    source = real("moc_na/M0100115.imq")
+    path = tmp_path / "transform.imq"
+    path.write_bytes(source.read_bytes().replace(b'"MOC-PRED-X-5"', b'"MOC-DCT-2"  ', 1))
     with pytest.raises(ReaderError) as caught:
         read_image(path)
     message = str(caught.value)
-    assert str(path) in message and "ENCODING_TYPE" in message and "MOC-PRED-X-5" in message
+    assert str(path) in message and "ENCODING_TYPE" in message and "MOC-DCT-2" in message
     assert "\n" not in message
 
 
@@ -189,5 +202,5 @@ def test_inspect_command_reports_missing_terrain_facts(capsys):
     assert "4864 rows x 672 cols" in out and "metres_per_pixel  unknown (side-car needed)" in out
     assert main([str(good), "--sidecar", str(EXAMPLES / "M0100115.sidecar.toml")]) == 0
     assert "metres_per_pixel  4.5 m" in capsys.readouterr().out
-    assert main([str(compressed)]) == 1
-    assert "ENCODING_TYPE" in capsys.readouterr().err
+    assert main([str(compressed)]) == 0
+    assert "decoded with pdr" in capsys.readouterr().out

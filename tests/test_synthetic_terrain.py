@@ -12,11 +12,10 @@ from scipy import ndimage
 
 from sitedata import synthetic_features as feat
 from sitedata import synthetic_terrain as st
-from sitedata.sites import class_terrain_params, load_site
+from sitedata.terrain_stats import crater_density_per_km2
 
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = REPO.parent / "shared" / "realdata"
-SITES = [REPO / "sitedata" / "gusev.toml", REPO / "sitedata" / "meridiani.toml"]
 
 # A plain, featureless class: every effect off unless a test switches it on.
 BARE = dict(rows=256, cols=256, albedo_relative_spread=0.0, rms_slope_deg=0.0, crater_density_per_km2=0.0,
@@ -51,15 +50,6 @@ def binned_rms_contrast(image: np.ndarray, factor: int = 4) -> float:
     return float(blocks.std() / blocks.mean())
 
 
-def feature_density_per_km2(image: np.ndarray, metres_per_pixel: float, threshold: float = 3e-5) -> float:
-    """Corner-like features a correlator would pick: local maxima of the Shi-Tomasi minimum
-    eigenvalue (7 px window) of the brightness-normalised, slightly smoothed image."""
-    normalised = cv2.GaussianBlur((image / image.mean()).astype(np.float32), (0, 0), 1.5)
-    strength = cv2.cornerMinEigenVal(normalised, 7, 3)
-    peaks = (strength == cv2.dilate(strength, np.ones((9, 9), np.uint8))) & (strength > threshold)
-    return peaks.sum() / (image.size * (metres_per_pixel / 1000.0) ** 2)
-
-
 def read_moc_pds3(path: Path) -> np.ndarray:
     """Minimal reader for the attached-label uint8 MOC product (RECORD_BYTES, ^IMAGE, LINES, LINE_SAMPLES)."""
     raw = path.read_bytes()
@@ -80,20 +70,6 @@ def real_slope_range():
         slopes[f"CTX {tile.stem}"] = spectral_slope(cv2.imread(str(tile), cv2.IMREAD_GRAYSCALE))
     assert len(slopes) == 7, slopes
     return min(slopes.values()), max(slopes.values()), slopes
-
-
-@pytest.fixture(scope="module")
-def site_strips(tmp_path_factory):
-    """The shipped classes of both sites (preset + seed from the site files), full size."""
-    cache = tmp_path_factory.mktemp("terrain_cache")
-    strips = {}
-    for site_file in SITES:
-        site = load_site(site_file)
-        for site_class in site.classes:
-            params = class_terrain_params(site_class.terrain)
-            terrain = st.synthetic_terrain(params, site_class.terrain.seed, cache_dir=cache)
-            strips[site_class.name] = (site.name, site_class.ellipse_fraction, terrain)
-    return strips
 
 
 # ----------------------------------------------------------------------------------------------
@@ -122,12 +98,12 @@ def test_rms_contrast_follows_the_documented_class_ordering(site_strips):
     for name, (site, fraction, _) in site_strips.items():
         weighted[site] = weighted.get(site, 0.0) + fraction * contrast[name]
     assert weighted["Gusev"] > 1.03 * weighted["Meridiani"], weighted
-    # MER sites are bland: terrain contrast of a few per cent at most
-    assert all(0.003 < c < 0.06 for c in contrast.values()), contrast
+    # how bland against real MOC images of the same kind of ground: tests/test_terrain_calibration.py
 
 
 def test_feature_density_follows_the_documented_class_ordering(site_strips):
-    density = {name: feature_density_per_km2(t.reflectance_if, t.metres_per_pixel)
+    # dark features (craters, pits, track segments, knob shadows) as sitedata.terrain_stats counts them
+    density = {name: crater_density_per_km2(t.reflectance_if, t.metres_per_pixel)
                for name, (_, _, t) in site_strips.items()}
     assert density["hbsp"] < density["gcp"], density
     assert max(density["gcp"], density["hbsp"]) < 0.8 * min(density[n] for n in ("gdcp", "hdcp", "heb", "gkep")), density
