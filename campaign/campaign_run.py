@@ -8,9 +8,12 @@ from pathlib import Path
 
 import pandas as pd
 
+from simulator.tomlfields import ConfigError
+
 from .aggregate import format_table, site_table
 from .case import CampaignContext, load_resources
 from .config import CampaignConfig
+from .coverage import refusal
 from .planner import ClassPlanInput, plan_class
 from .plots import footprint_map
 from .runner import RunSummary, connected_client, run_cases
@@ -21,7 +24,10 @@ PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pya
 
 
 def plan_campaign(config: CampaignConfig):
-    """Load what planning needs (camera, trajectories, terrain extents) and plan every class."""
+    """Load what planning needs (camera, trajectories, terrain extents) and plan every class.
+
+    Raises ConfigError (one line) for a class whose terrain cannot hold the trajectory set's footprints
+    (:mod:`campaign.coverage`), before anything is written."""
     resources = load_resources(config)
     frames = []
     first = 0
@@ -30,6 +36,9 @@ def plan_campaign(config: CampaignConfig):
         if count == 0:
             continue
         terrain = resources.terrain(entry.name)
+        cover = resources.coverage(terrain)
+        if not cover.holds:
+            raise ConfigError(f"{config.source}: {refusal(entry.name, terrain, cover)}")
         spec = ClassPlanInput(class_name=entry.name, class_index=index, ellipse_fraction=entry.ellipse_fraction,
                               cases=count, terrain_name=terrain.name, terrain_extent_m=terrain.extent_m,
                               margin_m=2.0 * terrain.metres_per_pixel)

@@ -55,12 +55,26 @@ class Resources:
         self.profiles: list[DescentProfile] = _shared("profiles", config.site.trajectory_path, read_profiles)
 
     def terrain(self, class_name: str):
+        """The class's terrain, fitted to the trajectory set's footprints when its spec asks (``resample``)."""
         from sitedata.sites import load_class_terrain
 
         entry = next(entry for entry in self.config.site.classes if entry.name == class_name)
-        return _shared("terrain", entry.terrain, load_class_terrain)
+        terrain = _shared("terrain", entry.terrain, load_class_terrain)
+        if entry.terrain.resample == "none":
+            return terrain
+        from .coverage import fit_terrain
 
+        source = (entry.terrain, id(terrain), str(self.config.site.camera_path), str(self.config.site.trajectory_path))
+        return _shared("fitted-terrain", source,
+                       lambda _: fit_terrain(terrain, entry.terrain.resample, self.coverage(terrain)))
 
+    def coverage(self, terrain):
+        """How ``terrain`` holds this campaign's trajectory set (:func:`campaign.coverage.coverage`)."""
+        from .coverage import coverage, trajectory_boxes
+
+        key = (str(self.config.site.camera_path), str(self.config.site.trajectory_path))
+        boxes = _shared("footprint-boxes", key, lambda _: trajectory_boxes(self.camera, self.profiles))
+        return coverage(terrain, self.camera, self.profiles, boxes)
 
     def placed_profile(self, row: dict) -> DescentProfile:
         profile = self.profiles[int(row["profile_index"])]
@@ -218,11 +232,13 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
     started = time.perf_counter()
     estimate = estimate_velocity(images, inputs.measurements, camera, config.estimator)
     estimator_ms = 1e3 * (time.perf_counter() - started)
+    # an image that sees untextured ground outside the terrain cannot score: recorded invalid, never valid
+    outside_terrain = max(outside) > config.max_outside_terrain_fraction
 
     last_time = float(profile.image_times_s[-1])
     truth_velocity = profile.pose(last_time).velocity_mps
     wind = profile.wind_at(last_time)
-    valid = bool(estimate.valid)
+    valid = bool(estimate.valid) and not outside_terrain
     error = (float(np.hypot(estimate.velocity_east_mps - truth_velocity[0],
                             estimate.velocity_north_mps - truth_velocity[1])) if valid else None)
     if int(row["case_in_class"]) == 0:
@@ -235,7 +251,8 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
         "altitude_image3_m": float(profile.pose(last_time).position_m[2]),
         "estimate_velocity_east_mps": float(estimate.velocity_east_mps) if valid else None,
         "estimate_velocity_north_mps": float(estimate.velocity_north_mps) if valid else None,
-        "valid": valid, "reason": str(estimate.reason), "velocity_error_mps": error,
+        "valid": valid, "reason": "outside_terrain" if outside_terrain else str(estimate.reason),
+        "velocity_error_mps": error,
         "heat_shield_in_view": heat_shield_visible, "outside_terrain_fraction": outside,
         "feature_brightness": [float(f.brightness_dn) for f in features],
         "feature_contrast": [float(f.contrast_dn) for f in features],

@@ -6,7 +6,9 @@ A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
 ``[campaign]``   ``seed`` (int), ``output_dir`` (relative to the working directory; default
                  ``runs/<site>``), ``cases`` (optional
                  table class -> count overriding the site's counts), ``cases_scale`` (optional factor
-                 applied to every class, e.g. 0.1 for a quick look; at least 1 case per class with a count)
+                 applied to every class, e.g. 0.1 for a quick look; at least 1 case per class with a count),
+                 ``max_outside_terrain_fraction`` (0..1, default 0: a case any of whose images sees more
+                 of its pixels on ground outside the terrain is recorded invalid, reason ``outside_terrain``)
 ``[execution]``  ``scheduler`` ("" = embedded LocalCluster, or "tcp://host:port"), ``workers`` (0 = one
                  per core), ``retries`` (attempts after the first for a case that raises), ``memory_limit``
 ``[sensors]``    sensor noise (:mod:`simulator.sensors`)
@@ -58,6 +60,7 @@ class CampaignConfig:
     scene: Any                    # simulator.descent_image.SceneConfig
     config_hash: str
     resolved: dict                # the parsed TOML (for the manifest)
+    max_outside_terrain_fraction: float = 0.0   # an image seeing more ground outside the terrain: invalid
 
 
 def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = None,
@@ -98,6 +101,7 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     scale = cases_scale if cases_scale is not None else campaign.number("cases_scale", default=1.0,
                                                                         minimum=0.0, maximum=100.0,
                                                                         exclusive_minimum=True)
+    max_outside = campaign.number("max_outside_terrain_fraction", default=0.0, minimum=0.0, maximum=1.0)
     class_names = [entry.name for entry in site.classes]
     overrides = campaign.table("cases", required=False)
     cases = {}
@@ -137,7 +141,7 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
     return CampaignConfig(source=path, site=site, seed=seed, output_dir=out, cases_per_class=cases,
                           execution=execution, sensors=sensors, estimator=estimator, scene=effects,
-                          config_hash=config_hash, resolved=resolved)
+                          config_hash=config_hash, resolved=resolved, max_outside_terrain_fraction=max_outside)
 
 
 def _input_files(site) -> list[Path]:

@@ -19,6 +19,10 @@ A site TOML (``sitedata/gusev.toml``, ``sitedata/meridiani.toml``) holds one ``[
     terrain = { kind = "synthetic", preset = "gcp", seed = 1 }          # or
     # terrain = { kind = "file", path = "x.img", sidecar = "x.toml" }  # sidecar optional
 
+Optional in either terrain table: ``resample = "none" | "stretch" | "mosaic"`` (default "none"): what
+the campaign does with a terrain too small for the descent images' footprints (refuse it, show the
+same image at the coarser scale that holds them, or mirror-tile it; :mod:`campaign.coverage`).
+
 Optional in a synthetic terrain table: ``overrides = { haze_optical_depth = 0.3, ... }`` (numeric
 fields of :class:`sitedata.synthetic_classes.ClassTerrainParams`). Other top-level tables
 (``[campaign]``, ``[sensors]``, ...) belong to other readers and are ignored here; unknown keys
@@ -45,7 +49,9 @@ FRACTION_TOLERANCE = 1e-6
 _SITE_KEYS = ("name", "camera", "trajectory_set", "sun", "classes")
 _SUN_KEYS = ("azimuth_deg", "elevation_deg", "heliocentric_distance_au")
 _CLASS_KEYS = ("name", "ellipse_fraction", "cases", "terrain")
-_TERRAIN_KEYS = {"synthetic": ("kind", "preset", "seed", "overrides"), "file": ("kind", "path", "sidecar")}
+_TERRAIN_KEYS = {"synthetic": ("kind", "preset", "seed", "overrides", "resample"),
+                 "file": ("kind", "path", "sidecar", "resample")}
+RESAMPLE_MODES = ("none", "stretch", "mosaic")
 _OVERRIDABLE = tuple(f.name for f in dataclasses.fields(ClassTerrainParams)
                      if f.name not in ("name", "description"))
 
@@ -61,6 +67,7 @@ class TerrainSpec:
     overrides: tuple[tuple[str, object], ...] = ()
     path: Path | None = None
     sidecar: Path | None = None
+    resample: str = "none"                      # "none" | "stretch" | "mosaic" (campaign.coverage)
 
 
 @dataclass(frozen=True)
@@ -127,9 +134,11 @@ def _terrain_spec(table: Table, base_dir: Path) -> TerrainSpec:
     kind = table.string("kind", choices=tuple(_TERRAIN_KEYS))
     _reject_unknown(table, _TERRAIN_KEYS[kind])
     source = f"{table.source}: {table.path}"
+    resample = table.string("resample", default="none", choices=RESAMPLE_MODES)
     if kind == "file":
         sidecar = table.path_value("sidecar", base_dir) if table.has("sidecar") else None
-        return TerrainSpec(kind="file", source=source, path=table.path_value("path", base_dir), sidecar=sidecar)
+        return TerrainSpec(kind="file", source=source, path=table.path_value("path", base_dir), sidecar=sidecar,
+                           resample=resample)
     preset = table.string("preset", choices=tuple(CLASS_PRESETS))
     seed = table.integer("seed", minimum=0, maximum=2**63 - 1)
     overrides = []
@@ -149,7 +158,8 @@ def _terrain_spec(table: Table, base_dir: Path) -> TerrainSpec:
             dataclasses.replace(CLASS_PRESETS[preset], **dict(overrides)).validate()
         except ValueError as exc:
             raise ConfigError(f"{source}.overrides: {exc}") from None
-    return TerrainSpec(kind="synthetic", source=source, preset=preset, seed=seed, overrides=tuple(overrides))
+    return TerrainSpec(kind="synthetic", source=source, preset=preset, seed=seed, overrides=tuple(overrides),
+                       resample=resample)
 
 
 def load_site(path: str | Path) -> Site:
