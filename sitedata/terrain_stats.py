@@ -297,6 +297,8 @@ def terrain_statistics(image: np.ndarray, metres_per_pixel: float | None, sampli
     notes = []
     calibrated = radiometry == "I/F"
     values = dict(mean_if=float(image.mean()) if calibrated else nan, psd_slope=psd_slope(image))
+    if math.isnan(values["psd_slope"]):
+        notes.append(f"under {2 * PSD_WAVELENGTHS_PX[1]:.0f} px across: no 4-64 px PSD slope")
     if not calibrated:
         notes.append(f"{radiometry}: only the PSD slope is measurable (std/mean, I/F and noise need an I/F calibration)")
     if metres_per_pixel is None:
