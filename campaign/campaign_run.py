@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from simulator.tomlfields import ConfigError
+from flight_interface.tomlfields import ConfigError
 
 from .aggregate import format_table, site_table
 from .case import CampaignContext, load_resources

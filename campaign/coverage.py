@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from simulator.terrain import Terrain
+from simulator.scene.terrain import Terrain
 
 from .planner import HEADING_SEARCH_STEP_RAD, _turn, footprint_points_m
 

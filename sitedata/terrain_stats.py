@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simulator import photometry
-from simulator.camera_config import Camera
+from simulator.scene import photometry
+from flight_interface.camera import Camera
 
 ALTITUDES_M = (1000.0, 2000.0)
 FOOTPRINT_SAMPLES = 256                 # the estimator's rectified image side

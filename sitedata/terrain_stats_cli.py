@@ -24,8 +24,8 @@ import numpy as np
 import pandas as pd
 from scipy import ndimage
 
-from simulator.camera_config import load_camera
-from simulator.tomlfields import ConfigError, Table, load_toml
+from flight_interface.camera import load_camera
+from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 from .sites import Site, load_class_terrain, load_site
 from .synthetic_classes import CLASS_PRESETS
