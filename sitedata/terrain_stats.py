@@ -213,15 +213,13 @@ def detrended_window_std(samples: np.ndarray, size: int) -> np.ndarray:
 
 def untrackable_fraction(samples_if: np.ndarray, sampling: DescentSampling) -> float:
     """Fraction of template windows of ``samples_if`` (binned I/F samples) too bland to track."""
-    spread = detrended_window_std(samples_if, sampling.template_px)
+    size = sampling.template_px
+    spread = detrended_window_std(samples_if, size)
     if spread.size == 0:
         return float("nan")
-    rows, cols = (samples_if.shape[0] // sampling.template_px) * sampling.template_px, \
-                 (samples_if.shape[1] // sampling.template_px) * sampling.template_px
-    size = sampling.template_px
+    rows, cols = (samples_if.shape[0] // size) * size, (samples_if.shape[1] // size) * size
     means = samples_if[:rows, :cols].astype(np.float64).reshape(rows // size, size, cols // size, size).mean(axis=(1, 3))
-    charge = means.ravel() * sampling.electrons_per_if + sampling.dark_charge_e
-    noise_e = np.sqrt(charge + sampling.noise_floor_e2)
+    noise_e = np.sqrt(means.ravel() * sampling.electrons_per_if + sampling.dark_charge_e + sampling.noise_floor_e2)
     threshold = math.sqrt(max(sampling.min_contrast_to_noise**2 - 1.0, 0.0))
     return float(np.mean(spread * sampling.electrons_per_if / noise_e < threshold))
 
@@ -251,7 +249,7 @@ def psd_slope(image: np.ndarray, wavelengths_px: tuple[float, float] = PSD_WAVEL
 
 
 def crater_density_per_km2(image_if: np.ndarray, metres_per_pixel: float) -> float:
-    """Dark blobs (20-80 m, deeper than :data:`CRATER_MIN_DEPTH`) per km^2 (see module doc)."""
+    """Dark blobs (30-120 m, deeper than :data:`CRATER_MIN_DEPTH`) per km^2 (see module doc)."""
     relative = (image_if / float(image_if.mean())).astype(np.float32)
     sigmas = [d / (2.0 * math.sqrt(2.0)) / metres_per_pixel for d in CRATER_DIAMETERS_M]
     sigmas = [s for s in sigmas if s >= 0.7]
