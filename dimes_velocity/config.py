@@ -55,7 +55,8 @@ class EstimatorConfig:
         feature_grid [4]: the overlap is split into feature_grid x feature_grid cells; the best
             corner (largest minimum eigenvalue of the gradient structure tensor over the template) of
             each cell is a candidate.
-        features_per_pair [4]: templates tracked per image pair.
+        features_per_pair [8]: most templates tracked per image pair, in order of interest.
+        agreeing_features_to_stop [4]: tracking stops as soon as this many good matches all agree.
         min_feature_spacing_px [12]: minimum distance between selected template centres.
         border_margin_px [4]: templates keep this far from the rectified image's valid border.
         min_contrast_to_noise [2.5]: standard deviation of the template minus its best-fit plane / expected
@@ -73,15 +74,27 @@ class EstimatorConfig:
         max_search_radius_px [48]: cap on the search radius (fine-level pixels).
         fine_search_radius_px [2]: full-resolution refinement range around the coarse peak.
         subpixel_iterations [2]: Gauss-Newton (Lucas-Kanade) steps refining the sub-pixel peak.
-    Quality checks
+    Quality checks (each failure has its reason code; :mod:`dimes_velocity.matching`)
         min_correlation [0.7]: normalised correlation peak at full resolution.
         max_second_peak_ratio [0.9]: second-highest coarse-level local maximum / main peak.
         second_peak_exclusion_px [2]: local maxima this close (coarse pixels) to the main peak are not a second peak.
-        min_peak_curvature [0.02]: smallest principal curvature of the correlation peak (1/px^2).
+        min_coarse_peak_curvature [0.02]: smallest principal curvature of the coarse-level peak, where
+            the search is done (1 / coarse px^2).
+        min_peak_curvature [0.02]: smallest principal curvature of the fine-level peak (1/px^2).
+        max_noise_decorrelation_ratio [3.0], decorrelation_allowance [0.05]: the residual must be
+            consistent with the template's noise: ``1 - correlation <= ratio x e + allowance`` with
+            ``e = 1 / (CNR^2 - 1)`` the decorrelation that pixel noise alone causes (CNR: template
+            standard deviation over its expected pixel noise, both images alike) and the allowance
+            for what the model does not capture (resampling, resolution and rectification errors).
+        min_image_motion_px [1.0]: a match that moved less than this in the image (binned pixels,
+            between the raw positions of template and match) is on the optics or detector (dust, hot
+            pixel, glint), not on the ground.
     Solution
         feature_agreement_px [1.5]: features of one pair must agree within this (fine pixels).
         require_feature_majority [True]: the agreeing group must hold more than half the matches.
-        min_features_per_pair [1]: agreeing features needed for a pair to count.
+        min_features_per_pair [2]: agreeing features needed for a pair to count.
+        min_group_span_px [30]: the agreeing features must include two templates at least this far
+            apart (fine pixels), i.e. distinct ground objects, not two corners of one.
         pair_agreement_mps [4.0]: the IMU bias from the two pairs must agree within this. The
             image-to-image attitude noise alone (0.05 deg per axis) makes the difference scatter by
             sqrt(H1^2 + 4 H2^2 + H3^2) * 0.05 deg / dt ~ 1 m/s per axis at 2000/1725/1450 m, so 4 m/s
@@ -105,7 +118,8 @@ class EstimatorConfig:
     template_size_px: int = 15
     coarse_template_size_px: int = 11
     feature_grid: int = 4
-    features_per_pair: int = 4
+    features_per_pair: int = 8
+    agreeing_features_to_stop: int = 4
     min_feature_spacing_px: int = 12
     border_margin_px: int = 4
     min_contrast_to_noise: float = 2.5
@@ -123,10 +137,15 @@ class EstimatorConfig:
     min_correlation: float = 0.7
     max_second_peak_ratio: float = 0.9
     second_peak_exclusion_px: int = 2
+    min_coarse_peak_curvature: float = 0.02
     min_peak_curvature: float = 0.02
+    max_noise_decorrelation_ratio: float = 3.0
+    decorrelation_allowance: float = 0.05
+    min_image_motion_px: float = 1.0
     feature_agreement_px: float = 1.5
     require_feature_majority: bool = True
-    min_features_per_pair: int = 1
+    min_features_per_pair: int = 2
+    min_group_span_px: int = 30
     pair_agreement_mps: float = 4.0
     require_both_pairs: bool = True
 
@@ -174,6 +193,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "coarse_template_size_px": (3, 63),
     "feature_grid": (1, 16),
     "features_per_pair": (1, 64),
+    "agreeing_features_to_stop": (1, 64),
     "min_feature_spacing_px": (0, 256),
     "border_margin_px": (0, 64),
     "min_contrast_to_noise": (0.0, 1e3),
@@ -191,9 +211,14 @@ _RANGES: dict[str, tuple[float, float]] = {
     "min_correlation": (-1.0, 1.0),
     "max_second_peak_ratio": (0.0, 1.0),
     "second_peak_exclusion_px": (1, 32),
+    "min_coarse_peak_curvature": (0.0, 10.0),
     "min_peak_curvature": (0.0, 10.0),
+    "max_noise_decorrelation_ratio": (0.0, 1e3),
+    "decorrelation_allowance": (0.0, 2.0),
+    "min_image_motion_px": (0.0, 64.0),
     "feature_agreement_px": (0.0, 100.0),
     "min_features_per_pair": (1, 64),
+    "min_group_span_px": (0, 1024),
     "pair_agreement_mps": (0.0, 100.0),
 }
 

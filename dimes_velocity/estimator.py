@@ -35,10 +35,12 @@ from .matching import match_template
 from flight_interface.measurements import DescentMeasurements, MeasurementError, validate_measurements
 from .preprocess import FlatImage, flatten, make_flattening
 from .result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
-from .solution import combine_pairs, consensus, weighted_displacement
+from .solution import (combine_pairs, consensus, displacement_standard_error, velocity_uncertainty,
+                       weighted_displacement)
 
 
 MAX_BLUR_PX = 8.0   # cap on the resolution-equalising blur (images from very different altitudes)
+MATCH_PRECISION_PX = 0.1   # floor of a pair's displacement standard error (sub-pixel peak precision)
 
 
 class RectifiedImage:
@@ -81,6 +83,14 @@ class RectifiedImage:
         return self.flat.noise_dn_at(source_row, source_column)
 
 
+def _all_agree(displacements_m: list, count: int, tolerance_m: float) -> bool:
+    """At least ``count`` displacements, all within ``tolerance_m`` of each other."""
+    if len(displacements_m) < count:
+        return False
+    points = np.asarray(displacements_m, dtype=float)
+    return bool(np.linalg.norm(points[:, None] - points[None], axis=-1).max() <= tolerance_m)
+
+
 def _erode(mask: np.ndarray, half: int) -> np.ndarray:
     """Pixels whose (2 half + 1)^2 neighbourhood is entirely inside ``mask`` (outside counts as False)."""
     if half <= 0:
@@ -99,6 +109,36 @@ def _shifted(mask: np.ndarray, shift_columns: int, shift_rows: int) -> np.ndarra
     if height > 0 and width > 0:
         out[dst_r0:dst_r0 + height, dst_c0:dst_c0 + width] = mask[src_r0:src_r0 + height, src_c0:src_c0 + width]
     return out
+
+
+class _MatchCheck:
+    """What a match is checked against besides its correlation surface: where template and match are
+    in the raw images (a mark on the optics or detector does not move), whether the match is on
+    usable ground, and how much decorrelation the pixel noise of template and match explains."""
+
+    def __init__(self, a: RectifiedImage, b: RectifiedImage, feature, match, config: EstimatorConfig):
+        self.column, self.row = (int(v) for v in np.rint(match.position_px))
+        size = b.image.shape
+        self.inside = 0 <= self.row < size[0] and 0 <= self.column < size[1]
+        self.image_motion_px = 0.0
+        self.noise_decorrelation = 0.0
+        if not (self.inside and match.status == "ok"):
+            return
+        source_a = np.array([a.rectification.map_x[feature.row, feature.column],
+                             a.rectification.map_y[feature.row, feature.column]], dtype=float)
+        source_b = np.array([b.rectification.map_x[self.row, self.column],
+                             b.rectification.map_y[self.row, self.column]], dtype=float)
+        self.image_motion_px = float(np.hypot(*(source_b - source_a)))
+        half = config.template_size_px // 2
+        window = b.image[max(self.row - half, 0): self.row + half + 1, max(self.column - half, 0): self.column + half + 1]
+        noise_a = a.noise_at(feature.column, feature.row)
+        noise_b = b.noise_at(self.column, self.row)
+        signal_a = max(feature.contrast_dn ** 2 - noise_a ** 2, 1e-12)
+        signal_b = max(float(window.astype(np.float64).var()) - noise_b ** 2, 1e-12)
+        self.noise_decorrelation = 0.5 * (noise_a ** 2 / signal_a + noise_b ** 2 / signal_b)
+
+    def on_usable_ground(self, match_valid_b: np.ndarray) -> bool:
+        return self.inside and bool(match_valid_b[self.row, self.column])
 
 
 class DimesEstimator:
@@ -189,6 +229,7 @@ class DimesEstimator:
         t_solve0 = time.perf_counter()
 
         valid, reason, bias = self._solve(pairs)
+        uncertainty = self._uncertainty(pairs, poses, times) if valid else 0.0
         imu_last = np.asarray(measurements.images[-1].imu_velocity_mps, dtype=float)[:2]
         velocity = imu_last - bias
         end = time.perf_counter()
@@ -197,6 +238,7 @@ class DimesEstimator:
             match_ms=1e3 * match_s, solve_ms=1e3 * (end - t_solve0), total_ms=1e3 * (end - start))
         return VelocityEstimate(
             velocity_east_mps=float(velocity[0]), velocity_north_mps=float(velocity[1]), valid=valid, reason=reason,
+            velocity_uncertainty_mps=uncertainty,
             imu_bias_east_mps=float(bias[0]), imu_bias_north_mps=float(bias[1]), ground_sample_m=float(sample_m),
             pairs=tuple(pairs), features=tuple(features), timings=timings)
 
@@ -219,11 +261,11 @@ class DimesEstimator:
         t0 = time.perf_counter()
 
         def result(reason: str, radius: float = 0.0, matched: int = 0, used: int = 0,
-                   displacement: np.ndarray | None = None) -> PairResult:
+                   displacement: np.ndarray | None = None, sigma_m: float = 0.0) -> PairResult:
             ok = reason == "ok" and displacement is not None
             d = displacement if ok else np.zeros(2)
             return PairResult(index, index + 1, ok, reason, float(d[0]), float(d[1]), float(d[0] / dt_s),
-                              float(d[1] / dt_s), float(radius), matched, used)
+                              float(d[1] / dt_s), float(sigma_m) if ok else 0.0, float(radius), matched, used)
 
         for image in (a, b):
             if image is None:
@@ -253,14 +295,21 @@ class DimesEstimator:
             predicted = np.array([feature.column, feature.row], dtype=float) + shift
             match = match_template(a.image, b.image, a.coarse, b.coarse, (feature.column, feature.row),
                                    predicted, radius, config)
+            check = _MatchCheck(a, b, feature, match, config)
             status = match.status
-            column, row = np.rint(match.position_px).astype(int)
-            if status == "ok" and not (0 <= row < match_valid_b.shape[0] and 0 <= column < match_valid_b.shape[1]
-                                       and match_valid_b[row, column]):
+            if status == "ok" and not check.on_usable_ground(match_valid_b):
                 status = "match_in_excluded_area"
+            elif status == "ok" and check.image_motion_px < config.min_image_motion_px:
+                status = "camera_fixed"
+            elif status == "ok" and (1.0 - match.correlation > config.max_noise_decorrelation_ratio
+                                     * check.noise_decorrelation + config.decorrelation_allowance):
+                status = "residual_exceeds_noise"
             ground_a = a.rectification.ground_of(feature.column, feature.row)
             displacement = (b.rectification.ground_of(*match.position_px) - ground_a) if status == "ok" else np.zeros(2)
-            records.append([feature, match, status, ground_a, displacement])
+            records.append([feature, match, status, ground_a, displacement, check])
+            if status == "ok" and _all_agree([r[4] for r in records if r[2] == "ok"], config.agreeing_features_to_stop,
+                                             config.feature_agreement_px * sample):
+                break
         t2 = time.perf_counter()
 
         good = [i for i, record in enumerate(records) if record[2] == "ok"]
@@ -273,16 +322,39 @@ class DimesEstimator:
             pair=index, index=rank, column_px=int(f.column), row_px=int(f.row), east_m=float(g[0]), north_m=float(g[1]),
             brightness_dn=f.brightness_dn, contrast_dn=f.contrast_dn, contrast_to_noise=f.contrast_to_noise,
             correlation=m.correlation, second_peak_ratio=m.second_peak_ratio, peak_curvature_per_px2=m.curvature_per_px2,
-            displacement_east_m=float(d[0]), displacement_north_m=float(d[1]), status=s, used=rank in used)
-            for rank, (f, m, s, g, d) in enumerate(records)]
+            coarse_peak_curvature_per_px2=m.coarse_curvature_per_px2, noise_decorrelation=c.noise_decorrelation,
+            image_motion_px=c.image_motion_px, displacement_east_m=float(d[0]), displacement_north_m=float(d[1]),
+            status=s, used=rank in used)
+            for rank, (f, m, s, g, d, c) in enumerate(records)]
         if not good:
             reason = Counter(record[2] for record in records).most_common(1)[0][0]
             return result(reason, radius), features, t1 - t0, t2 - t1
         if not used:
-            return result("features_disagree", radius, len(good)), features, t1 - t0, t2 - t1
-        displacement = weighted_displacement(np.array([records[i][4] for i in used]),
-                                             np.array([records[i][1].correlation for i in used]))
-        return result("ok", radius, len(good), len(used), displacement), features, t1 - t0, t2 - t1
+            reason = "too_few_features" if len(good) < config.min_features_per_pair else "features_disagree"
+            return result(reason, radius, len(good)), features, t1 - t0, t2 - t1
+        centres = np.array([[records[i][0].column, records[i][0].row] for i in used], dtype=float)
+        span = float(np.linalg.norm(centres[:, None] - centres[None], axis=-1).max())
+        if span < config.min_group_span_px:
+            return result("features_clustered", radius, len(good), len(used)), features, t1 - t0, t2 - t1
+        used_displacements = np.array([records[i][4] for i in used])
+        displacement = weighted_displacement(used_displacements, np.array([records[i][1].correlation for i in used]))
+        sigma_m = displacement_standard_error(used_displacements, MATCH_PRECISION_PX * sample)
+        return result("ok", radius, len(good), len(used), displacement, sigma_m), features, t1 - t0, t2 - t1
+
+    def _uncertainty(self, pairs: list[PairResult], poses: list[geometry.CameraPose], times: np.ndarray) -> float:
+        """Stated 1-sigma velocity uncertainty of a valid estimate (:func:`.solution.velocity_uncertainty`)."""
+        config = self.config
+        used = np.array([pair.valid for pair in pairs])
+        biases = np.array([[pair.bias_east_mps, pair.bias_north_mps] for pair in pairs])[used]
+        spread = float(np.linalg.norm(biases[:, None] - biases[None], axis=-1).max()) if len(biases) > 1 else 0.0
+        heights = np.array([pose.centre_m[2] for pose in poses])
+        reach = heights * (np.tan(np.array([pose.off_nadir_rad for pose in poses]))
+                           + np.tan(0.5 * geometry.field_radius_rad(self.camera)))
+        return velocity_uncertainty(heights, np.diff(times), used,
+                                    np.array([pair.displacement_sigma_m for pair in pairs]), spread,
+                                    config.attitude_uncertainty_rad / 3.0,
+                                    config.relative_attitude_uncertainty_rad / 3.0,
+                                    config.altitude_uncertainty_fraction / 3.0, reach)
 
     def _solve(self, pairs: list[PairResult]) -> tuple[bool, str, np.ndarray]:
         """Combine the pairs' bias estimates: (valid, reason, bias (2,) m/s)."""

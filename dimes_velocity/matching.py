@@ -4,8 +4,11 @@ A template from rectified image A is searched for in rectified image B around a 
 
 1. coarse level (``cv2.pyrDown`` of both images, half resolution): a ``coarse_template_size_px``
    template (twice the ground extent of the fine one) is correlated over the whole search window
-   (``cv2.matchTemplate``, ``TM_CCOEFF_NORMED``); the best peak and the highest other local maximum
-   (further than ``second_peak_exclusion_px`` from the best) are kept;
+   (``cv2.matchTemplate``, ``TM_CCOEFF_NORMED``); this is where the search is done, so this is where
+   the peak must be distinct: the highest other local maximum (further than
+   ``second_peak_exclusion_px`` from the best) must be below ``max_second_peak_ratio`` of the best,
+   and the best peak's smallest principal curvature (biquadratic fit, 1 / coarse px^2) at least
+   ``min_coarse_peak_curvature`` (a ridge, as along dune crests, has one curvature near zero);
 2. fine level: the ``template_size_px`` template is correlated within ``fine_search_radius_px`` of
    twice the coarse peak;
 3. sub-pixel: a biquadratic ``z = a + b x + c y + d x^2 + e x y + f y^2`` is fitted (least squares)
@@ -14,7 +17,10 @@ A template from rectified image A is searched for in rectified image B around a 
    its peak, and a parabola "locks" toward integer positions: errors up to ~0.1 px), so the offset
    is then refined by up to ``subpixel_iterations`` inverse-compositional Gauss-Newton
    (Lucas-Kanade) steps that match the normalised template to bicubically re-sampled, normalised B;
-   the reported correlation is the normalised correlation at the refined position.
+   the reported correlation is the normalised correlation at the refined position, which must
+   reach ``min_correlation``, with a fine-level curvature of at least ``min_peak_curvature``;
+4. the prior: the match must lie within the search radius (the prior's uncertainty bound, a
+   circle) of the prediction.
 
 Positions are ``(column, row)`` of template centres.
 """
@@ -40,9 +46,11 @@ class Match:
     Attributes
     ----------
     status : str
-        "ok", or why the match was rejected: "search_outside" (window leaves the image),
-        "search_border" (best peak on the edge of the search window), "low_correlation",
-        "ambiguous_match" (second peak too close to the best), "flat_peak" (curvature too small).
+        "ok", or why the match was rejected, in the order tested: "search_outside" (window leaves
+        the image), "search_border" (best peak on the edge of the search window), "ambiguous_match"
+        (coarse level: second peak too close to the best), "flat_peak" (coarse or fine peak not
+        sharp enough), "outside_prior" (the match lies further from the prediction than the prior's
+        uncertainty radius), "low_correlation".
     position_px : ndarray (2,)
         Sub-pixel template centre in image B (column, row); the prediction when not found.
     correlation : float
@@ -50,7 +58,9 @@ class Match:
     second_peak_ratio : float
         Second coarse peak / best coarse peak (1 when undefined).
     curvature_per_px2 : float
-        Smallest principal curvature of the fitted peak (>= 0; 0 when not a maximum).
+        Smallest principal curvature of the fitted fine peak (>= 0; 0 when not a maximum), 1/px^2.
+    coarse_curvature_per_px2 : float
+        The same at the coarse level, where the search is done (1 / coarse px^2).
     """
 
     status: str
@@ -58,6 +68,7 @@ class Match:
     correlation: float
     second_peak_ratio: float
     curvature_per_px2: float
+    coarse_curvature_per_px2: float = 0.0
 
 
 def _correlate(window: np.ndarray, template: np.ndarray) -> np.ndarray:
@@ -209,10 +220,10 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     half_c = config.coarse_template_size_px // 2
     half_f = config.template_size_px // 2
 
-    def failed(status: str, correlation: float = 0.0, ratio: float = 1.0) -> Match:
-        return Match(status, predicted_b.copy(), float(correlation), float(ratio), 0.0)
+    def failed(status: str, correlation: float = 0.0, ratio: float = 1.0, coarse_curvature: float = 0.0) -> Match:
+        return Match(status, predicted_b.copy(), float(correlation), float(ratio), 0.0, float(coarse_curvature))
 
-    # coarse level
+    # coarse level: the search over the whole window, so the distinct-peak tests are made here
     parity = np.array([u % 2, v % 2])
     template_c = _crop(a_coarse, u // 2, v // 2, half_c)
     radius_c = int(np.ceil(search_radius_px / 2.0)) + 1
@@ -227,6 +238,11 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     last = surface.shape[0] - 1
     if i_row in (0, last) or i_col in (0, last):
         return failed("search_border", best, ratio)
+    _, _, coarse_curvature = fit_peak(surface[i_row - 1: i_row + 2, i_col - 1: i_col + 2])
+    if ratio > config.max_second_peak_ratio:
+        return failed("ambiguous_match", best, ratio, coarse_curvature)
+    if coarse_curvature < config.min_coarse_peak_curvature:
+        return failed("flat_peak", best, ratio, coarse_curvature)
 
     # fine level (re-centred at most twice when the peak sits on the window's edge)
     template_f = _crop(a_fine, u, v, half_f)
@@ -235,7 +251,7 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     for _ in range(3):
         window_f = _crop(b_fine, int(guess[0]), int(guess[1]), half_f + radius_f)
         if template_f is None or window_f is None:
-            return failed("search_outside", best, ratio)
+            return failed("search_outside", best, ratio, coarse_curvature)
         fine = _correlate(window_f, template_f)
         _, _, _, (j_col, j_row) = cv2.minMaxLoc(fine)
         step = np.array([j_col, j_row]) - radius_f
@@ -243,21 +259,19 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
         if abs(step[0]) < radius_f and abs(step[1]) < radius_f:
             break
     else:
-        return failed("search_border", best, ratio)
+        return failed("search_border", best, ratio, coarse_curvature)
     offset, correlation, curvature = fit_peak(fine[j_row - 1: j_row + 2, j_col - 1: j_col + 2])
     if config.subpixel_iterations > 0:
         refined, value = _refine(a_fine, b_fine, (u, v), guess, offset, half_f, config.subpixel_iterations)
         if np.isfinite(value):
             offset, correlation = refined, value
-    if np.any(np.abs(predicted_b - (guess + offset)) > search_radius_px + 2.0):
-        return failed("search_border", correlation, ratio)
     position = guess + offset
-    if correlation < config.min_correlation:
-        status = "low_correlation"
-    elif ratio > config.max_second_peak_ratio:
-        status = "ambiguous_match"
-    elif curvature < config.min_peak_curvature:
+    if curvature < config.min_peak_curvature:
         status = "flat_peak"
+    elif float(np.hypot(*(position - predicted_b))) > search_radius_px:
+        status = "outside_prior"
+    elif correlation < config.min_correlation:
+        status = "low_correlation"
     else:
         status = "ok"
-    return Match(status, position.astype(float), float(correlation), ratio, float(curvature))
+    return Match(status, position.astype(float), float(correlation), ratio, float(curvature), float(coarse_curvature))

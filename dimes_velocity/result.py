@@ -14,11 +14,17 @@ low_contrast            no template has enough contrast over noise (bland or tex
 search_outside          (every tracked template failed, most often for this reason:) the search
                         window left the image
 search_border           the correlation peak was on the edge of the search window
+ambiguous_match         the second coarse-level correlation peak was too close to the best
+flat_peak               the coarse or fine correlation peak was not sharp enough
+outside_prior           the match lay further from its prediction than the prior allows
 low_correlation         the correlation peak was below ``min_correlation``
-ambiguous_match         the second correlation peak was too close to the best
-flat_peak               the correlation peak was not sharp enough
 match_in_excluded_area  the match fell on excluded ground (zone, saturated, no signal, off image)
+camera_fixed            the match did not move in the raw image: a mark on the optics or detector
+residual_exceeds_noise  the match decorrelates more than the template's and match's noise explain
+too_few_features        fewer good matches than ``min_features_per_pair``
 features_disagree       the matches of one pair do not agree (no majority within tolerance)
+features_clustered      the agreeing matches are closer together than ``min_group_span_px`` (one
+                        ground object, not several)
 pairs_disagree          the IMU velocity biases from the image pairs disagree beyond tolerance
 
 When the estimate is invalid, the velocity is the uncorrected IMU velocity at the last image and
@@ -31,8 +37,9 @@ from dataclasses import asdict, dataclass
 
 REASONS = (
     "ok", "bad_attitude", "sky", "no_signal", "saturated", "excluded_zone", "no_overlap", "low_contrast",
-    "search_outside", "search_border", "low_correlation", "ambiguous_match", "flat_peak",
-    "match_in_excluded_area", "features_disagree", "pairs_disagree",
+    "search_outside", "search_border", "ambiguous_match", "flat_peak", "outside_prior", "low_correlation",
+    "match_in_excluded_area", "camera_fixed", "residual_exceeds_noise", "too_few_features", "features_disagree",
+    "features_clustered", "pairs_disagree",
 )
 
 
@@ -57,7 +64,14 @@ class FeatureMetrics:
     second_peak_ratio : float
         Second-best / best coarse correlation peak.
     peak_curvature_per_px2 : float
-        Smallest principal curvature of the correlation peak.
+        Smallest principal curvature of the fine correlation peak (1/px^2).
+    coarse_peak_curvature_per_px2 : float
+        The same at the coarse level, where the search is done (1 / coarse px^2).
+    noise_decorrelation : float
+        ``1 - correlation`` that the pixel noise of template and match alone would cause.
+    image_motion_px : float
+        Distance between the raw-image (binned) positions of the template and its match (0 when
+        not matched).
     displacement_east_m, displacement_north_m : float
         Ground offset of the match from the IMU prediction (m); zero when not matched.
     status : str
@@ -78,6 +92,9 @@ class FeatureMetrics:
     correlation: float
     second_peak_ratio: float
     peak_curvature_per_px2: float
+    coarse_peak_curvature_per_px2: float
+    noise_decorrelation: float
+    image_motion_px: float
     displacement_east_m: float
     displacement_north_m: float
     status: str
@@ -90,7 +107,8 @@ class PairResult:
 
     ``displacement_*_m`` is the ground offset of the matches from their IMU-predicted positions
     (mean of the agreeing group), ``bias_*_mps`` = displacement / time between the images, the
-    pair's estimate of the IMU horizontal velocity bias. Zero when the pair is not valid.
+    pair's estimate of the IMU horizontal velocity bias, ``displacement_sigma_m`` the standard error
+    of that mean (per axis, m). Zero when the pair is not valid.
     """
 
     first_image: int
@@ -101,6 +119,7 @@ class PairResult:
     displacement_north_m: float
     bias_east_mps: float
     bias_north_mps: float
+    displacement_sigma_m: float
     search_radius_px: float
     features_matched: int
     features_used: int
@@ -129,6 +148,9 @@ class VelocityEstimate:
     valid : bool
     reason : str
         "ok" when valid, else one of :data:`REASONS`.
+    velocity_uncertainty_mps : float
+        Stated uncertainty (RMS of the horizontal error magnitude, m/s) when valid, 0 when invalid:
+        see :func:`dimes_velocity.solution.velocity_uncertainty`.
     imu_bias_east_mps, imu_bias_north_mps : float
         Estimated constant bias of the IMU horizontal velocity.
     ground_sample_m : float
@@ -142,6 +164,7 @@ class VelocityEstimate:
     velocity_north_mps: float
     valid: bool
     reason: str
+    velocity_uncertainty_mps: float
     imu_bias_east_mps: float
     imu_bias_north_mps: float
     ground_sample_m: float

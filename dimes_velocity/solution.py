@@ -47,6 +47,17 @@ def weighted_displacement(displacements_m: np.ndarray, correlations: np.ndarray)
     return (weights[:, None] * np.asarray(displacements_m, dtype=float)).sum(axis=0) / weights.sum()
 
 
+def displacement_standard_error(displacements_m: np.ndarray, floor_m: float) -> float:
+    """Standard error (m, per axis) of the mean of an agreeing group's displacements: the RMS per-axis
+    sample standard deviation over sqrt(n), at least ``floor_m`` (a single match: ``floor_m``)."""
+    displacements_m = np.asarray(displacements_m, dtype=float).reshape(-1, 2)
+    count = len(displacements_m)
+    if count < 2:
+        return float(floor_m)
+    spread = float(np.sqrt(displacements_m.var(axis=0, ddof=1).mean()))
+    return max(spread / np.sqrt(count), float(floor_m))
+
+
 def combine_pairs(biases_mps: np.ndarray, valid: np.ndarray, reasons: list[str], tolerance_mps: float,
                   require_all: bool) -> tuple[bool, str, np.ndarray]:
     """Combine the pairs' bias estimates.
@@ -66,3 +77,54 @@ def combine_pairs(biases_mps: np.ndarray, valid: np.ndarray, reasons: list[str],
     if spread > tolerance_mps:
         return False, "pairs_disagree", np.zeros(2)
     return True, "ok", good.mean(axis=0)
+
+
+def velocity_uncertainty(heights_m: np.ndarray, intervals_s: np.ndarray, used_pairs: np.ndarray,
+                         pair_sigmas_m: np.ndarray, pair_spread_mps: float, attitude_sigma_rad: float,
+                         relative_attitude_sigma_rad: float, altitude_sigma_fraction: float,
+                         ground_reach_m: np.ndarray) -> float:
+    """Stated uncertainty of the estimated horizontal velocity (m/s): the RMS of the horizontal error
+    magnitude, ``sqrt(2) sigma`` for a per-component standard deviation ``sigma``.
+
+    The estimate is the mean bias of the used pairs, ``b = mean_k d_k / dt_k`` with ``d_k`` the
+    displacement of pair ``k`` (images ``k``, ``k + 1``). Its error terms, added in quadrature:
+
+    * a common attitude error ``e`` (sigma ``attitude_sigma_rad``) shifts image ``k`` by ``H_k e``:
+      ``mean_k (H_k - H_{k+1}) / dt_k * e``;
+    * independent image-to-image attitude noise ``e_j`` (sigma ``relative_attitude_sigma_rad``):
+      coefficient of ``e_j`` is ``(H_j / dt_j [j a first image] - H_j / dt_{j-1} [j a second image]) / P``;
+    * radar altitude errors (``altitude_sigma_fraction * H``) scale the ground grid about the nadir
+      point: ``sigma_H / H * ground_reach_m`` per image, ``ground_reach_m`` the distance of the
+      tracked ground from the nadir point;
+    * the matches: ``pair_sigmas_m`` (standard error of each pair's mean displacement) / dt;
+    * half the observed disagreement of the pairs' biases, ``pair_spread_mps / 2``.
+
+    Parameters
+    ----------
+    heights_m, ground_reach_m : ndarray (K,)
+        Camera height and ground reach per image (m).
+    intervals_s : ndarray (K - 1,)
+        Time between consecutive images.
+    used_pairs : ndarray bool (K - 1,)
+        Pairs that enter the estimate.
+    pair_sigmas_m : ndarray (K - 1,)
+        Standard error of each pair's displacement (m).
+    """
+    heights_m = np.asarray(heights_m, dtype=float)
+    intervals_s = np.asarray(intervals_s, dtype=float)
+    used = np.flatnonzero(np.asarray(used_pairs, dtype=bool))
+    if used.size == 0:
+        return 0.0
+    count = used.size
+    common = sum((heights_m[k] - heights_m[k + 1]) / intervals_s[k] for k in used) / count
+    coefficients = np.zeros(len(heights_m))
+    altitude = np.zeros(len(heights_m))
+    for k in used:
+        coefficients[k] += heights_m[k] / intervals_s[k] / count
+        coefficients[k + 1] -= heights_m[k + 1] / intervals_s[k] / count
+        for j in (k, k + 1):
+            altitude[j] += altitude_sigma_fraction * ground_reach_m[j] / intervals_s[k] / count
+    matching = np.sqrt(sum((pair_sigmas_m[k] / intervals_s[k]) ** 2 for k in used)) / count
+    variance = ((common * attitude_sigma_rad) ** 2 + relative_attitude_sigma_rad ** 2 * float(coefficients @ coefficients)
+                + float(altitude @ altitude) + matching ** 2 + (0.5 * pair_spread_mps) ** 2)
+    return float(np.sqrt(2.0 * variance))
