@@ -4,13 +4,18 @@ Usage::
 
     python -m dimes_velocity IMAGE1 IMAGE2 IMAGE3 MEASUREMENTS.json --camera sitedata/cameras/mer_a.toml
         [--config campaign.toml]   # estimator parameters from its [estimator] table
-        [--big-endian]             # raw images are big-endian uint16
-        [--summary]                # print only velocity, valid, reason and bias
+        [--bits 8|12|16]           # significant bits of the stored values (top bits of the camera DN)
+        [--dn-scale S] [--dn-offset O]   # or DN = S x value + O
+        [--channel r|g|b | --luminance]  # for RGB/RGBA images
+        [--big-endian]             # raw 16-bit images are big-endian
+        [--summary]                # print only velocity, valid, reason, uncertainty and bias
 
-Images are 16-bit PNG, .npy or raw uint16 (rows binned on chip: 256 x 1024 for MER); the
-measurements schema is documented in :mod:`dimes_velocity.files`. The result (see
-:class:`dimes_velocity.result.VelocityEstimate`) is printed as JSON. Bad input prints one line
-naming the file and field to stderr and exits with status 2.
+Images are PNG, TIFF, .npy, raw, PDS3, VICAR or ISIS3, binned (256 x 1024 for MER) or full frame
+(1024 x 1024, binned here as on chip); the rules (shapes, bit depth, DN scale) are in
+:mod:`dimes_velocity.image_files`, the measurements schema in :mod:`dimes_velocity.files`. The
+result (see :class:`dimes_velocity.result.VelocityEstimate`) is printed as JSON with an ``inputs``
+list saying how each file was read. Bad input prints one line naming the file and what to add or
+change to stderr and exits with status 2.
 """
 from __future__ import annotations
 
@@ -19,28 +24,48 @@ import json
 import sys
 
 from flight_interface.camera import load_camera
+from flight_interface.measurements import MeasurementError
 from flight_interface.tomlfields import ConfigError, Table, load_toml
 
 from .config import EstimatorConfig, config_from_table
 from .estimator import DimesEstimator
-from .files import InputFileError, load_image, load_measurements
-from flight_interface.measurements import MeasurementError
+from .files import ImageDeclaration, InputFileError, load_measurements, read_descent_image
+
+USAGE_ERROR = 2
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dimes_velocity",
-                                     description="Reference DIMES horizontal velocity estimator.")
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, exit code 2
+        self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="python -m dimes_velocity", description="Reference DIMES horizontal velocity estimator.")
     parser.add_argument("files", nargs="+", metavar="FILE", help="images in time order, then the measurements JSON")
     parser.add_argument("--camera", required=True, help="camera TOML (e.g. sitedata/cameras/mer_a.toml)")
     parser.add_argument("--config", help="TOML file whose [estimator] table sets estimator parameters")
-    parser.add_argument("--big-endian", action="store_true", help="raw images are big-endian uint16")
-    parser.add_argument("--summary", action="store_true", help="print only the velocity, valid flag, reason and bias")
-    args = parser.parse_args(argv)
+    parser.add_argument("--bits", type=int, choices=(8, 12, 16),
+                        help="significant bits of the stored values: the top bits of the camera's DN")
+    parser.add_argument("--dn-scale", type=float, help="DN = scale x value + offset")
+    parser.add_argument("--dn-offset", type=float, help="added after scaling (default 0)")
+    colour = parser.add_mutually_exclusive_group()
+    colour.add_argument("--channel", choices=("r", "g", "b", "0", "1", "2"), help="channel of an RGB/RGBA image")
+    colour.add_argument("--luminance", action="store_true", help="Rec. 709 luminance of an RGB/RGBA image")
+    parser.add_argument("--big-endian", action="store_true", help="raw 16-bit images are big-endian")
+    parser.add_argument("--summary", action="store_true",
+                        help="print only the velocity, valid flag, reason, uncertainty and bias")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     if len(args.files) < 3:
         print("error: give at least two images and the measurements JSON", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     *image_paths, measurements_path = args.files
     try:
+        declaration = ImageDeclaration(bits=args.bits, dn_scale=args.dn_scale, dn_offset=args.dn_offset,
+                                       channel=args.channel, luminance=args.luminance, big_endian=args.big_endian)
         camera = load_camera(args.camera)
         config = EstimatorConfig()
         if args.config:
@@ -50,16 +75,17 @@ def main(argv: list[str] | None = None) -> int:
         if len(measurements.images) != len(image_paths):
             raise InputFileError(f"{measurements_path}: images has {len(measurements.images)} entries "
                                  f"for {len(image_paths)} image files")
-        shape = (camera.height_px // camera.binning_rows, camera.width_px)
-        images = [load_image(path, shape, args.big_endian) for path in image_paths]
-        result = DimesEstimator(camera, config).estimate(images, measurements)
+        files = [read_descent_image(path, camera, declaration) for path in image_paths]
+        result = DimesEstimator(camera, config).estimate([f.dn for f in files], measurements)
     except (ConfigError, InputFileError, MeasurementError) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     output = result.to_dict()
     if args.summary:
         output = {key: output[key] for key in ("velocity_east_mps", "velocity_north_mps", "valid", "reason",
-                                               "imu_bias_east_mps", "imu_bias_north_mps")}
+                                               "velocity_uncertainty_mps", "imu_bias_east_mps",
+                                               "imu_bias_north_mps")}
+    output["inputs"] = [f.describe() for f in files]
     print(json.dumps(output, indent=2))
     return 0
 

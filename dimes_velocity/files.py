@@ -1,4 +1,6 @@
-"""Reading the estimator's inputs from files: images (16-bit PNG, .npy, raw) and measurements (JSON).
+"""Reading the estimator's inputs from files: measurements (JSON, below) and images (re-exported from
+:mod:`dimes_velocity.image_files`: PNG, TIFF, .npy, raw, PDS3, VICAR, ISIS3; bit depth declared or
+read from a label, full frames binned as on chip).
 
 Measurements JSON schema
 ------------------------
@@ -23,60 +25,23 @@ Measurements JSON schema
 Frames: world x east, y north, z up; attitude as in :mod:`flight_interface.frames`. Unknown keys are
 errors (a misspelt optional field must not be silently ignored).
 
-Images
-------
-``.png`` (16-bit or 8-bit grey), ``.npy`` (2-D integer or float array), anything else is raw:
-``rows x columns`` unsigned 16-bit samples, little-endian by default, with no header.
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError, validate_measurements
 
+from .image_files import ImageDeclaration, InputFileError, load_image, read_descent_image
+
 _REQUIRED = ("time_s", "attitude_quat", "radar_altitude_m", "imu_velocity_mps")
 _OPTIONAL = ("angular_rate_radps", "heat_shield_offset_m", "imu_position_m")
 
-
-class InputFileError(ValueError):
-    """An input file cannot be used; the one-line message names the file and the field."""
-
-
-def load_image(path: str | Path, shape: tuple[int, int], big_endian: bool = False) -> np.ndarray:
-    """Read a raw descent image of ``shape`` (rows, columns) from PNG, .npy or raw uint16."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found")
-    suffix = path.suffix.lower()
-    if suffix == ".png":
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise InputFileError(f"{path}: not a readable PNG image")
-        if image.ndim == 3:
-            raise InputFileError(f"{path}: image has {image.shape[2]} channels; expected a single grey channel")
-    elif suffix == ".npy":
-        try:
-            image = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputFileError(f"{path}: not a readable .npy array ({exc})") from None
-        if image.dtype.kind not in "uif":
-            raise InputFileError(f"{path}: array dtype {image.dtype}; expected integers or floats")
-    else:
-        data = path.read_bytes()
-        expected = shape[0] * shape[1] * 2
-        if len(data) != expected:
-            raise InputFileError(f"{path}: raw image has {len(data)} bytes; expected {expected} "
-                                 f"({shape[0]} x {shape[1]} uint16, no header)")
-        image = np.frombuffer(data, dtype=">u2" if big_endian else "<u2").reshape(shape).astype(np.uint16)
-    if image.shape != tuple(shape):
-        raise InputFileError(f"{path}: image shape {image.shape}; expected {tuple(shape)} (rows, columns)")
-    if image.dtype.kind == "f" and not np.all(np.isfinite(image)):
-        raise InputFileError(f"{path}: image contains non-finite values")
-    return image
+__all__ = ["ImageDeclaration", "InputFileError", "load_image", "read_descent_image", "load_measurements",
+           "measurements_from_dict", "measurements_to_dict"]
 
 
 def measurements_from_dict(data: dict, source: str = "<measurements>") -> DescentMeasurements:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dimes_velocity.__main__ import main
-from dimes_velocity.files import InputFileError, load_image, measurements_from_dict, measurements_to_dict
+from dimes_velocity.files import ImageDeclaration, InputFileError, load_image, measurements_from_dict, measurements_to_dict
 from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 VELOCITY = (12.0, -7.0, -72.0)
@@ -89,24 +89,76 @@ def test_bad_image_exits_2_naming_the_file(case_files, mer_a_path, tmp_path, cap
     wrong = tmp_path / "wrong.npy"
     np.save(wrong, descent.images[0][:, :512])
     code, _, err = run_cli([paths[0], wrong, paths[2], measurements, "--camera", mer_a_path], capsys)
-    assert code == 2 and str(wrong) in err and "shape (256, 512)" in err
+    assert code == 2 and str(wrong) in err and "image shape 256 x 512; accepted: 256 x 1024" in err
     short = tmp_path / "short.raw"
     short.write_bytes(b"\0" * 1000)
     code, _, err = run_cli([paths[0], paths[1], short, measurements, "--camera", mer_a_path], capsys)
-    assert code == 2 and str(short) in err and "1000 bytes" in err
+    assert code == 2 and str(short) in err and "1000 bytes match no accepted shape" in err
     code, _, err = run_cli([paths[0], paths[1], tmp_path / "missing.png", measurements, "--camera", mer_a_path], capsys)
     assert code == 2 and "missing.png: file not found" in err
 
 
-def test_raw_big_endian_and_png_round_trip(case_files, tmp_path):
+def test_raw_big_endian_and_png_round_trip(case_files, mer_a, tmp_path):
     _, _, _, descent = case_files
     path = tmp_path / "big.img"
     descent.images[0].astype(">u2").tofile(path)
-    assert np.array_equal(load_image(path, (256, 1024), big_endian=True), descent.images[0])
-    with pytest.raises(InputFileError, match="channels"):
+    assert np.array_equal(load_image(path, mer_a, ImageDeclaration(big_endian=True)), descent.images[0])
+    with pytest.raises(InputFileError, match="RGB image"):
         colour = tmp_path / "colour.png"
-        cv2.imwrite(str(colour), np.zeros((256, 1024, 3), np.uint8))
-        load_image(colour, (256, 1024))
+        cv2.imwrite(str(colour), np.zeros((256, 1024, 3), np.uint16))
+        load_image(colour, mer_a)
+
+
+def one_line_error(code, out, err):
+    return code == 2 and out == "" and err.count("\n") == 1 and err.startswith("error: ")
+
+
+def test_done_criteria_refusals_exit_2_with_one_line(case_files, mer_a_path, tmp_path, capsys):
+    """RGBA PNG without --channel, 8-bit PNG without --bits, a 300 x 300 image: exit 2, one line each."""
+    paths, measurements, _, descent = case_files
+    rgba = tmp_path / "rgba.png"
+    cv2.imwrite(str(rgba), np.dstack([descent.images[0]] * 4))
+    eight = tmp_path / "eight.png"
+    cv2.imwrite(str(eight), (descent.images[0] // 16).astype(np.uint8))
+    square = tmp_path / "square.png"
+    cv2.imwrite(str(square), cv2.resize(descent.images[0], (300, 300), interpolation=cv2.INTER_AREA))
+    for path, text in ((rgba, "RGBA image (256 x 1024 x 4); choose one channel with --channel r|g|b, or --luminance"),
+                       (eight, "8-bit image without a declared bit depth; add --bits 8"),
+                       (square, "image shape 300 x 300; accepted: 256 x 1024 (rows binned on chip) or 1024 x 1024")):
+        code, out, err = run_cli([path, paths[1], paths[2], measurements, "--camera", mer_a_path], capsys)
+        assert one_line_error(code, out, err), err
+        assert f"{path}: {text}" in err
+    with pytest.raises(SystemExit) as usage:
+        main([str(a) for a in (rgba, paths[1], paths[2], measurements, "--camera", mer_a_path, "--channel", "r",
+                               "--luminance")])
+    err = capsys.readouterr().err
+    assert usage.value.code == 2 and err.count("\n") == 1 and "--luminance: not allowed with argument --channel" in err
+    code, out, err = run_cli([rgba, paths[1], paths[2], measurements, "--camera", mer_a_path, "--channel", "g"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["inputs"][0]["dn_rule"] == "DN = value (16-bit container of camera DN)"
+
+
+def full_frame(binned: np.ndarray, offset: int = 20) -> np.ndarray:
+    """A 1024 x 1024 frame whose 4-row sums above the ADC offset are exactly the binned image."""
+    base, remainder = np.divmod(binned.astype(np.int64) - offset, 4)
+    frame = np.repeat(base, 4, axis=0)
+    for i in range(4):
+        frame[i::4] += remainder > i
+    return (frame + offset).astype(np.uint16)
+
+
+def test_full_frame_16_bit_triple_runs_and_prints_json(case_files, mer_a_path, tmp_path, capsys):
+    paths, measurements, _, descent = case_files
+    frames = []
+    for k, image in enumerate(descent.images):
+        frames.append(tmp_path / f"frame{k}.png")
+        cv2.imwrite(str(frames[-1]), full_frame(image))
+    code, out, err = run_cli([*frames, measurements, "--camera", mer_a_path], capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["valid"], result["reason"]
+    assert np.hypot(result["velocity_east_mps"] - VELOCITY[0], result["velocity_north_mps"] - VELOCITY[1]) < 0.5
+    assert all(item["binned_from_full_frame"] and item["stored_shape"] == [1024, 1024] for item in result["inputs"])
 
 
 def test_measurements_json_round_trip(case_files):
@@ -121,5 +173,5 @@ def test_module_entry_point_runs(case_files, mer_a_path):
                                 "--camera", str(mer_a_path), "--summary"], capture_output=True, text=True, timeout=120)
     assert completed.returncode == 0, completed.stderr
     summary = json.loads(completed.stdout)
-    assert set(summary) == {"velocity_east_mps", "velocity_north_mps", "valid", "reason", "imu_bias_east_mps",
-                            "imu_bias_north_mps"}
+    assert set(summary) == {"velocity_east_mps", "velocity_north_mps", "valid", "reason", "velocity_uncertainty_mps",
+                            "imu_bias_east_mps", "imu_bias_north_mps", "inputs"}

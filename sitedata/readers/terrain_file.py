@@ -7,11 +7,10 @@ a data file), VICAR (``LBLSIZE=``), MSSS DDD (magic 1659), PNG and TIFF/GeoTIFF 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
-
-from simulator.scene.terrain import Terrain
 
 from .image import OrbitalImage, fail, file_size
 from .isis3 import looks_like_isis3, read_isis3
@@ -19,6 +18,9 @@ from .pds3 import looks_like_pds3, read_pds3
 from .raster import looks_like_raster, read_raster
 from .sidecar import Sidecar, apply_sidecar, default_sidecar_path, read_sidecar, refuse_unknown
 from .vicar import looks_like_ddd, looks_like_vicar, read_ddd, read_vicar
+
+if TYPE_CHECKING:  # the simulator is imported only when a terrain is built (the estimator reads
+    from simulator.scene.terrain import Terrain   # descent images through these readers without it)
 
 SUPPORTED_FORMATS = "PDS3 (.IMG/.LBL/.QUB), ISIS3 (.cub), VICAR, MSSS DDD, PNG, TIFF/GeoTIFF"
 # A negative I/F after calibration on more than this fraction of valid pixels means a wrong offset.
@@ -81,7 +83,7 @@ def load_orbital_image(path: str | Path, sidecar: str | Path | Sidecar | None = 
 
 
 def load_terrain(path: str | Path, sidecar: str | Path | Sidecar | None = None, *,
-                 min_valid_fraction: float = 0.5) -> Terrain:
+                 min_valid_fraction: float = 0.5) -> "Terrain":
     """A :class:`simulator.scene.terrain.Terrain` from a real orbital image file.
 
     Parameters
@@ -135,6 +137,8 @@ def load_terrain(path: str | Path, sidecar: str | Path | Sidecar | None = None, 
     metres = float(image.metres_per_pixel)
     origin = np.array([-(cols - 1) / 2 * metres, (rows - 1) / 2 * metres])
     name = resolved.name if resolved is not None and resolved.name else Path(path).stem
+    from simulator.scene.terrain import Terrain
+
     return Terrain(reflectance_if=reflectance.astype(np.float32), metres_per_pixel=metres, origin_m=origin,
                    moc_incidence_rad=float(image.incidence_rad), moc_emission_rad=float(image.emission_rad),
                    moc_phase_rad=float(image.phase_rad), name=name)
