@@ -4,6 +4,10 @@
 Weighted columns follow the paper: a class contributes ``fraction * %valid`` and
 ``fraction * (mean + 3 sigma)``; the site's weighted figures are the sums over its classes
 (Gusev: 0.59 * 3.90 + 0.41 * 3.48 + 0 * 3.29 = 3.73 m/s).
+
+Beside every % valid the table counts the false-valid cases (valid, horizontal error above
+``[campaign] false_valid_mps``, default 5 m/s, the DIMES requirement) and gives the worst error
+of a valid case: a velocity flagged valid but wrong is what the lander must never get.
 """
 from __future__ import annotations
 
@@ -12,8 +16,9 @@ import math
 import numpy as np
 import pandas as pd
 
-TABLE_COLUMNS = ["class", "cases", "valid", "failed", "pct_valid", "error_mean_3sigma_mps",
-                 "ellipse_fraction", "weighted_pct_valid", "weighted_error_mps"]
+TABLE_COLUMNS = ["class", "cases", "valid", "failed", "pct_valid", "error_mean_3sigma_mps", "false_valid",
+                 "worst_valid_error_mps", "ellipse_fraction", "weighted_pct_valid", "weighted_error_mps"]
+FALSE_VALID_MPS = 5.0
 
 
 def mean_plus_3_sigma(errors_mps: np.ndarray) -> float:
@@ -27,7 +32,7 @@ def mean_plus_3_sigma(errors_mps: np.ndarray) -> float:
 
 
 def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: str,
-               class_order: list[str] | None = None) -> pd.DataFrame:
+               class_order: list[str] | None = None, false_valid_mps: float = FALSE_VALID_MPS) -> pd.DataFrame:
     """One row per class plus a final site row (columns :data:`TABLE_COLUMNS`).
 
     Parameters
@@ -36,6 +41,9 @@ def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: st
         Case rows with ``class_name``, ``status`` ('ok' or 'failed'), ``valid`` and ``velocity_error_mps``.
     fractions : dict
         Ellipse fraction of each class (summing to 1).
+    false_valid_mps : float
+        A valid case with a larger horizontal error is counted as false-valid (kept in
+        ``table.attrs["false_valid_mps"]`` for the column heading).
     """
     order = class_order or list(fractions)
     rows = []
@@ -46,22 +54,30 @@ def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: st
         valid_mask = ok["valid"].astype(bool) if cases else pd.Series(dtype=bool)
         valid = int(valid_mask.sum()) if cases else 0
         pct_valid = 100.0 * valid / cases if cases else math.nan
-        error = mean_plus_3_sigma(ok.loc[valid_mask, "velocity_error_mps"].to_numpy()) if valid else math.nan
+        valid_errors = ok.loc[valid_mask, "velocity_error_mps"].to_numpy(dtype=float) if valid else np.zeros(0)
+        error = mean_plus_3_sigma(valid_errors) if valid else math.nan
         fraction = float(fractions[class_name])
         rows.append({
             "class": class_name, "cases": cases, "valid": valid, "failed": int(cases - len(ok)),
-            "pct_valid": pct_valid, "error_mean_3sigma_mps": error, "ellipse_fraction": fraction,
+            "pct_valid": pct_valid, "error_mean_3sigma_mps": error,
+            "false_valid": int(np.count_nonzero(valid_errors > false_valid_mps)),
+            "worst_valid_error_mps": float(np.nanmax(valid_errors)) if np.isfinite(valid_errors).any() else math.nan,
+            "ellipse_fraction": fraction,
             "weighted_pct_valid": _weighted(fraction, pct_valid), "weighted_error_mps": _weighted(fraction, error),
         })
     table = pd.DataFrame(rows, columns=TABLE_COLUMNS)
     total = {
         "class": site_name, "cases": int(table["cases"].sum()), "valid": int(table["valid"].sum()),
         "failed": int(table["failed"].sum()), "pct_valid": math.nan, "error_mean_3sigma_mps": math.nan,
+        "false_valid": int(table["false_valid"].sum()),
+        "worst_valid_error_mps": float(table["worst_valid_error_mps"].max()) if table["worst_valid_error_mps"].notna().any() else math.nan,
         "ellipse_fraction": float(table["ellipse_fraction"].sum()),
         "weighted_pct_valid": float(table["weighted_pct_valid"].sum(min_count=len(table))),
         "weighted_error_mps": float(table["weighted_error_mps"].sum(min_count=len(table))),
     }
-    return pd.concat([table, pd.DataFrame([total])], ignore_index=True)
+    table = pd.concat([table, pd.DataFrame([total])], ignore_index=True)
+    table.attrs["false_valid_mps"] = float(false_valid_mps)
+    return table
 
 
 def _weighted(fraction: float, value: float) -> float:
@@ -72,13 +88,15 @@ def _weighted(fraction: float, value: float) -> float:
 
 def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
     """Human-readable table (plain text, or GitHub Markdown)."""
-    headers = ["Class", "Cases", "Valid", "Failed", "% valid", "Error m/s (mean+3s)", "% ellipse",
-               "Weighted % valid", "Weighted error m/s"]
+    threshold = table.attrs.get("false_valid_mps", FALSE_VALID_MPS)
+    headers = ["Class", "Cases", "Valid", "Failed", "% valid", "Error m/s (mean+3s)", f"False-valid (>{threshold:g} m/s)",
+               "Worst valid m/s", "% ellipse", "Weighted % valid", "Weighted error m/s"]
     body = []
     for _, row in table.iterrows():
         body.append([
             str(row["class"]), str(int(row["cases"])), str(int(row["valid"])), str(int(row["failed"])),
             _fmt(row["pct_valid"], "{:.0f}%"), _fmt(row["error_mean_3sigma_mps"], "{:.2f}"),
+            str(int(row["false_valid"])), _fmt(row["worst_valid_error_mps"], "{:.2f}"),
             _fmt(100 * row["ellipse_fraction"], "{:.0f}%"), _fmt(row["weighted_pct_valid"], "{:.0f}%"),
             _fmt(row["weighted_error_mps"], "{:.2f}"),
         ])

@@ -75,11 +75,17 @@ def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | 
                           workers or config.execution.workers or None, config.execution.memory_limit) as client:
         summary = run_cases(context, store, store.plan(), client, progress=progress)
     store.compact()
-    return summary, write_table(store.root)
+    return summary, write_table(store.root, config.false_valid_mps)
 
 
-def write_table(root: Path) -> str:
-    """Compute the paper's table from a store; write table.md and table.csv beside it; return the text."""
+def false_valid_threshold(manifest: dict) -> float:
+    """The campaign's ``[campaign] false_valid_mps`` as recorded in its manifest (default 5 m/s)."""
+    return float(manifest.get("config", {}).get("campaign", {}).get("false_valid_mps", 5.0))
+
+
+def write_table(root: Path, false_valid_mps: float | None = None) -> str:
+    """Compute the paper's table from a store; write table.md and table.csv beside it; return the text.
+    ``false_valid_mps``: the false-valid threshold (default: the one in the store's manifest)."""
     store = CampaignStore(root)
     manifest = store.manifest()
     if manifest is None:
@@ -88,7 +94,9 @@ def write_table(root: Path) -> str:
         raise StoreError(f"{root}: no manifest.json: not a campaign directory")
     results = store.results()
     fractions = manifest["ellipse_fractions"]
-    table = site_table(results, fractions, manifest["site"].capitalize(), class_order=list(fractions))
+    threshold = false_valid_threshold(manifest) if false_valid_mps is None else false_valid_mps
+    table = site_table(results, fractions, manifest["site"].capitalize(), class_order=list(fractions),
+                       false_valid_mps=threshold)
     status = store.status()
     heading = (f"{manifest['site'].capitalize()}: {status.done + status.failed} of {status.planned} cases finished"
                f" ({status.failed} failed, {status.missing} missing), seed {manifest['seed']}")

@@ -9,6 +9,8 @@ A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
                  applied to every class, e.g. 0.1 for a quick look; at least 1 case per class with a count),
                  ``max_outside_terrain_fraction`` (0..1, default 0: a case any of whose images sees more
                  of its pixels on ground outside the terrain is recorded invalid, reason ``outside_terrain``)
+                 ``false_valid_mps`` (default 5: a valid case with a larger horizontal error counts as
+                 false-valid in the tables; a reporting threshold, not part of the configuration hash)
 ``[execution]``  ``scheduler`` ("" = embedded LocalCluster, or "tcp://host:port"), ``workers`` (0 = one
                  per core), ``retries`` (attempts after the first for a case that raises), ``memory_limit``
 ``[sensors]``    sensor noise (:mod:`simulator.sensors`)
@@ -61,6 +63,7 @@ class CampaignConfig:
     config_hash: str
     resolved: dict                # the parsed TOML (for the manifest)
     max_outside_terrain_fraction: float = 0.0   # an image seeing more ground outside the terrain: invalid
+    false_valid_mps: float = 5.0  # tables: valid with a larger error counts as false-valid
 
 
 def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = None,
@@ -102,6 +105,8 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
                                                                         minimum=0.0, maximum=100.0,
                                                                         exclusive_minimum=True)
     max_outside = campaign.number("max_outside_terrain_fraction", default=0.0, minimum=0.0, maximum=1.0)
+    false_valid_mps = campaign.number("false_valid_mps", default=5.0, minimum=0.0, maximum=1000.0,
+                                      exclusive_minimum=True)
     class_names = [entry.name for entry in site.classes]
     overrides = campaign.table("cases", required=False)
     cases = {}
@@ -134,14 +139,16 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
 
     resolved = json.loads(json.dumps(data, default=str))
     hashed = {key: value for key, value in resolved.items() if key != "execution"}
-    hashed["campaign"] = {k: v for k, v in hashed.get("campaign", {}).items() if k != "output_dir"}
+    hashed["campaign"] = {k: v for k, v in hashed.get("campaign", {}).items()
+                          if k not in ("output_dir", "false_valid_mps")}
     hashed["cases_resolved"] = cases
     hashed["input_digests"] = {str(p): file_digest(p) for p in _input_files(site)}
     hashed["code_digest"] = code_digest()
     config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
     return CampaignConfig(source=path, site=site, seed=seed, output_dir=out, cases_per_class=cases,
                           execution=execution, sensors=sensors, estimator=estimator, scene=effects,
-                          config_hash=config_hash, resolved=resolved, max_outside_terrain_fraction=max_outside)
+                          config_hash=config_hash, resolved=resolved, max_outside_terrain_fraction=max_outside,
+                          false_valid_mps=false_valid_mps)
 
 
 def _input_files(site) -> list[Path]:

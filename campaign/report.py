@@ -5,6 +5,9 @@ from pathlib import Path
 
 from . import plots
 from .aggregate import format_table, site_table
+from .campaign_run import false_valid_threshold
+from .flight_metrics import __doc__ as METRICS_DOC
+from .flight_metrics import metrics_table
 from .store import CampaignStore, StoreError
 
 
@@ -23,7 +26,8 @@ def write_report(root: Path) -> Path:
     out.mkdir(exist_ok=True)
     fractions = manifest["ellipse_fractions"]
     site = manifest["site"].capitalize()
-    table = site_table(results, fractions, site, class_order=list(fractions))
+    table = site_table(results, fractions, site, class_order=list(fractions),
+                       false_valid_mps=false_valid_threshold(manifest))
     status = store.status()
     ok = results[results["status"] == "ok"]
     lines = [
@@ -31,6 +35,8 @@ def write_report(root: Path) -> Path:
         f"Configuration `{manifest['config_file']}` (hash `{manifest['config_hash'][:12]}`), seed {manifest['seed']}; "
         f"{status.planned} cases planned, {status.done} done, {status.failed} failed, {status.missing} missing.", "",
         "## Table (paper Tables 1-2)", "", format_table(table, markdown=True), "",
+        f"False-valid: valid with a horizontal error above {table.attrs['false_valid_mps']:g} m/s "
+        "(`[campaign] false_valid_mps`).", "",
     ]
     if not ok.empty:
         plots.error_histograms(ok, out / "error_histograms.png")
@@ -39,6 +45,11 @@ def write_report(root: Path) -> Path:
         lines += ["## Velocity error per class", "", "![error histograms](error_histograms.png)", "",
                   "## Valid velocities", "", "![% valid](valid_fraction.png)", "",
                   "## Estimate against truth (valid cases)", "", "![estimate vs truth](estimate_vs_truth.png)", ""]
+        definitions = METRICS_DOC.split("\n\n", 1)[1].strip()
+        lines += ["## DIMES correlation metrics against flight (paper Table 3)", "",
+                  "Median [10th-90th percentile] over the templates of each class; the paper's three "
+                  "features for MOC2DIMES and for the MER-A flight images.", "",
+                  metrics_table(ok, list(fractions)), "", definitions, ""]
         reasons = ok[~ok["valid"].astype(bool)].groupby(["class_name", "reason"]).size()
         if len(reasons):
             lines += ["## Why cases were invalid", "", "| class | reason | cases |", "|---|---|---|"]

@@ -45,3 +45,31 @@ def test_class_without_valid_cases_makes_weighted_error_unknown():
     table = site_table(results, {"a": 0.5, "b": 0.5}, "site").set_index("class")
     assert table.loc["b", "pct_valid"] == 0.0
     assert math.isnan(table.loc["site", "weighted_error_mps"])
+
+
+def test_false_valid_and_worst_valid_error_per_class_and_site():
+    results = pd.DataFrame(_rows("a", [1.0, 4.9, 5.0, 5.1, 7.5], invalid=2) + _rows("b", [0.5, 2.0], failed=1)
+                           + _rows("c", [], invalid=3))
+    table = site_table(results, {"a": 0.5, "b": 0.5, "c": 0.0}, "site", false_valid_mps=5.0).set_index("class")
+    assert table.loc["a", "false_valid"] == 2 and table.loc["a", "worst_valid_error_mps"] == 7.5   # 5.1 and 7.5
+    assert table.loc["b", "false_valid"] == 0 and table.loc["b", "worst_valid_error_mps"] == 2.0
+    assert table.loc["c", "false_valid"] == 0 and math.isnan(table.loc["c", "worst_valid_error_mps"])
+    assert table.loc["site", "false_valid"] == 2 and table.loc["site", "worst_valid_error_mps"] == 7.5
+    strict = site_table(results, {"a": 0.5, "b": 0.5, "c": 0.0}, "site", false_valid_mps=1.5)
+    assert strict.set_index("class").loc["site", "false_valid"] == 5          # 4.9, 5.0, 5.1, 7.5 and 2.0
+    assert "False-valid (>1.5 m/s)" in format_table(strict) and "7.50" in format_table(strict, markdown=True)
+
+
+def test_flight_metrics_table_summarises_templates_per_class():
+    from campaign.flight_metrics import metrics_table
+
+    rows = []
+    for k in range(10):                      # brightness 1000..1009, contrast 10..19, one failed match per case
+        rows.append({"class_name": "a", "status": "ok", "feature_brightness": [1000.0 + k],
+                     "feature_contrast": [10.0 + k], "feature_correlation": [0.9, 0.1],
+                     "feature_status": ["ok", "ambiguous_match"]})
+    text = metrics_table(pd.DataFrame(rows), ["a"])
+    line = next(l for l in text.splitlines() if l.startswith("| a "))
+    assert "| 10 |" in line and "1004 [1001-1008]" in line and "14.5 [10.9-18.1]" in line
+    assert "0.900 [0.900-0.900]" in line                      # the failed match's 0.1 is not a correlation
+    assert "| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 0.88, 0.91, 1.00 |" in text

@@ -29,6 +29,7 @@ def _bad_copy(tmp_path: Path, extra: str = "", replace: tuple[str, str] | None =
     ({"extra": "\n[campaign]\nseed = 1\nsede = 2\n"}, "campaign.sede"),
     ({"extra": "\n[campaign]\nseed = \"one\"\n"}, "campaign.seed"),
     ({"extra": "\n[execution]\nretries = 99\n"}, "execution.retries"),
+    ({"extra": "\n[campaign]\nfalse_valid_mps = 0\n"}, "campaign.false_valid_mps"),
     ({"extra": "\n[estimator]\ntemplate_size_px = -3\n"}, "template_size_px"),
     ({"extra": "\n[colour]\nx = 1\n"}, "colour"),
     ({"replace": ("ellipse_fraction = 0.59", "ellipse_fraction = 1.59")}, "ellipse_fraction"),
@@ -53,6 +54,15 @@ def test_missing_file_and_usage_errors_exit_2(tmp_path):
     assert result.returncode == 2
     result = subprocess.run([sys.executable, "-m", "campaign.cli", "status", str(tmp_path)], capture_output=True, text=True)
     assert result.returncode == 2 and "not a campaign directory" in result.stderr
+
+
+def test_false_valid_threshold_is_read_but_not_hashed(tmp_path):
+    from campaign.config import load_campaign_config
+
+    default = load_campaign_config(_bad_copy(tmp_path, extra="\n[campaign]\nseed = 1\n"))
+    stricter = load_campaign_config(_bad_copy(tmp_path, extra="\n[campaign]\nseed = 1\nfalse_valid_mps = 2.5\n"))
+    assert default.false_valid_mps == 5.0 and stricter.false_valid_mps == 2.5
+    assert default.config_hash == stricter.config_hash       # a reporting threshold: same results
 
 
 def test_default_counts_are_the_papers():
