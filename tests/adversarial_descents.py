@@ -1,7 +1,7 @@
 """Image triples built to fool a feature-tracking velocity estimator, each with a known true answer.
 
 Not part of the estimator. Scenes are rendered fast but with the simulator's real camera chain
-(:func:`simulator.render.render_image`: falloff, PRNU, dark current, flush and transfer smear, shot
+(:func:`simulator.detector.camera_chain.render_image`: falloff, PRNU, dark current, flush and transfer smear, shot
 and read noise, 12-bit ADC): the ground I/F is sampled along the mean ray of each 4 x 4 binning
 block (the camera sums 4 rows on chip, the estimator 4 columns, so sub-block detail never reaches
 the estimator), ray-plane intersection with the level ground z = 0, and the block radiance fills
@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from dimes_velocity.measurements import DescentMeasurements, ImageMeasurement
+from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 
 ALTITUDES_M = (2000.0, 1725.0, 1450.0)
 RADIANCE_PER_IF = 160.0          # W m^-2 sr^-1 um^-1 per unit I/F (Mars, 0.4-1.1 um)
@@ -168,7 +168,7 @@ class Renderer:
         return value * np.float32(RADIANCE_PER_IF)
 
     def image(self, ground: np.ndarray, position_m, attitude, rng: np.random.Generator) -> np.ndarray:
-        from simulator.render import render_image
+        from simulator.detector.camera_chain import render_image
 
         block = self.radiance(ground, position_m, attitude)                       # (256, 256)
         b = self.camera.binning_rows

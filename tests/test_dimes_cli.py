@@ -175,3 +175,36 @@ def test_module_entry_point_runs(case_files, mer_a_path):
     summary = json.loads(completed.stdout)
     assert set(summary) == {"velocity_east_mps", "velocity_north_mps", "valid", "reason", "velocity_uncertainty_mps",
                             "imu_bias_east_mps", "imu_bias_north_mps", "inputs"}
+
+
+BLOCK_SIMULATOR = """
+import json, sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('simulator', 'campaign'):
+            raise ImportError('blocked ' + name)
+sys.meta_path.insert(0, Block())
+from dimes_velocity.__main__ import main
+code = main(sys.argv[1:])
+loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('simulator', 'campaign'))
+print(json.dumps({'exit': code, 'loaded': loaded}), file=sys.stderr)
+sys.exit(code)
+"""
+
+
+def test_estimator_reads_pds3_images_with_the_simulator_unimportable(case_files, mer_a_path, tmp_path):
+    """The estimator is flight software: it and its file readers run with no simulator or campaign code."""
+    from test_readers_formats import write_pds3
+
+    paths, measurements, _, descent = case_files
+    products = [write_pds3(tmp_path / f"descent{k}.img", 256, 1024, "MSB_UNSIGNED_INTEGER", 16,
+                           image.astype(">u2").tobytes(), extra_object="  SAMPLE_BIT_MASK = 2#0000111111111111#\r\n")
+                for k, image in enumerate(descent.images)]
+    completed = subprocess.run([sys.executable, "-c", BLOCK_SIMULATOR, *map(str, products), str(measurements),
+                                "--camera", str(mer_a_path), "--summary"], capture_output=True, text=True, timeout=120)
+    report = json.loads(completed.stderr.strip().splitlines()[-1])
+    assert completed.returncode == 0 and report == {"exit": 0, "loaded": []}, completed.stderr
+    result = json.loads(completed.stdout)
+    assert result["valid"] and np.hypot(result["velocity_east_mps"] - VELOCITY[0],
+                                        result["velocity_north_mps"] - VELOCITY[1]) < 0.5
+    assert all(item["format"] == "PDS3" and "SAMPLE_BIT_MASK 12" in item["dn_rule"] for item in result["inputs"])
