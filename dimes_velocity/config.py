@@ -93,8 +93,9 @@ class EstimatorConfig:
         feature_agreement_px [1.5]: features of one pair must agree within this (fine pixels).
         require_feature_majority [True]: the agreeing group must hold more than half the matches.
         min_features_per_pair [2]: agreeing features needed for a pair to count.
-        min_group_span_px [30]: the agreeing features must include two templates at least this far
-            apart (fine pixels), i.e. distinct ground objects, not two corners of one.
+        min_group_span_px [15]: the agreeing features must include two templates at least this far
+            apart (fine pixels): with the template size, two templates that share no pixel, i.e.
+            independent evidence (the selection keeps centres ``min_feature_spacing_px`` apart only).
         pair_agreement_mps [4.0]: the IMU bias from the two pairs must agree within this. The
             image-to-image attitude noise alone (0.05 deg per axis) makes the difference scatter by
             sqrt(H1^2 + 4 H2^2 + H3^2) * 0.05 deg / dt ~ 1 m/s per axis at 2000/1725/1450 m, so 4 m/s
@@ -145,7 +146,7 @@ class EstimatorConfig:
     feature_agreement_px: float = 1.5
     require_feature_majority: bool = True
     min_features_per_pair: int = 2
-    min_group_span_px: int = 30
+    min_group_span_px: int = 15
     pair_agreement_mps: float = 4.0
     require_both_pairs: bool = True
 

@@ -83,12 +83,20 @@ class RectifiedImage:
         return self.flat.noise_dn_at(source_row, source_column)
 
 
-def _all_agree(displacements_m: list, count: int, tolerance_m: float) -> bool:
-    """At least ``count`` displacements, all within ``tolerance_m`` of each other."""
+def _span(centres_px) -> float:
+    """Largest distance between template centres (px)."""
+    points = np.asarray(centres_px, dtype=float).reshape(-1, 2)
+    return float(np.linalg.norm(points[:, None] - points[None], axis=-1).max()) if len(points) else 0.0
+
+
+def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m: float, min_span_px: float) -> bool:
+    """At least ``count`` displacements, all within ``tolerance_m`` of each other, from templates
+    spanning at least ``min_span_px``: enough agreeing evidence to stop tracking."""
     if len(displacements_m) < count:
         return False
     points = np.asarray(displacements_m, dtype=float)
-    return bool(np.linalg.norm(points[:, None] - points[None], axis=-1).max() <= tolerance_m)
+    return (bool(np.linalg.norm(points[:, None] - points[None], axis=-1).max() <= tolerance_m)
+            and _span(centres_px) >= min_span_px)
 
 
 def _erode(mask: np.ndarray, half: int) -> np.ndarray:
@@ -307,8 +315,10 @@ class DimesEstimator:
             ground_a = a.rectification.ground_of(feature.column, feature.row)
             displacement = (b.rectification.ground_of(*match.position_px) - ground_a) if status == "ok" else np.zeros(2)
             records.append([feature, match, status, ground_a, displacement, check])
-            if status == "ok" and _all_agree([r[4] for r in records if r[2] == "ok"], config.agreeing_features_to_stop,
-                                             config.feature_agreement_px * sample):
+            good_so_far = [r for r in records if r[2] == "ok"]
+            if status == "ok" and _all_agree([r[4] for r in good_so_far], [(r[0].column, r[0].row) for r in good_so_far],
+                                             config.agreeing_features_to_stop, config.feature_agreement_px * sample,
+                                             config.min_group_span_px):
                 break
         t2 = time.perf_counter()
 
@@ -332,9 +342,7 @@ class DimesEstimator:
         if not used:
             reason = "too_few_features" if len(good) < config.min_features_per_pair else "features_disagree"
             return result(reason, radius, len(good)), features, t1 - t0, t2 - t1
-        centres = np.array([[records[i][0].column, records[i][0].row] for i in used], dtype=float)
-        span = float(np.linalg.norm(centres[:, None] - centres[None], axis=-1).max())
-        if span < config.min_group_span_px:
+        if _span([(records[i][0].column, records[i][0].row) for i in used]) < config.min_group_span_px:
             return result("features_clustered", radius, len(good), len(used)), features, t1 - t0, t2 - t1
         used_displacements = np.array([records[i][4] for i in used])
         displacement = weighted_displacement(used_displacements, np.array([records[i][1].correlation for i in used]))

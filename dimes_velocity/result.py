@@ -23,8 +23,8 @@ camera_fixed            the match did not move in the raw image: a mark on the o
 residual_exceeds_noise  the match decorrelates more than the template's and match's noise explain
 too_few_features        fewer good matches than ``min_features_per_pair``
 features_disagree       the matches of one pair do not agree (no majority within tolerance)
-features_clustered      the agreeing matches are closer together than ``min_group_span_px`` (one
-                        ground object, not several)
+features_clustered      the agreeing matches are closer together than ``min_group_span_px`` (their
+                        templates overlap: not independent evidence)
 pairs_disagree          the IMU velocity biases from the image pairs disagree beyond tolerance
 
 When the estimate is invalid, the velocity is the uncorrected IMU velocity at the last image and
