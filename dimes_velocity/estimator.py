@@ -96,7 +96,7 @@ def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m:
         return False
     points = np.asarray(displacements_m, dtype=float)
     return (bool(np.linalg.norm(points[:, None] - points[None], axis=-1).max() <= tolerance_m)
-            and _span(centres_px) >= min_span_px)
+            and (len(points) == 1 or _span(centres_px) >= min_span_px))
 
 
 def _erode(mask: np.ndarray, half: int) -> np.ndarray:
@@ -342,7 +342,7 @@ class DimesEstimator:
         if not used:
             reason = "too_few_features" if len(good) < config.min_features_per_pair else "features_disagree"
             return result(reason, radius, len(good)), features, t1 - t0, t2 - t1
-        if _span([(records[i][0].column, records[i][0].row) for i in used]) < config.min_group_span_px:
+        if len(used) > 1 and _span([(records[i][0].column, records[i][0].row) for i in used]) < config.min_group_span_px:
             return result("features_clustered", radius, len(good), len(used)), features, t1 - t0, t2 - t1
         used_displacements = np.array([records[i][4] for i in used])
         displacement = weighted_displacement(used_displacements, np.array([records[i][1].correlation for i in used]))

@@ -190,3 +190,34 @@ def test_config_from_toml_table():
         config_from_table(Table({"min_correlation": 2.0}, "site.toml", "estimator"))
     with pytest.raises(ConfigError, match=r"site.toml: .*template_size_px = 20 must be odd"):
         config_from_table(Table({"template_size_px": 20}, "site.toml", "estimator"))
+
+
+def test_velocity_uncertainty_closed_forms():
+    """Each error term alone, against its closed form (RMS horizontal = sqrt(2) x per-component sigma)."""
+    from dimes_velocity.solution import velocity_uncertainty
+
+    heights = np.array([2000.0, 1725.0, 1450.0])
+    dt = np.array([3.8, 3.75])
+    both = np.array([True, True])
+    common = velocity_uncertainty(heights, dt, both, np.zeros(2), 0.0, 0.01, 0.0, 0.0, np.zeros(3))
+    per_pair = (heights[:-1] - heights[1:]) / dt
+    assert common == pytest.approx(np.sqrt(2) * 0.01 * per_pair.mean())
+    relative = velocity_uncertainty(heights, dt, both, np.zeros(2), 0.0, 0.0, 0.001, 0.0, np.zeros(3))
+    coefficients = np.array([heights[0] / dt[0], heights[1] / dt[1] - heights[1] / dt[0], -heights[2] / dt[1]]) / 2
+    assert relative == pytest.approx(np.sqrt(2) * 0.001 * np.linalg.norm(coefficients))
+    matching = velocity_uncertainty(heights, dt, both, np.array([0.5, 0.7]), 0.0, 0.0, 0.0, 0.0, np.zeros(3))
+    assert matching == pytest.approx(np.sqrt(2) * np.hypot(0.5 / dt[0], 0.7 / dt[1]) / 2)
+    spread = velocity_uncertainty(heights, dt, both, np.zeros(2), 3.0, 0.0, 0.0, 0.0, np.zeros(3))
+    assert spread == pytest.approx(np.sqrt(2) * 1.5)
+    one_pair = velocity_uncertainty(heights, dt, np.array([False, True]), np.zeros(2), 0.0, 0.01, 0.0, 0.0, np.zeros(3))
+    assert one_pair == pytest.approx(np.sqrt(2) * 0.01 * per_pair[1])
+
+
+def test_a_pair_needs_two_agreeing_features(mer_a, noisy_descent):
+    """One good match is not enough by default (the pair answers too_few_features), a config may allow it."""
+    images, measurements = noisy_descent.images, noisy_descent.truth
+    single = EstimatorConfig(features_per_pair=1)
+    result = DimesEstimator(mer_a, single).estimate(images, measurements)
+    assert not result.valid and {pair.reason for pair in result.pairs} == {"too_few_features"}
+    allowed = DimesEstimator(mer_a, EstimatorConfig(features_per_pair=1, min_features_per_pair=1))
+    assert allowed.estimate(images, measurements).valid

@@ -101,6 +101,29 @@ def test_repetitive_texture_is_ambiguous():
     assert match.second_peak_ratio > 0.9
 
 
+def test_ridge_texture_has_a_flat_peak_at_the_search_level():
+    """Dune crests: a 1-D texture matches all along the crest; its coarse peak has ~zero curvature
+    across the ridge and is refused there, before any fine-level work."""
+    columns, rows = np.meshgrid(np.arange(SIZE), np.arange(SIZE))
+    crest = (columns * np.cos(0.6) + rows * np.sin(0.6)) / 23.0
+    ridges = (2000 + 60 * np.sin(2 * np.pi * crest) + 25 * np.sin(4 * np.pi * crest + 1.0)).astype(np.float32)
+    match = run_match(ridges, ridges, (128, 128), (130, 126), radius=8.0,
+                      config=EstimatorConfig(max_second_peak_ratio=1.0))
+    assert match.status == "flat_peak" and match.coarse_curvature_per_px2 < 0.02
+
+
+@pytest.mark.parametrize("factor, status", [(0.6, "ok"), (0.9, "outside_prior")])
+def test_match_must_lie_within_the_prior_radius(factor, status):
+    """The search window is a square of half-width R; the prior bounds the displacement by a circle of
+    radius R, so a true shift of (0.9 R, 0.9 R) (1.27 R away) is found but refused."""
+    texture = ShiftableTexture(5)
+    radius = 16.0
+    shift = factor * radius * np.ones(2)
+    match = run_match(texture.image(), texture.image(*shift), (128, 128), (128, 128), radius=radius)
+    assert np.allclose(match.position_px, np.array([128.0, 128.0]) + shift, atol=0.2) or status != "ok"
+    assert match.status == status
+
+
 def test_fit_peak_recovers_the_vertex_of_a_quadratic():
     x, y = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0])
     centre = np.array([0.3, -0.2])
