@@ -7,6 +7,37 @@ diagnostics out. See :mod:`dimes_velocity.estimator` for the steps and
 
     from dimes_velocity import DimesEstimator
     result = DimesEstimator(camera).estimate([dn1, dn2, dn3], measurements)
+
+Image files (PNG, TIFF, .npy, raw, PDS3, VICAR, ISIS3; full frames binned as on chip; bit depth
+declared, never guessed) are read by :mod:`dimes_velocity.image_files`.
+
+The flight DIMES logic followed
+-------------------------------
+From the MER DIMES papers (Cheng, Johnson, Matthies, CVPR 2005, "MER-DIMES: a planetary landing
+application of computer vision"; Johnson et al., IJCV 2007, "Design through operation of an
+image-based velocity estimation system for Mars landing"):
+
+* three images at about 2000, 1725 and 1450 m; each binned to 256 x 256, cleaned of the
+  frame-transfer smear and flattened; the zero-phase zone (parachute and lander shadow in the
+  opposition halo) and the predicted heat shield are masked;
+* each image is rectified to a level ground plane from the measured attitude and radar altitude,
+  so that a template changes between images by a translation only;
+* feature selection: templates with high corner interest, spread over the overlap of the pair,
+  away from the masks and with enough contrast (flight tracked two per pair: the paper's Table 3
+  lists features 00, 01, 10, 11);
+* pyramid correlation: a coarse search over a window sized from the velocity, attitude and altitude
+  uncertainties, refined at full resolution to a sub-pixel peak;
+* correlation metrics gate each template (the flight software reported brightness, contrast and
+  correlation, paper Table 3);
+* consistency between the two pairs: the image-pair displacements, compared through the IMU's
+  velocity change, must agree (a constant IMU bias here), else the velocity is flagged invalid.
+
+Where this reference differs (documented rather than copied; the flight thresholds are not
+published): up to 8 templates per pair tracked until 4 agree, and two agreeing templates that share
+no pixel required per pair (flight: two per pair, checked across pairs); the distinct-peak tests
+(second-peak ratio, curvature) at the coarse level where the search is done; a match within the
+prior's circle; a residual consistent with the templates' noise; matches that do not move in the raw
+image refused as marks on the optics; a stated uncertainty with every valid velocity.
 """
 from .config import EstimatorConfig, config_from_table
 from .estimator import DimesEstimator, estimate_velocity

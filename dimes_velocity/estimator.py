@@ -10,12 +10,19 @@ Steps (paper section 5 and DESIGN.md "The reference estimator"):
    saturated, no signal, the zero-phase zone (4.3 deg around the anti-sun direction) and the heat
    shield's cone when predicted;
 3. for each consecutive pair (A, B): choose corner-like templates in A whose search window lies on
-   usable ground of B (:mod:`.features`), find them in B (:mod:`.matching`). A feature seen at ground
-   point ``g_A`` in A and ``g_B`` in B gives ``d = g_B - g_A``: both were placed with the
-   IMU-predicted positions, so ``d = (predicted - true displacement) = bias * (t_B - t_A)``;
-4. the agreeing majority of a pair's matches gives its bias; the pairs must agree within
-   ``pair_agreement_mps`` (the bias is constant); the estimate is the IMU velocity at the last image
-   minus the mean bias.
+   usable ground of B (:mod:`.features`), find them in B (:mod:`.matching`), in order of interest
+   until ``agreeing_features_to_stop`` good matches agree (at most ``features_per_pair``). A match
+   counts only when its peak is distinct, sharp, within the prior and correlated enough
+   (:mod:`.matching`), it lies on usable ground, it moved in the raw image (not a mark on the optics
+   or detector) and its decorrelation is what the pixel noise explains (:class:`_MatchCheck`). A
+   feature seen at ground point ``g_A`` in A and ``g_B`` in B gives ``d = g_B - g_A``: both were
+   placed with the IMU-predicted positions, so ``d = (predicted - true displacement) = bias * (t_B - t_A)``;
+4. the agreeing majority of a pair's matches (at least ``min_features_per_pair`` templates that share
+   no pixel) gives its bias; the pairs must agree within ``pair_agreement_mps`` (the bias is
+   constant); the estimate is the IMU velocity at the last image minus the mean bias, with its
+   stated uncertainty (:func:`.solution.velocity_uncertainty`).
+
+How this follows the flight DIMES algorithm is in the package docstring (:mod:`dimes_velocity`).
 """
 from __future__ import annotations
 
@@ -30,7 +37,7 @@ from flight_interface.camera import Camera
 
 from . import geometry
 from .config import EstimatorConfig
-from .features import interest_map, select_features
+from .features import FeatureSelector, interest_map
 from .matching import match_template
 from flight_interface.measurements import DescentMeasurements, MeasurementError, validate_measurements
 from .preprocess import FlatImage, flatten, make_flattening
@@ -291,15 +298,17 @@ class DimesEstimator:
         candidates &= _shifted(window_b, int(shift_int[0]), int(shift_int[1]))
         if not candidates.any():
             return result("no_overlap", radius), [], time.perf_counter() - t0, 0.0
-        selection = select_features(a.image, candidates, a.noise_at, config, interest_map(a.image, config))
+        selector = FeatureSelector(a.image, candidates, a.noise_at, config, interest_map(a.image, config))
+        feature = selector.next()
         t1 = time.perf_counter()
-        if not selection.features:
-            reason = "low_contrast" if selection.low_contrast else "no_overlap"
+        if feature is None:
+            reason = "low_contrast" if selector.low_contrast else "no_overlap"
             return result(reason, radius), [], t1 - t0, 0.0
 
         match_valid_b = _erode(b.valid, config.template_size_px // 2)
         records = []
-        for rank, feature in enumerate(selection.features):
+        select_s = 0.0
+        while feature is not None:
             predicted = np.array([feature.column, feature.row], dtype=float) + shift
             match = match_template(a.image, b.image, a.coarse, b.coarse, (feature.column, feature.row),
                                    predicted, radius, config)
@@ -320,7 +329,13 @@ class DimesEstimator:
                                              config.agreeing_features_to_stop, config.feature_agreement_px * sample,
                                              config.min_group_span_px):
                 break
+            if len(records) == config.features_per_pair:
+                break
+            started = time.perf_counter()
+            feature = selector.next()
+            select_s += time.perf_counter() - started
         t2 = time.perf_counter()
+        t1 += select_s
 
         good = [i for i, record in enumerate(records) if record[2] == "ok"]
         group = consensus(np.array([records[i][4] for i in good]).reshape(-1, 2),

@@ -76,9 +76,9 @@ def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> 
     return mean, float(patch.std()), float(residual.std())
 
 
-def select_features(image: np.ndarray, candidates: np.ndarray, noise_dn_at, config: EstimatorConfig,
-                    interest: np.ndarray | None = None) -> Selection:
-    """Pick up to ``config.features_per_pair`` templates.
+class FeatureSelector:
+    """Templates in decreasing interest, drawn one at a time (:meth:`next`): the contrast of an offer
+    is measured only when it is drawn, so a pair whose first matches agree pays for no more.
 
     Parameters
     ----------
@@ -90,40 +90,69 @@ def select_features(image: np.ndarray, candidates: np.ndarray, noise_dn_at, conf
         Expected pixel noise (DN) at a rectified position.
     interest : ndarray, optional
         Precomputed :func:`interest_map` of ``image``.
+
+    Attributes
+    ----------
+    offered : int
+        Grid cells with an allowed centre.
+    low_contrast : int
+        Offers drawn and refused for contrast so far.
     """
-    if not candidates.any():
-        return Selection((), 0, 0)
-    if interest is None:
-        interest = interest_map(image, config)
-    rows = np.flatnonzero(candidates.any(axis=1))
-    columns = np.flatnonzero(candidates.any(axis=0))
-    row_edges = np.linspace(rows[0], rows[-1] + 1, config.feature_grid + 1).astype(int)
-    column_edges = np.linspace(columns[0], columns[-1] + 1, config.feature_grid + 1).astype(int)
-    scored = np.where(candidates, interest, -1.0)
-    offers = []
-    for top, bottom in zip(row_edges[:-1], row_edges[1:]):
-        for left, right in zip(column_edges[:-1], column_edges[1:]):
-            cell = scored[top:bottom, left:right]
-            if cell.size == 0:
+
+    def __init__(self, image: np.ndarray, candidates: np.ndarray, noise_dn_at, config: EstimatorConfig,
+                 interest: np.ndarray | None = None):
+        self.image, self.noise_dn_at, self.config = image, noise_dn_at, config
+        self.chosen: list[Candidate] = []
+        self.low_contrast = 0
+        self._offers: list[tuple[float, int, int]] = []
+        if candidates.any():
+            if interest is None:
+                interest = interest_map(image, config)
+            rows = np.flatnonzero(candidates.any(axis=1))
+            columns = np.flatnonzero(candidates.any(axis=0))
+            row_edges = np.linspace(rows[0], rows[-1] + 1, config.feature_grid + 1).astype(int)
+            column_edges = np.linspace(columns[0], columns[-1] + 1, config.feature_grid + 1).astype(int)
+            scored = np.where(candidates, interest, -1.0)
+            for top, bottom in zip(row_edges[:-1], row_edges[1:]):
+                for left, right in zip(column_edges[:-1], column_edges[1:]):
+                    cell = scored[top:bottom, left:right]
+                    if cell.size == 0:
+                        continue
+                    index = int(np.argmax(cell))
+                    row, column = divmod(index, cell.shape[1])
+                    if cell[row, column] < 0:
+                        continue
+                    self._offers.append((float(cell[row, column]), left + column, top + row))
+            self._offers.sort(key=lambda offer: -offer[0])
+        self.offered = len(self._offers)
+        self._position = 0
+
+    def next(self) -> Candidate | None:
+        """The next template with enough contrast, at least ``min_feature_spacing_px`` from those drawn
+        before; None when the offers are exhausted."""
+        config = self.config
+        half = config.template_size_px // 2
+        spacing2 = config.min_feature_spacing_px ** 2
+        while self._position < len(self._offers):
+            score, column, row = self._offers[self._position]
+            self._position += 1
+            if any((column - c.column) ** 2 + (row - c.row) ** 2 < spacing2 for c in self.chosen):
                 continue
-            index = int(np.argmax(cell))
-            row, column = divmod(index, cell.shape[1])
-            if cell[row, column] < 0:
+            mean, std, detrended = template_statistics(self.image, column, row, half)
+            noise = max(float(self.noise_dn_at(column, row)), 1e-6)
+            if detrended / noise < config.min_contrast_to_noise:
+                self.low_contrast += 1
                 continue
-            offers.append((float(cell[row, column]), left + column, top + row))
-    offers.sort(key=lambda offer: -offer[0])
-    half = config.template_size_px // 2
-    chosen: list[Candidate] = []
-    low_contrast = 0
-    for score, column, row in offers:
-        if any((column - c.column) ** 2 + (row - c.row) ** 2 < config.min_feature_spacing_px ** 2 for c in chosen):
-            continue
-        mean, std, detrended = template_statistics(image, column, row, half)
-        noise = max(float(noise_dn_at(column, row)), 1e-6)
-        if detrended / noise < config.min_contrast_to_noise:
-            low_contrast += 1
-            continue
-        chosen.append(Candidate(column, row, score, mean, std, detrended / noise))
-        if len(chosen) == config.features_per_pair:
-            break
-    return Selection(tuple(chosen), len(offers), low_contrast)
+            candidate = Candidate(column, row, score, mean, std, detrended / noise)
+            self.chosen.append(candidate)
+            return candidate
+        return None
+
+
+def select_features(image: np.ndarray, candidates: np.ndarray, noise_dn_at, config: EstimatorConfig,
+                    interest: np.ndarray | None = None) -> Selection:
+    """Pick up to ``config.features_per_pair`` templates at once (parameters as :class:`FeatureSelector`)."""
+    selector = FeatureSelector(image, candidates, noise_dn_at, config, interest)
+    while len(selector.chosen) < config.features_per_pair and selector.next() is not None:
+        pass
+    return Selection(tuple(selector.chosen), selector.offered, selector.low_contrast)
