@@ -114,7 +114,8 @@ def sensitivity_table(spec: SweepSpec, results: pd.DataFrame) -> pd.DataFrame:
     frames = []
     for point in spec.points:
         members = results[results["point_id"] == point.point_id] if not results.empty else results
-        table = site_table(members, fractions, site_name, class_order=list(fractions))
+        table = site_table(members, fractions, site_name, class_order=list(fractions),
+                           false_valid_mps=spec.base.false_valid_mps)
         keys = point_keys(point)
         for position, (key, value) in enumerate(keys.items()):
             table.insert(position, key, [value] * len(table))
@@ -123,13 +124,15 @@ def sensitivity_table(spec: SweepSpec, results: pd.DataFrame) -> pd.DataFrame:
 
 
 def format_sensitivity(spec: SweepSpec, table: pd.DataFrame, markdown: bool = False) -> str:
-    """The table as people read it: one row per point; % valid and error per class, weighted totals."""
+    """The table as people read it: one row per point; % valid and error per class, weighted totals,
+    and the site's false-valid count and worst valid error beside them."""
     classes = [entry.name for entry in spec.base.site.classes]
     site_name = spec.base.site.name
     headers = ["point", *spec.axis_names]
     for name in classes:
         headers += [f"{name} % valid", f"{name} err m/s"]
-    headers += [f"{site_name} weighted % valid", "weighted err m/s"]
+    headers += [f"{site_name} weighted % valid", "weighted err m/s",
+                f"false-valid (>{spec.base.false_valid_mps:g} m/s)", "worst valid m/s"]
     body = []
     for point in spec.points:
         rows = table[table["point_id"] == point.point_id].set_index("class")
@@ -137,7 +140,8 @@ def format_sensitivity(spec: SweepSpec, table: pd.DataFrame, markdown: bool = Fa
         for name in classes:
             cells += [_num(rows.at[name, "pct_valid"], "{:.0f}"), _num(rows.at[name, "error_mean_3sigma_mps"], "{:.2f}")]
         cells += [_num(rows.at[site_name, "weighted_pct_valid"], "{:.0f}"),
-                  _num(rows.at[site_name, "weighted_error_mps"], "{:.2f}")]
+                  _num(rows.at[site_name, "weighted_error_mps"], "{:.2f}"), str(int(rows.at[site_name, "false_valid"])),
+                  _num(rows.at[site_name, "worst_valid_error_mps"], "{:.2f}")]
         body.append(cells)
     if markdown:
         lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
