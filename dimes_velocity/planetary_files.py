@@ -8,8 +8,8 @@ mask; here the stored sample type is recovered from the label so that the bit-de
 * integer samples with no label scaling come back as integers (``uint8``, ``uint16``, or ``int32``
   for signed or 32-bit samples); special pixels (missing, NULL, ISIS special values) become 0 DN,
   which the estimator treats as "no signal";
-* the significant bits are read from a PDS3 ``SAMPLE_BIT_MASK`` of contiguous low bits wider than
-  8 bits (``2#0000111111111111#`` -> 12); an 8-bit mask is not taken as a DN scale (MER 8-bit
+* the significant bits are read from a ``SAMPLE_BIT_MASK`` (PDS3 image object, or a VICAR label
+  keyword) of contiguous low bits wider than 8 bits (``2#0000111111111111#`` -> 12); an 8-bit mask is not taken as a DN scale (MER 8-bit
   products are companded through a look-up table), so 8-bit samples still need a declaration;
 * a label scaling (PDS3 ``OFFSET``/``SCALING_FACTOR``, ISIS3 ``Base``/``Multiplier``) or float
   samples mean the values are not raw DN: they are refused unless ``--dn-scale`` states the DN;
@@ -72,12 +72,7 @@ def _stored_type(kind: str, label: dict) -> tuple[type | None, bool, tuple | Non
         scaled = float(image.get("OFFSET", 0.0) or 0.0) != 0.0 or float(image.get("SCALING_FACTOR", 1.0) or 1.0) != 1.0
         if "REAL" in sample_type or "FLOAT" in sample_type:
             return None, scaled, None
-        bits = None
-        mask = image.get("SAMPLE_BIT_MASK")
-        if isinstance(mask, int) and not isinstance(mask, bool) and mask > 0 and (mask & (mask + 1)) == 0:
-            width = mask.bit_length()
-            if 8 < width <= sample_bits:
-                bits = (width, "label SAMPLE_BIT_MASK")
+        bits = _mask_bits(image.get("SAMPLE_BIT_MASK"), sample_bits)
         dtype = np.uint8 if sample_bits == 8 and "UNSIGNED" in sample_type else \
             np.uint16 if sample_bits == 16 else np.int32
         return dtype, scaled, bits
@@ -85,7 +80,11 @@ def _stored_type(kind: str, label: dict) -> tuple[type | None, bool, tuple | Non
         name = str(label.get("FORMAT", "")).upper()
         if name in ("REAL", "DOUB"):
             return None, False, None
-        return {"BYTE": np.uint8, "HALF": np.uint16, "WORD": np.uint16}.get(name, np.int32), False, None
+        sample_bits = {"BYTE": 8, "HALF": 16, "WORD": 16}.get(name, 32)
+        mask = label.get("SAMPLE_BIT_MASK")
+        if mask is None:                      # property and history labels keep their keywords in order
+            mask = next((value for key, value in label.get("_HISTORY", []) if key == "SAMPLE_BIT_MASK"), None)
+        return {8: np.uint8, 16: np.uint16}.get(sample_bits, np.int32), False, _mask_bits(mask, sample_bits)
     cube = label.get("IsisCube", {})
     pixels = cube.get("Core", {}).get("Pixels", {}) if isinstance(cube, dict) else {}
     type_name = str(pixels.get("Type", "")).upper()
@@ -93,3 +92,19 @@ def _stored_type(kind: str, label: dict) -> tuple[type | None, bool, tuple | Non
         return None, False, None
     scaled = float(pixels.get("Base", 0.0) or 0.0) != 0.0 or float(pixels.get("Multiplier", 1.0) or 1.0) != 1.0
     return {"UNSIGNEDBYTE": np.uint8, "UNSIGNEDWORD": np.uint16}.get(type_name, np.uint16), scaled, None
+
+
+def _mask_bits(mask, sample_bits: int) -> tuple | None:
+    """(significant bits, source) from a ``SAMPLE_BIT_MASK`` of contiguous low bits wider than 8 and
+    no wider than the samples (an integer, or PDS/VICAR radix text such as ``2#0000111111111111#``)."""
+    if isinstance(mask, str):
+        text = mask.strip().strip("'\"")
+        try:
+            base, digits = text.rstrip("#").split("#", 1)
+            mask = int(digits, int(base))
+        except ValueError:
+            return None
+    if isinstance(mask, bool) or not isinstance(mask, int) or mask <= 0 or (mask & (mask + 1)) != 0:
+        return None
+    width = mask.bit_length()
+    return (width, "label SAMPLE_BIT_MASK") if 8 < width <= sample_bits else None

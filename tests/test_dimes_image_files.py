@@ -179,6 +179,12 @@ def test_vicar_and_isis3_integer_images(binned_dn, mer_a, tmp_path):
     vicar = write_vicar(tmp_path / "descent.vic", binned_dn.astype(np.int16), "HALF")
     image = read_descent_image(vicar, mer_a)
     assert image.file_format == "VICAR" and np.array_equal(image.dn, binned_dn)
+    masked = tmp_path / "masked.vic"                     # a bit mask in the label: 16 significant bits
+    text = vicar.read_bytes()
+    label = text[:512].rstrip(b" ") + b"  PROPERTY='IMAGE_DATA'  SAMPLE_BIT_MASK='2#1111111111111111#'"
+    masked.write_bytes(label.ljust(512, b" ") + text[512:])
+    image = read_descent_image(masked, mer_a)
+    assert "label SAMPLE_BIT_MASK 16" in image.dn_rule and np.allclose(image.dn, binned_dn / 16.0)
     cube = write_isis(tmp_path / "descent.cub", binned_dn[None].astype(np.uint16), "UnsignedWord", "Lsb",
                       core_format="BandSequential")
     image = read_descent_image(cube, mer_a)
