@@ -165,9 +165,8 @@ def read_descent_image(path: str | Path, camera: Any,
         raise InputFileError(f"{path}: image shape {_shape_text(stored_shape)}; accepted: {accepted_shapes(camera)}")
     if values.dtype.kind == "f" and not np.isfinite(values).all():
         raise InputFileError(f"{path}: image contains non-finite values")
-    container_bits = 8 * values.dtype.itemsize if values.dtype.kind in "ui" else None
-    if stored_dtype == "uint8":
-        container_bits = 8                               # an 8-bit RGB image stays 8-bit after luminance
+    stored = np.dtype(stored_dtype)                      # an integer RGB image keeps its depth after luminance
+    container_bits = 8 * stored.itemsize if stored.kind in "ui" else None
     dn, saturated, rule = to_camera_dn(path, values, container_bits, label_bits, declaration, camera)
     full_frame = dn.shape[0] == rows and binning > 1
     if full_frame:
@@ -223,7 +222,7 @@ def to_camera_dn(path: Path, values: np.ndarray, container_bits: int | None, lab
         return dn, None, f"DN = {scale:g} x value + {offset:g} (--dn-scale/--dn-offset)"
     if bits is not None:
         scale = 2.0 ** (adc_bits - bits)
-        saturated = values >= 2 ** bits - 1 if values.dtype.kind in "ui" or container_bits == 8 else None
+        saturated = values >= 2 ** bits - 1 if container_bits is not None else None
         if scale == 1.0 and offset == 0.0 and values.dtype == np.uint16:
             return values, (saturated if saturated is not None and saturated.any() else None), \
                 f"DN = value ({whose} {bits}: the camera's {adc_bits}-bit DN)"

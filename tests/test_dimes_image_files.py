@@ -110,6 +110,10 @@ def test_colour_needs_a_channel_or_luminance(mer_a, tmp_path):
     luminance = read_descent_image(path, mer_a, ImageDeclaration(luminance=True)).dn
     expected = 0.2126 * rgba[:, :, 0] + 0.7152 * rgba[:, :, 1] + 0.0722 * rgba[:, :, 2]
     assert np.allclose(luminance, expected, atol=1e-3)
+    bright = tmp_path / "bright.png"               # a 16-bit colour image keeps the 16-bit rules after luminance
+    cv2.imwrite(str(bright), cv2.cvtColor(rgba * 16, cv2.COLOR_RGBA2BGRA))
+    with pytest.raises(InputFileError, match="outside the camera's 12-bit DN range"):
+        read_descent_image(bright, mer_a, ImageDeclaration(luminance=True))
     grey = tmp_path / "grey.png"                                          # grey: the channel is moot
     cv2.imwrite(str(grey), rgba[:, :, 0])
     assert np.array_equal(read_descent_image(grey, mer_a, ImageDeclaration(channel="b")).dn, rgba[:, :, 0])
