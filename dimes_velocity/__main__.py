@@ -4,6 +4,8 @@ Usage::
 
     python -m dimes_velocity IMAGE1 IMAGE2 IMAGE3 MEASUREMENTS.json --camera sitedata/cameras/mer_a.toml
         [--config campaign.toml]   # estimator parameters from its [estimator] table
+        [--flat-field FILE|none]   # measured flat field (.npy, TIFF, FITS); default: <camera stem>.flat.*
+                                   # beside the camera TOML if there is one, else the design falloff only
         [--big-endian]             # raw images are big-endian uint16
         [--summary]                # print only velocity, valid, reason and bias
 
@@ -18,6 +20,7 @@ import argparse
 import json
 import sys
 
+from flight_interface.calibration import CalibrationError, flat_field_next_to, load_flat_field
 from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError, Table, load_toml
 
@@ -33,6 +36,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("files", nargs="+", metavar="FILE", help="images in time order, then the measurements JSON")
     parser.add_argument("--camera", required=True, help="camera TOML (e.g. sitedata/cameras/mer_a.toml)")
     parser.add_argument("--config", help="TOML file whose [estimator] table sets estimator parameters")
+    parser.add_argument("--flat-field", metavar="FILE",
+                        help="flat-field calibration file (.npy, .tif, .fits) or 'none'; default: "
+                             "<camera stem>.flat.{npy,tif,tiff,fits} beside the camera TOML when present")
     parser.add_argument("--big-endian", action="store_true", help="raw images are big-endian uint16")
     parser.add_argument("--summary", action="store_true", help="print only the velocity, valid flag, reason and bias")
     args = parser.parse_args(argv)
@@ -52,8 +58,11 @@ def main(argv: list[str] | None = None) -> int:
                                  f"for {len(image_paths)} image files")
         shape = (camera.height_px // camera.binning_rows, camera.width_px)
         images = [load_image(path, shape, args.big_endian) for path in image_paths]
-        result = DimesEstimator(camera, config).estimate(images, measurements)
-    except (ConfigError, InputFileError, MeasurementError) as exc:
+        flat_path = flat_field_next_to(args.camera) if args.flat_field is None else (
+            None if args.flat_field.lower() == "none" else args.flat_field)
+        flat_field = None if flat_path is None else load_flat_field(flat_path, camera.binned_shape)
+        result = DimesEstimator(camera, config, flat_field).estimate(images, measurements)
+    except (ConfigError, InputFileError, MeasurementError, CalibrationError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     output = result.to_dict()
