@@ -46,8 +46,8 @@ from .contract import EstimatorInputs, EstimatorOutput
 
 DEFAULTS = {
     "grid_size_px": 256,            # side of the common rectified grid (power of two: fast FFT)
-    "min_response": 0.06,           # phase-correlation peak response for a valid pair
-    "min_overlap": 0.35,            # usable fraction of the grid in both images
+    "min_response": 0.05,           # phase-correlation peak response for a valid pair (noise: ~0)
+    "min_overlap": 0.25,            # usable fraction of the grid in both images
     "max_velocity_bias_mps": 25.0,  # largest plausible IMU bias (shift range)
     "pair_agreement_mps": 4.0,      # the two pairs' biases must agree within this
     "highpass_sigma_px": 8.0,       # Gaussian subtracted before correlation (grid pixels)

@@ -15,7 +15,7 @@ sensor draws of each case::
     callable = "estimators.phase_correlation:estimate"   # package.module:function
     isolate = false                     # true: run in its own process, with timeout_s (default false)
     [estimators.parameters]             # passed as inputs.parameters
-    min_response = 0.06
+    min_response = 0.05
 
     [[estimators]]
     name = "flight_c"

@@ -6,7 +6,8 @@
 Reads the images (PNG, .npy or raw uint16), measurements, camera and flat field, calls the function
 with :class:`estimators.contract.EstimatorInputs` and writes its output JSON. The campaign runs this
 as an external command (:mod:`estimators.command`), so a callable that hangs or crashes the
-interpreter costs only its own result. Exit status 2 for unusable input files.
+interpreter costs only its own result. Exit status 2 for unusable input files, 1 for a result that
+breaks the contract (one line on stderr); an exception in the callable prints its traceback (exit 1).
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     from flight_interface.camera import load_camera
     from flight_interface.tomlfields import ConfigError
 
-    from .contract import EstimatorInputs, output_to_dict, validate_output
+    from .contract import ContractViolation, EstimatorInputs, output_to_dict, validate_output
 
     parser = argparse.ArgumentParser(prog="python -m estimators.run_python")
     parser.add_argument("callable", help="package.module:function")
@@ -50,7 +51,11 @@ def main(argv: list[str] | None = None) -> int:
                              measurements=measurements, camera=camera,
                              calibration=CalibrationProducts(flat, args.flat_field if flat is not None else "none"),
                              parameters=parameters)
-    output = validate_output(function(inputs))
+    try:
+        output = validate_output(function(inputs))
+    except ContractViolation as exc:
+        print(f"contract violation: {exc}", file=sys.stderr)
+        return 1
     with open(args.output, "w") as handle:
         json.dump(output_to_dict(output), handle)
     return 0
