@@ -24,7 +24,7 @@ import os
 import socket
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -65,14 +65,11 @@ class Resources:
     def calibration(self):
         """The campaign's calibration products (``[estimator] flat_field``), made once per process."""
         from flight_interface.calibration import CalibrationProducts
+        from simulator.calibration import simulate_flat_field, true_flat_field
 
         calibration = self.config.calibration
         if calibration.flat_field == "none":
             return CalibrationProducts(None, "none")
-        from dataclasses import replace
-
-        from simulator.calibration import simulate_flat_field, true_flat_field
-
         effects = replace(self.config.scene.camera_effects, dark_current_scale=1.0)   # the detector on the ground
         camera_path = Path(self.config.site.camera_path)
         stat = camera_path.stat()
