@@ -12,6 +12,7 @@ from flight_interface.tomlfields import ConfigError
 
 from .aggregate import format_table, site_table
 from .case import CampaignContext, load_resources
+from .compare import COMPARISON_NOTE, comparison_table, estimator_names, format_comparison, with_estimator_column
 from .config import CampaignConfig
 from .coverage import refusal
 from .planner import ClassPlanInput, plan_class
@@ -84,7 +85,8 @@ def false_valid_threshold(manifest: dict) -> float:
 
 
 def write_table(root: Path, false_valid_mps: float | None = None) -> str:
-    """Compute the paper's table from a store; write table.md and table.csv beside it; return the text.
+    """The paper's table of each estimator and the estimators side by side (with false-valid counts),
+    from a store; write table.md and table.csv (the side-by-side rows) beside it; return the text.
     ``false_valid_mps``: the false-valid threshold (default: the one in the store's manifest)."""
     store = CampaignStore(root)
     manifest = store.manifest()
@@ -92,17 +94,29 @@ def write_table(root: Path, false_valid_mps: float | None = None) -> str:
         from .store import StoreError
 
         raise StoreError(f"{root}: no manifest.json: not a campaign directory")
-    results = store.results()
+    results = with_estimator_column(store.results())
     fractions = manifest["ellipse_fractions"]
     threshold = false_valid_threshold(manifest) if false_valid_mps is None else false_valid_mps
-    table = site_table(results, fractions, manifest["site"].capitalize(), class_order=list(fractions),
-                       false_valid_mps=threshold)
+    site = manifest["site"].capitalize()
+    names = estimator_names(results)
     status = store.status()
-    heading = (f"{manifest['site'].capitalize()}: {status.done + status.failed} of {status.planned} cases finished"
-               f" ({status.failed} failed, {status.missing} missing), seed {manifest['seed']}")
-    (store.root / "table.md").write_text(f"{heading}\n\n{format_table(table, markdown=True)}\n")
-    table.to_csv(store.root / "table.csv", index=False)
-    return f"{heading}\n{format_table(table)}"
+    heading = (f"{site}: {status.done + status.failed} of {status.planned} cases finished"
+               f" ({status.failed} failed, {status.missing} missing), seed {manifest['seed']}"
+               f"{', estimators ' + ', '.join(names) if names else ''}")
+    text, markdown = [heading], [heading, ""]
+    for name in names:
+        table = site_table(results[results["estimator"] == name], fractions, site, class_order=list(fractions),
+                           false_valid_mps=threshold)
+        text += [f"estimator {name}:", format_table(table)]
+        markdown += [f"### Estimator `{name}`", "", format_table(table, markdown=True), ""]
+    comparison = comparison_table(results, fractions, site, list(fractions), names, false_valid_mps=threshold)
+    if names:
+        text += ["estimators side by side:", format_comparison(comparison), COMPARISON_NOTE]
+        markdown += ["### Estimators side by side", "", format_comparison(comparison, markdown=True), "",
+                     COMPARISON_NOTE, ""]
+    (store.root / "table.md").write_text("\n".join(markdown) + "\n")
+    comparison.to_csv(store.root / "table.csv", index=False)
+    return "\n".join(text)
 
 
 def write_plan_maps(config: CampaignConfig, resources, plan: pd.DataFrame, out_dir: Path) -> list[Path]:

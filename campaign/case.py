@@ -1,5 +1,5 @@
-"""One Monte Carlo case on a worker: simulate three descent images with sensor measurements, run the
-reference estimator, and write the result row durably.
+"""One Monte Carlo case on a worker: simulate three descent images with sensor measurements once, run
+every estimator of the campaign on them, and write the case's rows (one per estimator) durably.
 
 Big read-only inputs (camera, trajectory set, terrain strips) are loaded once per worker process and
 kept in :data:`_WORKER_RESOURCES`, keyed by the campaign's configuration hash; tasks themselves only
@@ -8,7 +8,14 @@ carry the small :class:`CampaignContext` and one plan row.
 Randomness: case ``k`` of a campaign with seed ``s`` draws everything from
 ``SeedSequence([s, k]).spawn(...)``: one stream per image (scene + camera noise), one for the sensors,
 one for the off-nominal artefacts (dust, hot pixels, per-image particle hits; drawn only when
-configured), so a case is bit-for-bit reproducible whatever the worker count or order.
+configured), so a case is bit-for-bit reproducible whatever the worker count or order. The flat-field
+calibration is drawn once per campaign from ``SeedSequence(seed, spawn_key=(FLAT_FIELD_STREAM,))``
+(a stream no case uses) and cached per worker process.
+
+Estimators: each ``[[estimators]]`` entry is built once per worker process and runs on the same
+images, measurements and calibration products (:class:`estimators.contract.EstimatorInputs`). An
+estimator that violates the contract, crashes or times out gets a row with ``status = "failed"`` and
+the error; the other estimators' rows for the case are kept.
 """
 from __future__ import annotations
 
@@ -17,17 +24,18 @@ import os
 import socket
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from simulator.scene.descent_profile import DescentProfile
 
-from .store import write_case_row
+from .store import write_case_rows
 
 _WORKER_RESOURCES: dict[str, "Resources"] = {}
 IMAGE_COUNT = 3
+FLAT_FIELD_STREAM = 0xF1A7   # spawn key of the flat-field calibration's noise stream
 
 
 @dataclass(frozen=True)
@@ -53,6 +61,36 @@ class Resources:
         self.config = config
         self.camera = _shared("camera", config.site.camera_path, load_camera)
         self.profiles: list[DescentProfile] = _shared("profiles", config.site.trajectory_path, read_profiles)
+
+    def calibration(self):
+        """The campaign's calibration products (``[estimator] flat_field``), made once per process."""
+        from flight_interface.calibration import CalibrationProducts
+        from simulator.calibration import simulate_flat_field, true_flat_field
+
+        calibration = self.config.calibration
+        if calibration.flat_field == "none":
+            return CalibrationProducts(None, "none")
+        effects = replace(self.config.scene.camera_effects, dark_current_scale=1.0)   # the detector on the ground
+        camera_path = Path(self.config.site.camera_path)
+        stat = camera_path.stat()
+        if calibration.flat_field == "truth":
+            flat = _shared("flat_truth", (str(camera_path), stat.st_size, stat.st_mtime_ns, effects),
+                           lambda _: true_flat_field(self.camera, effects))
+            return CalibrationProducts(flat, "truth")
+        frames, seed = calibration.flat_field_frames, self.config.seed
+        key = (str(camera_path), stat.st_size, stat.st_mtime_ns, effects, frames, seed)
+        flat = _shared("flat_calibrated", key, lambda _: simulate_flat_field(
+            self.camera, frames, np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(FLAT_FIELD_STREAM,))),
+            effects))
+        return CalibrationProducts(flat, f"calibrated: {frames} frames")
+
+    def estimators(self) -> list:
+        """(spec, estimator object) of every configured estimator, built once per process."""
+        if not hasattr(self, "_estimators"):
+            from estimators.plugins import build_estimator
+
+            self._estimators = [(spec, build_estimator(spec)) for spec in self.config.estimators]
+        return self._estimators
 
     def terrain(self, class_name: str):
         """The class's terrain, fitted to the trajectory set's footprints when its spec asks (``resample``)."""
@@ -139,18 +177,20 @@ def execute_case(context: CampaignContext, row: dict) -> str:
     started = time.perf_counter()
     for attempt in range(1, attempts + 1):
         try:
-            result = simulate_case(load_resources(config), row, context.store_root)
+            results = simulate_case(load_resources(config), row, context.store_root)
             status, attempts_used = "ok", attempt
             break
-        except Exception as exc:  # recorded in the row; the campaign goes on
+        except Exception as exc:  # recorded in the rows; the campaign goes on
             error = f"{type(exc).__name__}: {exc} | {traceback.format_exc(limit=3).splitlines()[-2].strip()}"
             attempts_used = attempt
     else:
-        status, result = "failed", failed_fields()
-    record = {**plan_fields(row, config.seed), "status": status, "error": error if status == "failed" else "",
-              **result, "attempts": attempts_used, "worker": f"{socket.gethostname()}:{os.getpid()}",
-              "t_case_ms": 1e3 * (time.perf_counter() - started)}
-    write_case_row(Path(context.store_root) / "cases", int(row["case_id"]), record)
+        status = "failed"
+        results = [{"estimator": name, "status": "failed", "error": error, **failed_fields()}
+                   for name in config.estimator_names]
+    common = {**plan_fields(row, config.seed), "attempts": attempts_used,
+              "worker": f"{socket.gethostname()}:{os.getpid()}", "t_case_ms": 1e3 * (time.perf_counter() - started)}
+    records = [{**common, **result} for result in results]
+    write_case_rows(Path(context.store_root) / "cases", int(row["case_id"]), records, ok=status == "ok")
     return status
 
 
@@ -215,53 +255,69 @@ def simulate_case_inputs(resources: Resources, row: dict, scene_config=None) -> 
     return CaseInputs(profile, images, measurements, sensor_truth, 1e3 * (time.perf_counter() - started))
 
 
-def simulate_case(resources: Resources, row: dict, store_root: str) -> dict:
-    """Simulate the three images and measurements of one case, run the estimator, return row fields."""
-    from dimes_velocity.estimator import estimate_velocity
+def simulate_case(resources: Resources, row: dict, store_root: str) -> list[dict]:
+    """Simulate the three images and measurements of one case once, run every estimator on them; return
+    one dict of row fields per estimator (in ``[[estimators]]`` order)."""
+    from estimators.contract import EstimatorInputs
+    from estimators.plugins import run_estimator
 
-    config = resources.config
     camera = resources.camera
     inputs = simulate_case_inputs(resources, row)
     profile = inputs.profile
     images = [rendered.dn for rendered in inputs.images]
-    scene_ms = sum(rendered.diagnostics.scene_ms for rendered in inputs.images)
-    camera_ms = sum(rendered.diagnostics.camera_ms for rendered in inputs.images)
-    heat_shield_visible = [bool(rendered.diagnostics.heat_shield_visible) for rendered in inputs.images]
-    outside = [float(rendered.outside_terrain_mask.mean()) for rendered in inputs.images]
-
-    started = time.perf_counter()
-    estimate = estimate_velocity(images, inputs.measurements, camera, config.estimator)
-    estimator_ms = 1e3 * (time.perf_counter() - started)
-    # an image that sees untextured ground outside the terrain cannot score: recorded invalid, never valid
-    outside_terrain = max(outside) > config.max_outside_terrain_fraction
-
     last_time = float(profile.image_times_s[-1])
     truth_velocity = profile.pose(last_time).velocity_mps
     wind = profile.wind_at(last_time)
-    valid = bool(estimate.valid) and not outside_terrain
-    error = (float(np.hypot(estimate.velocity_east_mps - truth_velocity[0],
-                            estimate.velocity_north_mps - truth_velocity[1])) if valid else None)
     if int(row["case_in_class"]) == 0:
         _save_examples(Path(store_root), row, images)
-    features = list(getattr(estimate, "features", []) or [])
-    return {
+    common = {
         "truth_velocity_east_mps": float(truth_velocity[0]), "truth_velocity_north_mps": float(truth_velocity[1]),
         "wind_east_mps": float(wind[0]), "wind_north_mps": float(wind[1]),
         "altitude_image1_m": float(profile.pose(float(profile.image_times_s[0])).position_m[2]),
         "altitude_image3_m": float(profile.pose(last_time).position_m[2]),
-        "estimate_velocity_east_mps": float(estimate.velocity_east_mps) if valid else None,
-        "estimate_velocity_north_mps": float(estimate.velocity_north_mps) if valid else None,
-        "valid": valid, "reason": "outside_terrain" if outside_terrain else str(estimate.reason),
-        "velocity_error_mps": error,
-        "velocity_uncertainty_mps": float(getattr(estimate, "velocity_uncertainty_mps", 0.0)) if valid else 0.0,
-        "heat_shield_in_view": heat_shield_visible, "outside_terrain_fraction": outside,
-        "feature_brightness": [float(f.brightness_dn) for f in features],
-        "feature_contrast": [float(f.contrast_dn) for f in features],
-        "feature_correlation": [float(f.correlation) for f in features],
-        "feature_status": [str(f.status) for f in features],
+        "heat_shield_in_view": [bool(rendered.diagnostics.heat_shield_visible) for rendered in inputs.images],
+        "outside_terrain_fraction": [float(rendered.outside_terrain_mask.mean()) for rendered in inputs.images],
         **{f"sensor_{key}": value for key, value in inputs.sensor_truth.items()},
-        "t_scene_ms": scene_ms, "t_camera_ms": camera_ms, "t_sensors_ms": inputs.sensors_ms,
-        "t_estimator_ms": estimator_ms,
+        "t_scene_ms": sum(rendered.diagnostics.scene_ms for rendered in inputs.images),
+        "t_camera_ms": sum(rendered.diagnostics.camera_ms for rendered in inputs.images),
+        "t_sensors_ms": inputs.sensors_ms,
+    }
+    shared = EstimatorInputs(images=tuple(images),
+                             image_times_s=np.array([m.time_s for m in inputs.measurements.images]),
+                             measurements=inputs.measurements, camera=camera, calibration=resources.calibration())
+    # an image that sees untextured ground outside the terrain cannot score: recorded invalid, never valid
+    outside_terrain = max(common["outside_terrain_fraction"]) > resources.config.max_outside_terrain_fraction
+    rows = []
+    for spec, estimator in resources.estimators():
+        run = run_estimator(spec.name, estimator, shared)
+        rows.append({"estimator": spec.name, **estimator_fields(run, truth_velocity, outside_terrain), **common,
+                     "t_estimator_ms": run.elapsed_ms})
+    return rows
+
+
+def estimator_fields(run, truth_velocity: np.ndarray, outside_terrain: bool = False) -> dict:
+    """Row fields of one estimator's run: status/error, the estimate, its error against the truth, metrics
+    (``outside_terrain``: the case cannot score; an answer is recorded invalid with that reason)."""
+    output = run.output
+    if output is None:
+        return {"status": "failed", "error": run.error, "estimate_velocity_east_mps": None,
+                "estimate_velocity_north_mps": None, "valid": False, "reason": "estimator_failed",
+                "velocity_error_mps": None, "velocity_uncertainty_mps": 0.0, "feature_brightness": [],
+                "feature_contrast": [], "feature_correlation": [], "feature_status": []}
+    valid = bool(output.valid) and not outside_terrain
+    error = (float(np.hypot(output.velocity_east_mps - truth_velocity[0],
+                            output.velocity_north_mps - truth_velocity[1])) if valid else None)
+    return {
+        "status": "ok", "error": "",
+        "estimate_velocity_east_mps": float(output.velocity_east_mps) if valid else None,
+        "estimate_velocity_north_mps": float(output.velocity_north_mps) if valid else None,
+        "valid": valid, "reason": "outside_terrain" if outside_terrain else str(output.reason),
+        "velocity_error_mps": error,
+        "velocity_uncertainty_mps": float(output.velocity_uncertainty_mps or 0.0) if valid else 0.0,
+        "feature_brightness": [float(f.get("brightness_dn", np.nan)) for f in output.features],
+        "feature_contrast": [float(f.get("contrast_dn", np.nan)) for f in output.features],
+        "feature_correlation": [float(f.get("correlation", np.nan)) for f in output.features],
+        "feature_status": [str(f.get("status", "")) for f in output.features],
     }
 
 

@@ -14,7 +14,10 @@ A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
 ``[execution]``  ``scheduler`` ("" = embedded LocalCluster, or "tcp://host:port"), ``workers`` (0 = one
                  per core), ``retries`` (attempts after the first for a case that raises), ``memory_limit``
 ``[sensors]``    sensor noise (:mod:`simulator.sensors`)
-``[estimator]``  estimator parameters (:mod:`dimes_velocity.config`)
+``[estimator]``  calibration products (``flat_field``, ``flat_field_frames``) and the reference
+                 estimator's parameters (:mod:`campaign.estimator_config`, :mod:`dimes_velocity.config`)
+``[[estimators]]`` the estimators to compare on every case (:mod:`estimators.registry`); default: the
+                 reference estimator alone, named ``dimes``
 ``[scene]``      scene parameters, ``[scene.effects]`` and ``[scene.camera_effects]`` switches
                  (:mod:`simulator.descent_image`); ``sun_distance_au`` defaults to the site's
 
@@ -36,7 +39,9 @@ from typing import Any
 
 from flight_interface.tomlfields import ConfigError, Table, load_toml
 
-TOP_LEVEL_TABLES = ("site", "campaign", "execution", "sensors", "estimator", "scene")
+from .estimator_config import estimator_code_digests, estimator_tables
+
+TOP_LEVEL_TABLES = ("site", "campaign", "execution", "sensors", "estimator", "estimators", "scene")
 
 
 @dataclass(frozen=True)
@@ -58,12 +63,18 @@ class CampaignConfig:
     cases_per_class: dict
     execution: ExecutionConfig
     sensors: Any                  # simulator.sensors.SensorConfig
-    estimator: Any                # dimes_velocity.config.EstimatorConfig
+    estimator: Any                # dimes_velocity.config.EstimatorConfig (the reference's defaults)
     scene: Any                    # simulator.descent_image.SceneConfig
     config_hash: str
     resolved: dict                # the parsed TOML (for the manifest)
     max_outside_terrain_fraction: float = 0.0   # an image seeing more ground outside the terrain: invalid
     false_valid_mps: float = 5.0  # tables: valid with a larger error counts as false-valid
+    calibration: Any = None       # campaign.estimator_config.CalibrationConfig
+    estimators: tuple = ()        # estimators.registry.EstimatorSpec, in [[estimators]] order
+
+    @property
+    def estimator_names(self) -> list[str]:
+        return [spec.name for spec in self.estimators]
 
 
 def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = None,
@@ -82,7 +93,6 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     resolve against it); ``source`` names the data in error messages (default: ``path``); ``site``
     may pass the already loaded site of ``path``. Same hash semantics as :func:`load_campaign_config`.
     """
-    from dimes_velocity.config import config_from_table as estimator_from_table
     from simulator.scene_table import scene_config_from_table
     from simulator.sensors import sensor_config_from_table
     from sitedata.sites import load_site
@@ -131,7 +141,7 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     campaign.reject_unknown()
 
     sensors = sensor_config_from_table(root.table("sensors", required=False))
-    estimator = estimator_from_table(root.table("estimator", required=False))
+    calibration, estimator, estimators = estimator_tables(root, path.parent)
     scene_table = root.table("scene", required=False)
     effects = scene_config_from_table(scene_table)
     if not scene_table.has("sun_distance_au"):
@@ -144,11 +154,12 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     hashed["cases_resolved"] = cases
     hashed["input_digests"] = {str(p): file_digest(p) for p in _input_files(site)}
     hashed["code_digest"] = code_digest()
+    hashed["estimator_code_digests"] = estimator_code_digests(estimators)
     config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
     return CampaignConfig(source=path, site=site, seed=seed, output_dir=out, cases_per_class=cases,
                           execution=execution, sensors=sensors, estimator=estimator, scene=effects,
                           config_hash=config_hash, resolved=resolved, max_outside_terrain_fraction=max_outside,
-                          false_valid_mps=false_valid_mps)
+                          false_valid_mps=false_valid_mps, calibration=calibration, estimators=estimators)
 
 
 def _input_files(site) -> list[Path]:
@@ -160,7 +171,7 @@ def _input_files(site) -> list[Path]:
     return files
 
 
-RESULT_CODE = ("flight_interface", "simulator", "dimes_velocity", "sitedata", "campaign/case.py")
+RESULT_CODE = ("flight_interface", "simulator", "dimes_velocity", "estimators", "sitedata", "campaign/case.py")
 
 
 @functools.lru_cache(maxsize=4)

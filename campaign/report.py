@@ -6,6 +6,7 @@ from pathlib import Path
 from . import plots
 from .aggregate import format_table, site_table
 from .campaign_run import false_valid_threshold
+from .compare import COMPARISON_NOTE, comparison_table, estimator_names, format_comparison, with_estimator_column
 from .flight_metrics import __doc__ as METRICS_DOC
 from .flight_metrics import metrics_table
 from .store import CampaignStore, StoreError
@@ -26,38 +27,22 @@ def write_report(root: Path) -> Path:
     out.mkdir(exist_ok=True)
     fractions = manifest["ellipse_fractions"]
     site = manifest["site"].capitalize()
-    table = site_table(results, fractions, site, class_order=list(fractions),
-                       false_valid_mps=false_valid_threshold(manifest))
+    threshold = false_valid_threshold(manifest)
+    results = with_estimator_column(results)
+    names = estimator_names(results)
     status = store.status()
-    ok = results[results["status"] == "ok"]
+    comparison = comparison_table(results, fractions, site, list(fractions), names, false_valid_mps=threshold)
     lines = [
         f"# {site} DIMES campaign report", "",
         f"Configuration `{manifest['config_file']}` (hash `{manifest['config_hash'][:12]}`), seed {manifest['seed']}; "
-        f"{status.planned} cases planned, {status.done} done, {status.failed} failed, {status.missing} missing.", "",
-        "## Table (paper Tables 1-2)", "", format_table(table, markdown=True), "",
-        f"False-valid: valid with a horizontal error above {table.attrs['false_valid_mps']:g} m/s "
-        "(`[campaign] false_valid_mps`).", "",
+        f"{status.planned} cases planned, {status.done} done, {status.failed} failed, {status.missing} missing; "
+        f"estimators: {', '.join(f'`{name}`' for name in names)} (each ran on the same images and sensor draws).", "",
+        "## Estimators side by side", "", format_comparison(comparison, markdown=True), "", COMPARISON_NOTE, "",
     ]
-    if not ok.empty:
-        plots.error_histograms(ok, out / "error_histograms.png")
-        plots.valid_fraction_bars(table, out / "valid_fraction.png")
-        plots.estimate_vs_truth(ok, out / "estimate_vs_truth.png")
-        lines += ["## Velocity error per class", "", "![error histograms](error_histograms.png)", "",
-                  "## Valid velocities", "", "![% valid](valid_fraction.png)", "",
-                  "## Estimate against truth (valid cases)", "", "![estimate vs truth](estimate_vs_truth.png)", ""]
-        definitions = METRICS_DOC.split("\n\n", 1)[1].strip()
-        lines += ["## DIMES correlation metrics against flight (paper Table 3)", "",
-                  "Median [10th-90th percentile] over the templates of each class; the paper's three "
-                  "features for MOC2DIMES and for the MER-A flight images.", "",
-                  metrics_table(ok, list(fractions)), "", definitions, ""]
-        reasons = ok[~ok["valid"].astype(bool)].groupby(["class_name", "reason"]).size()
-        if len(reasons):
-            lines += ["## Why cases were invalid", "", "| class | reason | cases |", "|---|---|---|"]
-            lines += [f"| {c} | {r} | {n} |" for (c, r), n in reasons.items()] + [""]
-    failed = results[results["status"] != "ok"]
-    if not failed.empty:
-        lines += ["## Failed cases", "", "| case | class | error |", "|---|---|---|"]
-        lines += [f"| {int(r.case_id)} | {r.class_name} | {str(r.error)[:120]} |" for r in failed.itertuples()] + [""]
+    for name in names:
+        rows = results[results["estimator"] == name]
+        suffix = f"-{name}" if len(names) > 1 else ""
+        lines += _estimator_section(name, rows, fractions, site, out, suffix, len(names) > 1, threshold)
     examples = sorted((store.root / "examples").glob("*.png")) if (store.root / "examples").exists() else []
     if examples:
         lines += ["## Example descent images", ""]
@@ -68,3 +53,36 @@ def write_report(root: Path) -> Path:
     path = out / "report.md"
     path.write_text("\n".join(lines))
     return path
+
+
+def _estimator_section(name: str, rows, fractions: dict, site: str, out: Path, suffix: str, titled: bool,
+                       false_valid_mps: float) -> list[str]:
+    """The paper's table, plots, Table-3 metrics against flight, invalid reasons and failed rows of one
+    estimator."""
+    level = "###" if titled else "##"
+    table = site_table(rows, fractions, site, class_order=list(fractions), false_valid_mps=false_valid_mps)
+    ok = rows[rows["status"] == "ok"]
+    lines = ([f"## Estimator `{name}`", ""] if titled else []) + [
+        f"{level} Table (paper Tables 1-2)", "", format_table(table, markdown=True), "",
+        f"False-valid: valid with a horizontal error above {false_valid_mps:g} m/s (`[campaign] false_valid_mps`).", ""]
+    if not ok.empty:
+        plots.error_histograms(ok, out / f"error_histograms{suffix}.png")
+        plots.valid_fraction_bars(table, out / f"valid_fraction{suffix}.png")
+        plots.estimate_vs_truth(ok, out / f"estimate_vs_truth{suffix}.png")
+        lines += [f"{level} Velocity error per class", "", f"![error histograms](error_histograms{suffix}.png)", "",
+                  f"{level} Valid velocities", "", f"![% valid](valid_fraction{suffix}.png)", "",
+                  f"{level} Estimate against truth (valid cases)", "", f"![estimate vs truth](estimate_vs_truth{suffix}.png)", ""]
+        definitions = METRICS_DOC.split("\n\n", 1)[1].strip()
+        lines += [f"{level} DIMES correlation metrics against flight (paper Table 3)", "",
+                  "Median [10th-90th percentile] over the templates of each class; the paper's three "
+                  "features for MOC2DIMES and for the MER-A flight images.", "",
+                  metrics_table(ok, list(fractions)), "", definitions, ""]
+        reasons = ok[~ok["valid"].astype(bool)].groupby(["class_name", "reason"]).size()
+        if len(reasons):
+            lines += [f"{level} Why cases were invalid", "", "| class | reason | cases |", "|---|---|---|"]
+            lines += [f"| {c} | {r} | {n} |" for (c, r), n in reasons.items()] + [""]
+    failed = rows[rows["status"] != "ok"]
+    if not failed.empty:
+        lines += [f"{level} Failed cases", "", "| case | class | error |", "|---|---|---|"]
+        lines += [f"| {int(r.case_id)} | {r.class_name} | {str(r.error)[:160]} |" for r in failed.itertuples()] + [""]
+    return lines

@@ -4,8 +4,9 @@ Layout::
 
     OUT/manifest.json          config (as resolved), its hash, input file digests, package versions
     OUT/plan.parquet           every planned case (ids, class, terrain, trajectory, placement, seeds)
-    OUT/cases/<id>.ok.parquet  one result row per finished case, written by the worker that computed it
-    OUT/cases/<id>.failed.parquet  the same for a case that failed after its retries (with its error)
+    OUT/cases/<id>.ok.parquet  the rows of one finished case, one per estimator (``estimator`` column, in
+                               [[estimators]] order), written by the worker that computed it
+    OUT/cases/<id>.failed.parquet  the same for a case whose simulation failed after its retries (with its error)
     OUT/results.parquet        all rows, sorted by case_id (deterministic: same seed -> same bits)
     OUT/timings.parquet        per-case stage timings and worker names (vary from run to run)
 
@@ -51,10 +52,10 @@ def case_file_name(case_id: int, ok: bool) -> str:
     return f"case-{case_id:06d}.{'ok' if ok else 'failed'}.parquet"
 
 
-def write_case_row(cases_dir: Path, case_id: int, row: dict) -> Path:
-    """Durably write one result row (atomic rename); replaces any earlier row of the same case."""
-    ok = row.get("status") == "ok"
-    table = pa.Table.from_pylist([row])
+def write_case_rows(cases_dir: Path, case_id: int, rows: list[dict], ok: bool) -> Path:
+    """Durably write a case's rows (one per estimator) in one file (atomic rename); replaces any earlier
+    file of the same case. ``ok``: the case was simulated (an estimator's own failure is in its row)."""
+    table = pa.Table.from_pylist(rows)
     temporary = cases_dir / f".tmp-{case_id:06d}-{uuid.uuid4().hex}.parquet"
     with open(temporary, "wb") as handle:
         pq.write_table(table, handle)
@@ -164,7 +165,8 @@ class CampaignStore:
         if rows.empty:
             return rows
         rows = rows.sort_values("case_id", kind="stable").reset_index(drop=True)
-        timing_columns = ["case_id"] + [column for column in TIMING_COLUMNS if column in rows.columns]
+        keys = ["case_id"] + (["estimator"] if "estimator" in rows.columns else [])
+        timing_columns = keys + [column for column in TIMING_COLUMNS if column in rows.columns]
         results = rows.drop(columns=[column for column in TIMING_COLUMNS if column in rows.columns])
         _atomic_write_table(self.results_path, pa.Table.from_pandas(results, preserve_index=False))
         _atomic_write_table(self.timings_path, pa.Table.from_pandas(rows[timing_columns], preserve_index=False))
@@ -174,7 +176,7 @@ class CampaignStore:
         """The compacted results if up to date, else the rows read from the case files."""
         if self.results_path.exists():
             results = pd.read_parquet(self.results_path)
-            if len(results) == len(self.finished_case_ids()):
+            if results["case_id"].nunique() == len(self.finished_case_ids()):
                 return results
         rows = self.read_case_rows()
         return rows.drop(columns=[c for c in TIMING_COLUMNS if c in rows.columns]) if not rows.empty else rows

@@ -10,11 +10,13 @@ Output directory (``[sweep] output_dir`` or ``--output``)::
     OUT/sweep.json            the sweep as run: file, base, mode, axes, tolerances, points (id, values, hash)
     OUT/results.parquet       every case of every point: point_id, one column per axis (named by its
                               dotted field), config_hash, then the campaign's case columns
-    OUT/sensitivity.md / .csv the sensitivity table (CSV: one row per point and class, the site row
-                              carrying the ellipse-weighted totals; columns of campaign.aggregate)
+    OUT/sensitivity.md / .csv the sensitivity table (CSV: one row per point, estimator and class, the site
+                              row carrying the ellipse-weighted totals; columns of campaign.compare,
+                              with the false-valid count)
     OUT/plots/*.png           each metric against each axis (see :mod:`campaign.sweep_plots`)
 
-Baseline check: points are matched to the baseline's by their axis values; for every class and for
+Baseline check: points are matched to the baseline's by their axis values (and rows by estimator;
+a baseline without an ``estimator`` column is the reference ``dimes``); for every class and for
 the weighted site totals, % valid may fall by at most ``pct_valid_drop_points`` and the error
 (mean + 3 sigma) may grow by at most ``error_increase_mps``. The configuration hash covers the result
 code (:func:`campaign.config.code_digest`), so after a code change every point is computed afresh; a
@@ -31,7 +33,7 @@ from pathlib import Path
 import pandas as pd
 import pyarrow as pa
 
-from .aggregate import site_table
+from .compare import comparison_table, estimator_names, with_estimator_column
 from .campaign_run import manifest_for, plan_campaign
 from .case import CampaignContext
 from .runner import connected_client, submit_cases, wait_for_cases
@@ -108,14 +110,17 @@ def sweep_results(spec: SweepSpec) -> pd.DataFrame:
 
 
 def sensitivity_table(spec: SweepSpec, results: pd.DataFrame) -> pd.DataFrame:
-    """One row per point and class (campaign.aggregate columns), the site row holding the weighted totals."""
+    """One row per point, estimator and class (campaign.compare columns), the site row holding the
+    weighted totals."""
     fractions = {entry.name: entry.ellipse_fraction for entry in spec.base.site.classes}
     site_name = spec.base.site.name
+    results = with_estimator_column(results)
     frames = []
     for point in spec.points:
         members = results[results["point_id"] == point.point_id] if not results.empty else results
-        table = site_table(members, fractions, site_name, class_order=list(fractions),
-                           false_valid_mps=spec.base.false_valid_mps)
+        names = estimator_names(members) or point.config.estimator_names
+        table = comparison_table(members, fractions, site_name, list(fractions), names,
+                                 false_valid_mps=spec.base.false_valid_mps)
         keys = point_keys(point)
         for position, (key, value) in enumerate(keys.items()):
             table.insert(position, key, [value] * len(table))
@@ -128,21 +133,24 @@ def format_sensitivity(spec: SweepSpec, table: pd.DataFrame, markdown: bool = Fa
     and the site's false-valid count and worst valid error beside them."""
     classes = [entry.name for entry in spec.base.site.classes]
     site_name = spec.base.site.name
-    headers = ["point", *spec.axis_names]
+    headers = ["point", *spec.axis_names, "estimator"]
     for name in classes:
-        headers += [f"{name} % valid", f"{name} err m/s"]
-    headers += [f"{site_name} weighted % valid", "weighted err m/s",
-                f"false-valid (>{spec.base.false_valid_mps:g} m/s)", "worst valid m/s"]
+        headers += [f"{name} % valid", f"{name} false-valid", f"{name} err m/s"]
+    headers += [f"{site_name} weighted % valid", f"false-valid (>{spec.base.false_valid_mps:g} m/s)", "worst valid m/s",
+                "weighted err m/s"]
     body = []
     for point in spec.points:
-        rows = table[table["point_id"] == point.point_id].set_index("class")
-        cells = [point.point_id, *(_value_text(value) for value in point.values.values())]
-        for name in classes:
-            cells += [_num(rows.at[name, "pct_valid"], "{:.0f}"), _num(rows.at[name, "error_mean_3sigma_mps"], "{:.2f}")]
-        cells += [_num(rows.at[site_name, "weighted_pct_valid"], "{:.0f}"),
-                  _num(rows.at[site_name, "weighted_error_mps"], "{:.2f}"), str(int(rows.at[site_name, "false_valid"])),
-                  _num(rows.at[site_name, "worst_valid_error_mps"], "{:.2f}")]
-        body.append(cells)
+        point_rows = table[table["point_id"] == point.point_id]
+        for estimator in dict.fromkeys(point_rows["estimator"]):
+            rows = point_rows[point_rows["estimator"] == estimator].set_index("class")
+            cells = [point.point_id, *(_value_text(value) for value in point.values.values()), str(estimator)]
+            for name in classes:
+                cells += [_num(rows.at[name, "pct_valid"], "{:.0f}"), str(int(rows.at[name, "false_valid"])),
+                          _num(rows.at[name, "error_mean_3sigma_mps"], "{:.2f}")]
+            cells += [_num(rows.at[site_name, "weighted_pct_valid"], "{:.0f}"), str(int(rows.at[site_name, "false_valid"])),
+                      _num(rows.at[site_name, "worst_valid_error_mps"], "{:.2f}"),
+                      _num(rows.at[site_name, "weighted_error_mps"], "{:.2f}")]
+            body.append(cells)
     if markdown:
         lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
         return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in body])
@@ -218,26 +226,38 @@ def compare_to_baseline(spec: SweepSpec, table: pd.DataFrame, baseline: tuple[di
         if base_id is None:
             continue
         compared += 1
-        now = table[table["point_id"] == point.point_id].set_index("class")
-        before = base_table[base_table["point_id"] == base_id].set_index("class")
-        where = f"{point.point_id} ({', '.join(f'{k}={_value_text(v)}' for k, v in point.values.items())})"
-        for name in now.index:
-            if name not in before.index or int(now.at[name, "cases"]) == 0 or int(before.at[name, "cases"]) == 0:
-                continue
-            valid_column, error_column = (("weighted_pct_valid", "weighted_error_mps") if name == site_name
-                                          else ("pct_valid", "error_mean_3sigma_mps"))
-            label = f"{name} weighted" if name == site_name else name
-            valid_now, valid_before = float(now.at[name, valid_column]), float(before.at[name, valid_column])
-            if valid_before - valid_now > tolerances.pct_valid_drop_points:
-                regressions.append(f"{where}: {label} % valid {valid_before:.1f} -> {valid_now:.1f} (drop "
-                                   f"{valid_before - valid_now:.1f} points > {tolerances.pct_valid_drop_points:g})")
-            error_now, error_before = float(now.at[name, error_column]), float(before.at[name, error_column])
-            if math.isfinite(error_before) and not math.isfinite(error_now):
-                regressions.append(f"{where}: {label} error {error_before:.2f} m/s -> n/a (no valid cases)")
-            elif math.isfinite(error_before) and error_now - error_before > tolerances.error_increase_mps:
-                regressions.append(f"{where}: {label} error mean+3 sigma {error_before:.2f} -> {error_now:.2f} m/s "
-                                   f"(+{error_now - error_before:.2f} > {tolerances.error_increase_mps:g})")
+        point_rows = table[table["point_id"] == point.point_id]
+        base_rows = with_estimator_column(base_table[base_table["point_id"] == base_id])
+        for estimator in dict.fromkeys(point_rows["estimator"]):
+            now = point_rows[point_rows["estimator"] == estimator].set_index("class")
+            before = base_rows[base_rows["estimator"] == estimator].set_index("class")
+            where = f"{point.point_id} ({', '.join(f'{k}={_value_text(v)}' for k, v in point.values.items())})"
+            if len(point_rows["estimator"].unique()) > 1 or estimator != "dimes":
+                where += f" estimator {estimator}"
+            regressions += _regressions(now, before, where, site_name, tolerances)
     return regressions, compared
+
+
+def _regressions(now: pd.DataFrame, before: pd.DataFrame, where: str, site_name: str, tolerances: Tolerances) -> list[str]:
+    """Regressions of one point and estimator (rows indexed by class) against its baseline rows."""
+    regressions = []
+    for name in now.index:
+        if name not in before.index or int(now.at[name, "cases"]) == 0 or int(before.at[name, "cases"]) == 0:
+            continue
+        valid_column, error_column = (("weighted_pct_valid", "weighted_error_mps") if name == site_name
+                                      else ("pct_valid", "error_mean_3sigma_mps"))
+        label = f"{name} weighted" if name == site_name else name
+        valid_now, valid_before = float(now.at[name, valid_column]), float(before.at[name, valid_column])
+        if valid_before - valid_now > tolerances.pct_valid_drop_points:
+            regressions.append(f"{where}: {label} % valid {valid_before:.1f} -> {valid_now:.1f} (drop "
+                               f"{valid_before - valid_now:.1f} points > {tolerances.pct_valid_drop_points:g})")
+        error_now, error_before = float(now.at[name, error_column]), float(before.at[name, error_column])
+        if math.isfinite(error_before) and not math.isfinite(error_now):
+            regressions.append(f"{where}: {label} error {error_before:.2f} m/s -> n/a (no valid cases)")
+        elif math.isfinite(error_before) and error_now - error_before > tolerances.error_increase_mps:
+            regressions.append(f"{where}: {label} error mean+3 sigma {error_before:.2f} -> {error_now:.2f} m/s "
+                               f"(+{error_now - error_before:.2f} > {tolerances.error_increase_mps:g})")
+    return regressions
 
 
 def _match_key(values: dict) -> tuple:

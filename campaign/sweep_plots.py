@@ -2,7 +2,8 @@
 
 One figure per (metric, axis): ``plots/<metric>-vs-<axis field>.png`` with ``pct_valid`` (% valid)
 and ``error_mean_3sigma_mps`` (velocity error mean + 3 sigma over valid cases, m/s). Each appearance
-class is one line, the ellipse-weighted site total a black dashed line. The points plotted against an
+class is one line, the ellipse-weighted site total a black dashed line; with several estimators, each
+estimator has its own line style and its name in the legend. The points plotted against an
 axis are those whose *other* axes equal the first point's values (for a grid: the other axes held at
 their first value); when that leaves fewer than two points (a list sweep whose axes vary together),
 every point is plotted against the axis. Numeric axes are drawn to scale, others (booleans, strings)
@@ -52,13 +53,18 @@ def write_sweep_plots(spec, table: pd.DataFrame, out_dir: Path) -> list[Path]:
         values = [p.values[axis] for p in points]
         xs = values if numeric else list(range(len(points)))
         held = {k: v for k, v in spec.points[0].values.items() if k != axis}
+        estimators = list(dict.fromkeys(table["estimator"])) if "estimator" in table.columns else [None]
         for metric, (class_column, site_column, label) in METRICS.items():
             figure, axes = plt.subplots(figsize=(6.0, 4.0))
-            for name in classes:
-                ys = [_cell(table, p.point_id, name, class_column) for p in points]
-                axes.plot(xs, ys, "o-", label=name)
-            ys = [_cell(table, p.point_id, site_name, site_column) for p in points]
-            axes.plot(xs, ys, "s--", color="black", label=f"{site_name} (ellipse-weighted)")
+            for number, estimator in enumerate(estimators):
+                prefix = f"{estimator}: " if len(estimators) > 1 else ""
+                style = ("-", ":", "-.", (0, (5, 1)))[number % 4]
+                for colour, name in enumerate(classes):
+                    ys = [_cell(table, p.point_id, name, class_column, estimator) for p in points]
+                    axes.plot(xs, ys, marker="o", linestyle=style, color=f"C{colour}", label=prefix + name)
+                ys = [_cell(table, p.point_id, site_name, site_column, estimator) for p in points]
+                axes.plot(xs, ys, marker="s", linestyle=style if len(estimators) > 1 else "--", color="black",
+                          label=f"{prefix}{site_name} (ellipse-weighted)")
             if not numeric:
                 axes.set_xticks(xs, [str(v) for v in values])
             if metric == "pct_valid":
@@ -78,6 +84,8 @@ def write_sweep_plots(spec, table: pd.DataFrame, out_dir: Path) -> list[Path]:
     return paths
 
 
-def _cell(table: pd.DataFrame, point_id: str, class_name: str, column: str) -> float:
+def _cell(table: pd.DataFrame, point_id: str, class_name: str, column: str, estimator=None) -> float:
     rows = table[(table["point_id"] == point_id) & (table["class"] == class_name)]
+    if estimator is not None:
+        rows = rows[rows["estimator"] == estimator]
     return float(rows[column].iloc[0]) if len(rows) else float("nan")

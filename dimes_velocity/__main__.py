@@ -7,6 +7,8 @@ Usage::
         [--bits 8|12|16]           # significant bits of the stored values (top bits of the camera DN)
         [--dn-scale S] [--dn-offset O]   # or DN = S x value + O
         [--channel r|g|b | --luminance]  # for RGB/RGBA images
+        [--flat-field FILE|none]   # measured flat field (.npy, TIFF, FITS); default: <camera stem>.flat.*
+                                   # beside the camera TOML if there is one, else the design falloff only
         [--big-endian]             # raw 16-bit images are big-endian
         [--summary]                # print only velocity, valid, reason, uncertainty and bias
 
@@ -23,6 +25,7 @@ import argparse
 import json
 import sys
 
+from flight_interface.calibration import CalibrationError, flat_field_next_to, load_flat_field
 from flight_interface.camera import load_camera
 from flight_interface.measurements import MeasurementError
 from flight_interface.tomlfields import ConfigError, Table, load_toml
@@ -51,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     colour = parser.add_mutually_exclusive_group()
     colour.add_argument("--channel", choices=("r", "g", "b", "0", "1", "2"), help="channel of an RGB/RGBA image")
     colour.add_argument("--luminance", action="store_true", help="Rec. 709 luminance of an RGB/RGBA image")
+    parser.add_argument("--flat-field", metavar="FILE",
+                        help="flat-field calibration file (.npy, .tif, .fits) or 'none'; default: "
+                             "<camera stem>.flat.{npy,tif,tiff,fits} beside the camera TOML when present")
     parser.add_argument("--big-endian", action="store_true", help="raw 16-bit images are big-endian")
     parser.add_argument("--summary", action="store_true",
                         help="print only the velocity, valid flag, reason, uncertainty and bias")
@@ -76,8 +82,11 @@ def main(argv: list[str] | None = None) -> int:
             raise InputFileError(f"{measurements_path}: images has {len(measurements.images)} entries "
                                  f"for {len(image_paths)} image files")
         files = [read_descent_image(path, camera, declaration) for path in image_paths]
-        result = DimesEstimator(camera, config).estimate([f.dn for f in files], measurements)
-    except (ConfigError, InputFileError, MeasurementError) as exc:
+        flat_path = flat_field_next_to(args.camera) if args.flat_field is None else (
+            None if args.flat_field.lower() == "none" else args.flat_field)
+        flat_field = None if flat_path is None else load_flat_field(flat_path, camera.binned_shape)
+        result = DimesEstimator(camera, config, flat_field).estimate([f.dn for f in files], measurements)
+    except (ConfigError, InputFileError, MeasurementError, CalibrationError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return USAGE_ERROR
     output = result.to_dict()

@@ -33,7 +33,8 @@ class EstimatorConfig:
         remove_dark [True]: subtract the modelled dark charge (image area and storage readout ramp).
         remove_smear [True]: invert the fast-flush / frame-transfer smear (scene assumed static over the
             three CCD periods).
-        remove_falloff [True]: divide by the binned cos^4 falloff times PRNU flat field.
+        remove_falloff [True]: divide by the binned flat field (a calibration product given to the
+            estimator), or by the design cos^4 falloff when it has none.
         saturation_margin_dn [8]: a raw pixel within this many DN of the saturation level is saturated.
         min_signal_dn [40.0]: flattened binned pixels below this (DN, 4x4 binned) are "no signal" (sky,
             deep shadow) and excluded.

@@ -3,7 +3,8 @@
 Steps (paper section 5 and DESIGN.md "The reference estimator"):
 
 1. pre-process each image (:mod:`.preprocess`): bin to 256 x 256, remove dark, fast-flush and
-   frame-transfer smear, falloff and PRNU;
+   frame-transfer smear, and divide by the flat field (a calibration product; the design falloff
+   when there is none);
 2. rectify each to a level, north-up ground grid (:mod:`.geometry`) at a common sampling (the nadir
    sampling of the highest image), assuming the lander at its IMU-predicted horizontal position and
    the radar altitude, with the measured attitude; flag what is not usable ground: off the image,
@@ -163,12 +164,16 @@ class DimesEstimator:
     ----------
     camera : flight_interface.camera.Camera
     config : EstimatorConfig
+    flat_field : ndarray, optional
+        Measured relative response of each read-out pixel (a calibration product, shape
+        ``camera.binned_shape``; :mod:`flight_interface.calibration`). None: the design falloff only.
     """
 
-    def __init__(self, camera: Camera, config: EstimatorConfig = EstimatorConfig()):
+    def __init__(self, camera: Camera, config: EstimatorConfig = EstimatorConfig(),
+                 flat_field: np.ndarray | None = None):
         self.camera = camera
         self.config = config
-        self.flattening = make_flattening(camera, config)
+        self.flattening = make_flattening(camera, config, flat_field)
         self.focal_px = geometry.binned_focal_px(camera)
 
     def estimate(self, images: Sequence[np.ndarray], measurements: DescentMeasurements) -> VelocityEstimate:
@@ -386,17 +391,19 @@ class DimesEstimator:
                              self.config.pair_agreement_mps, self.config.require_both_pairs)
 
 
-_CACHE: dict[int, tuple[Camera, EstimatorConfig, DimesEstimator]] = {}
+_CACHE: dict[tuple[int, int], tuple[Camera, EstimatorConfig, object, DimesEstimator]] = {}
 
 
 def estimate_velocity(images: Sequence[np.ndarray], measurements: DescentMeasurements, camera: Camera,
-                      config: EstimatorConfig = EstimatorConfig()) -> VelocityEstimate:
-    """Convenience wrapper: :meth:`DimesEstimator.estimate` with the estimator cached per camera/config."""
-    key = id(camera)
+                      config: EstimatorConfig = EstimatorConfig(),
+                      flat_field: np.ndarray | None = None) -> VelocityEstimate:
+    """Convenience wrapper: :meth:`DimesEstimator.estimate` with the estimator cached per camera, config
+    and flat field (the same array object)."""
+    key = (id(camera), id(flat_field))
     cached = _CACHE.get(key)
-    if cached is None or cached[0] is not camera or cached[1] != config:
+    if cached is None or cached[0] is not camera or cached[1] != config or cached[2] is not flat_field:
         if len(_CACHE) > 8:
             _CACHE.clear()
-        cached = (camera, config, DimesEstimator(camera, config))
+        cached = (camera, config, flat_field, DimesEstimator(camera, config, flat_field))
         _CACHE[key] = cached
-    return cached[2].estimate(images, measurements)
+    return cached[3].estimate(images, measurements)

@@ -17,7 +17,9 @@ b = 4). Here columns are summed ``b``:1 as well, giving a square ``256 x 256`` i
    ``P_k = sum_{j<k} G_j`` and ``S = sum_j G_j`` gives ``G_k = (Q_k - gamma S - (beta - gamma) P_k) / D``
    with ``D = alpha - gamma``: a first-order recursion (one ``lfilter`` pass) that is linear in the
    unknown column total ``S``, fixed by ``sum_k G_k = S``;
-3. the result is divided by the binned relative response (cos^4 falloff times PRNU flat field).
+3. the result is divided by the binned relative response: the measured flat field when the
+   estimator is given one (a calibration product, :mod:`flight_interface.calibration`), else the
+   design cos^4 falloff of the camera model (pixel response non-uniformity then stays in the image).
 
 The flattened image is in DN of the exposure alone, for the whole ``b x b`` block (so about
 ``b`` times the raw DN of a flat scene). Pixels within ``saturation_margin_dn`` of saturation and
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from flight_interface.calibration import readout_flat_field
 from flight_interface.camera import Camera
 
 from .config import EstimatorConfig
@@ -46,7 +49,8 @@ class Flattening:
     raw_shape : (int, int)
         Shape of the raw image (rows, columns).
     response : ndarray, float32, (n, n)
-        Mean relative response (falloff x PRNU) of each binned block (ones when not removed).
+        Mean relative response of each binned block: the flat field's, or the design falloff's when
+        there is no flat field (ones when not removed).
     storage_dark_dn : ndarray, float32, (n, 1)
         Storage-area dark charge of each binned row, DN summed over ``binning`` columns.
     area_dark_e_per_s : float
@@ -89,16 +93,27 @@ class Flattening:
         object.__setattr__(self, "_noise_scale", (scale * inverse).astype(np.float32))
 
 
-def make_flattening(camera: Camera, config: EstimatorConfig) -> Flattening:
-    """Constants of :func:`flatten` for ``camera`` (touches ``camera.falloff_map`` once: ~0.5 s)."""
+def make_flattening(camera: Camera, config: EstimatorConfig, flat_field: np.ndarray | None = None) -> Flattening:
+    """Constants of :func:`flatten` for ``camera``.
+
+    Parameters
+    ----------
+    camera : Camera
+    config : EstimatorConfig
+    flat_field : ndarray, optional
+        Measured relative response of each read-out pixel, shape ``camera.binned_shape`` (or full
+        frame), about 1 on axis (:mod:`flight_interface.calibration`). None: divide by the design
+        cos^4 falloff only (``camera.falloff_map``, ~0.5 s on first use).
+    """
     binning = camera.binning_rows
     rows, columns = camera.height_px, camera.width_px
     if columns % binning:
         raise ValueError(f"camera {camera.source}: width {columns} is not a multiple of the binning {binning}")
     n_rows, n_cols = rows // binning, columns // binning
     if config.remove_falloff:
-        response_full = camera.falloff_map.astype(np.float64) * camera.prnu_map
-        response = response_full.reshape(n_rows, binning, n_cols, binning).mean(axis=(1, 3))
+        source = camera.falloff_map if flat_field is None else flat_field
+        readout = readout_flat_field(source, (n_rows, columns), "flat field" if flat_field is not None else "falloff")
+        response = readout.astype(np.float64).reshape(n_rows, n_cols, binning).mean(axis=2)
     else:
         response = np.ones((n_rows, n_cols))
     electronics, timing = camera.electronics, camera.timing

@@ -70,8 +70,8 @@ class Radiometry:
     band_min_um: float
     band_max_um: float
     effective_wavelength_um: float
-    prnu_sigma: float
-    prnu_seed: int
+    prnu_sigma: float     # pixel response non-uniformity (rms), a datasheet number
+    prnu_seed: int        # seed of the simulated detector's PRNU realisation (simulation only)
 
     def responsivity_e_per_s(self, pixel_area_m2: float) -> float:
         """On-axis photo-electrons per second per unit spectral radiance (W m^-2 sr^-1 um^-1)."""
@@ -151,15 +151,13 @@ class Camera:
 
     @cached_property
     def falloff_map(self) -> np.ndarray:
-        """cos^4 of the field angle, shape (height, width), float32."""
-        return (np.cos(self.field_angle_rad) ** 4).astype(np.float32)
+        """Design relative illumination: cos^4 of the field angle, shape (height, width), float32.
 
-    @cached_property
-    def prnu_map(self) -> np.ndarray:
-        """Relative pixel response (mean 1, sigma ``prnu_sigma``), fixed by the camera's PRNU seed."""
-        rng = np.random.default_rng(self.radiometry.prnu_seed)
-        gains = 1.0 + self.radiometry.prnu_sigma * rng.standard_normal((self.height_px, self.width_px))
-        return np.clip(gains, 0.0, None).astype(np.float32)
+        A property of the optics as designed (an estimator may use it when it has no flat field); the
+        pixel response non-uniformity is realised only by the simulator
+        (:func:`simulator.detector.charge_generation.prnu_map`) and reaches an estimator only through a
+        measured flat field (:mod:`flight_interface.calibration`)."""
+        return (np.cos(self.field_angle_rad) ** 4).astype(np.float32)
 
     def fov_deg(self) -> tuple[float, float]:
         """Full horizontal and vertical field of view between the outer pixel edges (deg)."""

@@ -1,4 +1,6 @@
-"""Flattening: binning, dark, smear, falloff removal checked against the camera's closed-form response."""
+"""Flattening: binning, dark, smear, falloff removal checked against the camera's closed-form response
+(given the detector's true flat field, so that the closed form is exact; the calibrated flat field is
+tested in test_flat_field.py)."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,6 +8,7 @@ import pytest
 
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.preprocess import bin_columns, flatten, make_flattening
+from simulator.calibration import true_flat_field
 from simulator.detector.camera_chain import CameraEffects, render_image
 
 NOISE_FREE = CameraEffects(shot_noise=False, read_noise=False)
@@ -25,7 +28,7 @@ def expected_signal_dn(camera, per_block):
 
 @pytest.fixture(scope="module")
 def flattening(mer_a):
-    return make_flattening(mer_a, EstimatorConfig())
+    return make_flattening(mer_a, EstimatorConfig(), true_flat_field(mer_a))
 
 
 def test_bin_columns_sums_adjacent_columns():
@@ -44,7 +47,7 @@ def test_flatten_recovers_radiance_through_full_camera_chain(mer_a, flattening):
     assert not flat.excluded.any()
     # without smear removal the same image is far off (smear ~ one extra exposure of the column mean)
     raw_config = EstimatorConfig(remove_smear=False)
-    unsmeared = flatten(rendered.expected_dn, make_flattening(mer_a, raw_config), raw_config)
+    unsmeared = flatten(rendered.expected_dn, make_flattening(mer_a, raw_config, true_flat_field(mer_a)), raw_config)
     assert np.median(unsmeared.signal_dn / truth - 1.0) > 0.3
 
 

@@ -98,7 +98,7 @@ def pixel_gain(camera: Camera, falloff: bool = True, prnu: bool = True, per_bloc
         else:
             gain = optics.photoelectron_rate(np.ones((camera.height_px, camera.width_px), dtype=np.float32),
                                              camera, falloff=falloff)
-            cache[key] = charge_generation.apply_prnu(gain, camera.prnu_map) if prnu else gain
+            cache[key] = charge_generation.apply_prnu(gain, charge_generation.prnu_map(camera)) if prnu else gain
         cache[key].setflags(write=False)
     return cache[key]
 

@@ -10,6 +10,21 @@ import numpy as np
 from flight_interface.camera import Camera
 
 
+def prnu_map(camera: Camera) -> np.ndarray:
+    """The simulated detector's relative pixel response (mean 1, rms ``radiometry.prnu_sigma``), float32,
+    shape (height, width); the realisation is fixed by ``radiometry.prnu_seed`` and cached per camera.
+
+    This is simulator truth: an estimator never sees it, only a flat field measured from simulated
+    calibration exposures (:mod:`simulator.calibration`)."""
+    cache = camera.__dict__.setdefault("_render_cache", {})
+    if "prnu_map" not in cache:
+        rng = np.random.default_rng(camera.radiometry.prnu_seed)
+        gains = 1.0 + camera.radiometry.prnu_sigma * rng.standard_normal((camera.height_px, camera.width_px))
+        cache["prnu_map"] = np.clip(gains, 0.0, None).astype(np.float32)
+        cache["prnu_map"].setflags(write=False)
+    return cache["prnu_map"]
+
+
 def apply_prnu(rate_e_per_s: np.ndarray, prnu_map: np.ndarray) -> np.ndarray:
     """Multiply a photo-electron rate by the relative pixel response (in place when float32)."""
     rate_e_per_s *= prnu_map

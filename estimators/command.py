@@ -1,0 +1,177 @@
+"""External-command estimators: a program reads image files and a measurements JSON, writes a result JSON.
+
+So a compiled flight estimator runs unchanged: for every case the campaign writes the inputs into a
+fresh working directory, runs ``argv`` (no shell) with the placeholders replaced, waits at most
+``timeout_s`` and reads the result file (the output JSON of :mod:`estimators.contract`).
+
+Placeholders (each a whole argument or part of one)
+----------------------------------------------------
+``{images}``        the image files in time order, as separate arguments (only as a whole argument)
+``{image1}`` ...    one image file (``{image1}``, ``{image2}``, ``{image3}``)
+``{measurements}``  measurements JSON (schema: :mod:`dimes_velocity.files`)
+``{output}``        where the program must write its result JSON
+``{camera}``        the camera TOML (absolute path)
+``{flat_field}``    the flat-field file (``flat_field_format``), or ``none`` when there is none
+``{parameters}``    JSON file with the entry's ``parameters`` table
+``{workdir}``       the case's working directory (also the program's current directory)
+``{python}``        the Python interpreter running the campaign worker
+``{config_dir}``    the campaign file's directory (expanded when the configuration is read)
+
+Image files: ``image_format`` ``png`` (16-bit grey), ``npy``, or ``raw`` (little-endian uint16, no
+header, ``camera.binned_shape``). Failures (one line each, recorded as the estimator's failed result):
+``timeout: no result within T s`` (the program's whole process group is killed), ``exit status N: <last
+line of stderr>``, ``killed by signal NAME``, ``wrote no result file``, ``result file is not valid
+JSON``, and any contract violation of the result.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from flight_interface.calibration import save_flat_field
+
+from .contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
+
+PLACEHOLDER = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
+NAMES = ("images", "measurements", "output", "camera", "flat_field", "parameters", "workdir", "python")
+IMAGE_NAME = re.compile(r"^image([1-9][0-9]*)$")
+FLAT_SUFFIX = {"npy": ".npy", "tiff": ".tif", "fits": ".fits"}
+IMAGE_SUFFIX = {"png": ".png", "npy": ".npy", "raw": ".raw"}
+STDERR_TAIL = 300
+
+
+def check_template(argv: list[str]) -> str:
+    """'' when ``argv`` uses only known placeholders (``{images}`` only as a whole argument), else why not."""
+    for position, item in enumerate(argv):
+        for name in PLACEHOLDER.findall(item):
+            if name not in NAMES and not IMAGE_NAME.match(name):
+                return (f"[{position}] = {item!r} uses an unknown placeholder {{{name}}}; allowed: "
+                        + ", ".join(f"{{{n}}}" for n in (*NAMES, "image1", "image2", "image3")))
+        if "{images}" in item and item != "{images}":
+            return f"[{position}] = {item!r}: {{images}} must be a whole argument (it expands to one argument per image)"
+    return ""
+
+
+def write_inputs(directory: Path, inputs: EstimatorInputs, image_format: str, flat_field_format: str) -> dict:
+    """Write a case's inputs into ``directory``; return the placeholder values (paths as strings)."""
+    from dimes_velocity.files import measurements_to_dict
+
+    images = []
+    for index, image in enumerate(inputs.images, start=1):
+        path = directory / f"image{index}{IMAGE_SUFFIX[image_format]}"
+        data = np.asarray(image)
+        if image_format == "png":
+            if not cv2.imwrite(str(path), data.astype(np.uint16)):
+                raise OSError(f"{path}: cannot write PNG")
+        elif image_format == "npy":
+            np.save(path, data)
+        else:
+            data.astype("<u2").tofile(path)
+        images.append(str(path))
+    measurements = directory / "measurements.json"
+    measurements.write_text(json.dumps(measurements_to_dict(inputs.measurements), indent=1))
+    parameters = directory / "parameters.json"
+    parameters.write_text(json.dumps(dict(inputs.parameters), indent=1))
+    flat = "none"
+    if inputs.calibration.flat_field is not None:
+        flat = str(save_flat_field(directory / f"flat_field{FLAT_SUFFIX[flat_field_format]}",
+                                   inputs.calibration.flat_field))
+    values = {"images": images, "measurements": str(measurements), "output": str(directory / "result.json"),
+              "camera": str(Path(inputs.camera.source).resolve()), "flat_field": flat,
+              "parameters": str(parameters), "workdir": str(directory), "python": sys.executable}
+    values.update({f"image{index}": path for index, path in enumerate(images, start=1)})
+    return values
+
+
+def expand(argv: tuple | list, values: dict) -> list[str]:
+    """The command line for one case (``{images}`` becomes one argument per image)."""
+    command: list[str] = []
+    for item in argv:
+        if item == "{images}":
+            command.extend(values["images"])
+            continue
+
+        def replace(match: re.Match) -> str:
+            name = match.group(1)
+            if name not in values or name == "images":
+                raise ContractViolation(f"argument {item!r}: no value for {{{name}}} ({len(values['images'])} images)")
+            return str(values[name])
+
+        command.append(PLACEHOLDER.sub(replace, item))
+    return command
+
+
+class CommandEstimator:
+    """Runs an external program per case (see the module docstring)."""
+
+    def __init__(self, name: str, argv: tuple, timeout_s: float, image_format: str = "png",
+                 flat_field_format: str = "npy", parameters: dict | None = None):
+        self.name = name
+        self.parameters = dict(parameters or {})
+        self.argv = tuple(argv)
+        self.timeout_s = float(timeout_s)
+        self.image_format = image_format
+        self.flat_field_format = flat_field_format
+
+    def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
+        directory = Path(tempfile.mkdtemp(prefix=f"estimator-{self.name}-"))
+        try:
+            values = write_inputs(directory, replace(inputs, parameters=self.parameters), self.image_format,
+                                  self.flat_field_format)
+            command = expand(self.argv, values)
+            self._run(command, directory)
+            output = Path(values["output"])
+            if not output.is_file():
+                raise ContractViolation(f"wrote no result file ({output.name}; the {{output}} argument)")
+            try:
+                data = json.loads(output.read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise ContractViolation(f"result file is not valid JSON ({exc})") from None
+            return validate_output(data)
+        finally:
+            shutil.rmtree(directory, ignore_errors=True)
+
+    def _run(self, command: list[str], directory: Path) -> None:
+        try:
+            process = subprocess.Popen(command, cwd=directory, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                       stderr=subprocess.PIPE, start_new_session=True)
+        except OSError as exc:
+            raise ContractViolation(f"cannot start {command[0]!r}: {exc.strerror or exc}") from None
+        try:
+            _, stderr = process.communicate(timeout=self.timeout_s)
+        except subprocess.TimeoutExpired:
+            _kill_group(process)
+            process.communicate()
+            raise ContractViolation(f"timeout: no result within {self.timeout_s:g} s (process group killed)") from None
+        except BaseException:
+            _kill_group(process)
+            raise
+        if process.returncode < 0:
+            raise ContractViolation(f"killed by signal {signal.Signals(-process.returncode).name}"
+                                    f"{_tail(stderr)}")
+        if process.returncode != 0:
+            raise ContractViolation(f"exit status {process.returncode}{_tail(stderr)}")
+
+
+def _kill_group(process: subprocess.Popen) -> None:
+    """Kill the program and everything it started (its own session, so its own process group)."""
+    try:
+        os.killpg(process.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _tail(stderr: bytes) -> str:
+    lines = [line.strip() for line in stderr.decode("utf-8", "replace").splitlines() if line.strip()]
+    return f": {lines[-1][:STDERR_TAIL]}" if lines else ""

@@ -1,0 +1,95 @@
+"""Build estimators from their specs and run one on a case's inputs, whatever happens.
+
+:func:`build_estimator` turns an :class:`~estimators.registry.EstimatorSpec` into an object with
+``estimate(inputs) -> EstimatorOutput``; :func:`run_estimator` runs it and never raises: a contract
+violation, an exception, a non-zero exit or a timeout becomes an :class:`EstimatorRun` with
+``output = None`` and a one-line ``error``.
+"""
+from __future__ import annotations
+
+import importlib
+import time
+import traceback
+from dataclasses import dataclass, replace
+from typing import Optional
+
+from .command import CommandEstimator
+from .contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
+from .registry import EstimatorSpec
+
+
+class ReferenceEstimator:
+    """The reference DIMES estimator (:mod:`dimes_velocity`) behind the contract."""
+
+    def __init__(self, name: str, parameters: dict):
+        from dimes_velocity.config import config_from_table
+        from flight_interface.tomlfields import Table
+
+        self.name = name
+        self.config = config_from_table(Table(dict(parameters), f"estimator {name}", "parameters"))
+
+    def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
+        from dimes_velocity.estimator import estimate_velocity
+
+        result = estimate_velocity(list(inputs.images), inputs.measurements, inputs.camera, self.config,
+                                   inputs.calibration.flat_field)
+        features = tuple({"brightness_dn": float(f.brightness_dn), "contrast_dn": float(f.contrast_dn),
+                          "correlation": float(f.correlation), "status": str(f.status)} for f in result.features)
+        return EstimatorOutput(velocity_east_mps=float(result.velocity_east_mps),
+                               velocity_north_mps=float(result.velocity_north_mps), valid=bool(result.valid),
+                               reason=str(result.reason), features=features,
+                               velocity_uncertainty_mps=float(result.velocity_uncertainty_mps))
+
+
+class PythonEstimator:
+    """A ``package.module:function`` called in this process with the case's :class:`EstimatorInputs`."""
+
+    def __init__(self, name: str, target: str, parameters: dict):
+        module_name, function_name = target.split(":")
+        self.name = name
+        self.function = getattr(importlib.import_module(module_name), function_name)
+        self.parameters = dict(parameters)
+
+    def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
+        return validate_output(self.function(replace(inputs, parameters=self.parameters)))
+
+
+def build_estimator(spec: EstimatorSpec):
+    """The estimator object of a spec (built once per worker process by the campaign)."""
+    if spec.kind == "reference":
+        return ReferenceEstimator(spec.name, spec.parameters)
+    if spec.kind == "python" and not spec.isolate:
+        return PythonEstimator(spec.name, spec.callable, spec.parameters)
+    if spec.kind == "python":
+        argv = ("{python}", "-m", "estimators.run_python", spec.callable, "--measurements", "{measurements}",
+                "--camera", "{camera}", "--flat-field", "{flat_field}", "--parameters", "{parameters}",
+                "--output", "{output}", "{images}")
+        return CommandEstimator(spec.name, argv, spec.timeout_s, "npy", "npy", spec.parameters)
+    return CommandEstimator(spec.name, spec.argv, spec.timeout_s, spec.image_format, spec.flat_field_format,
+                            spec.parameters)
+
+
+@dataclass(frozen=True)
+class EstimatorRun:
+    """One estimator's outcome on one case: its output, or why there is none; wall time (ms)."""
+
+    name: str
+    output: Optional[EstimatorOutput]
+    error: str
+    elapsed_ms: float
+
+
+def run_estimator(name: str, estimator, inputs: EstimatorInputs) -> EstimatorRun:
+    """Run ``estimator`` on ``inputs``; any failure is returned as the run's ``error`` (never raised)."""
+    started = time.perf_counter()
+    try:
+        output = estimator.estimate(inputs)
+        output = validate_output(output)
+        error = ""
+    except ContractViolation as exc:
+        output, error = None, f"estimator {name}: {exc}"
+    except Exception as exc:  # the estimator's own crash: recorded, the other estimators go on
+        where = traceback.format_exc(limit=-1).splitlines()
+        location = next((line.strip() for line in reversed(where) if line.strip().startswith("File ")), "")
+        output, error = None, f"estimator {name}: crashed: {type(exc).__name__}: {exc} | {location}"[:500]
+    return EstimatorRun(name, output, error, 1e3 * (time.perf_counter() - started))

@@ -1,0 +1,65 @@
+"""Run a Python estimator callable on files, in its own process: the ``isolate = true`` way in.
+
+    python -m estimators.run_python package.module:function --measurements M.json --camera CAMERA.toml
+        --flat-field FILE|none --parameters P.json --output RESULT.json IMAGE1 IMAGE2 IMAGE3
+
+Reads the images (PNG, .npy or raw uint16), measurements, camera and flat field, calls the function
+with :class:`estimators.contract.EstimatorInputs` and writes its output JSON. The campaign runs this
+as an external command (:mod:`estimators.command`), so a callable that hangs or crashes the
+interpreter costs only its own result. Exit status 2 for unusable input files, 1 for a result that
+breaks the contract (one line on stderr); an exception in the callable prints its traceback (exit 1).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> int:
+    from dimes_velocity.files import InputFileError, load_image, load_measurements
+    from flight_interface.calibration import CalibrationError, CalibrationProducts, load_flat_field
+    from flight_interface.camera import load_camera
+    from flight_interface.tomlfields import ConfigError
+
+    from .contract import ContractViolation, EstimatorInputs, output_to_dict, validate_output
+
+    parser = argparse.ArgumentParser(prog="python -m estimators.run_python")
+    parser.add_argument("callable", help="package.module:function")
+    parser.add_argument("images", nargs="+")
+    parser.add_argument("--measurements", required=True)
+    parser.add_argument("--camera", required=True)
+    parser.add_argument("--flat-field", default="none")
+    parser.add_argument("--parameters")
+    parser.add_argument("--output", required=True)
+    args = parser.parse_args(argv)
+    try:
+        camera = load_camera(args.camera)
+        images = tuple(load_image(path, camera) for path in args.images)
+        measurements = load_measurements(args.measurements)
+        flat = None if args.flat_field == "none" else load_flat_field(args.flat_field, camera.binned_shape)
+        parameters = json.loads(open(args.parameters).read()) if args.parameters else {}
+    except (ConfigError, InputFileError, CalibrationError, OSError, json.JSONDecodeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    module_name, function_name = args.callable.split(":")
+    function = getattr(importlib.import_module(module_name), function_name)
+    inputs = EstimatorInputs(images=images, image_times_s=np.array([m.time_s for m in measurements.images]),
+                             measurements=measurements, camera=camera,
+                             calibration=CalibrationProducts(flat, args.flat_field if flat is not None else "none"),
+                             parameters=parameters)
+    try:
+        output = validate_output(function(inputs))
+    except ContractViolation as exc:
+        print(f"contract violation: {exc}", file=sys.stderr)
+        return 1
+    with open(args.output, "w") as handle:
+        json.dump(output_to_dict(output), handle)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
