@@ -75,6 +75,9 @@ from functools import lru_cache
 
 import numpy as np
 
+from flight_interface.camera import Camera
+from simulator.scene import ground_mapping, photometry
+
 MARS_SCALE_HEIGHT_M = 11100.0       # ~ R T / (M g) at 210 K
 MIN_COSINE = 0.02                   # lines of sight and sun cosines are clipped here (grazing, horizon)
 _MU_TABLE_SIZE = 129                # mu nodes of the tabulated diffuse transmission (linear in mu)
@@ -247,3 +250,20 @@ def descent_factors(view_to_camera: np.ndarray, sun_world: np.ndarray, altitude_
     adjacency = kappa * haze.surface_mean_if * diffuse_transmission(tau_below, mu, config)
     path = path_reflectance(tau_above, tau_below, mu0, mu, -(view @ sun), config)
     return gain.astype(np.float32), adjacency.astype(np.float32), path.astype(np.float32)
+
+
+def descent_fields(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
+                      sun: np.ndarray, moc_value: float | None, scale: float, haze: OrbitalHaze,
+                      config, grid_step_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """The descent side of the atmosphere, (A7), as two (H, W) float32
+    fields: ``gain = scale rho kappa A`` multiplies the haze-free orbital I/F, ``added = scale (rho kappa S
+    t_d + P_d)`` is the adjacency and path radiance (W m^-2 sr^-1 um^-1) added after shadows. ``rho``
+    is the photometric ratio (1 when ``moc_value`` is None: no photometric correction). On the node grid
+    when ``grid_step_px > 0`` (the terms vary slowly), else per pixel."""
+    view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
+    gain, adjacency, path = descent_factors(view, sun, pose.altitude_m, haze, config)
+    ratio = np.float32(1.0) if moc_value is None else photometry.photometric_ratio(view, sun, moc_value)
+    gain = gain * ratio * np.float32(scale)
+    added = (adjacency * ratio + path) * np.float32(scale)
+    return (ground_mapping.field_at_pixels(gain, camera, grid_step_px),
+            ground_mapping.field_at_pixels(added, camera, grid_step_px))

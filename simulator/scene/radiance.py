@@ -101,47 +101,12 @@ def casters(pose: Pose, config) -> list[shadow.Caster]:
     return result
 
 
-def view_directions(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
-                    grid_step_px: int) -> np.ndarray:
-    """Unit ground-to-camera directions (minus the pixel rays): on the coarse node grid
-    ((H / s + 2, W / s + 2, 3) float64) when ``grid_step_px = s > 0``, else per pixel ((H, W, 3) float32)."""
-    if grid_step_px > 0:
-        nodes = ground_mapping.node_rays(camera, grid_step_px) @ pose.camera_to_world.T
-        return -nodes / np.linalg.norm(nodes, axis=-1, keepdims=True)
-    rays = ground_map.rays()
-    norm = np.sqrt(np.einsum("...i,...i->...", rays, rays))
-    return -rays / norm[..., None]
-
-
-def _to_pixels(values: np.ndarray, camera: Camera, grid_step_px: int) -> np.ndarray:
-    """A field computed by :func:`view_directions`' layout, at every pixel (H, W) float32."""
-    if grid_step_px > 0:
-        return ground_mapping.upsample_nodes(values, grid_step_px, camera.height_px, camera.width_px)
-    return np.asarray(values, dtype=np.float32)
-
-
 def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
     """DIMES/MOC photometric ratio of every pixel (H, W) float32; on the coarse node grid and
     interpolated when ``grid_step_px > 0``, else per pixel from the ground map's rays."""
-    view = view_directions(camera, pose, ground_map, grid_step_px)
-    return _to_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px)
-
-
-def atmosphere_fields(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
-                      sun: np.ndarray, moc_value: float | None, scale: float, haze: atmosphere.OrbitalHaze,
-                      config, grid_step_px: int) -> tuple[np.ndarray, np.ndarray]:
-    """The descent side of the atmosphere (A7 of :mod:`simulator.scene.atmosphere`) as two (H, W) float32
-    fields: ``gain = scale rho kappa A`` multiplies the haze-free orbital I/F, ``added = scale (rho kappa S
-    t_d + P_d)`` is the adjacency and path radiance (W m^-2 sr^-1 um^-1) added after shadows. ``rho``
-    is the photometric ratio (1 when ``moc_value`` is None: no photometric correction). On the node grid
-    when ``grid_step_px > 0`` (the terms vary slowly), else per pixel."""
-    view = view_directions(camera, pose, ground_map, grid_step_px)
-    gain, adjacency, path = atmosphere.descent_factors(view, sun, pose.altitude_m, haze, config)
-    ratio = np.float32(1.0) if moc_value is None else photometry.photometric_ratio(view, sun, moc_value)
-    gain = gain * ratio * np.float32(scale)
-    added = (adjacency * ratio + path) * np.float32(scale)
-    return _to_pixels(gain, camera, grid_step_px), _to_pixels(added, camera, grid_step_px)
+    view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
+    return ground_mapping.field_at_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px)
 
 
 HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not in supersampling's samples)
@@ -229,7 +194,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         # orbital haze out, descent gain and added light on the photometry grid (simulator.scene.atmosphere)
         haze = atmosphere.orbital_haze(terrain, config.atmosphere)
         atmosphere.remove_orbital_haze(radiance, haze)
-        gain, added = atmosphere_fields(camera, cam, gmap, sun, moc_value, scale, haze, config.atmosphere, photo_step)
+        gain, added = atmosphere.descent_fields(camera, cam, gmap, sun, moc_value, scale, haze, config.atmosphere,
+                                                 photo_step)
         radiance *= gain
     elif effects.photometric_correction:
         # the radiometric scale is folded into the ratio (on the node grid when coarse): one full-frame pass
