@@ -73,6 +73,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import cv2
 import numpy as np
 
 from flight_interface.camera import Camera
@@ -226,8 +227,9 @@ def orbital_haze(terrain, config) -> OrbitalHaze:
 
 def remove_orbital_haze(orbital_if: np.ndarray, haze: OrbitalHaze) -> np.ndarray:
     """``max(R_orb - C_o, 0)`` in place (float32 (H, W)); the caller's sky pixels (0) stay 0."""
-    np.subtract(orbital_if, np.float32(haze.offset_if), out=orbital_if)
-    return np.maximum(orbital_if, np.float32(0.0), out=orbital_if)
+    cv2.subtract(orbital_if, float(haze.offset_if), dst=orbital_if)
+    cv2.threshold(orbital_if, 0.0, 0.0, cv2.THRESH_TOZERO, dst=orbital_if)   # one pass each (numpy: 2x slower)
+    return orbital_if
 
 
 def descent_factors(view_to_camera: np.ndarray, sun_world: np.ndarray, altitude_m: float, haze: OrbitalHaze,
