@@ -13,7 +13,7 @@ FLIGHT.toml (paths relative to it)::
     [scene]                             # optional, as in campaign files (fidelity, atmosphere, ...)
     [estimator]                         # optional, as in campaign files
     [[images]]                          # one to three descent images, in time order
-    file = "image1.png"                 # raw image as the camera returns it: 16-bit PNG, .npy or raw uint16 (256 x 1024)
+    file = "image1.png"                 # raw image as the camera returns it (256 x 1024): 16-bit PNG, .npy, raw uint16
     time_s = 0.0                        # start of the exposure (s)
     position_m = [120.0, -40.0, 2000.0] # lander at time_s, world frame of the terrain (east, north, up; m)
     attitude_quat = [1.0, 0.0, 0.0, 0.0]  # lander body-to-world (w, x, y, z)
@@ -38,6 +38,7 @@ correlation between consecutive images, Table 3's own columns, are written for b
 """
 from __future__ import annotations
 
+import itertools
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -134,13 +135,14 @@ def load_flight(path: str | Path, output_dir: str | Path | None = None, column: 
             raise entry.fail("position_m", f"up = {position[2]:g} m; allowed: > 0 (above the ground plane z = 0)")
         attitude = entry.vector("attitude_quat", 4)
         if not 0.5 < np.linalg.norm(attitude) < 2.0:
-            raise entry.fail("attitude_quat", f"norm {np.linalg.norm(attitude):.3g}; allowed: a unit quaternion (w, x, y, z)")
+            raise entry.fail("attitude_quat", f"norm {np.linalg.norm(attitude):.3g}; "
+                             "allowed: a unit quaternion (w, x, y, z)")
         shield = entry.vector("heat_shield_position_m", 3) if entry.has("heat_shield_position_m") else None
         images.append(FlightImage(file, dn, entry.number("time_s"), position, attitude / np.linalg.norm(attitude),
                                   entry.vector("velocity_mps", 3, default=[0.0, 0.0, 0.0]),
                                   entry.vector("angular_rate_radps", 3, default=[0.0, 0.0, 0.0]), shield))
     times = [image.time_s for image in images]
-    if any(b <= a for a, b in zip(times, times[1:])):
+    if any(b <= a for a, b in itertools.pairwise(times)):
         raise root.fail("images", f"time_s = {times} must increase from image to image")
     seed = root.integer("seed", default=0, minimum=0, maximum=2**63 - 1)
     terrain_spec = next(entry.terrain for entry in site.classes if entry.name == class_name)
@@ -156,7 +158,8 @@ def pose_profile(image: FlightImage):
     attitude = np.stack([quat_multiply(image.attitude_quat, quat_from_rotation_vector(image.angular_rate_radps * dt))
                          for dt in offsets])
     shield = None if image.heat_shield_position_m is None else np.tile(image.heat_shield_position_m, (3, 1))
-    return DescentProfile(time_s=image.time_s + offsets, position_m=image.position_m + offsets[:, None] * image.velocity_mps,
+    return DescentProfile(time_s=image.time_s + offsets,
+                          position_m=image.position_m + offsets[:, None] * image.velocity_mps,
                           velocity_mps=np.tile(image.velocity_mps, (3, 1)), attitude_quat=attitude,
                           angular_rate_radps=np.tile(image.angular_rate_radps, (3, 1)), wind_mps=np.zeros((3, 3)),
                           heat_shield_position_m=shield, image_times_s=np.array([image.time_s]), name=image.file.name)
@@ -198,7 +201,8 @@ def texture(signal_dn: np.ndarray) -> np.ndarray:
     return signal - cv2.GaussianBlur(signal, (0, 0), TEXTURE_SIGMA_BLOCKS, borderType=cv2.BORDER_REPLICATE)
 
 
-def template_metrics(spec: FlightComparison, flight_flat, simulated_flat, usable_blocks: np.ndarray, image_index: int) -> list[dict]:
+def template_metrics(spec: FlightComparison, flight_flat, simulated_flat, usable_blocks: np.ndarray,
+                     image_index: int) -> list[dict]:
     """Table-3 brightness and contrast of the templates DIMES picks in the flight image, measured in both
     images, and the normalised correlation of each flight template with the simulated one in place."""
     from dimes_velocity.features import select_features, template_statistics
@@ -240,7 +244,8 @@ def estimator_metrics(spec: FlightComparison, rendered: list) -> tuple[list[dict
     for source, images in (("flight", [image.dn for image in spec.images]), ("simulated", [r.dn for r in rendered])):
         estimate = estimator.estimate(images, measurements)
         answers[source] = {"valid": bool(estimate.valid), "reason": estimate.reason,
-                           "velocity_east_mps": estimate.velocity_east_mps, "velocity_north_mps": estimate.velocity_north_mps}
+                           "velocity_east_mps": estimate.velocity_east_mps,
+                           "velocity_north_mps": estimate.velocity_north_mps}
         for f in estimate.features:
             rows.append({"source": f"estimator_{source}", "image": f.pair, "pair": f.pair, "index": f.index,
                          "column": f.column_px, "row": f.row_px, "east_m": f.east_m, "north_m": f.north_m,
@@ -272,7 +277,8 @@ def compare(spec: FlightComparison) -> dict:
         flight_flat = flatten(image.dn, flattening, spec.estimator)
         simulated_flat = flatten(sim.dn, flattening, spec.estimator)
         b = spec.camera.binning_rows
-        blocks = usable.reshape(usable.shape[0], -1, b).all(axis=2) & (flight_flat.excluded == 0) & (simulated_flat.excluded == 0)
+        blocks = (usable.reshape(usable.shape[0], -1, b).all(axis=2) & (flight_flat.excluded == 0)
+                  & (simulated_flat.excluded == 0))
         detail = line_fit(texture(simulated_flat.signal_dn)[blocks], texture(flight_flat.signal_dn)[blocks])
         pixel_rows.append({"image": k, "file": str(image.file), "column": spec.column,
                            **{f"column_{key}": value for key, value in column.items()},
@@ -306,15 +312,17 @@ def _template_summary(features) -> dict:
     if len(templates):
         for who in ("flight", "simulated"):
             brightness, contrast = templates[f"{who}_brightness_dn"], templates[f"{who}_contrast_dn"]
-            result[who] = {"templates": int(len(templates)), "brightness_dn": float(brightness.mean()),
-                           "contrast_dn": float(contrast.mean()), "contrast_over_brightness": float((contrast / brightness).mean())}
+            result[who] = {"templates": len(templates), "brightness_dn": float(brightness.mean()),
+                           "contrast_dn": float(contrast.mean()),
+                           "contrast_over_brightness": float((contrast / brightness).mean())}
         result["flight_simulated_correlation"] = float(templates["flight_simulated_correlation"].mean())
     for who in ("flight", "simulated"):
         rows = features[features["source"] == f"estimator_{who}"]
         if len(rows):
-            result[f"estimator_{who}"] = {"templates": int(len(rows)), "brightness_dn": float(rows["brightness_dn"].mean()),
-                                          "contrast_dn": float(rows["contrast_dn"].mean()),
-                                          "contrast_over_brightness": float((rows["contrast_dn"] / rows["brightness_dn"]).mean()),
+            brightness, contrast = rows["brightness_dn"], rows["contrast_dn"]
+            result[f"estimator_{who}"] = {"templates": len(rows), "brightness_dn": float(brightness.mean()),
+                                          "contrast_dn": float(contrast.mean()),
+                                          "contrast_over_brightness": float((contrast / brightness).mean()),
                                           "correlation": float(rows["correlation"].mean())}
     return result
 
@@ -324,16 +332,19 @@ def summary_lines(summary: dict) -> list[str]:
     lines = []
     for row in summary["images"]:
         lines.append(f"image {row['image']} ({row['file']}): column {row['column']}: r = {row['column_r']:.4f}, "
-                     f"slope = {row['column_slope']:.3f} (flight = slope x simulated + {row['column_intercept']:.1f} DN); "
+                     f"slope = {row['column_slope']:.3f} "
+                     f"(flight = slope x simulated + {row['column_intercept']:.1f} DN); "
                      f"whole image: r = {row['image_r']:.4f}, slope = {row['image_slope']:.3f}; "
                      f"texture r = {row['texture_r']:.4f}; usable {100 * row['usable_fraction']:.1f} %")
     for who, values in summary["templates"].items():
         if isinstance(values, dict):
             extra = f", correlation {values['correlation']:.3f}" if "correlation" in values else ""
-            lines.append(f"{who}: {values['templates']} templates, brightness {values['brightness_dn']:.0f} DN, contrast "
+            lines.append(f"{who}: {values['templates']} templates, brightness {values['brightness_dn']:.0f} DN, "
+                         f"contrast "
                          f"{values['contrast_dn']:.1f} DN ({100 * values['contrast_over_brightness']:.2f} %){extra}")
     if "flight_simulated_correlation" in summary["templates"]:
-        lines.append(f"flight vs simulated template correlation: {summary['templates']['flight_simulated_correlation']:.3f}")
+        correlation = summary["templates"]["flight_simulated_correlation"]
+        lines.append(f"flight vs simulated template correlation: {correlation:.3f}")
     for who, answer in summary["estimator"].items():
         lines.append(f"estimator on {who}: valid {answer['valid']} ({answer['reason']}), velocity "
                      f"({answer['velocity_east_mps']:.2f}, {answer['velocity_north_mps']:.2f}) m/s")

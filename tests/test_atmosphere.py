@@ -104,17 +104,20 @@ def test_step_scene_contrast_ratio_matches_the_closed_form():
     expected = []
     for value, v in zip((left, right), view):
         mu = v[2]
-        path_d = np.exp(-above / mu0_d) * albedo / 4.0 * mu0_d / (mu + mu0_d) * (1.0 - np.exp(-below * (1.0 / mu + 1.0 / mu0_d)))
+        path_d = (np.exp(-above / mu0_d) * albedo / 4.0 * mu0_d / (mu + mu0_d)
+                  * (1.0 - np.exp(-below * (1.0 / mu + 1.0 / mu0_d))))
         reflectance = kappa * ((value - offset) * np.exp(tau / mu_o - below / mu)
                                + surface * isotropic_diffuse_transmission(below, mu, albedo)) + path_d
         expected.append(reflectance)
     expected = np.array(expected)
-    scale = photometry.solar_band_irradiance_w_m2_um(SceneConfig().sun_distance_au) / np.pi * SceneConfig().spectral_ratio
+    irradiance = photometry.solar_band_irradiance_w_m2_um(SceneConfig().sun_distance_au)
+    scale = irradiance / np.pi * SceneConfig().spectral_ratio
     assert measured == pytest.approx(scale * expected, rel=2e-3)
     descent_contrast = (measured[1] - measured[0]) / (measured[1] + measured[0])
     orbital_contrast = (right - left) / (right + left)
     ratio = descent_contrast / orbital_contrast
-    assert ratio == pytest.approx((expected[1] - expected[0]) / (expected[1] + expected[0]) / orbital_contrast, rel=2e-3)
+    expected_contrast = (expected[1] - expected[0]) / (expected[1] + expected[0])
+    assert ratio == pytest.approx(expected_contrast / orbital_contrast, rel=2e-3)
     assert ratio > 1.2            # the descent camera sees more contrast than MOC did: the paper's explanation
     # without atmosphere the contrast is the orbital one
     clear = render_descent_image(terrain, nadir_profile(altitude), CAMERA, 0, SUN, plain_scene(), None)
@@ -134,7 +137,8 @@ def test_diffuse_transmission_matches_independent_quadrature():
 
     def integrand(phi, mu_prime):
         cos_theta = mu * mu_prime + np.sqrt((1 - mu**2) * (1 - mu_prime**2)) * np.cos(phi)
-        p = 0.9 * (1 - 0.49) / (1 + 0.49 - 1.4 * cos_theta) ** 1.5 + 0.1 * (1 - 0.09) / (1 + 0.09 + 0.6 * cos_theta) ** 1.5
+        p = (0.9 * (1 - 0.49) / (1 + 0.49 - 1.4 * cos_theta) ** 1.5
+             + 0.1 * (1 - 0.09) / (1 + 0.09 + 0.6 * cos_theta) ** 1.5)
         if abs(mu_prime - mu) < 1e-9:
             kernel = t / mu * np.exp(-t / mu)
         else:
@@ -188,14 +192,16 @@ def test_energy_is_not_created():
     # a realistic atmosphere never makes radiance negative, and the mean surface brightness is positive
     terrain = step_terrain(0.05, 0.3)
     config = AtmosphereConfig(orbital_optical_depth=0.9)
-    rendered = render_descent_image(terrain, nadir_profile(2000.0), CAMERA, 0, SUN, replace(SceneConfig(), atmosphere=config), None)
+    rendered = render_descent_image(terrain, nadir_profile(2000.0), CAMERA, 0, SUN,
+                                    replace(SceneConfig(), atmosphere=config), None)
     assert rendered.radiance.exposure.min() >= 0.0
     assert atmosphere.orbital_haze(terrain, config).surface_mean_if > 0.0
 
 
 def test_too_thick_an_atmosphere_for_the_terrain_is_refused():
     terrain = step_terrain(0.01, 0.02)
-    with pytest.raises(ValueError, match=r"scene.atmosphere: orbital path I/F .* orbital_optical_depth 5 .* allowed: a smaller"):
+    with pytest.raises(ValueError, match=r"scene.atmosphere: orbital path I/F .* orbital_optical_depth 5 .* "
+                                         r"allowed: a smaller"):
         atmosphere.orbital_haze(terrain, AtmosphereConfig(orbital_optical_depth=5.0))
 
 
@@ -213,5 +219,6 @@ def test_atmosphere_table(tmp_path):
                                           r"allowed: >= 0 and <= 10"):
         scene_config_from_table(Table(load_toml(path), str(path)).table("scene"))
     path.write_text("[scene.atmosphere]\noptical_depth = 0.5\n")
-    with pytest.raises(ConfigError, match=r"scene.atmosphere.optical_depth is not a known field; allowed: .*orbital_optical_depth"):
+    with pytest.raises(ConfigError, match=r"scene.atmosphere.optical_depth is not a known field; "
+                                          r"allowed: .*orbital_optical_depth"):
         scene_config_from_table(Table(load_toml(path), str(path)).table("scene"))

@@ -49,8 +49,10 @@ Orbital and descent I/F of a ground point of surface I/F ``r(x)`` (mean ``rbar``
 ``mu0_o, mu_o, Theta_o``, the descent's ``mu0_d, mu_d(x), Theta_d(x)``, ``rho(x)`` the DIMES/MOC
 photometric ratio of :mod:`simulator.scene.photometry`)::
 
-    R_orb(x)  = E(mu0_o) [r(x) exp(-tau / mu_o) + rbar t_d(tau, mu_o)] + P(0, tau; mu0_o, mu_o, Theta_o)            (A5)
-    R_desc(x) = E(mu0_d) rho(x) [r(x) exp(-tau_b / mu_d) + rbar t_d(tau_b, mu_d)] + P(tau_a, tau_b; mu0_d, mu_d, Theta_d)  (A6)
+    R_orb(x)  = E(mu0_o) [r(x) exp(-tau / mu_o) + rbar t_d(tau, mu_o)]
+                + P(0, tau; mu0_o, mu_o, Theta_o)                                                         (A5)
+    R_desc(x) = E(mu0_d) rho(x) [r(x) exp(-tau_b / mu_d) + rbar t_d(tau_b, mu_d)]
+                + P(tau_a, tau_b; mu0_d, mu_d, Theta_d)                                                   (A6)
 
 Inverting (A5) with the terrain's mean I/F ``Rbar`` for its mean gives, with ``S = E(mu0_o) rbar``::
 
