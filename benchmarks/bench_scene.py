@@ -1,10 +1,12 @@
-"""Scene model: ms per radiance field and per full image (scene + camera), nadir from 2000 m.
+"""Scene model: ms per radiance field and per full image (scene + camera), nadir from 2000 m; the same
+with the dusty atmosphere on (``_atmosphere`` rows, orbital optical depth 0.5) against off.
 
 Also the error of the default fidelity shortcuts (coarse ray grid, coarse photometry) against the
 reference field (exact per-pixel rays and photometry), as max and 99th-percentile relative error.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +15,7 @@ from benchmarks.timing import median_ms
 from simulator.scene import radiance
 from flight_interface.camera import load_camera
 from simulator.descent_image import render_descent_image
-from simulator.scene_config import REFERENCE_EFFECTS, SceneConfig
+from simulator.scene_config import REFERENCE_EFFECTS, AtmosphereConfig, SceneConfig
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from simulator.__main__ import crater_field, example_profile
 from flight_interface.frames import quat_from_axis_angle
@@ -49,17 +51,23 @@ def run() -> list[dict]:
     rows.append({"name": "scene/radiance_field_nadir_2000m_default", "ms": field_ms,
                  "max_rel_error_vs_reference": float(relative.max()),
                  "p99_rel_error_vs_reference": float(np.percentile(relative, 99))})
+    dusty = replace(default, atmosphere=AtmosphereConfig(orbital_optical_depth=0.5))
+    rows.append({"name": "scene/radiance_field_nadir_2000m_default_atmosphere",
+                 "ms": median_ms(lambda: radiance.radiance_at_pose(terrain, camera, pose, sun, dusty), 15)})
     rows.append({"name": "scene/radiance_field_nadir_2000m_reference",
                  "ms": median_ms(lambda: radiance.radiance_at_pose(terrain, camera, pose, sun, reference), 3)})
 
     def image(profile, index, config=default):
         return render_descent_image(terrain, profile, camera, index, sun, config, np.random.default_rng(7))
 
-    for name, profile, index in (("full_image_still_nadir_2000m", still, 0),
-                                 ("full_image_60dps_rotation", _rotating_profile(60.0), 0),
-                                 ("full_image_example_tilted_heat_shield_halo", example_profile(), 0)):
-        result = image(profile, index)
-        ms = median_ms(lambda: image(profile, index), 5)
+    for name, profile, index, config in (
+            ("full_image_still_nadir_2000m", still, 0, default),
+            ("full_image_still_nadir_2000m_atmosphere", still, 0, dusty),
+            ("full_image_60dps_rotation", _rotating_profile(60.0), 0, default),
+            ("full_image_example_tilted_heat_shield_halo", example_profile(), 0, default),
+            ("full_image_example_tilted_heat_shield_halo_atmosphere", example_profile(), 0, dusty)):
+        result = image(profile, index, config)
+        ms = median_ms(lambda: image(profile, index, config), 5)
         rows.append({"name": f"scene/{name}", "ms": ms, "scene_ms": result.diagnostics.scene_ms,
                      "camera_ms": result.diagnostics.camera_ms,
                      "fields": sum(result.diagnostics.substeps.values()),

@@ -7,6 +7,7 @@
     campaign report DIR    a Markdown report with PNG plots
     campaign camera FILE   validate a camera TOML and print its derived numbers
     campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR
+    campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
 
 Exit codes: 0 success, 1 a run finished with failures or regressions, 2 usage or configuration
 error (one clear line on stderr, nothing written).
@@ -124,6 +125,17 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
+def _cmd_compare_flight(args) -> int:
+    from .compare_flight import compare, load_flight, summary_lines
+
+    spec = load_flight(args.file, output_dir=args.out, column=args.column)   # validates everything, writes nothing
+    summary = compare(spec)
+    for line in summary_lines(summary):
+        print(line)
+    print(f"written to {spec.output_dir}: side-by-side, column and scatter PNGs, comparison.json, pixels.csv, features.csv")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="campaign", description="MOC2DIMES Monte Carlo campaigns")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -159,6 +171,13 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
     sweep.add_argument("--no-progress", action="store_true")
     sweep.set_defaults(handler=_cmd_sweep)
+
+    flight = commands.add_parser("compare-flight", help="compare real descent images with the simulator's view "
+                                 "(see campaign/compare_flight.py)")
+    flight.add_argument("file", help="FLIGHT.toml: site, class, images with their times and poses")
+    flight.add_argument("--out", help="output directory (default: output_dir in the file, else runs/compare-flight)")
+    flight.add_argument("--column", type=int, help="raw image column of the profile and scatter (default 512)")
+    flight.set_defaults(handler=_cmd_compare_flight)
 
     camera = commands.add_parser("camera", help="validate a camera TOML and print its derived numbers")
     camera.add_argument("file")

@@ -1,8 +1,9 @@
 """Scene configuration: every scene parameter (SI units) and effect switch of one descent image.
 
 :class:`SceneEffects` holds the physics switches and the fidelity shortcuts, :class:`SceneConfig` the
-parameters, the camera effect switches (:class:`~simulator.detector.camera_chain.CameraEffects`) and the
-off-nominal effects (:class:`~simulator.off_nominal.OffNominalConfig`). The presets of shortcuts are in
+parameters, the camera effect switches (:class:`~simulator.detector.camera_chain.CameraEffects`), the
+off-nominal effects (:class:`~simulator.off_nominal.OffNominalConfig`) and the atmosphere
+(:class:`AtmosphereConfig`). The presets of shortcuts are in
 :mod:`simulator.fidelity`; the TOML ``[scene]`` table is read by :mod:`simulator.scene_table`.
 """
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 
 from simulator.detector.camera_chain import CameraEffects
 from simulator.off_nominal import OffNominalConfig
-from simulator.scene import photometry
+from simulator.scene import atmosphere, photometry
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,35 @@ class SceneEffects:
 
 
 @dataclass(frozen=True)
+class AtmosphereConfig:
+    """Dust between the ground, the orbiter and the descent camera (:mod:`simulator.scene.atmosphere`,
+    equations A1-A7). Off (the default) while ``orbital_optical_depth`` is 0: the renderer then skips the
+    stage and the images are those of a scene without atmosphere, bit for bit.
+
+    ``orbital_optical_depth``: zenith dust optical depth of the whole column when the orbital terrain
+    image was taken (also the column over the descent: the same dust); ``scale_height_m``: dust scale
+    height; ``single_scattering_albedo``, ``forward_asymmetry``, ``backward_asymmetry``,
+    ``forward_fraction``: single scattering of the dust (double Henyey-Greenstein); ``descent_path``:
+    the dust below the descent camera attenuates and adds path light (off: the camera sees the ground
+    clear, only the orbital haze is removed); ``diffuse_transmission``: light scattered once into the
+    line of sight from the surroundings (adjacency) and skylight on the ground (off: direct beam only).
+    """
+
+    orbital_optical_depth: float = 0.0
+    scale_height_m: float = atmosphere.MARS_SCALE_HEIGHT_M
+    single_scattering_albedo: float = 0.94
+    forward_asymmetry: float = 0.70
+    backward_asymmetry: float = -0.30
+    forward_fraction: float = 0.90
+    descent_path: bool = True
+    diffuse_transmission: bool = True
+
+    @property
+    def enabled(self) -> bool:
+        return self.orbital_optical_depth > 0.0
+
+
+@dataclass(frozen=True)
 class SceneConfig:
     """Scene parameters (SI units) and effect switches. Defaults are documented in the modules:
     :mod:`simulator.photometry` (sun distance, spectral ratio), :mod:`simulator.shadow` (casters),
@@ -53,6 +83,7 @@ class SceneConfig:
     effects: SceneEffects = SceneEffects()
     camera_effects: CameraEffects = CameraEffects()
     off_nominal: OffNominalConfig = OffNominalConfig()
+    atmosphere: AtmosphereConfig = AtmosphereConfig()
     sun_distance_au: float = photometry.MARS_MEAN_SUN_DISTANCE_AU
     spectral_ratio: float = 0.906
     lander_diameter_m: float = 1.9

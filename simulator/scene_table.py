@@ -16,6 +16,15 @@ Example::
     [scene.off_nominal]            # see simulator.off_nominal for every key
     dust_particle_count = 0
     angular_rate_multiplier = 1.0
+    [scene.atmosphere]             # simulator.scene.atmosphere; off while orbital_optical_depth = 0
+    orbital_optical_depth = 0.5    # zenith dust optical depth of the column (0 .. 10)
+    scale_height_m = 11100.0       # dust scale height (1000 .. 100000 m)
+    single_scattering_albedo = 0.94
+    forward_asymmetry = 0.70       # double Henyey-Greenstein: f HG(g1) + (1 - f) HG(g2)
+    backward_asymmetry = -0.30
+    forward_fraction = 0.90
+    descent_path = true            # dust below the descent camera attenuates and adds path light
+    diffuse_transmission = true    # adjacency light and skylight (single scattering)
 """
 from __future__ import annotations
 
@@ -28,7 +37,7 @@ from simulator.detector.camera_chain import CameraEffects
 from simulator.off_nominal import off_nominal_config_from_table
 
 from .fidelity import DEFAULT_PRESET, PRESETS, preset_config
-from .scene_config import SceneConfig, SceneEffects
+from .scene_config import AtmosphereConfig, SceneConfig, SceneEffects
 
 
 def scene_config_from_table(table: Table) -> SceneConfig:
@@ -37,7 +46,8 @@ def scene_config_from_table(table: Table) -> SceneConfig:
     Numbers are range-checked with one-line errors naming file, field and allowed range; the heat
     shield cone angle is given in degrees (``heat_shield_cone_angle_deg``). Sub-tables ``effects`` and
     ``camera_effects`` hold the boolean switches (and ``camera_effects.dark_current_scale``);
-    ``off_nominal`` the off-nominal effects (:mod:`simulator.off_nominal`). ``fidelity`` names the
+    ``off_nominal`` the off-nominal effects (:mod:`simulator.off_nominal`), ``atmosphere`` the dust
+(:func:`atmosphere_config_from_table`). ``fidelity`` names the
     preset of shortcuts the other fields start from (:mod:`simulator.fidelity`; default "default").
     """
     default = preset_config(table.string("fidelity", default=DEFAULT_PRESET, choices=PRESETS))
@@ -68,6 +78,7 @@ def scene_config_from_table(table: Table) -> SceneConfig:
     config = SceneConfig(
         effects=effects, camera_effects=CameraEffects(**cam_kwargs),
         off_nominal=off_nominal_config_from_table(table.table("off_nominal", required=False)),
+        atmosphere=atmosphere_config_from_table(table.table("atmosphere", required=False), default.atmosphere),
         sun_distance_au=number("sun_distance_au", 0.1, 100.0, exclusive_minimum=True),
         spectral_ratio=number("spectral_ratio", 0.0, 10.0, exclusive_minimum=True),
         lander_diameter_m=number("lander_diameter_m", 0.0, 20.0),
@@ -91,6 +102,28 @@ def scene_config_from_table(table: Table) -> SceneConfig:
     _reject_unknown(table, {f.name for f in fields(SceneConfig)} - {"heat_shield_cone_angle_rad"}
                     | {"heat_shield_cone_angle_deg", "fidelity"})
     return config
+
+
+_ATMOSPHERE_RANGES = {   # field -> (minimum, maximum, exclusive minimum)
+    "orbital_optical_depth": (0.0, 10.0, False),
+    "scale_height_m": (1000.0, 100000.0, False),
+    "single_scattering_albedo": (0.0, 1.0, False),
+    "forward_asymmetry": (-0.95, 0.95, False),
+    "backward_asymmetry": (-0.95, 0.95, False),
+    "forward_fraction": (0.0, 1.0, False),
+}
+
+
+def atmosphere_config_from_table(table: Table, default: AtmosphereConfig = AtmosphereConfig()) -> AtmosphereConfig:
+    """Build an :class:`AtmosphereConfig` from the ``[scene.atmosphere]`` table (every field optional;
+    numbers range-checked, one-line errors naming file, field and allowed range)."""
+    values = {key: table.number(key, default=getattr(default, key), minimum=low, maximum=high,
+                                exclusive_minimum=exclusive)
+              for key, (low, high, exclusive) in _ATMOSPHERE_RANGES.items()}
+    values.update({key: table.boolean(key, default=getattr(default, key))
+                   for key in ("descent_path", "diffuse_transmission")})
+    _reject_unknown(table, {f.name for f in fields(AtmosphereConfig)})
+    return AtmosphereConfig(**values)
 
 
 def _reject_unknown(table: Table, allowed: set[str]) -> None:

@@ -241,6 +241,25 @@ CACHED_RAY_SETS = 64            # distinct small pixel sets whose camera rays ar
 CACHED_RAY_SET_MAX_PIXELS = 20_000
 
 
+def view_directions(camera: Camera, pose: CameraPose, ground_map: GroundMap,
+                    grid_step_px: int) -> np.ndarray:
+    """Unit ground-to-camera directions (minus the pixel rays): on the coarse node grid
+    ((H / s + 2, W / s + 2, 3) float64) when ``grid_step_px = s > 0``, else per pixel ((H, W, 3) float32)."""
+    if grid_step_px > 0:
+        nodes = node_rays(camera, grid_step_px) @ pose.camera_to_world.T
+        return -nodes / np.linalg.norm(nodes, axis=-1, keepdims=True)
+    rays = ground_map.rays()
+    norm = np.sqrt(np.einsum("...i,...i->...", rays, rays))
+    return -rays / norm[..., None]
+
+
+def field_at_pixels(values: np.ndarray, camera: Camera, grid_step_px: int) -> np.ndarray:
+    """A field computed by :func:`view_directions`' layout, at every pixel (H, W) float32."""
+    if grid_step_px > 0:
+        return upsample_nodes(values, grid_step_px, camera.height_px, camera.width_px)
+    return np.asarray(values, dtype=np.float32)
+
+
 def camera_frame_rays(camera: Camera, pixels: np.ndarray) -> np.ndarray:
     """Camera-frame unit rays of pixels ``(..., 2)`` (column, row), float64, shape ``(..., 3)``.
 

@@ -5,9 +5,11 @@ One pose (:func:`radiance_at_pose`)::
     lander pose + camera mounting -> world rays of every pixel (ground_mapping, cached camera rays)
       -> ground points on z = 0; sky where a ray misses the ground (masked, radiance 0)
       -> terrain cropped to the footprint, bilinear resampling (resample; outside the strip flagged)
+      -> [atmosphere on: orbital haze removed, x descent transmission (atmosphere)]
       -> x photometric ratio DIMES/MOC, eq. (1)-(3) (photometry; gives the opposition halo)
       -> x spectral ratio MOC->DIMES, x E_band / pi -> radiance W m^-2 sr^-1 um^-1
       -> shadows of lander, backshell, parachute, heat shield with penumbra (shadow)
+      -> [atmosphere on: + path radiance and adjacency light of the dust below the camera]
       -> heat shield cone drawn where its footprint meets the field of view (heat_shield)
 
 The three CCD periods (:func:`period_fields`): the fast flush ``[t - T_flush, t]``, exposure
@@ -37,7 +39,7 @@ import cv2
 import numpy as np
 
 from simulator.detector import charge_transfer
-from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
+from simulator.scene import atmosphere, ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
 from flight_interface.camera import Camera
 from simulator.scene.descent_profile import DescentProfile, Pose
 from flight_interface.frames import quat_to_matrix
@@ -103,15 +105,8 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
     """DIMES/MOC photometric ratio of every pixel (H, W) float32; on the coarse node grid and
     interpolated when ``grid_step_px > 0``, else per pixel from the ground map's rays."""
-    if grid_step_px > 0:
-        nodes = ground_mapping.node_rays(camera, grid_step_px) @ pose.camera_to_world.T
-        view = -nodes / np.linalg.norm(nodes, axis=-1, keepdims=True)
-        ratio = photometry.photometric_ratio(view, sun, moc_value)
-        return ground_mapping.upsample_nodes(ratio, grid_step_px, camera.height_px, camera.width_px)
-    rays = ground_map.rays()
-    norm = np.sqrt(np.einsum("...i,...i->...", rays, rays))
-    view = -rays / norm[..., None]
-    return photometry.photometric_ratio(view, sun, moc_value)
+    view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
+    return ground_mapping.field_at_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px)
 
 
 HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not in supersampling's samples)
@@ -189,10 +184,20 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
     scale = irradiance / np.pi * (config.spectral_ratio if effects.spectral_ratio else 1.0)
     radiance = moc_if
+    photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
+    moc_value = None
     if effects.photometric_correction:
         moc_value = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
                                                      terrain.moc_phase_rad)
-        photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
+    added = None
+    if config.atmosphere.enabled:
+        # orbital haze out, descent gain and added light on the photometry grid (simulator.scene.atmosphere)
+        haze = atmosphere.orbital_haze(terrain, config.atmosphere)
+        atmosphere.remove_orbital_haze(radiance, haze)
+        gain, added = atmosphere.descent_fields(camera, cam, gmap, sun, moc_value, scale, haze, config.atmosphere,
+                                                 photo_step)
+        radiance *= gain
+    elif effects.photometric_correction:
         # the radiometric scale is folded into the ratio (on the node grid when coarse): one full-frame pass
         radiance *= photometric_ratio_field(camera, cam, gmap, sun, moc_value / scale, photo_step)
     else:
@@ -203,6 +208,10 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,
                                        photometry.solar_angular_radius_rad(config.sun_distance_au),
                                        config.shadow_diffuse_fraction)
+    if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky
+        radiance += added
+        if gmap.any_sky:
+            radiance[gmap.sky] = 0.0
     shield = None
     if effects.heat_shield and pose.heat_shield_position_m is not None:
         shield = heat_shield.draw_heat_shield(radiance, gmap, camera, cam,
