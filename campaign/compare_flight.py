@@ -127,7 +127,7 @@ def load_flight(path: str | Path, output_dir: str | Path | None = None, column: 
                 raise entry.fail(key, f"is not a known field; allowed: {', '.join(_IMAGE_KEYS)}")
         file = entry.path_value("file", path.parent)
         try:
-            dn = load_image(file, camera.binned_shape)
+            dn = load_image(file, camera)
         except InputFileError as exc:
             raise entry.fail("file", f"= {entry.data['file']!r}: {exc}") from None
         position = entry.vector("position_m", 3)

@@ -132,7 +132,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
         "scene": ([good], "[scene.atmosphere]\norbital_optical_depth = -1\n", "scene.atmosphere.orbital_optical_depth"),
         "shape": ([{**good, "file": "flight.npy"}], "", "images[0].file = 'flight.npy'"),
     }
-    np.save(tmp_path / "flight.npy", np.zeros((1024, 1024), np.uint16))
+    np.save(tmp_path / "flight.npy", np.zeros((300, 300), np.uint16))   # not binned, not a full frame
     for name, (images, extra, message) in cases.items():
         path = flight_toml(tmp_path, name, images, extra)
         if name == "class":
