@@ -126,14 +126,14 @@ def test_case_seeing_outside_the_terrain_is_recorded_invalid(tmp_path):
     _, plan = plan_campaign(strict)
     row = plan.iloc[0].to_dict()
     row["offset_east_m"] += 1300.0                 # the 3 km strip's edge now crosses the images
-    shifted = simulate_case(load_resources(strict), row, str(tmp_path))
+    (shifted,) = simulate_case(load_resources(strict), row, str(tmp_path))          # one estimator: one row
     assert max(shifted["outside_terrain_fraction"]) > 0.1
     assert shifted["valid"] is False and shifted["reason"] == "outside_terrain"
     assert shifted["velocity_error_mps"] is None
-    judged_by_estimator = simulate_case(load_resources(lenient), row, str(tmp_path))
+    (judged_by_estimator,) = simulate_case(load_resources(lenient), row, str(tmp_path))
     assert judged_by_estimator["reason"] != "outside_terrain"
     assert judged_by_estimator["outside_terrain_fraction"] == shifted["outside_terrain_fraction"]
-    inside = simulate_case(load_resources(strict), plan.iloc[0].to_dict(), str(tmp_path))
+    (inside,) = simulate_case(load_resources(strict), plan.iloc[0].to_dict(), str(tmp_path))
     assert max(inside["outside_terrain_fraction"]) == 0.0 and inside["reason"] != "outside_terrain"
 
 
