@@ -305,7 +305,8 @@ def _describe(error: dict, where: _Where) -> str:
     if kind in ("value_error", "assertion_error"):
         problem = ctx.get("error")
         if isinstance(problem, FieldProblem):
-            field = ".".join(part for part in (where.path, problem.field) if part) or "<root>"
+            joiner = "" if problem.field.startswith("[") else "."
+            field = joiner.join(part for part in (where.path, problem.field) if part) or "<root>"
             message = str(problem)
             return f"{field}{'' if message.startswith((':', ',')) else ' '}{message}"
         message = str(problem) if problem is not None else error["msg"]

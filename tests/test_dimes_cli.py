@@ -110,7 +110,7 @@ def test_raw_big_endian_and_png_round_trip(case_files, mer_a, tmp_path):
 
 
 def one_line_error(code, out, err):
-    return code == 2 and out == "" and err.count("\n") == 1 and err.startswith("error: ")
+    return code == 2 and out == "" and err.count("\n") == 1 and err.startswith("python -m dimes_velocity: error: ")
 
 
 def test_done_criteria_refusals_exit_2_with_one_line(case_files, mer_a_path, tmp_path, capsys):
