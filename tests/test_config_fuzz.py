@@ -43,10 +43,12 @@ from flight_interface.tomlfields import ConfigError
 from fuzz_inputs import UNKNOWN_KEY, refusal_problems, run_main, schema_mutations, snapshot, toml_text
 from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig
-from dimes_velocity.config import EstimatorConfig
+from campaign.compare_flight import load_flight
+from campaign.estimator_config import EstimatorTable
 from campaign.execution_config import ExecutionConfig
 from sitedata.edl_parameters import load_edl_parameters
 from sitedata.readers.__main__ import main as readers_main
+from sitedata.terrain_stats_cli import main as terrain_stats_main
 from sitedata.trajectories_cli import main as trajectories_main
 from sitedata.trajectory_io import read_profiles
 
@@ -80,7 +82,10 @@ def work(tmp_path_factory):
         campaign.update(campaign={"seed": 3, "output_dir": "runs/fuzz", "cases": {"gcp": 2}, "cases_scale": 0.5},
                         execution=ExecutionConfig(workers=1).model_dump(mode="json"),
                         sensors=SensorConfig().model_dump(mode="json"),
-                        estimator=EstimatorConfig().model_dump(mode="json"),
+                        estimator=EstimatorTable(flat_field="none").model_dump(mode="json"),
+                        estimators=[{"name": "dimes", "kind": "reference", "parameters": {"min_correlation": 0.75}},
+                                    {"name": "pc", "kind": "python", "callable": "estimators.phase_correlation:estimate",
+                                     "isolate": True, "timeout_s": 30.0, "parameters": {"min_response": 0.05}}],
                         scene=SceneConfig().model_dump(mode="json"))
         (root / "campaign.toml").write_text(toml_text(campaign))
         strip = copy.deepcopy(campaign)
@@ -101,12 +106,22 @@ def work(tmp_path_factory):
         (root / "meas.json").write_text(json.dumps(measurements))
         for k in range(3):
             np.save(root / f"im{k}.npy", np.full((256, 1024), 500, dtype=np.uint16))
+        flight = {"site": "campaign.toml", "class": "gdcp", "seed": 2, "column": 300, "output_dir": "runs/flight",
+                  "scene": {"fidelity": "fast", "atmosphere": {"orbital_optical_depth": 0.3}},
+                  "estimator": {"min_correlation": 0.8},
+                  "images": [{"file": "im0.npy", "time_s": 0.0, "position_m": [0.0, 0.0, 2000.0],
+                              "attitude_quat": [1.0, 0.0, 0.0, 0.0], "velocity_mps": [0.0, 0.0, -72.0],
+                              "angular_rate_radps": [0.0, 0.01, 0.0], "heat_shield_position_m": [0.0, 0.0, 1850.0]},
+                             {"file": "im1.npy", "time_s": 3.8, "position_m": [0.0, 0.0, 1726.4],
+                              "attitude_quat": [1.0, 0.0, 0.0, 0.0]}]}
+        (root / "flight.toml").write_text(toml_text(flight))
         # every example is valid as written: what the fuzz changes is what makes an input bad
         load_campaign_config(root / "campaign.toml")
         load_campaign_config(root / "strip.toml")
         load_sweep(root / "sweep.toml")
         load_edl_parameters(root / "edl.toml")
         load_camera(root / "camera.toml")
+        load_flight(root / "flight.toml")
         assert len(read_profiles(root / "set.csv")) == 2
         yield root
 
@@ -146,26 +161,29 @@ def _file_commands(kind: str, path: Path) -> list[tuple]:
         strip = work / "mutated" / f"strip-{path.stem}.toml"
         strip.write_text(toml_text(campaign))
         return [(readers_main, ["img.png", "--sidecar", path]), (campaign_main, ["plan", strip, "--out", "maps"]),
-                (campaign_main, ["submit", strip, "--output", "out", "--no-progress"])]
+                (campaign_main, ["submit", strip, "--output", "out", "--no-progress"]),
+                (terrain_stats_main, [f"img.png:{path}", "--csv", "stats.csv"])]
     return {
         "campaign_file": [(campaign_main, ["submit", path, "--output", "out", "--no-progress"]),
                           (campaign_main, ["plan", path, "--out", "maps"])],
         "camera": [(campaign_main, ["camera", path]), (dimes_main, [*images, "--camera", path])],
         "sweep": [(campaign_main, ["sweep", path, "--output", "out", "--no-progress"])],
         "trajectory_set": [(trajectories_main, ["verify", path]), (trajectories_main, ["stats", path])],
+        "flight": [(campaign_main, ["compare-flight", path, "--out", "out"])],
     }[kind]
 
 
 EXAMPLES = {"campaign_file": "campaign.toml", "camera": "camera.toml", "sweep": "sweep.toml",
-            "trajectory_set": "edl.toml", "terrain_sidecar": "img.toml"}
+            "trajectory_set": "edl.toml", "terrain_sidecar": "img.toml", "flight": "flight.toml"}
 LOADERS = {"campaign_file": load_campaign_config, "camera": load_camera, "sweep": load_sweep,
-           "trajectory_set": load_edl_parameters, "terrain_sidecar": None}
+           "trajectory_set": load_edl_parameters, "terrain_sidecar": None, "flight": load_flight}
 
 
 @pytest.mark.parametrize("kind", list(EXAMPLES))
 def test_every_schema_violation_of_every_file_is_refused(work, kind):
     data = tomllib.loads((work / EXAMPLES[kind]).read_text())
-    variants = schema_mutations(table_schema(kind), data, skip=(("axes",),))
+    variants = schema_mutations(table_schema(kind), data, skip=(("axes",), ("estimators", 0, "parameters"),
+                                                                ("estimators", 1, "parameters")))
     if kind == "sweep":      # [axes] is a free table of dotted fields: its violations, explicitly
         axis = "scene.camera_effects.dark_current_scale"
         for what, axes in [("unknown field", {"scene.camera_effects.dark_current_scal": [1.0]}),
@@ -181,7 +199,23 @@ def test_every_schema_violation_of_every_file_is_refused(work, kind):
                      ("site.classes: duplicate name", _with(data, ("site", "classes", 1, "name"), "gcp")),
                      ("terrain overrides out of range",
                       _with(data, ("site", "classes", 1, "terrain", "overrides", "haze_optical_depth"), 9.0)),
-                     ("site.camera: no such file", _with(data, ("site", "camera"), "nowhere/camera.toml"))]
+                     ("site.camera: no such file", _with(data, ("site", "camera"), "nowhere/camera.toml")),
+                     ("estimators: a name used twice", _with(data, ("estimators", 1, "name"), "dimes")),
+                     ("estimators: reference parameter out of range",
+                      _with(data, ("estimators", 0, "parameters", "min_correlation"), 3.0)),
+                     ("estimators: reference parameter unknown", _with(data, ("estimators", 0, "parameters", "x"), 1)),
+                     ("estimators: callable not importable", _with(data, ("estimators", 1, "callable"), "no.such:f")),
+                     ("estimators: command placeholder unknown",
+                      _with(data, ("estimators", 1), {"name": "c", "kind": "command", "argv": ["{python}", "{imgs}"]})),
+                     ("estimators: program missing",
+                      _with(data, ("estimators", 1), {"name": "c", "kind": "command", "argv": ["/no/such/program"]}))]
+    if kind == "flight":
+        variants += [("class not in the site", {**data, "class": "gxx"}),
+                     ("images out of order", _with(data, ("images", 1, "time_s"), -1.0)),
+                     ("image below ground", _with(data, ("images", 0, "position_m"), [0.0, 0.0, -5.0])),
+                     ("image file missing", _with(data, ("images", 0, "file"), "absent.npy")),
+                     ("image of the wrong shape", _with(data, ("images", 0, "file"), "img.png")),
+                     ("column outside the image", {**data, "column": 5000})]
     assert len(variants) >= 30
     for index, (what, bad) in enumerate(variants):
         path = _mutated(work, kind, toml_text(bad))
@@ -321,10 +355,33 @@ def test_bad_store_camera_and_schema_arguments(work, command, target, text):
 
 
 @FUZZ
+@given(case=st.sampled_from(["compare-flight column", "compare-flight out is a file", "compare-flight no file",
+                             "terrain_stats absent source", "terrain_stats unknown preset", "terrain_stats bad site",
+                             "terrain_stats unknown flag", "terrain_stats no source"]),
+       number=st.integers().filter(lambda n: not 0 <= n < 1024), text=st.from_regex(r"\A[a-z]{1,12}\Z"))
+def test_bad_compare_flight_and_terrain_stats_command_lines(work, case, number, text):
+    main, argv = {
+        "compare-flight column": (campaign_main, ["compare-flight", "flight.toml", "--column", str(number)]),
+        "compare-flight out is a file": (campaign_main, ["compare-flight", "flight.toml", "--out", "set.csv"]),
+        "compare-flight no file": (campaign_main, ["compare-flight"]),
+        "terrain_stats absent source": (terrain_stats_main, [f"{text}.img", "--csv", "stats.csv"]),
+        "terrain_stats unknown preset": (terrain_stats_main, [text + "x", "--csv", "stats.csv"]),
+        "terrain_stats bad site": (terrain_stats_main, ["img.png", "--site", "camera.toml", "--csv", "stats.csv"]),
+        "terrain_stats unknown flag": (terrain_stats_main, ["img.png", "--" + text]),
+        "terrain_stats no source": (terrain_stats_main, []),
+    }[case]
+    if case == "terrain_stats unknown flag" and any(flag.startswith("--" + text) for flag in
+                                                   ("--csv", "--site", "--no-cache", "--help")):
+        return
+    refused(work, main, argv, "campaign flags" if main is campaign_main else "terrain stats flags", case)
+
+
+@FUZZ
 @given(case=st.sampled_from(["two files", "missing camera flag", "absent image", "image is a directory",
                              "wrong image shape", "garbage image", "measurements not JSON", "measurements latin-1",
                              "measurements unknown key", "measurements wrong count", "config unknown key",
-                             "config without [estimator]", "config out of range", "unknown flag", "camera absent"]),
+                             "config without [estimator]", "config out of range", "unknown flag", "camera absent",
+                             "bits not allowed", "flat field absent", "channel not allowed"]),
        number=st.floats(allow_nan=True, allow_infinity=True))
 def test_bad_estimator_command_lines(work, case, number):
     images = ["im0.npy", "im1.npy", "im2.npy"]
@@ -362,6 +419,13 @@ def test_bad_estimator_command_lines(work, case, number):
         argv += ["--fast"]
     elif case == "camera absent":
         argv[-1] = "absent.toml"
+    elif case == "bits not allowed":
+        argv += ["--bits", str(int(number) if math.isfinite(number) and abs(number) < 1e9 and int(number) not in
+                               (8, 12, 16) else 7)]
+    elif case == "flat field absent":
+        argv += ["--flat-field", "absent.npy"]
+    elif case == "channel not allowed":
+        argv += ["--channel", "x"]
     refused(work, dimes_main, argv, "estimator flags", case)
 
 
@@ -434,6 +498,6 @@ def test_sample_through_real_processes(work, module, argv):
 
 def test_zz_fuzz_size_is_reported():
     """Runs last in this module: the suite tried what it claims (the total is printed in the summary)."""
-    if len(TRIED) < 9:
+    if len(TRIED) < 12:
         pytest.skip("only part of the fuzz suite ran")
     assert sum(TRIED.values()) >= 2000, TRIED
