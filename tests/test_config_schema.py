@@ -19,7 +19,9 @@ SHIPPED = [
     ("campaign_file", SITEDATA / "gusev.toml"), ("campaign_file", SITEDATA / "meridiani.toml"),
     ("campaign_file", SITEDATA / "examples" / "real_moc.toml"),
     ("camera", SITEDATA / "cameras" / "mer_a.toml"), ("camera", SITEDATA / "cameras" / "mer_b.toml"),
-    ("sweep", SITEDATA / "sweeps" / "nightly.toml"),
+    ("campaign_file", SITEDATA / "examples" / "compare_estimators.toml"),
+    ("sweep", SITEDATA / "sweeps" / "nightly.toml"), ("sweep", SITEDATA / "sweeps" / "atmosphere_gusev.toml"),
+    ("sweep", SITEDATA / "sweeps" / "flat_field_meridiani.toml"),
     ("trajectory_set", SITEDATA / "trajectories" / "edl_gusev.toml"),
     ("trajectory_set", SITEDATA / "trajectories" / "edl_meridiani.toml"),
     ("terrain_sidecar", SITEDATA / "examples" / "M0100115.sidecar.toml"),
@@ -49,6 +51,9 @@ def test_every_shipped_file_satisfies_its_schema(name, path):
     ("campaign_file", SITEDATA / "gusev.toml", ("[site.sun]", "[campaign]\nseeed = 3\n[site.sun]")),
     ("trajectory_set", SITEDATA / "trajectories" / "edl_gusev.toml", ("bridle_length_m = 20.0", "bridle_length_m = 0.5")),
     ("sweep", SITEDATA / "sweeps" / "nightly.toml", ('mode = "grid"', 'mode = "zigzag"')),
+    ("campaign_file", SITEDATA / "examples" / "compare_estimators.toml", ('kind = "python"', 'kind = "rust"')),
+    ("campaign_file", SITEDATA / "gusev.toml", ("[site.sun]", "[scene.atmosphere]\norbital_optical_depth = 11.0\n[site.sun]")),
+    ("campaign_file", SITEDATA / "gusev.toml", ("[site.sun]", "[estimator]\nflat_field = \"magic\"\n[site.sun]")),
 ])
 def test_schema_rejects_what_the_loader_rejects(name, path, edit):
     text = path.read_text()
