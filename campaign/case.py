@@ -24,7 +24,7 @@ import os
 import socket
 import time
 import traceback
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -70,7 +70,7 @@ class Resources:
         calibration = self.config.calibration
         if calibration.flat_field == "none":
             return CalibrationProducts(None, "none")
-        effects = replace(self.config.scene.camera_effects, dark_current_scale=1.0)   # the detector on the ground
+        effects = self.config.scene.camera_effects.model_copy(update={"dark_current_scale": 1.0})   # the detector on the ground
         camera_path = Path(self.config.site.camera_path)
         stat = camera_path.stat()
         if calibration.flat_field == "truth":

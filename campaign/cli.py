@@ -8,25 +8,34 @@
     campaign camera FILE   validate a camera TOML and print its derived numbers
     campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR
     campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
+    campaign schema [T]    print the JSON Schema of every configuration table, or of table T
 
 Exit codes: 0 success, 1 a run finished with failures or regressions, 2 usage or configuration
-error (one clear line on stderr, nothing written).
+error (one clear line on stderr, nothing written). Command-line values (--cases-scale, --workers,
+--scheduler) are validated against the same declarations as the TOML fields, before anything is written.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
 
-from flight_interface.tomlfields import ConfigError
+from flight_interface.command_line import USAGE_ERROR, OneLineParser as _Parser
+from flight_interface.tomlfields import ConfigError, parse_field
 
-USAGE_ERROR = 2
+COMMAND_LINE = "command line"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, exit code 2
-        self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
+def _check_cluster_flags(args) -> None:
+    """--workers and --scheduler against the [execution] declarations (before anything is loaded or written)."""
+    from .execution_config import ExecutionConfig
+
+    for flag, field in (("--workers", "workers"), ("--scheduler", "scheduler")):
+        value = getattr(args, field, None)
+        if value is not None:
+            parse_field(ExecutionConfig, field, value, COMMAND_LINE, flag)
 
 
 def _cmd_camera(args) -> int:
@@ -41,11 +50,22 @@ def _cmd_camera(args) -> int:
     return 0
 
 
+def _check_directory(path, what: str) -> None:
+    """An output directory given on the command line or in a file must be a directory if it exists."""
+    if path is not None and Path(path).exists() and not Path(path).is_dir():
+        raise ConfigError(f"{what} = {str(path)!r} exists and is not a directory; allowed: a directory (new or existing)")
+
+
 def _load(args):
     from .config import load_campaign_config
 
-    return load_campaign_config(args.file, output_dir=getattr(args, "output", None),
-                                cases_scale=getattr(args, "cases_scale", None))
+    _check_cluster_flags(args)
+    _check_directory(getattr(args, "output", None), "--output")
+    _check_directory(getattr(args, "out", None), "--out")
+    config = load_campaign_config(args.file, output_dir=getattr(args, "output", None),
+                                  cases_scale=getattr(args, "cases_scale", None))
+    _check_directory(config.output_dir, f"{args.file}: campaign.output_dir")
+    return config
 
 
 def _cmd_submit(args) -> int:
@@ -105,7 +125,10 @@ def _cmd_sweep(args) -> int:
     from .sweep_config import load_sweep
 
     start = time.perf_counter()
+    _check_cluster_flags(args)
+    _check_directory(args.output, "--output")
     spec = load_sweep(args.file, output_dir=args.output)           # validates everything, writes nothing
+    _check_directory(spec.output_dir, f"{args.file}: sweep.output_dir")
     baseline = read_baseline(args.baseline) if args.baseline else None
     run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
     table, text = write_outputs(spec)
@@ -128,11 +151,20 @@ def _cmd_sweep(args) -> int:
 def _cmd_compare_flight(args) -> int:
     from .compare_flight import compare, load_flight, summary_lines
 
+    _check_directory(args.out, "--out")
     spec = load_flight(args.file, output_dir=args.out, column=args.column)   # validates everything, writes nothing
+    _check_directory(spec.output_dir, f"{args.file}: output_dir")
     summary = compare(spec)
     for line in summary_lines(summary):
         print(line)
     print(f"written to {spec.output_dir}: side-by-side, column and scatter PNGs, comparison.json, pixels.csv, features.csv")
+    return 0
+
+
+def _cmd_schema(args) -> int:
+    from .schemas import all_schemas, table_schema
+
+    print(json.dumps(table_schema(args.table) if args.table else all_schemas(), indent=2))
     return 0
 
 
@@ -182,6 +214,13 @@ def build_parser() -> argparse.ArgumentParser:
     camera = commands.add_parser("camera", help="validate a camera TOML and print its derived numbers")
     camera.add_argument("file")
     camera.set_defaults(handler=_cmd_camera)
+
+    from .schemas import SCHEMA_TABLES
+
+    schema = commands.add_parser("schema", help="print the JSON Schema of the configuration tables (for editors)")
+    schema.add_argument("table", nargs="?", choices=tuple(SCHEMA_TABLES),
+                        help="one table or file kind (default: all, as one JSON object keyed by name)")
+    schema.set_defaults(handler=_cmd_schema)
     return parser
 
 

@@ -38,22 +38,17 @@ correlation between consecutive images, Table 3's own columns, are written for b
 """
 from __future__ import annotations
 
-import itertools
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import ConfigError, load_toml, parse
 
-MAX_IMAGES = 3
 POSE_SPAN_S = 0.05            # the rendered profile spans the image time +- this (constant velocity and rate)
 TEXTURE_SIGMA_BLOCKS = 16.0   # Gaussian background removed before the texture correlation
-_TOP_KEYS = ("site", "class", "seed", "column", "output_dir", "scene", "estimator", "images")
-_IMAGE_KEYS = ("file", "time_s", "position_m", "attitude_quat", "velocity_mps", "angular_rate_radps",
-               "heat_shield_position_m")
 
 
 @dataclass(frozen=True)
@@ -87,66 +82,48 @@ class FlightComparison:
 
 
 def load_flight(path: str | Path, output_dir: str | Path | None = None, column: int | None = None) -> FlightComparison:
-    """Read and validate FLIGHT.toml and its images (nothing is written). Raises ConfigError (one line)."""
-    from dimes_velocity.config import config_from_table as estimator_from_table
+    """Read and validate FLIGHT.toml (:class:`campaign.flight_file.FlightFile`) and its images (nothing is
+    written). Raises ConfigError (one line)."""
     from dimes_velocity.files import InputFileError, load_image
     from flight_interface.camera import load_camera
-    from simulator.scene_table import scene_config_from_table
     from sitedata.sites import load_site
 
+    from .flight_file import FlightFile
+
     path = Path(path)
-    root = Table(load_toml(path), str(path))
-    for key in root.data:
-        if key not in _TOP_KEYS:
-            raise root.fail(key, f"is not a known field; allowed: {', '.join(_TOP_KEYS)}")
-    site_path = root.path_value("site", path.parent)
-    if not site_path.is_file():
-        raise root.fail("site", f"= {root.data['site']!r}: no such file {site_path}")
-    site = load_site(site_path)
+    flight = parse(FlightFile, load_toml(path), path, context={"base_dir": path.parent})
+    site = load_site(flight.site)
     names = [entry.name for entry in site.classes]
-    class_name = root.string("class", choices=names)
+    if flight.class_name not in names:
+        raise ConfigError(f"{path}: class = {flight.class_name!r} is not allowed; allowed: {', '.join(names)}")
     camera = load_camera(site.camera_path)
-    scene_table = root.table("scene", required=False)
-    scene = scene_config_from_table(scene_table)
-    if not scene_table.has("sun_distance_au"):
-        scene = replace(scene, sun_distance_au=site.heliocentric_distance_au)
-    estimator = estimator_from_table(root.table("estimator", required=False))
+    scene = flight.scene
+    if "sun_distance_au" not in scene.model_fields_set:
+        scene = scene.model_copy(update={"sun_distance_au": site.heliocentric_distance_au})
     if column is None:
-        column = root.integer("column", default=camera.width_px // 2, minimum=0, maximum=camera.width_px - 1)
-    elif not 0 <= column < camera.width_px:
-        raise ConfigError(f"--column = {column} is out of range; allowed: 0 .. {camera.width_px - 1}")
-    out = Path(output_dir) if output_dir is not None else Path(root.string("output_dir", default="runs/compare-flight"))
+        column = camera.width_px // 2 if flight.column is None else flight.column
+        label = f"{path}: column"
+    else:
+        label = "command line: --column"
+    if not 0 <= column < camera.width_px:
+        raise ConfigError(f"{label} = {column} is out of range; allowed: 0 .. {camera.width_px - 1}")
+    out = Path(output_dir) if output_dir is not None else Path(flight.output_dir)
 
     images = []
-    tables = root.tables("images")
-    if len(tables) > MAX_IMAGES:
-        raise root.fail("images", f"has {len(tables)} images; allowed: 1 .. {MAX_IMAGES}")
-    for entry in tables:
-        for key in entry.data:
-            if key not in _IMAGE_KEYS:
-                raise entry.fail(key, f"is not a known field; allowed: {', '.join(_IMAGE_KEYS)}")
-        file = entry.path_value("file", path.parent)
+    for index, entry in enumerate(flight.images):
         try:
-            dn = load_image(file, camera)
+            dn = load_image(entry.file, camera)
         except InputFileError as exc:
-            raise entry.fail("file", f"= {entry.data['file']!r}: {exc}") from None
-        position = entry.vector("position_m", 3)
-        if not position[2] > 0:
-            raise entry.fail("position_m", f"up = {position[2]:g} m; allowed: > 0 (above the ground plane z = 0)")
-        attitude = entry.vector("attitude_quat", 4)
-        if not 0.5 < np.linalg.norm(attitude) < 2.0:
-            raise entry.fail("attitude_quat", f"norm {np.linalg.norm(attitude):.3g}; "
-                             "allowed: a unit quaternion (w, x, y, z)")
-        shield = entry.vector("heat_shield_position_m", 3) if entry.has("heat_shield_position_m") else None
-        images.append(FlightImage(file, dn, entry.number("time_s"), position, attitude / np.linalg.norm(attitude),
-                                  entry.vector("velocity_mps", 3, default=[0.0, 0.0, 0.0]),
-                                  entry.vector("angular_rate_radps", 3, default=[0.0, 0.0, 0.0]), shield))
-    times = [image.time_s for image in images]
-    if any(b <= a for a, b in itertools.pairwise(times)):
-        raise root.fail("images", f"time_s = {times} must increase from image to image")
-    seed = root.integer("seed", default=0, minimum=0, maximum=2**63 - 1)
-    terrain_spec = next(entry.terrain for entry in site.classes if entry.name == class_name)
-    return FlightComparison(path, site, terrain_spec, camera, scene, estimator, seed, int(column), out, tuple(images))
+            given = entry.file.relative_to(path.parent) if entry.file.is_relative_to(path.parent) else entry.file
+            raise ConfigError(f"{path}: images[{index}].file = {str(given)!r}: {exc}") from None
+        attitude = np.array(entry.attitude_quat)
+        images.append(FlightImage(entry.file, dn, entry.time_s, np.array(entry.position_m),
+                                  attitude / np.linalg.norm(attitude), np.array(entry.velocity_mps),
+                                  np.array(entry.angular_rate_radps),
+                                  None if entry.heat_shield_position_m is None else np.array(entry.heat_shield_position_m)))
+    terrain_spec = next(entry.terrain for entry in site.classes if entry.name == flight.class_name)
+    return FlightComparison(path, site, terrain_spec, camera, scene, flight.estimator, flight.seed, int(column), out,
+                            tuple(images))
 
 
 def pose_profile(image: FlightImage):

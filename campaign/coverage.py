@@ -28,10 +28,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from simulator.scene.terrain import Terrain
+from sitedata.sites import RESAMPLE_MODES
 
 from .planner import HEADING_SEARCH_STEP_RAD, _turn, footprint_points_m
 
-RESAMPLE_MODES = ("none", "stretch", "mosaic")
 MARGIN_PX = 2.0
 
 

@@ -14,48 +14,64 @@ entry)::
     min_correlation = 0.7        # any EstimatorConfig field
 
 ``[[estimators]]`` lists the estimators to run on every case (:mod:`estimators.registry`); without it
-the campaign runs the reference estimator alone, named ``dimes``.
+the campaign runs the reference estimator alone, named ``dimes``. The ``[estimator]`` table is declared
+once, by :class:`EstimatorTable` (:class:`CalibrationConfig` fields plus the reference's
+:class:`~dimes_velocity.config.EstimatorConfig` fields).
 """
 from __future__ import annotations
 
 import hashlib
 import importlib.util
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
-from flight_interface.tomlfields import Table
+from pydantic import Field
 
-FLAT_FIELD_MODES = ("calibrated", "none", "truth")
-CALIBRATION_KEYS = ("flat_field", "flat_field_frames")
+from dimes_velocity.config import EstimatorConfig
+from flight_interface.tomlfields import ConfigModel
+
 DEFAULT_FLAT_FIELD_FRAMES = 16
 
 
-@dataclass(frozen=True)
-class CalibrationConfig:
+class CalibrationConfig(ConfigModel):
     """How the campaign makes the calibration products (see the module docstring)."""
 
-    flat_field: str = "calibrated"
-    flat_field_frames: int = DEFAULT_FLAT_FIELD_FRAMES
+    flat_field: Literal["calibrated", "none", "truth"] = "calibrated"
+    """"calibrated": mean of flat_field_frames simulated flat exposures minus as many dark ones; "none": no
+    flat field; "truth": the simulated detector's true response (no flight system has it)."""
+    flat_field_frames: int = Field(DEFAULT_FLAT_FIELD_FRAMES, ge=1, le=1024)
+    """Flat (and dark) exposures of the calibration."""
 
 
-def estimator_tables(root: Table, config_dir: Path):
-    """Read ``[estimator]`` and ``[[estimators]]``: (CalibrationConfig, reference EstimatorConfig, specs)."""
-    from dimes_velocity.config import config_from_table
-    from estimators.registry import default_specs, estimator_specs_from_tables
+FLAT_FIELD_MODES = CalibrationConfig.model_fields["flat_field"].annotation.__args__
+CALIBRATION_KEYS = tuple(CalibrationConfig.model_fields)
 
-    table = root.table("estimator", required=False)
-    calibration = CalibrationConfig(
-        flat_field=table.string("flat_field", default="calibrated", choices=FLAT_FIELD_MODES),
-        flat_field_frames=table.integer("flat_field_frames", default=DEFAULT_FLAT_FIELD_FRAMES, minimum=1,
-                                        maximum=1024))
-    reference_parameters = {key: value for key, value in table.data.items() if key not in CALIBRATION_KEYS}
-    reference = config_from_table(Table(reference_parameters, table.source, table.path))
-    table.ignore(*table.data)
-    if root.has("estimators"):
-        specs = estimator_specs_from_tables(root.tables("estimators"), reference_parameters, config_dir)
-    else:
-        specs = default_specs(reference_parameters)
-    return calibration, reference, tuple(specs)
+
+class EstimatorTable(CalibrationConfig, EstimatorConfig):
+    """``[estimator]`` of a campaign file: the calibration products and the reference estimator's
+    parameters (the defaults of every reference entry of ``[[estimators]]``)."""
+
+    def calibration(self) -> CalibrationConfig:
+        return CalibrationConfig(**{key: getattr(self, key) for key in CALIBRATION_KEYS})
+
+    def reference(self) -> EstimatorConfig:
+        """The reference estimator's configuration (its defaults where the table gives none)."""
+        return EstimatorConfig(**self.reference_parameters())
+
+    def reference_parameters(self) -> dict:
+        """The EstimatorConfig fields the table gives explicitly."""
+        return {key: getattr(self, key) for key in self.model_fields_set if key not in CALIBRATION_KEYS}
+
+
+def estimator_tables(table: EstimatorTable, entries: list | None, source: str):
+    """(CalibrationConfig, reference EstimatorConfig, specs) of a campaign's validated ``[estimator]``
+    and ``[[estimators]]`` (errors in a reference entry's merged parameters name ``source``)."""
+    from estimators.registry import default_specs, estimator_specs
+
+    reference_parameters = table.reference_parameters()
+    specs = (estimator_specs(entries, reference_parameters, source) if entries is not None
+             else default_specs(reference_parameters))
+    return table.calibration(), table.reference(), tuple(specs)
 
 
 def estimator_code_digests(specs) -> dict:

@@ -22,7 +22,9 @@ Axis fields are any field of the ``[sensors]``, ``[estimator]`` and ``[scene]`` 
 sub-tables such as ``scene.camera_effects``), or ``campaign.seed``. Each point's configuration is the
 base TOML with the point's values set, validated exactly like a campaign file; its campaign
 configuration hash (``[execution]`` and ``output_dir`` excluded) is the point's key. Errors are one
-line naming the sweep file, the field and the allowed values.
+line naming the sweep file, the field and the allowed values. The file's tables are declared once, by
+:class:`SweepFile` (``campaign schema sweep``); axis values are validated by the campaign tables' own
+declarations when each point is validated.
 """
 from __future__ import annotations
 
@@ -31,25 +33,51 @@ import itertools
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from pydantic import Field
 
-from .config import CampaignConfig, campaign_config_from_data, load_campaign_config
+from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, load_toml, parse
 
-SWEEP_TABLES = ("sweep", "axes", "tolerances")
+from .config import CampaignConfig, CaseCount, CasesScale, campaign_config_from_data, load_campaign_config
+
 AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed",)
 MODES = ("grid", "list")
 MAX_POINTS = 10_000
 
 
-@dataclass(frozen=True)
-class Tolerances:
-    """How much a metric may degrade against a baseline before it counts as a regression."""
+class SweepTable(ConfigModel):
+    """``[sweep]``: the base campaign and how its points are formed."""
 
-    pct_valid_drop_points: float
-    error_increase_mps: float
+    base: ExistingFile
+    """Base campaign TOML, relative to the sweep file."""
+    output_dir: str | None = None
+    """Relative to the working directory (default runs/sweeps/<sweep file stem>)."""
+    mode: Literal["grid", "list"] = "grid"
+    """"grid": every combination of the axis values; "list": the i-th value of every axis."""
+    cases_scale: CasesScale | None = None
+    """Replaces the base's [campaign] cases_scale."""
+    cases: dict[str, CaseCount] = {}
+    """Class -> case count, merged over the base's [campaign.cases]."""
+
+
+class Tolerances(ConfigModel):
+    """``[tolerances]``: how much a metric may degrade against a baseline before it counts as a regression."""
+
+    pct_valid_drop_points: float = Field(5.0, ge=0.0, le=100.0)
+    """A class's (or the weighted) % valid may fall this many points."""
+    error_increase_mps: float = Field(0.5, ge=0.0, le=1e3)
+    """Its error mean + 3 sigma may grow this much (m/s)."""
+
+
+class SweepFile(ConfigModel):
+    """A sweep TOML file."""
+
+    sweep: SweepTable
+    axes: dict[str, Any] = Field(min_length=1)
+    """Dotted config field -> non-empty list of values (TOML units): sensors.*, estimator.*, scene.*, campaign.seed."""
+    tolerances: Tolerances = Tolerances()
 
 
 @dataclass(frozen=True)
@@ -96,72 +124,50 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None) -> SweepS
     path = Path(path)
     data = load_toml(path)
     label = str(path)
-    for key in data:
-        if key not in SWEEP_TABLES:
-            raise ConfigError(f"{label}: unknown table {key!r}; allowed: {', '.join(SWEEP_TABLES)}")
-    root = Table(data, label)
-    sweep = root.table("sweep")
-    base_path = sweep.path_value("base", path.resolve().parent)
-    if not base_path.is_file():
-        raise sweep.fail("base", f"= {sweep.data['base']!r}: no such file {base_path}; allowed: a campaign "
-                         "TOML, relative to the sweep file")
-    base_path = base_path.resolve()    # absolute: point hashes do not depend on the working directory
-    configured_output = Path(sweep.string("output_dir", default=f"runs/sweeps/{path.stem}"))
-    out = Path(output_dir) if output_dir is not None else configured_output
-    mode = sweep.string("mode", default="grid", choices=MODES)
+    tables = parse(SweepFile, data, label, context={"base_dir": path.resolve().parent})
+    sweep = tables.sweep
+    base_path = sweep.base.resolve()     # absolute: point hashes do not depend on the working directory
+    out = Path(output_dir) if output_dir is not None else Path(sweep.output_dir or f"runs/sweeps/{path.stem}")
     base_data = load_toml(base_path)
     base_config = load_campaign_config(base_path)          # base errors name the base file
-    campaign_overrides = _campaign_overrides(sweep, base_config)
-    sweep.reject_unknown()
+    campaign_overrides = _campaign_overrides(sweep, base_config, label)
+    axes = _read_axes(tables.axes, label)
 
-    axes = _read_axes(root, label)
-    tolerance_table = root.table("tolerances", required=False)
-    tolerances = Tolerances(
-        pct_valid_drop_points=tolerance_table.number("pct_valid_drop_points", default=5.0, minimum=0.0, maximum=100.0),
-        error_increase_mps=tolerance_table.number("error_increase_mps", default=0.5, minimum=0.0, maximum=1e3))
-    tolerance_table.reject_unknown()
-
-    combos = _combinations(axes, mode, label)
+    combos = _combinations(axes, sweep.mode, label)
     point_label = f"{label}: axis values applied to {base_path}"
     base_overridden = _with_overrides(base_data, campaign_overrides, label)
     base = campaign_config_from_data(base_overridden, base_path, source=f"{label}: [sweep] applied to {base_path}",
-                                     site=base_config.site, output_dir=out)
+                                     output_dir=out)
     points, seen = [], {}
     for index, values in enumerate(combos):
         point_data = _with_overrides(base_overridden, values, label)
-        config = campaign_config_from_data(point_data, base_path, source=point_label, site=base_config.site,
-                                           output_dir=out)
+        config = campaign_config_from_data(point_data, base_path, source=point_label, output_dir=out)
         if config.config_hash in seen:
             raise ConfigError(f"{label}: axes: points {seen[config.config_hash]} and p{index:03d} are the same "
                               f"configuration ({values}); allowed: distinct points")
         seen[config.config_hash] = f"p{index:03d}"
         config = replace(config, output_dir=point_store_dir(out, config.config_hash))
         points.append(SweepPoint(point_id=f"p{index:03d}", values=values, config=config))
-    return SweepSpec(source=path, base_path=base_path, output_dir=out, mode=mode, axes=axes,
-                     tolerances=tolerances, points=points, base=base)
+    return SweepSpec(source=path, base_path=base_path, output_dir=out, mode=sweep.mode, axes=axes,
+                     tolerances=tables.tolerances, points=points, base=base)
 
 
-def _campaign_overrides(sweep: Table, base_config: CampaignConfig) -> dict:
+def _campaign_overrides(sweep: SweepTable, base_config: CampaignConfig, label: str) -> dict:
     """[sweep] cases_scale and [sweep.cases] as dotted overrides of the base's [campaign] table."""
     overrides = {}
-    if sweep.has("cases_scale"):
-        overrides["campaign.cases_scale"] = sweep.number("cases_scale", minimum=0.0, maximum=100.0,
-                                                         exclusive_minimum=True)
-    if sweep.has("cases"):
-        cases = sweep.table("cases")
-        names = list(base_config.cases_per_class)
-        for key in cases.data:
-            if key not in names:
-                raise cases.fail(key, f"is not a class of site {base_config.site.name}; allowed: {', '.join(names)}")
-            overrides[f"campaign.cases.{key}"] = cases.integer(key, minimum=0, maximum=1_000_000)
+    if sweep.cases_scale is not None:
+        overrides["campaign.cases_scale"] = sweep.cases_scale
+    names = list(base_config.cases_per_class)
+    for key, count in sweep.cases.items():
+        if key not in names:
+            raise ConfigError(f"{label}: sweep.cases.{key} is not a class of site {base_config.site.name}; "
+                              f"allowed: {', '.join(names)}")
+        overrides[f"campaign.cases.{key}"] = count
     return overrides
 
 
-def _read_axes(root: Table, label: str) -> dict:
+def _read_axes(raw: dict, label: str) -> dict:
     """Flatten [axes] (quoted or unquoted dotted keys) into field -> list of scalar values."""
-    if not root.has("axes"):
-        raise ConfigError(f"{label}: axes is missing (an [axes] table: config field -> list of values)")
-    raw = root.table("axes").data
     axes: dict[str, list] = {}
 
     def walk(prefix: str, value: Any) -> None:

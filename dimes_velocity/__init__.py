@@ -39,13 +39,13 @@ no pixel required per pair (flight: two per pair, checked across pairs); the dis
 prior's circle; a residual consistent with the templates' noise; matches that do not move in the raw
 image refused as marks on the optics; a stated uncertainty with every valid velocity.
 """
-from .config import EstimatorConfig, config_from_table
+from .config import EstimatorConfig, estimator_config_from_data
 from .estimator import DimesEstimator, estimate_velocity
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError
 from .result import REASONS, FeatureMetrics, PairResult, StageTimings, VelocityEstimate
 
 __all__ = [
-    "DimesEstimator", "estimate_velocity", "EstimatorConfig", "config_from_table", "DescentMeasurements",
+    "DimesEstimator", "estimate_velocity", "EstimatorConfig", "estimator_config_from_data", "DescentMeasurements",
     "ImageMeasurement", "MeasurementError", "REASONS", "FeatureMetrics", "PairResult", "StageTimings",
     "VelocityEstimate",
 ]

@@ -17,33 +17,29 @@ Images are PNG, TIFF, .npy, raw, PDS3, VICAR or ISIS3, binned (256 x 1024 for ME
 :mod:`dimes_velocity.image_files`, the measurements schema in :mod:`dimes_velocity.files`. The
 result (see :class:`dimes_velocity.result.VelocityEstimate`) is printed as JSON with an ``inputs``
 list saying how each file was read. Bad input prints one line naming the file and what to add or
-change to stderr and exits with status 2.
+change to stderr and exits with status 2. Legal inputs the estimator cannot trust (e.g. a sun at or
+below the horizon) are answered like in flight: ``"valid": false`` with a reason code, exit status 0.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 
 from flight_interface.calibration import CalibrationError, flat_field_next_to, load_flat_field
 from flight_interface.camera import load_camera
 from flight_interface.measurements import MeasurementError
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from flight_interface.command_line import USAGE_ERROR, OneLineParser
+from flight_interface.tomlfields import ConfigError, load_toml
 
-from .config import EstimatorConfig, config_from_table
+from .config import EstimatorConfig, estimator_config_from_data
 from .estimator import DimesEstimator
 from .files import ImageDeclaration, InputFileError, load_measurements, read_descent_image
 
-USAGE_ERROR = 2
+PROG = "python -m dimes_velocity"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, exit code 2
-        self.exit(USAGE_ERROR, f"{self.prog}: error: {message}\n")
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="python -m dimes_velocity", description="Reference DIMES horizontal velocity estimator.")
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog=PROG, description="Reference DIMES horizontal velocity estimator.")
     parser.add_argument("files", nargs="+", metavar="FILE", help="images in time order, then the measurements JSON")
     parser.add_argument("--camera", required=True, help="camera TOML (e.g. sitedata/cameras/mer_a.toml)")
     parser.add_argument("--config", help="TOML file whose [estimator] table sets estimator parameters")
@@ -66,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if len(args.files) < 3:
-        print("error: give at least two images and the measurements JSON", file=sys.stderr)
+        print(f"{PROG}: error: give at least two images and the measurements JSON", file=sys.stderr)
         return USAGE_ERROR
     *image_paths, measurements_path = args.files
     try:
@@ -75,8 +71,10 @@ def main(argv: list[str] | None = None) -> int:
         camera = load_camera(args.camera)
         config = EstimatorConfig()
         if args.config:
-            root = Table(load_toml(args.config), args.config)
-            config = config_from_table(root.table("estimator"))
+            data = load_toml(args.config)
+            if "estimator" not in data:
+                raise ConfigError(f"{args.config}: estimator is missing (an [estimator] table)")
+            config = estimator_config_from_data(data["estimator"], args.config)
         measurements = load_measurements(measurements_path)
         if len(measurements.images) != len(image_paths):
             raise InputFileError(f"{measurements_path}: images has {len(measurements.images)} entries "
@@ -87,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         flat_field = None if flat_path is None else load_flat_field(flat_path, camera.binned_shape)
         result = DimesEstimator(camera, config, flat_field).estimate([f.dn for f in files], measurements)
     except (ConfigError, InputFileError, MeasurementError, CalibrationError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
         return USAGE_ERROR
     output = result.to_dict()
     if args.summary:

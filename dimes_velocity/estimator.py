@@ -213,11 +213,15 @@ class DimesEstimator:
         sample_m = config.ground_sample_scale * max(float(heights.max()), 1.0) / self.focal_px
         sun = np.asarray(measurements.sun_direction_world, dtype=float)
         anti_sun = -sun / np.linalg.norm(sun)
+        sun_up = -float(anti_sun[2])            # sine of the sun elevation; <= 0: no sunlit ground to track
         rectified: list[RectifiedImage | None] = []
+        unusable: list[str] = []
         for k, (flat, pose, measurement) in enumerate(zip(flats, poses, measurements.images)):
-            if pose.off_nadir_rad > config.max_off_nadir_rad or pose.centre_m[2] <= 0.0:
+            if sun_up <= 0.0 or pose.off_nadir_rad > config.max_off_nadir_rad or pose.centre_m[2] <= 0.0:
                 rectified.append(None)
+                unusable.append("sun_below_horizon" if sun_up <= 0.0 else "bad_attitude")
                 continue
+            unusable.append("")
             shield = None
             half_angle = 0.0
             if measurement.heat_shield_offset_m is not None:
@@ -241,7 +245,8 @@ class DimesEstimator:
         select_s = match_s = 0.0
         for k in range(len(images) - 1):
             pair, pair_features, t_sel, t_match = self._pair(k, rectified[k], rectified[k + 1],
-                                                             float(times[k + 1] - times[k]))
+                                                             float(times[k + 1] - times[k]),
+                                                             unusable[k] or unusable[k + 1])
             pairs.append(pair)
             features.extend(pair_features)
             select_s += t_sel
@@ -275,8 +280,10 @@ class DimesEstimator:
         radius = radius_m / a.rectification.sample_m + config.search_margin_px
         return float(min(radius, config.max_search_radius_px))
 
-    def _pair(self, index: int, a: RectifiedImage | None, b: RectifiedImage | None, dt_s: float):
-        """Select, match and combine the features of one image pair."""
+    def _pair(self, index: int, a: RectifiedImage | None, b: RectifiedImage | None, dt_s: float,
+              unusable_reason: str = "bad_attitude"):
+        """Select, match and combine the features of one image pair (``unusable_reason``: why an image
+        given as None cannot be used)."""
         config = self.config
         t0 = time.perf_counter()
 
@@ -289,7 +296,7 @@ class DimesEstimator:
 
         for image in (a, b):
             if image is None:
-                return result("bad_attitude"), [], time.perf_counter() - t0, 0.0
+                return result(unusable_reason), [], time.perf_counter() - t0, 0.0
         for image in (a, b):
             if image.coverage < config.min_ground_coverage:
                 return result(image.unusable_reason), [], time.perf_counter() - t0, 0.0

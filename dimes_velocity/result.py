@@ -26,6 +26,9 @@ features_disagree       the matches of one pair do not agree (no majority within
 features_clustered      the agreeing matches are closer together than ``min_group_span_px`` (their
                         templates overlap: not independent evidence)
 pairs_disagree          the IMU velocity biases from the image pairs disagree beyond tolerance
+sun_below_horizon       the measured sun direction is at or below the horizon: there is no sunlit
+                        ground to track, whatever the images show (the estimator answers invalid,
+                        as flight software must, rather than refusing the input)
 
 When the estimate is invalid, the velocity is the uncorrected IMU velocity at the last image and
 the bias is zero (never NaN).
@@ -39,7 +42,7 @@ REASONS = (
     "ok", "bad_attitude", "sky", "no_signal", "saturated", "excluded_zone", "no_overlap", "low_contrast",
     "search_outside", "search_border", "ambiguous_match", "flat_peak", "outside_prior", "low_correlation",
     "match_in_excluded_area", "camera_fixed", "residual_exceeds_noise", "too_few_features", "features_disagree",
-    "features_clustered", "pairs_disagree",
+    "features_clustered", "pairs_disagree", "sun_below_horizon",
 )
 
 

@@ -22,11 +22,10 @@ class ReferenceEstimator:
     """The reference DIMES estimator (:mod:`dimes_velocity`) behind the contract."""
 
     def __init__(self, name: str, parameters: dict):
-        from dimes_velocity.config import config_from_table
-        from flight_interface.tomlfields import Table
+        from dimes_velocity.config import estimator_config_from_data
 
         self.name = name
-        self.config = config_from_table(Table(dict(parameters), f"estimator {name}", "parameters"))
+        self.config = estimator_config_from_data(dict(parameters), f"estimator {name}", "parameters")
 
     def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
         from dimes_velocity.estimator import estimate_velocity

@@ -27,7 +27,8 @@ sensor draws of each case::
 
 Without ``[[estimators]]`` a campaign runs one estimator, ``name = "dimes"``, ``kind = "reference"``,
 with the ``[estimator]`` table's parameters. Command placeholders are listed in
-:mod:`estimators.command`.
+:mod:`estimators.command`. An entry is declared once, by :class:`ReferenceEntry`, :class:`PythonEntry` or
+:class:`CommandEntry` (chosen by ``kind``); ``campaign schema campaign_file`` prints them.
 """
 from __future__ import annotations
 
@@ -36,17 +37,105 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, Union
 
-from flight_interface.tomlfields import Table
+from pydantic import Field, ValidationInfo, field_validator
+
+from flight_interface.tomlfields import ConfigModel, FieldProblem, parse
 
 KINDS = ("reference", "python", "command")
 DEFAULT_NAME = "dimes"
 DEFAULT_TIMEOUT_S = 60.0
-IMAGE_FORMATS = ("png", "npy", "raw")
-FLAT_FIELD_FORMATS = ("npy", "tiff", "fits")
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 CALLABLE_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
+Timeout = Annotated[float, Field(gt=0.0, le=86400.0)]
+ImageFormat = Literal["png", "npy", "raw"]
+FlatFieldFormat = Literal["npy", "tiff", "fits"]
+IMAGE_FORMATS = ImageFormat.__args__
+FLAT_FIELD_FORMATS = FlatFieldFormat.__args__
+
+
+class _Entry(ConfigModel):
+    name: str
+    """Unique among [[estimators]]: the results' ``estimator`` column (1-64 letters, digits, '_', '.', '-')."""
+    parameters: dict[str, Any] = {}
+    """reference: EstimatorConfig fields over the [estimator] table's; otherwise handed to the estimator."""
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str) -> str:
+        if not NAME_PATTERN.match(value):
+            raise FieldProblem("", f"= {value!r} is not allowed; allowed: 1-64 letters, digits, '_', '.', '-'")
+        return value
+
+
+class ReferenceEntry(_Entry):
+    """The reference DIMES estimator (:mod:`dimes_velocity`)."""
+
+    kind: Literal["reference"]
+
+
+class PythonEntry(_Entry):
+    """A python callable ``package.module:function`` given the case's inputs."""
+
+    kind: Literal["python"]
+    callable: str
+    """``package.module:function`` (must import and name a callable)."""
+    isolate: bool = False
+    """Run it in its own process, with timeout_s (crash-proof)."""
+    timeout_s: Timeout = DEFAULT_TIMEOUT_S
+    """Wall-time limit per case of an isolated callable (s)."""
+
+    @field_validator("callable")
+    @classmethod
+    def _importable(cls, target: str) -> str:
+        check_callable(target)
+        return target
+
+
+class CommandEntry(_Entry):
+    """An external program run on files (placeholders: :mod:`estimators.command`)."""
+
+    kind: Literal["command"]
+    argv: Annotated[list[str], Field(min_length=1)]
+    """Program, then arguments with placeholders; ``{config_dir}`` is the campaign file's directory."""
+    timeout_s: Timeout = DEFAULT_TIMEOUT_S
+    """Wall-time limit per case (s)."""
+    image_format: ImageFormat = "png"
+    """png (16-bit), npy, raw (little-endian uint16, no header)."""
+    flat_field_format: FlatFieldFormat = "npy"
+
+    @field_validator("argv")
+    @classmethod
+    def _runnable(cls, argv: list[str], info: ValidationInfo) -> list[str]:
+        from .command import check_template
+
+        if not all(argv):
+            raise FieldProblem("", f"must be a non-empty list of non-empty strings; got {argv!r}")
+        config_dir = Path((info.context or {}).get("base_dir", "."))
+        argv = [item.replace("{config_dir}", str(config_dir.resolve())) for item in argv]
+        problem = check_template(argv)
+        if problem:
+            raise FieldProblem("", problem)
+        program = argv[0]
+        if program != "{python}" and shutil.which(program) is None and not Path(program).is_file():
+            raise FieldProblem("", f"[0] = {program!r} is not an executable file or a program on PATH")
+        return argv
+
+
+#: One ``[[estimators]]`` entry, by ``kind``.
+EstimatorEntry = Annotated[Union[ReferenceEntry, PythonEntry, CommandEntry], Field(discriminator="kind")]
+
+
+def unique_names(entries: list) -> list:
+    """Validator of the ``[[estimators]]`` array: names unique."""
+    seen: set[str] = set()
+    for index, entry in enumerate(entries):
+        if entry.name in seen:
+            raise FieldProblem(f"[{index}].name", f"= {entry.name!r} is used twice; allowed: a name unique among "
+                               "[[estimators]]")
+        seen.add(entry.name)
+    return entries
 
 
 @dataclass(frozen=True)
@@ -90,89 +179,40 @@ def default_specs(reference_parameters: dict) -> list[EstimatorSpec]:
     return [EstimatorSpec(name=DEFAULT_NAME, kind="reference", parameters=dict(reference_parameters))]
 
 
-def estimator_specs_from_tables(tables: list[Table], reference_parameters: dict, config_dir: Path) -> list[EstimatorSpec]:
-    """Validate ``[[estimators]]`` tables into specs (errors name the file and ``estimators[i].field``).
+def estimator_specs(entries: list, reference_parameters: dict, source: str) -> list[EstimatorSpec]:
+    """Specs of validated ``[[estimators]]`` entries; a reference entry's parameters (over the
+    ``[estimator]`` table's ``reference_parameters``) are checked as EstimatorConfig fields, errors
+    naming ``source`` and ``estimators[i].parameters.<field>``."""
+    from dimes_velocity.config import estimator_config_from_data
 
-    Parameters
-    ----------
-    tables : list of Table
-        The ``estimators`` array of tables.
-    reference_parameters : dict
-        The ``[estimator]`` table's reference-estimator parameters (defaults of every reference entry).
-    config_dir : Path
-        Directory of the campaign file (``{config_dir}`` in command templates).
-    """
-    specs: list[EstimatorSpec] = []
-    for table in tables:
-        name = table.string("name")
-        if not NAME_PATTERN.match(name):
-            raise table.fail("name", f"= {name!r} is not allowed; allowed: 1-64 letters, digits, '_', '.', '-'")
-        if any(spec.name == name for spec in specs):
-            raise table.fail("name", f"= {name!r} is used twice; allowed: a name unique among [[estimators]]")
-        kind = table.string("kind", choices=KINDS)
-        parameters = table.table("parameters", required=False)
-        parameters.ignore(*parameters.data)          # handed to the estimator, which checks them
-        if kind == "reference":
-            merged = {**reference_parameters, **parameters.data}
-            check_reference_parameters(Table(merged, table.source, f"{table.path}.parameters"))
-            spec = EstimatorSpec(name=name, kind=kind, parameters=merged)
-        elif kind == "python":
-            target = table.string("callable")
-            check_callable(target, table)
-            isolate = table.boolean("isolate", default=False)
-            timeout = table.number("timeout_s", default=DEFAULT_TIMEOUT_S, minimum=0.0, maximum=86400.0,
-                                   exclusive_minimum=True)
-            spec = EstimatorSpec(name=name, kind=kind, parameters=_plain(parameters.data), callable=target,
-                                 isolate=isolate, timeout_s=timeout)
+    specs = []
+    for index, entry in enumerate(entries):
+        if entry.kind == "reference":
+            merged = {**reference_parameters, **entry.parameters}
+            estimator_config_from_data(merged, source, f"estimators[{index}].parameters")
+            specs.append(EstimatorSpec(name=entry.name, kind="reference", parameters=merged))
+        elif entry.kind == "python":
+            specs.append(EstimatorSpec(name=entry.name, kind="python", parameters=_plain(entry.parameters),
+                                       callable=entry.callable, isolate=entry.isolate, timeout_s=entry.timeout_s))
         else:
-            spec = EstimatorSpec(
-                name=name, kind=kind, parameters=_plain(parameters.data), argv=_command_argv(table, config_dir),
-                timeout_s=table.number("timeout_s", default=DEFAULT_TIMEOUT_S, minimum=0.0, maximum=86400.0,
-                                       exclusive_minimum=True),
-                image_format=table.string("image_format", default="png", choices=IMAGE_FORMATS),
-                flat_field_format=table.string("flat_field_format", default="npy", choices=FLAT_FIELD_FORMATS))
-        table.reject_unknown()
-        specs.append(spec)
+            specs.append(EstimatorSpec(name=entry.name, kind="command", parameters=_plain(entry.parameters),
+                                       argv=tuple(entry.argv), timeout_s=entry.timeout_s,
+                                       image_format=entry.image_format, flat_field_format=entry.flat_field_format))
     return specs
 
 
-def check_reference_parameters(table: Table) -> None:
-    """Raise ConfigError (file and field) unless ``table`` holds valid reference-estimator parameters."""
-    from dimes_velocity.config import config_from_table
-
-    config_from_table(table)
-
-
-def check_callable(target: str, table: Table) -> None:
-    """``package.module:function`` must import and name a callable."""
+def check_callable(target: str) -> None:
+    """``package.module:function`` must import and name a callable (raises FieldProblem)."""
     if not CALLABLE_PATTERN.match(target):
-        raise table.fail("callable", f"= {target!r} is not allowed; allowed: 'package.module:function'")
+        raise FieldProblem("", f"= {target!r} is not allowed; allowed: 'package.module:function'")
     module_name, function_name = target.split(":")
     try:
         module = importlib.import_module(module_name)
     except Exception as exc:  # an ImportError or the module's own error: one line either way
-        raise table.fail("callable", f"= {target!r}: module {module_name!r} cannot be imported "
-                                     f"({type(exc).__name__}: {exc})") from None
+        raise FieldProblem("", f"= {target!r}: module {module_name!r} cannot be imported "
+                               f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     if not callable(getattr(module, function_name, None)):
-        raise table.fail("callable", f"= {target!r}: {module_name} has no callable {function_name!r}")
-
-
-def _command_argv(table: Table, config_dir: Path) -> tuple:
-    from .command import check_template
-
-    if not table.has("argv"):
-        raise table.fail("argv", "is missing (a list: program, then arguments with placeholders)")
-    argv = table._get("argv", None)
-    if not isinstance(argv, list) or not argv or not all(isinstance(item, str) and item for item in argv):
-        raise table.fail("argv", f"must be a non-empty list of non-empty strings; got {argv!r}")
-    argv = [item.replace("{config_dir}", str(config_dir.resolve())) for item in argv]
-    problem = check_template(argv)
-    if problem:
-        raise table.fail("argv", problem)
-    program = argv[0]
-    if program != "{python}" and shutil.which(program) is None and not Path(program).is_file():
-        raise table.fail("argv", f"[0] = {program!r} is not an executable file or a program on PATH")
-    return tuple(argv)
+        raise FieldProblem("", f"= {target!r}: {module_name} has no callable {function_name!r}")
 
 
 def _plain(data: Any) -> Any:

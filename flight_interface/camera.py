@@ -1,7 +1,10 @@
 """Camera configuration: the fixed geometric, radiometric and electrical characteristics (paper 2.1).
 
 A camera is data: a TOML file under ``sitedata/cameras/`` is validated here into a frozen
-:class:`Camera`; errors name the file, the field and the allowed range.
+:class:`Camera`. The file's tables are declared once, as the models below (:class:`CameraFile`:
+``[camera]``, ``[detector]``, ``[geometry]``, ``[mounting]``, ``[timing]``, ``[radiometry]``,
+``[electronics]``); unknown keys are refused and errors name the file, the field and the allowed range.
+``campaign schema camera`` prints the JSON Schema.
 
 Radiometric response (documented number)
 ----------------------------------------
@@ -27,12 +30,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, model_validator
 
 from flight_interface import cahvor
 from flight_interface.frames import quat_normalize, quat_to_matrix
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, fixed_vector, load
 
 PLANCK_J_S = 6.62607015e-34
 SPEED_OF_LIGHT_M_S = 2.99792458e8
@@ -42,17 +47,144 @@ MAX_WELL_E = 1e10
 #: Largest dark current at the CCD temperature (e-/s per pixel): such a pixel fills any well in
 #: microseconds; the storage dark of a binned row (<= 64 x 1e13 x 100 s) stays a valid Poisson mean.
 MAX_DARK_CURRENT_E_PER_S = 1e13
+#: A unit vector's norm may differ from 1 by this much.
+UNIT_NORM_TOLERANCE = 1e-6
+#: Full fields of view allowed (deg, exclusive).
+FOV_RANGE_DEG = (1.0, 170.0)
+
+Vector2 = fixed_vector(2)
+Vector3 = fixed_vector(3)
+Vector4 = fixed_vector(4)
 
 
-@dataclass(frozen=True)
-class Timing:
-    """Frame-transfer CCD timing (s)."""
+def _check_unit(model, *names: str) -> None:
+    for name in names:
+        norm = float(np.linalg.norm(getattr(model, name)))
+        if abs(norm - 1.0) > UNIT_NORM_TOLERANCE:
+            raise FieldProblem(name, f"must be a unit vector (norm 1 within {UNIT_NORM_TOLERANCE:g}); norm is {norm:.9g}")
 
-    fast_flush_s: float
-    exposure_s: float
-    frame_transfer_s: float
-    readout_s: float
-    transfer_toward_last_row: bool = True  # charge moves toward row height-1 (storage side)
+
+class CameraName(ConfigModel):
+    """``[camera]``: identification."""
+
+    name: str = Field(min_length=1)
+    """Human-readable camera name."""
+
+
+class Detector(ConfigModel):
+    """``[detector]``: the CCD array and its on-chip binning."""
+
+    width_px: int = Field(ge=8, le=16384)
+    """Columns of the array (px)."""
+    height_px: int = Field(ge=8, le=16384)
+    """Rows of the array (px)."""
+    pixel_pitch_m: float = Field(gt=0.0, le=1e-3)
+    """Pixel pitch (m)."""
+    binning_rows: int = Field(ge=1, le=64)
+    """Rows summed on chip; must divide height_px."""
+
+    @model_validator(mode="after")
+    def _binning_divides_height(self):
+        if self.height_px % self.binning_rows:
+            raise FieldProblem("binning_rows", f"= {self.binning_rows} must divide detector.height_px = {self.height_px}")
+        return self
+
+
+class CahvorVectors(ConfigModel):
+    """``[geometry.cahvor]``: a calibrated CAHVOR model, six vectors in the camera frame."""
+
+    C: Vector3
+    """Centre of projection (m)."""
+    A: Vector3
+    """Axis (unit vector)."""
+    H: Vector3
+    """Horizontal vector (px)."""
+    V: Vector3
+    """Vertical vector (px)."""
+    O: Vector3
+    """Optical axis (unit vector)."""
+    R: Vector3
+    """Radial distortion coefficients R0, R1, R2."""
+
+    @model_validator(mode="after")
+    def _valid_model(self):
+        _check_unit(self, "A", "O")
+        model = self.to_cahvor()
+        if model.hs <= 0 or model.vs <= 0:
+            raise FieldProblem("H", "and V must not be parallel to A (focal lengths hs, vs must be > 0)")
+        return self
+
+    def to_cahvor(self) -> cahvor.Cahvor:
+        return cahvor.Cahvor(c=np.array(self.C), a=np.array(self.A), h=np.array(self.H), v=np.array(self.V),
+                             o=np.array(self.O), r=np.array(self.R))
+
+
+class Geometry(ConfigModel):
+    """``[geometry]``: either intrinsics (focal length, principal point, radial distortion) or an
+    explicit ``[geometry.cahvor]`` model."""
+
+    focal_length_m: float | None = Field(None, gt=0.0, le=10.0)
+    """Focal length (m); required unless [geometry.cahvor] is given."""
+    principal_point_px: Vector2 | None = None
+    """(column, row) of the principal point (px, pixel centres at integers); default the array centre."""
+    radial_distortion: Vector3 | None = None
+    """CAHVOR R0, R1, R2 (default [0, 0, 0]); -0.5 < R0 < 0.5."""
+    cahvor: CahvorVectors | None = None
+    """An explicit calibrated CAHVOR model instead of the intrinsics."""
+
+    @model_validator(mode="after")
+    def _one_description(self):
+        intrinsics = [name for name in ("focal_length_m", "principal_point_px", "radial_distortion")
+                      if getattr(self, name) is not None]
+        if self.cahvor is not None and intrinsics:
+            raise FieldProblem(intrinsics[0], "and geometry.cahvor are both given; allowed: one of them")
+        if self.cahvor is None and self.focal_length_m is None:
+            raise FieldProblem("focal_length_m", "is missing (or give [geometry.cahvor])")
+        if self.radial_distortion is not None and not -0.5 < self.radial_distortion[0] < 0.5:
+            raise FieldProblem("radial_distortion", f"R0 = {self.radial_distortion[0]:g} is out of range; "
+                               "allowed: -0.5 < R0 < 0.5")
+        return self
+
+    def to_cahvor(self, detector: Detector) -> cahvor.Cahvor:
+        if self.cahvor is not None:
+            return self.cahvor.to_cahvor()
+        centre = self.principal_point_px or ((detector.width_px - 1) / 2.0, (detector.height_px - 1) / 2.0)
+        return cahvor.cahvor_from_intrinsics(self.focal_length_m, detector.pixel_pitch_m, tuple(centre),
+                                             tuple(self.radial_distortion or (0.0, 0.0, 0.0)))
+
+
+class Mounting(ConfigModel):
+    """``[mounting]``: where the camera sits on the lander."""
+
+    camera_to_lander_quaternion: Vector4
+    """Camera-to-lander rotation, unit quaternion (w, x, y, z)."""
+    camera_position_in_lander_m: Vector3 = (0.0, 0.0, 0.0)
+    """Camera position in the lander body frame (m)."""
+
+    @model_validator(mode="after")
+    def _unit(self):
+        _check_unit(self, "camera_to_lander_quaternion")
+        return self
+
+
+class Timing(ConfigModel):
+    """``[timing]``: frame-transfer CCD timing (s)."""
+
+    fast_flush_s: float = Field(ge=0.0, le=10.0)
+    """Fast flush before the exposure (s)."""
+    exposure_s: float = Field(gt=0.0, le=10.0)
+    """Exposure (s)."""
+    frame_transfer_s: float = Field(ge=0.0, le=10.0)
+    """Frame transfer to the storage area (s)."""
+    readout_s: float = Field(0.0, ge=0.0, le=100.0)
+    """Read-out of the storage area (s)."""
+    transfer_direction: Literal["toward_last_row", "toward_first_row"] = "toward_last_row"
+    """Which way charge moves during frame transfer."""
+
+    @property
+    def transfer_toward_last_row(self) -> bool:
+        """Charge moves toward row height-1 (the storage side)."""
+        return self.transfer_direction == "toward_last_row"
 
     def exposure_mid_time_s(self, exposure_start_s):
         """Mid-exposure time(s) (s) of exposures starting at ``exposure_start_s`` (s, scalar or array):
@@ -60,18 +192,32 @@ class Timing:
         return exposure_start_s + 0.5 * self.exposure_s
 
 
-@dataclass(frozen=True)
-class Radiometry:
-    """Optics and CCD photo response."""
+class Radiometry(ConfigModel):
+    """``[radiometry]``: optics and CCD photo response."""
 
-    f_number: float
-    optics_transmission: float
-    mean_quantum_efficiency: float
-    band_min_um: float
-    band_max_um: float
-    effective_wavelength_um: float
-    prnu_sigma: float     # pixel response non-uniformity (rms), a datasheet number
-    prnu_seed: int        # seed of the simulated detector's PRNU realisation (simulation only)
+    f_number: float = Field(ge=0.5, le=100.0)
+    """Focal ratio N."""
+    optics_transmission: float = Field(gt=0.0, le=1.0)
+    """Optics transmission T."""
+    mean_quantum_efficiency: float = Field(gt=0.0, le=1.0)
+    """Band-mean quantum efficiency."""
+    band_min_um: float = Field(ge=0.1, le=20.0)
+    """Short end of the band (um)."""
+    band_max_um: float = Field(gt=0.1, le=20.0)
+    """Long end of the band (um), > band_min_um."""
+    effective_wavelength_um: float = Field(ge=0.1, le=20.0)
+    """Effective photon wavelength (um)."""
+    prnu_sigma: float = Field(ge=0.0, le=0.5)
+    """Pixel response non-uniformity (rms, relative), a datasheet number."""
+    prnu_seed: int = Field(ge=0, le=2**63 - 1)
+    """Seed of the simulated detector's PRNU realisation (simulation only)."""
+
+    @model_validator(mode="after")
+    def _band(self):
+        if not self.band_max_um > self.band_min_um:
+            raise FieldProblem("band_max_um", f"= {self.band_max_um:g} is out of range; allowed: > band_min_um "
+                               f"({self.band_min_um:g}) and <= 20")
+        return self
 
     def responsivity_e_per_s(self, pixel_area_m2: float) -> float:
         """On-axis photo-electrons per second per unit spectral radiance (W m^-2 sr^-1 um^-1)."""
@@ -81,20 +227,47 @@ class Radiometry:
         return irradiance_per_radiance * pixel_area_m2 * band_um * self.mean_quantum_efficiency / photon_energy_j
 
 
-@dataclass(frozen=True)
-class Electronics:
-    """Dark current, charge capacity and analogue-to-digital conversion."""
+class Electronics(ConfigModel):
+    """``[electronics]``: dark current, charge capacity and analogue-to-digital conversion
+    (temperatures in Celsius at this edge; ``*_k`` properties in kelvin)."""
 
-    full_well_e: float
-    binned_full_well_e: float
-    adc_gain_e_per_dn: float
-    adc_offset_dn: float
-    adc_bits: int
-    read_noise_e: float
-    dark_current_ref_e_per_s: float
-    dark_reference_temperature_k: float
-    dark_doubling_temperature_k: float
-    ccd_temperature_k: float
+    full_well_e: float = Field(gt=0.0, le=MAX_WELL_E)
+    """Full well per pixel (e-)."""
+    binned_full_well_e: float = Field(gt=0.0, le=MAX_WELL_E)
+    """Summing-well capacity of a binned pixel (e-)."""
+    adc_gain_e_per_dn: float = Field(gt=0.0, le=1e6)
+    """ADC gain (e- per DN)."""
+    adc_offset_dn: float = Field(0.0, ge=0.0, le=65535.0)
+    """ADC offset (DN)."""
+    adc_bits: int = Field(ge=1, le=16)
+    """ADC resolution (bits)."""
+    read_noise_e: float = Field(ge=0.0, le=1e5)
+    """Read noise (e- RMS)."""
+    dark_current_ref_e_per_s: float = Field(ge=0.0, le=1e9)
+    """Dark current per pixel at dark_reference_temperature_c (e-/s)."""
+    dark_reference_temperature_c: float = Field(ge=-273.15, le=200.0)
+    """Temperature of dark_current_ref_e_per_s (deg C)."""
+    dark_doubling_temperature_k: float = Field(gt=0.0, le=100.0)
+    """Dark current doubles every this many kelvin."""
+    ccd_temperature_c: float = Field(ge=-273.15, le=200.0)
+    """CCD temperature during the descent (deg C)."""
+
+    @model_validator(mode="after")
+    def _dark_current_bounded(self):
+        dark = self.dark_current_e_per_s()
+        if not dark <= MAX_DARK_CURRENT_E_PER_S:
+            raise FieldProblem("ccd_temperature_c", f"= {self.ccd_temperature_c:g} gives a dark current of {dark:.3g} "
+                               "e-/s per pixel (dark_current_ref_e_per_s, dark_reference_temperature_c, "
+                               f"dark_doubling_temperature_k); allowed: <= {MAX_DARK_CURRENT_E_PER_S:g} e-/s")
+        return self
+
+    @property
+    def dark_reference_temperature_k(self) -> float:
+        return self.dark_reference_temperature_c + ZERO_CELSIUS_K
+
+    @property
+    def ccd_temperature_k(self) -> float:
+        return self.ccd_temperature_c + ZERO_CELSIUS_K
 
     @property
     def max_dn(self) -> int:
@@ -108,22 +281,54 @@ class Electronics:
             return float(self.dark_current_ref_e_per_s * np.exp2(exponent))   # inf, not OverflowError
 
 
+class CameraFile(ConfigModel):
+    """A camera TOML file (e.g. ``sitedata/cameras/mer_a.toml``)."""
+
+    camera: CameraName
+    detector: Detector
+    geometry: Geometry
+    mounting: Mounting
+    timing: Timing
+    radiometry: Radiometry
+    electronics: Electronics
+
+    @model_validator(mode="after")
+    def _geometry_is_usable(self):
+        model = self.geometry.to_cahvor(self.detector)
+        _check_distortion_increases_to_corners(model, self.detector.width_px, self.detector.height_px)
+        return self
+
+
 @dataclass(frozen=True)
 class Camera:
-    """A descent camera. Geometry is a CAHVOR model in the camera frame plus the mounting on the lander."""
+    """A descent camera: the validated file tables plus the CAHVOR model in the camera frame and the
+    mounting on the lander (arrays)."""
 
     name: str
     source: str
-    width_px: int
-    height_px: int
-    pixel_pitch_m: float
-    binning_rows: int
+    detector: Detector
     model: cahvor.Cahvor
     camera_to_lander_quaternion: np.ndarray
     camera_position_in_lander_m: np.ndarray
     timing: Timing
     radiometry: Radiometry
     electronics: Electronics
+
+    @property
+    def width_px(self) -> int:
+        return self.detector.width_px
+
+    @property
+    def height_px(self) -> int:
+        return self.detector.height_px
+
+    @property
+    def pixel_pitch_m(self) -> float:
+        return self.detector.pixel_pitch_m
+
+    @property
+    def binning_rows(self) -> int:
+        return self.detector.binning_rows
 
     @property
     def binned_shape(self) -> tuple[int, int]:
@@ -161,124 +366,57 @@ class Camera:
 
     def fov_deg(self) -> tuple[float, float]:
         """Full horizontal and vertical field of view between the outer pixel edges (deg)."""
-        half_w, half_h = self.width_px / 2.0, self.height_px / 2.0
-        centre = np.array([self.model.hc, self.model.vc])
-        edges = np.array([[centre[0] - half_w, centre[1]], [centre[0] + half_w, centre[1]],
-                          [centre[0], centre[1] - half_h], [centre[0], centre[1] + half_h]])
-        rays = cahvor.unproject(self.model, edges)
-        horizontal = np.degrees(np.arccos(np.clip(rays[0] @ rays[1], -1, 1)))
-        vertical = np.degrees(np.arccos(np.clip(rays[2] @ rays[3], -1, 1)))
-        return float(horizontal), float(vertical)
+        return _fov_deg(self.model, self.width_px, self.height_px)
+
+
+def _fov_deg(model: cahvor.Cahvor, width: int, height: int) -> tuple[float, float]:
+    half_w, half_h = width / 2.0, height / 2.0
+    centre = np.array([model.hc, model.vc])
+    edges = np.array([[centre[0] - half_w, centre[1]], [centre[0] + half_w, centre[1]],
+                      [centre[0], centre[1] - half_h], [centre[0], centre[1] + half_h]])
+    rays = cahvor.unproject(model, edges)
+    horizontal = np.degrees(np.arccos(np.clip(rays[0] @ rays[1], -1, 1)))
+    vertical = np.degrees(np.arccos(np.clip(rays[2] @ rays[3], -1, 1)))
+    return float(horizontal), float(vertical)
+
+
+def camera_from_file(tables: CameraFile, source: str) -> Camera:
+    """The runtime :class:`Camera` of validated camera tables."""
+    return Camera(
+        name=tables.camera.name, source=source, detector=tables.detector,
+        model=tables.geometry.to_cahvor(tables.detector),
+        camera_to_lander_quaternion=quat_normalize(np.array(tables.mounting.camera_to_lander_quaternion)),
+        camera_position_in_lander_m=np.array(tables.mounting.camera_position_in_lander_m),
+        timing=tables.timing, radiometry=tables.radiometry, electronics=tables.electronics)
 
 
 def load_camera(path: str | Path) -> Camera:
-    """Load and validate a camera TOML file (see ``sitedata/cameras/mer_a.toml`` for the fields)."""
-    path = Path(path)
-    root = Table(load_toml(path), str(path))
-    meta = root.table("camera")
-    detector = root.table("detector")
-    width = detector.integer("width_px", minimum=8, maximum=16384)
-    height = detector.integer("height_px", minimum=8, maximum=16384)
-    pitch = detector.number("pixel_pitch_m", minimum=0.0, maximum=1e-3, exclusive_minimum=True)
-    binning = detector.integer("binning_rows", minimum=1, maximum=64)
-    if height % binning:
-        raise detector.fail("binning_rows", f"= {binning} must divide detector.height_px = {height}")
+    """Load and validate a camera TOML file (fields: :class:`CameraFile`).
 
-    geometry = root.table("geometry")
-    if geometry.has("cahvor"):
-        model = _explicit_cahvor(geometry.table("cahvor"))
-    else:
-        focal = geometry.number("focal_length_m", minimum=0.0, maximum=10.0, exclusive_minimum=True)
-        centre = geometry.vector("principal_point_px", 2, default=[(width - 1) / 2.0, (height - 1) / 2.0])
-        distortion = geometry.vector("radial_distortion", 3, default=[0.0, 0.0, 0.0])
-        if not (-0.5 < distortion[0] < 0.5):
-            raise geometry.fail("radial_distortion", f"R0 = {distortion[0]:g} is out of range; allowed: -0.5 < R0 < 0.5")
-        model = cahvor.cahvor_from_intrinsics(focal, pitch, (centre[0], centre[1]), tuple(distortion))
-
-    mounting = root.table("mounting")
-    quaternion = mounting.vector("camera_to_lander_quaternion", 4, unit_norm=True)
-    position = mounting.vector("camera_position_in_lander_m", 3, default=[0.0, 0.0, 0.0])
-
-    timing_table = root.table("timing")
-    timing = Timing(
-        fast_flush_s=timing_table.number("fast_flush_s", minimum=0.0, maximum=10.0),
-        exposure_s=timing_table.number("exposure_s", minimum=0.0, maximum=10.0, exclusive_minimum=True),
-        frame_transfer_s=timing_table.number("frame_transfer_s", minimum=0.0, maximum=10.0),
-        readout_s=timing_table.number("readout_s", default=0.0, minimum=0.0, maximum=100.0),
-        transfer_toward_last_row=timing_table.string(
-            "transfer_direction", default="toward_last_row", choices=("toward_last_row", "toward_first_row"),
-        ) == "toward_last_row",
-    )
-
-    rad = root.table("radiometry")
-    band_min = rad.number("band_min_um", minimum=0.1, maximum=20.0)
-    radiometry = Radiometry(
-        f_number=rad.number("f_number", minimum=0.5, maximum=100.0),
-        optics_transmission=rad.number("optics_transmission", minimum=0.0, maximum=1.0, exclusive_minimum=True),
-        mean_quantum_efficiency=rad.number("mean_quantum_efficiency", minimum=0.0, maximum=1.0, exclusive_minimum=True),
-        band_min_um=band_min,
-        band_max_um=rad.number("band_max_um", minimum=band_min, maximum=20.0, exclusive_minimum=True),
-        effective_wavelength_um=rad.number("effective_wavelength_um", minimum=0.1, maximum=20.0),
-        prnu_sigma=rad.number("prnu_sigma", minimum=0.0, maximum=0.5),
-        prnu_seed=rad.integer("prnu_seed", minimum=0),
-    )
-
-    ele = root.table("electronics")
-    electronics = Electronics(
-        full_well_e=ele.number("full_well_e", minimum=0.0, maximum=MAX_WELL_E, exclusive_minimum=True),
-        binned_full_well_e=ele.number("binned_full_well_e", minimum=0.0, maximum=MAX_WELL_E, exclusive_minimum=True),
-        adc_gain_e_per_dn=ele.number("adc_gain_e_per_dn", minimum=0.0, maximum=1e6, exclusive_minimum=True),
-        adc_offset_dn=ele.number("adc_offset_dn", default=0.0, minimum=0.0, maximum=65535.0),
-        adc_bits=ele.integer("adc_bits", minimum=1, maximum=16),
-        read_noise_e=ele.number("read_noise_e", minimum=0.0, maximum=1e5),
-        dark_current_ref_e_per_s=ele.number("dark_current_ref_e_per_s", minimum=0.0, maximum=1e9),
-        dark_reference_temperature_k=ele.number("dark_reference_temperature_c", minimum=-273.15, maximum=200.0) + ZERO_CELSIUS_K,
-        dark_doubling_temperature_k=ele.number("dark_doubling_temperature_k", minimum=0.0, maximum=100.0, exclusive_minimum=True),
-        ccd_temperature_k=ele.number("ccd_temperature_c", minimum=-273.15, maximum=200.0) + ZERO_CELSIUS_K,
-    )
-
-    dark = electronics.dark_current_e_per_s()
-    if not dark <= MAX_DARK_CURRENT_E_PER_S:
-        raise ConfigError(f"{path}: electronics: dark current at ccd_temperature_c = "
-                          f"{electronics.ccd_temperature_k - ZERO_CELSIUS_K:g} is {dark:.3g} e-/s per pixel "
-                          f"(dark_current_ref_e_per_s, dark_reference_temperature_c, dark_doubling_temperature_k); "
-                          f"allowed: <= {MAX_DARK_CURRENT_E_PER_S:g} e-/s")
-    _check_distortion_increases_to_corners(model, width, height, path)
-
-    camera = Camera(
-        name=meta.string("name"), source=str(path), width_px=width, height_px=height, pixel_pitch_m=pitch,
-        binning_rows=binning, model=model, camera_to_lander_quaternion=quat_normalize(quaternion),
-        camera_position_in_lander_m=position, timing=timing, radiometry=radiometry, electronics=electronics,
-    )
-    horizontal_fov, vertical_fov = camera.fov_deg()
-    if not (1.0 < horizontal_fov < 170.0 and 1.0 < vertical_fov < 170.0):
-        raise ConfigError(f"{path}: geometry gives a field of view of {horizontal_fov:.1f} x {vertical_fov:.1f} deg; "
-                          "allowed: 1 to 170 deg (check focal_length_m and pixel_pitch_m)")
-    return camera
+    Raises
+    ------
+    ConfigError
+        One line naming the file, the field and the allowed values (unknown keys included).
+    """
+    return camera_from_file(load(CameraFile, path), str(path))
 
 
-def _check_distortion_increases_to_corners(model: cahvor.Cahvor, width: int, height: int, path: Path) -> None:
+def _check_distortion_increases_to_corners(model: cahvor.Cahvor, width: int, height: int) -> None:
     """The radial distortion must keep increasing out to the frame corners (else rays fold back and
-    several field angles share one pixel); raises ConfigError naming geometry.radial_distortion."""
+    several field angles share one pixel), and the field of view must be sensible."""
     turning = cahvor.distortion_turning_point(model.r)
-    if not np.isfinite(turning):
-        return
-    r0, r1, r2 = model.r
-    largest = turning * (1.0 + r0 + r1 * turning**2 + r2 * turning**4)          # distorted tangent
-    corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5], [width - 0.5, height - 0.5]])
-    corner = float(np.max(np.hypot((corners[:, 0] - model.hc) / model.hs, (corners[:, 1] - model.vc) / model.vs)))
-    if corner >= largest:
-        raise ConfigError(f"{path}: geometry.radial_distortion = [{', '.join(f'{value:g}' for value in model.r)}] stops increasing "
-                          f"{largest * model.hs:.0f} px from the principal point, inside the frame (corner at "
-                          f"{corner * model.hs:.0f} px); allowed: a distortion that increases out to the frame corners")
-
-
-def _explicit_cahvor(table: Table) -> cahvor.Cahvor:
-    """A calibrated CAHVOR model given as its six vectors (camera frame)."""
-    model = cahvor.Cahvor(
-        c=table.vector("C", 3), a=table.vector("A", 3, unit_norm=True), h=table.vector("H", 3),
-        v=table.vector("V", 3), o=table.vector("O", 3, unit_norm=True), r=table.vector("R", 3),
-    )
-    if model.hs <= 0 or model.vs <= 0:
-        raise table.fail("H", "and V must not be parallel to A (focal lengths hs, vs must be > 0)")
-    return model
+    if np.isfinite(turning):
+        r0, r1, r2 = model.r
+        largest = turning * (1.0 + r0 + r1 * turning**2 + r2 * turning**4)          # distorted tangent
+        corners = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [-0.5, height - 0.5], [width - 0.5, height - 0.5]])
+        corner = float(np.max(np.hypot((corners[:, 0] - model.hc) / model.hs, (corners[:, 1] - model.vc) / model.vs)))
+        if corner >= largest:
+            raise FieldProblem("geometry.radial_distortion",
+                               f"= [{', '.join(f'{value:g}' for value in model.r)}] stops increasing "
+                               f"{largest * model.hs:.0f} px from the principal point, inside the frame (corner at "
+                               f"{corner * model.hs:.0f} px); allowed: a distortion that increases out to the frame corners")
+    horizontal, vertical = _fov_deg(model, width, height)
+    low, high = FOV_RANGE_DEG
+    if not (low < horizontal < high and low < vertical < high):
+        raise FieldProblem("geometry", f"gives a field of view of {horizontal:.1f} x {vertical:.1f} deg; allowed: "
+                           f"{low:g} to {high:g} deg (check focal_length_m and pixel_pitch_m)")

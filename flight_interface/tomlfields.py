@@ -1,162 +1,318 @@
-"""Read typed, range-checked fields out of parsed TOML tables.
+"""TOML configuration at the edge: read a file, validate it into a typed pydantic model, one-line errors.
 
-Every error is a :class:`ConfigError` whose message is one line naming the file, the dotted field
-path and what is allowed, e.g.::
+Every TOML table is declared once, as a :class:`ConfigModel` (pydantic v2): field names, types, units
+(in the names and docstrings), ranges and defaults live there and nowhere else; unknown keys are
+refused. :func:`parse` validates parsed TOML data into a model and turns pydantic's
+``ValidationError`` into a :class:`ConfigError` whose message is one line naming the file, the dotted
+field path and what is allowed, e.g.::
 
-    sitedata/cameras/mer_a.toml: geometry.focal_length_m = -0.01 is out of range; allowed: > 0
+    sitedata/cameras/mer_a.toml: geometry.focal_length_m = -0.01 is out of range; allowed: > 0 and <= 10
 
 Configuration is data: the core never parses text, it receives the typed objects built here.
 """
 from __future__ import annotations
 
-import math
 import tomllib
+import types
+import typing
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Annotated, Any, Literal, TypeVar
 
-import numpy as np
+import annotated_types
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, ValidationInfo
+from pydantic.fields import FieldInfo
 
 
 class ConfigError(ValueError):
     """A configuration value is missing, of the wrong type or out of range (one-line message)."""
 
 
+class FieldProblem(ValueError):
+    """Raised by a validator for a check that involves several fields: names the field at fault
+    (relative to the model being validated; "" = the value being validated itself) so the one-line
+    error points at it. The message follows the field's dotted path, e.g. ``"= 3 must divide ..."``."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+
+class ConfigModel(BaseModel):
+    """Base of every configuration table: unknown keys refused, no type coercion (TOML types are
+    exact: ``"1"`` is not a number, ``1`` is not a boolean), finite numbers only, immutable."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False,
+                              use_attribute_docstrings=True, validate_default=False)
+
+
+Model = TypeVar("Model", bound=BaseModel)
+
+
+def _as_tuple(value: Any) -> Any:
+    return tuple(value) if isinstance(value, list) else value
+
+
+def fixed_vector(length: int) -> Any:
+    """Annotation of a TOML list of exactly ``length`` finite numbers, held as a tuple of floats."""
+
+    def as_tuple(value: Any) -> Any:
+        if isinstance(value, list) and len(value) != length:
+            raise FieldProblem("", f"must be a list of {length} numbers; got {value!r}")
+        return _as_tuple(value)
+
+    return Annotated[tuple[(float,) * length], BeforeValidator(as_tuple)]
+
+
+FloatList = Annotated[tuple[float, ...], BeforeValidator(_as_tuple)]
+StringList = Annotated[tuple[str, ...], BeforeValidator(_as_tuple)]
+
+
+def _relative_to_file(value: Any, info: ValidationInfo) -> Any:
+    """A path string relative to the directory of the TOML file (validation ``context["base_dir"]``)."""
+    if isinstance(value, str):
+        path = Path(value)
+        return path if path.is_absolute() else Path((info.context or {}).get("base_dir", ".")) / path
+    return value
+
+
+def _existing_file(value: Any, info: ValidationInfo) -> Any:
+    path = _relative_to_file(value, info)
+    if isinstance(path, Path) and not path.is_file():
+        raise FieldProblem("", f"= {str(value)!r}: no such file {path}")
+    return path
+
+
+#: A path in a TOML file, relative to the file's directory (a string in the file, a Path here).
+InputPath = Annotated[Path, BeforeValidator(_relative_to_file)]
+#: Same, and the file must exist.
+ExistingFile = Annotated[Path, BeforeValidator(_existing_file)]
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML file, turning I/O and syntax errors into :class:`ConfigError`."""
+    """Parse a TOML file; any I/O, encoding or syntax problem is a one-line :class:`ConfigError`."""
     path = Path(path)
     try:
         with path.open("rb") as handle:
             return tomllib.load(handle)
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory; allowed: a TOML file") from None
+    except PermissionError:
+        raise ConfigError(f"{path}: cannot be read (permission denied)") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot be read ({exc.strerror or type(exc).__name__})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: is not UTF-8 text (byte {exc.start}); allowed: a UTF-8 TOML file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from None
 
 
-class Table:
-    """A view on one TOML table that remembers where it came from (file and dotted path)."""
+def parse(model: type[Model], data: Any, source: str | Path, prefix: str = "", context: dict | None = None) -> Model:
+    """Validate ``data`` (parsed TOML) as ``model``; errors are one-line :class:`ConfigError` naming
+    ``source``, the dotted field path (under ``prefix``, e.g. ``"scene"``) and the allowed values."""
+    try:
+        return model.model_validate(data, context=context)
+    except ValidationError as exc:
+        raise translate(exc, model, str(source), prefix) from None
 
-    def __init__(self, data: dict[str, Any], source: str, path: str = ""):
-        if not isinstance(data, dict):
-            raise ConfigError(f"{source}: {path or '<root>'} must be a table; got {type(data).__name__}")
-        self.data = data
-        self.source = source
+
+def parse_field(model: type[Model], field: str, value: Any, source: str, label: str) -> Any:
+    """Validate one value (e.g. a command-line flag) against ``model``'s declaration of ``field`` (the
+    model's other fields must have defaults); errors name ``label`` (e.g. ``--workers``) instead."""
+    try:
+        return getattr(model.model_validate({field: value}), field)
+    except ValidationError as exc:
+        error = translate(exc, model, source)
+        prefix = f"{source}: {field}"
+        text = str(error)
+        raise ConfigError(f"{source}: {label}{text[len(prefix):]}" if text.startswith(prefix) else text) from None
+
+
+def load(model: type[Model], path: str | Path, context: dict | None = None) -> Model:
+    """:func:`load_toml` then :func:`parse` the whole file as ``model``."""
+    return parse(model, load_toml(path), path, context=context)
+
+
+# --------------------------------------------------------------------------------- error translation
+def translate(exc: ValidationError, model: type[BaseModel], source: str, prefix: str = "") -> ConfigError:
+    """The first problem of a pydantic ``ValidationError`` as a one-line :class:`ConfigError`."""
+    errors = exc.errors(include_url=False)
+    error = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])   # a typo before "missing"
+    where = _walk(model, error["loc"], prefix)
+    return ConfigError(f"{source}: {_describe(error, where)}")
+
+
+class _Where:
+    """What the walk along an error location found: the dotted path, the field's annotation
+    metadata, the innermost model and the annotation at the end."""
+
+    def __init__(self, path: str):
         self.path = path
-        self._read: set[str] = set()
-        self._children: list[Table] = []
-
-    def _name(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def fail(self, key: str, message: str) -> ConfigError:
-        return ConfigError(f"{self.source}: {self._name(key)} {message}")
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def _get(self, key: str, default: Any) -> Any:
-        self._read.add(key)
-        if key in self.data:
-            return self.data[key]
-        if default is _REQUIRED:
-            raise self.fail(key, "is missing")
-        return default
-
-    def table(self, key: str, required: bool = True) -> "Table":
-        value = self._get(key, _REQUIRED if required else {})
-        if not isinstance(value, dict):
-            raise self.fail(key, f"must be a table; got {type(value).__name__}")
-        child = Table(value, self.source, self._name(key))
-        self._children.append(child)
-        return child
-
-    def tables(self, key: str) -> list["Table"]:
-        """An array of tables (``[[key]]``), each remembering its index in error messages."""
-        value = self._get(key, _REQUIRED)
-        if not isinstance(value, list) or not value or not all(isinstance(item, dict) for item in value):
-            raise self.fail(key, "must be a non-empty array of tables ([[...]])")
-        children = [Table(item, self.source, f"{self._name(key)}[{index}]") for index, item in enumerate(value)]
-        self._children.extend(children)
-        return children
-
-    def ignore(self, *keys: str) -> None:
-        """Mark keys as known without reading them (they are read elsewhere)."""
-        self._read.update(keys)
-
-    def reject_unknown(self) -> None:
-        """Raise for the first key (here or in any sub-table read through this one) that nothing read."""
-        unknown = sorted(set(self.data) - self._read)
-        if unknown:
-            known = ", ".join(sorted(self._read)) or "none"
-            raise ConfigError(f"{self.source}: unknown key {self._name(unknown[0])!r}; allowed here: {known}")
-        for child in self._children:
-            child.reject_unknown()
-
-    def number(self, key: str, default: Any = None, *, minimum: float | None = None,
-               maximum: float | None = None, exclusive_minimum: bool = False,
-               exclusive_maximum: bool = False) -> float:
-        value = self._get(key, _REQUIRED if default is None else default)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(key, f"must be a number; got {type(value).__name__} {value!r}")
-        value = float(value)
-        allowed = _describe_range(minimum, maximum, exclusive_minimum, exclusive_maximum)
-        if not math.isfinite(value):
-            raise self.fail(key, f"= {value} is not finite; allowed: {allowed}")
-        too_low = minimum is not None and (value <= minimum if exclusive_minimum else value < minimum)
-        too_high = maximum is not None and (value >= maximum if exclusive_maximum else value > maximum)
-        if too_low or too_high:
-            raise self.fail(key, f"= {value:g} is out of range; allowed: {allowed}")
-        return value
-
-    def integer(self, key: str, default: Any = None, *, minimum: int | None = None,
-                maximum: int | None = None) -> int:
-        value = self._get(key, _REQUIRED if default is None else default)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(key, f"must be an integer; got {type(value).__name__} {value!r}")
-        if (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
-            raise self.fail(key, f"= {value} is out of range; allowed: {_describe_range(minimum, maximum)}")
-        return value
-
-    def boolean(self, key: str, default: Any = None) -> bool:
-        value = self._get(key, _REQUIRED if default is None else default)
-        if not isinstance(value, bool):
-            raise self.fail(key, f"must be true or false; got {value!r}")
-        return value
-
-    def string(self, key: str, default: Any = None, *, choices: Sequence[str] | None = None) -> str:
-        value = self._get(key, _REQUIRED if default is None else default)
-        if not isinstance(value, str):
-            raise self.fail(key, f"must be a string; got {type(value).__name__} {value!r}")
-        if choices is not None and value not in choices:
-            raise self.fail(key, f"= {value!r} is not allowed; allowed: {', '.join(choices)}")
-        return value
-
-    def vector(self, key: str, length: int, default: Any = None, *, unit_norm: bool = False) -> np.ndarray:
-        value = self._get(key, _REQUIRED if default is None else default)
-        if (not isinstance(value, list) or len(value) != length
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
-            raise self.fail(key, f"must be a list of {length} numbers; got {value!r}")
-        array = np.asarray(value, dtype=float)
-        if not np.all(np.isfinite(array)):
-            raise self.fail(key, f"must be finite; got {value!r}")
-        if unit_norm and abs(np.linalg.norm(array) - 1.0) > 1e-6:
-            raise self.fail(key, f"must be a unit vector (norm 1 within 1e-6); norm is {np.linalg.norm(array):.9g}")
-        return array
-
-    def path_value(self, key: str, base_dir: Path, default: Any = None) -> Path:
-        """A path relative to the TOML file's directory."""
-        text = self.string(key, default)
-        path = Path(text)
-        return path if path.is_absolute() else (base_dir / path)
+        self.metadata: list = []
+        self.container: type[BaseModel] | None = None
+        self.annotation: Any = None
 
 
-_REQUIRED = object()
+def _unwrap(annotation: Any) -> tuple[Any, list]:
+    metadata = []
+    while True:
+        origin = typing.get_origin(annotation)
+        if origin is Annotated:
+            annotation, *extra = typing.get_args(annotation)
+            for item in extra:
+                metadata.extend(item.metadata if isinstance(item, FieldInfo) else [item])
+        elif origin in (typing.Union, types.UnionType):
+            members = [a for a in typing.get_args(annotation) if a is not type(None)]
+            if len(members) != 1:
+                return annotation, metadata
+            annotation = members[0]
+        else:
+            return annotation, metadata
 
 
-def _describe_range(minimum, maximum, exclusive_minimum=False, exclusive_maximum=False) -> str:
+def _models_of(annotation: Any) -> list[type[BaseModel]]:
+    annotation, _ = _unwrap(annotation)
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return [m for a in typing.get_args(annotation) for m in _models_of(a)]
+    return []
+
+
+def _walk(model: type[BaseModel], loc: tuple, prefix: str) -> _Where:
+    where = _Where(prefix)
+    current: Any = model
+    for item in loc:
+        current, metadata = _unwrap(current)
+        origin = typing.get_origin(current)
+        if isinstance(item, int) and origin in (list, tuple):
+            args = typing.get_args(current)
+            where.path += f"[{item}]"
+            current = args[0] if origin is list or (len(args) == 2 and args[1] is Ellipsis) else args[item]
+            where.metadata = []
+            continue
+        if origin is dict:
+            where.path = f"{where.path}.{item}" if where.path else str(item)
+            current = typing.get_args(current)[1]
+            where.metadata = []
+            continue
+        models = _models_of(current)
+        if len(models) > 1 and isinstance(item, str):          # a tagged union: the tag names the member
+            tagged = [m for m in models if _tag_of(m) == item]
+            if tagged:
+                current = tagged[0]
+                continue
+        if models:
+            container = next((m for m in models if item in m.model_fields), models[0])
+            where.container = container
+            where.path = f"{where.path}.{item}" if where.path else str(item)
+            if item in container.model_fields:
+                info = container.model_fields[item]
+                current, where.metadata = info.annotation, list(info.metadata)
+            else:
+                current, where.metadata = None, []
+            continue
+        where.path = f"{where.path}.{item}" if where.path else str(item)
+        current = None
+    where.annotation, extra = _unwrap(current) if current is not None else (None, [])
+    where.metadata = where.metadata + extra
+    if isinstance(where.annotation, type) and issubclass(where.annotation, BaseModel):
+        where.container = where.annotation
+    return where
+
+
+def _tag_of(model: type[BaseModel]) -> str | None:
+    for info in model.model_fields.values():
+        annotation, _ = _unwrap(info.annotation)
+        if typing.get_origin(annotation) is Literal and len(typing.get_args(annotation)) == 1:
+            return typing.get_args(annotation)[0]
+    return None
+
+
+def describe_range(metadata: list) -> str:
+    """'>= 0 and <= 30' from annotated-types bounds (``Field(ge=..., le=...)``)."""
     parts = []
-    if minimum is not None:
-        parts.append(f"{'>' if exclusive_minimum else '>='} {minimum:g}")
-    if maximum is not None:
-        parts.append(f"{'<' if exclusive_maximum else '<='} {maximum:g}")
-    return " and ".join(parts) if parts else "any finite number"
+    for item in metadata:
+        for kind, symbol in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+            bound = getattr(item, kind, None)
+            if bound is not None and isinstance(item, (annotated_types.Gt, annotated_types.Ge, annotated_types.Lt,
+                                                       annotated_types.Le, annotated_types.Interval)):
+                parts.append((0 if symbol.startswith(">") else 1, f"{symbol} {_number(bound)}"))
+    return " and ".join(text for _, text in sorted(parts)) or "any finite number"
+
+
+def _number(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return f"{value:g}"
+    return repr(value)
+
+
+def _got(value: Any) -> str:
+    text = repr(value)
+    if len(text) > 80:
+        text = text[:77] + "..."
+    return f"{type(value).__name__} {text}"
+
+
+_EXPECTED = {"int_type": "an integer", "int_from_float": "an integer", "float_type": "a number",
+             "bool_type": "true or false", "string_type": "a string", "model_type": "a table",
+             "model_attributes_type": "a table", "dict_type": "a table", "list_type": "a list",
+             "tuple_type": "a list", "path_type": "a path (string)"}
+
+
+def _describe(error: dict, where: _Where) -> str:
+    kind, value, ctx = error["type"], error.get("input"), error.get("ctx") or {}
+    path = where.path or "<root>"
+    if kind == "missing":
+        return f"{path} is missing"
+    if kind == "extra_forbidden":
+        allowed = ", ".join(where.container.model_fields) if where.container else "none"
+        return f"{path} is not a known field; allowed: {allowed}"
+    if kind == "literal_error":
+        allowed = ctx.get("expected", "")
+        if typing.get_origin(where.annotation) is Literal:
+            allowed = ", ".join(str(a) for a in typing.get_args(where.annotation))
+        return f"{path} = {value!r} is not allowed; allowed: {allowed}"
+    if kind in ("union_tag_invalid", "union_tag_not_found"):
+        field = ctx.get("discriminator", "kind").strip("'")
+        allowed = ", ".join(t.strip("'") for t in str(ctx.get("expected_tags", "")).split(", "))
+        if kind == "union_tag_not_found":
+            return f"{path}.{field} is missing; allowed: {allowed}"
+        return f"{path}.{field} = {ctx.get('tag')!r} is not allowed; allowed: {allowed}"
+    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
+        bounds = where.metadata or [annotated_types.Interval(**{k: v for k, v in ctx.items()})]
+        return f"{path} = {_number(value)} is out of range; allowed: {describe_range(bounds)}"
+    if kind == "finite_number":
+        return f"{path} = {value} is not finite; allowed: {describe_range(where.metadata)}"
+    if kind in ("too_short", "too_long"):
+        if isinstance(value, (list, tuple)) and typing.get_origin(where.annotation) is tuple \
+                and Ellipsis not in typing.get_args(where.annotation):
+            return f"{path} must be a list of {len(typing.get_args(where.annotation))} numbers; got {list(value)!r}"
+        bound = ctx.get("min_length") if kind == "too_short" else ctx.get("max_length")
+        return (f"{path} has {ctx.get('actual_length')} entries; allowed: "
+                f"{'at least' if kind == 'too_short' else 'at most'} {bound}")
+    if kind in _EXPECTED:
+        expected = _EXPECTED[kind]
+        if kind == "tuple_type" and typing.get_origin(where.annotation) is tuple:
+            args = typing.get_args(where.annotation)
+            expected = "a list of numbers" if Ellipsis in args else f"a list of {len(args)} numbers"
+        return f"{path} must be {expected}; got {_got(value)}"
+    if kind in ("value_error", "assertion_error"):
+        problem = ctx.get("error")
+        if isinstance(problem, FieldProblem):
+            joiner = "" if problem.field.startswith("[") else "."
+            field = joiner.join(part for part in (where.path, problem.field) if part) or "<root>"
+            message = str(problem)
+            return f"{field}{'' if message.startswith((':', ',')) else ' '}{message}"
+        message = str(problem) if problem is not None else error["msg"]
+        return f"{path}: {message}" if where.path else message
+    return f"{path}: {error['msg']}"
+
+
+__all__ = ["ConfigError", "ConfigModel", "ExistingFile", "Field", "InputPath", "FieldProblem", "FloatList", "StringList", "fixed_vector",
+           "describe_range", "load", "load_toml", "parse", "parse_field", "translate"]

@@ -10,8 +10,8 @@ Usage::
     result.diagnostics.anti_sun_pixel
 
 The configuration (:class:`~simulator.scene_config.SceneConfig`: scene parameters, effect switches,
-camera effects, off-nominal effects) is in :mod:`simulator.scene_config`; :mod:`simulator.scene_table`
-reads it from the TOML ``[scene]`` table.
+camera effects, off-nominal effects) is in :mod:`simulator.scene_config`, which also declares the TOML
+``[scene]`` table it is validated from.
 """
 from __future__ import annotations
 
@@ -141,7 +141,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     config = SceneConfig() if config is None else config
     camera_effects = config.camera_effects
     if rng is None:
-        camera_effects = replace(camera_effects, shot_noise=False, read_noise=False)
+        camera_effects = camera_effects.model_copy(update={"shot_noise": False, "read_noise": False})
         rng = np.random.default_rng(0)   # unused: every random draw is switched off
     sun = radiance.sun_unit_vector(sun_world)
     start_s = image_start_time(profile, image)

@@ -24,15 +24,16 @@ part of a preset: a preset changes how exactly the same physics is computed, nev
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
-from .scene_config import REFERENCE_EFFECTS, SceneConfig
-
 PRESETS = ("reference", "high", "default", "fast")
 DEFAULT_PRESET = "default"
+#: Scene effect switches of the exact reference render (every shortcut off).
+REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
+                         warp_smear_fields=False, pixel_area_filter=False)
 
-def apply_preset(config, name: str):
-    """``config`` (a :class:`~simulator.scene_config.SceneConfig`) with the shortcuts of preset ``name``.
+
+def preset_fields(name: str, max_substeps: int = 16) -> dict:
+    """The ``[scene]`` values preset ``name`` sets (nested tables ``effects``, ``camera_effects``), given
+    the configuration's ``max_substeps`` (the reference render raises it to at least 64).
 
     Raises
     ------
@@ -41,24 +42,32 @@ def apply_preset(config, name: str):
     """
     if name not in PRESETS:
         raise ValueError(f"fidelity preset {name!r} is unknown; allowed: {', '.join(PRESETS)}")
-    camera_effects = config.camera_effects
     if name == "reference":
-        return replace(config, effects=replace(config.effects, **REFERENCE_EFFECTS), supersample=3,
-                       substeps_per_terrain_px=4.0, max_substeps=max(config.max_substeps, 64),
-                       camera_effects=replace(camera_effects, exact_poisson=True))
+        return dict(effects=dict(REFERENCE_EFFECTS), supersample=3, substeps_per_terrain_px=4.0,
+                    max_substeps=max(max_substeps, 64), camera_effects=dict(exact_poisson=True))
     if name == "high":
-        return replace(config, effects=replace(config.effects, **{**REFERENCE_EFFECTS, "pixel_area_filter": True}),
-                       supersample=1,
-                       substeps_per_terrain_px=1.0, camera_effects=replace(camera_effects, exact_poisson=True))
-    shortcuts = replace(config.effects, coarse_ray_grid=True, coarse_photometry=True, share_still_fields=True,
-                        warp_smear_fields=True, pixel_area_filter=True)
+        return dict(effects={**REFERENCE_EFFECTS, "pixel_area_filter": True}, supersample=1,
+                    substeps_per_terrain_px=1.0, camera_effects=dict(exact_poisson=True))
     fast = name == "fast"
-    return replace(config, effects=shortcuts, supersample=1, substeps_per_terrain_px=1.0,
-                   ray_grid_step_px=32 if fast else 16, photometry_grid_step_px=32 if fast else 16,
-                   still_shift_terrain_px=2.0 if fast else 1.0, max_substeps=4 if fast else config.max_substeps,
-                   camera_effects=replace(camera_effects, exact_poisson=False))
+    return dict(effects=dict(coarse_ray_grid=True, coarse_photometry=True, share_still_fields=True,
+                             warp_smear_fields=True, pixel_area_filter=True),
+                supersample=1, substeps_per_terrain_px=1.0, ray_grid_step_px=32 if fast else 16,
+                photometry_grid_step_px=32 if fast else 16, still_shift_terrain_px=2.0 if fast else 1.0,
+                max_substeps=4 if fast else max_substeps, camera_effects=dict(exact_poisson=False))
+
+
+def apply_preset(config, name: str):
+    """``config`` (a :class:`~simulator.scene_config.SceneConfig`) with the shortcuts of preset ``name``
+    (its other fields kept)."""
+    updates = preset_fields(name, config.max_substeps)
+    effects = config.effects.model_copy(update=updates.pop("effects"))
+    camera_effects = config.camera_effects.model_copy(update=updates.pop("camera_effects"))
+    return config.model_copy(update=dict(updates, effects=effects, camera_effects=camera_effects, fidelity=name))
 
 
 def preset_config(name: str, base=None):
     """The :class:`~simulator.scene_config.SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
-    return apply_preset(SceneConfig() if base is None else base, name)
+    from .scene_config import SceneConfig
+
+    preset_fields(name)                     # an unknown name: ValueError listing the allowed ones
+    return SceneConfig(fidelity=name) if base is None else apply_preset(base, name)

@@ -37,77 +37,84 @@ errors unchanged.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, model_validator
 
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_conjugate, quat_from_rotation_vector, quat_multiply, quat_normalize, quat_to_rotation_vector
-from flight_interface.tomlfields import Table
+from flight_interface.tomlfields import ConfigModel
 
-_DEG = np.pi / 180.0
 STATE_TIMES = ("mid_exposure", "exposure_start")
+SIGMA_FIELDS = ("attitude_bias_sigma_deg", "attitude_random_sigma_deg", "alignment_sigma_deg",
+                "angular_rate_noise_sigma_dps", "radar_altitude_sigma_percent", "imu_velocity_bias_sigma_mps",
+                "imu_vertical_velocity_bias_sigma_mps", "imu_velocity_random_walk_mps_per_sqrt_s",
+                "heat_shield_prediction_sigma_m")
 
 
-@dataclass(frozen=True)
-class SensorConfig:
-    """Sensor error sigmas (SI: rad, rad/s, fraction, m/s). Defaults: the paper's numbers where it gives them."""
+class SensorConfig(ConfigModel):
+    """``[sensors]``: sensor error sigmas (degrees and percent at this edge; the ``*_rad``, ``*_radps``
+    and ``*_fraction`` properties are SI). Defaults: the paper's numbers where it gives them."""
 
-    attitude_bias_sigma_rad: float = 1.0 * _DEG
-    attitude_random_sigma_rad: float = 0.05 * _DEG
-    alignment_sigma_rad: float = 0.1 * _DEG
-    angular_rate_noise_sigma_radps: float = 0.1 * _DEG
-    radar_altitude_sigma_fraction: float = 0.0003
-    imu_velocity_bias_sigma_mps: float = 2.0
-    imu_vertical_velocity_bias_sigma_mps: float = 0.0
-    imu_velocity_random_walk_mps_per_sqrt_s: float = 0.0
-    state_time: str = "mid_exposure"
+    perfect: bool = False
+    """Every sensor exact: all sigmas 0 (whatever else is given)."""
+    attitude_bias_sigma_deg: float = Field(1.0, ge=0.0, le=30.0)
+    """Absolute attitude-knowledge bias, world frame, per axis (deg)."""
+    attitude_random_sigma_deg: float = Field(0.05, ge=0.0, le=10.0)
+    """Between-image attitude error, world frame, per axis (deg)."""
+    alignment_sigma_deg: float = Field(0.1, ge=0.0, le=10.0)
+    """Camera-to-lander alignment error, body frame, per axis (deg)."""
+    angular_rate_noise_sigma_dps: float = Field(0.1, ge=0.0, le=60.0)
+    """Angular rate white noise per image, body frame, per axis (deg/s)."""
+    radar_altitude_sigma_percent: float = Field(0.03, ge=0.0, le=10.0)
+    """Radar altitude relative error per image (percent)."""
+    imu_velocity_bias_sigma_mps: float = Field(2.0, ge=0.0, le=50.0)
+    """Constant IMU velocity bias per horizontal axis (m/s)."""
+    imu_vertical_velocity_bias_sigma_mps: float = Field(0.0, ge=0.0, le=50.0)
+    """Constant IMU vertical velocity bias (m/s)."""
+    imu_velocity_random_walk_mps_per_sqrt_s: float = Field(0.0, ge=0.0, le=10.0)
+    """IMU velocity random walk from image 1 (m/s per sqrt(s))."""
+    state_time: Literal["mid_exposure", "exposure_start"] = "mid_exposure"
+    """Instant the measured states refer to."""
     heat_shield_prediction: bool = True
-    heat_shield_prediction_sigma_m: float = 10.0
+    """Give the estimator a predicted heat-shield position."""
+    heat_shield_prediction_sigma_m: float = Field(10.0, ge=0.0, le=1000.0)
+    """Error of the heat-shield prediction per axis per image (m)."""
+
+    @model_validator(mode="after")
+    def _perfect_zeroes_sigmas(self) -> "SensorConfig":
+        if self.perfect:              # the given sigmas were validated; perfect overrides them
+            for name in SIGMA_FIELDS:
+                object.__setattr__(self, name, 0.0)
+        return self
 
     @classmethod
-    def perfect(cls, state_time: str = "mid_exposure", heat_shield_prediction: bool = True) -> "SensorConfig":
+    def exact(cls, state_time: str = "mid_exposure", heat_shield_prediction: bool = True) -> "SensorConfig":
         """Every sensor exact."""
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, state_time, heat_shield_prediction, 0.0)
+        return cls(perfect=True, state_time=state_time, heat_shield_prediction=heat_shield_prediction)
 
+    @property
+    def attitude_bias_sigma_rad(self) -> float:
+        return math.radians(self.attitude_bias_sigma_deg)
 
-def sensor_config_from_table(table: Table) -> SensorConfig:
-    """Build a :class:`SensorConfig` from a campaign's ``[sensors]`` table (degrees at this edge).
+    @property
+    def attitude_random_sigma_rad(self) -> float:
+        return math.radians(self.attitude_random_sigma_deg)
 
-    Keys (all optional): ``perfect`` (bool, overrides the sigmas), ``attitude_bias_sigma_deg`` (1.0),
-    ``attitude_random_sigma_deg`` (0.05), ``alignment_sigma_deg`` (0.1), ``angular_rate_noise_sigma_dps``
-    (0.1), ``radar_altitude_sigma_percent`` (0.03), ``imu_velocity_bias_sigma_mps`` (2.0, per horizontal
-    axis), ``imu_vertical_velocity_bias_sigma_mps`` (0.0), ``imu_velocity_random_walk_mps_per_sqrt_s``
-    (0.0), ``state_time`` ("mid_exposure" or "exposure_start"), ``heat_shield_prediction`` (true),
-    ``heat_shield_prediction_sigma_m`` (10.0). Unknown keys are refused.
-    """
-    d = SensorConfig()
-    ranged = dict(minimum=0.0)
-    perfect = table.boolean("perfect", default=False)
-    config = SensorConfig(
-        attitude_bias_sigma_rad=table.number("attitude_bias_sigma_deg", d.attitude_bias_sigma_rad / _DEG,
-                                             maximum=30.0, **ranged) * _DEG,
-        attitude_random_sigma_rad=table.number("attitude_random_sigma_deg", d.attitude_random_sigma_rad / _DEG,
-                                               maximum=10.0, **ranged) * _DEG,
-        alignment_sigma_rad=table.number("alignment_sigma_deg", d.alignment_sigma_rad / _DEG, maximum=10.0, **ranged) * _DEG,
-        angular_rate_noise_sigma_radps=table.number("angular_rate_noise_sigma_dps",
-                                                    d.angular_rate_noise_sigma_radps / _DEG, maximum=60.0, **ranged) * _DEG,
-        radar_altitude_sigma_fraction=table.number("radar_altitude_sigma_percent", d.radar_altitude_sigma_fraction * 100.0,
-                                                   maximum=10.0, **ranged) / 100.0,
-        imu_velocity_bias_sigma_mps=table.number("imu_velocity_bias_sigma_mps", d.imu_velocity_bias_sigma_mps,
-                                                 maximum=50.0, **ranged),
-        imu_vertical_velocity_bias_sigma_mps=table.number("imu_vertical_velocity_bias_sigma_mps",
-                                                          d.imu_vertical_velocity_bias_sigma_mps, maximum=50.0, **ranged),
-        imu_velocity_random_walk_mps_per_sqrt_s=table.number("imu_velocity_random_walk_mps_per_sqrt_s",
-                                                             d.imu_velocity_random_walk_mps_per_sqrt_s, maximum=10.0, **ranged),
-        state_time=table.string("state_time", d.state_time, choices=STATE_TIMES),
-        heat_shield_prediction=table.boolean("heat_shield_prediction", d.heat_shield_prediction),
-        heat_shield_prediction_sigma_m=table.number("heat_shield_prediction_sigma_m", d.heat_shield_prediction_sigma_m,
-                                                    maximum=1000.0, **ranged),
-    )
-    table.reject_unknown()
-    return SensorConfig.perfect(config.state_time, config.heat_shield_prediction) if perfect else config
+    @property
+    def alignment_sigma_rad(self) -> float:
+        return math.radians(self.alignment_sigma_deg)
+
+    @property
+    def angular_rate_noise_sigma_radps(self) -> float:
+        return math.radians(self.angular_rate_noise_sigma_dps)
+
+    @property
+    def radar_altitude_sigma_fraction(self) -> float:
+        return self.radar_altitude_sigma_percent / 100.0
 
 
 def _state_times(profile: DescentProfile, camera, config: SensorConfig) -> np.ndarray:

@@ -30,126 +30,18 @@ samples is slerped by :class:`~simulator.scene.descent_profile.DescentProfile`, 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from flight_interface.tomlfields import ConfigError
 from simulator.scene.descent_profile import DescentProfile
-from flight_interface.tomlfields import Table, load_toml
 
 from .edl_dynamics import (G_MARS_MPS2, pendulum_acceleration, project_onto_sphere, swing_twist_attitude,
                            swing_twist_body_rate, tilt_angle_rad, twist_angle_rad)
+from .edl_parameters import EdlParameters, load_edl_parameters
 
-_DEG = np.pi / 180.0
+__all__ = ["EdlParameters", "generate_profiles", "load_edl_parameters", "profile_statistics", "within_limits"]
 
-
-@dataclass(frozen=True)
-class EdlParameters:
-    """Statistics of one site's trajectory set (SI units; degrees converted at load)."""
-
-    name: str
-    seed: int
-    profiles: int
-    output_path: Path
-    image_altitudes_m: tuple[float, ...]
-    last_image_after_previous_s: float
-    terminal_velocity_mean_mps: float
-    terminal_velocity_sigma_mps: float
-    time_before_first_image_s: float
-    initial_relative_horizontal_velocity_sigma_mps: float
-    bridle_length_m: float
-    swing_damping_ratio: float
-    initial_swing_sigma_rad: float
-    initial_swing_rate_sigma_radps: float
-    twist_natural_period_s: float
-    twist_damping_ratio: float
-    initial_roll_sigma_rad: float
-    initial_roll_rate_sigma_radps: float
-    crosswind_torque_radps2_per_mps: float
-    steady_wind_sigma_mps: float
-    shear_sigma_mps_per_m: float
-    gust_horizontal_sigma_mps: float
-    gust_vertical_sigma_mps: float
-    gust_correlation_time_s: float
-    axial_at_first_image_m: tuple[float, float]
-    axial_growth_m: tuple[float, float]
-    lateral_at_first_image_m: tuple[float, float]
-    lateral_growth_m: tuple[float, float]
-    lateral_direction_sigma_rad: float
-    integration_step_s: float
-    dense_step_s: float
-    dense_half_window_s: float
-    coarse_step_s: float
-    margin_s: float
-    off_nadir_max_rad: float
-    roll_max_rad: float
-    angular_rate_max_radps: float
-    horizontal_speed_max_mps: float
-
-
-def _range(table: Table, key: str) -> tuple[float, float]:
-    low, high = table.vector(key, 2)
-    if not (0.0 <= low <= high):
-        raise table.fail(key, f"= [{low:g}, {high:g}] is not a range; allowed: [low, high] with 0 <= low <= high")
-    return float(low), float(high)
-
-
-def load_edl_parameters(path: str | Path) -> EdlParameters:
-    """Read a site's trajectory-set TOML (``sitedata/trajectories/edl_<site>.toml``)."""
-    path = Path(path)
-    root = Table(load_toml(path), str(path))
-    s, im, de, pe, tw, wi, hs, sa, li = (root.table(k) for k in (
-        "set", "images", "descent", "pendulum", "twist", "wind", "heat_shield", "sampling", "limits"))
-    altitudes = im.vector("altitudes_m", 2)
-    if not (altitudes[0] > altitudes[1] > 0):
-        raise im.fail("altitudes_m", f"= {altitudes.tolist()} must be decreasing and positive")
-    dense = sa.number("dense_step_s", minimum=0, exclusive_minimum=True)
-    step = sa.number("integration_step_s", minimum=0, maximum=dense, exclusive_minimum=True)
-    if abs(dense / step - round(dense / step)) > 1e-9:
-        raise sa.fail("dense_step_s", f"= {dense:g} must be a whole multiple of integration_step_s = {step:g}")
-    coarse = sa.number("coarse_step_s", minimum=dense)
-    if abs(coarse / dense - round(coarse / dense)) > 1e-9:
-        raise sa.fail("coarse_step_s", f"= {coarse:g} must be a whole multiple of dense_step_s = {dense:g}")
-    positive = dict(minimum=0.0, exclusive_minimum=True)
-    params = EdlParameters(
-        name=s.string("name"), seed=s.integer("seed", minimum=0), profiles=s.integer("profiles", minimum=1),
-        output_path=s.path_value("output", path.parent),
-        image_altitudes_m=tuple(float(a) for a in altitudes),
-        last_image_after_previous_s=im.number("last_image_after_previous_s", **positive),
-        terminal_velocity_mean_mps=de.number("terminal_velocity_mean_mps", minimum=10.0, maximum=200.0),
-        terminal_velocity_sigma_mps=de.number("terminal_velocity_sigma_mps", minimum=0.0, maximum=10.0),
-        time_before_first_image_s=de.number("time_before_first_image_s", minimum=1.0, maximum=120.0),
-        initial_relative_horizontal_velocity_sigma_mps=de.number(
-            "initial_relative_horizontal_velocity_sigma_mps", minimum=0.0, maximum=30.0),
-        bridle_length_m=pe.number("bridle_length_m", minimum=1.0, maximum=200.0),
-        swing_damping_ratio=pe.number("damping_ratio", minimum=0.0, maximum=0.9),
-        initial_swing_sigma_rad=pe.number("initial_swing_sigma_deg", minimum=0.0, maximum=30.0) * _DEG,
-        initial_swing_rate_sigma_radps=pe.number("initial_swing_rate_sigma_dps", minimum=0.0, maximum=60.0) * _DEG,
-        twist_natural_period_s=tw.number("natural_period_s", minimum=0.1, maximum=600.0),
-        twist_damping_ratio=tw.number("damping_ratio", minimum=0.0, maximum=0.9),
-        initial_roll_sigma_rad=tw.number("initial_roll_sigma_deg", minimum=0.0, maximum=45.0) * _DEG,
-        initial_roll_rate_sigma_radps=tw.number("initial_roll_rate_sigma_dps", minimum=0.0, maximum=60.0) * _DEG,
-        crosswind_torque_radps2_per_mps=tw.number("crosswind_torque_radps2_per_mps", minimum=0.0, maximum=1.0),
-        steady_wind_sigma_mps=wi.number("steady_sigma_mps", minimum=0.0, maximum=30.0),
-        shear_sigma_mps_per_m=wi.number("shear_sigma_mps_per_km", minimum=0.0, maximum=30.0) / 1000.0,
-        gust_horizontal_sigma_mps=wi.number("gust_horizontal_sigma_mps", minimum=0.0, maximum=20.0),
-        gust_vertical_sigma_mps=wi.number("gust_vertical_sigma_mps", minimum=0.0, maximum=20.0),
-        gust_correlation_time_s=wi.number("gust_correlation_time_s", **positive),
-        axial_at_first_image_m=_range(hs, "axial_at_first_image_m"),
-        axial_growth_m=_range(hs, "axial_growth_to_last_image_m"),
-        lateral_at_first_image_m=_range(hs, "lateral_at_first_image_m"),
-        lateral_growth_m=_range(hs, "lateral_growth_to_last_image_m"),
-        lateral_direction_sigma_rad=hs.number("lateral_direction_sigma_deg", minimum=0.0, maximum=180.0) * _DEG,
-        integration_step_s=step, dense_step_s=dense,
-        dense_half_window_s=sa.number("dense_half_window_s", minimum=0.0),
-        coarse_step_s=coarse, margin_s=sa.number("margin_s", minimum=0.0, maximum=10.0),
-        off_nadir_max_rad=li.number("off_nadir_max_deg", minimum=0.0, maximum=90.0) * _DEG,
-        roll_max_rad=li.number("roll_max_deg", minimum=0.0, maximum=180.0) * _DEG,
-        angular_rate_max_radps=li.number("angular_rate_max_dps", **positive) * _DEG,
-        horizontal_speed_max_mps=li.number("horizontal_speed_max_mps", **positive),
-    )
-    root.reject_unknown()
-    return params
 
 
 @dataclass(frozen=True)
@@ -171,11 +63,12 @@ class _Draws:
 
 
 def _steps(params: EdlParameters) -> int:
-    drop = params.image_altitudes_m[0] - params.image_altitudes_m[1]
-    duration = (params.time_before_first_image_s + 1.25 * drop / params.terminal_velocity_mean_mps
-                + params.last_image_after_previous_s + params.margin_s + params.dense_half_window_s + 1.0)
-    record = int(round(params.dense_step_s / params.integration_step_s))
-    return int(np.ceil(duration / params.integration_step_s / record)) * record
+    images, sampling = params.images, params.sampling
+    drop = images.altitudes_m[0] - images.altitudes_m[1]
+    duration = (params.descent.time_before_first_image_s + 1.25 * drop / params.descent.terminal_velocity_mean_mps
+                + images.last_image_after_previous_s + sampling.margin_s + sampling.dense_half_window_s + 1.0)
+    record = int(round(sampling.dense_step_s / sampling.integration_step_s))
+    return int(np.ceil(duration / sampling.integration_step_s / record)) * record
 
 
 def _draw(params: EdlParameters, keys: list[tuple[int, int]]) -> _Draws:
@@ -195,16 +88,19 @@ def _draw(params: EdlParameters, keys: list[tuple[int, int]]) -> _Draws:
     def between(bounds, u):
         return bounds[0] + (bounds[1] - bounds[0]) * u
 
-    heat_shield = np.stack([between(p.axial_at_first_image_m, uniforms[:, 0]), between(p.axial_growth_m, uniforms[:, 1]),
-                            between(p.lateral_at_first_image_m, uniforms[:, 2]), between(p.lateral_growth_m, uniforms[:, 3]),
-                            p.lateral_direction_sigma_rad * scalars[:, 12]], axis=-1)
+    shield = p.heat_shield
+    heat_shield = np.stack([between(shield.axial_at_first_image_m, uniforms[:, 0]),
+                            between(shield.axial_growth_to_last_image_m, uniforms[:, 1]),
+                            between(shield.lateral_at_first_image_m, uniforms[:, 2]),
+                            between(shield.lateral_growth_to_last_image_m, uniforms[:, 3]),
+                            shield.lateral_direction_sigma_rad * scalars[:, 12]], axis=-1)
     return _Draws(
-        terminal_velocity=p.terminal_velocity_mean_mps + p.terminal_velocity_sigma_mps * scalars[:, 0],
-        wind_reference=p.steady_wind_sigma_mps * scalars[:, 1:3], shear=p.shear_sigma_mps_per_m * scalars[:, 3:5],
-        relative_velocity=p.initial_relative_horizontal_velocity_sigma_mps * scalars[:, 5:7],
-        swing_tilt=p.initial_swing_sigma_rad * scalars[:, 7:9],
-        swing_rate=p.initial_swing_rate_sigma_radps * scalars[:, 9:11],
-        roll=p.initial_roll_sigma_rad * scalars[:, 11], roll_rate=p.initial_roll_rate_sigma_radps * scalars[:, 13],
+        terminal_velocity=p.descent.terminal_velocity_mean_mps + p.descent.terminal_velocity_sigma_mps * scalars[:, 0],
+        wind_reference=p.wind.steady_sigma_mps * scalars[:, 1:3], shear=p.wind.shear_sigma_mps_per_m * scalars[:, 3:5],
+        relative_velocity=p.descent.initial_relative_horizontal_velocity_sigma_mps * scalars[:, 5:7],
+        swing_tilt=p.pendulum.initial_swing_sigma_rad * scalars[:, 7:9],
+        swing_rate=p.pendulum.initial_swing_rate_sigma_radps * scalars[:, 9:11],
+        roll=p.twist.initial_roll_sigma_rad * scalars[:, 11], roll_rate=p.twist.initial_roll_rate_sigma_radps * scalars[:, 13],
         asymmetry_angle=2.0 * np.pi * uniforms[:, 4], heat_shield=heat_shield,
         gust_initial=gust[:, 0, :], gust_innovation=gust[:, 1:, :],
     )
@@ -216,16 +112,16 @@ _STATE = 14   # pivot position (3), pivot velocity (3), bridle vector r (3), dr/
 
 def _integrate(p: EdlParameters, d: _Draws) -> tuple[float, np.ndarray]:
     """Fixed-step RK4 of the batch; returns the record step (s) and records (M, R, 14) every dense_step_s."""
-    g, h, length = G_MARS_MPS2, p.integration_step_s, p.bridle_length_m
-    steps, every = _steps(p), int(round(p.dense_step_s / p.integration_step_s))
+    g, h, length = G_MARS_MPS2, p.sampling.integration_step_s, p.pendulum.bridle_length_m
+    steps, every = _steps(p), int(round(p.sampling.dense_step_s / p.sampling.integration_step_s))
     vt = d.terminal_velocity
     tau_h, tau_v = vt / g, vt / (2.0 * g)
-    damping = 2.0 * p.swing_damping_ratio * np.sqrt(g / length)
-    omega_t = 2.0 * np.pi / p.twist_natural_period_s
-    stiffness, twist_damping = omega_t**2, 2.0 * p.twist_damping_ratio * omega_t
-    alt1 = p.image_altitudes_m[0]
-    phi = np.exp(-h / p.gust_correlation_time_s)
-    gust_sigma = np.array([p.gust_horizontal_sigma_mps, p.gust_horizontal_sigma_mps, p.gust_vertical_sigma_mps])
+    damping = 2.0 * p.pendulum.damping_ratio * np.sqrt(g / length)
+    omega_t = 2.0 * np.pi / p.twist.natural_period_s
+    stiffness, twist_damping = omega_t**2, 2.0 * p.twist.damping_ratio * omega_t
+    alt1 = p.images.altitudes_m[0]
+    phi = np.exp(-h / p.wind.gust_correlation_time_s)
+    gust_sigma = np.array([p.wind.gust_horizontal_sigma_mps, p.wind.gust_horizontal_sigma_mps, p.wind.gust_vertical_sigma_mps])
     gust_scale = gust_sigma * np.sqrt(1.0 - phi * phi)
     asymmetry = np.stack([np.cos(d.asymmetry_angle), np.sin(d.asymmetry_angle)], axis=-1)
 
@@ -238,7 +134,7 @@ def _integrate(p: EdlParameters, d: _Draws) -> tuple[float, np.ndarray]:
         specific = -pivot_accel
         specific[:, 2] -= g
         crosswind = air_h - velocity[:, :2] - u[:, :2]
-        roll_accel = (-stiffness * y[:, 12] - twist_damping * y[:, 13] + p.crosswind_torque_radps2_per_mps
+        roll_accel = (-stiffness * y[:, 12] - twist_damping * y[:, 13] + p.twist.crosswind_torque_radps2_per_mps
                       * (asymmetry[:, 0] * crosswind[:, 0] + asymmetry[:, 1] * crosswind[:, 1]))
         return np.concatenate([velocity, pivot_accel, u, pendulum_acceleration(r, u, specific, length, damping),
                                y[:, 13:14], roll_accel[:, None]], axis=1)
@@ -249,7 +145,7 @@ def _integrate(p: EdlParameters, d: _Draws) -> tuple[float, np.ndarray]:
     omega = np.concatenate([d.swing_rate, np.zeros((count, 1))], axis=1)
     y = np.empty((count, _STATE))
     y[:, 0:2] = 0.0
-    y[:, 2] = alt1 + vt * p.time_before_first_image_s + length
+    y[:, 2] = alt1 + vt * p.descent.time_before_first_image_s + length
     y[:, 3:5] = d.wind_reference + d.shear * (y[:, 2:3] - alt1) + d.relative_velocity
     y[:, 5] = -vt
     y[:, 6:9] = -length * up
@@ -285,32 +181,32 @@ def _build_profile(p: EdlParameters, step_s: float, rec: np.ndarray, draws: _Dra
     count = rec.shape[0]
     time = np.arange(count) * step_s
     lander = rec[:, 0:3] + rec[:, 6:9]
-    t1 = _crossing_time(time, lander[:, 2], p.image_altitudes_m[0])
-    t2 = _crossing_time(time, lander[:, 2], p.image_altitudes_m[1])
+    t1 = _crossing_time(time, lander[:, 2], p.images.altitudes_m[0])
+    t2 = _crossing_time(time, lander[:, 2], p.images.altitudes_m[1])
     if t1 is None or t2 is None:
         return None
-    images = np.array([t1, t2, t2 + p.last_image_after_previous_s])
-    lo = int(np.floor((t1 - p.margin_s) / step_s))
-    hi = int(np.ceil((images[-1] + p.margin_s) / step_s))
+    images = np.array([t1, t2, t2 + p.images.last_image_after_previous_s])
+    lo = int(np.floor((t1 - p.sampling.margin_s) / step_s))
+    hi = int(np.ceil((images[-1] + p.sampling.margin_s) / step_s))
     if lo < 0 or hi >= count:
         return None
-    coarse = int(round(p.coarse_step_s / p.dense_step_s))
+    coarse = int(round(p.sampling.coarse_step_s / p.sampling.dense_step_s))
     keep = np.zeros(count, dtype=bool)
     keep[lo:hi + 1:coarse] = True
     keep[[lo, hi]] = True
     for t in images:
-        keep[max(lo, int(np.floor((t - p.dense_half_window_s) / step_s))):
-             min(hi, int(np.ceil((t + p.dense_half_window_s) / step_s))) + 1] = True
+        keep[max(lo, int(np.floor((t - p.sampling.dense_half_window_s) / step_s))):
+             min(hi, int(np.ceil((t + p.sampling.dense_half_window_s) / step_s))) + 1] = True
     index = np.nonzero(keep)[0]
     s = rec[index]
-    length = p.bridle_length_m
+    length = p.pendulum.bridle_length_m
     up, up_rate = -s[:, 6:9] / length, -s[:, 9:12] / length
     attitude = swing_twist_attitude(up, s[:, 12])
     body_rate = swing_twist_body_rate(up, up_rate, s[:, 12], s[:, 13])
     position = s[:, 0:3] + s[:, 6:9]
     velocity = s[:, 3:6] + s[:, 9:12]
     wind = np.zeros_like(position)
-    wind[:, :2] = draws.wind_reference[row] + draws.shear[row] * (position[:, 2:3] - p.image_altitudes_m[0])
+    wind[:, :2] = draws.wind_reference[row] + draws.shear[row] * (position[:, 2:3] - p.images.altitudes_m[0])
 
     def lander_at(t: float) -> np.ndarray:
         return np.array([np.interp(t, time, lander[:, axis]) for axis in range(3)])
@@ -367,16 +263,16 @@ def profile_statistics(profile: DescentProfile) -> dict[str, float]:
 
 def within_limits(p: EdlParameters, stats: dict[str, float]) -> bool:
     """True when a profile's envelope lies inside the set's ``[limits]`` (strictly)."""
-    return (stats["off_nadir_max_deg"] < np.degrees(p.off_nadir_max_rad)
-            and stats["roll_max_deg"] < np.degrees(p.roll_max_rad)
-            and stats["angular_rate_max_dps"] < np.degrees(p.angular_rate_max_radps)
-            and stats["horizontal_speed_max_mps"] < p.horizontal_speed_max_mps)
+    return (stats["off_nadir_max_deg"] < p.limits.off_nadir_max_deg
+            and stats["roll_max_deg"] < p.limits.roll_max_deg
+            and stats["angular_rate_max_dps"] < p.limits.angular_rate_max_dps
+            and stats["horizontal_speed_max_mps"] < p.limits.horizontal_speed_max_mps)
 
 
 def generate_profiles(p: EdlParameters, indices=None, max_attempts: int = 50) -> tuple[list[DescentProfile], list[int]]:
-    """Profiles ``indices`` (default ``range(p.profiles)``) of a site's set, in order, and the attempt
+    """Profiles ``indices`` (default ``range(p.set.profiles)``) of a site's set, in order, and the attempt
     number each needed (0 = first draw accepted; >0 = earlier draws left the paper's envelope)."""
-    indices = list(range(p.profiles)) if indices is None else [int(i) for i in indices]
+    indices = list(range(p.set.profiles)) if indices is None else [int(i) for i in indices]
     accepted: dict[int, tuple[DescentProfile, int]] = {}
     pending = [(i, 0) for i in indices]
     while pending:
@@ -388,8 +284,9 @@ def generate_profiles(p: EdlParameters, indices=None, max_attempts: int = 50) ->
             if profile is not None and within_limits(p, profile_statistics(profile)):
                 accepted[index] = (profile, attempt)
             elif attempt + 1 >= max_attempts:
-                raise RuntimeError(f"{p.name}: profile {index} left the [limits] envelope in {max_attempts} draws; "
-                                   "the set's statistics parameters are inconsistent with its limits")
+                raise ConfigError(f"{p.source}: limits: profile {index} of set {p.name!r} left the [limits] envelope in "
+                                  f"{max_attempts} draws; allowed: statistics ([descent], [pendulum], [twist], [wind]) "
+                                  "consistent with the limits")
             else:
                 pending.append((index, attempt + 1))
     return [accepted[i][0] for i in indices], [accepted[i][1] for i in indices]

@@ -3,8 +3,8 @@
 A POST (Program to Optimize Simulated Trajectories) or similar tool prints a table: optional comment
 lines (starting with ``#`` or ``!``), one header line naming the columns, then rows of numbers
 separated by whitespace (Fortran ``1.0D+03`` exponents accepted). A *mapping* (dict or
-:class:`~flight_interface.tomlfields.Table`, e.g. a TOML file) says which source column feeds each schema
-column and how to convert it to SI::
+:class:`PostMapping`, or a TOML file) says which source column feeds each schema column and how to
+convert it to SI (declared once by :class:`PostMapping`; ``campaign schema post_mapping``)::
 
     [columns]                               # schema column = source
     t_s = "TIME"                            # copied as is (already SI)
@@ -23,19 +23,24 @@ Euler angles give the body-to-world attitude ``Rz(yaw) Ry(pitch) Rx(roll)`` in t
 (world x east, y north, z up; body z up the lander axis); convert other conventions in the source.
 Units: m, km, ft, kft (length); s, ms (time); m/s, km/s, ft/s (speed); rad, deg (angle); rad/s, deg/s
 (rate); 1 (quaternion components). A unit must suit the schema column's kind (its name's suffix).
+The images must be the three of DIMES (``times_s`` of 3, or 2 ``altitudes_m`` + ``last_after_previous_s``,
+or 3 ``altitudes_m``).
 """
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated, Any, Literal, Union
 
 import numpy as np
 import pandas as pd
+from pydantic import Discriminator, Field, Tag, create_model, model_validator
 
 from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
-from flight_interface.tomlfields import Table, load_toml
+from flight_interface.tomlfields import ConfigModel, FieldProblem, FloatList, load_toml, parse
 
-from .trajectory_io import HEAT_SHIELD_COLUMNS, REQUIRED_COLUMNS, TrajectoryFileError, frame_to_profiles, image_column
+from .trajectory_io import (DIMES_IMAGE_COUNT, HEAT_SHIELD_COLUMNS, REQUIRED_COLUMNS, TrajectoryFileError,
+                            frame_to_profiles, image_column)
 
 UNITS = {  # unit: (kind, scale to SI)
     "m": ("length", 1.0), "km": ("length", 1e3), "ft": ("length", 0.3048), "kft": ("length", 304.8),
@@ -52,6 +57,112 @@ def _kind(schema_column: str) -> str:
         if schema_column.endswith(suffix):
             return kind
     return "none"
+
+
+class ColumnSource(ConfigModel):
+    """A source column: ``si = value * (unit scale | scale) + offset``."""
+
+    column: str
+    """Name of the source column (header)."""
+    unit: Literal[tuple(UNITS)] | None = None
+    """Unit of the source column; must suit the schema column's kind."""
+    scale: float | None = None
+    """Explicit factor to SI (instead of unit)."""
+    offset: float = 0.0
+    """Added after scaling (SI)."""
+
+    @model_validator(mode="after")
+    def _one_factor(self):
+        if self.unit is not None and self.scale is not None:
+            raise FieldProblem("unit", "and scale both given; allowed: one of them")
+        return self
+
+    @property
+    def factor(self) -> float:
+        return UNITS[self.unit][1] if self.unit is not None else (1.0 if self.scale is None else self.scale)
+
+
+class ConstantSource(ConfigModel):
+    """A constant (SI)."""
+
+    value: float
+
+
+def _source_kind(value: Any) -> str:
+    if isinstance(value, str):
+        return "name"
+    return "constant" if isinstance(value, dict) and "value" in value else "column"
+
+
+#: "SOURCE", {column, unit | scale, offset} or {value}
+Source = Annotated[Union[Annotated[str, Tag("name")], Annotated[ColumnSource, Tag("column")],
+                         Annotated[ConstantSource, Tag("constant")]], Discriminator(_source_kind)]
+
+
+class _Columns(ConfigModel):
+    """``[columns]``: schema column = source, for every column of the trajectory schema
+    (:mod:`sitedata.trajectory_io`; qw..qz unless [attitude] euler_zyx is given; the heat-shield columns
+    are optional, all three or none)."""
+
+    @model_validator(mode="after")
+    def _units_suit_columns(self):
+        for name in type(self).model_fields:
+            source = getattr(self, name)
+            if isinstance(source, ColumnSource) and source.unit is not None:
+                kind = _kind(name)
+                allowed = [u for u, (k, _) in UNITS.items() if k == kind] or ["1"]
+                if source.unit not in allowed:
+                    raise FieldProblem(f"{name}.unit", f"= {source.unit!r} is not allowed; allowed: {', '.join(allowed)}")
+        return self
+
+
+ColumnsTable = create_model(
+    "ColumnsTable", __base__=_Columns, __doc__=_Columns.__doc__,
+    **{name: (Source | None, None) for name in [c for c in REQUIRED_COLUMNS if c != "profile_id"] + list(HEAT_SHIELD_COLUMNS)})
+
+
+class EulerAngles(ConfigModel):
+    """``euler_zyx``: body-to-world attitude Rz(yaw) Ry(pitch) Rx(roll) from three source columns."""
+
+    yaw: str
+    pitch: str
+    roll: str
+    unit: Literal["rad", "deg"] = "rad"
+
+
+class AttitudeTable(ConfigModel):
+    """``[attitude]``: instead of qw, qx, qy, qz in [columns]."""
+
+    euler_zyx: EulerAngles | None = None
+
+
+class PostImages(ConfigModel):
+    """``[images]``: the three image times, given or from first downward altitude crossings."""
+
+    times_s: FloatList | None = None
+    """Start of exposure of each image (s)."""
+    altitudes_m: FloatList | None = None
+    """First downward crossings of z_m (m)."""
+    last_after_previous_s: float | None = Field(None, gt=0.0)
+    """One more image this long after the last crossing (s)."""
+
+    @model_validator(mode="after")
+    def _three_images(self):
+        if (self.times_s is None) == (self.altitudes_m is None):
+            raise FieldProblem("times_s", "and altitudes_m: give exactly one of them")
+        given = "times_s" if self.times_s is not None else "altitudes_m"
+        count = len(getattr(self, given)) + (self.last_after_previous_s is not None and given == "altitudes_m")
+        if count != DIMES_IMAGE_COUNT:
+            raise FieldProblem(given, f"gives {count} image times; allowed: {DIMES_IMAGE_COUNT} (the DIMES images)")
+        return self
+
+
+class PostMapping(ConfigModel):
+    """A POST-table mapping (TOML file or dict)."""
+
+    columns: ColumnsTable
+    attitude: AttitudeTable = AttitudeTable()
+    images: PostImages
 
 
 def parse_whitespace_table(path: str | Path) -> pd.DataFrame:
@@ -95,35 +206,15 @@ def _is_number(token: str) -> bool:
         return False
 
 
-def _source_values(table: pd.DataFrame, spec: Table, key: str, kind: str, source: str) -> np.ndarray:
-    """Values of one mapped column in SI."""
-    spec.ignore(key)
-    entry = spec.data[key]
-    if isinstance(entry, str):
-        entry_table = Table({"column": entry}, spec.source, f"{spec.path}.{key}" if spec.path else key)
-    elif isinstance(entry, dict):
-        entry_table = spec.table(key)
-    else:
-        raise spec.fail(key, f"= {entry!r} is not a mapping; allowed: \"SOURCE\", {{column, unit | scale, offset}} "
-                        "or {value}")
-    if entry_table.has("value"):
-        value = entry_table.number("value")
-        entry_table.reject_unknown()
-        return np.full(len(table), value)
-    column = entry_table.string("column")
-    if column not in table.columns:
-        raise entry_table.fail("column", f"= {column!r} is not a column of {source}; allowed: {', '.join(table.columns)}")
-    if entry_table.has("unit") and entry_table.has("scale"):
-        raise entry_table.fail("unit", "and scale both given; allowed: one of them")
-    scale = 1.0
-    if entry_table.has("unit"):
-        unit = entry_table.string("unit", choices=[u for u, (k, _) in UNITS.items() if k == kind] or ["1"])
-        scale = UNITS[unit][1]
-    elif entry_table.has("scale"):
-        scale = entry_table.number("scale")
-    offset = entry_table.number("offset", default=0.0)
-    entry_table.reject_unknown()
-    return table[column].to_numpy(dtype=float) * scale + offset
+def _source_values(table: pd.DataFrame, source: Any, field: str, where: str, path: Path) -> np.ndarray:
+    """Values of one mapped column in SI (``field``: its dotted name in the mapping, for errors)."""
+    if isinstance(source, ConstantSource):
+        return np.full(len(table), source.value)
+    source = ColumnSource(column=source) if isinstance(source, str) else source
+    if source.column not in table.columns:
+        raise TrajectoryFileError(f"{where}: {field}.column = {source.column!r} is not a column of {path}; allowed: "
+                                  f"{', '.join(table.columns)}")
+    return table[source.column].to_numpy(dtype=float) * source.factor + source.offset
 
 
 def _crossing(time: np.ndarray, altitude: np.ndarray, level: float) -> float | None:
@@ -134,67 +225,57 @@ def _crossing(time: np.ndarray, altitude: np.ndarray, level: float) -> float | N
     return float(time[j] + (altitude[j] - level) / (altitude[j] - altitude[j + 1]) * (time[j + 1] - time[j]))
 
 
-def read_post_table(path: str | Path, mapping: Table | dict | str | Path, profile_id: int = 0) -> DescentProfile:
+def read_post_table(path: str | Path, mapping: PostMapping | dict | str | Path, profile_id: int = 0) -> DescentProfile:
     """Read a POST-style table as one :class:`DescentProfile` through ``mapping`` (see module doc).
 
-    ``mapping`` is a Table, a dict, or the path of a TOML file holding ``[columns]``, ``[attitude]``
-    and ``[images]``. Errors name the table file (line) or the mapping field, and what is allowed.
+    ``mapping`` is a :class:`PostMapping`, a dict, or the path of a TOML file holding ``[columns]``,
+    ``[attitude]`` and ``[images]``. Errors name the table file (line) or the mapping field, and what is allowed.
     """
     path = Path(path)
+    where = "<mapping>"
     if isinstance(mapping, (str, Path)):
-        mapping = Table(load_toml(mapping), str(mapping))
+        where = str(mapping)
+        mapping = parse(PostMapping, load_toml(mapping), where)
     elif isinstance(mapping, dict):
-        mapping = Table(mapping, "<mapping>")
+        mapping = parse(PostMapping, mapping, where)
     table = parse_whitespace_table(path)
-    columns = mapping.table("columns")
-    attitude = mapping.table("attitude", required=False)
-    euler = attitude.has("euler_zyx")
-    needed = [c for c in REQUIRED_COLUMNS if c != "profile_id" and not (euler and c in _ATTITUDE)]
-    missing = [c for c in needed if not columns.has(c)]
+    columns = mapping.columns
+    euler = mapping.attitude.euler_zyx
+    needed = [c for c in REQUIRED_COLUMNS if c != "profile_id" and not (euler is not None and c in _ATTITUDE)]
+    missing = [c for c in needed if getattr(columns, c) is None]
     if missing:
-        raise columns.fail(missing[0], f"is missing; every schema column needs a source: {', '.join(needed)}"
-                           + (" (or [attitude] euler_zyx for the quaternion)" if missing[0] in _ATTITUDE else ""))
-    heat = [c for c in HEAT_SHIELD_COLUMNS if columns.has(c)]
+        raise TrajectoryFileError(f"{where}: columns.{missing[0]} is missing; every schema column needs a source: "
+                                  f"{', '.join(needed)}"
+                                  + (" (or [attitude] euler_zyx for the quaternion)" if missing[0] in _ATTITUDE else ""))
+    heat = [c for c in HEAT_SHIELD_COLUMNS if getattr(columns, c) is not None]
     if heat and len(heat) != 3:
-        raise columns.fail([c for c in HEAT_SHIELD_COLUMNS if c not in heat][0], "is missing; heat-shield columns come "
-                           "all three or none")
+        absent = [c for c in HEAT_SHIELD_COLUMNS if c not in heat][0]
+        raise TrajectoryFileError(f"{where}: columns.{absent} is missing; heat-shield columns come all three or none")
     frame = {"profile_id": np.full(len(table), profile_id, dtype=np.int64)}
     for name in needed + heat:
-        frame[name] = _source_values(table, columns, name, _kind(name), str(path))
-    if euler:
-        angles = attitude.table("euler_zyx")
-        unit = angles.string("unit", default="rad", choices=("rad", "deg"))
-        yaw, pitch, roll = (_source_values(table, Table({"a": {"column": angles.string(k), "unit": unit}}, angles.source,
-                                                        angles.path), "a", "angle", str(path)) for k in ("yaw", "pitch", "roll"))
-        angles.reject_unknown()
+        frame[name] = _source_values(table, getattr(columns, name), f"columns.{name}", where, path)
+    if euler is not None:
+        yaw, pitch, roll = (_source_values(table, ColumnSource(column=getattr(euler, k), unit=euler.unit),
+                                           f"attitude.euler_zyx.{k}", where, path) for k in ("yaw", "pitch", "roll"))
         quat = quat_multiply(quat_multiply(quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), yaw),
                                            quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), pitch)),
                              quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), roll))
         for axis, name in enumerate(_ATTITUDE):
             frame[name] = quat[:, axis]
-    images = mapping.table("images")
-    if images.has("times_s") == images.has("altitudes_m"):
-        raise images.fail("times_s", "and altitudes_m: give exactly one of them")
-    if images.has("times_s"):
-        values = images.data["times_s"]
-        if not isinstance(values, list) or not values:
-            raise images.fail("times_s", f"must be a non-empty list of numbers; got {values!r}")
-        times = images.vector("times_s", len(values))
+    images = mapping.images
+    if images.times_s is not None:
+        times = np.array(images.times_s)
     else:
-        levels = images.data["altitudes_m"]
-        if not isinstance(levels, list) or not levels:
-            raise images.fail("altitudes_m", f"must be a non-empty list of numbers; got {levels!r}")
         crossings = []
-        for level in images.vector("altitudes_m", len(levels)):
+        for level in images.altitudes_m:
             crossing = _crossing(frame["t_s"], frame["z_m"], level)
             if crossing is None:
-                raise images.fail("altitudes_m", f"= {level:g} m is never crossed downward by z_m in {path} "
-                                  f"(z_m spans {frame['z_m'].min():.1f}..{frame['z_m'].max():.1f} m)")
+                raise TrajectoryFileError(f"{where}: images.altitudes_m = {level:g} m is never crossed downward by z_m "
+                                          f"in {path} (z_m spans {frame['z_m'].min():.1f}..{frame['z_m'].max():.1f} m)")
             crossings.append(crossing)
-        if images.has("last_after_previous_s"):
-            crossings.append(crossings[-1] + images.number("last_after_previous_s", minimum=0.0, exclusive_minimum=True))
+        if images.last_after_previous_s is not None:
+            crossings.append(crossings[-1] + images.last_after_previous_s)
         times = np.array(crossings)
-    mapping.reject_unknown()
     for k, value in enumerate(times):
         frame[image_column(k + 1)] = np.full(len(table), float(value))
     return frame_to_profiles(pd.DataFrame(frame), str(path), name_prefix=path.stem)[0]

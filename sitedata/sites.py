@@ -24,85 +24,201 @@ the campaign does with a terrain too small for the descent images' footprints (r
 same image at the coarser scale that holds them, or mirror-tile it; :mod:`campaign.coverage`).
 
 Optional in a synthetic terrain table: ``overrides = { haze_optical_depth = 0.3, ... }`` (numeric
-fields of :class:`sitedata.synthetic_classes.ClassTerrainParams`). Other top-level tables
-(``[campaign]``, ``[sensors]``, ...) belong to other readers and are ignored here; unknown keys
-inside ``[site]`` are errors. Every error is one line naming the file, the field and what is allowed.
+fields of :class:`sitedata.synthetic_classes.ClassTerrainParams`). The ``[site]`` table is declared
+once, by :class:`Site` and its parts (:class:`Sun`, :class:`SiteClass`, :class:`SyntheticTerrain`,
+:class:`FileTerrain`); ``campaign schema site`` prints it. Other top-level tables (``[campaign]``,
+``[sensors]``, ...) belong to other readers and are ignored here; unknown keys inside ``[site]`` are
+errors. Every error is one line naming the file, the field and what is allowed.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
 import math
-from dataclasses import dataclass
+import typing
 from pathlib import Path
+from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
+from pydantic import Field, PrivateAttr, ValidationInfo, create_model, model_validator
 
 from simulator.scene.terrain import Terrain
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import (ConfigError, ConfigModel, ExistingFile, FieldProblem, InputPath, fixed_vector,
+                                        load_toml, parse)
 
 from .synthetic_classes import CLASS_PRESETS, ClassTerrainParams
 
 ASTRONOMICAL_UNIT_M = 1.495978707e11
 FRACTION_TOLERANCE = 1e-6
-
-_SITE_KEYS = ("name", "camera", "trajectory_set", "sun", "classes")
-_SUN_KEYS = ("azimuth_deg", "elevation_deg", "heliocentric_distance_au")
-_CLASS_KEYS = ("name", "ellipse_fraction", "cases", "terrain")
-_TERRAIN_KEYS = {"synthetic": ("kind", "preset", "seed", "overrides", "resample"),
-                 "file": ("kind", "path", "sidecar", "resample")}
-RESAMPLE_MODES = ("none", "stretch", "mosaic")
-_OVERRIDABLE = tuple(f.name for f in dataclasses.fields(ClassTerrainParams)
-                     if f.name not in ("name", "description"))
+MAX_CASES = 1_000_000
+#: What the campaign does with a terrain too small for the footprints (:mod:`campaign.coverage`).
+Resample = Literal["none", "stretch", "mosaic"]
+RESAMPLE_MODES = typing.get_args(Resample)
 
 
-@dataclass(frozen=True)
-class TerrainSpec:
-    """Where a class's terrain comes from: a synthetic preset + seed, or an image file (+ side-car)."""
-
-    kind: str                                   # "synthetic" or "file"
-    source: str                                 # "file: dotted.path" for error messages
-    preset: str | None = None
-    seed: int | None = None
-    overrides: tuple[tuple[str, object], ...] = ()
-    path: Path | None = None
-    sidecar: Path | None = None
-    resample: str = "none"                      # "none" | "stretch" | "mosaic" (campaign.coverage)
+def sun_direction(azimuth_rad: float, elevation_rad: float) -> np.ndarray:
+    """Unit vector toward the sun (east, north, up) from azimuth (clockwise from north) and elevation."""
+    return np.array([math.cos(elevation_rad) * math.sin(azimuth_rad),
+                     math.cos(elevation_rad) * math.cos(azimuth_rad),
+                     math.sin(elevation_rad)])
 
 
-@dataclass(frozen=True)
-class SiteClass:
-    """One appearance class of a site."""
+class Sun(ConfigModel):
+    """``[site.sun]``: the sun at landing."""
 
-    name: str
-    ellipse_fraction: float
-    cases: int
+    azimuth_deg: float = Field(ge=0.0, lt=360.0)
+    """Clockwise from north (deg)."""
+    elevation_deg: float = Field(gt=0.0, le=90.0)
+    """Above the horizon (deg)."""
+    heliocentric_distance_au: float = Field(ge=1.38, le=1.67)
+    """Mars-Sun distance (AU)."""
+
+
+def _overrides_model() -> type[ConfigModel]:
+    """``overrides``: any numeric field of :class:`ClassTerrainParams` (declared there, with its ranges in
+    ``ClassTerrainParams.validate``), optional."""
+    fields: dict[str, Any] = {}
+    for field in dataclasses.fields(ClassTerrainParams):
+        if field.name in ("name", "description"):
+            continue
+        default = field.default
+        if isinstance(default, tuple):
+            annotation = fixed_vector(len(default))
+        elif isinstance(default, int):
+            annotation = Annotated[int, Field(ge=1)]
+        else:
+            annotation = float
+        fields[field.name] = (Optional[annotation], None)
+    return create_model("TerrainOverrides", __base__=ConfigModel, __doc__=_overrides_model.__doc__, **fields)
+
+
+TerrainOverrides = _overrides_model()
+
+
+class _TerrainSpec(ConfigModel):
+    resample: Resample = "none"
+    """A terrain too small for the descent images' footprints: "none" refuses it, "stretch" shows the
+    same image at the coarser scale that holds them, "mosaic" mirror-tiles it (campaign.coverage)."""
+    _where: str = PrivateAttr("")
+
+    @property
+    def source(self) -> str:
+        """``"file: site.classes[i].terrain"`` for error messages."""
+        return self._where
+
+
+class SyntheticTerrain(_TerrainSpec):
+    """A synthetic appearance-class terrain: preset + seed (+ overrides), generated and cached."""
+
+    kind: Literal["synthetic"]
+    preset: Literal[tuple(CLASS_PRESETS)]
+    """Appearance-class preset (sitedata.synthetic_classes)."""
+    seed: int = Field(ge=0, le=2**63 - 1)
+    """Seed of the terrain generator."""
+    overrides: TerrainOverrides | None = None
+    """Preset parameters changed for this class."""
+
+    @model_validator(mode="after")
+    def _overrides_are_valid(self):
+        try:
+            self.params().validate()
+        except ValueError as exc:
+            raise FieldProblem("overrides", f": {exc}") from None
+        return self
+
+    def params(self) -> ClassTerrainParams:
+        """The preset's parameters with the overrides applied."""
+        changes = self.overrides.model_dump(exclude_none=True) if self.overrides is not None else {}
+        return dataclasses.replace(CLASS_PRESETS[self.preset], **changes)
+
+
+class FileTerrain(_TerrainSpec):
+    """Terrain from an orbital image file, with an optional side-car TOML (sitedata.readers)."""
+
+    kind: Literal["file"]
+    path: InputPath
+    """The image, relative to the site file."""
+    sidecar: InputPath | None = None
+    """Side-car TOML, relative to the site file (default: none)."""
+
+
+TerrainSpec = Annotated[Union[SyntheticTerrain, FileTerrain], Field(discriminator="kind")]
+
+
+class SiteClass(ConfigModel):
+    """``[[site.classes]]``: one appearance class of the landing ellipse."""
+
+    name: str = Field(min_length=1)
+    """Class name (unique within the site)."""
+    ellipse_fraction: float = Field(ge=0.0, le=1.0)
+    """Fraction of the landing ellipse; the fractions of all classes sum to 1."""
+    cases: int = Field(ge=0, le=MAX_CASES)
+    """Monte Carlo cases of the class."""
     terrain: TerrainSpec
+    """Where the class's terrain comes from."""
 
 
-@dataclass(frozen=True)
-class Site:
-    """A landing site (SI units, radians).
+class Site(ConfigModel):
+    """``[site]``: a landing site. Paths are resolved against the site file's directory; the sun is in
+    degrees here, radians and a direction vector through the properties."""
 
-    Attributes
-    ----------
-    sun_direction_world : ndarray (3,)
-        Unit vector from the ground toward the sun in the world frame (x east, y north, z up).
-    """
+    name: str = Field(min_length=1)
+    """Site name."""
+    camera: ExistingFile
+    """Camera TOML, relative to the site file."""
+    trajectory_set: InputPath
+    """EDL trajectory set (.parquet / .csv), relative to the site file."""
+    sun: Sun
+    classes: list[SiteClass] = Field(min_length=1)
+    """Appearance classes ([[site.classes]])."""
+    _source: Path = PrivateAttr(Path("."))
 
-    name: str
-    source: Path
-    camera_path: Path
-    trajectory_path: Path
-    sun_azimuth_rad: float
-    sun_elevation_rad: float
-    sun_direction_world: np.ndarray
-    heliocentric_distance_m: float
-    classes: tuple[SiteClass, ...]
+    @model_validator(mode="after")
+    def _classes_are_consistent(self, info: ValidationInfo):
+        seen: set[str] = set()
+        for index, entry in enumerate(self.classes):
+            if entry.name in seen:
+                raise FieldProblem(f"classes[{index}].name", f"= {entry.name!r} is a duplicate; class names must be unique")
+            seen.add(entry.name)
+            entry.terrain._where = f"{(info.context or {}).get('source', '<site>')}: site.classes[{index}].terrain"
+        total = sum(entry.ellipse_fraction for entry in self.classes)
+        if abs(total - 1.0) > FRACTION_TOLERANCE:
+            raise FieldProblem("classes", f"ellipse_fraction values sum to {total:.9g}; allowed: 1 within "
+                               f"{FRACTION_TOLERANCE:g}")
+        return self
+
+    @property
+    def source(self) -> Path:
+        return self._source
+
+    @property
+    def camera_path(self) -> Path:
+        return self.camera
+
+    @property
+    def trajectory_path(self) -> Path:
+        return self.trajectory_set
+
+    @property
+    def sun_azimuth_rad(self) -> float:
+        return math.radians(self.sun.azimuth_deg)
+
+    @property
+    def sun_elevation_rad(self) -> float:
+        return math.radians(self.sun.elevation_deg)
+
+    @property
+    def sun_direction_world(self) -> np.ndarray:
+        """Unit vector (3,) from the ground toward the sun in the world frame (x east, y north, z up)."""
+        return sun_direction(self.sun_azimuth_rad, self.sun_elevation_rad)
 
     @property
     def heliocentric_distance_au(self) -> float:
-        return self.heliocentric_distance_m / ASTRONOMICAL_UNIT_M
+        return self.sun.heliocentric_distance_au
+
+    @property
+    def heliocentric_distance_m(self) -> float:
+        return self.sun.heliocentric_distance_au * ASTRONOMICAL_UNIT_M
 
     @property
     def sun_incidence_rad(self) -> float:
@@ -117,49 +233,16 @@ class Site:
                        f"classes: {', '.join(c.name for c in self.classes)}")
 
 
-def sun_direction(azimuth_rad: float, elevation_rad: float) -> np.ndarray:
-    """Unit vector toward the sun (east, north, up) from azimuth (clockwise from north) and elevation."""
-    return np.array([math.cos(elevation_rad) * math.sin(azimuth_rad),
-                     math.cos(elevation_rad) * math.cos(azimuth_rad),
-                     math.sin(elevation_rad)])
-
-
-def _reject_unknown(table: Table, allowed) -> None:
-    for key in table.data:
-        if key not in allowed:
-            raise table.fail(key, f"is not a known field; allowed: {', '.join(allowed)}")
-
-
-def _terrain_spec(table: Table, base_dir: Path) -> TerrainSpec:
-    kind = table.string("kind", choices=tuple(_TERRAIN_KEYS))
-    _reject_unknown(table, _TERRAIN_KEYS[kind])
-    source = f"{table.source}: {table.path}"
-    resample = table.string("resample", default="none", choices=RESAMPLE_MODES)
-    if kind == "file":
-        sidecar = table.path_value("sidecar", base_dir) if table.has("sidecar") else None
-        return TerrainSpec(kind="file", source=source, path=table.path_value("path", base_dir), sidecar=sidecar,
-                           resample=resample)
-    preset = table.string("preset", choices=tuple(CLASS_PRESETS))
-    seed = table.integer("seed", minimum=0, maximum=2**63 - 1)
-    overrides = []
-    if table.has("overrides"):
-        extra = table.table("overrides")
-        _reject_unknown(extra, _OVERRIDABLE)
-        for key in sorted(extra.data):
-            default = getattr(CLASS_PRESETS[preset], key)
-            if isinstance(default, tuple):
-                value = tuple(float(v) for v in extra.vector(key, len(default)))
-            elif isinstance(default, int):
-                value = extra.integer(key, minimum=1)
-            else:
-                value = extra.number(key)
-            overrides.append((key, value))
-        try:
-            dataclasses.replace(CLASS_PRESETS[preset], **dict(overrides)).validate()
-        except ValueError as exc:
-            raise ConfigError(f"{source}.overrides: {exc}") from None
-    return TerrainSpec(kind="synthetic", source=source, preset=preset, seed=seed, overrides=tuple(overrides),
-                       resample=resample)
+def site_from_data(data: dict, path: str | Path, source: str | None = None) -> Site:
+    """Validate the ``[site]`` table of parsed TOML ``data`` read from ``path`` (relative paths resolve
+    against its directory; ``source`` names the data in errors, default ``path``)."""
+    path = Path(path)
+    label = source or str(path)
+    if not isinstance(data, dict) or "site" not in data:
+        raise ConfigError(f"{label}: site is missing (a [site] table with the site, camera, sun and classes)")
+    site = parse(Site, data["site"], label, "site", context={"base_dir": path.parent, "source": label})
+    site._source = path
+    return site
 
 
 def load_site(path: str | Path) -> Site:
@@ -170,53 +253,14 @@ def load_site(path: str | Path) -> Site:
     ConfigError
         One line naming the file, the field and what is allowed.
     """
-    path = Path(path)
-    root = Table(load_toml(path), str(path))
-    site = root.table("site")
-    _reject_unknown(site, _SITE_KEYS)
-    base_dir = path.parent
-    name = site.string("name")
-    camera_path = site.path_value("camera", base_dir)
-    if not camera_path.is_file():
-        raise site.fail("camera", f"= {site.data['camera']!r}: no such file {camera_path}")
-    trajectory_path = site.path_value("trajectory_set", base_dir)
-
-    sun = site.table("sun")
-    _reject_unknown(sun, _SUN_KEYS)
-    azimuth = math.radians(sun.number("azimuth_deg", minimum=0.0, maximum=360.0, exclusive_maximum=True))
-    elevation = math.radians(sun.number("elevation_deg", minimum=0.0, maximum=90.0, exclusive_minimum=True))
-    distance_au = sun.number("heliocentric_distance_au", minimum=1.38, maximum=1.67)
-
-    raw_classes = site.data.get("classes")
-    if not isinstance(raw_classes, list) or not raw_classes:
-        raise site.fail("classes", "must be a non-empty array of tables ([[site.classes]])")
-    classes = []
-    for index, raw in enumerate(raw_classes):
-        entry = Table(raw, site.source, f"site.classes[{index}]")
-        _reject_unknown(entry, _CLASS_KEYS)
-        class_name = entry.string("name")
-        if any(c.name == class_name for c in classes):
-            raise entry.fail("name", f"= {class_name!r} is a duplicate; class names must be unique")
-        classes.append(SiteClass(
-            name=class_name,
-            ellipse_fraction=entry.number("ellipse_fraction", minimum=0.0, maximum=1.0),
-            cases=entry.integer("cases", minimum=0),
-            terrain=_terrain_spec(entry.table("terrain"), base_dir)))
-    total = sum(c.ellipse_fraction for c in classes)
-    if abs(total - 1.0) > FRACTION_TOLERANCE:
-        raise site.fail("classes", f"ellipse_fraction values sum to {total:.9g}; allowed: 1 within {FRACTION_TOLERANCE:g}")
-
-    return Site(name=name, source=path, camera_path=camera_path, trajectory_path=trajectory_path,
-                sun_azimuth_rad=azimuth, sun_elevation_rad=elevation,
-                sun_direction_world=sun_direction(azimuth, elevation),
-                heliocentric_distance_m=distance_au * ASTRONOMICAL_UNIT_M, classes=tuple(classes))
+    return site_from_data(load_toml(path), path)
 
 
 def class_terrain_params(spec: TerrainSpec) -> ClassTerrainParams:
     """The synthetic parameters of a ``kind = "synthetic"`` spec (preset plus overrides)."""
     if spec.kind != "synthetic":
         raise ConfigError(f"{spec.source}.kind = {spec.kind!r} has no synthetic parameters")
-    return dataclasses.replace(CLASS_PRESETS[spec.preset], **dict(spec.overrides))
+    return spec.params()
 
 
 def load_class_terrain(spec: TerrainSpec, cache: bool = True) -> Terrain:

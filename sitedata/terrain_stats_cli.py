@@ -14,7 +14,6 @@ what is wrong, exit code 2, nothing written.
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import sys
@@ -25,7 +24,8 @@ import pandas as pd
 from scipy import ndimage
 
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from flight_interface.command_line import USAGE_ERROR, OneLineParser
+from flight_interface.tomlfields import ConfigError, load_toml
 
 from .sites import Site, load_class_terrain, load_site
 from .synthetic_classes import CLASS_PRESETS
@@ -37,10 +37,10 @@ DEFAULT_SITE = SHIPPED_SITES[0]
 
 
 def _estimator_config(site_path: Path):
-    from dimes_velocity.config import EstimatorConfig, config_from_table
+    from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
 
-    root = Table(load_toml(site_path), str(site_path))
-    return config_from_table(root.table("estimator")) if root.has("estimator") else EstimatorConfig()
+    data = load_toml(site_path)
+    return estimator_config_from_data(data["estimator"], site_path) if "estimator" in data else EstimatorConfig()
 
 
 def _sampling(site: Site, site_path: Path, terrain=None):
@@ -147,7 +147,7 @@ def format_table(frame: pd.DataFrame) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sitedata.terrain_stats", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m sitedata.terrain_stats", description=__doc__.splitlines()[0])
     parser.add_argument("sources", nargs="+", metavar="SOURCE", help="site TOML, preset name, or FILE[:SIDECAR.toml]")
     parser.add_argument("--csv", default="terrain_stats.csv", help="CSV output (default terrain_stats.csv)")
     parser.add_argument("--site", default=str(DEFAULT_SITE), help="site TOML whose camera and sun measure image files")
@@ -158,8 +158,8 @@ def main(argv: list[str] | None = None) -> int:
         for source in args.sources:
             rows.extend(measure(source, Path(args.site), cache=not args.no_cache))
     except (ConfigError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return USAGE_ERROR
     frame = to_frame(rows)
     print(format_table(frame))
     frame.to_csv(args.csv, index=False)

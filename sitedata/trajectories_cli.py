@@ -6,16 +6,16 @@ Usage (from the repository root)::
     python -m sitedata.trajectories_cli verify [SITE ...]     # regenerate in memory, compare with the files
     python -m sitedata.trajectories_cli stats [SITE|FILE ...] # statistics + check against the paper
 
-SITE is the name of a parameter file ``sitedata/trajectories/edl_<SITE>.toml`` (default: every one).
+SITE is the name of a parameter file ``sitedata/trajectories/edl_<SITE>.toml`` (default: every one) or
+the path of any parameter file (``.toml``, fields: :class:`sitedata.edl_parameters.EdlParameters`).
 ``stats`` also accepts any trajectory file (``.parquet`` / ``.csv``). Exit status 1 when a check or a
-verification fails. The paper's ranges (section 5) checked by ``stats``: images at 2000 / 1725 /
+verification fails; 2 with one line on stderr (naming the file and field) for bad input, nothing written. The paper's ranges (section 5) checked by ``stats``: images at 2000 / 1725 /
 ~1450 m, 3.75 s between images 2 and 3, vertical speed ~72 m/s, off-nadir < 30 deg, roll < 45 deg,
 angular rate < 60 deg/s, horizontal speed < 30 m/s, heat shield 140-200 m axial and 50-75 m lateral
 from the lander at the images; with both sites, Gusev windier with larger attitude excursions.
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import sys
 from pathlib import Path
@@ -23,6 +23,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
+
+from flight_interface.command_line import USAGE_ERROR, OneLineParser
+from flight_interface.tomlfields import ConfigError
 
 from .edl_generator import generate_profiles, load_edl_parameters, profile_statistics
 from .trajectory_io import compact_frame, profiles_to_frame, read_profiles, write_profiles
@@ -52,10 +55,13 @@ def parameter_files(sites: list[str]) -> list[Path]:
         return sorted(TRAJECTORY_DIR.glob("edl_*.toml"))
     files = []
     for site in sites:
+        if site.endswith(".toml"):
+            files.append(Path(site))          # a parameter file given by path (validated when loaded)
+            continue
         path = TRAJECTORY_DIR / f"edl_{site}.toml"
         if not path.is_file():
             known = ", ".join(p.stem[4:] for p in sorted(TRAJECTORY_DIR.glob("edl_*.toml")))
-            raise SystemExit(f"{path}: no such trajectory set parameter file; allowed sites: {known}")
+            raise ConfigError(f"{path}: no such trajectory set parameter file; allowed sites: {known}")
         files.append(path)
     return files
 
@@ -112,9 +118,9 @@ def command_stats(targets: list[str]) -> bool:
         candidate = Path(target)
         paths.append(candidate if candidate.suffix in (".parquet", ".csv")
                      else load_edl_parameters(parameter_files([target])[0]).output_path)
-    ok, tables = True, {}
+    tables = {path.stem: set_statistics(path) for path in paths}      # every file read before printing
+    ok = True
     for path in paths:
-        tables[path.stem] = set_statistics(path)
         ok &= _print_checks(str(path), tables[path.stem])
     if "gusev" in tables and "meridiani" in tables:
         print("\nGusev vs Meridiani (paper: Gusev windier, larger attitude excursions)")
@@ -126,8 +132,7 @@ def command_stats(targets: list[str]) -> bool:
 
 
 def command_generate(sites: list[str]) -> bool:
-    for path in parameter_files(sites):
-        params = load_edl_parameters(path)
+    for params in [load_edl_parameters(path) for path in parameter_files(sites)]:   # all valid before writing
         profiles, attempts = generate_profiles(params)
         write_profiles(params.output_path, profiles, compact=True)
         digest = hashlib.sha256(params.output_path.read_bytes()).hexdigest()[:16]
@@ -143,6 +148,8 @@ def command_verify(sites: list[str]) -> bool:
         params = load_edl_parameters(path)
         profiles, _ = generate_profiles(params)
         expected = compact_frame(profiles_to_frame(profiles))
+        if not params.output_path.is_file():
+            raise ConfigError(f"{path}: set.output = {params.output_path}: file not found (run generate first)")
         stored = pq.read_table(params.output_path).to_pandas()
         same = list(stored.columns) == list(expected.columns) and len(stored) == len(expected) and all(
             stored[c].dtype == expected[c].dtype and np.array_equal(stored[c].to_numpy().view(np.uint8),
@@ -154,12 +161,16 @@ def command_verify(sites: list[str]) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sitedata.trajectories_cli", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m sitedata.trajectories_cli", description=__doc__.splitlines()[0])
     parser.add_argument("command", choices=("generate", "verify", "stats"))
     parser.add_argument("targets", nargs="*", help="site names (edl_<site>.toml) or, for stats, trajectory files")
     args = parser.parse_args(argv)
     handler = {"generate": command_generate, "verify": command_verify, "stats": command_stats}[args.command]
-    return 0 if handler(args.targets) else 1
+    try:
+        return 0 if handler(args.targets) else 1
+    except ConfigError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return USAGE_ERROR
 
 
 if __name__ == "__main__":

@@ -21,8 +21,9 @@ wind_up_mps
 heat_shield_x_m      optional (all three or none): heat-shield centre, world frame (m)
 heat_shield_y_m
 heat_shield_z_m
-image1_t_s ...       start of exposure of image k (s, same clock as t_s), k = 1..K consecutive;
-imageK_t_s           constant within a profile, strictly increasing, inside the profile's span
+image1_t_s ...       start of exposure of image k (s, same clock as t_s), k = 1..K consecutive (K = 3,
+imageK_t_s           the DIMES images, unless a reader asks otherwise); constant within a profile,
+                     strictly increasing, inside the profile's span
 ===================  =====================================================================
 
 Any numeric column type is accepted (read as float64). :func:`write_profiles` with
@@ -32,8 +33,10 @@ quaternion components to 3e-8): about half the file size.
 
 The image times are per-profile metadata stored as constant columns, so the one table works in
 both formats (Parquet's dictionary/RLE encoding makes the repetition free). Other columns are
-refused (a typo would otherwise silently drop data). Every reader error is one line naming the file,
-the row (data rows counted from 1, header excluded) and column, and what is allowed.
+refused (a typo would otherwise silently drop data). The lander must be above the ground (``z_m > 0``)
+while it images: at every row from the last one at or before image 1 to the first one at or after
+image K, and at each image time. Every reader error is one line naming the file, the row (data rows
+counted from 1, header excluded) and column, and what is allowed.
 
 POST-style whitespace tables are read by :mod:`sitedata.post_table`, which maps them onto this schema.
 """
@@ -48,9 +51,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from simulator.scene.descent_profile import DescentProfile
-from flight_interface.tomlfields import ConfigError, Table
+from flight_interface.tomlfields import ConfigError
 
 QUATERNION_NORM_TOLERANCE = 1e-6
+#: Images per profile of a DIMES trajectory (three descent images).
+DIMES_IMAGE_COUNT = 3
 # pandas >= 3 parses CSV floats round-trip exactly by default (and deprecates the option)
 _CSV_OPTIONS = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
 VECTOR_COLUMNS = {
@@ -141,8 +146,9 @@ def write_profiles(path: str | Path, profiles: Sequence[DescentProfile],
 
 
 # ----------------------------------------------------------------------------------------------- read
-def read_profiles(path: str | Path) -> list[DescentProfile]:
-    """Read and validate a trajectory file; profiles named ``<file stem>-<profile_id:04d>``, in file order."""
+def read_profiles(path: str | Path, image_count: int | None = DIMES_IMAGE_COUNT) -> list[DescentProfile]:
+    """Read and validate a trajectory file; profiles named ``<file stem>-<profile_id:04d>``, in file order.
+    ``image_count``: the number of image time columns required (None: any K >= 1)."""
     path = Path(path)
     if not path.is_file():
         raise TrajectoryFileError(f"{path}: file not found")
@@ -158,26 +164,49 @@ def read_profiles(path: str | Path) -> list[DescentProfile]:
     except Exception as exc:  # pyarrow / pandas parse errors: one line naming the file
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise TrajectoryFileError(f"{path}: cannot be read as {path.suffix[1:]}: {message}") from None
-    return frame_to_profiles(frame, str(path), name_prefix=path.stem)
+    return frame_to_profiles(frame, str(path), name_prefix=path.stem, image_count=image_count)
 
 
-def _image_columns(frame: pd.DataFrame, source: str) -> list[str]:
+def _image_columns(frame: pd.DataFrame, source: str, image_count: int | None) -> list[str]:
     names = [c for c in frame.columns if c.startswith("image") and c.endswith("_t_s")]
     expected = [image_column(k + 1) for k in range(len(names))]
     if not names or sorted(names) != sorted(expected):
         raise TrajectoryFileError(f"{source}: image time columns {sorted(names) or 'none'} are not "
                                   f"image1_t_s..imageK_t_s; allowed: image1_t_s, image2_t_s, ... (K >= 1, consecutive)")
+    if image_count is not None and len(names) != image_count:
+        raise TrajectoryFileError(f"{source}: image time columns {', '.join(expected)} give {len(names)} images; "
+                                  f"allowed: {', '.join(image_column(k + 1) for k in range(image_count))} "
+                                  f"({image_count} images)")
     return expected
 
 
-def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "profile") -> list[DescentProfile]:
-    """Validate a schema table and split it into profiles (errors name ``source``, row and column)."""
+def _check_above_ground(profile: DescentProfile, start: int, source: str) -> None:
+    """The lander above the ground (z > 0) while imaging (rows bracketing the images, and at the images)."""
+    time, altitude = profile.time_s, profile.position_m[:, 2]
+    first = max(int(np.searchsorted(time, profile.image_times_s[0], side="right")) - 1, 0)
+    last = min(int(np.searchsorted(time, profile.image_times_s[-1], side="left")), len(time) - 1)
+    low = np.nonzero(altitude[first:last + 1] <= 0.0)[0]
+    if len(low):
+        row = first + int(low[0])
+        raise TrajectoryFileError(f"{source}: row {start + row + 1} column 'z_m' = {float(altitude[row])!r} is at or "
+                                  "below the ground while imaging; allowed: > 0 (ground is z = 0)")
+    for k, image_time in enumerate(profile.image_times_s):
+        height = float(profile.pose(float(image_time)).position_m[2])
+        if not height > 0.0:
+            raise TrajectoryFileError(f"{source}: row {start + 1} column {image_column(k + 1)!r}: the lander is at "
+                                      f"z = {height:.3f} m at image {k + 1}; allowed: > 0 (above the ground)")
+
+
+def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "profile",
+                      image_count: int | None = DIMES_IMAGE_COUNT) -> list[DescentProfile]:
+    """Validate a schema table and split it into profiles (errors name ``source``, row and column);
+    ``image_count`` image time columns are required (None: any K >= 1)."""
     missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
     if missing:
         raise TrajectoryFileError(f"{source}: column {missing[0]!r} is missing"
                                   f"{f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}; "
                                   f"required columns: {', '.join(REQUIRED_COLUMNS)}, image1_t_s..")
-    images = _image_columns(frame, source)
+    images = _image_columns(frame, source, image_count)
     heat = [c for c in HEAT_SHIELD_COLUMNS if c in frame.columns]
     if heat and len(heat) != 3:
         absent = [c for c in HEAT_SHIELD_COLUMNS if c not in heat][0]
@@ -249,10 +278,12 @@ def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "prof
         def stack(names: Sequence[str]) -> np.ndarray:
             return np.stack([values[n][block] for n in names], axis=1)
 
-        profiles.append(DescentProfile(
+        profile = DescentProfile(
             time_s=time[block].copy(), position_m=stack(VECTOR_COLUMNS["position_m"]),
             velocity_mps=stack(VECTOR_COLUMNS["velocity_mps"]),
             attitude_quat=quat[block], angular_rate_radps=stack(VECTOR_COLUMNS["angular_rate_radps"]),
             wind_mps=stack(VECTOR_COLUMNS["wind_mps"]), heat_shield_position_m=stack(HEAT_SHIELD_COLUMNS) if heat else None,
-            image_times_s=image_times, name=f"{name_prefix}-{pid:04d}"))
+            image_times_s=image_times, name=f"{name_prefix}-{pid:04d}")
+        _check_above_ground(profile, start, source)
+        profiles.append(profile)
     return profiles

@@ -36,3 +36,12 @@ def site_strips(tmp_path_factory):
             terrain = synthetic_terrain.synthetic_terrain(params, site_class.terrain.seed, cache_dir=cache)
             strips[site_class.name] = (site.name, site_class.ellipse_fraction, terrain)
     return strips
+def pytest_terminal_summary(terminalreporter):
+    """The fuzz suite's size (tests/test_config_fuzz.py): how many bad inputs it tried, by kind."""
+    import sys
+
+    fuzz = sys.modules.get("test_config_fuzz")
+    if fuzz is not None and fuzz.TRIED:
+        kinds = ", ".join(f"{kind} {count}" for kind, count in sorted(fuzz.TRIED.items()))
+        terminalreporter.write_line(f"fuzz: {sum(fuzz.TRIED.values())} bad inputs tried ({kinds}); each must give "
+                                    "exit 2, one stderr line, nothing written")

@@ -1,7 +1,6 @@
 """The dusty atmosphere stage (simulator.scene.atmosphere) against closed forms and independent quadrature."""
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -9,13 +8,12 @@ import pytest
 from scipy import integrate
 
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import ConfigError, load_toml, parse
 from simulator.descent_image import render_descent_image
 from simulator.scene import atmosphere, ground_mapping, photometry
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import AtmosphereConfig, SceneConfig
-from simulator.scene_table import scene_config_from_table
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -51,7 +49,7 @@ def nadir_profile(altitude_m: float):
 
 def plain_scene(atmosphere_config: AtmosphereConfig | None = None) -> SceneConfig:
     config = SceneConfig().with_effects(photometric_correction=False, shadows=False, heat_shield=False)
-    return config if atmosphere_config is None else replace(config, atmosphere=atmosphere_config)
+    return config if atmosphere_config is None else config.with_fields(atmosphere=atmosphere_config)
 
 
 def test_zero_optical_depth_is_the_identity():
@@ -69,7 +67,7 @@ def test_zero_optical_depth_is_the_identity():
     profile = nadir_profile(2000.0)
     off = render_descent_image(rough, profile, CAMERA, 0, SUN, SceneConfig(), None)
     thin = render_descent_image(rough, profile, CAMERA, 0, SUN,
-                                replace(SceneConfig(), atmosphere=AtmosphereConfig(orbital_optical_depth=1e-7)), None)
+                                SceneConfig(atmosphere=AtmosphereConfig(orbital_optical_depth=1e-7)), None)
     assert np.allclose(thin.radiance.exposure, off.radiance.exposure, rtol=2e-6, atol=1e-5)
     assert SceneConfig().atmosphere.enabled is False
 
@@ -193,7 +191,7 @@ def test_energy_is_not_created():
     terrain = step_terrain(0.05, 0.3)
     config = AtmosphereConfig(orbital_optical_depth=0.9)
     rendered = render_descent_image(terrain, nadir_profile(2000.0), CAMERA, 0, SUN,
-                                    replace(SceneConfig(), atmosphere=config), None)
+                                    SceneConfig(atmosphere=config), None)
     assert rendered.radiance.exposure.min() >= 0.0
     assert atmosphere.orbital_haze(terrain, config).surface_mean_if > 0.0
 
@@ -209,16 +207,16 @@ def test_atmosphere_table(tmp_path):
     path = tmp_path / "scene.toml"
     path.write_text("[scene.atmosphere]\norbital_optical_depth = 0.5\nscale_height_m = 10800.0\n"
                     "single_scattering_albedo = 0.96\ndescent_path = false\n")
-    config = scene_config_from_table(Table(load_toml(path), str(path)).table("scene")).atmosphere
+    config = parse(SceneConfig, load_toml(path)["scene"], path, "scene").atmosphere
     assert config == AtmosphereConfig(orbital_optical_depth=0.5, scale_height_m=10800.0,
                                       single_scattering_albedo=0.96, descent_path=False)
     assert config.enabled
-    assert scene_config_from_table(Table({}, "x")).atmosphere == AtmosphereConfig()
+    assert parse(SceneConfig, {}, "x").atmosphere == AtmosphereConfig()
     path.write_text("[scene.atmosphere]\norbital_optical_depth = -0.1\n")
     with pytest.raises(ConfigError, match=r"scene.toml: scene.atmosphere.orbital_optical_depth = -0.1 is out of range; "
                                           r"allowed: >= 0 and <= 10"):
-        scene_config_from_table(Table(load_toml(path), str(path)).table("scene"))
+        parse(SceneConfig, load_toml(path)["scene"], path, "scene")
     path.write_text("[scene.atmosphere]\noptical_depth = 0.5\n")
     with pytest.raises(ConfigError, match=r"scene.atmosphere.optical_depth is not a known field; "
                                           r"allowed: .*orbital_optical_depth"):
-        scene_config_from_table(Table(load_toml(path), str(path)).table("scene"))
+        parse(SceneConfig, load_toml(path)["scene"], path, "scene")

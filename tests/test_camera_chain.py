@@ -104,7 +104,7 @@ def test_smear_uses_each_period_field(mer_a):
 
 
 def test_dark_signal_follows_doubling_model(mer_a):
-    cold = replace(mer_a, electronics=replace(mer_a.electronics, ccd_temperature_k=273.15 - 20.0))
+    cold = replace(mer_a, electronics=mer_a.electronics.model_copy(update={"ccd_temperature_c": -20.0}))
     effects = CameraEffects(shot_noise=False, read_noise=False)
     dark = _uniform(mer_a, 0.0)
     warm_charge = render_image(mer_a, dark, np.random.default_rng(6), effects).expected_charge_e

@@ -28,8 +28,8 @@ ATTITUDE = quat_from_axis_angle([1.0, 0.3, 0.0], np.radians(8.0))
 
 
 def flight_camera(camera):
-    return replace(camera, electronics=replace(camera.electronics, adc_gain_e_per_dn=FLIGHT_GAIN_E_PER_DN,
-                                               dark_current_ref_e_per_s=2200.0))
+    return replace(camera, electronics=camera.electronics.model_copy(update=dict(
+        adc_gain_e_per_dn=FLIGHT_GAIN_E_PER_DN, dark_current_ref_e_per_s=2200.0)))
 
 
 def flight_toml(directory: Path, name: str, images: list[dict], extra: str = "") -> Path:
@@ -46,7 +46,7 @@ def render_flight(position, velocity, time_s, preset, seed, path: Path) -> dict:
     terrain = load_class_terrain(site.classes[1].terrain)
     image = FlightImage(path, None, time_s, np.asarray(position, float), ATTITUDE, np.asarray(velocity, float),
                         np.zeros(3), None)
-    config = replace(preset_config(preset), sun_distance_au=site.heliocentric_distance_au)
+    config = preset_config(preset).with_fields(sun_distance_au=site.heliocentric_distance_au)
     rendered = render_descent_image(terrain, pose_profile(image), flight_camera(load_camera(site.camera_path)),
                                     time_s, site.sun_direction_world, config, np.random.default_rng(seed))
     assert cv2.imwrite(str(path), rendered.dn.astype(np.uint16))

@@ -110,7 +110,7 @@ def test_raw_big_endian_and_png_round_trip(case_files, mer_a, tmp_path):
 
 
 def one_line_error(code, out, err):
-    return code == 2 and out == "" and err.count("\n") == 1 and err.startswith("error: ")
+    return code == 2 and out == "" and err.count("\n") == 1 and err.startswith("python -m dimes_velocity: error: ")
 
 
 def test_done_criteria_refusals_exit_2_with_one_line(case_files, mer_a_path, tmp_path, capsys):
@@ -208,3 +208,23 @@ def test_estimator_reads_pds3_images_with_the_simulator_unimportable(case_files,
     assert result["valid"] and np.hypot(result["velocity_east_mps"] - VELOCITY[0],
                                         result["velocity_north_mps"] - VELOCITY[1]) < 0.5
     assert all(item["format"] == "PDS3" and "SAMPLE_BIT_MASK 12" in item["dn_rule"] for item in result["inputs"])
+
+
+@pytest.mark.parametrize("sun", [[0.3, -0.2, -0.5], [0.6, 0.8, 0.0]])
+def test_sun_at_or_below_the_horizon_is_answered_invalid_with_its_reason(case_files, mer_a_path, tmp_path, capsys,
+                                                                         sun):
+    """The same images and measurements that give a valid answer in daylight: with the measured sun at or
+    below the horizon there is no sunlit ground to track, so the estimator answers as flight software
+    must (no exception, no velocity correction): invalid, reason sun_below_horizon, the IMU velocity."""
+    paths, _, data, _ = case_files
+    night = json.loads(json.dumps(data))
+    night["sun_direction_world"] = sun
+    path = tmp_path / "night.json"
+    path.write_text(json.dumps(night))
+    code, out, err = run_cli([*paths, path, "--camera", mer_a_path], capsys)
+    assert code == 0 and err == ""
+    result = json.loads(out)
+    assert not result["valid"] and result["reason"] == "sun_below_horizon"
+    assert [pair["reason"] for pair in result["pairs"]] == ["sun_below_horizon", "sun_below_horizon"]
+    assert result["imu_bias_east_mps"] == 0.0 == result["imu_bias_north_mps"]
+    assert result["velocity_east_mps"] == pytest.approx(night["images"][-1]["imu_velocity_mps"][0], abs=1e-12)

@@ -10,11 +10,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from dimes_velocity import REASONS, DimesEstimator, EstimatorConfig, MeasurementError, estimate_velocity
-from dimes_velocity.config import config_from_table
 from dimes_velocity.geometry import predicted_positions_m
 from simulator.synthetic_descent import constant_velocity_descent, random_ground
 from flight_interface.frames import quat_from_axis_angle
-from flight_interface.tomlfields import ConfigError, Table
+from flight_interface.tomlfields import ConfigError, parse
 
 VELOCITY = np.array([12.0, -7.0, -72.0])
 
@@ -180,16 +179,17 @@ def test_never_nan_never_raises_on_legal_input(noisy_descent, estimator, seed, t
 
 
 def test_config_from_toml_table():
-    table = Table({"template_size_px": 21, "min_correlation": 0.8, "require_both_pairs": False}, "site.toml", "estimator")
-    config = config_from_table(table)
+    config = parse(EstimatorConfig, {"template_size_px": 21, "min_correlation": 0.8, "require_both_pairs": False},
+                   "site.toml", "estimator")
     assert config.template_size_px == 21 and config.min_correlation == 0.8 and not config.require_both_pairs
     assert config.zero_phase_half_angle_deg == 4.3                               # default kept
-    with pytest.raises(ConfigError, match=r"site.toml: estimator.min_corelation is not an estimator parameter"):
-        config_from_table(Table({"min_corelation": 0.8}, "site.toml", "estimator"))
-    with pytest.raises(ConfigError, match=r"site.toml: estimator.min_correlation = 2 is out of range"):
-        config_from_table(Table({"min_correlation": 2.0}, "site.toml", "estimator"))
-    with pytest.raises(ConfigError, match=r"site.toml: .*template_size_px = 20 must be odd"):
-        config_from_table(Table({"template_size_px": 20}, "site.toml", "estimator"))
+    with pytest.raises(ConfigError, match=r"site.toml: estimator.min_corelation is not a known field; allowed: remove_dark"):
+        parse(EstimatorConfig, {"min_corelation": 0.8}, "site.toml", "estimator")
+    with pytest.raises(ConfigError, match=r"site.toml: estimator.min_correlation = 2 is out of range; allowed: >= -1 "
+                                          r"and <= 1"):
+        parse(EstimatorConfig, {"min_correlation": 2.0}, "site.toml", "estimator")
+    with pytest.raises(ConfigError, match=r"site.toml: estimator.template_size_px = 20 must be odd"):
+        parse(EstimatorConfig, {"template_size_px": 20}, "site.toml", "estimator")
 
 
 def test_velocity_uncertainty_closed_forms():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dimes_velocity import DimesEstimator
-from simulator.sensors import SensorConfig, measure
+from simulator.sensors import SIGMA_FIELDS, SensorConfig, measure
 from sitedata.synthetic_terrain import synthetic_terrain
 from simulator.descent_image import render_descent_image
 from simulator.scene.descent_profile import constant_velocity_profile
@@ -51,7 +51,7 @@ def horizontal_error(result, velocity):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_perfect_sensors_and_noise_free_images_within_half_a_metre_per_second(mer_a, terrain, estimator, seed):
     """Exact attitude and altitude; the IMU keeps its unknown velocity bias (what DIMES estimates)."""
-    sensors = dataclasses.replace(SensorConfig.perfect(), imu_velocity_bias_sigma_mps=8.0)
+    sensors = SensorConfig(**{**dict.fromkeys(SIGMA_FIELDS, 0.0), "imu_velocity_bias_sigma_mps": 8.0})
     images, measurements, velocity = descent_case(mer_a, terrain, seed, sensors, noise=False)
     imu_error = measurements.images[-1].imu_velocity_mps[:2] - velocity[:2]
     assert np.hypot(*imu_error) > 2.0                       # the bias is there to be removed

@@ -65,7 +65,7 @@ def test_hash_changes_with_the_estimator_list_and_calibration():
     ({"estimators": [{"kind": "reference"}]}, "estimators[0].name is missing"),
     ({"estimators": [{"name": "a", "kind": "reference", "parameters": {"min_correlation": 3.0}}]},
      "estimators[0].parameters.min_correlation = 3 is out of range"),
-    ({"estimators": [{"name": "a", "kind": "reference", "colour": "red"}]}, "unknown key 'estimators[0].colour'"),
+    ({"estimators": [{"name": "a", "kind": "reference", "colour": "red"}]}, "estimators[0].colour is not a known field; allowed: name, parameters, kind"),
     ({"estimators": [{"name": "a", "kind": "python", "callable": "no_colon"}]},
      "estimators[0].callable = 'no_colon' is not allowed; allowed: 'package.module:function'"),
     ({"estimators": [{"name": "a", "kind": "python", "callable": "nowhere.module:f"}]},
@@ -83,7 +83,7 @@ def test_hash_changes_with_the_estimator_list_and_calibration():
      "estimators[0].timeout_s = 0 is out of range"),
     ({"estimators": [{"name": "a", "kind": "command", "argv": ["{python}"], "image_format": "jpeg"}]},
      "estimators[0].image_format = 'jpeg' is not allowed; allowed: png, npy, raw"),
-    ({"estimators": {"name": "a"}}, "estimators must be a non-empty array of tables"),
+    ({"estimators": {"name": "a"}}, "estimators must be a list; got dict"),
 ])
 def test_bad_estimator_entries_are_one_line_naming_file_and_field(extra, expected):
     with pytest.raises(ConfigError) as error:

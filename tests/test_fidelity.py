@@ -155,7 +155,7 @@ def test_supersampled_pixel_on_a_step_edge_reads_its_coverage():
                                       spectral_ratio=False, coarse_ray_grid=False, pixel_area_filter=False)
     from dataclasses import replace
     point = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, base).radiance
-    fine = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, replace(base, supersample=3)).radiance
+    fine = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, base.with_fields(supersample=3)).radiance
     row = point[512]
     low, high = row.min(), row.max()
     # away from the edge (flat on both sides, bilinear ramp is one terrain pixel wide) nothing changes
@@ -195,7 +195,7 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
     config = SceneConfig().with_effects(shadows=False, coarse_ray_grid=False, pixel_area_filter=False)
     pose = profile.pose(0.1)
     once = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, config)
-    fine = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, replace(config, supersample=3))
+    fine = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, config.with_fields(supersample=3))
     from scipy.ndimage import binary_dilation, binary_erosion
     edge = binary_dilation(once.heat_shield) & ~binary_erosion(once.heat_shield)
     contrast = np.median(once.radiance[~once.heat_shield]) - np.median(once.radiance[binary_erosion(once.heat_shield)])
@@ -207,14 +207,14 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
 def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
     import pytest
 
-    from simulator.scene_table import scene_config_from_table
-    from flight_interface.tomlfields import ConfigError, Table, load_toml
+    from simulator.scene_config import SceneConfig
+    from flight_interface.tomlfields import ConfigError, load_toml, parse
 
     path = tmp_path / "scene.toml"
     path.write_text('[scene]\nfidelity = "reference"\nsupersample = 2\n')
-    config = scene_config_from_table(Table(load_toml(path)["scene"], str(path), "scene"))
+    config = parse(SceneConfig, load_toml(path)["scene"], path, "scene")
     assert config.supersample == 2 and config.camera_effects.exact_poisson
     assert not config.effects.warp_smear_fields
     path.write_text('[scene]\nfidelity = "ultra"\n')
     with pytest.raises(ConfigError, match=r"scene\.fidelity.*allowed: reference, high, default, fast"):
-        scene_config_from_table(Table(load_toml(path)["scene"], str(path), "scene"))
+        parse(SceneConfig, load_toml(path)["scene"], path, "scene")

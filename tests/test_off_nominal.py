@@ -95,7 +95,7 @@ def test_dust_darkens_the_photoelectron_rate_after_falloff():
     radiance = np.full((1024, 1024), 40.0, dtype=np.float32)
     particles = dust.DustParticles(np.array([[0.0, 0.0]]), np.array([400e-6]))
     transmission = dust.transmission_map(CAMERA, particles, 8e-3)
-    effects = replace(NOISE_FREE, smear=False, dark_current=False, prnu=False)
+    effects = NOISE_FREE.model_copy(update=dict(smear=False, dark_current=False, prnu=False))
     clean = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects)
     dirty = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects,
                          OffNominalArtefacts(dust_transmission=transmission))
@@ -117,8 +117,8 @@ def test_hot_pixel_fraction_and_amplitude_distribution():
     assert np.median(hot.rate_e_per_s) == pytest.approx(mean_rate * np.log(2), rel=0.08)
     # dark-current rule: one doubling temperature warmer doubles every amplitude
     electronics = CAMERA.electronics
-    warm = replace(CAMERA, electronics=replace(electronics, ccd_temperature_k=electronics.ccd_temperature_k
-                                               + electronics.dark_doubling_temperature_k))
+    warm = replace(CAMERA, electronics=electronics.model_copy(update={
+        "ccd_temperature_c": electronics.ccd_temperature_c + electronics.dark_doubling_temperature_k}))
     warm_hot = hot_pixels.draw_hot_pixels(warm, np.random.default_rng(1), fraction, mean_rate)
     assert np.allclose(warm_hot.rate_e_per_s, 2.0 * hot.rate_e_per_s, rtol=1e-6)
 
@@ -126,7 +126,7 @@ def test_hot_pixel_fraction_and_amplitude_distribution():
 def test_hot_pixel_adds_its_rate_times_the_exposure_without_smear():
     radiance = np.full((1024, 1024), 30.0, dtype=np.float32)
     hot = hot_pixels.HotPixels(np.array([300 * 1024 + 77], dtype=np.int64), np.array([2.0e6], dtype=np.float32))
-    effects = replace(NOISE_FREE, smear=False)
+    effects = NOISE_FREE.model_copy(update=dict(smear=False))
     base = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects)
     spiked = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects, OffNominalArtefacts(hot_pixels=hot))
     difference = spiked.expected_charge_e.astype(np.float64) - base.expected_charge_e
@@ -157,11 +157,11 @@ def test_particle_hit_count_matches_rate_times_area_times_window():
 
 def test_particle_hit_rows_follow_the_readout_wait():
     # read-out dominated window: hits land with density ~ (N - row): mean row N / 3
-    slow = replace(CAMERA, timing=replace(CAMERA.timing, fast_flush_s=0.0, exposure_s=1e-9, frame_transfer_s=0.0,
-                                          readout_s=1.0))
+    slow = replace(CAMERA, timing=CAMERA.timing.model_copy(update=dict(fast_flush_s=0.0, exposure_s=1e-9,
+                                                                       frame_transfer_s=0.0, readout_s=1.0)))
     rows = particle_hits.draw_rows(slow, np.random.default_rng(2), 200_000)
     assert rows.mean() == pytest.approx(1024 / 3, abs=4 * 1024 / np.sqrt(18 * 200_000))
-    flipped = replace(slow, timing=replace(slow.timing, transfer_toward_last_row=False))
+    flipped = replace(slow, timing=slow.timing.model_copy(update={"transfer_direction": "toward_first_row"}))
     assert particle_hits.draw_rows(flipped, np.random.default_rng(2), 200_000).mean() == pytest.approx(
         1024 * 2 / 3, abs=2.0)
 
@@ -229,7 +229,7 @@ def test_nothing_changes_without_saturation_and_blooming_switch_in_the_chain():
     assert bloomed is charge and lost == 0.0
     radiance = np.full((1024, 1024), 30.0, dtype=np.float32)
     radiance[500:502, 600] = 6000.0                      # ~5.7e6 e- per pixel: 30 full wells
-    effects = replace(NOISE_FREE, smear=False, dark_current=False)
+    effects = NOISE_FREE.model_copy(update=dict(smear=False, dark_current=False))
     bloomed = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects).expected_charge_e
     clipped = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects,
                            OffNominalArtefacts(blooming=False)).expected_charge_e

@@ -12,13 +12,12 @@ from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry
 from flight_interface.camera import load_camera
 from simulator.descent_image import render_descent_image
 from simulator.scene_config import SceneConfig
-from simulator.scene_table import scene_config_from_table
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile, scale_angular_rates
 from flight_interface.frames import quat_from_axis_angle, quat_multiply, quat_conjugate, quat_to_rotation_vector
 from simulator.off_nominal import (OffNominalArtefacts, OffNominalConfig, draw_case_artefacts,
-                                   off_nominal_config_from_table, with_particle_hits)
+                                   with_particle_hits)
 from simulator.scene.terrain import Terrain
-from flight_interface.tomlfields import ConfigError, Table
+from flight_interface.tomlfields import ConfigError, parse
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -40,7 +39,7 @@ def shield_below(axial_m=150.0) -> DescentProfile:
 
 
 def with_off_nominal(**values) -> SceneConfig:
-    return replace(SceneConfig().with_effects(shadows=False), off_nominal=replace(OffNominalConfig(), **values))
+    return SceneConfig().with_effects(shadows=False).with_fields(off_nominal=OffNominalConfig(**values))
 
 
 # ---------------------------------------------------------------- glint
@@ -155,7 +154,7 @@ def test_rate_multiplier_in_the_renderer_adds_motion_substeps():
 # ---------------------------------------------------------------- config and artefacts
 
 def test_off_nominal_toml_keys_defaults_and_errors():
-    assert scene_config_from_table(Table({}, "s.toml", "scene")).off_nominal == OffNominalConfig()
+    assert parse(SceneConfig, {}, "s.toml", "scene").off_nominal == OffNominalConfig()
     assert not OffNominalConfig().needs_case_artefacts and OffNominalConfig().blooming
     table = {"dust_particle_count": 20, "dust_particle_diameter_mean_m": 2e-4, "dust_particle_diameter_max_m": 2e-3,
              "dust_lens_distance_m": 0.01, "hot_pixel_fraction": 1e-3, "hot_pixel_amplitude_mean_e_per_s": 3e5,
@@ -163,7 +162,7 @@ def test_off_nominal_toml_keys_defaults_and_errors():
              "particle_hit_max_track_length_m": 5e-4, "heat_shield_glint": True,
              "heat_shield_specular_reflectance": 0.08, "heat_shield_specular_roughness_deg": 5.0,
              "blooming": False, "angular_rate_multiplier": 2.5}
-    config = scene_config_from_table(Table({"off_nominal": table}, "s.toml", "scene")).off_nominal
+    config = parse(SceneConfig, {"off_nominal": table}, "s.toml", "scene").off_nominal
     assert config.heat_shield_specular_roughness_rad == pytest.approx(np.radians(5.0))
     for key, value in table.items():
         if key != "heat_shield_specular_roughness_deg":
@@ -173,17 +172,17 @@ def test_off_nominal_toml_keys_defaults_and_errors():
                          ({"angular_rate_multiplier": -1.0}, "angular_rate_multiplier = -1 is out of range"),
                          ({"hot_pixel_fraction": 2.0}, "hot_pixel_fraction = 2 is out of range; allowed: >= 0 and <= 1"),
                          ({"heat_shield_glint": "yes"}, "heat_shield_glint must be true or false"),
-                         ({"dust_count": 3}, "dust_count is not a known field; allowed: angular_rate_multiplier")):
+                         ({"dust_count": 3}, "dust_count is not a known field; allowed: dust_particle_count")):
         with pytest.raises(ConfigError, match=f"s.toml: scene.off_nominal.{message}") as error:
-            off_nominal_config_from_table(Table(bad, "s.toml", "scene.off_nominal"))
+            parse(OffNominalConfig, bad, "s.toml", "scene.off_nominal")
         assert "\n" not in str(error.value)
 
 
 def test_case_artefacts_are_fixed_across_images_and_required_when_configured():
     terrain = flat_terrain()
     profile = constant_velocity_profile([0.0, 0.0, 2000.0], [5.0, 0.0, -72.0], LEVEL, 10.0, [1.0, 4.0, 7.75])
-    off = replace(OffNominalConfig(), dust_particle_count=30, hot_pixel_fraction=1e-4, particle_hit_rate_per_cm2_s=200.0)
-    config = replace(SceneConfig(), off_nominal=off)
+    off = OffNominalConfig(dust_particle_count=30, hot_pixel_fraction=1e-4, particle_hit_rate_per_cm2_s=200.0)
+    config = SceneConfig(off_nominal=off)
     with pytest.raises(ValueError, match="draw_case_artefacts"):
         render_descent_image(terrain, profile, CAMERA, 0, SUN_40, config, np.random.default_rng(0))
 

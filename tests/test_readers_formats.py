@@ -207,13 +207,13 @@ def _sidecar(tmp_path, text, name="side.toml"):
 
 
 def test_sidecar_validation_errors_name_file_and_field(tmp_path):
-    with pytest.raises(ConfigError, match=r"side\.toml: metres_per_pixle is not a side-car field"):
+    with pytest.raises(ConfigError, match=r"side\.toml: metres_per_pixle is not a known field; allowed: name, metres_per_pixel"):
         read_sidecar(_sidecar(tmp_path, "metres_per_pixle = 3.0\n"))
     with pytest.raises(ConfigError, match="phase_deg = 80 is impossible"):
         read_sidecar(_sidecar(tmp_path, "incidence_deg = 30.0\nemission_deg = 10.0\nphase_deg = 80.0\n"))
     with pytest.raises(ConfigError, match="incidence_deg = 95 is out of range"):
         read_sidecar(_sidecar(tmp_path, "incidence_deg = 95.0\n"))
-    with pytest.raises(ConfigError, match="crop.height is not a crop field"):
+    with pytest.raises(ConfigError, match="crop.height is not a known field; allowed: first_row, first_col, rows, cols"):
         read_sidecar(_sidecar(tmp_path, "[crop]\nheight = 3\n"))
 
 

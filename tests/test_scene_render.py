@@ -10,11 +10,10 @@ from simulator.scene import heat_shield, motion_blur, photometry, radiance
 from flight_interface.camera import load_camera
 from simulator.descent_image import DescentImage, render_descent_image
 from simulator.scene_config import SceneConfig
-from simulator.scene_table import scene_config_from_table
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
 from simulator.scene.terrain import Terrain
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from flight_interface.tomlfields import ConfigError, load_toml, parse
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -163,7 +162,7 @@ def test_scene_config_from_toml(tmp_path):
     path = tmp_path / "scene.toml"
     path.write_text("[scene]\nparachute_distance_m = 25.0\nheat_shield_cone_angle_deg = 120.0\n"
                     "[scene.effects]\nshadows = false\n[scene.camera_effects]\ndark_current_scale = 2.0\n")
-    config = scene_config_from_table(Table(load_toml(path), str(path)).table("scene"))
+    config = parse(SceneConfig, load_toml(path)["scene"], path, "scene")
     assert config.parachute_distance_m == 25.0
     assert config.heat_shield_cone_angle_rad == pytest.approx(np.radians(120.0))
     assert config.effects.shadows is False and config.effects.heat_shield is True
@@ -172,10 +171,10 @@ def test_scene_config_from_toml(tmp_path):
 
     path.write_text("[scene]\nshadow_diffuse_fraction = 1.5\n")
     with pytest.raises(ConfigError, match=r"scene.toml: scene.shadow_diffuse_fraction = 1.5 is out of range"):
-        scene_config_from_table(Table(load_toml(path), str(path)).table("scene"))
+        parse(SceneConfig, load_toml(path)["scene"], path, "scene")
     path.write_text("[scene.effects]\nshadow = false\n")
     with pytest.raises(ConfigError, match="scene.effects.shadow is not a known field"):
-        scene_config_from_table(Table(load_toml(path), str(path)).table("scene"))
+        parse(SceneConfig, load_toml(path)["scene"], path, "scene")
 
 
 def test_example_command_writes_the_pngs(tmp_path):

@@ -1,14 +1,12 @@
 """Sensor models: error statistics over many draws against the configured sigmas, structure of each error."""
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector, rotate
 from flight_interface.camera import Timing
-from flight_interface.tomlfields import ConfigError, Table
-from simulator.sensors import SensorConfig, measure, sensor_config_from_table
+from flight_interface.tomlfields import ConfigError, parse
+from simulator.sensors import SIGMA_FIELDS, SensorConfig, measure
 
 EXPOSURE_S = 0.0051
 DRAWS = 2000
@@ -53,10 +51,13 @@ def _world_errors(results, config):
                       for m, p in zip(measurement.images, poses)] for measurement, _ in results])
 
 
-ONLY = {name: replace(SensorConfig.perfect(), **{name: value}) for name, value in [
-    ("attitude_bias_sigma_rad", np.radians(1.0)), ("attitude_random_sigma_rad", np.radians(0.05)),
-    ("alignment_sigma_rad", np.radians(0.1)), ("angular_rate_noise_sigma_radps", np.radians(0.1)),
-    ("radar_altitude_sigma_fraction", 0.0003), ("imu_velocity_bias_sigma_mps", 2.0)]}
+ZERO = {name: 0.0 for name in SIGMA_FIELDS}
+ONLY = {name: SensorConfig(**{**ZERO, field: value}) for name, field, value in [
+    ("attitude_bias_sigma_rad", "attitude_bias_sigma_deg", 1.0),
+    ("attitude_random_sigma_rad", "attitude_random_sigma_deg", 0.05),
+    ("alignment_sigma_rad", "alignment_sigma_deg", 0.1), ("angular_rate_noise_sigma_radps", "angular_rate_noise_sigma_dps", 0.1),
+    ("radar_altitude_sigma_fraction", "radar_altitude_sigma_percent", 0.03),
+    ("imu_velocity_bias_sigma_mps", "imu_velocity_bias_sigma_mps", 2.0)]}
 
 
 def test_attitude_bias_is_constant_over_the_images_with_sigma_one_degree():
@@ -120,7 +121,7 @@ def test_angular_rate_noise_sigma():
 
 
 def test_perfect_sensors_measure_the_truth_at_mid_exposure():
-    measurements, truth = measure(PROFILE, CAMERA, SUN, SensorConfig.perfect(), np.random.default_rng(0))
+    measurements, truth = measure(PROFILE, CAMERA, SUN, SensorConfig.exact(), np.random.default_rng(0))
     for image, t in zip(measurements.images, PROFILE.image_times_s):
         assert image.time_s == t
         mid = t + 0.5 * EXPOSURE_S
@@ -137,7 +138,7 @@ def test_perfect_sensors_measure_the_truth_at_mid_exposure():
 def test_switching_one_sensor_to_perfect_leaves_the_other_errors_unchanged_and_seeds_repeat():
     full = measure(PROFILE, CAMERA, SUN, SensorConfig(), np.random.default_rng(42))
     again = measure(PROFILE, CAMERA, SUN, SensorConfig(), np.random.default_rng(42))
-    no_attitude = measure(PROFILE, CAMERA, SUN, replace(SensorConfig(), attitude_bias_sigma_rad=0.0),
+    no_attitude = measure(PROFILE, CAMERA, SUN, SensorConfig(attitude_bias_sigma_deg=0.0),
                           np.random.default_rng(42))
     assert full[1] == again[1]
     assert no_attitude[1]["radar_altitude_error_image2_m"] == full[1]["radar_altitude_error_image2_m"]
@@ -147,20 +148,20 @@ def test_switching_one_sensor_to_perfect_leaves_the_other_errors_unchanged_and_s
 
 
 def test_config_from_table_defaults_are_the_paper_numbers_and_errors_name_the_field():
-    default = sensor_config_from_table(Table({}, "c.toml", "sensors"))
+    default = parse(SensorConfig, {}, "c.toml", "sensors")
     assert default == SensorConfig()
     assert default.attitude_bias_sigma_rad == pytest.approx(np.radians(1.0))
     assert default.attitude_random_sigma_rad == pytest.approx(np.radians(0.05))
     assert default.alignment_sigma_rad == pytest.approx(np.radians(0.1))
     assert default.radar_altitude_sigma_fraction == pytest.approx(0.0003)
-    custom = sensor_config_from_table(Table({"attitude_bias_sigma_deg": 2.0, "imu_velocity_bias_sigma_mps": 0.0},
-                                            "c.toml", "sensors"))
+    custom = parse(SensorConfig, {"attitude_bias_sigma_deg": 2.0, "imu_velocity_bias_sigma_mps": 0.0},
+                   "c.toml", "sensors")
     assert custom.attitude_bias_sigma_rad == pytest.approx(np.radians(2.0)) and custom.imu_velocity_bias_sigma_mps == 0.0
-    perfect = sensor_config_from_table(Table({"perfect": True}, "c.toml", "sensors"))
-    assert perfect == SensorConfig.perfect()
+    perfect = parse(SensorConfig, {"perfect": True}, "c.toml", "sensors")
+    assert perfect == SensorConfig.exact() and perfect.attitude_bias_sigma_rad == 0.0 == perfect.imu_velocity_bias_sigma_mps
     with pytest.raises(ConfigError, match=r"c.toml: sensors.radar_altitude_sigma_percent = -1 is out of range"):
-        sensor_config_from_table(Table({"radar_altitude_sigma_percent": -1}, "c.toml", "sensors"))
+        parse(SensorConfig, {"radar_altitude_sigma_percent": -1}, "c.toml", "sensors")
     with pytest.raises(ConfigError, match=r"sensors.state_time = 'late' is not allowed; allowed: mid_exposure"):
-        sensor_config_from_table(Table({"state_time": "late"}, "c.toml", "sensors"))
-    with pytest.raises(ConfigError, match=r"unknown key 'sensors.attitude_sigma_deg'"):
-        sensor_config_from_table(Table({"attitude_sigma_deg": 1.0}, "c.toml", "sensors"))
+        parse(SensorConfig, {"state_time": "late"}, "c.toml", "sensors")
+    with pytest.raises(ConfigError, match=r"sensors.attitude_sigma_deg is not a known field; allowed: perfect, "):
+        parse(SensorConfig, {"attitude_sigma_deg": 1.0}, "c.toml", "sensors")

@@ -145,7 +145,7 @@ BROKEN = [
      r"site.toml: site is missing"),
     (lambda t: t + "\n[[site.classes]]\nname = \"c\"\nellipse_fraction = 0.0\ncases = 1\n"
                    "terrain = {{ kind = \"file\", path = \"x.img\", preset = \"gcp\" }}\n",
-     r"site.classes\[2\].terrain.preset is not a known field; allowed: kind, path, sidecar"),
+     r"site.classes\[2\].terrain.preset is not a known field; allowed: resample, kind, path, sidecar"),
 ]
 
 

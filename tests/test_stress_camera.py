@@ -103,12 +103,12 @@ def test_ccd_at_absolute_zero_has_no_dark_and_hot_ccd_saturates(make_camera):
     (dict(binned_full_well_e="0.0"), r"electronics\.binned_full_well_e = 0 is out of range"),
     (dict(f_number="0.1"), r"radiometry\.f_number = 0\.1 is out of range; allowed: >= 0\.5"),
     (dict(dark_doubling_temperature_k="0.001", ccd_temperature_c="200.0"),
-     r"electronics: dark current at ccd_temperature_c = 200 is inf e-/s .*allowed: <= 1e\+13"),
+     r"electronics\.ccd_temperature_c = 200 gives a dark current of inf e-/s .*allowed: <= 1e\+13"),
     (dict(dark_current_ref_e_per_s="1e9", dark_reference_temperature_c="-273.15", ccd_temperature_c="100.0"),
-     r"electronics: dark current .* allowed: <= 1e\+13"),
+     r"electronics\.ccd_temperature_c = 100 gives a dark current .* allowed: <= 1e\+13"),
     (dict(radial_distortion="[0.0, -1.0, 0.0]", width_px="1024", height_px="1024", principal_point_px="[511.5, 511.5]"),
      r"geometry\.radial_distortion = \[0, -1, 0\] stops increasing 471 px .*corner at 724 px"),
-    (dict(focal_length_m="1.0"), r"field of view of 0\.0 x 0\.0 deg; allowed: 1 to 170 deg"),
+    (dict(focal_length_m="1.0"), r"geometry gives a field of view of 0\.0 x 0\.0 deg; allowed: 1 to 170 deg"),
 ])
 def test_out_of_range_camera_fields_give_one_line_errors(make_camera, fields, message):
     with pytest.raises(ConfigError, match=message) as error:

@@ -16,7 +16,7 @@ from simulator.synthetic_descent import constant_velocity_descent, random_ground
 from simulator.scene.descent_profile import constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
 from simulator.sensors import SensorConfig, measure
-from flight_interface.tomlfields import ConfigError, Table
+from flight_interface.tomlfields import ConfigError, parse
 
 VELOCITY = np.array([12.0, -7.0, -72.0])
 
@@ -153,9 +153,13 @@ def test_sensor_measurements_are_finite_unit_quaternions_at_any_state(mer_a, alt
     profile = constant_velocity_profile([0.0, 0.0, altitude_m], [30.0, -20.0, -descent_rate], attitude, 0.3,
                                         [0.0, 0.1, 0.2])
     profile = dataclasses.replace(profile, angular_rate_radps=np.tile(np.radians([rate_dps, 0.0, 0.0]), (2, 1)))
-    config = SensorConfig(np.radians(30.0) * sigma_scale, np.radians(10.0) * sigma_scale, np.radians(10.0) * sigma_scale,
-                          np.radians(60.0) * sigma_scale, 0.1 * sigma_scale, 50.0 * sigma_scale, 50.0 * sigma_scale,
-                          10.0 * sigma_scale, "exposure_start" if start else "mid_exposure", True, 1000.0 * sigma_scale)
+    config = SensorConfig(attitude_bias_sigma_deg=30.0 * sigma_scale, attitude_random_sigma_deg=10.0 * sigma_scale,
+                          alignment_sigma_deg=10.0 * sigma_scale, angular_rate_noise_sigma_dps=60.0 * sigma_scale,
+                          radar_altitude_sigma_percent=10.0 * sigma_scale, imu_velocity_bias_sigma_mps=50.0 * sigma_scale,
+                          imu_vertical_velocity_bias_sigma_mps=50.0 * sigma_scale,
+                          imu_velocity_random_walk_mps_per_sqrt_s=10.0 * sigma_scale,
+                          state_time="exposure_start" if start else "mid_exposure", heat_shield_prediction=True,
+                          heat_shield_prediction_sigma_m=1000.0 * sigma_scale)
     measurements, truth = measure(profile, None if start else mer_a, np.array([0.0, 0.6, 0.8]), config,
                                   np.random.default_rng(seed))
     assert all(np.isfinite(value) for value in truth.values())
@@ -172,13 +176,13 @@ def test_sensor_measurements_are_finite_unit_quaternions_at_any_state(mer_a, alt
     ("radar_altitude_sigma_percent", 50.0, r"radar_altitude_sigma_percent = 50 is out of range"),
     ("imu_velocity_bias_sigma_mps", float("nan"), r"imu_velocity_bias_sigma_mps = nan is not finite"),
     ("state_time", "end", r"state_time = 'end' is not allowed; allowed: mid_exposure, exposure_start"),
-    ("perfectly", True, r"unknown key 'sensors\.perfectly'"),
+    ("perfectly", True, r"sensors\.perfectly is not a known field"),
 ])
 def test_sensor_config_out_of_range_gives_one_line_errors(key, value, message):
-    from simulator.sensors import sensor_config_from_table
+    from simulator.sensors import SensorConfig
 
     with pytest.raises(ConfigError, match=message):
-        sensor_config_from_table(Table({key: value}, "campaign.toml", "sensors"))
+        parse(SensorConfig, {key: value}, "campaign.toml", "sensors")
 
 
 def test_image_times_outside_the_profile_are_refused_with_the_time_named(mer_a):

@@ -132,8 +132,8 @@ def test_post_table_maps_units_euler_angles_and_image_altitudes(tmp_path):
     (lambda m: m["columns"].pop("vy_mps"), r"<mapping>: columns.vy_mps is missing"),
     (lambda m: m["columns"].update(x_m={"column": "EAST", "unit": "ft/s"}), r"columns.x_m.unit = 'ft/s' is not allowed; allowed: m, km, ft, kft"),
     (lambda m: m["columns"].update(x_m="EASTING"), r"columns.x_m.column = 'EASTING' is not a column of .*run.post"),
-    (lambda m: m["images"].update(altitudes_m=[900.0]), r"images.altitudes_m = 900 m is never crossed"),
-    (lambda m: m["columns"].update(typo_m="EAST"), r"unknown key 'columns.typo_m'"),
+    (lambda m: m["images"].update(altitudes_m=[2000.0, 900.0]), r"images.altitudes_m = 900 m is never crossed"),
+    (lambda m: m["columns"].update(typo_m="EAST"), r"<mapping>: columns.typo_m is not a known field; allowed: t_s, x_m"),
 ])
 def test_post_mapping_errors_name_the_field(tmp_path, change, message):
     path = tmp_path / "run.post"

@@ -20,7 +20,9 @@ from dataclasses import dataclass
 from typing import Callable, Sequence, Union
 
 import numpy as np
+from pydantic import Field
 
+from flight_interface.tomlfields import ConfigModel
 from simulator.detector import blooming, charge_generation, charge_transfer, optics, readout
 from simulator.off_nominal import hot_pixels, particle_hits
 from flight_interface.camera import Camera
@@ -29,18 +31,25 @@ PERIODS = ("flush", "exposure", "transfer")
 SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well
 
 
-@dataclass(frozen=True)
-class CameraEffects:
-    """Switches of the camera chain; all on is the nominal camera."""
+class CameraEffects(ConfigModel):
+    """``[scene.camera_effects]``: switches of the camera chain; all on is the nominal camera."""
 
     falloff: bool = True
+    """cos^4 falloff with field angle."""
     prnu: bool = True
+    """Pixel response non-uniformity."""
     dark_current: bool = True
-    dark_current_scale: float = 1.0
+    """Dark current (image and storage areas)."""
+    dark_current_scale: float = Field(1.0, ge=0.0, le=1e6)
+    """Multiplies the camera's dark current (excessive dark current: > 1)."""
     smear: bool = True
+    """Fast-flush and frame-transfer smear."""
     shot_noise: bool = True
+    """Photon and dark shot noise."""
     read_noise: bool = True
-    exact_poisson: bool = False   # False: Gaussian shot noise above readout.GAUSSIAN_MIN_MEAN_E (fidelity shortcut)
+    """Output amplifier noise."""
+    exact_poisson: bool = False
+    """Poisson shot noise at every level (false: Gaussian above readout.GAUSSIAN_MIN_MEAN_E, a fidelity shortcut)."""
 
 
 @dataclass(frozen=True)
@@ -185,8 +194,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         timing = camera.timing
     else:
         rate_flush = rate_transfer = np.zeros_like(rate_exposure)
-        timing = camera.timing.__class__(0.0, camera.timing.exposure_s, 0.0, camera.timing.readout_s,
-                                         camera.timing.transfer_toward_last_row)
+        timing = camera.timing.model_copy(update={"fast_flush_s": 0.0, "frame_transfer_s": 0.0})
 
     bound = charge_transfer.max_pixel_charge_bound_e(rate_flush, rate_exposure, rate_transfer, timing)
     if hits is not None:

@@ -11,61 +11,64 @@ saturating it changes nothing and costs nothing). The physics of each effect liv
 * high motion blur                -> :mod:`simulator.scene.descent_profile` (angular rate multiplier)
 * excessive dark current          -> ``[scene.camera_effects] dark_current_scale`` (already in the chain)
 
-TOML (``[scene.off_nominal]``, parsed by :func:`off_nominal_config_from_table`; SI units, angles in
-degrees only here), with defaults::
-
-    [scene.off_nominal]
-    dust_particle_count = 0                      # Poisson mean of the particle count per case (int >= 0)
-    dust_particle_diameter_mean_m = 150e-6       # exponential size distribution, truncated at the max
-    dust_particle_diameter_max_m = 1.0e-3
-    dust_lens_distance_m = 8.0e-3                # front element to entrance pupil
-    hot_pixel_fraction = 0.0                     # fraction of pixels that are hot, 0 .. 1
-    hot_pixel_amplitude_mean_e_per_s = 1.0e6     # exponential mean of the extra dark rate at the reference temperature
-    particle_hit_rate_per_cm2_s = 0.0            # energetic particle flux through the CCD
-    particle_hit_charge_e_per_m = 1.0e8          # electrons per metre of path in silicon (~100 e-/um)
-    particle_hit_depth_m = 10.0e-6               # charge-collection depth
-    particle_hit_max_track_length_m = 300e-6     # longest projected track on the array
-    heat_shield_glint = false
-    heat_shield_specular_reflectance = 0.05
-    heat_shield_specular_roughness_deg = 3.0     # rms facet slope of the blanket's specular lobe
-    blooming = true
-    angular_rate_multiplier = 1.0                # scales the angular rates about each exposure mid-time
+TOML: ``[scene.off_nominal]``, declared once by :class:`OffNominalConfig` (SI units, angles in degrees
+at this edge; every key optional, defaults = the nominal camera; ``campaign schema scene`` prints them).
 
 Randomness: :func:`draw_case_artefacts` draws the dust and hot pixels of a case once (the same for the
 three images); :func:`with_particle_hits` adds one image's particle hits from that image's own stream.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
+from pydantic import Field
 
 from simulator.off_nominal.dust import DustParticles, draw_particles, transmission_map
 from simulator.off_nominal.hot_pixels import HotPixels, draw_hot_pixels
 from simulator.off_nominal.particle_hits import ParticleHits, draw_particle_hits
 from flight_interface.camera import Camera
-from flight_interface.tomlfields import Table
+from flight_interface.tomlfields import ConfigModel
 
 
-@dataclass(frozen=True)
-class OffNominalConfig:
-    """Off-nominal effect parameters (SI units); the defaults are the nominal camera (module doc)."""
+class OffNominalConfig(ConfigModel):
+    """``[scene.off_nominal]``: off-nominal effect parameters (SI units; the defaults are the nominal camera)."""
 
-    dust_particle_count: int = 0
-    dust_particle_diameter_mean_m: float = 150e-6
-    dust_particle_diameter_max_m: float = 1.0e-3
-    dust_lens_distance_m: float = 8.0e-3
-    hot_pixel_fraction: float = 0.0
-    hot_pixel_amplitude_mean_e_per_s: float = 1.0e6
-    particle_hit_rate_per_cm2_s: float = 0.0
-    particle_hit_charge_e_per_m: float = 1.0e8
-    particle_hit_depth_m: float = 10.0e-6
-    particle_hit_max_track_length_m: float = 300e-6
+    dust_particle_count: int = Field(0, ge=0, le=100_000)
+    """Poisson mean of the number of dust particles on the front element per case."""
+    dust_particle_diameter_mean_m: float = Field(150e-6, gt=0.0, le=0.01)
+    """Mean of the exponential particle diameter distribution (m)."""
+    dust_particle_diameter_max_m: float = Field(1.0e-3, gt=0.0, le=0.05)
+    """Largest particle diameter (m; the distribution is truncated here)."""
+    dust_lens_distance_m: float = Field(8.0e-3, gt=0.0, le=0.2)
+    """Front element to entrance pupil (m)."""
+    hot_pixel_fraction: float = Field(0.0, ge=0.0, le=1.0)
+    """Fraction of pixels that are hot."""
+    hot_pixel_amplitude_mean_e_per_s: float = Field(1.0e6, gt=0.0, le=1e12)
+    """Exponential mean of a hot pixel's extra dark rate at the reference temperature (e-/s)."""
+    particle_hit_rate_per_cm2_s: float = Field(0.0, ge=0.0, le=1e7)
+    """Energetic particle flux through the CCD (hits per cm^2 per s)."""
+    particle_hit_charge_e_per_m: float = Field(1.0e8, ge=0.0, le=1e12)
+    """Electrons per metre of path in silicon (~100 e-/um)."""
+    particle_hit_depth_m: float = Field(10.0e-6, gt=0.0, le=1e-3)
+    """Charge-collection depth (m)."""
+    particle_hit_max_track_length_m: float = Field(300e-6, gt=0.0, le=0.05)
+    """Longest projected track on the array (m)."""
     heat_shield_glint: bool = False
-    heat_shield_specular_reflectance: float = 0.05
-    heat_shield_specular_roughness_rad: float = float(np.radians(3.0))
+    """Specular glint of the sun on the heat-shield lining."""
+    heat_shield_specular_reflectance: float = Field(0.05, ge=0.0, le=1.0)
+    """Specular reflectance of the lining."""
+    heat_shield_specular_roughness_deg: float = Field(3.0, ge=0.5, le=45.0)
+    """RMS facet slope of the lining's specular lobe (deg)."""
     blooming: bool = True
-    angular_rate_multiplier: float = 1.0
+    """Charge above full well spills along the columns (else it is clipped)."""
+    angular_rate_multiplier: float = Field(1.0, ge=0.0, le=100.0)
+    """Scales the angular rates about each exposure mid-time (high motion blur)."""
+
+    @property
+    def heat_shield_specular_roughness_rad(self) -> float:
+        return math.radians(self.heat_shield_specular_roughness_deg)
 
     @property
     def needs_case_artefacts(self) -> bool:
@@ -122,42 +125,3 @@ def with_particle_hits(artefacts: OffNominalArtefacts | None, camera: Camera, co
                                             config.particle_hit_charge_e_per_m, config.particle_hit_depth_m,
                                             config.particle_hit_max_track_length_m)
     return replace(artefacts, particle_hits=hits)
-
-
-def off_nominal_config_from_table(table: Table) -> OffNominalConfig:
-    """Build an :class:`OffNominalConfig` from a ``[scene.off_nominal]`` table; every key is optional.
-
-    Errors are one line naming the file, the field and the allowed values.
-    """
-    default = OffNominalConfig()
-
-    def number(key, minimum, maximum, exclusive_minimum=False):
-        return table.number(key, default=getattr(default, key), minimum=minimum, maximum=maximum,
-                            exclusive_minimum=exclusive_minimum)
-
-    config = OffNominalConfig(
-        dust_particle_count=table.integer("dust_particle_count", default=default.dust_particle_count,
-                                          minimum=0, maximum=100_000),
-        dust_particle_diameter_mean_m=number("dust_particle_diameter_mean_m", 0.0, 0.01, exclusive_minimum=True),
-        dust_particle_diameter_max_m=number("dust_particle_diameter_max_m", 0.0, 0.05, exclusive_minimum=True),
-        dust_lens_distance_m=number("dust_lens_distance_m", 0.0, 0.2, exclusive_minimum=True),
-        hot_pixel_fraction=number("hot_pixel_fraction", 0.0, 1.0),
-        hot_pixel_amplitude_mean_e_per_s=number("hot_pixel_amplitude_mean_e_per_s", 0.0, 1e12, exclusive_minimum=True),
-        particle_hit_rate_per_cm2_s=number("particle_hit_rate_per_cm2_s", 0.0, 1e7),
-        particle_hit_charge_e_per_m=number("particle_hit_charge_e_per_m", 0.0, 1e12),
-        particle_hit_depth_m=number("particle_hit_depth_m", 0.0, 1e-3, exclusive_minimum=True),
-        particle_hit_max_track_length_m=number("particle_hit_max_track_length_m", 0.0, 0.05, exclusive_minimum=True),
-        heat_shield_glint=table.boolean("heat_shield_glint", default=default.heat_shield_glint),
-        heat_shield_specular_reflectance=number("heat_shield_specular_reflectance", 0.0, 1.0),
-        heat_shield_specular_roughness_rad=(float(np.radians(table.number(
-            "heat_shield_specular_roughness_deg", minimum=0.5, maximum=45.0)))
-            if table.has("heat_shield_specular_roughness_deg") else default.heat_shield_specular_roughness_rad),
-        blooming=table.boolean("blooming", default=default.blooming),
-        angular_rate_multiplier=number("angular_rate_multiplier", 0.0, 100.0),
-    )
-    allowed = {f.name for f in fields(OffNominalConfig)} - {"heat_shield_specular_roughness_rad"}
-    allowed |= {"heat_shield_specular_roughness_deg"}
-    for key in table.data:
-        if key not in allowed:
-            raise table.fail(key, f"is not a known field; allowed: {', '.join(sorted(allowed))}")
-    return config

@@ -149,7 +149,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     """
     samples = config.supersample
     if samples > 1:
-        single = replace(config, supersample=1)
+        single = config.model_copy(update={"supersample": 1})
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
         parts = [radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single, _sub_sample=True)
                  for dr in offsets for dc in offsets]

@@ -2,14 +2,15 @@
 
 Prints the detected format, size, valid fraction, pixel range and what is known or missing for
 use as terrain (metres per pixel, photometric angles, DN-to-I/F), so a side-car can be written.
-Exit status 1 when any file cannot be read (the one-line reason is printed).
+A file that cannot be read (or a bad side-car) prints one line naming the file and the reason on
+stderr; the exit status is then 2 (bad input), as for every command of the project.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 
+from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.tomlfields import ConfigError
 
 from .terrain_file import load_orbital_image
@@ -36,7 +37,7 @@ def describe(path: str, sidecar: str | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sitedata.readers", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m sitedata.readers", description=__doc__.splitlines()[0])
     parser.add_argument("files", nargs="+")
     parser.add_argument("--sidecar", default=None, help="side-car TOML applied to every file")
     args = parser.parse_args(argv)
@@ -45,8 +46,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             print(describe(path, args.sidecar))
         except ConfigError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            status = 1
+            print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+            status = USAGE_ERROR
     return status
 
 

@@ -101,11 +101,14 @@ def finish(pixels: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def file_size(path: Path) -> int:
     try:
-        return path.stat().st_size
+        status = path.stat()
     except FileNotFoundError:
         raise fail(path, "file not found") from None
     except OSError as exc:
         raise fail(path, f"cannot be read ({exc.strerror})") from None
+    if not path.is_file():
+        raise fail(path, "is not a regular file (a directory?); allowed: an image file")
+    return status.st_size
 
 
 def read_attached_label(path: Path, what: str, max_bytes: int = 8 << 20) -> tuple[ParsedLabel, str]:

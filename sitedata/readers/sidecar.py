@@ -19,48 +19,81 @@ Next to ``image.img`` a file ``image.toml`` (or any file given explicitly) may h
 
 Every field is optional; a field given here overrides what the file states (a note records it).
 Angles must describe a real geometry: incidence and emission in [0, 90) deg, phase in [0, 180]
-deg and ``|i - e| <= g <= i + e`` (spherical triangle). Unknown fields are refused so typos fail.
+deg and ``|i - e| <= g <= i + e`` (spherical triangle). Unknown fields are refused so typos fail. The file is
+declared once, by :class:`Sidecar` (``campaign schema terrain_sidecar``).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
-from flight_interface.tomlfields import ConfigError, Table, load_toml
+from pydantic import Field, PrivateAttr, model_validator
+
+from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load
 
 from .image import OrbitalImage, fail
 
-ALLOWED_FIELDS = ("name", "metres_per_pixel", "incidence_deg", "emission_deg", "phase_deg", "dn_to_if_scale",
-                  "dn_to_if_offset", "band_index", "crop")
-CROP_FIELDS = ("first_row", "first_col", "rows", "cols")
 _TRIANGLE_TOLERANCE_DEG = 0.01
 
 
-@dataclass(frozen=True)
-class CropWindow:
-    """A pixel window: rows ``first_row .. first_row + rows - 1``, same for columns."""
+class CropWindow(ConfigModel):
+    """``[crop]``: a pixel window, rows ``first_row .. first_row + rows - 1``, same for columns."""
 
-    first_row: int
-    first_col: int
-    rows: int
-    cols: int
+    first_row: int = Field(ge=0)
+    first_col: int = Field(ge=0)
+    rows: int = Field(ge=1)
+    cols: int = Field(ge=1)
 
 
-@dataclass(frozen=True)
-class Sidecar:
-    """Parsed side-car values (None = not given). Angles in radians."""
+class Sidecar(ConfigModel):
+    """A side-car TOML: what an orbital image file does not state (None = not given; angles in degrees
+    here, ``*_rad`` properties in radians)."""
 
-    source: Path
     name: str | None = None
-    metres_per_pixel: float | None = None
-    incidence_rad: float | None = None
-    emission_rad: float | None = None
-    phase_rad: float | None = None
-    dn_to_if_scale: float | None = None
+    """Terrain name."""
+    metres_per_pixel: float | None = Field(None, gt=0.0)
+    """Ground sampling (m)."""
+    incidence_deg: float | None = Field(None, ge=0.0, lt=90.0)
+    """Solar incidence of the orbital observation (deg)."""
+    emission_deg: float | None = Field(None, ge=0.0, lt=90.0)
+    """Emission angle of the orbital observation (deg)."""
+    phase_deg: float | None = Field(None, ge=0.0, le=180.0)
+    """Phase angle of the orbital observation (deg)."""
+    dn_to_if_scale: float | None = Field(None, gt=0.0)
+    """I/F = dn_to_if_scale * pixel + dn_to_if_offset."""
     dn_to_if_offset: float | None = None
-    band_index: int | None = None
+    """See dn_to_if_scale."""
+    band_index: int | None = Field(None, ge=0)
+    """0-based band of multi-band products."""
     crop: CropWindow | None = None
+    """Window applied before everything else."""
+    _source: Path = PrivateAttr(Path("."))
+
+    @model_validator(mode="after")
+    def _angles_form_a_triangle(self):
+        incidence, emission, phase = self.incidence_deg, self.emission_deg, self.phase_deg
+        if incidence is not None and emission is not None and phase is not None:
+            low, high = abs(incidence - emission), incidence + emission
+            if not low - _TRIANGLE_TOLERANCE_DEG <= phase <= high + _TRIANGLE_TOLERANCE_DEG:
+                raise FieldProblem("phase_deg", f"= {phase:g} is impossible with incidence {incidence:g} and emission "
+                                                f"{emission:g} deg; allowed: {low:g} .. {high:g}")
+        return self
+
+    @property
+    def source(self) -> Path:
+        return self._source
+
+    @property
+    def incidence_rad(self) -> float | None:
+        return None if self.incidence_deg is None else math.radians(self.incidence_deg)
+
+    @property
+    def emission_rad(self) -> float | None:
+        return None if self.emission_deg is None else math.radians(self.emission_deg)
+
+    @property
+    def phase_rad(self) -> float | None:
+        return None if self.phase_deg is None else math.radians(self.phase_deg)
 
 
 def default_sidecar_path(image_path: str | Path) -> Path:
@@ -71,47 +104,9 @@ def default_sidecar_path(image_path: str | Path) -> Path:
 
 def read_sidecar(path: str | Path) -> Sidecar:
     """Parse and validate a side-car TOML (one-line :class:`ConfigError` on any bad field)."""
-    path = Path(path)
-    table = Table(load_toml(path), str(path))
-    for key in table.data:
-        if key not in ALLOWED_FIELDS:
-            raise table.fail(key, f"is not a side-car field; allowed: {', '.join(ALLOWED_FIELDS)}")
-
-    def optional_number(key: str, **limits) -> float | None:
-        return table.number(key, **limits) if table.has(key) else None
-
-    def optional_angle(key: str, maximum: float, exclusive: bool) -> float | None:
-        if not table.has(key):
-            return None
-        return table.number(key, minimum=0.0, maximum=maximum, exclusive_maximum=exclusive)
-
-    incidence = optional_angle("incidence_deg", 90.0, True)
-    emission = optional_angle("emission_deg", 90.0, True)
-    phase = optional_angle("phase_deg", 180.0, False)
-    if incidence is not None and emission is not None and phase is not None:
-        low, high = abs(incidence - emission), incidence + emission
-        if not low - _TRIANGLE_TOLERANCE_DEG <= phase <= high + _TRIANGLE_TOLERANCE_DEG:
-            raise table.fail("phase_deg", f"= {phase:g} is impossible with incidence {incidence:g} and emission "
-                                          f"{emission:g} deg; allowed: {low:g} .. {high:g}")
-    crop = None
-    if table.has("crop"):
-        crop_table = table.table("crop")
-        for key in crop_table.data:
-            if key not in CROP_FIELDS:
-                raise crop_table.fail(key, f"is not a crop field; allowed: {', '.join(CROP_FIELDS)}")
-        crop = CropWindow(crop_table.integer("first_row", minimum=0), crop_table.integer("first_col", minimum=0),
-                          crop_table.integer("rows", minimum=1), crop_table.integer("cols", minimum=1))
-    return Sidecar(
-        source=path,
-        name=table.string("name") if table.has("name") else None,
-        metres_per_pixel=optional_number("metres_per_pixel", minimum=0.0, exclusive_minimum=True),
-        incidence_rad=None if incidence is None else math.radians(incidence),
-        emission_rad=None if emission is None else math.radians(emission),
-        phase_rad=None if phase is None else math.radians(phase),
-        dn_to_if_scale=optional_number("dn_to_if_scale", minimum=0.0, exclusive_minimum=True),
-        dn_to_if_offset=optional_number("dn_to_if_offset"),
-        band_index=table.integer("band_index", minimum=0) if table.has("band_index") else None,
-        crop=crop)
+    sidecar = load(Sidecar, path)
+    sidecar._source = Path(path)
+    return sidecar
 
 
 def apply_sidecar(image: OrbitalImage, sidecar: Sidecar | None) -> OrbitalImage:

@@ -1,0 +1,14 @@
+"""Command-line contract shared by every CLI of the project: a usage or input error is ONE line on
+stderr naming the file (or flag), the field and what is allowed, exit status 2, and nothing written."""
+from __future__ import annotations
+
+import argparse
+
+USAGE_ERROR = 2
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """``argparse`` whose usage errors are one line (``prog: error: message``) and exit status 2."""
+
+    def error(self, message: str):
+        self.exit(USAGE_ERROR, f"{self.prog}: error: {' '.join(message.split())}\n")
