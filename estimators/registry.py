@@ -41,7 +41,7 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from flight_interface.tomlfields import ConfigModel, FieldProblem, parse
+from flight_interface.tomlfields import ConfigModel, FieldProblem
 
 KINDS = ("reference", "python", "command")
 DEFAULT_NAME = "dimes"

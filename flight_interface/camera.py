@@ -37,7 +37,7 @@ from pydantic import Field, model_validator
 
 from flight_interface import cahvor
 from flight_interface.frames import quat_normalize, quat_to_matrix
-from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, fixed_vector, load
+from flight_interface.tomlfields import ConfigModel, FieldProblem, fixed_vector, load
 
 PLANCK_J_S = 6.62607015e-34
 SPEED_OF_LIGHT_M_S = 2.99792458e8
