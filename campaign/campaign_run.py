@@ -31,7 +31,6 @@ def plan_campaign(config: CampaignConfig):
     (:mod:`campaign.coverage`), before anything is written."""
     resources = load_resources(config)
     frames = []
-    first = 0
     for index, entry in enumerate(config.site.classes):
         count = config.cases_per_class[entry.name]
         if count == 0:
@@ -43,8 +42,7 @@ def plan_campaign(config: CampaignConfig):
         spec = ClassPlanInput(class_name=entry.name, class_index=index, ellipse_fraction=entry.ellipse_fraction,
                               cases=count, terrain_name=terrain.name, terrain_extent_m=terrain.extent_m,
                               margin_m=2.0 * terrain.metres_per_pixel)
-        frames.append(plan_class(resources.camera, resources.profiles, spec, config.seed, first))
-        first += count
+        frames.append(plan_class(resources.camera, resources.profiles, spec, config.seed))
     plan = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     return resources, plan
 

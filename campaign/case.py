@@ -5,9 +5,9 @@ Big read-only inputs (camera, trajectory set, terrain strips) are loaded once pe
 kept in :data:`_WORKER_RESOURCES`, keyed by the campaign's configuration hash; tasks themselves only
 carry the small :class:`CampaignContext` and one plan row.
 
-Randomness: case ``k`` of a campaign with seed ``s`` draws everything from
-``SeedSequence([s, k]).spawn(...)``: one stream per image (scene + camera noise), one for the sensors,
-one for the off-nominal artefacts (dust, hot pixels, per-image particle hits; drawn only when
+Randomness: a case with id ``c`` (``class_index * 1_000_000 + index within class``, see
+:mod:`campaign.planner`) of a campaign with seed ``s`` draws everything from
+``SeedSequence([s, c]).spawn(...)``: one stream per image (scene + camera noise), one for the sensors, one for the off-nominal artefacts (dust, hot pixels, per-image particle hits; drawn only when
 configured), so a case is bit-for-bit reproducible whatever the worker count or order. The flat-field
 calibration is drawn once per campaign from ``SeedSequence(seed, spawn_key=(FLAT_FIELD_STREAM,))``
 (a stream no case uses) and cached per worker process.

@@ -24,10 +24,12 @@ A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
 
 Each table is declared once, as a pydantic model (:class:`CampaignFile` gathers them; ``campaign schema``
 prints the JSON Schema). Errors are one line naming the file, the field and the allowed values. The configuration hash
-identifies the campaign's *results*: it covers everything that changes them (all tables except
-``[execution]`` and ``output_dir``, the contents of the camera, trajectory and terrain files, and a
-digest of the code that computes results, :func:`code_digest`), so a campaign can be resumed on
-another cluster but not with another camera or another version of the simulator or estimator.
+identifies the campaign's *results*: it is computed from content, never from paths or from which
+defaults were written out (:func:`hashed_content`): every resolved table except ``[execution]``,
+``output_dir``, ``false_valid_mps`` and the case counts; the bytes of the camera, trajectory and terrain
+files; a digest of the code that computes results (:func:`code_digest`). So a campaign can be resumed on
+another cluster, from another directory, or with more cases (case identity is (class, index within
+class)), but not with another camera or another version of the simulator or estimator.
 """
 from __future__ import annotations
 
@@ -62,7 +64,8 @@ class CampaignTable(ConfigModel):
     """``[campaign]``: what to run and where the results go."""
 
     seed: int = Field(1, ge=0, le=2**63 - 1)
-    """Campaign seed: case k draws from SeedSequence([seed, k])."""
+    """Campaign seed: the case with id c (class_index * 1_000_000 + index within class) draws from
+    SeedSequence([seed, c])."""
     output_dir: str | None = None
     """Store directory, relative to the working directory (default runs/<site name in lower case>)."""
     cases: dict[str, CaseCount] = {}
@@ -165,12 +168,7 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
 
     resolved = {name: json.loads(json.dumps(getattr(tables, name), default=lambda value: value.model_dump(mode="json")))
                 for name in CampaignFile.model_fields}
-    raw = json.loads(json.dumps(data, default=str))
-    hashed = {key: value for key, value in raw.items() if key != "execution"}
-    hashed["campaign"] = {k: v for k, v in hashed.get("campaign", {}).items()
-                          if k not in ("output_dir", "false_valid_mps")}
-    hashed["cases_resolved"] = cases
-    hashed["input_digests"] = {str(p): file_digest(p) for p in _input_files(site)}
+    hashed = hashed_content(resolved, site)
     hashed["code_digest"] = code_digest()
     hashed["estimator_code_digests"] = estimator_code_digests(estimators)
     config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
@@ -181,14 +179,31 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
                           false_valid_mps=campaign.false_valid_mps, calibration=calibration, estimators=estimators)
 
 
-def _input_files(site: Site) -> list[Path]:
-    files = [Path(site.camera_path), Path(site.trajectory_path)]
-    for entry in site.classes:
+HASH_EXCLUDED_CAMPAIGN_KEYS = ("output_dir", "false_valid_mps", "cases", "cases_scale")
+
+
+def hashed_content(resolved: dict, site: Site) -> dict:
+    """What the configuration hash covers: the resolved tables (every default filled in, so writing a
+    default out changes nothing) with input files replaced by the sha256 of their bytes (so the same
+    campaign given by another path, or from another directory, has the same hash).
+
+    Left out: ``[execution]`` (where cases run), the output directory, the false-valid reporting
+    threshold, and the case counts (``cases``, ``cases_scale``, each class's ``cases``): case identity is
+    (class, index within class), so a scaled run is a prefix of the full one (see :mod:`campaign.planner`).
+    """
+    content = json.loads(json.dumps({name: value for name, value in resolved.items() if name != "execution"}))
+    for key in HASH_EXCLUDED_CAMPAIGN_KEYS:
+        content.get("campaign", {}).pop(key, None)
+    site_content = content["site"]
+    site_content["camera"] = file_digest(site.camera_path)
+    site_content["trajectory_set"] = file_digest(site.trajectory_path)
+    for entry, class_content in zip(site.classes, site_content["classes"]):
+        class_content.pop("cases", None)
         for name in ("path", "sidecar"):
             value = getattr(entry.terrain, name, None)
             if value is not None:
-                files.append(Path(value))
-    return files
+                class_content["terrain"][name] = file_digest(Path(value))
+    return content
 
 
 RESULT_CODE = ("flight_interface", "simulator", "dimes_velocity", "estimators", "sitedata", "campaign/case.py")

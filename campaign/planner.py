@@ -1,17 +1,22 @@
 """Placement of EDL trajectories on terrain strips (paper section 5, Fig. 5).
 
-For each appearance class, case ``k`` of ``n`` gets
+For each appearance class, case ``k`` (its index within the class) gets
 
 * a trajectory from the site's pregenerated set (a seeded permutation, cycled when there are more
   cases than trajectories);
 * a heading: the whole flight (positions, velocities, attitudes, winds, heat shield) turned about the
-  vertical, stratified over 0-360 deg (one stratum per case, jittered), so the sun azimuth relative to
-  the flight varies; if the three footprints cannot fit in the strip at that heading, the nearest
-  heading in 10 deg steps that fits is used;
+  vertical, so the sun azimuth relative to the flight varies; if the three footprints cannot fit in
+  the strip at that heading, the nearest heading in 10 deg steps that fits is used;
 * a position: the offsets for which all three image footprints (ground outlines of the image borders at
-  mid-exposure) stay inside the strip form a rectangle; a stratified sample ``(u, v)`` of the unit
-  square (grid cells shaped like the strip, one case per cell, jittered, cells in seeded order) is
-  mapped onto that rectangle, so placements cover the strip evenly instead of clustering.
+  mid-exposure) stay inside the strip form a rectangle; a point ``(u, v)`` of the unit square is mapped
+  onto that rectangle.
+
+``(u, v)`` and the heading fraction are point ``k`` of a scrambled 3-D Halton sequence (seeded by the
+campaign seed and the class): a low-discrepancy sequence covers the headings and the strip evenly for
+*every* prefix, so the plan does not depend on the number of cases. Case ``k`` is the same whether the
+class has 10 or 1000 cases: a quick look (``--cases-scale 0.1``) is the first tenth of the full run,
+and a later full run reuses it. Case identity is (class, k): ``case_id = class_index *``
+:data:`CASE_ID_STRIDE` ``+ k``.
 
 A case whose footprints cannot fit at any heading is still planned (never dropped) with
 ``footprint_inside = False``; the simulator then renders the outside as "no texture" like the paper's
@@ -24,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.stats import qmc
 
 from flight_interface.camera import Camera
 from simulator.scene.descent_profile import DescentProfile
@@ -31,6 +37,7 @@ from simulator.scene.ground_mapping import border_pixels, camera_pose, ground_po
 
 PLAN_STREAM = 0x504C414E  # "PLAN": the planner's SeedSequence key, apart from the cases' streams
 HEADING_SEARCH_STEP_RAD = math.radians(10.0)
+CASE_ID_STRIDE = 1_000_000  # case_id = class_index * CASE_ID_STRIDE + index within the class
 
 
 @dataclass(frozen=True)
@@ -76,26 +83,31 @@ def _feasible_offsets(points_en: np.ndarray, extent_m, margin_m: float):
     return low, high
 
 
-def stratified_unit_square(count: int, aspect: float, rng: np.random.Generator) -> np.ndarray:
-    """``count`` points in [0, 1]^2, one per cell of a grid whose cells follow ``aspect`` (height/width)."""
-    columns = max(1, int(round(math.sqrt(count / max(aspect, 1e-9)))))
-    rows = int(math.ceil(count / columns))
-    cells = rng.permutation(rows * columns)[:count]
-    jitter = rng.random((count, 2))
-    u = (cells % columns + jitter[:, 0]) / columns
-    v = (cells // columns + jitter[:, 1]) / rows
-    return np.stack([u, v], axis=-1)
+def even_points(count: int, seed_sequence: np.random.SeedSequence) -> np.ndarray:
+    """The first ``count`` points of a scrambled 3-D Halton sequence in [0, 1)^3, shape (count, 3).
+
+    Prefix-stable: ``even_points(n)`` is the first ``n`` rows of ``even_points(N)`` for ``n <= N``, and
+    every prefix is low-discrepancy (its points fill the unit cube evenly, with no clusters)."""
+    sequence = qmc.Halton(d=3, scramble=True, rng=np.random.default_rng(seed_sequence))
+    return sequence.random(count) if count > 0 else np.zeros((0, 3))
 
 
-def plan_class(camera: Camera, profiles: list[DescentProfile], spec: ClassPlanInput, seed: int,
-               first_case_id: int) -> pd.DataFrame:
-    """Plan the cases of one class. Returns one row per case (see :data:`PLAN_COLUMNS`)."""
-    rng = np.random.default_rng(np.random.SeedSequence([seed, spec.class_index, PLAN_STREAM]))
+def case_id_of(class_index: int, case_in_class: int) -> int:
+    """The case id of case ``case_in_class`` of class ``class_index`` (stable whatever the case counts)."""
+    if not 0 <= case_in_class < CASE_ID_STRIDE:
+        raise ValueError(f"case index {case_in_class} outside [0, {CASE_ID_STRIDE})")
+    return class_index * CASE_ID_STRIDE + case_in_class
+
+
+def plan_class(camera: Camera, profiles: list[DescentProfile], spec: ClassPlanInput, seed: int) -> pd.DataFrame:
+    """Plan the cases of one class. Returns one row per case (see :data:`PLAN_COLUMNS`); the first ``n``
+    rows do not depend on ``spec.cases`` (see the module docstring)."""
+    streams = np.random.SeedSequence([seed, spec.class_index, PLAN_STREAM]).spawn(2)
     count = spec.cases
-    order = rng.permutation(len(profiles))
-    headings = 2.0 * math.pi * (rng.permutation(count) + rng.random(count)) / max(count, 1)
-    west, east, south, north = spec.terrain_extent_m
-    unit = stratified_unit_square(count, (north - south) / max(east - west, 1e-9), rng)
+    order = np.random.default_rng(streams[0]).permutation(len(profiles))
+    points = even_points(count, streams[1])
+    unit = points[:, :2]                       # Halton bases 2 and 3: the strip's (u, v)
+    headings = 2.0 * math.pi * points[:, 2]    # base 5
     outline_cache: dict[int, np.ndarray | None] = {}
     rows = []
     for k in range(count):
@@ -105,7 +117,8 @@ def plan_class(camera: Camera, profiles: list[DescentProfile], spec: ClassPlanIn
         outline = outline_cache[profile_index]
         heading, offset, inside = _place(outline, headings[k], unit[k], spec)
         rows.append({
-            "case_id": first_case_id + k, "class_name": spec.class_name, "class_index": spec.class_index,
+            "case_id": case_id_of(spec.class_index, k), "class_name": spec.class_name,
+            "class_index": spec.class_index,
             "case_in_class": k, "ellipse_fraction": spec.ellipse_fraction, "terrain_name": spec.terrain_name,
             "profile_index": profile_index, "profile_name": profiles[profile_index].name,
             "heading_rad": float(heading), "offset_east_m": float(offset[0]), "offset_north_m": float(offset[1]),

@@ -87,3 +87,34 @@ def test_code_digest_changes_with_the_result_code_only(tmp_path):
     assert code_digest.__wrapped__(tmp_path, parts) == first
     (tmp_path / "simulator" / "stage.py").write_text("GAIN = 2.0\n")
     assert code_digest.__wrapped__(tmp_path, parts) != first
+
+
+def test_hash_is_of_content_not_of_paths_defaults_or_counts(tmp_path):
+    """The same campaign given by an absolute path, from another directory (its input files copied), with
+    the default seed written out, or scaled (CLI or TOML) has one hash; a changed input byte does not."""
+    import os
+    import shutil
+
+    from campaign.config import load_campaign_config
+
+    base = load_campaign_config(GUSEV).config_hash
+    elsewhere = tmp_path / "copy"
+    shutil.copytree(REPO / "sitedata" / "cameras", elsewhere / "cameras")
+    shutil.copytree(REPO / "sitedata" / "trajectories", elsewhere / "trajectories")
+    copied = elsewhere / "gusev.toml"
+    copied.write_text(GUSEV.read_text() + "\n[campaign]\nseed = 1\ncases_scale = 0.25\n")
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        assert load_campaign_config(copied.resolve()).config_hash == base
+        assert load_campaign_config(Path("copy/gusev.toml")).config_hash == base
+        assert load_campaign_config(GUSEV.resolve(), cases_scale=0.1).config_hash == base
+    finally:
+        os.chdir(cwd)
+    other_seed = copied.read_text().replace("seed = 1\n", "seed = 2\n")
+    copied.write_text(other_seed)
+    assert load_campaign_config(copied).config_hash != base
+    copied.write_text(GUSEV.read_text())
+    camera = elsewhere / "cameras" / "mer_a.toml"
+    camera.write_text(camera.read_text() + "\n")          # same values, other bytes: another input file
+    assert load_campaign_config(copied).config_hash != base
