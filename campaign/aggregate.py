@@ -95,20 +95,24 @@ def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
     for _, row in table.iterrows():
         body.append([
             str(row["class"]), str(int(row["cases"])), str(int(row["valid"])), str(int(row["failed"])),
-            _fmt(row["pct_valid"], "{:.0f}%"), _fmt(row["error_mean_3sigma_mps"], "{:.2f}"),
-            str(int(row["false_valid"])), _fmt(row["worst_valid_error_mps"], "{:.2f}"),
-            _fmt(100 * row["ellipse_fraction"], "{:.0f}%"), _fmt(row["weighted_pct_valid"], "{:.0f}%"),
-            _fmt(row["weighted_error_mps"], "{:.2f}"),
+            format_number(row["pct_valid"], "{:.0f}%"), format_number(row["error_mean_3sigma_mps"], "{:.2f}"),
+            str(int(row["false_valid"])), format_number(row["worst_valid_error_mps"], "{:.2f}"),
+            format_number(100 * row["ellipse_fraction"], "{:.0f}%"), format_number(row["weighted_pct_valid"], "{:.0f}%"),
+            format_number(row["weighted_error_mps"], "{:.2f}"),
         ])
+    return render_grid(headers, body, markdown)
+
+
+def render_grid(headers: list[str], body: list[list[str]], markdown: bool = False) -> str:
+    """Rows of cell texts under ``headers``: right-aligned plain-text columns, or a GitHub Markdown table."""
     if markdown:
         lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-        lines += ["| " + " | ".join(cells) + " |" for cells in body]
-        return "\n".join(lines)
+        return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in body])
     widths = [max(len(h), *(len(cells[i]) for cells in body)) for i, h in enumerate(headers)]
     lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths))]
-    lines += ["  ".join(c.rjust(w) for c, w in zip(cells, widths)) for cells in body]
-    return "\n".join(lines)
+    return "\n".join(lines + ["  ".join(c.rjust(w) for c, w in zip(cells, widths)) for cells in body])
 
 
-def _fmt(value: float, pattern: str) -> str:
+def format_number(value, pattern: str) -> str:
+    """``pattern.format(value)``, or "n/a" for a missing or NaN value."""
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else pattern.format(value)

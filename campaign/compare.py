@@ -8,11 +8,10 @@ pluggable) count as the reference estimator ``dimes``.
 """
 from __future__ import annotations
 
-import math
 
 import pandas as pd
 
-from .aggregate import FALSE_VALID_MPS, site_table
+from .aggregate import FALSE_VALID_MPS, format_number, render_grid, site_table
 
 DEFAULT_ESTIMATOR = "dimes"
 COMPARISON_COLUMNS = ["estimator", "class", "cases", "valid", "failed", "pct_valid", "false_valid",
@@ -67,24 +66,16 @@ def format_comparison(table: pd.DataFrame, markdown: bool = False) -> str:
         for name in names:
             row = table[(table["estimator"] == name) & (table["class"] == class_name)].iloc[0]
             if class_name == site:
-                cells += [_fmt(row["weighted_pct_valid"], "{:.0f}%"), f"{int(row['false_valid'])}/{int(row['valid'])}",
-                          _fmt(row["worst_valid_error_mps"], "{:.2f}"), _fmt(row["weighted_error_mps"], "{:.2f}")]
+                cells += [format_number(row["weighted_pct_valid"], "{:.0f}%"), f"{int(row['false_valid'])}/{int(row['valid'])}",
+                          format_number(row["worst_valid_error_mps"], "{:.2f}"), format_number(row["weighted_error_mps"], "{:.2f}")]
             else:
-                cells += [_fmt(row["pct_valid"], "{:.0f}%"), f"{int(row['false_valid'])}/{int(row['valid'])}",
-                          _fmt(row["worst_valid_error_mps"], "{:.2f}"), _fmt(row["error_mean_3sigma_mps"], "{:.2f}")]
+                cells += [format_number(row["pct_valid"], "{:.0f}%"), f"{int(row['false_valid'])}/{int(row['valid'])}",
+                          format_number(row["worst_valid_error_mps"], "{:.2f}"), format_number(row["error_mean_3sigma_mps"], "{:.2f}")]
         body.append(cells)
-    if markdown:
-        lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-        return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in body])
-    widths = [max(len(h), *(len(cells[i]) for cells in body)) for i, h in enumerate(headers)]
-    lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths))]
-    return "\n".join(lines + ["  ".join(c.rjust(w) for c, w in zip(cells, widths)) for cells in body])
+    return render_grid(headers, body, markdown)
 
 
 COMPARISON_NOTE = ("false-valid: valid cases with a velocity error above [campaign] false_valid_mps "
                    f"(default {FALSE_VALID_MPS:g} m/s), of the valid cases; worst valid: the largest error of a "
                    "valid case; err: mean + 3 sigma over valid cases (site row: ellipse-weighted)")
 
-
-def _fmt(value, pattern: str) -> str:
-    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else pattern.format(value)

@@ -33,6 +33,7 @@ from pathlib import Path
 import pandas as pd
 import pyarrow as pa
 
+from .aggregate import format_number, render_grid
 from .compare import comparison_table, estimator_names, with_estimator_column
 from .campaign_run import manifest_for, plan_campaign
 from .case import CampaignContext
@@ -145,26 +146,18 @@ def format_sensitivity(spec: SweepSpec, table: pd.DataFrame, markdown: bool = Fa
             rows = point_rows[point_rows["estimator"] == estimator].set_index("class")
             cells = [point.point_id, *(_value_text(value) for value in point.values.values()), str(estimator)]
             for name in classes:
-                cells += [_num(rows.at[name, "pct_valid"], "{:.0f}"), str(int(rows.at[name, "false_valid"])),
-                          _num(rows.at[name, "error_mean_3sigma_mps"], "{:.2f}")]
-            cells += [_num(rows.at[site_name, "weighted_pct_valid"], "{:.0f}"), str(int(rows.at[site_name, "false_valid"])),
-                      _num(rows.at[site_name, "worst_valid_error_mps"], "{:.2f}"),
-                      _num(rows.at[site_name, "weighted_error_mps"], "{:.2f}")]
+                cells += [format_number(rows.at[name, "pct_valid"], "{:.0f}"), str(int(rows.at[name, "false_valid"])),
+                          format_number(rows.at[name, "error_mean_3sigma_mps"], "{:.2f}")]
+            cells += [format_number(rows.at[site_name, "weighted_pct_valid"], "{:.0f}"), str(int(rows.at[site_name, "false_valid"])),
+                      format_number(rows.at[site_name, "worst_valid_error_mps"], "{:.2f}"),
+                      format_number(rows.at[site_name, "weighted_error_mps"], "{:.2f}")]
             body.append(cells)
-    if markdown:
-        lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-        return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in body])
-    widths = [max(len(h), *(len(cells[i]) for cells in body)) for i, h in enumerate(headers)]
-    lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths))]
-    return "\n".join(lines + ["  ".join(c.rjust(w) for c, w in zip(cells, widths)) for cells in body])
+    return render_grid(headers, body, markdown)
 
 
 def _value_text(value) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
-
-def _num(value, pattern: str) -> str:
-    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else pattern.format(value)
 
 
 def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
