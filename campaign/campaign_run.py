@@ -91,6 +91,9 @@ def compact_after_stop(store: CampaignStore) -> str:
     try:
         store.compact()
     except OSError as exc:
+        for name in (store.results_path.name, store.timings_path.name):   # what compact's failed write left
+            for temporary in store.root.glob(f".tmp-*-{name}"):
+                temporary.unlink(missing_ok=True)
         return f" (results.parquet not rewritten: {exc.strerror or type(exc).__name__})"
     return ""
 

@@ -192,7 +192,7 @@ def execute_case(context: CampaignContext, row: dict) -> str:
         except Exception as exc:  # the case's own failure is recorded in its rows; the campaign goes on
             if is_infrastructure(exc):
                 _remove_temporaries(Path(context.store_root), case_id)
-                raise InfrastructureError(describe(exc, case_id, "the simulation", worker)) from None
+                raise InfrastructureError(describe(exc, case_id, "computing", worker, context.store_root)) from None
             where = [line.strip() for line in traceback.format_exc().splitlines() if line.strip().startswith("File ")]
             error = f"{type(exc).__name__}: {exc} | {where[-1] if where else ''}"
             attempts_used = attempt
@@ -207,7 +207,7 @@ def execute_case(context: CampaignContext, row: dict) -> str:
         write_case_rows(Path(context.store_root) / "cases", case_id, records, ok=status == "ok")
     except (OSError, MemoryError) as exc:
         _remove_temporaries(Path(context.store_root), case_id)
-        raise InfrastructureError(describe(exc, case_id, "writing its result", worker)) from None
+        raise InfrastructureError(describe(exc, case_id, "writing its result", worker, context.store_root)) from None
     return status
 
 

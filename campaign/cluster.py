@@ -15,6 +15,7 @@ The optional packages are imported only for their backend; a missing one is a on
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 import re
 import sys
@@ -33,6 +34,9 @@ OPTIONAL_BACKENDS = {"slurm": ("dask_jobqueue", "dask-jobqueue", "slurm"),
                      "kubernetes": ("dask_kubernetes", "dask-kubernetes", "kubernetes")}
 SINGLE_THREAD_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 WORKER_JOB_NAME = "moc2dimes-worker"
+#: distributed's own log records on the driver during a run (the runner reports problems as one line;
+#: M2D_DASK_LOG_LEVEL=20 shows them, e.g. to debug a cluster)
+DRIVER_LOG_LEVEL = int(os.environ.get("M2D_DASK_LOG_LEVEL", logging.CRITICAL))
 _QUANTITY_FACTORS = {"": 1, "k": 10**3, "M": 10**6, "G": 10**9, "T": 10**12,
                      "Ki": 2**10, "Mi": 2**20, "Gi": 2**30, "Ti": 2**40}
 
@@ -103,7 +107,7 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
     elif execution.cluster == "local":
         cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                processes=True, memory_limit=execution.memory_limit, dashboard_address="127.0.0.1:0",
-                               host="127.0.0.1", silence_logs=40)
+                               host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
     elif execution.cluster in ("slurm", "pbs"):
         cluster = jobqueue_cluster(execution)
         jobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
@@ -132,13 +136,22 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
 def connected_client(execution: ExecutionConfig, quiet: bool = False) -> Iterator[Client]:
     """:func:`start_cluster` for the duration of a ``with`` block; a cluster started here is closed after
     (batch jobs cancelled, pods deleted)."""
-    client, cluster = start_cluster(execution, quiet)
+    loggers = [logging.getLogger(name) for name in ["distributed", *logging.root.manager.loggerDict]
+               if name == "distributed" or name.startswith("distributed.")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:               # a lost scheduler or worker is reported as one line (campaign.runner)
+        logger.setLevel(max(logger.level, DRIVER_LOG_LEVEL))
     try:
-        yield client
+        client, cluster = start_cluster(execution, quiet)
+        try:
+            yield client
+        finally:
+            _quietly(client.close)
+            if cluster is not None:
+                _quietly(cluster.close)
     finally:
-        _quietly(client.close)
-        if cluster is not None:
-            _quietly(cluster.close)
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)
 
 
 def _quietly(close) -> None:

@@ -47,14 +47,15 @@ def is_infrastructure(exc: BaseException) -> bool:
     return isinstance(exc, MemoryError) or (isinstance(exc, OSError) and exc.errno in INFRASTRUCTURE_ERRNOS)
 
 
-def describe(exc: BaseException, case_id: int, what: str, worker: str) -> str:
-    """One line for an infrastructure exception of case ``case_id`` during ``what`` on ``worker``."""
+def describe(exc: BaseException, case_id: int, what: str, worker: str, store: str = "") -> str:
+    """One line for an infrastructure exception of case ``case_id`` while ``what`` (e.g. "computing",
+    "writing its result") on ``worker``, whose store is ``store``."""
     if isinstance(exc, MemoryError):
         return (f"case {case_id} ran out of memory (MemoryError) on worker {worker}; raise [execution] memory_limit "
                 f"or give the workers more memory (a case needs about {CASE_MEMORY_MIB} MiB)")
     if isinstance(exc, OSError):
-        place = f" {exc.filename}" if exc.filename else ""
+        place = exc.filename or store
         text = exc.strerror or type(exc).__name__
         fix = _STORAGE_FIX.get(exc.errno, "check the store's file system, or submit with another --output")
-        return f"case {case_id}: {what} failed on {worker}: {text}{place}; {fix}"
-    return f"case {case_id}: {what} failed on {worker}: {type(exc).__name__}: {exc}"
+        return f"case {case_id}: {text} while {what} on worker {worker} ({place}); {fix}"
+    return f"case {case_id}: {type(exc).__name__} while {what} on worker {worker}: {exc}"

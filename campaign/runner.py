@@ -14,7 +14,6 @@ the store and the next submit runs the rest.
 """
 from __future__ import annotations
 
-import re
 import sys
 import time
 from dataclasses import dataclass
@@ -91,10 +90,12 @@ def start_client(scheduler: str | None, workers: int | None, memory_limit: str =
 
 
 def submit_cases(client: Client, context: CampaignContext, rows: list[dict], store: CampaignStore) -> list[CaseTask]:
-    """Submit one :func:`~campaign.case.execute_case` task per plan row (context scattered once)."""
-    context_future = client.scatter(context, broadcast=True)
+    """Submit one :func:`~campaign.case.execute_case` task per plan row.
+
+    The context (a few kB) travels inside each task rather than being scattered: scattered data lives
+    only on workers, and a killed worker would take it along and cancel every case waiting for it."""
     case_ids = [int(row["case_id"]) for row in rows]
-    futures = client.map(execute_case, [context_future] * len(rows), rows,
+    futures = client.map(execute_case, [context] * len(rows), rows,
                          key=[f"case-{context.config_hash[:12]}-{case_id:06d}" for case_id in case_ids], pure=False)
     return [CaseTask(future, store, case_id) for future, case_id in zip(futures, case_ids)]
 
@@ -196,7 +197,7 @@ class _Monitor:
 
     def _check_scheduler(self, now: float) -> None:
         if self.client.status in ("closing", "closed"):
-            raise self._lost(f"client {self.client.status}")
+            raise self._lost("the connection closed")
         try:
             identity = self.client.sync(self.client.scheduler.identity, n_workers=-1,
                                         callback_timeout=SCHEDULER_CALL_TIMEOUT_S)
@@ -247,14 +248,14 @@ class _Monitor:
             if isinstance(exc, InfrastructureError):
                 return str(exc)
             if type(exc).__name__ == "KilledWorker":
-                match = re.search(r"on (\d+) different workers", str(exc))
-                count = f"{match.group(1)} workers" if match else "its workers"
+                allowed = getattr(exc, "allowed_failures", None)
+                count = f"{allowed + 1} workers" if isinstance(allowed, int) else "its workers"
                 return (f"case {task.case_id} killed {count} (KilledWorker: a worker process died running it, "
                         f"most often at its memory limit); {self.watch.memory_fix()} (a case needs about "
                         f"{CASE_MEMORY_MIB} MiB), or read the worker logs")
             text = " ".join(str(exc).split())
             return f"case {task.case_id}: its task raised {type(exc).__name__}: {text[:300]}; see the worker logs"
         if self.client.status != "running":
-            raise self._lost(f"client {self.client.status}")
+            raise self._lost("the connection closed")
         return (f"case {task.case_id}: its task was {future.status} by the scheduler (another client cancelled it or "
                 "the scheduler restarted); submit again")
