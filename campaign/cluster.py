@@ -67,7 +67,7 @@ def jobqueue_cluster(execution: ExecutionConfig):
         from dask_jobqueue import PBSCluster as Cluster
     prologue = [f"export {name}={value}" for name, value in SINGLE_THREAD_ENVIRONMENT.items()] + list(jobs.prologue)
     return Cluster(cores=jobs.cores, processes=jobs.cores, memory=jobs.memory, walltime=jobs.walltime,
-                   queue=jobs.queue or None, account=jobs.account or None, name=WORKER_JOB_NAME,
+                   queue=jobs.queue or None, account=jobs.account or None, job_name=WORKER_JOB_NAME,
                    job_extra_directives=list(jobs.job_extra), job_script_prologue=prologue,
                    interface=jobs.interface or None, python=jobs.python or sys.executable,
                    scheduler_options={"dashboard_address": ":0"}, silence_logs="error")

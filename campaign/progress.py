@@ -8,10 +8,22 @@ every ``interval_s`` (5 s) while the run goes on, and one at the end, e.g.::
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 
 from tqdm import tqdm
+
+
+DEFAULT_COLUMNS = 100   # bar width on a terminal that reports no size (0 x 0, e.g. a fresh pty)
+DEFAULT_ROWS = 24       # tqdm draws nothing on a terminal of 0 rows
+
+
+def _terminal_columns(stream) -> int:
+    try:
+        return os.get_terminal_size(stream.fileno()).columns
+    except (AttributeError, ValueError, OSError):
+        return 0
 
 
 def is_terminal(stream) -> bool:
@@ -36,7 +48,9 @@ class ProgressBar:
         self.count = 0
         self.bar = None
         if self.enabled and self.tty:
-            self.bar = tqdm(total=total, file=self.stream, unit="case", desc="cases", dynamic_ncols=True,
+            sized = _terminal_columns(self.stream) > 0       # a fresh pty may report 0 columns
+            self.bar = tqdm(total=total, file=self.stream, unit="case", desc="cases", dynamic_ncols=sized,
+                            ncols=None if sized else DEFAULT_COLUMNS, nrows=None if sized else DEFAULT_ROWS,
                             smoothing=0.1, mininterval=0.5)
             self.bar.set_postfix(failed=0, refresh=False)
 
@@ -52,6 +66,7 @@ class ProgressBar:
             elif now - self.last_line >= 1.0:
                 self.bar.refresh()              # elapsed time and rate move on while no case finishes
                 self.last_line = now
+            self.stream.flush()
         elif now - self.last_line >= self.interval_s:
             self._line(count, failed)
         self.count = count
@@ -67,6 +82,7 @@ class ProgressBar:
                 self.bar.update(count - self.count)
             self.bar.close()
             self.bar = None
+            self.stream.flush()
         else:
             self._line(count, failed)
         self.enabled = False

@@ -126,19 +126,25 @@ def wait_for_cases(client: Client, tasks: list[CaseTask], watch: Watch = Watch()
             time.sleep(POLL_S)
             states = [(task, task.future.status) for task in pending]      # one snapshot: states change meanwhile
             pending = [task for task, state in states if state == "pending"]
-            finished = [task for task, state in states if state == "finished"]
-            if finished:
-                stores = {id(task.store): task.store for task in finished}
+            ended = [(task, state) for task, state in states if state != "pending"]
+            if ended:
+                # the store says what a case became (a finished result may already be "lost" with its worker)
+                stores = {id(task.store): task.store for task, _ in ended}
                 on_disk = {key: store.finished_case_ids() for key, store in stores.items()}
-                for task in finished:
-                    state = on_disk[id(task.store)].get(task.case_id)
+                written = [task for task, _ in ended if task.case_id in on_disk[id(task.store)]]
+                for task in written:
+                    state = on_disk[id(task.store)][task.case_id]
                     done += state == "ok"
                     failed += state == "failed"
                     task.future.release()
-                monitor.case_finished()
-            broken = [task for task, state in states if state not in ("pending", "finished")]
-            if broken:
-                raise RunStopped(monitor.task_problem(broken[0]))
+                if written:
+                    monitor.case_finished()
+                written_ids = {id(task) for task in written}
+                # "lost" (its worker died) or finished without a file: left for the next submit
+                broken = [task for task, state in ended if id(task) not in written_ids and state not in ("lost", "finished")]
+                if broken:
+                    pending += broken          # cancelled with the rest when the run stops
+                    raise RunStopped(monitor.task_problem(broken[0]))
             monitor.check()
             bar.update(done + failed, failed)
     except RunStopped as stop:
