@@ -17,7 +17,9 @@ from .config import CampaignConfig
 from .coverage import refusal
 from .planner import ClassPlanInput, plan_class
 from .plots import footprint_map
-from .runner import RunSummary, connected_client, run_cases
+from .cluster import connected_client, require_backend
+from .faults import RunStopped
+from .runner import RunSummary, Watch, run_cases
 from .store import CampaignStore
 
 PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pyarrow",
@@ -65,16 +67,35 @@ def manifest_for(config: CampaignConfig) -> dict:
 
 def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | None = None,
            fresh: bool = False, progress: bool = True) -> tuple[RunSummary, str]:
-    """Run every missing case of ``config``, compact the store and return the table text."""
+    """Run every missing case of ``config``, compact the store and return the table text.
+
+    Raises RunStopped (one line) when the run could not go on: the finished cases are compacted first."""
+    execution = config.execution.with_overrides(scheduler, workers)
+    require_backend(execution, str(config.source))
     resources, plan = plan_campaign(config)
     store = CampaignStore(config.output_dir)
     store.prepare(manifest_for(config), plan, fresh=fresh)
     context = CampaignContext.from_config(config, store.root)
-    with connected_client(scheduler or config.execution.scheduler or None,
-                          workers or config.execution.workers or None, config.execution.memory_limit) as client:
-        summary = run_cases(context, store, store.plan(), client, progress=progress)
+    try:
+        with connected_client(execution) as client:
+            summary = run_cases(context, store, store.plan(), client, progress=progress,
+                                watch=Watch.from_execution(execution))
+    except RunStopped as stop:
+        raise RunStopped(f"{stop}{compact_after_stop(store)}") from None
     store.compact()
     return summary, write_table(store.root, config.false_valid_mps)
+
+
+def compact_after_stop(store: CampaignStore) -> str:
+    """Compact the finished cases of a stopped run; "" or the reason it could not (e.g. the disk is full)."""
+    try:
+        store.compact()
+    except OSError as exc:
+        for name in (store.results_path.name, store.timings_path.name):   # what compact's failed write left
+            for temporary in store.root.glob(f".tmp-*-{name}"):
+                temporary.unlink(missing_ok=True)
+        return f" (results.parquet not rewritten: {exc.strerror or type(exc).__name__})"
+    return ""
 
 
 def false_valid_threshold(manifest: dict) -> float:

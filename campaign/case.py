@@ -31,6 +31,7 @@ import numpy as np
 
 from simulator.scene.descent_profile import DescentProfile
 
+from .faults import InfrastructureError, describe, is_infrastructure
 from .store import write_case_rows
 
 _WORKER_RESOURCES: dict[str, "Resources"] = {}
@@ -170,8 +171,16 @@ def load_resources(config) -> Resources:
 
 
 def execute_case(context: CampaignContext, row: dict) -> str:
-    """Run one case with retries and write its row (ok or failed) to the store; return the status."""
+    """Run one case with retries and write its rows (ok or failed) to the store; return the status.
+
+    Only an exception of the case's own computation (:func:`simulate_case`) is retried and then recorded
+    ``failed``. A storage error (``OSError`` such as ENOSPC, EDQUOT, EROFS, EIO) or ``MemoryError``, in
+    the computation or while writing the case file, is the machine's fault: nothing is recorded, the
+    case's temporary files are removed and :class:`~campaign.faults.InfrastructureError` is raised (the
+    driver stops the run; the next submit runs the case again)."""
     config = context.config
+    case_id = int(row["case_id"])
+    worker = f"{socket.gethostname()}:{os.getpid()}"
     attempts = config.execution.retries + 1
     error = ""
     started = time.perf_counter()
@@ -180,18 +189,38 @@ def execute_case(context: CampaignContext, row: dict) -> str:
             results = simulate_case(load_resources(config), row, context.store_root)
             status, attempts_used = "ok", attempt
             break
-        except Exception as exc:  # recorded in the rows; the campaign goes on
-            error = f"{type(exc).__name__}: {exc} | {traceback.format_exc(limit=3).splitlines()[-2].strip()}"
+        except Exception as exc:  # the case's own failure is recorded in its rows; the campaign goes on
+            if is_infrastructure(exc):
+                _remove_temporaries(Path(context.store_root), case_id)
+                raise InfrastructureError(describe(exc, case_id, "computing", worker, context.store_root)) from None
+            where = [line.strip() for line in traceback.format_exc().splitlines() if line.strip().startswith("File ")]
+            error = f"{type(exc).__name__}: {exc} | {where[-1] if where else ''}"
             attempts_used = attempt
     else:
         status = "failed"
         results = [{"estimator": name, "status": "failed", "error": error, **failed_fields()}
                    for name in config.estimator_names]
     common = {**plan_fields(row, config.seed), "attempts": attempts_used,
-              "worker": f"{socket.gethostname()}:{os.getpid()}", "t_case_ms": 1e3 * (time.perf_counter() - started)}
+              "worker": worker, "t_case_ms": 1e3 * (time.perf_counter() - started)}
     records = [{**common, **result} for result in results]
-    write_case_rows(Path(context.store_root) / "cases", int(row["case_id"]), records, ok=status == "ok")
+    try:
+        write_case_rows(Path(context.store_root) / "cases", case_id, records, ok=status == "ok")
+    except (OSError, MemoryError) as exc:
+        _remove_temporaries(Path(context.store_root), case_id)
+        raise InfrastructureError(describe(exc, case_id, "writing its result", worker, context.store_root)) from None
     return status
+
+
+def _remove_temporaries(store_root: Path, case_id: int) -> None:
+    """Remove the temporary files a failed write of case ``case_id`` (or of this process's example
+    images) left in the store."""
+    patterns = ((store_root / "cases", f".tmp-{case_id:06d}-*"), (store_root / "examples", f".tmp-{os.getpid()}-*"))
+    for directory, pattern in patterns:
+        try:
+            for path in directory.glob(pattern):
+                path.unlink(missing_ok=True)
+        except OSError:
+            pass
 
 
 def plan_fields(row: dict, seed: int) -> dict:

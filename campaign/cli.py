@@ -10,7 +10,8 @@
     campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
     campaign schema [T]    print the JSON Schema of every configuration table, or of table T
 
-Exit codes: 0 success, 1 a run finished with failures or regressions, 2 usage or configuration
+Exit codes: 0 success (every case done), 1 cases failed or missing, a run stopped (one line naming the
+cause and the fix: campaign.faults) or a sweep regressed, 2 usage or configuration
 error (one clear line on stderr, nothing written). Command-line values (--cases-scale, --workers,
 --scheduler) are validated against the same declarations as the TOML fields, before anything is written.
 """
@@ -26,6 +27,7 @@ from flight_interface.command_line import USAGE_ERROR, OneLineParser as _Parser
 from flight_interface.tomlfields import ConfigError, parse_field
 
 COMMAND_LINE = "command line"
+RUN_INCOMPLETE = 1      # exit code: cases failed, a run stopped, or a regression
 
 
 def _check_cluster_flags(args) -> None:
@@ -70,6 +72,7 @@ def _load(args):
 
 def _cmd_submit(args) -> int:
     from .campaign_run import submit
+    from .store import CampaignStore
 
     start = time.perf_counter()
     config = _load(args)
@@ -78,7 +81,8 @@ def _cmd_submit(args) -> int:
     print(table_text)
     print(f"results: {config.output_dir}  ({summary.done} done, {summary.failed} failed this run)")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
-    return 0
+    status = CampaignStore(config.output_dir).status()
+    return 0 if status.failed == 0 and status.missing == 0 else RUN_INCOMPLETE
 
 
 def _cmd_plan(args) -> int:
@@ -137,15 +141,15 @@ def _cmd_sweep(args) -> int:
           f"{run.failed} failed this run)")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
     if baseline is None:
-        return 0
+        return RUN_INCOMPLETE if run.unfinished else 0
     regressions, compared = compare_to_baseline(spec, table, baseline, spec.tolerances)
     for line in regressions:
         print(f"regression: {line}")
     if regressions:
         print(f"{len(regressions)} regressions against {args.baseline} ({compared} points compared)")
-        return 1
+        return RUN_INCOMPLETE
     print(f"no regression ({compared} points compared against {args.baseline})")
-    return 0
+    return RUN_INCOMPLETE if run.unfinished else 0
 
 
 def _cmd_compare_flight(args) -> int:
@@ -225,6 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .faults import RunStopped
     from .store import StoreError
 
     parser = build_parser()
@@ -234,6 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, StoreError) as exc:
         print(f"campaign: error: {exc}", file=sys.stderr)
         return USAGE_ERROR
+    except RunStopped as exc:
+        print(f"campaign: {exc}", file=sys.stderr, flush=True)
+        return RUN_INCOMPLETE
 
 
 if __name__ == "__main__":

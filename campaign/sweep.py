@@ -35,9 +35,11 @@ import pyarrow as pa
 
 from .aggregate import format_number, render_grid
 from .compare import comparison_table, estimator_names, with_estimator_column
-from .campaign_run import manifest_for, plan_campaign
+from .campaign_run import compact_after_stop, manifest_for, plan_campaign
 from .case import CampaignContext
-from .runner import connected_client, submit_cases, wait_for_cases
+from .cluster import connected_client, require_backend
+from .faults import RunStopped
+from .runner import Watch, submit_cases, wait_for_cases
 from .store import CampaignStore, StoreError, _atomic_write_bytes, _atomic_write_table
 from .sweep_config import SweepSpec, Tolerances
 
@@ -49,6 +51,7 @@ class SweepRun:
     done: int
     failed: int
     wall_time_s: float
+    unfinished: int = 0       # cases of all points failed or missing after the run (exit 1 when > 0)
 
 
 def prepare_points(spec: SweepSpec) -> list[tuple]:
@@ -76,21 +79,28 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
               progress: bool = True) -> SweepRun:
     """Run every point's missing cases together on one cluster, then compact each point's store."""
     start = time.perf_counter()
+    execution = spec.base.execution.with_overrides(scheduler, workers)
+    require_backend(execution, str(spec.source))
     prepared = prepare_points(spec)
     total = sum(len(todo) for _, _, todo in prepared)
     done = failed = 0
     if total:
-        execution = spec.base.execution
-        with connected_client(scheduler or execution.scheduler or None, workers or execution.workers or None,
-                              execution.memory_limit) as client:
-            futures = [future for point, store, todo in prepared if todo
-                       for future in submit_cases(client, CampaignContext.from_config(point.config, store.root), todo)]
-            done, failed = wait_for_cases(futures, progress)
+        try:
+            with connected_client(execution) as client:
+                tasks = [task for point, store, todo in prepared if todo
+                         for task in submit_cases(client, CampaignContext.from_config(point.config, store.root), todo,
+                                                  store)]
+                done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
+        except RunStopped as stop:
+            problems = {compact_after_stop(store) for _, store, todo in prepared if todo} - {""}
+            raise RunStopped(f"{stop}{min(problems, default='')}") from None
     for _, store, todo in prepared:
         if todo or not store.results_path.exists():
             store.compact()
     reused = sum(1 for _, _, todo in prepared if not todo)
-    return SweepRun(len(prepared), reused, total, done, failed, time.perf_counter() - start)
+    statuses = [store.status() for _, store, _ in prepared]
+    return SweepRun(len(prepared), reused, total, done, failed, time.perf_counter() - start,
+                    unfinished=sum(status.failed + status.missing for status in statuses))
 
 
 def point_keys(point) -> dict:

@@ -1,0 +1,122 @@
+"""Tiny real campaigns and real dask processes for the runner's tests (fault injection, cluster
+backends, progress and dashboard): a Gusev campaign file with a few cases, the `campaign` CLI as a
+subprocess, and a `dask scheduler` with `dask worker` processes on 127.0.0.1."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SITEDATA = REPO / "sitedata"
+GUSEV = SITEDATA / "gusev.toml"
+DASK = Path(sys.executable).with_name("dask")
+
+
+def campaign_file(directory: Path, cases: dict | None = None, execution: str = "", extra: str = "",
+                  trajectory: Path | None = None, name: str = "campaign.toml") -> Path:
+    """A copy of the Gusev site file with absolute input paths, ``[campaign] cases`` (default gcp 2,
+    gdcp 1) and the given ``[execution]`` lines."""
+    cases = cases or {"gcp": 2, "gdcp": 1, "gkep": 0}
+    text = GUSEV.read_text()
+    text = text.replace('camera = "cameras/', f'camera = "{SITEDATA}/cameras/')
+    text = text.replace('trajectory_set = "trajectories/gusev.parquet"',
+                        f'trajectory_set = "{trajectory or SITEDATA / "trajectories" / "gusev.parquet"}"')
+    counts = ", ".join(f"{key} = {value}" for key, value in cases.items())
+    text += f"\n[campaign]\ncases = {{ {counts} }}\n\n[execution]\n{execution}\n{extra}\n"
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / name
+    path.write_text(text)
+    return path
+
+
+def low_camera_trajectory(path: Path) -> Path:
+    """One Gusev trajectory lowered so that the lander is 0.45 m above the ground at image 3: valid as a
+    trajectory file (the lander stays above z = 0 while imaging), but the camera, 0.5 m below the
+    lander's origin, is under the ground during image 3, so the simulation of the case itself raises."""
+    from sitedata.trajectory_io import read_profiles, write_profiles
+
+    profile = read_profiles(SITEDATA / "trajectories" / "gusev.parquet")[0]
+    height = profile.pose(float(profile.image_times_s[-1])).position_m[2]
+    position = profile.position_m.copy()
+    position[:, 2] -= height - 0.45
+    write_profiles(path, [dataclasses.replace(profile, position_m=position)])
+    return path
+
+
+def campaign_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "campaign.cli", *map(str, args)]
+
+
+def run_campaign(*args, timeout: float = 300, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(campaign_command(*args), capture_output=True, text=True, timeout=timeout, cwd=REPO,
+                          env={**os.environ, **(env or {})})
+
+
+def stderr_line(result) -> str:
+    """The single line a stopped or failed command prints on stderr (asserts there is exactly one)."""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
+    return lines[0]
+
+
+def case_files(out: Path, pattern: str = "case-*.parquet") -> list[Path]:
+    return sorted((out / "cases").glob(pattern)) if (out / "cases").exists() else []
+
+
+def wait_for_case_files(out: Path, count: int, process: subprocess.Popen, limit_s: float = 120.0) -> None:
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        if len(case_files(out)) >= count:
+            return
+        if process.poll() is not None:
+            raise AssertionError(f"campaign ended early ({process.returncode}): {process.stderr.read()}")
+        time.sleep(0.1)
+    raise AssertionError(f"no {count} case files in {limit_s} s")
+
+
+class DaskProcesses:
+    """A `dask scheduler` and `dask worker` processes on loopback (each in its own process group)."""
+
+    def __init__(self, directory: Path, workers: int = 1, memory_limit: str = "1.5GiB"):
+        command = [str(DASK)] if DASK.exists() else [sys.executable, "-m", "distributed.cli.dask_spec"]
+        scheduler_file = directory / "scheduler.json"
+        self.scheduler = subprocess.Popen([*command, "scheduler", "--host", "127.0.0.1", "--port", "0",
+                                           "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(scheduler_file)],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        deadline = time.monotonic() + 60
+        while not scheduler_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        self.address = json.loads(scheduler_file.read_text())["address"]
+        environment = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
+        self.workers = [subprocess.Popen([*command, "worker", self.address, "--nthreads", "1", "--nworkers", "1",
+                                          "--host", "127.0.0.1", "--no-dashboard", "--memory-limit", memory_limit],
+                                         cwd=REPO, env=environment, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                         start_new_session=True)
+                        for _ in range(workers)]
+        from dask.distributed import Client
+
+        with Client(self.address, timeout="30s") as client:
+            client.wait_for_workers(workers, timeout=60)
+
+    def signal_workers(self, number: int) -> None:
+        for process in self.workers:
+            _signal_group(process, number)
+
+    def close(self) -> None:
+        for process in [*self.workers, self.scheduler]:
+            _signal_group(process, signal.SIGCONT)
+            _signal_group(process, signal.SIGKILL)
+            process.wait()
+
+
+def _signal_group(process: subprocess.Popen, number: int) -> None:
+    try:
+        os.killpg(process.pid, number)
+    except ProcessLookupError:
+        pass
