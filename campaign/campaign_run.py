@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -66,23 +67,38 @@ def manifest_for(config: CampaignConfig) -> dict:
 
 
 def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | None = None,
-           fresh: bool = False, progress: bool = True) -> tuple[RunSummary, str]:
+           fresh: bool = False, progress: bool = True, wait: bool = False) -> tuple[RunSummary, str]:
     """Run every missing case of ``config``, compact the store and return the table text.
 
-    Raises RunStopped (one line) when the run could not go on: the finished cases are compacted first."""
+    Order (so that a refusal changes nothing): check the cluster settings and plan (config errors),
+    check the store read-only (StoreError: another configuration, corrupt manifest, ... unless
+    ``fresh``), take the store's lock (:class:`~campaign.store_lock.StoreBusy` when another writer holds
+    it, unless ``wait``), check again under the lock, start or connect to the cluster, and only then
+    prepare the store (with ``fresh``: move the old store aside to ``DIR.previous-<UTC time>``), reject
+    bad case files and run.
+
+    Raises RunStopped (one line) when the run could not go on: the finished cases are compacted first
+    (when the store was prepared; a cluster that cannot start leaves the store untouched)."""
     execution = config.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(config.source))
     resources, plan = plan_campaign(config)
     store = CampaignStore(config.output_dir)
-    store.prepare(manifest_for(config), plan, fresh=fresh)
-    context = CampaignContext.from_config(config, store.root)
-    try:
-        with connected_client(execution) as client:
-            summary = run_cases(context, store, store.plan(), client, progress=progress,
-                                watch=Watch.from_execution(execution))
-    except RunStopped as stop:
-        raise RunStopped(f"{stop}{compact_after_stop(store)}") from None
-    store.compact()
+    manifest = manifest_for(config)
+    store.check(manifest, plan, fresh=fresh)
+    with store.lock(wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)):
+        store.check(manifest, plan, fresh=fresh)
+        prepared = False
+        try:
+            with connected_client(execution) as client:
+                for line in store.prepare(manifest, plan, fresh=fresh):
+                    print(line, flush=True)
+                prepared = True
+                context = CampaignContext.from_config(config, store.root)
+                summary = run_cases(context, store, store.plan(), client, progress=progress,
+                                    watch=Watch.from_execution(execution))
+        except RunStopped as stop:
+            raise RunStopped(f"{stop}{compact_after_stop(store) if prepared else ''}") from None
+        store.compact()
     return summary, write_table(store.root, config.false_valid_mps)
 
 

@@ -2,7 +2,8 @@
 
     campaign submit FILE   plan, run every missing case on dask, store, print the paper's table
     campaign plan FILE     print the plan and write footprint maps (PNG) without running anything
-    campaign status DIR    done / failed / missing cases, from the store alone
+    campaign status DIR    done / failed / missing cases, from the store's verified case files
+    campaign verify DIR    check every file of a store (sha256 records); list bad files, exit 1 if any
     campaign table DIR     the paper's table (also written as table.md and table.csv in DIR)
     campaign report DIR    a Markdown report with PNG plots
     campaign camera FILE   validate a camera TOML and print its derived numbers
@@ -11,7 +12,8 @@
     campaign schema [T]    print the JSON Schema of every configuration table, or of table T
 
 Exit codes: 0 success (every case done), 1 cases failed or missing, a run stopped (one line naming the
-cause and the fix: campaign.faults) or a sweep regressed, 2 usage or configuration
+cause and the fix: campaign.faults), a sweep regressed, another writer holds the store's lock (one line
+naming it; ``--wait`` waits instead) or ``verify`` found bad files, 2 usage or configuration
 error (one clear line on stderr, nothing written). Command-line values (--cases-scale, --workers,
 --scheduler) are validated against the same declarations as the TOML fields, before anything is written.
 """
@@ -77,7 +79,7 @@ def _cmd_submit(args) -> int:
     start = time.perf_counter()
     config = _load(args)
     summary, table_text = submit(config, scheduler=args.scheduler, workers=args.workers, fresh=args.fresh,
-                                 progress=not args.no_progress)
+                                 progress=not args.no_progress, wait=args.wait)
     print(table_text)
     print(f"results: {config.output_dir}  ({summary.done} done, {summary.failed} failed this run)")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
@@ -106,6 +108,28 @@ def _cmd_status(args) -> int:
 
     status = CampaignStore(args.dir).status()
     print(f"{args.dir}: {status.planned} planned, {status.done} done, {status.failed} failed, {status.missing} missing")
+    if status.bad:
+        print(f"{args.dir}: {status.bad} bad case files not counted (`campaign verify {args.dir}` lists them; the next "
+              "submit moves them to rejected/ and computes their cases again)")
+    if status.outside_plan:
+        print(f"{args.dir}: {status.outside_plan} case files of cases outside the plan (kept, not counted)")
+    return 0
+
+
+def _cmd_verify(args) -> int:
+    from .store_verify import verify_store
+
+    result = verify_store(args.dir)
+    for path, problem in result.problems:
+        print(f"{path}: {problem}")
+    for note in result.notes:
+        print(f"note: {note}")
+    if result.problems:
+        print(f"{args.dir}: {len(result.problems)} bad files (`campaign submit` moves bad case files to rejected/ "
+              "and computes them again)")
+        return 1
+    print(f"{args.dir}: clean: manifest.json, plan.parquet, {result.verified_cases} case files and the compacted "
+          "results match their sha256 records")
     return 0
 
 
@@ -134,7 +158,8 @@ def _cmd_sweep(args) -> int:
     spec = load_sweep(args.file, output_dir=args.output)           # validates everything, writes nothing
     _check_directory(spec.output_dir, f"{args.file}: sweep.output_dir")
     baseline = read_baseline(args.baseline) if args.baseline else None
-    run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress,
+                    wait=args.wait)
     table, text = write_outputs(spec)
     print(text)
     print(f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused; {run.done} cases done, "
@@ -182,7 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     submit.add_argument("--scheduler", help="tcp://host:port of an existing dask scheduler")
     submit.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
     submit.add_argument("--cases-scale", type=float, help="multiply every class's case count (quick looks)")
-    submit.add_argument("--fresh", action="store_true", help="discard results of another configuration")
+    submit.add_argument("--fresh", action="store_true",
+                        help="move the existing store aside to OUTPUT.previous-<UTC time> (after every check) and start afresh")
+    submit.add_argument("--wait", action="store_true", help="wait for another writer's lock on the store instead of exiting 1")
     submit.add_argument("--no-progress", action="store_true")
     submit.set_defaults(handler=_cmd_submit)
 
@@ -194,7 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, handler, text in (("status", _cmd_status, "count done, failed and missing cases"),
                                 ("table", _cmd_table, "print and write the paper's table"),
-                                ("report", _cmd_report, "write a Markdown report with plots")):
+                                ("report", _cmd_report, "write a Markdown report with plots"),
+                                ("verify", _cmd_verify, "check every file of a store; exit 1 if any is bad")):
         command = commands.add_parser(name, help=text)
         command.add_argument("dir")
         command.set_defaults(handler=handler)
@@ -205,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--baseline", help="a previous sweep's output directory; exit 1 on a regression")
     sweep.add_argument("--scheduler", help="tcp://host:port of an existing dask scheduler")
     sweep.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
+    sweep.add_argument("--wait", action="store_true", help="wait for other writers' locks on point stores")
     sweep.add_argument("--no-progress", action="store_true")
     sweep.set_defaults(handler=_cmd_sweep)
 
@@ -231,6 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from .faults import RunStopped
     from .store import StoreError
+    from .store_lock import StoreBusy
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -241,6 +271,9 @@ def main(argv: list[str] | None = None) -> int:
         return USAGE_ERROR
     except RunStopped as exc:
         print(f"campaign: {exc}", file=sys.stderr, flush=True)
+        return RUN_INCOMPLETE
+    except StoreBusy as exc:
+        print(f"campaign: busy: {exc}", file=sys.stderr, flush=True)
         return RUN_INCOMPLETE
 
 

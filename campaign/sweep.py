@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,48 +57,61 @@ class SweepRun:
 
 
 def prepare_points(spec: SweepSpec) -> list[tuple]:
-    """Create (or reopen) each point's store; return (point, store, rows still to run) per point."""
+    """Create (or reopen and bring up to date) each point's store; return (point, store, rows still to run)
+    per point. Call it holding every point store's lock (:func:`point_locks`)."""
     plans: dict[tuple, pd.DataFrame] = {}
     prepared = []
     for point in spec.points:
         config = point.config
         store = CampaignStore(config.output_dir)
-        manifest = store.manifest()
-        if manifest is None or manifest.get("config_hash") != config.config_hash or not store.plan_path.exists():
+        manifest = store.manifest()                       # StoreError (one line) when corrupt
+        if manifest is None or manifest.get("config_hash") != config.config_hash or store._plan_problem(manifest):
             # the plan depends only on the site, seed and case counts: plan once per distinct triple
             key = (config.seed, tuple(sorted(config.cases_per_class.items())))
             if key not in plans:
                 plans[key] = plan_campaign(config)[1]
             store.prepare({**manifest_for(config), "sweep_file": str(spec.source), "sweep_point": point.values},
                           plans[key])
+        else:
+            store.reject_bad_files()
         finished = store.finished_case_ids()
         todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
         prepared.append((point, store, todo))
     return prepared
 
 
+def point_locks(spec: SweepSpec, stack: ExitStack, wait: bool = False) -> None:
+    """Take the writer lock of every point store (in path order, so two sweeps cannot deadlock)."""
+    for directory in sorted({str(point.config.output_dir) for point in spec.points}):
+        stack.enter_context(CampaignStore(directory).lock(
+            wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)))
+
+
 def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None = None,
-              progress: bool = True) -> SweepRun:
-    """Run every point's missing cases together on one cluster, then compact each point's store."""
+              progress: bool = True, wait: bool = False) -> SweepRun:
+    """Run every point's missing cases together on one cluster, then compact each point's store; the
+    point stores' locks are held throughout (:class:`~campaign.store_lock.StoreBusy` if one is taken)."""
     start = time.perf_counter()
     execution = spec.base.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(spec.source))
-    prepared = prepare_points(spec)
-    total = sum(len(todo) for _, _, todo in prepared)
-    done = failed = 0
-    if total:
-        try:
-            with connected_client(execution) as client:
-                tasks = [task for point, store, todo in prepared if todo
-                         for task in submit_cases(client, CampaignContext.from_config(point.config, store.root), todo,
-                                                  store)]
-                done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
-        except RunStopped as stop:
-            problems = {compact_after_stop(store) for _, store, todo in prepared if todo} - {""}
-            raise RunStopped(f"{stop}{min(problems, default='')}") from None
-    for _, store, todo in prepared:
-        if todo or not store.results_path.exists():
-            store.compact()
+    with ExitStack() as stack:
+        point_locks(spec, stack, wait)
+        prepared = prepare_points(spec)
+        total = sum(len(todo) for _, _, todo in prepared)
+        done = failed = 0
+        if total:
+            try:
+                with connected_client(execution) as client:
+                    tasks = [task for point, store, todo in prepared if todo
+                             for task in submit_cases(client, CampaignContext.from_config(point.config, store.root),
+                                                      todo, store)]
+                    done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
+            except RunStopped as stop:
+                problems = {compact_after_stop(store) for _, store, todo in prepared if todo} - {""}
+                raise RunStopped(f"{stop}{min(problems, default='')}") from None
+        for _, store, todo in prepared:
+            if todo or store.results_problem() is not None:
+                store.compact()
     reused = sum(1 for _, _, todo in prepared if not todo)
     statuses = [store.status() for _, store, _ in prepared]
     return SweepRun(len(prepared), reused, total, done, failed, time.perf_counter() - start,

@@ -1,0 +1,179 @@
+"""Case files with their integrity record, atomic writes, and the scan that verifies a store's cases.
+
+A case file's name records its size and sha256, computed by the worker from the exact bytes it writes::
+
+    cases/case-<id>.<ok|failed>.<size in bytes>.<sha256 hex>.parquet
+
+The bytes are written to a temporary file (``.tmp-`` prefix, never read as a result), fsynced and
+renamed to that name (``os.replace`` is atomic on POSIX): the file and its record appear together, in
+one step. A kill at any instant leaves either no file, an ignored temporary file, or a complete file
+whose name verifies it. ``sha256sum`` checks a case file by hand against its name.
+
+A file is *verified* when its name has the record and its size and sha256 match it. Anything else in
+``cases/`` is *bad*: truncated, corrupted, a name without the record (an older version, or by hand),
+or not a case file at all. Bad files are never counted or read; :meth:`CampaignStore.reject_bad_files`
+moves them to ``rejected/`` so their cases are recomputed. A case recomputed after a kill can have two
+verified files for a moment (the worker removes the older one right after its rename); the newest
+counts, the others are *superseded* and never counted twice.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import re
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+CASE_FILE = re.compile(r"^case-(\d{6,})\.(ok|failed)\.(\d+)\.([0-9a-f]{64})\.parquet$")
+UNRECORDED_CASE_FILE = re.compile(r"^case-(\d+)\.(ok|failed)\.parquet$")
+TEMPORARY_PREFIX = ".tmp-"
+CHUNK_BYTES = 1 << 20
+
+
+def case_file_name(case_id: int, ok: bool, size: int, digest: str) -> str:
+    return f"case-{case_id:06d}.{'ok' if ok else 'failed'}.{size}.{digest}.parquet"
+
+
+def table_bytes(table: pa.Table) -> bytes:
+    """A table serialised as Parquet, in memory (so its size and digest are known before it is written)."""
+    buffer = io.BytesIO()
+    pq.write_table(table, buffer)
+    return buffer.getvalue()
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(CHUNK_BYTES), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a fsynced temporary file and an atomic rename (the temporary file
+    is removed if the write fails, e.g. on a full disk)."""
+    temporary = path.with_name(f"{TEMPORARY_PREFIX}{uuid.uuid4().hex}-{path.name}")
+    try:
+        with open(temporary, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_table(path: Path, table: pa.Table) -> str:
+    """Write a table as Parquet atomically; return the sha256 of the bytes written."""
+    data = table_bytes(table)
+    atomic_write_bytes(path, data)
+    return sha256_bytes(data)
+
+
+def fsync_directory(directory: Path) -> None:
+    try:
+        descriptor = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
+def write_case_rows(cases_dir: Path, case_id: int, rows: list[dict], ok: bool) -> Path:
+    """Durably write a case's rows (one per estimator) in one file named with its size and sha256 (atomic
+    rename), then remove any earlier file of the same case. ``ok``: the case was simulated (an
+    estimator's own failure is in its row)."""
+    data = table_bytes(pa.Table.from_pylist(rows))
+    target = cases_dir / case_file_name(case_id, ok, len(data), sha256_bytes(data))
+    atomic_write_bytes(target, data)
+    for entry in os.scandir(cases_dir):
+        if entry.name.startswith(f"case-{case_id:06d}.") and entry.name != target.name:
+            match = CASE_FILE.match(entry.name) or UNRECORDED_CASE_FILE.match(entry.name)
+            if match and int(match.group(1)) == case_id:
+                Path(entry.path).unlink(missing_ok=True)
+    fsync_directory(cases_dir)
+    return target
+
+
+@dataclass(frozen=True)
+class CaseFile:
+    """A verified case file."""
+    case_id: int
+    state: str            # "ok" or "failed"
+    path: Path
+    mtime_ns: int
+
+
+@dataclass
+class CaseScan:
+    """What ``cases/`` holds: one verified file per case, and the files that are not counted."""
+    cases: dict[int, CaseFile] = field(default_factory=dict)
+    bad: list[tuple[Path, str]] = field(default_factory=list)
+    superseded: list[tuple[Path, str]] = field(default_factory=list)
+    temporary: list[Path] = field(default_factory=list)
+
+    def fingerprint(self, case_ids) -> str:
+        """sha256 over the names (so sizes and digests) of the counted files of ``case_ids``."""
+        names = sorted(self.cases[case_id].path.name for case_id in case_ids if case_id in self.cases)
+        return sha256_bytes("\n".join(names).encode())
+
+
+def check_case_file(path: Path, match: re.Match) -> str | None:
+    """What is wrong with a file whose name has the record, or None when size and sha256 match it."""
+    recorded_size, recorded_digest = int(match.group(3)), match.group(4)
+    try:
+        size = path.stat().st_size
+        if size != recorded_size:
+            kind = "truncated" if size < recorded_size else "too long"
+            return f"{kind}: {size} bytes, {recorded_size} recorded at write time"
+        digest = sha256_file(path)
+    except OSError as exc:
+        return f"unreadable: {exc.strerror or exc}"
+    if digest != recorded_digest:
+        return f"corrupted: sha256 {digest[:16]}... differs from the {recorded_digest[:16]}... recorded at write time"
+    return None
+
+
+def scan_case_files(cases_dir: Path) -> CaseScan:
+    """Verify every file in ``cases_dir`` (size and sha256 against its name) and sort them out."""
+    scan = CaseScan()
+    if not cases_dir.is_dir():
+        return scan
+    verified: dict[int, list[CaseFile]] = {}
+    for entry in sorted(os.scandir(cases_dir), key=lambda e: e.name):
+        path = Path(entry.path)
+        if entry.name.startswith(TEMPORARY_PREFIX):
+            scan.temporary.append(path)
+            continue
+        match = CASE_FILE.match(entry.name) if entry.is_file(follow_symlinks=False) else None
+        if match is None:
+            if UNRECORDED_CASE_FILE.match(entry.name):
+                scan.bad.append((path, "unrecorded: no size and sha256 in its name (written by an older version "
+                                       "or by hand), so it cannot be verified"))
+            else:
+                scan.bad.append((path, "not a case file (allowed: case-<id>.<ok|failed>.<bytes>.<sha256>.parquet)"))
+            continue
+        problem = check_case_file(path, match)
+        if problem is not None:
+            scan.bad.append((path, problem))
+            continue
+        case = CaseFile(int(match.group(1)), match.group(2), path, entry.stat().st_mtime_ns)
+        verified.setdefault(case.case_id, []).append(case)
+    for case_id, files in verified.items():
+        files.sort(key=lambda f: (f.mtime_ns, f.path.name))
+        scan.cases[case_id] = files[-1]
+        scan.superseded += [(f.path, f"superseded by the newer {files[-1].path.name} of the same case")
+                            for f in files[:-1]]
+    return scan
