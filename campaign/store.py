@@ -238,14 +238,15 @@ class CampaignStore:
 
     def move_aside(self) -> Path:
         """Rename the whole store directory to ``DIR.previous-<UTC time>`` (a new name, never overwritten)."""
+        root = Path(os.path.abspath(self.root))             # "." names the working directory
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-        target = self.root.with_name(f"{self.root.name}.previous-{stamp}")
+        target = root.with_name(f"{root.name}.previous-{stamp}")
         counter = 1
         while target.exists():
             counter += 1
-            target = self.root.with_name(f"{self.root.name}.previous-{stamp}-{counter}")
-        os.rename(self.root, target)
-        fsync_directory(self.root.parent)
+            target = root.with_name(f"{root.name}.previous-{stamp}-{counter}")
+        os.rename(root, target)
+        fsync_directory(root.parent)
         return target
 
     def _reject(self, path: Path, reason: str) -> Path:

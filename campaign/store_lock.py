@@ -31,7 +31,7 @@ class StoreBusy(RuntimeError):
 
 def lock_path_for(store_root: Path) -> Path:
     """``DIR.lock`` beside the store directory ``DIR``."""
-    store_root = Path(store_root)
+    store_root = Path(os.path.abspath(store_root))      # "." and "" name the working directory
     return store_root.with_name(store_root.name + ".lock")
 
 

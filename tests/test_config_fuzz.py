@@ -301,7 +301,7 @@ BAD_SCALE = st.one_of(st.floats(allow_nan=True, allow_infinity=True).filter(lamb
 BAD_WORKERS = st.one_of(st.integers().filter(lambda n: not 0 <= n <= 1024).map(str),
                         st.sampled_from(["two", "1.5", "", "1e3"]))
 BAD_SCHEDULER = st.text(min_size=1, max_size=30).filter(lambda s: not s.startswith(("tcp://", "tls://", "inproc://")))
-KNOWN_FLAGS = ("--output", "--scheduler", "--workers", "--cases-scale", "--fresh", "--no-progress", "--out",
+KNOWN_FLAGS = ("--output", "--scheduler", "--workers", "--cases-scale", "--fresh", "--wait", "--no-progress", "--out",
                "--baseline", "--help", "--camera", "--config", "--big-endian", "--summary", "--sidecar")
 UNKNOWN_FLAG = st.from_regex(r"\A--[a-z][a-z-]{2,12}\Z").filter(     # nor an abbreviation of a known flag
     lambda flag: not any(known.startswith(flag) for known in KNOWN_FLAGS))
