@@ -38,8 +38,8 @@ def _campaign(*args, timeout=300) -> subprocess.CompletedProcess:
                           timeout=timeout, cwd=REPO, env=_environment())
 
 
-def _submit(out: Path, *extra, site: Path = SITE) -> list:
-    return ["submit", site, "--output", out, "--cases-scale", SCALE, "--workers", "1", "--no-progress", *extra]
+def _submit(out: Path, *extra, site: Path = SITE, scale: str = SCALE) -> list:
+    return ["submit", site, "--output", out, "--cases-scale", scale, "--workers", "1", "--no-progress", *extra]
 
 
 def _one_line(text: str) -> str:
@@ -92,10 +92,11 @@ def test_a_clean_store_verifies_and_names_record_size_and_sha256(reference):
 
 def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomputed(reference, store):
     files = _case_files(store)
-    os.truncate(files[0], 100)                                     # truncated (disk full, killed copy)
-    _flip_byte(files[1], files[1].stat().st_size // 2)             # corrupted, same size
-    unrecorded = files[2].with_name("case-000002.ok.parquet")      # no record (older version, by hand)
-    files[2].rename(unrecorded)
+    first, second, third = sorted(files)
+    os.truncate(files[first], 100)                                 # truncated (disk full, killed copy)
+    _flip_byte(files[second], files[second].stat().st_size // 2)   # corrupted, same size
+    unrecorded = files[third].with_name(f"case-{third:06d}.ok.parquet")   # no record (older version, by hand)
+    files[third].rename(unrecorded)
     stray_rows = pq.read_table(unrecorded).to_pylist()
     stray = write_case_rows(store / "cases", 999999, [{**row, "case_id": 999999} for row in stray_rows], ok=True)
     junk = store / "cases" / "notes.txt"
@@ -109,7 +110,7 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     verify = _campaign("verify", store)
     assert verify.returncode == 1
     lines = verify.stdout.splitlines()
-    for path, what in ((files[0], "truncated: 100 bytes"), (files[1], "corrupted: sha256"), (unrecorded, "unrecorded"),
+    for path, what in ((files[first], "truncated: 100 bytes"), (files[second], "corrupted: sha256"), (unrecorded, "unrecorded"),
                        (junk, "not a case file"), (store / "results.parquet", "out of date")):
         assert any(line.startswith(f"{path}: {what}") for line in lines), (path, verify.stdout)
     assert str(stray) not in "\n".join(line for line in lines if not line.startswith("note:"))
@@ -123,7 +124,7 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     assert "(3 done, 0 failed this run)" in rerun.stdout and "moved 4 bad or superseded case files" in rerun.stdout
     log = (store / "rejected" / "rejected.log").read_text().splitlines()
     assert len(log) == 4 and all(" -> rejected/" in line for line in log)
-    assert (store / "rejected" / files[0].name).stat().st_size == 100, "a rejected file is moved, not deleted"
+    assert (store / "rejected" / files[first].name).stat().st_size == 100, "a rejected file is moved, not deleted"
     assert (store / "rejected" / "notes.txt").read_text() == "not a case"
     assert stray.exists(), "a verified case file outside the plan is kept"
     pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
@@ -135,13 +136,14 @@ def test_two_verified_files_of_one_case_count_once(reference, store):
     """A kill between a recomputed case's rename and the removal of its older file leaves two verified
     files: the newest counts, once."""
     files = _case_files(store)
-    again = pq.read_table(files[0]).to_pandas().assign(t_case_ms=1.0)
+    first, second, _ = sorted(files)
+    again = pq.read_table(files[first]).to_pandas().assign(t_case_ms=1.0)
     data = table_bytes(pa.Table.from_pandas(again, preserve_index=False))
-    newer = store / "cases" / case_file_name(0, True, len(data), sha256_bytes(data))
+    newer = store / "cases" / case_file_name(first, True, len(data), sha256_bytes(data))
     newer.write_bytes(data)
-    failed = pq.read_table(files[1]).to_pandas().assign(status="failed", error="RuntimeError: test")
+    failed = pq.read_table(files[second]).to_pandas().assign(status="failed", error="RuntimeError: test")
     data = table_bytes(pa.Table.from_pandas(failed, preserve_index=False))
-    failed_path = store / "cases" / case_file_name(1, False, len(data), sha256_bytes(data))
+    failed_path = store / "cases" / case_file_name(second, False, len(data), sha256_bytes(data))
     failed_path.write_bytes(data)
     for path in (newer, failed_path):
         os.utime(path, ns=(time.time_ns() + 10**9, time.time_ns() + 10**9))
@@ -149,10 +151,10 @@ def test_two_verified_files_of_one_case_count_once(reference, store):
     status = _campaign("status", store)
     assert f"{store}: 3 planned, 2 done, 1 failed, 0 missing" in status.stdout, status.stdout
     verify = _campaign("verify", store)
-    assert f"note: {files[0]}: superseded by the newer {newer.name}" in verify.stdout
+    assert f"note: {files[first]}: superseded by the newer {newer.name}" in verify.stdout
     results = CampaignStore(store).results()
     assert results["case_id"].is_unique and len(results) == 3
-    assert results.set_index("case_id").at[1, "status"] == "failed"
+    assert results.set_index("case_id").at[second, "status"] == "failed"
 
 
 KILLED_WRITER = """
@@ -263,31 +265,32 @@ def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
     assert after == before, "--fresh moved or changed the store although the cluster was unusable"
 
 
-def test_same_configuration_with_another_plan_size_keeps_identical_cases(store):
-    """Case identity is (class, index within class): a smaller or larger plan of the same configuration
-    hash is accepted when the cases in both are planned identically; the others are kept, not counted."""
-    campaign = CampaignStore(store)
-    manifest, plan = campaign.manifest(), campaign.plan()
-    smaller = plan[plan["case_id"] != 2].reset_index(drop=True)
-    notes = campaign.prepare(manifest, smaller)
-    assert any("plan of 2 cases recorded (was 3)" in note for note in notes)
-    recorded = campaign.manifest()
-    assert recorded["plan_cases"] == 2 and recorded["plan_sha256"] != manifest["plan_sha256"]
-    status = campaign.status()
-    assert (status.planned, status.done, status.missing, status.outside_plan) == (2, 2, 0, 1)
-    assert sorted(campaign.results()["case_id"]) == sorted(smaller["case_id"])
-    assert _campaign("verify", store).returncode == 1      # results.parquet was compacted from 3 cases
-    campaign.compact()
+def test_another_case_count_reuses_the_cases_in_both_plans(reference, store):
+    """Case identity is (class, index within class) and the configuration hash ignores case counts: a
+    larger --cases-scale on the same store computes only the new cases, a smaller one runs nothing; the
+    cases outside the current plan are kept and reported, not counted."""
+    before = {p.name for p in (store / "cases").iterdir()}
+    larger = _campaign(*_submit(store, scale="0.011"))   # gcp 2, gdcp 1, gkep 1
+    assert larger.returncode == 0, larger.stderr
+    assert "plan of 4 cases recorded (was 3)" in larger.stdout and "(1 done, 0 failed this run)" in larger.stdout
+    assert before < {p.name for p in (store / "cases").iterdir()}, "the three cases of both plans are reused"
+    smaller = _campaign(*_submit(store))
+    assert smaller.returncode == 0 and "(0 done, 0 failed this run)" in smaller.stdout, smaller.stderr
+    status = _campaign("status", store).stdout
+    assert "3 planned, 3 done, 0 failed, 0 missing" in status and "1 case files of cases outside the plan" in status
+    pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
+                                  pd.read_parquet(reference / "results.parquet"), check_exact=True)
     assert _campaign("verify", store).returncode == 0
 
-    larger = pd.concat([plan, plan.iloc[[0]].assign(case_id=3, case_in_class=1)], ignore_index=True)
-    campaign.prepare(manifest, larger)
-    status = campaign.status()
-    assert (status.planned, status.done, status.missing, status.outside_plan) == (4, 3, 1, 0)
 
-    moved = larger.assign(offset_east_m=larger["offset_east_m"] + (larger["case_id"] == 1) * 1.0)
+def test_same_configuration_hash_with_a_differently_planned_case_is_refused(store):
+    campaign = CampaignStore(store)
+    manifest, plan = campaign.manifest(), campaign.plan()
+    moved_id = int(plan["case_id"].iloc[1])
+    moved = plan.assign(offset_east_m=plan["offset_east_m"] + (plan["case_id"] == moved_id) * 1.0)
+    before = _tree(store)
     with pytest.raises(StoreError) as refused:
         campaign.prepare(manifest, moved)
     message = str(refused.value)
-    assert "\n" not in message and "case 1 has offset_east_m" in message
-    assert campaign.status().planned == 4, "a refused plan is not recorded"
+    assert "\n" not in message and f"case {moved_id} has offset_east_m" in message
+    assert _tree(store) == before, "a refused plan is not recorded"
