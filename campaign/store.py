@@ -116,6 +116,7 @@ class CampaignStore:
         self.results_record_path = self.root / "results.json"
         self.rejected_dir = self.root / "rejected"
         self.lock_path = lock_path_for(self.root)
+        self._verified: dict[str, tuple[int, int, int]] = {}   # case files this object has verified
 
     def lock(self, wait: bool = False, on_wait=None) -> StoreLock:
         """The store's writer lock (a context manager; :class:`StoreBusy` when held elsewhere and not ``wait``)."""
@@ -262,7 +263,7 @@ class CampaignStore:
 
     def reject_bad_files(self) -> int:
         """Move bad and superseded case files to ``rejected/`` (one log line each); return how many."""
-        scan = scan_case_files(self.cases_dir)
+        scan = scan_case_files(self.cases_dir)          # everything hashed afresh before a run
         for path, reason in [*scan.bad, *scan.superseded]:
             self._reject(path, reason)
         if scan.bad or scan.superseded:
@@ -271,7 +272,8 @@ class CampaignStore:
 
     # --- reading -------------------------------------------------------------------------------
     def scan(self) -> CaseScan:
-        return scan_case_files(self.cases_dir)
+        """Every case file verified (files this object verified before and that are unchanged: by stat)."""
+        return scan_case_files(self.cases_dir, self._verified)
 
     def finished_case_ids(self) -> dict[int, str]:
         """case_id -> 'ok' or 'failed' for every verified case file (works during a run and after a crash)."""

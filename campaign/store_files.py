@@ -58,10 +58,10 @@ def sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a fsynced temporary file and an atomic rename (the temporary file
-    is removed if the write fails, e.g. on a full disk)."""
-    temporary = path.with_name(f"{TEMPORARY_PREFIX}{uuid.uuid4().hex}-{path.name}")
+def atomic_write_bytes(path: Path, data: bytes, temporary: Path | None = None) -> None:
+    """Write ``data`` to ``path`` through a fsynced temporary file (default ``.tmp-<uuid>-<name>`` beside it)
+    and an atomic rename; the temporary file is removed if the write fails (e.g. on a full disk)."""
+    temporary = temporary or path.with_name(f"{TEMPORARY_PREFIX}{uuid.uuid4().hex}-{path.name}")
     try:
         with open(temporary, "wb") as handle:
             handle.write(data)
@@ -97,7 +97,7 @@ def write_case_rows(cases_dir: Path, case_id: int, rows: list[dict], ok: bool) -
     estimator's own failure is in its row)."""
     data = table_bytes(pa.Table.from_pylist(rows))
     target = cases_dir / case_file_name(case_id, ok, len(data), sha256_bytes(data))
-    atomic_write_bytes(target, data)
+    atomic_write_bytes(target, data, cases_dir / f"{TEMPORARY_PREFIX}{case_id:06d}-{uuid.uuid4().hex}.parquet")
     for entry in os.scandir(cases_dir):
         if entry.name.startswith(f"case-{case_id:06d}.") and entry.name != target.name:
             match = CASE_FILE.match(entry.name) or UNRECORDED_CASE_FILE.match(entry.name)
@@ -146,8 +146,12 @@ def check_case_file(path: Path, match: re.Match) -> str | None:
     return None
 
 
-def scan_case_files(cases_dir: Path) -> CaseScan:
-    """Verify every file in ``cases_dir`` (size and sha256 against its name) and sort them out."""
+def scan_case_files(cases_dir: Path, verified_before: dict | None = None) -> CaseScan:
+    """Verify every file in ``cases_dir`` (size and sha256 against its name) and sort them out.
+
+    ``verified_before``: a cache, name -> (size, mtime, inode) of files this process has verified; a case
+    file is never rewritten in place (a new write has a new name), so an unchanged entry is not hashed
+    again (the runner polls the store while cases finish)."""
     scan = CaseScan()
     if not cases_dir.is_dir():
         return scan
@@ -165,11 +169,16 @@ def scan_case_files(cases_dir: Path) -> CaseScan:
             else:
                 scan.bad.append((path, "not a case file (allowed: case-<id>.<ok|failed>.<bytes>.<sha256>.parquet)"))
             continue
-        problem = check_case_file(path, match)
-        if problem is not None:
-            scan.bad.append((path, problem))
-            continue
-        case = CaseFile(int(match.group(1)), match.group(2), path, entry.stat().st_mtime_ns)
+        stat = entry.stat()
+        identity = (stat.st_size, stat.st_mtime_ns, stat.st_ino)
+        if verified_before is None or verified_before.get(entry.name) != identity:
+            problem = check_case_file(path, match)
+            if problem is not None:
+                scan.bad.append((path, problem))
+                continue
+            if verified_before is not None:
+                verified_before[entry.name] = identity
+        case = CaseFile(int(match.group(1)), match.group(2), path, stat.st_mtime_ns)
         verified.setdefault(case.case_id, []).append(case)
     for case_id, files in verified.items():
         files.sort(key=lambda f: (f.mtime_ns, f.path.name))
