@@ -33,7 +33,7 @@ def test_failure_of_the_simulation_itself_is_recorded_exit_1_and_kept(tmp_path):
     assert result.returncode == 1, result.stderr
     assert "(0 done, 1 failed this run)" in result.stdout
     [failed] = case_files(out)
-    assert failed.name == "case-000000.failed.parquet"
+    assert failed.name.startswith("case-000000.failed.")      # then its size and sha256 (campaign.store_files)
     rows = pd.read_parquet(failed)
     assert rows["status"].tolist() == ["failed"] and "below the ground" in rows["error"].iloc[0]
     before = failed.stat().st_mtime_ns
@@ -90,7 +90,7 @@ def test_full_disk_stops_the_run_keeps_cases_and_the_next_submit_finishes(tmp_pa
     line = stderr_line(result)
     assert "run stopped" in line and "No space left on device" in line and "free space there" in line, line
     assert "left for the next submit" in line
-    assert case_files(out, "*.failed.parquet") == []                   # never a case's failure
+    assert case_files(out, "*.failed.*.parquet") == []                   # never a case's failure
     assert list(out.rglob(".tmp-*")) == []                             # temporaries removed
     status = CampaignStore(out).status()
     assert status.failed == 0 and status.missing > 0
@@ -119,7 +119,7 @@ def test_memory_limit_too_small_stops_with_one_line(tmp_path, limit, cases, expe
     for text in expected:
         assert text in line, line
     assert "about 550 MiB" in line and "1 left for the next submit" in line
-    assert len(case_files(out, "*.ok.parquet")) == cases - 1 and case_files(out, "*.failed.parquet") == []
+    assert len(case_files(out, "*.ok.*.parquet")) == cases - 1 and case_files(out, "*.failed.*.parquet") == []
     print(f"memory_limit {limit}: stopped after {seconds:.1f} s")
 
 
