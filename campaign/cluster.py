@@ -27,6 +27,7 @@ from dask.distributed import Client, LocalCluster
 from flight_interface.tomlfields import ConfigError
 
 from .execution_config import BatchJobs, ExecutionConfig
+from .faults import RunStopped
 
 #: backend -> (module it needs, pip distribution, extra of moc2dimes)
 OPTIONAL_BACKENDS = {"slurm": ("dask_jobqueue", "dask-jobqueue", "slurm"),
@@ -103,7 +104,12 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
         os.environ.setdefault(variable, value)   # one thread per worker process: idle BLAS threads stall on 2 cores
     cluster = None
     if execution.cluster == "scheduler":
-        client = Client(execution.scheduler, timeout="30s")
+        try:
+            client = Client(execution.scheduler, timeout=f"{execution.connect_timeout_s}s")
+        except (OSError, TimeoutError) as exc:
+            raise RunStopped(f"cannot reach the dask scheduler {execution.scheduler} within "
+                             f"{execution.connect_timeout_s:g} s ({_first_line(exc)}); start it, check the address, "
+                             "or raise [execution] connect_timeout_s; nothing was run or changed") from None
     elif execution.cluster == "local":
         cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                processes=True, memory_limit=execution.memory_limit, dashboard_address="127.0.0.1:0",
@@ -152,6 +158,11 @@ def connected_client(execution: ExecutionConfig, quiet: bool = False) -> Iterato
     finally:
         for logger, level in zip(loggers, levels):
             logger.setLevel(level)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
 
 
 def _quietly(close) -> None:

@@ -135,6 +135,8 @@ class ExecutionConfig(ConfigModel):
     """Attempts after the first for a case whose computation raises."""
     memory_limit: str = "1.5GiB"
     """Memory limit per worker of the embedded cluster, e.g. "1.5GiB", "800MiB" (a case needs about 550 MiB)."""
+    connect_timeout_s: float = Field(30.0, ge=1.0, le=3600.0)
+    """Give up connecting to an existing scheduler (cluster = "scheduler") after this long (s)."""
     stall_timeout_s: float = Field(900.0, ge=1.0, le=7 * 86400.0)
     """Stop the run when no case has finished for this long while workers are up (s)."""
     no_workers_timeout_s: float = Field(300.0, ge=1.0, le=7 * 86400.0)

@@ -14,7 +14,6 @@ the store and the next submit runs the rest.
 """
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
 

@@ -257,9 +257,12 @@ def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside
 
 
 def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
+    site = tmp_path / "site.toml"   # the same campaign ([execution] is not hashed), giving up on a scheduler after 2 s
+    site.write_text(SITE.read_text().replace('"cameras/', f'"{SITE.parent}/cameras/')
+                    .replace('"trajectories/', f'"{SITE.parent}/trajectories/') + "\n[execution]\nconnect_timeout_s = 2\n")
     before = _tree(tmp_path)
-    result = _campaign(*_submit(store, "--fresh", "--scheduler", "tcp://127.0.0.1:9"), timeout=120)
-    assert result.returncode != 0
+    result = _campaign(*_submit(store, "--fresh", "--scheduler", "tcp://127.0.0.1:9", site=site), timeout=120)
+    assert result.returncode == 1 and "127.0.0.1:9" in _one_line(result.stderr), result.stderr
     after = _tree(tmp_path)
     assert after.pop("store.lock")[0] == 0, "the lock file beside the store is left released (no holder record)"
     assert after == before, "--fresh moved or changed the store although the cluster was unusable"
