@@ -32,6 +32,7 @@ import numpy as np
 from simulator.scene.descent_profile import DescentProfile
 
 from .faults import InfrastructureError, describe, is_infrastructure
+from .error_budget import attitude_floor_mps
 from .store import write_case_rows
 
 _WORKER_RESOURCES: dict[str, "Resources"] = {}
@@ -297,6 +298,7 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> list[dict
     last_time = float(profile.image_times_s[-1])
     truth_velocity = profile.pose(last_time).velocity_mps
     wind = profile.wind_at(last_time)
+    first_mid, last_mid = (camera.timing.exposure_mid_time_s(float(profile.image_times_s[index])) for index in (0, -1))
     if int(row["case_in_class"]) == 0:
         _save_examples(Path(store_root), row, images)
     common = {
@@ -304,6 +306,10 @@ def simulate_case(resources: Resources, row: dict, store_root: str) -> list[dict
         "wind_east_mps": float(wind[0]), "wind_north_mps": float(wind[1]),
         "altitude_image1_m": float(profile.pose(float(profile.image_times_s[0])).position_m[2]),
         "altitude_image3_m": float(profile.pose(last_time).position_m[2]),
+        "attitude_floor_mps": attitude_floor_mps(
+            inputs.sensor_truth["attitude_bias_east_rad"], inputs.sensor_truth["attitude_bias_north_rad"],
+            float(profile.pose(first_mid).position_m[2]), float(profile.pose(last_mid).position_m[2]),
+            first_mid, last_mid),
         "heat_shield_in_view": [bool(rendered.diagnostics.heat_shield_visible) for rendered in inputs.images],
         "outside_terrain_fraction": [float(rendered.outside_terrain_mask.mean()) for rendered in inputs.images],
         **{f"sensor_{key}": value for key, value in inputs.sensor_truth.items()},

@@ -206,7 +206,8 @@ def hashed_content(resolved: dict, site: Site) -> dict:
     return content
 
 
-RESULT_CODE = ("flight_interface", "simulator", "dimes_velocity", "estimators", "sitedata", "campaign/case.py")
+RESULT_CODE = ("flight_interface", "simulator", "dimes_velocity", "estimators", "sitedata", "campaign/case.py",
+               "campaign/error_budget.py")
 
 
 @functools.lru_cache(maxsize=4)

@@ -1,6 +1,7 @@
 """`campaign report DIR`: a Markdown report with PNG plots from a campaign store."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from . import plots
@@ -65,6 +66,7 @@ def _estimator_section(name: str, rows, fractions: dict, site: str, out: Path, s
     lines = ([f"## Estimator `{name}`", ""] if titled else []) + [
         f"{level} Table (paper Tables 1-2)", "", format_table(table, markdown=True), "",
         f"False-valid: valid with a horizontal error above {false_valid_mps:g} m/s (`[campaign] false_valid_mps`).", ""]
+    lines += _false_valid_section(rows, level, false_valid_mps)
     if not ok.empty:
         plots.error_histograms(ok, out / f"error_histograms{suffix}.png")
         plots.valid_fraction_bars(table, out / f"valid_fraction{suffix}.png")
@@ -86,3 +88,24 @@ def _estimator_section(name: str, rows, fractions: dict, site: str, out: Path, s
         lines += [f"{level} Failed cases", "", "| case | class | error |", "|---|---|---|"]
         lines += [f"| {int(r.case_id)} | {r.class_name} | {str(r.error)[:160]} |" for r in failed.itertuples()] + [""]
     return lines
+
+
+def _false_valid_section(rows, level: str, false_valid_mps: float) -> list[str]:
+    """Every false-valid case beside its attitude-knowledge floor (:mod:`campaign.error_budget`): an error
+    near the floor comes from the attitude bias common to the images, one far above it from the images."""
+    valid = rows[rows["valid"].astype(bool)]
+    wrong = valid[valid["velocity_error_mps"] > false_valid_mps]
+    if wrong.empty:
+        return []
+    lines = [f"{level} False-valid cases and the attitude-knowledge floor", "",
+             "floor = abs(tan(tilt bias)) x altitude drop / time between images 1 and 3: the error an attitude "
+             "bias common to the images causes whatever the matching (campaign/error_budget.py).", "",
+             "| case | class | error m/s | stated uncertainty m/s | attitude bias deg | floor m/s | error - floor m/s |",
+             "|---|---|---|---|---|---|---|"]
+    for row in wrong.sort_values("velocity_error_mps", ascending=False).itertuples():
+        floor = getattr(row, "attitude_floor_mps", float("nan"))
+        tilt_deg = math.degrees(math.hypot(getattr(row, "sensor_attitude_bias_east_rad", float("nan")),
+                                           getattr(row, "sensor_attitude_bias_north_rad", float("nan"))))
+        lines.append(f"| {int(row.case_id)} | {row.class_name} | {row.velocity_error_mps:.2f} | "
+                     f"{row.velocity_uncertainty_mps:.2f} | {tilt_deg:.2f} | {floor:.2f} | {row.velocity_error_mps - floor:.2f} |")
+    return lines + [""]
