@@ -22,7 +22,7 @@ image or moving across two, not predicted by the measurements).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np

@@ -40,7 +40,7 @@ from campaign.sweep_config import load_sweep
 from dimes_velocity.__main__ import main as dimes_main
 from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError
-from fuzz_inputs import UNKNOWN_KEY, refusal_problems, run_main, schema_mutations, snapshot, toml_text
+from fuzz_inputs import refusal_problems, run_main, schema_mutations, snapshot, toml_text
 from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig
 from campaign.compare_flight import load_flight

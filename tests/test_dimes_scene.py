@@ -2,7 +2,6 @@
 shadows, smear, noise) and measurements from the sensor models: the issue's done-when criteria."""
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import pytest

@@ -1,5 +1,4 @@
 """EDL generator: pendulum physics against closed forms, attitude kinematics, determinism, sampling."""
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

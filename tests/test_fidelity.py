@@ -153,7 +153,6 @@ def test_supersampled_pixel_on_a_step_edge_reads_its_coverage():
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.5])
     base = SceneConfig().with_effects(shadows=False, heat_shield=False, photometric_correction=False,
                                       spectral_ratio=False, coarse_ray_grid=False, pixel_area_filter=False)
-    from dataclasses import replace
     point = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, base).radiance
     fine = radiance.radiance_at_pose(terrain, CAMERA, profile.pose(0.5), SUN, base.with_fields(supersample=3)).radiance
     row = point[512]
@@ -185,7 +184,6 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
     """Antialiased silhouette (3 x 3 edge samples) against the 3 x 3 supersampled render: edge pixels
     agree to a small fraction of the shield/ground contrast (a hard edge errs by up to the whole of it;
     the reference's own samples must be points, not antialiased again)."""
-    from dataclasses import replace
 
     terrain = smooth_terrain()
     base = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.1])
