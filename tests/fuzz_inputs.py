@@ -140,7 +140,8 @@ def _bad_values(node: dict) -> list[tuple[str, Any]]:
     return []
 
 
-def _set(data: dict, path: tuple, value: Any) -> dict:
+def with_value(data: dict, path: tuple, value: Any) -> dict:
+    """A deep copy of ``data`` with the item at ``path`` (keys and indices) set to ``value``."""
     data = copy.deepcopy(data)
     node = data
     for key in path[:-1]:
@@ -167,19 +168,19 @@ def schema_mutations(schema: dict, data: dict, skip: tuple[tuple, ...] = ()) -> 
         name = ".".join(str(part) for part in path) or "<root>"
         if isinstance(value, dict):
             if node.get("additionalProperties") is False:
-                variants.append((f"{name}: unknown key", _set(data, path + (UNKNOWN_KEY,), 1.0) if path
+                variants.append((f"{name}: unknown key", with_value(data, path + (UNKNOWN_KEY,), 1.0) if path
                                  else {**data, UNKNOWN_KEY: 1.0}))
             for key in node.get("required", []):
                 if key in value:
                     variants.append((f"{name + '.' if path else ''}{key}: dropped", _drop(data, path + (key,))))
             if path:
-                variants.append((f"{name}: a number instead of a table", _set(data, path, 3.5)))
+                variants.append((f"{name}: a number instead of a table", with_value(data, path, 3.5)))
             continue
         if isinstance(value, list) and value and isinstance(value[0], dict):
-            variants.append((f"{name}: empty array of tables", _set(data, path, [])))
+            variants.append((f"{name}: empty array of tables", with_value(data, path, [])))
             continue
         for what, bad in _bad_values(node):
-            variants.append((f"{name} = {bad!r}: {what}", _set(data, path, bad)))
+            variants.append((f"{name} = {bad!r}: {what}", with_value(data, path, bad)))
     return variants
 
 

@@ -35,6 +35,24 @@ def campaign_file(directory: Path, cases: dict | None = None, execution: str = "
     return path
 
 
+def site_copy(directory: Path, extra: str = "", name: str = "gusev.toml") -> Path:
+    """sitedata/gusev.toml with absolute input paths (so the copy can live anywhere) plus ``extra`` TOML."""
+    text = GUSEV.read_text()
+    for relative in ('"cameras/mer_a.toml"', '"trajectories/gusev.parquet"'):
+        text = text.replace(relative, f'"{SITEDATA / relative.strip(chr(34))}"')
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / name
+    path.write_text(text + extra)
+    return path
+
+
+def file_tree(root: Path) -> dict:
+    """Relative path -> (size, mtime ns) of every file under ``root`` (None for a directory): a snapshot
+    that shows whether anything was written, moved or removed."""
+    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else None
+            for p in sorted(root.rglob("*"))} if root.exists() else {}
+
+
 def low_camera_trajectory(path: Path) -> Path:
     """One Gusev trajectory lowered so that the lander is 0.45 m above the ground at image 3: valid as a
     trajectory file (the lander stays above z = 0 while imaging), but the camera, 0.5 m below the

@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from campaign.store import CampaignStore
+from service_campaigns import site_copy
 
 REPO = Path(__file__).resolve().parents[1]
 SITE = REPO / "sitedata" / "gusev.toml"
@@ -29,17 +30,6 @@ def _campaign(*args, timeout=600, check=True):
 
 def _submit_args(out: Path, *extra):
     return ["submit", str(SITE), "--output", str(out), "--cases-scale", SCALE, "--no-progress", *extra]
-
-
-def _site_copy(tmp_path: Path, extra: str) -> Path:
-    """sitedata/gusev.toml plus ``extra`` TOML, beside links to the site's camera and trajectory folders."""
-    folder = tmp_path / "site"
-    folder.mkdir(exist_ok=True)
-    for sub in ("cameras", "trajectories"):
-        (folder / sub).symlink_to(REPO / "sitedata" / sub)
-    path = folder / "gusev.toml"
-    path.write_text(SITE.read_text() + extra)
-    return path
 
 
 def _results(out: Path) -> pd.DataFrame:
@@ -77,7 +67,7 @@ def test_rerun_runs_nothing_and_changed_config_is_refused(reference_run, tmp_pat
     rerun = _campaign(*_submit_args(reference_run, "--workers", "1"))
     assert "(0 done, 0 failed this run)" in rerun.stdout
     assert {p.name: p.stat().st_mtime_ns for p in (reference_run / "cases").iterdir()} == before
-    other_seed = _site_copy(tmp_path, "\n[campaign]\nseed = 2\n")
+    other_seed = site_copy(tmp_path, "\n[campaign]\nseed = 2\n")
     changed = _campaign("submit", str(other_seed), "--output", str(reference_run), "--cases-scale", SCALE,
                         "--no-progress", check=False)
     assert changed.returncode == 2 and "another configuration" in changed.stderr

@@ -40,7 +40,7 @@ from campaign.sweep_config import load_sweep
 from dimes_velocity.__main__ import main as dimes_main
 from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError
-from fuzz_inputs import refusal_problems, run_main, schema_mutations, snapshot, toml_text
+from fuzz_inputs import refusal_problems, with_value, run_main, schema_mutations, snapshot, toml_text
 from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig
 from campaign.compare_flight import load_flight
@@ -194,27 +194,27 @@ def test_every_schema_violation_of_every_file_is_refused(work, kind):
                            ("empty table", {"scene": {}}), ("no axes", {})]:
             variants.append((f"axes: {what}", {**data, "axes": axes}))
     if kind == "campaign_file":
-        variants += [("campaign.cases: not a class", _with(data, ("campaign", "cases", "gxx"), 3)),
-                     ("site.classes: fractions do not sum to 1", _with(data, ("site", "classes", 0, "ellipse_fraction"), 0.2)),
-                     ("site.classes: duplicate name", _with(data, ("site", "classes", 1, "name"), "gcp")),
+        variants += [("campaign.cases: not a class", with_value(data, ("campaign", "cases", "gxx"), 3)),
+                     ("site.classes: fractions do not sum to 1", with_value(data, ("site", "classes", 0, "ellipse_fraction"), 0.2)),
+                     ("site.classes: duplicate name", with_value(data, ("site", "classes", 1, "name"), "gcp")),
                      ("terrain overrides out of range",
-                      _with(data, ("site", "classes", 1, "terrain", "overrides", "haze_optical_depth"), 9.0)),
-                     ("site.camera: no such file", _with(data, ("site", "camera"), "nowhere/camera.toml")),
-                     ("estimators: a name used twice", _with(data, ("estimators", 1, "name"), "dimes")),
+                      with_value(data, ("site", "classes", 1, "terrain", "overrides", "haze_optical_depth"), 9.0)),
+                     ("site.camera: no such file", with_value(data, ("site", "camera"), "nowhere/camera.toml")),
+                     ("estimators: a name used twice", with_value(data, ("estimators", 1, "name"), "dimes")),
                      ("estimators: reference parameter out of range",
-                      _with(data, ("estimators", 0, "parameters", "min_correlation"), 3.0)),
-                     ("estimators: reference parameter unknown", _with(data, ("estimators", 0, "parameters", "x"), 1)),
-                     ("estimators: callable not importable", _with(data, ("estimators", 1, "callable"), "no.such:f")),
+                      with_value(data, ("estimators", 0, "parameters", "min_correlation"), 3.0)),
+                     ("estimators: reference parameter unknown", with_value(data, ("estimators", 0, "parameters", "x"), 1)),
+                     ("estimators: callable not importable", with_value(data, ("estimators", 1, "callable"), "no.such:f")),
                      ("estimators: command placeholder unknown",
-                      _with(data, ("estimators", 1), {"name": "c", "kind": "command", "argv": ["{python}", "{imgs}"]})),
+                      with_value(data, ("estimators", 1), {"name": "c", "kind": "command", "argv": ["{python}", "{imgs}"]})),
                      ("estimators: program missing",
-                      _with(data, ("estimators", 1), {"name": "c", "kind": "command", "argv": ["/no/such/program"]}))]
+                      with_value(data, ("estimators", 1), {"name": "c", "kind": "command", "argv": ["/no/such/program"]}))]
     if kind == "flight":
         variants += [("class not in the site", {**data, "class": "gxx"}),
-                     ("images out of order", _with(data, ("images", 1, "time_s"), -1.0)),
-                     ("image below ground", _with(data, ("images", 0, "position_m"), [0.0, 0.0, -5.0])),
-                     ("image file missing", _with(data, ("images", 0, "file"), "absent.npy")),
-                     ("image of the wrong shape", _with(data, ("images", 0, "file"), "img.png")),
+                     ("images out of order", with_value(data, ("images", 1, "time_s"), -1.0)),
+                     ("image below ground", with_value(data, ("images", 0, "position_m"), [0.0, 0.0, -5.0])),
+                     ("image file missing", with_value(data, ("images", 0, "file"), "absent.npy")),
+                     ("image of the wrong shape", with_value(data, ("images", 0, "file"), "img.png")),
                      ("column outside the image", {**data, "column": 5000})]
     assert len(variants) >= 30
     for index, (what, bad) in enumerate(variants):
@@ -223,15 +223,6 @@ def test_every_schema_violation_of_every_file_is_refused(work, kind):
             _guard(LOADERS[kind], path, what)
         for main, argv in _file_commands(kind, path):
             refused(work, main, argv, f"{kind} file", what)
-
-
-def _with(data: dict, path: tuple, value) -> dict:
-    data = copy.deepcopy(data)
-    node = data
-    for key in path[:-1]:
-        node = node[key]
-    node[path[-1]] = value
-    return data
 
 
 @FUZZ

@@ -20,6 +20,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from service_campaigns import file_tree, site_copy
 
 from campaign.store import CampaignStore, StoreError
 from campaign.store_files import CASE_FILE, case_file_name, scan_case_files, sha256_bytes, table_bytes, write_case_rows
@@ -46,11 +47,6 @@ def _one_line(text: str) -> str:
     lines = text.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in text, text
     return lines[0]
-
-
-def _tree(root: Path) -> dict:
-    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else None
-            for p in sorted(root.rglob("*"))} if root.exists() else {}
 
 
 def _case_files(store: Path) -> dict[int, Path]:
@@ -189,7 +185,7 @@ def test_a_writer_killed_at_any_instant_leaves_a_verified_file_or_an_ignored_one
 
 def test_corrupt_or_edited_manifest_is_one_line(store):
     (store / "manifest.json").write_text('{"config_hash": "abc", "seed": ')
-    before = _tree(store)
+    before = file_tree(store)
     for command in (["status", store], ["table", store], _submit(store)):
         result = _campaign(*command)
         assert result.returncode == 2, (command, result.stdout, result.stderr)
@@ -197,7 +193,7 @@ def test_corrupt_or_edited_manifest_is_one_line(store):
         assert f"{store / 'manifest.json'}: corrupt: not valid JSON" in line and "--fresh" in line
     verify = _campaign("verify", store)
     assert verify.returncode == 1 and f"{store / 'manifest.json'}: corrupt" in verify.stdout
-    assert _tree(store) == before
+    assert file_tree(store) == before
 
 
 def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, store):
@@ -226,27 +222,23 @@ def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, st
 
 
 def _site_with_seed(directory: Path, seed: int) -> Path:
-    text = SITE.read_text()
-    for relative in ('"cameras/mer_a.toml"', '"trajectories/gusev.parquet"'):
-        text = text.replace(relative, f'"{SITE.parent / relative.strip(chr(34))}"')
-    path = directory / f"gusev-seed{seed}.toml"
-    path.write_text(text + f"\n[campaign]\nseed = {seed}\n")
-    return path
+    """The Gusev campaign with another seed (input paths made absolute so the file can live anywhere)."""
+    return site_copy(directory, f"\n[campaign]\nseed = {seed}\n", name=f"gusev-seed{seed}.toml")
 
 
 def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside(store, tmp_path):
     (store / "manifest.json").unlink()
-    old_tree = _tree(store)
+    old_tree = file_tree(store)
     site = _site_with_seed(tmp_path, 5)
     refused = _campaign(*_submit(store, site=site))
     assert refused.returncode == 2 and "no manifest.json" in _one_line(refused.stderr)
-    assert _tree(store) == old_tree
+    assert file_tree(store) == old_tree
 
     fresh = _campaign(*_submit(store, "--fresh", site=site))
     assert fresh.returncode == 0, fresh.stderr
     previous = [p for p in tmp_path.iterdir() if p.name.startswith("store.previous-")]
     assert len(previous) == 1 and f"moved the previous store aside to {previous[0]}" in fresh.stdout
-    assert _tree(previous[0]) == old_tree, "the old store (examples included) is moved aside intact"
+    assert file_tree(previous[0]) == old_tree, "the old store (examples included) is moved aside intact"
     assert "(3 done, 0 failed this run)" in fresh.stdout
     assert CampaignStore(store).manifest()["seed"] == 5
     assert not set(p.name for p in (store / "cases").iterdir()) & set(p.name for p in (previous[0] / "cases").iterdir())
@@ -257,13 +249,12 @@ def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside
 
 
 def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
-    site = tmp_path / "site.toml"   # the same campaign ([execution] is not hashed), giving up on a scheduler after 2 s
-    site.write_text(SITE.read_text().replace('"cameras/', f'"{SITE.parent}/cameras/')
-                    .replace('"trajectories/', f'"{SITE.parent}/trajectories/') + "\n[execution]\nconnect_timeout_s = 2\n")
-    before = _tree(tmp_path)
+    # the same campaign ([execution] is not hashed), giving up on a scheduler after 2 s
+    site = site_copy(tmp_path, "\n[execution]\nconnect_timeout_s = 2\n", name="site.toml")
+    before = file_tree(tmp_path)
     result = _campaign(*_submit(store, "--fresh", "--scheduler", "tcp://127.0.0.1:9", site=site), timeout=120)
     assert result.returncode == 1 and "127.0.0.1:9" in _one_line(result.stderr), result.stderr
-    after = _tree(tmp_path)
+    after = file_tree(tmp_path)
     assert after.pop("store.lock")[0] == 0, "the lock file beside the store is left released (no holder record)"
     assert after == before, "--fresh moved or changed the store although the cluster was unusable"
 
@@ -291,9 +282,9 @@ def test_same_configuration_hash_with_a_differently_planned_case_is_refused(stor
     manifest, plan = campaign.manifest(), campaign.plan()
     moved_id = int(plan["case_id"].iloc[1])
     moved = plan.assign(offset_east_m=plan["offset_east_m"] + (plan["case_id"] == moved_id) * 1.0)
-    before = _tree(store)
+    before = file_tree(store)
     with pytest.raises(StoreError) as refused:
         campaign.prepare(manifest, moved)
     message = str(refused.value)
     assert "\n" not in message and f"case {moved_id} has offset_east_m" in message
-    assert _tree(store) == before, "a refused plan is not recorded"
+    assert file_tree(store) == before, "a refused plan is not recorded"

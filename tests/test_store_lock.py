@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+from service_campaigns import file_tree, site_copy
 
 from campaign.store import CampaignStore
 
@@ -44,19 +45,9 @@ def _submit(out: Path, *extra, site: Path = SITE) -> list:
     return ["submit", site, "--output", out, "--cases-scale", SCALE, "--workers", "1", "--no-progress", *extra]
 
 
-def _tree(root: Path) -> dict:
-    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else None
-            for p in sorted(root.rglob("*"))} if root.exists() else {}
-
-
 def _site_with_seed(directory: Path, seed: int) -> Path:
     """The Gusev campaign with another seed (input paths made absolute so the file can live anywhere)."""
-    text = SITE.read_text()
-    for relative in ('"cameras/mer_a.toml"', '"trajectories/gusev.parquet"'):
-        text = text.replace(relative, f'"{SITE.parent / relative.strip(chr(34))}"')
-    path = directory / f"gusev-seed{seed}.toml"
-    path.write_text(text + f"\n[campaign]\nseed = {seed}\n")
-    return path
+    return site_copy(directory, f"\n[campaign]\nseed = {seed}\n", name=f"gusev-seed{seed}.toml")
 
 
 @pytest.fixture()
@@ -117,11 +108,11 @@ def test_fresh_while_another_writer_holds_the_lock_changes_nothing(tmp_path, hol
     (out / "examples").mkdir()
     (out / "examples" / "gcp-case000000-image1.png").write_bytes(b"png")
     holder(out)
-    before = _tree(tmp_path)
+    before = file_tree(tmp_path)
     result = _campaign(*_submit(out, "--fresh"))
     assert result.returncode == 1 and len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert "another writer holds its lock" in result.stderr
-    assert _tree(tmp_path) == before, "--fresh changed something while another writer held the lock"
+    assert file_tree(tmp_path) == before, "--fresh changed something while another writer held the lock"
 
 
 def test_two_submits_of_different_configurations_at_once_accept_one(tmp_path):
@@ -153,10 +144,10 @@ def test_sweep_takes_the_lock_of_each_point_store(tmp_path, holder):
     out = tmp_path / "sweep-out"
     points = load_sweep(sweep, output_dir=out).points
     process = holder(points[1].config.output_dir)
-    before = {path: stat for path, stat in _tree(out).items() if not path.endswith(".lock")}
+    before = {path: stat for path, stat in file_tree(out).items() if not path.endswith(".lock")}
     result = _campaign("sweep", sweep, "--output", out, "--workers", "1", "--no-progress")
     assert result.returncode == 1, result.stdout + result.stderr
     line = result.stderr.strip()
     assert len(line.splitlines()) == 1 and str(points[1].config.output_dir) in line and f"pid {process.pid}" in line
-    after = {path: stat for path, stat in _tree(out).items() if not path.endswith(".lock")}
+    after = {path: stat for path, stat in file_tree(out).items() if not path.endswith(".lock")}
     assert after == before, "the sweep wrote a point store while it was locked by another writer"
