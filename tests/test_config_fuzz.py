@@ -327,7 +327,7 @@ def test_bad_campaign_flags(work, command, flag, data):
 
 
 @FUZZ
-@given(command=st.sampled_from(["status", "table", "report", "camera", "schema"]),
+@given(command=st.sampled_from(["status", "table", "report", "verify", "camera", "schema"]),
        target=st.sampled_from(["absent", "a file", "an empty directory", "a directory of other files", "no argument",
                                "two arguments", "unknown flag", "text"]), text=st.text(max_size=20).filter(lambda t: "\x00" not in t))
 def test_bad_store_camera_and_schema_arguments(work, command, target, text):
