@@ -105,11 +105,8 @@ def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | 
 def compact_after_stop(store: CampaignStore) -> str:
     """Compact the finished cases of a stopped run; "" or the reason it could not (e.g. the disk is full)."""
     try:
-        store.compact()
+        store.compact()                 # a failed write removes its own temporary file (store_files)
     except OSError as exc:
-        for name in (store.results_path.name, store.timings_path.name):   # what compact's failed write left
-            for temporary in store.root.glob(f".tmp-*-{name}"):
-                temporary.unlink(missing_ok=True)
         return f" (results.parquet not rewritten: {exc.strerror or type(exc).__name__})"
     return ""
 

@@ -31,9 +31,9 @@ import numpy as np
 
 from simulator.scene.descent_profile import DescentProfile
 
-from .faults import InfrastructureError, describe, is_infrastructure
 from .error_budget import attitude_floor_mps
-from .store import write_case_rows
+from .faults import InfrastructureError, describe, is_infrastructure
+from .store_files import write_case_rows
 
 _WORKER_RESOURCES: dict[str, "Resources"] = {}
 IMAGE_COUNT = 3

@@ -22,7 +22,6 @@ from dask.distributed import Client
 from distributed.comm.core import CommClosedError
 
 from .case import CampaignContext, execute_case
-from .cluster import connected_client, start_cluster
 from .execution_config import ExecutionConfig
 from .faults import CASE_MEMORY_MIB, InfrastructureError, RunStopped
 from .progress import ProgressBar
@@ -33,8 +32,7 @@ SCHEDULER_POLL_S = 1.0    # the scheduler's worker list, asked this often
 SCHEDULER_CALL_TIMEOUT_S = 20.0
 LOST_CONNECTION_GRACE_S = 10.0   # the client reconnects by itself within this time, or the scheduler is lost
 
-__all__ = ["CaseTask", "RunSummary", "Watch", "connected_client", "run_cases", "start_client", "submit_cases",
-           "wait_for_cases"]
+__all__ = ["CaseTask", "RunSummary", "Watch", "run_cases", "submit_cases", "wait_for_cases"]
 
 
 @dataclass(frozen=True)
@@ -78,14 +76,6 @@ class Watch:
         if self.cluster == "kubernetes":
             return "raise [execution.kubernetes] memory"
         return "start the workers with a larger --memory-limit"
-
-
-def start_client(scheduler: str | None, workers: int | None, memory_limit: str = "1.5GiB",
-                 quiet: bool = False) -> tuple[Client, object | None]:
-    """A client on ``scheduler``, or on an embedded LocalCluster of ``workers`` processes (see
-    :func:`campaign.cluster.start_cluster` for every backend)."""
-    execution = ExecutionConfig(memory_limit=memory_limit).with_overrides(scheduler, workers)
-    return start_cluster(execution, quiet)
 
 
 def submit_cases(client: Client, context: CampaignContext, rows: list[dict], store: CampaignStore) -> list[CaseTask]:

@@ -36,14 +36,12 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from .store_files import (CASE_FILE, CaseScan, atomic_write_bytes, atomic_write_table, case_file_name,  # noqa: F401
-                          fsync_directory, scan_case_files, sha256_bytes, sha256_file, table_bytes, write_case_rows)
-from .store_lock import StoreBusy, StoreLock, lock_path_for  # noqa: F401
+from .store_files import (CaseScan, atomic_write_bytes, atomic_write_table, fsync_directory, scan_case_files,
+                          sha256_bytes, sha256_file)
+from .store_lock import StoreLock, lock_path_for
 
 TIMING_COLUMNS = ("worker", "t_scene_ms", "t_camera_ms", "t_sensors_ms", "t_estimator_ms", "t_case_ms", "attempts")
 FRESH_HINT = "`campaign submit --fresh` moves this store aside (DIR.previous-<UTC time>) and starts afresh"
-# compatibility with modules that import the private names
-_atomic_write_bytes, _atomic_write_table, _fsync_directory = atomic_write_bytes, atomic_write_table, fsync_directory
 
 
 class StoreError(RuntimeError):
@@ -119,7 +117,8 @@ class CampaignStore:
         self._verified: dict[str, tuple[int, int, int]] = {}   # case files this object has verified
 
     def lock(self, wait: bool = False, on_wait=None) -> StoreLock:
-        """The store's writer lock (a context manager; :class:`StoreBusy` when held elsewhere and not ``wait``)."""
+        """The store's writer lock (a context manager; :class:`~campaign.store_lock.StoreBusy` when held
+        elsewhere and not ``wait``)."""
         return StoreLock(self.root, wait=wait, on_wait=on_wait)
 
     # --- identity: manifest and plan ----------------------------------------------------------
@@ -279,18 +278,24 @@ class CampaignStore:
         """case_id -> 'ok' or 'failed' for every verified case file (works during a run and after a crash)."""
         return {case_id: case.state for case_id, case in self.scan().cases.items()}
 
+    def planned_case_ids(self) -> set[int]:
+        """The case ids of the verified plan."""
+        return set(self.plan()["case_id"].astype(int))
+
     def status(self) -> CaseStatus:
-        planned = set(self.plan()["case_id"].astype(int))
+        planned = self.planned_case_ids()
         scan = self.scan()
         counted = [case for case_id, case in scan.cases.items() if case_id in planned]
         failed = sum(1 for case in counted if case.state == "failed")
         return CaseStatus(planned=len(planned), done=len(counted) - failed, failed=failed, bad=len(scan.bad),
                           outside_plan=len(scan.cases) - len(counted))
 
-    def read_case_rows(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None) -> pd.DataFrame:
-        """The rows of the verified case files of the planned cases (of ``case_ids`` if given), by case_id."""
+    def read_case_rows(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
+                       planned: set[int] | None = None) -> pd.DataFrame:
+        """The rows of the verified case files of the planned cases (of ``case_ids`` if given), by case_id
+        (``scan`` and ``planned``: already read by the caller)."""
         scan = self.scan() if scan is None else scan
-        wanted = set(self.plan()["case_id"].astype(int)) & set(scan.cases)
+        wanted = (self.planned_case_ids() if planned is None else planned) & set(scan.cases)
         if case_ids is not None:
             wanted &= {int(case_id) for case_id in case_ids}
         tables = [pq.read_table(scan.cases[case_id].path) for case_id in sorted(wanted)]
@@ -299,28 +304,25 @@ class CampaignStore:
         return pa.concat_tables(tables, promote_options="permissive").to_pandas()
 
     # --- compaction ----------------------------------------------------------------------------
-    def _fingerprint(self, scan: CaseScan) -> str:
-        return scan.fingerprint(set(self.plan()["case_id"].astype(int)))
-
     def compact(self) -> pd.DataFrame:
         """Write results.parquet (deterministic columns, sorted by case_id), timings.parquet and their record
         results.json, from the verified case files of the planned cases."""
-        scan = self.scan()
-        rows = self.read_case_rows(scan=scan)
+        scan, planned = self.scan(), self.planned_case_ids()
+        rows = self.read_case_rows(scan=scan, planned=planned)
         if rows.empty:
             return rows
         rows = rows.sort_values("case_id", kind="stable").reset_index(drop=True)
         keys = ["case_id"] + (["estimator"] if "estimator" in rows.columns else [])
         timing_columns = keys + [column for column in TIMING_COLUMNS if column in rows.columns]
         results = rows.drop(columns=[column for column in TIMING_COLUMNS if column in rows.columns])
-        record = {"case_files_sha256": self._fingerprint(scan), "cases": int(results["case_id"].nunique()),
+        record = {"case_files_sha256": scan.fingerprint(planned), "cases": int(results["case_id"].nunique()),
                   "results_sha256": atomic_write_table(self.results_path, pa.Table.from_pandas(results, preserve_index=False)),
                   "timings_sha256": atomic_write_table(self.timings_path,
                                                        pa.Table.from_pandas(rows[timing_columns], preserve_index=False))}
         atomic_write_bytes(self.results_record_path, json.dumps(record, indent=2, sort_keys=True).encode())
         return results
 
-    def results_problem(self, scan: CaseScan | None = None) -> str | None:
+    def results_problem(self, scan: CaseScan | None = None, planned: set[int] | None = None) -> str | None:
         """Why results.parquet cannot be trusted (None: it matches the verified case files of the plan)."""
         if not self.results_path.exists():
             return "missing"
@@ -331,14 +333,15 @@ class CampaignStore:
             return "no valid record in results.json, so it cannot be verified"
         if sha256_file(self.results_path) != recorded[0]:
             return "corrupted: its sha256 differs from the one recorded in results.json"
-        if self._fingerprint(self.scan() if scan is None else scan) != recorded[1]:
+        scan = self.scan() if scan is None else scan
+        if scan.fingerprint(self.planned_case_ids() if planned is None else planned) != recorded[1]:
             return "out of date: compacted from other case files than the verified ones now in cases/"
         return None
 
     def results(self) -> pd.DataFrame:
         """The compacted results if they match the verified case files, else the rows read from those files."""
-        scan = self.scan()
-        if self.results_problem(scan) is None:
+        scan, planned = self.scan(), self.planned_case_ids()
+        if self.results_problem(scan, planned) is None:
             return pd.read_parquet(self.results_path)
-        rows = self.read_case_rows(scan=scan)
+        rows = self.read_case_rows(scan=scan, planned=planned)
         return rows.drop(columns=[c for c in TIMING_COLUMNS if c in rows.columns]) if not rows.empty else rows

@@ -47,7 +47,7 @@ def verify_store(root: str | Path) -> Verification:
         if plan_problem is not None:
             result.problems.append((store.plan_path, plan_problem))
         else:
-            planned = set(store.plan()["case_id"].astype(int))
+            planned = store.planned_case_ids()
     result.problems += scan.bad
     result.notes += [f"{path}: {reason} (not counted)" for path, reason in scan.superseded]
     result.notes += [f"{path}: temporary file of an interrupted writer (ignored)" for path in scan.temporary]
@@ -58,7 +58,7 @@ def verify_store(root: str | Path) -> Verification:
             result.notes.append(f"{store.cases_dir}: {len(outside)} verified case files of cases outside the plan "
                                 f"(kept, not counted), e.g. {scan.cases[outside[0]].path.name}")
         if store.results_path.exists() or store.results_record_path.exists():
-            results_problem = store.results_problem(scan)
+            results_problem = store.results_problem(scan, planned)
             if results_problem is not None:
                 result.problems.append((store.results_path, results_problem))
     if store.rejected_dir.is_dir():

@@ -42,7 +42,8 @@ from .case import CampaignContext
 from .cluster import connected_client, require_backend
 from .faults import RunStopped
 from .runner import Watch, submit_cases, wait_for_cases
-from .store import CampaignStore, StoreError, _atomic_write_bytes, _atomic_write_table
+from .store import CampaignStore, StoreError
+from .store_files import atomic_write_bytes, atomic_write_table
 from .sweep_config import SweepSpec, Tolerances
 
 @dataclass(frozen=True)
@@ -63,17 +64,13 @@ def prepare_points(spec: SweepSpec) -> list[tuple]:
     prepared = []
     for point in spec.points:
         config = point.config
+        # the plan depends only on the site, seed and case counts: plan once per distinct triple
+        key = (config.seed, tuple(sorted(config.cases_per_class.items())))
+        if key not in plans:
+            plans[key] = plan_campaign(config)[1]
         store = CampaignStore(config.output_dir)
-        manifest = store.manifest()                       # StoreError (one line) when corrupt
-        if manifest is None or manifest.get("config_hash") != config.config_hash or store._plan_problem(manifest):
-            # the plan depends only on the site, seed and case counts: plan once per distinct triple
-            key = (config.seed, tuple(sorted(config.cases_per_class.items())))
-            if key not in plans:
-                plans[key] = plan_campaign(config)[1]
-            store.prepare({**manifest_for(config), "sweep_file": str(spec.source), "sweep_point": point.values},
-                          plans[key])
-        else:
-            store.reject_bad_files()
+        # creates the store, or checks it and brings it up to date (another case count, a bad plan, bad case files)
+        store.prepare({**manifest_for(config), "sweep_file": str(spec.source), "sweep_point": point.values}, plans[key])
         finished = store.finished_case_ids()
         todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
         prepared.append((point, store, todo))
@@ -193,14 +190,14 @@ def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
     out.mkdir(parents=True, exist_ok=True)
     results = sweep_results(spec)
     if not results.empty:
-        _atomic_write_table(out / "results.parquet", pa.Table.from_pandas(results, preserve_index=False))
+        atomic_write_table(out / "results.parquet", pa.Table.from_pandas(results, preserve_index=False))
     table = sensitivity_table(spec, results)
     description = sweep_description(spec)
-    _atomic_write_bytes(out / "sweep.json", json.dumps(description, indent=2).encode())
+    atomic_write_bytes(out / "sweep.json", json.dumps(description, indent=2).encode())
     cases = {name: count for name, count in spec.base.cases_per_class.items()}
     heading = (f"Sweep {spec.source} on {spec.base.site.name} ({spec.mode}, {len(spec.points)} points, "
                f"cases per point {cases}, seed {spec.base.seed})")
-    _atomic_write_bytes(out / "sensitivity.md", f"{heading}\n\n{format_sensitivity(spec, table, markdown=True)}\n".encode())
+    atomic_write_bytes(out / "sensitivity.md", f"{heading}\n\n{format_sensitivity(spec, table, markdown=True)}\n".encode())
     table.to_csv(out / "sensitivity.csv", index=False)
     write_sweep_plots(spec, table, out / "plots")
     return table, f"{heading}\n{format_sensitivity(spec, table)}"

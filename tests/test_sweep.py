@@ -89,9 +89,10 @@ def test_command_line_exit_code_and_bad_baseline(tmp_path):
 # --- runs on a real cluster -------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scheduler():
-    from campaign.runner import start_client
+    from campaign.cluster import start_cluster
+    from campaign.execution_config import ExecutionConfig
 
-    client, cluster = start_client(None, 2, quiet=True)
+    client, cluster = start_cluster(ExecutionConfig(workers=2), quiet=True)
     yield client.scheduler.address
     client.close()
     cluster.close()
