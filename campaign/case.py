@@ -177,7 +177,7 @@ def execute_case(context: CampaignContext, row: dict) -> str:
     Only an exception of the case's own computation (:func:`simulate_case`) is retried and then recorded
     ``failed``. A storage error (``OSError`` such as ENOSPC, EDQUOT, EROFS, EIO) or ``MemoryError``, in
     the computation or while writing the case file, is the machine's fault: nothing is recorded, the
-    case's temporary files are removed and :class:`~campaign.faults.InfrastructureError` is raised (the
+    writes remove their own temporary files and :class:`~campaign.faults.InfrastructureError` is raised (the
     driver stops the run; the next submit runs the case again)."""
     config = context.config
     case_id = int(row["case_id"])
@@ -192,7 +192,6 @@ def execute_case(context: CampaignContext, row: dict) -> str:
             break
         except Exception as exc:  # the case's own failure is recorded in its rows; the campaign goes on
             if is_infrastructure(exc):
-                _remove_temporaries(Path(context.store_root), case_id)
                 raise InfrastructureError(describe(exc, case_id, "computing", worker, context.store_root)) from None
             where = [line.strip() for line in traceback.format_exc().splitlines() if line.strip().startswith("File ")]
             error = f"{type(exc).__name__}: {exc} | {where[-1] if where else ''}"
@@ -206,22 +205,9 @@ def execute_case(context: CampaignContext, row: dict) -> str:
     records = [{**common, **result} for result in results]
     try:
         write_case_rows(Path(context.store_root) / "cases", case_id, records, ok=status == "ok")
-    except (OSError, MemoryError) as exc:
-        _remove_temporaries(Path(context.store_root), case_id)
+    except (OSError, MemoryError) as exc:       # the failed write removed its own temporary file
         raise InfrastructureError(describe(exc, case_id, "writing its result", worker, context.store_root)) from None
     return status
-
-
-def _remove_temporaries(store_root: Path, case_id: int) -> None:
-    """Remove the temporary files a failed write of case ``case_id`` (or of this process's example
-    images) left in the store."""
-    patterns = ((store_root / "cases", f".tmp-{case_id:06d}-*"), (store_root / "examples", f".tmp-{os.getpid()}-*"))
-    for directory, pattern in patterns:
-        try:
-            for path in directory.glob(pattern):
-                path.unlink(missing_ok=True)
-        except OSError:
-            pass
 
 
 def plan_fields(row: dict, seed: int) -> dict:
@@ -365,5 +351,9 @@ def _save_examples(store_root: Path, row: dict, images: list[np.ndarray]) -> Non
     for index, image in enumerate(images):
         target = directory / f"{row['class_name']}-case{int(row['case_id']):06d}-image{index + 1}.png"
         temporary = directory / f".tmp-{os.getpid()}-{target.name}"
-        save_descent_image(image, temporary)
-        os.replace(temporary, target)
+        try:
+            save_descent_image(image, temporary)
+            os.replace(temporary, target)
+        except BaseException:                  # e.g. a full disk: leave no temporary file behind
+            temporary.unlink(missing_ok=True)
+            raise
