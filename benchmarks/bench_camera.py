@@ -7,7 +7,8 @@ import numpy as np
 
 from benchmarks.timing import median_ms
 from flight_interface.camera import load_camera
-from simulator.detector.camera_chain import RadianceFields, render_image
+from simulator.detector.camera_chain import render_image
+from simulator.fields import RadianceFields
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
 

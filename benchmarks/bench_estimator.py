@@ -21,7 +21,7 @@ from simulator.scene.descent_profile import constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
 from simulator.scene.terrain import Terrain
 from simulator.sensors import SensorConfig, measure
-from sitedata.synthetic_terrain import synthetic_terrain
+from sitedata.terrain.synthetic_terrain import synthetic_terrain
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
 TIMES_S = np.array([0.0, 275.0 / 72.0, 550.0 / 72.0])

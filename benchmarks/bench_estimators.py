@@ -1,7 +1,7 @@
 """Several estimators per case: rendering happens once, each extra estimator costs only its own time.
 
 A fixed set of Gusev cases (one or two per class, the campaign's seeds and fidelity) is run the way a
-campaign worker runs it (:func:`campaign.case.simulate_case`), once with the reference estimator alone
+campaign worker runs it (:func:`campaign.run.case.simulate_case`), once with the reference estimator alone
 (``sitedata/gusev.toml``) and once with the reference plus the phase-correlation example
 (``sitedata/examples/compare_estimators.toml``), and, on the same case inputs, the rendering alone and
 each estimator alone. Times are process CPU ms (one thread; less sensitive to other load on the
@@ -23,8 +23,8 @@ REPEATS = 3
 
 
 def _resources(path: Path):
-    from campaign.campaign_run import plan_campaign
-    from campaign.config import load_campaign_config
+    from campaign.run.orchestrate import plan_campaign
+    from campaign.configuration.campaign_file import load_campaign_config
 
     config = load_campaign_config(path, cases_scale=0.011)          # gcp 2, gdcp 1, gkep 1
     resources, plan = plan_campaign(config)
@@ -41,7 +41,7 @@ def _timed(function, *args):
 
 
 def run() -> list[dict]:
-    from campaign.case import simulate_case, simulate_case_inputs
+    from campaign.run.case import simulate_case, simulate_case_inputs
     from estimators.contract import EstimatorInputs
 
     single, plan = _resources(REPO / "sitedata" / "gusev.toml")

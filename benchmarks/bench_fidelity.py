@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.fidelity import PRESETS, preset_config
+from simulator.fidelity import PRESETS
+from simulator.scene_config import preset_config
 
 REPO = Path(__file__).resolve().parents[1]
 CASES_PER_CLASS = 2
@@ -22,8 +23,8 @@ TIMING_REPEATS = 3
 
 
 def _cases():
-    from campaign.campaign_run import plan_campaign
-    from campaign.config import load_campaign_config
+    from campaign.run.orchestrate import plan_campaign
+    from campaign.configuration.campaign_file import load_campaign_config
 
     config = load_campaign_config(REPO / "sitedata" / "gusev.toml")
     resources, plan = plan_campaign(config)
@@ -34,7 +35,7 @@ def _cases():
 def _render_case(resources, row, scene_config):
     """The case's three images (the campaign's seeds, with ``scene_config``) and its estimate:
     (images, velocity or None, render + sensors seconds, estimator seconds)."""
-    from campaign.case import simulate_case_inputs
+    from campaign.run.case import simulate_case_inputs
     from dimes_velocity.estimator import estimate_velocity
 
     started = time.perf_counter()

@@ -12,7 +12,7 @@
     campaign schema [T]    print the JSON Schema of every configuration table, or of table T
 
 Exit codes: 0 success (every case done), 1 cases failed or missing, a run stopped (one line naming the
-cause and the fix: campaign.faults), a sweep regressed, another writer holds the store's lock (one line
+cause and the fix: campaign.run.faults), a sweep regressed, another writer holds the store's lock (one line
 naming it; ``--wait`` waits instead) or ``verify`` found bad files, 2 usage or configuration
 error (one clear line on stderr, nothing written). Command-line values (--cases-scale, --workers,
 --scheduler) are validated against the same declarations as the TOML fields, before anything is written.
@@ -27,6 +27,23 @@ from pathlib import Path
 
 from flight_interface.command_line import USAGE_ERROR, OneLineParser as _Parser
 from flight_interface.tomlfields import ConfigError, parse_field
+from campaign.configuration.execution import ExecutionConfig
+from flight_interface.camera import load_camera
+from campaign.configuration.campaign_file import load_campaign_config
+from campaign.run.orchestrate import submit
+from campaign.store.campaign_store import CampaignStore
+from campaign.run.orchestrate import plan_campaign, write_plan_maps
+from campaign.store.verify import verify_store
+from campaign.run.orchestrate import write_table
+from campaign.report.markdown import write_report
+from campaign.run.sweep import compare_to_baseline, read_baseline, run_sweep, write_outputs
+from campaign.configuration.sweep_file import load_sweep
+from campaign.realism.compare_flight import compare, load_flight, summary_lines
+from campaign.configuration.schemas import all_schemas, table_schema
+from campaign.configuration.schemas import SCHEMA_TABLES
+from campaign.run.faults import RunStopped
+from campaign.store.campaign_store import StoreError
+from campaign.store.lock import StoreBusy
 
 COMMAND_LINE = "command line"
 RUN_INCOMPLETE = 1      # exit code: cases failed, a run stopped, or a regression
@@ -34,7 +51,6 @@ RUN_INCOMPLETE = 1      # exit code: cases failed, a run stopped, or a regressio
 
 def _check_cluster_flags(args) -> None:
     """--workers and --scheduler against the [execution] declarations (before anything is loaded or written)."""
-    from .execution_config import ExecutionConfig
 
     for flag, field in (("--workers", "workers"), ("--scheduler", "scheduler")):
         value = getattr(args, field, None)
@@ -43,7 +59,6 @@ def _check_cluster_flags(args) -> None:
 
 
 def _cmd_camera(args) -> int:
-    from flight_interface.camera import load_camera
 
     camera = load_camera(args.file)
     horizontal, vertical = camera.fov_deg()
@@ -61,7 +76,6 @@ def _check_directory(path, what: str) -> None:
 
 
 def _load(args):
-    from .config import load_campaign_config
 
     _check_cluster_flags(args)
     _check_directory(getattr(args, "output", None), "--output")
@@ -73,8 +87,6 @@ def _load(args):
 
 
 def _cmd_submit(args) -> int:
-    from .campaign_run import submit
-    from .store import CampaignStore
 
     start = time.perf_counter()
     config = _load(args)
@@ -88,7 +100,6 @@ def _cmd_submit(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    from .campaign_run import plan_campaign, write_plan_maps
 
     config = _load(args)
     resources, plan = plan_campaign(config)
@@ -104,7 +115,6 @@ def _cmd_plan(args) -> int:
 
 
 def _cmd_status(args) -> int:
-    from .store import CampaignStore
 
     status = CampaignStore(args.dir).status()
     print(f"{args.dir}: {status.planned} planned, {status.done} done, {status.failed} failed, {status.missing} missing")
@@ -117,7 +127,6 @@ def _cmd_status(args) -> int:
 
 
 def _cmd_verify(args) -> int:
-    from .store_verify import verify_store
 
     result = verify_store(args.dir)
     for path, problem in result.problems:
@@ -134,14 +143,12 @@ def _cmd_verify(args) -> int:
 
 
 def _cmd_table(args) -> int:
-    from .campaign_run import write_table
 
     print(write_table(Path(args.dir)))
     return 0
 
 
 def _cmd_report(args) -> int:
-    from .report import write_report
 
     path = write_report(Path(args.dir))
     print(f"wrote {path}")
@@ -149,8 +156,6 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from .sweep import compare_to_baseline, read_baseline, run_sweep, write_outputs
-    from .sweep_config import load_sweep
 
     start = time.perf_counter()
     _check_cluster_flags(args)
@@ -178,7 +183,6 @@ def _cmd_sweep(args) -> int:
 
 
 def _cmd_compare_flight(args) -> int:
-    from .compare_flight import compare, load_flight, summary_lines
 
     _check_directory(args.out, "--out")
     spec = load_flight(args.file, output_dir=args.out, column=args.column)   # validates everything, writes nothing
@@ -191,7 +195,6 @@ def _cmd_compare_flight(args) -> int:
 
 
 def _cmd_schema(args) -> int:
-    from .schemas import all_schemas, table_schema
 
     print(json.dumps(table_schema(args.table) if args.table else all_schemas(), indent=2))
     return 0
@@ -227,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
         command.add_argument("dir")
         command.set_defaults(handler=handler)
 
-    sweep = commands.add_parser("sweep", help="run a sensitivity sweep (see campaign/sweep_config.py)")
+    sweep = commands.add_parser("sweep", help="run a sensitivity sweep (see campaign/configuration/sweep_file.py)")
     sweep.add_argument("file")
     sweep.add_argument("--output", help="output directory (default: [sweep] output_dir)")
     sweep.add_argument("--baseline", help="a previous sweep's output directory; exit 1 on a regression")
@@ -238,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.set_defaults(handler=_cmd_sweep)
 
     flight = commands.add_parser("compare-flight", help="compare real descent images with the simulator's view "
-                                 "(see campaign/compare_flight.py)")
+                                 "(see campaign/realism/compare_flight.py)")
     flight.add_argument("file", help="FLIGHT.toml: site, class, images with their times and poses")
     flight.add_argument("--out", help="output directory (default: output_dir in the file, else runs/compare-flight)")
     flight.add_argument("--column", type=int, help="raw image column of the profile and scatter (default 512)")
@@ -248,7 +251,6 @@ def build_parser() -> argparse.ArgumentParser:
     camera.add_argument("file")
     camera.set_defaults(handler=_cmd_camera)
 
-    from .schemas import SCHEMA_TABLES
 
     schema = commands.add_parser("schema", help="print the JSON Schema of the configuration tables (for editors)")
     schema.add_argument("table", nargs="?", choices=tuple(SCHEMA_TABLES),
@@ -258,9 +260,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .faults import RunStopped
-    from .store import StoreError
-    from .store_lock import StoreBusy
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -9,7 +9,7 @@ diagnostics out. See :mod:`dimes_velocity.estimator` for the steps and
     result = DimesEstimator(camera).estimate([dn1, dn2, dn3], measurements)
 
 Image files (PNG, TIFF, .npy, raw, PDS3, VICAR, ISIS3; full frames binned as on chip; bit depth
-declared, never guessed) are read by :mod:`dimes_velocity.image_files`.
+declared, never guessed) are read by :mod:`file_formats.descent_images`.
 
 The flight DIMES logic followed
 -------------------------------
@@ -39,10 +39,10 @@ no pixel required per pair (flight: two per pair, checked across pairs); the dis
 prior's circle; a residual consistent with the templates' noise; matches that do not move in the raw
 image refused as marks on the optics; a stated uncertainty with every valid velocity.
 """
-from .config import EstimatorConfig, estimator_config_from_data
-from .estimator import DimesEstimator, estimate_velocity
+from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
+from dimes_velocity.estimator import DimesEstimator, estimate_velocity
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError
-from .result import REASONS, FeatureMetrics, PairResult, StageTimings, VelocityEstimate
+from dimes_velocity.result import REASONS, FeatureMetrics, PairResult, StageTimings, VelocityEstimate
 
 __all__ = [
     "DimesEstimator", "estimate_velocity", "EstimatorConfig", "estimator_config_from_data", "DescentMeasurements",

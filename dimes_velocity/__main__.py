@@ -14,7 +14,7 @@ Usage::
 
 Images are PNG, TIFF, .npy, raw, PDS3, VICAR or ISIS3, binned (256 x 1024 for MER) or full frame
 (1024 x 1024, binned here as on chip); the rules (shapes, bit depth, DN scale) are in
-:mod:`dimes_velocity.image_files`, the measurements schema in :mod:`dimes_velocity.files`. The
+:mod:`file_formats.descent_images`, the measurements schema in :mod:`file_formats.measurements_json`. The
 result (see :class:`dimes_velocity.result.VelocityEstimate`) is printed as JSON with an ``inputs``
 list saying how each file was read. Bad input prints one line naming the file and what to add or
 change to stderr and exits with status 2. Legal inputs the estimator cannot trust (e.g. a sun at or
@@ -25,15 +25,17 @@ from __future__ import annotations
 import json
 import sys
 
-from flight_interface.calibration import CalibrationError, flat_field_next_to, load_flat_field
+from file_formats.flat_field_files import flat_field_next_to, load_flat_field
+from flight_interface.calibration import CalibrationError
 from flight_interface.camera import load_camera
 from flight_interface.measurements import MeasurementError
 from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.tomlfields import ConfigError, load_toml
 
-from .config import EstimatorConfig, estimator_config_from_data
-from .estimator import DimesEstimator
-from .files import ImageDeclaration, InputFileError, load_measurements, read_descent_image
+from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
+from dimes_velocity.estimator import DimesEstimator
+from file_formats.descent_images import ImageDeclaration, InputFileError, read_descent_image
+from file_formats.measurements_json import load_measurements
 
 PROG = "python -m dimes_velocity"
 

@@ -36,15 +36,14 @@ import numpy as np
 
 from flight_interface.camera import Camera
 
-from . import geometry
-from .config import EstimatorConfig
-from .features import FeatureSelector, interest_map
-from .matching import match_template
+from dimes_velocity import geometry
+from dimes_velocity.config import EstimatorConfig
+from dimes_velocity.features import FeatureSelector, interest_map
+from dimes_velocity.matching import match_template
 from flight_interface.measurements import DescentMeasurements, MeasurementError, validate_measurements
-from .preprocess import FlatImage, flatten, make_flattening
-from .result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
-from .solution import (combine_pairs, consensus, displacement_standard_error, velocity_uncertainty,
-                       weighted_displacement)
+from dimes_velocity.preprocess import FlatImage, flatten, make_flattening
+from dimes_velocity.result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
+from dimes_velocity.solution import combine_pairs, consensus, displacement_standard_error, velocity_uncertainty, weighted_displacement
 
 
 MAX_BLUR_PX = 8.0   # cap on the resolution-equalising blur (images from very different altitudes)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .config import EstimatorConfig
+from dimes_velocity.config import EstimatorConfig
 
 
 @dataclass(frozen=True)

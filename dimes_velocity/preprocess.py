@@ -35,7 +35,7 @@ from scipy.signal import lfilter
 from flight_interface.calibration import readout_flat_field
 from flight_interface.camera import Camera
 
-from .config import EstimatorConfig
+from dimes_velocity.config import EstimatorConfig
 
 
 @dataclass(frozen=True)

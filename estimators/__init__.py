@@ -9,6 +9,6 @@
 
 Like :mod:`dimes_velocity`, this package imports nothing from :mod:`simulator` or :mod:`campaign`.
 """
-from .contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
+from estimators.contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
 
 __all__ = ["ContractViolation", "EstimatorInputs", "EstimatorOutput", "validate_output"]

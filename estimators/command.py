@@ -8,7 +8,7 @@ Placeholders (each a whole argument or part of one)
 ----------------------------------------------------
 ``{images}``        the image files in time order, as separate arguments (only as a whole argument)
 ``{image1}`` ...    one image file (``{image1}``, ``{image2}``, ``{image3}``)
-``{measurements}``  measurements JSON (schema: :mod:`dimes_velocity.files`)
+``{measurements}``  measurements JSON (schema: :mod:`file_formats.measurements_json`)
 ``{output}``        where the program must write its result JSON
 ``{camera}``        the camera TOML (absolute path)
 ``{flat_field}``    the flat-field file (``flat_field_format``), or ``none`` when there is none
@@ -39,9 +39,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from flight_interface.calibration import save_flat_field
+from file_formats.flat_field_files import save_flat_field
 
-from .contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
+from estimators.contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
+from file_formats.measurements_json import measurements_to_dict
 
 PLACEHOLDER = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
 NAMES = ("images", "measurements", "output", "camera", "flat_field", "parameters", "workdir", "python")
@@ -65,7 +66,6 @@ def check_template(argv: list[str]) -> str:
 
 def write_inputs(directory: Path, inputs: EstimatorInputs, image_format: str, flat_field_format: str) -> dict:
     """Write a case's inputs into ``directory``; return the placeholder values (paths as strings)."""
-    from dimes_velocity.files import measurements_to_dict
 
     images = []
     for index, image in enumerate(inputs.images, start=1):

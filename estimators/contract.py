@@ -15,7 +15,7 @@ Inputs (:class:`EstimatorInputs`)
     :class:`flight_interface.measurements.DescentMeasurements`: per image the measured attitude
     (lander body-to-world quaternion w, x, y, z), angular rate, radar altitude, IMU velocity (biased)
     and optionally IMU position and predicted heat-shield offset; the sun direction. World frame x
-    east, y north, z up. As JSON: the schema in :mod:`dimes_velocity.files`.
+    east, y north, z up. As JSON: the schema in :mod:`file_formats.measurements_json`.
 ``camera``
     :class:`flight_interface.camera.Camera`: the camera model as designed (CAHVOR, mounting, timing,
     radiometry, electronics), read from the camera TOML (``camera.source``).

@@ -45,7 +45,7 @@ from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.preprocess import flatten, make_flattening
 from flight_interface.measurements import validate_measurements
 
-from .contract import EstimatorInputs, EstimatorOutput
+from estimators.contract import EstimatorInputs, EstimatorOutput
 
 DEFAULTS = {
     "grid_size_px": 256,            # side of the common rectified grid (power of two: fast FFT)

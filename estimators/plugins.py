@@ -13,22 +13,22 @@ import traceback
 from dataclasses import dataclass, replace
 from typing import Optional
 
-from .command import CommandEstimator
-from .contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
-from .registry import EstimatorSpec
+from estimators.command import CommandEstimator
+from estimators.contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
+from estimators.registry import EstimatorSpec
+from dimes_velocity.config import estimator_config_from_data
+from dimes_velocity.estimator import estimate_velocity
 
 
 class ReferenceEstimator:
     """The reference DIMES estimator (:mod:`dimes_velocity`) behind the contract."""
 
     def __init__(self, name: str, parameters: dict):
-        from dimes_velocity.config import estimator_config_from_data
 
         self.name = name
         self.config = estimator_config_from_data(dict(parameters), f"estimator {name}", "parameters")
 
     def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
-        from dimes_velocity.estimator import estimate_velocity
 
         result = estimate_velocity(list(inputs.images), inputs.measurements, inputs.camera, self.config,
                                    inputs.calibration.flat_field)

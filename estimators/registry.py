@@ -42,6 +42,8 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import Field, ValidationInfo, field_validator
 
 from flight_interface.tomlfields import ConfigModel, FieldProblem
+from dimes_velocity.config import estimator_config_from_data
+from estimators.command import check_template
 
 KINDS = ("reference", "python", "command")
 DEFAULT_NAME = "dimes"
@@ -108,7 +110,6 @@ class CommandEntry(_Entry):
     @field_validator("argv")
     @classmethod
     def _runnable(cls, argv: list[str], info: ValidationInfo) -> list[str]:
-        from .command import check_template
 
         if not all(argv):
             raise FieldProblem("", f"must be a non-empty list of non-empty strings; got {argv!r}")
@@ -183,7 +184,6 @@ def estimator_specs(entries: list, reference_parameters: dict, source: str) -> l
     """Specs of validated ``[[estimators]]`` entries; a reference entry's parameters (over the
     ``[estimator]`` table's ``reference_parameters``) are checked as EstimatorConfig fields, errors
     naming ``source`` and ``estimators[i].parameters.<field>``."""
-    from dimes_velocity.config import estimator_config_from_data
 
     specs = []
     for index, entry in enumerate(entries):

@@ -1,6 +1,6 @@
 """Render an example descent sequence and write PNGs to look at (paper Figs. 1, 2 and 5).
 
-    python -m simulator --out DIR [--terrain gdcp|own] [--seed 1]
+    python -m simulator --out DIR [--seed 1] [--camera CAMERA.toml]
 
 Writes, for the three images at 2000, 1725 and 1450 m of a tilted, windy descent with the sun 25 deg
 from the zenith and the heat shield falling below:
@@ -11,8 +11,8 @@ from the zenith and the heat shield falling below:
   point with the lander/backshell/parachute shadows at its centre (Fig. 2), heat shield;
 * ``footprint.png``   the terrain with the three image footprints and lander positions (+) (Fig. 5).
 
-Terrain: the ``sitedata`` synthetic class strip when that package is available (``--terrain gdcp``,
-any preset name), else (or with ``--terrain own``) a small textured crater field made here.
+Terrain: a small textured crater field made here (the simulator imports no site data; campaign
+terrains are rendered by ``campaign submit``, and ``python -m sitedata.terrain.mosaic`` shows them).
 """
 from __future__ import annotations
 
@@ -58,17 +58,6 @@ def crater_field(seed: int, size: int = 1400, mpp: float = 3.0) -> Terrain:
                    np.radians(35.0), np.radians(0.5), np.radians(35.2), f"crater-field-{seed}")
 
 
-def load_terrain(choice: str, seed: int) -> Terrain:
-    if choice != "own":
-        try:
-            from sitedata.synthetic_terrain import synthetic_terrain
-            return synthetic_terrain(choice, seed)
-        except Exception as exc:  # the sitedata package is built separately; fall back to our own
-            print(f"sitedata terrain {choice!r} not available ({exc}); using the built-in crater field",
-                  file=sys.stderr)
-    return crater_field(seed)
-
-
 def example_profile() -> DescentProfile:
     """Descent at 72 m/s with 13 m/s drift, 15 +- 5 deg off nadir toward the anti-sun side, heat shield below."""
     time = np.linspace(0.0, 8.0, 33)
@@ -93,14 +82,13 @@ def stretch(values: np.ndarray, low_pct: float = 0.5, high_pct: float = 99.5) ->
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--terrain", default="gdcp", help="sitedata synthetic preset name, or 'own'")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--camera", type=Path, default=ROOT / "sitedata" / "cameras" / "mer_a.toml")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
 
     camera = load_camera(args.camera)
-    terrain = load_terrain(args.terrain, args.seed)
+    terrain = crater_field(args.seed)
     profile = example_profile()
     incidence, azimuth = np.radians(25.0), np.radians(200.0)
     sun = np.array([np.sin(incidence) * np.sin(azimuth), np.sin(incidence) * np.cos(azimuth), np.cos(incidence)])

@@ -32,7 +32,12 @@ import numpy as np
 
 from flight_interface.calibration import normalise_flat_field, readout_flat_field
 from flight_interface.camera import Camera
-from simulator.detector.camera_chain import CameraEffects, RadianceFields, pixel_gain, render_image
+from simulator.detector.camera_chain import CameraEffects, pixel_gain, render_image
+from simulator.fields import RadianceFields
+from file_formats.flat_field_files import save_flat_field
+from flight_interface.calibration import CalibrationError
+from flight_interface.camera import load_camera
+from flight_interface.tomlfields import ConfigError
 
 #: On-axis binned charge of a flat exposure, as a fraction of the smallest charge capacity.
 FLAT_LEVEL_FRACTION = 0.5
@@ -89,9 +94,6 @@ def true_flat_field(camera: Camera, effects: CameraEffects = CameraEffects()) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    from flight_interface.calibration import CalibrationError, save_flat_field
-    from flight_interface.camera import load_camera
-    from flight_interface.tomlfields import ConfigError
 
     parser = argparse.ArgumentParser(prog="python -m simulator.calibration",
                                      description="Simulate a ground flat-field calibration; write the flat field.")

@@ -20,13 +20,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from simulator.detector import charge_transfer
 from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, radiance
 from flight_interface.camera import Camera
 from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
-from .off_nominal import OffNominalArtefacts, OffNominalConfig
-from .scene_config import SceneConfig
-from simulator.detector.camera_chain import RadianceFields, RenderedImage, render_image
+from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
+from simulator.scene_config import SceneConfig
+from simulator.detector.camera_chain import RenderedImage, render_image
+from simulator.fields import RadianceFields, block_means
 from simulator.scene.terrain import Terrain
 
 
@@ -228,4 +228,4 @@ def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[
     end = -(-(row0 + window.shape[0]) // block_rows)
     padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)
     padded[row0 - first * block_rows:row0 - first * block_rows + window.shape[0]] = window
-    return first, charge_transfer.block_means(padded, block_rows)
+    return first, block_means(padded, block_rows)

@@ -54,20 +54,3 @@ def preset_fields(name: str, max_substeps: int = 16) -> dict:
                 supersample=1, substeps_per_terrain_px=1.0, ray_grid_step_px=32 if fast else 16,
                 photometry_grid_step_px=32 if fast else 16, still_shift_terrain_px=2.0 if fast else 1.0,
                 max_substeps=4 if fast else max_substeps, camera_effects=dict(exact_poisson=False))
-
-
-def apply_preset(config, name: str):
-    """``config`` (a :class:`~simulator.scene_config.SceneConfig`) with the shortcuts of preset ``name``
-    (its other fields kept)."""
-    updates = preset_fields(name, config.max_substeps)
-    effects = config.effects.model_copy(update=updates.pop("effects"))
-    camera_effects = config.camera_effects.model_copy(update=updates.pop("camera_effects"))
-    return config.model_copy(update=dict(updates, effects=effects, camera_effects=camera_effects, fidelity=name))
-
-
-def preset_config(name: str, base=None):
-    """The :class:`~simulator.scene_config.SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
-    from .scene_config import SceneConfig
-
-    preset_fields(name)                     # an unknown name: ValueError listing the allowed ones
-    return SceneConfig(fidelity=name) if base is None else apply_preset(base, name)

@@ -21,11 +21,11 @@ from simulator.detector.camera_chain import CameraEffects
 from simulator.off_nominal import OffNominalConfig
 from simulator.scene import atmosphere, photometry
 
-from .fidelity import DEFAULT_PRESET, PRESETS, REFERENCE_EFFECTS, preset_fields
+from simulator.fidelity import DEFAULT_PRESET, PRESETS, REFERENCE_EFFECTS, preset_fields
 
 FRAME_PX = 1024
 
-__all__ = ["REFERENCE_EFFECTS", "AtmosphereConfig", "SceneConfig", "SceneEffects"]
+__all__ = ["REFERENCE_EFFECTS", "AtmosphereConfig", "SceneConfig", "SceneEffects", "apply_preset", "preset_config"]
 
 
 class SceneEffects(ConfigModel):
@@ -171,3 +171,18 @@ class SceneConfig(ConfigModel):
     def with_fields(self, **values) -> "SceneConfig":
         """A copy with some fields changed (unvalidated, like ``dataclasses.replace``)."""
         return self.model_copy(update=values)
+
+
+def apply_preset(config: SceneConfig, name: str) -> SceneConfig:
+    """``config`` with the shortcuts of preset ``name``
+    (its other fields kept)."""
+    updates = preset_fields(name, config.max_substeps)
+    effects = config.effects.model_copy(update=updates.pop("effects"))
+    camera_effects = config.camera_effects.model_copy(update=updates.pop("camera_effects"))
+    return config.model_copy(update=dict(updates, effects=effects, camera_effects=camera_effects, fidelity=name))
+
+
+def preset_config(name: str, base: SceneConfig | None = None) -> SceneConfig:
+    """The :class:`SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
+    preset_fields(name)                     # an unknown name: ValueError listing the allowed ones
+    return SceneConfig(fidelity=name) if base is None else apply_preset(base, name)

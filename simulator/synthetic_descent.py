@@ -18,6 +18,7 @@ from flight_interface.camera import Camera
 
 from flight_interface.frames import quat_to_matrix
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement
+from simulator.detector.camera_chain import CameraEffects, render_image
 
 RADIANCE_PER_IF = 160.0   # W m^-2 sr^-1 um^-1 per unit I/F (Mars at 1.52 AU, band 0.4-1.1 um: I/F 0.25 -> 40)
 
@@ -101,7 +102,6 @@ def constant_velocity_descent(camera: Camera, ground: Ground, rng: np.random.Gen
     ``attitudes``: body-to-world quaternions, one per image (default level). Images are taken when the
     lander passes each altitude; times start at 0.
     """
-    from simulator.detector.camera_chain import CameraEffects, render_image
 
     velocity = np.asarray(velocity_mps, dtype=float)
     altitudes = np.asarray(altitudes_m, dtype=float)

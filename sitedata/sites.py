@@ -21,10 +21,10 @@ A site TOML (``sitedata/gusev.toml``, ``sitedata/meridiani.toml``) holds one ``[
 
 Optional in either terrain table: ``resample = "none" | "stretch" | "mosaic"`` (default "none"): what
 the campaign does with a terrain too small for the descent images' footprints (refuse it, show the
-same image at the coarser scale that holds them, or mirror-tile it; :mod:`campaign.coverage`).
+same image at the coarser scale that holds them, or mirror-tile it; :mod:`campaign.plan.coverage`).
 
 Optional in a synthetic terrain table: ``overrides = { haze_optical_depth = 0.3, ... }`` (numeric
-fields of :class:`sitedata.synthetic_classes.ClassTerrainParams`). The ``[site]`` table is declared
+fields of :class:`sitedata.terrain.synthetic_classes.ClassTerrainParams`). The ``[site]`` table is declared
 once, by :class:`Site` and its parts (:class:`Sun`, :class:`SiteClass`, :class:`SyntheticTerrain`,
 :class:`FileTerrain`); ``campaign schema site`` prints it. Other top-level tables (``[campaign]``,
 ``[sensors]``, ...) belong to other readers and are ignored here; unknown keys inside ``[site]`` are
@@ -46,12 +46,14 @@ from simulator.scene.terrain import Terrain
 from flight_interface.tomlfields import (ConfigError, ConfigModel, ExistingFile, FieldProblem, InputPath, fixed_vector,
                                         load_toml, parse)
 
-from .synthetic_classes import CLASS_PRESETS, ClassTerrainParams
+from sitedata.terrain.synthetic_classes import CLASS_PRESETS, ClassTerrainParams
+from sitedata.terrain.real_terrain import load_terrain
+from sitedata.terrain.synthetic_terrain import synthetic_terrain
 
 ASTRONOMICAL_UNIT_M = 1.495978707e11
 FRACTION_TOLERANCE = 1e-6
 MAX_CASES = 1_000_000
-#: What the campaign does with a terrain too small for the footprints (:mod:`campaign.coverage`).
+#: What the campaign does with a terrain too small for the footprints (:mod:`campaign.plan.coverage`).
 Resample = Literal["none", "stretch", "mosaic"]
 RESAMPLE_MODES = typing.get_args(Resample)
 
@@ -98,7 +100,7 @@ TerrainOverrides = _overrides_model()
 class _TerrainSpec(ConfigModel):
     resample: Resample = "none"
     """A terrain too small for the descent images' footprints: "none" refuses it, "stretch" shows the
-    same image at the coarser scale that holds them, "mosaic" mirror-tiles it (campaign.coverage)."""
+    same image at the coarser scale that holds them, "mosaic" mirror-tiles it (campaign.plan.coverage)."""
     _where: str = PrivateAttr("")
 
     @property
@@ -112,7 +114,7 @@ class SyntheticTerrain(_TerrainSpec):
 
     kind: Literal["synthetic"]
     preset: Literal[tuple(CLASS_PRESETS)]
-    """Appearance-class preset (sitedata.synthetic_classes)."""
+    """Appearance-class preset (sitedata.terrain.synthetic_classes)."""
     seed: int = Field(ge=0, le=2**63 - 1)
     """Seed of the terrain generator."""
     overrides: TerrainOverrides | None = None
@@ -133,7 +135,7 @@ class SyntheticTerrain(_TerrainSpec):
 
 
 class FileTerrain(_TerrainSpec):
-    """Terrain from an orbital image file, with an optional side-car TOML (sitedata.readers)."""
+    """Terrain from an orbital image file, with an optional side-car TOML (file_formats.planetary)."""
 
     kind: Literal["file"]
     path: InputPath
@@ -283,13 +285,7 @@ def _memoised_class_terrain(spec: TerrainSpec) -> Terrain:
 
 def _class_terrain(spec: TerrainSpec, cache: bool) -> Terrain:
     if spec.kind == "synthetic":
-        from .synthetic_terrain import synthetic_terrain
         return synthetic_terrain(class_terrain_params(spec), spec.seed, cache=cache)
     if not spec.path.is_file():
         raise ConfigError(f"{spec.source}.path: no such file {spec.path}")
-    try:
-        from .readers import load_terrain
-    except ImportError as exc:
-        raise ConfigError(f"{spec.source}.kind = 'file' needs sitedata.readers.load_terrain, "
-                          f"which cannot be imported ({exc})") from None
     return load_terrain(spec.path, spec.sidecar)

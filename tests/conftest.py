@@ -24,7 +24,7 @@ def mer_a(mer_a_path):
 def site_strips(tmp_path_factory):
     """The shipped classes of both sites (preset + seed from the site files), full size:
     ``{class: (site name, ellipse fraction, Terrain)}``, built once per session in a fresh cache."""
-    from sitedata import synthetic_terrain
+    from sitedata.terrain import synthetic_terrain
     from sitedata.sites import class_terrain_params, load_site
 
     cache = tmp_path_factory.mktemp("terrain_cache")
@@ -37,7 +37,7 @@ def site_strips(tmp_path_factory):
             strips[site_class.name] = (site.name, site_class.ellipse_fraction, terrain)
     return strips
 def pytest_terminal_summary(terminalreporter):
-    """The fuzz suite's size (tests/test_config_fuzz.py): how many bad inputs it tried, by kind."""
+    """The fuzz suite's size (tests/campaign/test_config_fuzz.py): how many bad inputs it tried, by kind."""
     import sys
 
     fuzz = sys.modules.get("test_config_fuzz")

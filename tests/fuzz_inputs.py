@@ -1,4 +1,4 @@
-"""Bad-input generator and CLI harness for the fuzz suite (tests/test_config_fuzz.py).
+"""Bad-input generator and CLI harness for the fuzz suite (tests/campaign/test_config_fuzz.py).
 
 Bad TOML files are generated from the JSON Schema of each file kind (``campaign schema``), walked together
 with a valid example file: for every table an unknown key, a dropped required key and a scalar in place of

@@ -57,7 +57,7 @@ def low_camera_trajectory(path: Path) -> Path:
     """One Gusev trajectory lowered so that the lander is 0.45 m above the ground at image 3: valid as a
     trajectory file (the lander stays above z = 0 while imaging), but the camera, 0.5 m below the
     lander's origin, is under the ground during image 3, so the simulation of the case itself raises."""
-    from sitedata.trajectory_io import read_profiles, write_profiles
+    from sitedata.edl.trajectory_io import read_profiles, write_profiles
 
     profile = read_profiles(SITEDATA / "trajectories" / "gusev.parquet")[0]
     height = profile.pose(float(profile.image_times_s[-1])).position_m[2]

@@ -26,6 +26,7 @@ from flight_interface.tomlfields import ConfigModel
 from simulator.detector import blooming, charge_generation, charge_transfer, optics, readout
 from simulator.off_nominal import hot_pixels, particle_hits
 from flight_interface.camera import Camera
+from simulator.fields import RadianceFields, bin_rows, block_means
 
 PERIODS = ("flush", "exposure", "transfer")
 SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well
@@ -50,15 +51,6 @@ class CameraEffects(ConfigModel):
     """Output amplifier noise."""
     exact_poisson: bool = False
     """Poisson shot noise at every level (false: Gaussian above readout.GAUSSIAN_MIN_MEAN_E, a fidelity shortcut)."""
-
-
-@dataclass(frozen=True)
-class RadianceFields:
-    """Radiance seen by each pixel, averaged over each CCD period, W m^-2 sr^-1 um^-1, (height, width)."""
-
-    flush: np.ndarray
-    exposure: np.ndarray
-    transfer: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -103,7 +95,7 @@ def pixel_gain(camera: Camera, falloff: bool = True, prnu: bool = True, per_bloc
     if key not in cache:
         if per_block:
             full = pixel_gain(camera, falloff, prnu)
-            cache[key] = charge_transfer.block_means(full, camera.binning_rows)
+            cache[key] = block_means(full, camera.binning_rows)
         else:
             gain = optics.photoelectron_rate(np.ones((camera.height_px, camera.width_px), dtype=np.float32),
                                              camera, falloff=falloff)
@@ -162,7 +154,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         if dust is None:
             return pixel_gain(camera, effects.falloff, effects.prnu, per_block=True)
         if "block_gain" not in rates:
-            rates["block_gain"] = charge_transfer.block_means(gain, camera.binning_rows)
+            rates["block_gain"] = block_means(gain, camera.binning_rows)
         return rates["block_gain"]
 
     def generation_rate(field: np.ndarray) -> np.ndarray:
@@ -212,7 +204,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
             pixel = blooming.bloom_columns(pixel, camera.electronics.full_well_e)[0]
         else:
             pixel = np.minimum(pixel, np.float32(camera.electronics.full_well_e))
-        charge = charge_transfer.bin_rows(pixel, camera.binning_rows)
+        charge = bin_rows(pixel, camera.binning_rows)
     if dark_rate:
         charge = charge + charge_generation.storage_dark_e(camera, dark_rate)
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from flight_interface.camera import Timing
+from simulator.fields import bin_rows
 
 
 def cumsum_rows(values: np.ndarray) -> np.ndarray:
@@ -109,18 +110,6 @@ def _block_sums(rate: np.ndarray, binning_rows: int, rows: int | None = None) ->
         plain += row
         weighted += np.float32(binning_rows - offset) * row
     return plain, weighted
-
-
-def bin_rows(charge_e: np.ndarray, binning_rows: int) -> np.ndarray:
-    """Sum charge over blocks of ``binning_rows`` rows (on-chip binning in the serial register)."""
-    rows, width = charge_e.shape
-    return charge_e.reshape(rows // binning_rows, binning_rows, width).sum(axis=1)
-
-
-def block_means(values: np.ndarray, binning_rows: int) -> np.ndarray:
-    """Mean of each ``binning_rows``-row block, (N, W) -> (N / b, W): the per-block form of a rate or
-    field that the smear only sees through block sums."""
-    return bin_rows(values, binning_rows) / np.float32(binning_rows)
 
 
 def max_pixel_charge_bound_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,

@@ -38,12 +38,11 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from simulator.detector import charge_transfer
 from simulator.scene import atmosphere, ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
 from flight_interface.camera import Camera
 from simulator.scene.descent_profile import DescentProfile, Pose
 from flight_interface.frames import quat_to_matrix
-from simulator.detector.camera_chain import RadianceFields
+from simulator.fields import RadianceFields, block_means
 from simulator.scene.terrain import Terrain
 
 
@@ -338,7 +337,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
             pose_fields = [centre]
         elif period != "exposure" and effects.warp_smear_fields:
             if centre_blocks is None:
-                centre_blocks = charge_transfer.block_means(centre.radiance, camera.binning_rows)
+                centre_blocks = block_means(centre.radiance, camera.binning_rows)
             averaged[period] = motion_blur.average_fields(
                 [_smear_field(terrain, camera, pose_at(float(time)), sun_world, config, centre, centre_blocks)
                  for time in motion_blur.substep_times(start, end, count)])
@@ -365,6 +364,6 @@ def _smear_field(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.nda
     if not centre.sky.any() and WARP_GRID_STEP_PX % block_rows == 0:
         flow = flow_map(camera, centre.camera_pose, ground_mapping.camera_pose(camera, pose), block_rows=block_rows)
     if flow is None:
-        return charge_transfer.block_means(radiance_at_pose(terrain, camera, pose, sun_world, config).radiance,
+        return block_means(radiance_at_pose(terrain, camera, pose, sun_world, config).radiance,
                                            block_rows)
     return warped_field(centre_blocks, flow)

@@ -1,0 +1,198 @@
+"""The ``[execution]`` table: where and how a campaign's cases run (never part of the configuration hash).
+
+``cluster`` picks the backend (:mod:`campaign.run.cluster`):
+
+- ``"local"`` (default): an embedded LocalCluster of ``workers`` single-threaded processes;
+- ``"scheduler"``: an existing dask scheduler at ``scheduler = "tcp://host:port"`` (its workers are
+  started by whoever runs it);
+- ``"slurm"`` / ``"pbs"``: batch jobs through dask-jobqueue, settings in ``[execution.slurm]`` /
+  ``[execution.pbs]`` (extra ``moc2dimes[slurm]`` / ``moc2dimes[pbs]``);
+- ``"kubernetes"``: worker pods through the dask-kubernetes operator, settings in
+  ``[execution.kubernetes]`` (extra ``moc2dimes[kubernetes]``).
+
+The watch fields (``stall_timeout_s``, ``no_workers_timeout_s``, ``paused_timeout_s``) decide when the
+driver stops a run that cannot progress (:mod:`campaign.run.dask_runner`): it then keeps every finished case,
+prints one line naming the cause and exits 1; the next ``submit`` runs the unfinished cases.
+"""
+from __future__ import annotations
+
+import re
+from typing import Literal
+
+from dask.utils import parse_bytes
+from pydantic import Field, field_validator, model_validator
+
+from flight_interface.tomlfields import ConfigModel, FieldProblem, StringList
+
+SCHEDULER_SCHEMES = ("tcp://", "tls://", "inproc://")
+MIN_MEMORY_LIMIT_BYTES = 2**20
+CLUSTERS = ("local", "scheduler", "slurm", "pbs", "kubernetes")
+WALLTIME = re.compile(r"^(\d+-)?\d{1,3}:\d{2}(:\d{2})?$")
+KUBERNETES_QUANTITY = re.compile(r"^\d+(\.\d+)?(m|k|M|G|T|Ki|Mi|Gi|Ti)?$")
+KUBERNETES_NAME = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
+
+
+def _memory_size(value: str) -> str:
+    try:
+        size = parse_bytes(value) if value.strip() else 0
+    except (ValueError, TypeError, OverflowError):
+        size = 0
+    if size < MIN_MEMORY_LIMIT_BYTES:
+        raise FieldProblem("", f"= {value!r} is not a memory size; allowed: e.g. \"1.5GiB\", \"800MiB\", "
+                           "\"2GB\" (>= 1 MiB)")
+    return value
+
+
+class BatchJobs(ConfigModel):
+    """``[execution.slurm]`` / ``[execution.pbs]``: the batch jobs that run the workers (dask-jobqueue).
+
+    Each job runs ``cores`` single-threaded worker processes sharing ``memory``; the driver (where
+    ``campaign submit`` runs) hosts the scheduler, so it must be reachable from the compute nodes."""
+
+    queue: str = ""
+    """Partition (SLURM -p) or queue (PBS -q); "" = the site's default."""
+    account: str = ""
+    """Account charged (SLURM -A, PBS -A); "" = the user's default."""
+    walltime: str = "01:00:00"
+    """Wall-time limit of one job, "HH:MM:SS" (SLURM also "D-HH:MM:SS")."""
+    cores: int = Field(4, ge=1, le=1024)
+    """Cores per job = single-threaded worker processes per job."""
+    memory: str = "8GiB"
+    """Memory per job, shared by its workers (a case needs about 550 MiB per worker)."""
+    jobs: int = Field(1, ge=1, le=10000)
+    """Jobs submitted (workers = jobs x cores); ``[execution] workers`` > 0 overrides the worker count."""
+    job_extra: StringList = ()
+    """Extra scheduler directives, one per entry, e.g. ["--qos=normal"] (SLURM) or ["-l place=scatter"] (PBS)."""
+    prologue: StringList = ()
+    """Shell lines run in the job before the worker starts, e.g. ["source /home/me/venv/bin/activate"]."""
+    interface: str = ""
+    """Network interface the scheduler and workers talk on, e.g. "ib0"; "" = the host name's address."""
+    python: str = ""
+    """Python interpreter of the workers; "" = the driver's own (same path on the compute nodes)."""
+
+    @field_validator("walltime")
+    @classmethod
+    def _walltime(cls, value: str) -> str:
+        if not WALLTIME.match(value):
+            raise FieldProblem("", f"= {value!r} is not a wall time; allowed: \"HH:MM:SS\" or \"D-HH:MM:SS\"")
+        return value
+
+    @field_validator("memory")
+    @classmethod
+    def _memory(cls, value: str) -> str:
+        return _memory_size(value)
+
+    @property
+    def memory_per_worker_bytes(self) -> int:
+        return parse_bytes(self.memory) // self.cores
+
+
+class KubernetesPods(ConfigModel):
+    """``[execution.kubernetes]``: a DaskCluster resource of the dask-kubernetes operator (scheduler and
+    worker pods); the operator must be installed in the Kubernetes cluster."""
+
+    image: str = ""
+    """Container image holding moc2dimes and its dependencies (required), e.g. "registry/moc2dimes:0.1"."""
+    namespace: str = "default"
+    """Namespace of the DaskCluster and its pods."""
+    name: str = "moc2dimes"
+    """Name of the DaskCluster resource (DNS label)."""
+    workers: int = Field(2, ge=1, le=10000)
+    """Worker pods (one single-threaded worker each); ``[execution] workers`` > 0 overrides it."""
+    cpu: str = "1"
+    """CPU request and limit of one worker pod (Kubernetes quantity, e.g. "1", "500m")."""
+    memory: str = "2Gi"
+    """Memory request and limit of one worker pod (Kubernetes quantity, e.g. "2Gi"); the worker's memory
+    limit is the same."""
+
+    @field_validator("cpu", "memory")
+    @classmethod
+    def _quantity(cls, value: str) -> str:
+        if not KUBERNETES_QUANTITY.match(value):
+            raise FieldProblem("", f"= {value!r} is not a Kubernetes quantity; allowed: e.g. \"1\", \"500m\", \"2Gi\"")
+        return value
+
+    @field_validator("namespace", "name")
+    @classmethod
+    def _dns_label(cls, value: str) -> str:
+        if not KUBERNETES_NAME.match(value):
+            raise FieldProblem("", f"= {value!r} is not a Kubernetes name; allowed: lower-case letters, digits "
+                               "and '-', at most 63 characters")
+        return value
+
+
+class ExecutionConfig(ConfigModel):
+    """``[execution]``: the dask cluster a campaign runs on (command-line flags override it)."""
+
+    cluster: Literal[CLUSTERS] = "local"
+    """Backend: "local" (embedded), "scheduler" (existing scheduler at `scheduler`), "slurm", "pbs",
+    "kubernetes" (default "local"; "scheduler" when only `scheduler` is given)."""
+    scheduler: str = ""
+    """Address of an existing scheduler ("tcp://host:port"), for cluster = "scheduler"."""
+    workers: int = Field(0, ge=0, le=1024)
+    """Worker processes (0 = local: one per core; slurm/pbs: jobs x cores; kubernetes: its `workers`)."""
+    retries: int = Field(1, ge=0, le=10)
+    """Attempts after the first for a case whose computation raises."""
+    memory_limit: str = "1.5GiB"
+    """Memory limit per worker of the embedded cluster, e.g. "1.5GiB", "800MiB" (a case needs about 550 MiB)."""
+    connect_timeout_s: float = Field(30.0, ge=1.0, le=3600.0)
+    """Give up connecting to an existing scheduler (cluster = "scheduler") after this long (s)."""
+    stall_timeout_s: float = Field(900.0, ge=1.0, le=7 * 86400.0)
+    """Stop the run when no case has finished for this long while workers are up (s)."""
+    no_workers_timeout_s: float = Field(300.0, ge=1.0, le=7 * 86400.0)
+    """Stop the run when the scheduler has had no worker for this long (s); for slurm/pbs/kubernetes it
+    must cover the wait for jobs or pods to start."""
+    paused_timeout_s: float = Field(20.0, ge=1.0, le=86400.0)
+    """Stop the run when every worker has been paused at its memory limit, with no case finishing, for this long (s)."""
+    slurm: BatchJobs = BatchJobs()
+    """SLURM jobs (cluster = "slurm")."""
+    pbs: BatchJobs = BatchJobs()
+    """PBS jobs (cluster = "pbs")."""
+    kubernetes: KubernetesPods = KubernetesPods()
+    """Kubernetes pods (cluster = "kubernetes")."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _scheduler_implies_cluster(cls, data):
+        if isinstance(data, dict) and data.get("scheduler") and "cluster" not in data:
+            return {**data, "cluster": "scheduler"}
+        return data
+
+    @field_validator("scheduler")
+    @classmethod
+    def _address(cls, value: str) -> str:
+        if value and not value.startswith(SCHEDULER_SCHEMES):
+            raise FieldProblem("", f"= {value!r} is not a scheduler address; allowed: \"\" (embedded) or "
+                               "tcp://host:port")
+        return value
+
+    @field_validator("memory_limit")
+    @classmethod
+    def _memory(cls, value: str) -> str:
+        return _memory_size(value)
+
+    @model_validator(mode="after")
+    def _backend_is_complete(self):
+        if self.cluster == "scheduler" and not self.scheduler:
+            raise FieldProblem("scheduler", "is missing; cluster = \"scheduler\" needs scheduler = \"tcp://host:port\"")
+        if self.cluster != "scheduler" and self.scheduler:
+            raise FieldProblem("scheduler", f"= {self.scheduler!r} is only used with cluster = \"scheduler\"; "
+                               f"allowed: \"\" with cluster = {self.cluster!r}")
+        if self.cluster == "kubernetes" and not self.kubernetes.image:
+            raise FieldProblem("kubernetes.image", "is missing; cluster = \"kubernetes\" needs the container image "
+                               "that holds moc2dimes, e.g. \"registry.example.org/moc2dimes:0.1\"")
+        return self
+
+    @property
+    def memory_limit_bytes(self) -> int:
+        return parse_bytes(self.memory_limit)
+
+    def with_overrides(self, scheduler: str | None = None, workers: int | None = None) -> "ExecutionConfig":
+        """This configuration with the command line's ``--scheduler`` (cluster "scheduler") and
+        ``--workers`` applied (both already validated against these declarations)."""
+        update = {}
+        if scheduler:
+            update.update(cluster="scheduler", scheduler=scheduler)
+        if workers:
+            update["workers"] = workers
+        return self.model_copy(update=update) if update else self

@@ -1,0 +1,252 @@
+"""Sweep files: a base campaign plus parameter axes, validated into one campaign config per point.
+
+A sweep file (e.g. ``sitedata/sweeps/nightly.toml``)::
+
+    [sweep]
+    base = "../gusev.toml"              # base campaign TOML, relative to this file (required)
+    output_dir = "runs/sweeps/nightly"  # relative to the working directory (default runs/sweeps/<file stem>)
+    mode = "grid"                       # "grid": cartesian product of the axes; "list": i-th value of every axis
+    cases_scale = 0.05                  # optional: replaces the base's [campaign] cases_scale
+    [sweep.cases]                       # optional: class -> count, merged over the base's [campaign.cases]
+    gkep = 0
+
+    [axes]                              # dotted config field -> list of values (TOML units: degrees...)
+    "scene.camera_effects.dark_current_scale" = [1.0, 30.0]
+    sensors.attitude_random_sigma_deg = [0.05, 0.5]     # unquoted dotted keys work as well
+
+    [tolerances]                        # for --baseline
+    pct_valid_drop_points = 5.0         # a class's (or the weighted) % valid may fall this many points
+    error_increase_mps = 0.5            # its error mean+3 sigma (m/s) may grow this much
+
+Axis fields are any field of the ``[sensors]``, ``[estimator]`` and ``[scene]`` tables (including
+sub-tables such as ``scene.camera_effects``), or ``campaign.seed``. Each point's configuration is the
+base TOML with the point's values set, validated exactly like a campaign file; its campaign
+configuration hash (``[execution]`` and ``output_dir`` excluded) is the point's key. Errors are one
+line naming the sweep file, the field and the allowed values. The file's tables are declared once, by
+:class:`SweepFile` (``campaign schema sweep``); axis values are validated by the campaign tables' own
+declarations when each point is validated.
+"""
+from __future__ import annotations
+
+import copy
+import itertools
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field
+
+from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, load_toml, parse
+
+from campaign.configuration.campaign_file import CampaignConfig, CaseCount, CasesScale, campaign_config_from_data, load_campaign_config
+
+AXIS_ROOTS = ("sensors", "estimator", "scene")
+AXIS_FIELDS = ("campaign.seed",)
+MODES = ("grid", "list")
+MAX_POINTS = 10_000
+
+
+class SweepTable(ConfigModel):
+    """``[sweep]``: the base campaign and how its points are formed."""
+
+    base: ExistingFile
+    """Base campaign TOML, relative to the sweep file."""
+    output_dir: str | None = None
+    """Relative to the working directory (default runs/sweeps/<sweep file stem>)."""
+    mode: Literal["grid", "list"] = "grid"
+    """"grid": every combination of the axis values; "list": the i-th value of every axis."""
+    cases_scale: CasesScale | None = None
+    """Replaces the base's [campaign] cases_scale."""
+    cases: dict[str, CaseCount] = {}
+    """Class -> case count, merged over the base's [campaign.cases]."""
+
+
+class Tolerances(ConfigModel):
+    """``[tolerances]``: how much a metric may degrade against a baseline before it counts as a regression."""
+
+    pct_valid_drop_points: float = Field(5.0, ge=0.0, le=100.0)
+    """A class's (or the weighted) % valid may fall this many points."""
+    error_increase_mps: float = Field(0.5, ge=0.0, le=1e3)
+    """Its error mean + 3 sigma may grow this much (m/s)."""
+
+
+class SweepFile(ConfigModel):
+    """A sweep TOML file."""
+
+    sweep: SweepTable
+    axes: dict[str, Any] = Field(min_length=1)
+    """Dotted config field -> non-empty list of values (TOML units): sensors.*, estimator.*, scene.*, campaign.seed."""
+    tolerances: Tolerances = Tolerances()
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One point of a sweep: its id (``p000``...), axis values and validated campaign config."""
+
+    point_id: str
+    values: dict            # axis field -> value, in axis order
+    config: CampaignConfig  # output_dir is the point's store, OUT/points/<hash[:16]>
+
+    @property
+    def config_hash(self) -> str:
+        return self.config.config_hash
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    source: Path
+    base_path: Path
+    output_dir: Path
+    mode: str
+    axes: dict              # field -> list of values
+    tolerances: Tolerances
+    points: list            # list[SweepPoint]
+    base: CampaignConfig    # the base campaign with the sweep's case counts, without axis values
+
+    @property
+    def axis_names(self) -> list[str]:
+        return list(self.axes)
+
+
+def point_store_dir(output_dir: Path, config_hash: str) -> Path:
+    return Path(output_dir) / "points" / config_hash[:16]
+
+
+def load_sweep(path: str | Path, output_dir: str | Path | None = None) -> SweepSpec:
+    """Read and validate a sweep file and every point's configuration (nothing is written).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the sweep (or base) file, the field and the allowed values.
+    """
+    path = Path(path)
+    data = load_toml(path)
+    label = str(path)
+    tables = parse(SweepFile, data, label, context={"base_dir": path.resolve().parent})
+    sweep = tables.sweep
+    base_path = sweep.base.resolve()     # absolute: point hashes do not depend on the working directory
+    out = Path(output_dir) if output_dir is not None else Path(sweep.output_dir or f"runs/sweeps/{path.stem}")
+    base_data = load_toml(base_path)
+    base_config = load_campaign_config(base_path)          # base errors name the base file
+    campaign_overrides = _campaign_overrides(sweep, base_config, label)
+    axes = _read_axes(tables.axes, label)
+
+    combos = _combinations(axes, sweep.mode, label)
+    point_label = f"{label}: axis values applied to {base_path}"
+    base_overridden = _with_overrides(base_data, campaign_overrides, label)
+    base = campaign_config_from_data(base_overridden, base_path, source=f"{label}: [sweep] applied to {base_path}",
+                                     output_dir=out)
+    points, seen = [], {}
+    for index, values in enumerate(combos):
+        point_data = _with_overrides(base_overridden, values, label)
+        config = campaign_config_from_data(point_data, base_path, source=point_label, output_dir=out)
+        if config.config_hash in seen:
+            raise ConfigError(f"{label}: axes: points {seen[config.config_hash]} and p{index:03d} are the same "
+                              f"configuration ({values}); allowed: distinct points")
+        seen[config.config_hash] = f"p{index:03d}"
+        config = replace(config, output_dir=point_store_dir(out, config.config_hash))
+        points.append(SweepPoint(point_id=f"p{index:03d}", values=values, config=config))
+    return SweepSpec(source=path, base_path=base_path, output_dir=out, mode=sweep.mode, axes=axes,
+                     tolerances=tables.tolerances, points=points, base=base)
+
+
+def _campaign_overrides(sweep: SweepTable, base_config: CampaignConfig, label: str) -> dict:
+    """[sweep] cases_scale and [sweep.cases] as dotted overrides of the base's [campaign] table."""
+    overrides = {}
+    if sweep.cases_scale is not None:
+        overrides["campaign.cases_scale"] = sweep.cases_scale
+    names = list(base_config.cases_per_class)
+    for key, count in sweep.cases.items():
+        if key not in names:
+            raise ConfigError(f"{label}: sweep.cases.{key} is not a class of site {base_config.site.name}; "
+                              f"allowed: {', '.join(names)}")
+        overrides[f"campaign.cases.{key}"] = count
+    return overrides
+
+
+def _read_axes(raw: dict, label: str) -> dict:
+    """Flatten [axes] (quoted or unquoted dotted keys) into field -> list of scalar values."""
+    axes: dict[str, list] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict):
+            if not value:
+                raise ConfigError(f"{label}: axes.{prefix} is an empty table; allowed: field = [values]")
+            for key, item in value.items():
+                walk(f"{prefix}.{key}" if prefix else key, item)
+            return
+        axes[prefix] = _axis_values(prefix, value, label)
+
+    walk("", raw)
+    if not axes:
+        raise ConfigError(f"{label}: axes is empty; allowed: one or more config fields, e.g. "
+                          "\"scene.camera_effects.dark_current_scale\" = [1.0, 10.0]")
+    for field in axes:
+        parts = field.split(".")
+        if field not in AXIS_FIELDS and not (parts[0] in AXIS_ROOTS and len(parts) >= 2):
+            raise ConfigError(f"{label}: axes.{field} is not a sweepable field; allowed: "
+                              f"{', '.join(root + '.<field>' for root in AXIS_ROOTS)}, {', '.join(AXIS_FIELDS)}")
+    return axes
+
+
+def _axis_values(field: str, value: Any, label: str) -> list:
+    name = f"{label}: axes.{field}"
+    if not isinstance(value, list) or not value:
+        raise ConfigError(f"{name} must be a non-empty list of values; got {value!r}")
+    kinds = {_kind(item) for item in value}
+    if None in kinds:
+        bad = next(item for item in value if _kind(item) is None)
+        raise ConfigError(f"{name}: value {bad!r} is not allowed; allowed: numbers, booleans or strings")
+    if len(kinds) > 1:
+        raise ConfigError(f"{name}: values {value!r} mix types; allowed: all numbers, all booleans or all strings")
+    if any(isinstance(item, float) and not math.isfinite(item) for item in value):
+        raise ConfigError(f"{name}: values {value!r} must be finite")
+    return list(value)
+
+
+def _kind(item: Any) -> str | None:
+    if isinstance(item, bool):
+        return "bool"
+    if isinstance(item, (int, float)):
+        return "number"
+    if isinstance(item, str):
+        return "string"
+    return None
+
+
+def _combinations(axes: dict, mode: str, label: str) -> list[dict]:
+    names = list(axes)
+    if mode == "list":
+        lengths = {name: len(values) for name, values in axes.items()}
+        if len(set(lengths.values())) > 1:
+            raise ConfigError(f"{label}: axes: mode \"list\" needs axes of equal length; got "
+                              f"{', '.join(f'{n} {k}' for n, k in lengths.items())}; allowed: equal lengths "
+                              "(or mode = \"grid\")")
+        combos = [dict(zip(names, values)) for values in zip(*axes.values())]
+    else:
+        for name, values in axes.items():
+            if len(set(values)) != len(values):
+                raise ConfigError(f"{label}: axes.{name}: values {values!r} repeat; allowed: distinct values "
+                                  "in a grid")
+        combos = [dict(zip(names, values)) for values in itertools.product(*axes.values())]
+    if len(combos) > MAX_POINTS:
+        raise ConfigError(f"{label}: axes make {len(combos)} points; allowed: at most {MAX_POINTS}")
+    return combos
+
+
+def _with_overrides(data: dict, values: dict, label: str) -> dict:
+    """A deep copy of ``data`` with each dotted field set (sub-tables are created as needed)."""
+    result = copy.deepcopy(data)
+    for field, value in values.items():
+        node = result
+        parts = field.split(".")
+        for depth, key in enumerate(parts[:-1]):
+            child = node.setdefault(key, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"{label}: axes.{field}: {'.'.join(parts[:depth + 1])} is a value, not a table, "
+                                  "in the base campaign; allowed: a field inside a table")
+            node = child
+        node[parts[-1]] = value
+    return result

@@ -1,0 +1,111 @@
+"""`campaign report DIR`: a Markdown report with PNG plots from a campaign store."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from campaign.report import plots
+from campaign.report.aggregate import format_table, site_table
+from campaign.run.orchestrate import false_valid_threshold
+from campaign.report.compare import COMPARISON_NOTE, comparison_table, estimator_names, format_comparison, with_estimator_column
+from campaign.realism.flight_metrics import __doc__ as METRICS_DOC
+from campaign.realism.flight_metrics import metrics_table
+from campaign.store.campaign_store import CampaignStore, StoreError
+
+
+def write_report(root: Path) -> Path:
+    """Write ``DIR/report/report.md`` with error histograms, % valid, estimate vs truth, example
+    descent images (written by the workers for the first case of each class) and footprint maps
+    (from ``campaign plan``, when present)."""
+    store = CampaignStore(root)
+    manifest = store.manifest()
+    if manifest is None:
+        raise StoreError(f"{root}: no manifest.json: not a campaign directory")
+    results = store.results()
+    if results.empty:
+        raise StoreError(f"{root}: no finished cases yet; run `campaign submit` first")
+    out = store.root / "report"
+    out.mkdir(exist_ok=True)
+    fractions = manifest["ellipse_fractions"]
+    site = manifest["site"].capitalize()
+    threshold = false_valid_threshold(manifest)
+    results = with_estimator_column(results)
+    names = estimator_names(results)
+    status = store.status()
+    comparison = comparison_table(results, fractions, site, list(fractions), names, false_valid_mps=threshold)
+    lines = [
+        f"# {site} DIMES campaign report", "",
+        f"Configuration `{manifest['config_file']}` (hash `{manifest['config_hash'][:12]}`), seed {manifest['seed']}; "
+        f"{status.planned} cases planned, {status.done} done, {status.failed} failed, {status.missing} missing; "
+        f"estimators: {', '.join(f'`{name}`' for name in names)} (each ran on the same images and sensor draws).", "",
+        "## Estimators side by side", "", format_comparison(comparison, markdown=True), "", COMPARISON_NOTE, "",
+    ]
+    for name in names:
+        rows = results[results["estimator"] == name]
+        suffix = f"-{name}" if len(names) > 1 else ""
+        lines += _estimator_section(name, rows, fractions, site, out, suffix, len(names) > 1, threshold)
+    examples = sorted((store.root / "examples").glob("*.png")) if (store.root / "examples").exists() else []
+    if examples:
+        lines += ["## Example descent images", ""]
+        lines += [f"![{p.stem}](../examples/{p.name})" for p in examples] + [""]
+    maps = sorted((store.root / "plan").glob("footprints-*.png")) if (store.root / "plan").exists() else []
+    if maps:
+        lines += ["## Footprint maps (paper Fig. 5)", ""] + [f"![{p.stem}](../plan/{p.name})" for p in maps] + [""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _estimator_section(name: str, rows, fractions: dict, site: str, out: Path, suffix: str, titled: bool,
+                       false_valid_mps: float) -> list[str]:
+    """The paper's table, plots, Table-3 metrics against flight, invalid reasons and failed rows of one
+    estimator."""
+    level = "###" if titled else "##"
+    table = site_table(rows, fractions, site, class_order=list(fractions), false_valid_mps=false_valid_mps)
+    ok = rows[rows["status"] == "ok"]
+    lines = ([f"## Estimator `{name}`", ""] if titled else []) + [
+        f"{level} Table (paper Tables 1-2)", "", format_table(table, markdown=True), "",
+        f"False-valid: valid with a horizontal error above {false_valid_mps:g} m/s (`[campaign] false_valid_mps`).", ""]
+    lines += _false_valid_section(rows, level, false_valid_mps)
+    if not ok.empty:
+        plots.error_histograms(ok, out / f"error_histograms{suffix}.png")
+        plots.valid_fraction_bars(table, out / f"valid_fraction{suffix}.png")
+        plots.estimate_vs_truth(ok, out / f"estimate_vs_truth{suffix}.png")
+        lines += [f"{level} Velocity error per class", "", f"![error histograms](error_histograms{suffix}.png)", "",
+                  f"{level} Valid velocities", "", f"![% valid](valid_fraction{suffix}.png)", "",
+                  f"{level} Estimate against truth (valid cases)", "", f"![estimate vs truth](estimate_vs_truth{suffix}.png)", ""]
+        definitions = METRICS_DOC.split("\n\n", 1)[1].strip()
+        lines += [f"{level} DIMES correlation metrics against flight (paper Table 3)", "",
+                  "Median [10th-90th percentile] over the templates of each class; the paper's three "
+                  "features for MOC2DIMES and for the MER-A flight images.", "",
+                  metrics_table(ok, list(fractions)), "", definitions, ""]
+        reasons = ok[~ok["valid"].astype(bool)].groupby(["class_name", "reason"]).size()
+        if len(reasons):
+            lines += [f"{level} Why cases were invalid", "", "| class | reason | cases |", "|---|---|---|"]
+            lines += [f"| {c} | {r} | {n} |" for (c, r), n in reasons.items()] + [""]
+    failed = rows[rows["status"] != "ok"]
+    if not failed.empty:
+        lines += [f"{level} Failed cases", "", "| case | class | error |", "|---|---|---|"]
+        lines += [f"| {int(r.case_id)} | {r.class_name} | {str(r.error)[:160]} |" for r in failed.itertuples()] + [""]
+    return lines
+
+
+def _false_valid_section(rows, level: str, false_valid_mps: float) -> list[str]:
+    """Every false-valid case beside its attitude-knowledge floor (:mod:`campaign.run.error_budget`): an error
+    near the floor comes from the attitude bias common to the images, one far above it from the images."""
+    valid = rows[rows["valid"].astype(bool)]
+    wrong = valid[valid["velocity_error_mps"] > false_valid_mps]
+    if wrong.empty:
+        return []
+    lines = [f"{level} False-valid cases and the attitude-knowledge floor", "",
+             "floor = abs(tan(tilt bias)) x altitude drop / time between images 1 and 3: the error an attitude "
+             "bias common to the images causes whatever the matching (campaign/run/error_budget.py).", "",
+             "| case | class | error m/s | stated uncertainty m/s | attitude bias deg | floor m/s | error - floor m/s |",
+             "|---|---|---|---|---|---|---|"]
+    for row in wrong.sort_values("velocity_error_mps", ascending=False).itertuples():
+        floor = getattr(row, "attitude_floor_mps", float("nan"))
+        tilt_deg = math.degrees(math.hypot(getattr(row, "sensor_attitude_bias_east_rad", float("nan")),
+                                           getattr(row, "sensor_attitude_bias_north_rad", float("nan"))))
+        lines.append(f"| {int(row.case_id)} | {row.class_name} | {row.velocity_error_mps:.2f} | "
+                     f"{row.velocity_uncertainty_mps:.2f} | {tilt_deg:.2f} | {floor:.2f} | {row.velocity_error_mps - floor:.2f} |")
+    return lines + [""]

@@ -1,0 +1,75 @@
+"""The paper's table arithmetic, checked against Table 1 of the paper."""
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from campaign.report.aggregate import format_table, mean_plus_3_sigma, site_table
+
+
+def _rows(class_name, valid_errors, invalid=0, failed=0):
+    rows = [{"class_name": class_name, "status": "ok", "valid": True, "velocity_error_mps": e} for e in valid_errors]
+    rows += [{"class_name": class_name, "status": "ok", "valid": False, "velocity_error_mps": None}] * invalid
+    rows += [{"class_name": class_name, "status": "failed", "valid": False, "velocity_error_mps": None}] * failed
+    return rows
+
+
+def test_mean_plus_three_sigma_closed_form():
+    errors = np.array([1.0, 2.0, 3.0, 4.0])
+    assert mean_plus_3_sigma(errors) == pytest.approx(2.5 + 3 * math.sqrt(5.0 / 3.0))
+    assert math.isnan(mean_plus_3_sigma(np.array([])))
+
+
+def test_weighting_reproduces_paper_table_1_arithmetic():
+    # classes whose mean+3sigma is exactly the paper's value: constant errors
+    results = pd.DataFrame(_rows("gcp", [3.90] * 182, invalid=4) + _rows("gdcp", [3.48] * 112)
+                           + _rows("gkep", [3.29] * 77, failed=1))
+    table = site_table(results, {"gcp": 0.59, "gdcp": 0.41, "gkep": 0.0}, "Gusev")
+    by_class = table.set_index("class")
+    assert by_class.loc["gcp", "pct_valid"] == pytest.approx(100 * 182 / 186)
+    assert by_class.loc["gcp", "weighted_error_mps"] == pytest.approx(2.301)
+    assert by_class.loc["gdcp", "weighted_error_mps"] == pytest.approx(1.4268)
+    assert by_class.loc["gkep", "failed"] == 1 and by_class.loc["gkep", "valid"] == 77
+    site = by_class.loc["Gusev"]
+    assert site["cases"] == 376 and site["valid"] == 371
+    assert site["weighted_error_mps"] == pytest.approx(3.73, abs=0.005)
+    assert round(site["weighted_pct_valid"]) == 99
+    text = format_table(table)
+    assert "Gusev" in text and "3.73" in text
+    assert format_table(table, markdown=True).startswith("| Class")
+
+
+def test_class_without_valid_cases_makes_weighted_error_unknown():
+    results = pd.DataFrame(_rows("a", [1.0, 2.0]) + _rows("b", [], invalid=3))
+    table = site_table(results, {"a": 0.5, "b": 0.5}, "site").set_index("class")
+    assert table.loc["b", "pct_valid"] == 0.0
+    assert math.isnan(table.loc["site", "weighted_error_mps"])
+
+
+def test_false_valid_and_worst_valid_error_per_class_and_site():
+    results = pd.DataFrame(_rows("a", [1.0, 4.9, 5.0, 5.1, 7.5], invalid=2) + _rows("b", [0.5, 2.0], failed=1)
+                           + _rows("c", [], invalid=3))
+    table = site_table(results, {"a": 0.5, "b": 0.5, "c": 0.0}, "site", false_valid_mps=5.0).set_index("class")
+    assert table.loc["a", "false_valid"] == 2 and table.loc["a", "worst_valid_error_mps"] == 7.5   # 5.1 and 7.5
+    assert table.loc["b", "false_valid"] == 0 and table.loc["b", "worst_valid_error_mps"] == 2.0
+    assert table.loc["c", "false_valid"] == 0 and math.isnan(table.loc["c", "worst_valid_error_mps"])
+    assert table.loc["site", "false_valid"] == 2 and table.loc["site", "worst_valid_error_mps"] == 7.5
+    strict = site_table(results, {"a": 0.5, "b": 0.5, "c": 0.0}, "site", false_valid_mps=1.5)
+    assert strict.set_index("class").loc["site", "false_valid"] == 5          # 4.9, 5.0, 5.1, 7.5 and 2.0
+    assert "False-valid (>1.5 m/s)" in format_table(strict) and "7.50" in format_table(strict, markdown=True)
+
+
+def test_flight_metrics_table_summarises_templates_per_class():
+    from campaign.realism.flight_metrics import metrics_table
+
+    rows = []
+    for k in range(10):                      # brightness 1000..1009, contrast 10..19, one failed match per case
+        rows.append({"class_name": "a", "status": "ok", "feature_brightness": [1000.0 + k],
+                     "feature_contrast": [10.0 + k], "feature_correlation": [0.9, 0.1],
+                     "feature_status": ["ok", "ambiguous_match"]})
+    text = metrics_table(pd.DataFrame(rows), ["a"])
+    line = next(l for l in text.splitlines() if l.startswith("| a "))
+    assert "| 10 |" in line and "1004 [1001-1008]" in line and "14.5 [10.9-18.1]" in line
+    assert "0.900 [0.900-0.900]" in line                      # the failed match's 0.1 is not a correlation
+    assert "| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 0.88, 0.91, 1.00 |" in text

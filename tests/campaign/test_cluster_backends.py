@@ -1,0 +1,137 @@
+"""Cluster backends of ``[execution] cluster`` (campaign.run.cluster): declarations with one-line errors,
+the SLURM / PBS job scripts and the Kubernetes DaskCluster spec as generated (no batch system or
+Kubernetes needed), a missing optional package named by its pip extra, and the "scheduler" backend run
+for real against `dask scheduler` / `dask worker` processes, giving the same bits as the embedded cluster."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from campaign.cli import main
+from campaign.configuration.execution import ExecutionConfig
+from flight_interface.tomlfields import ConfigError, parse
+from service_campaigns import REPO, DaskProcesses, campaign_file, run_campaign, stderr_line
+
+BATCH = {"queue": "debug", "account": "proj42", "walltime": "02:30:00", "cores": 4, "memory": "8GiB", "jobs": 3,
+         "prologue": ["source /opt/moc2dimes/venv/bin/activate"]}
+
+
+def _execution(data: dict) -> ExecutionConfig:
+    return parse(ExecutionConfig, data, "campaign.toml", prefix="execution")
+
+
+@pytest.mark.parametrize("lines, expected", [
+    ('cluster = "sge"', "execution.cluster = 'sge' is not allowed; allowed: local, scheduler, slurm, pbs, kubernetes"),
+    ('cluster = "slurm"\n[execution.slurm]\nqeue = "debug"', "execution.slurm.qeue is not a known field; allowed: queue,"),
+    ('cluster = "pbs"\n[execution.pbs]\nwalltime = "2h"', "execution.pbs.walltime = '2h' is not a wall time"),
+    ('cluster = "kubernetes"', "execution.kubernetes.image is missing"),
+    ('cluster = "scheduler"', "execution.scheduler is missing; cluster = \"scheduler\" needs"),
+    ('stall_timeout_s = 0', "execution.stall_timeout_s = 0 is out of range; allowed: >= 1"),
+    ('cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"\nmemory = "2 GB"',
+     "execution.kubernetes.memory = '2 GB' is not a Kubernetes quantity"),
+])
+def test_bad_execution_table_is_one_line_exit_2_nothing_written(tmp_path, capsys, lines, expected):
+    path = campaign_file(tmp_path, execution=lines)
+    out = tmp_path / "out"
+    code = main(["submit", str(path), "--output", str(out), "--no-progress"])
+    stderr = capsys.readouterr().err
+    assert code == 2
+    lines_printed = stderr.strip().splitlines()
+    assert len(lines_printed) == 1 and str(path) in lines_printed[0] and expected in lines_printed[0], stderr
+    assert not out.exists()
+
+
+def test_scheduler_address_alone_selects_the_scheduler_backend():
+    assert _execution({"scheduler": "tcp://127.0.0.1:8786"}).cluster == "scheduler"
+    assert _execution({}).cluster == "local"
+    with pytest.raises(ConfigError, match="only used with cluster = \"scheduler\""):
+        _execution({"cluster": "local", "scheduler": "tcp://127.0.0.1:8786"})
+
+
+@pytest.mark.parametrize("kind, directives", [
+    ("slurm", ["#SBATCH -J moc2dimes-worker", "#SBATCH -p debug", "#SBATCH -A proj42", "#SBATCH -t 02:30:00",
+               "#SBATCH --cpus-per-task=4", "#SBATCH --mem=8G", "#SBATCH --qos=low"]),
+    ("pbs", ["#PBS -N moc2dimes-worker", "#PBS -q debug", "#PBS -A proj42", "#PBS -l walltime=02:30:00",
+             "#PBS -l select=1:ncpus=4:mem=8192MB", "#PBS -l place=scatter"]),
+])
+def test_batch_job_script_has_the_configured_resources_and_worker_command(kind, directives):
+    from campaign.run.cluster import jobqueue_cluster
+
+    extra = ["--qos=low"] if kind == "slurm" else ["-l place=scatter"]
+    execution = _execution({"cluster": kind, kind: {**BATCH, "job_extra": extra}})
+    cluster = jobqueue_cluster(execution)     # its scheduler runs here; no job is submitted
+    try:
+        script = cluster.job_script()
+    finally:
+        cluster.close()
+    lines = script.splitlines()
+    for directive in directives:
+        assert directive in lines, script
+    assert "export OPENBLAS_NUM_THREADS=1" in lines and "source /opt/moc2dimes/venv/bin/activate" in lines
+    [worker] = [line for line in lines if "distributed.cli.dask_worker" in line]
+    assert worker.startswith(sys.executable)
+    # 4 single-threaded worker processes per job sharing 8 GiB: 2 GiB each
+    for part in ("--nthreads 1", "--nworkers 4", "--memory-limit 2.00GiB"):
+        assert part in worker, worker
+    assert getattr(execution, kind).memory_per_worker_bytes == 2 * 2**30
+
+
+def test_kubernetes_spec_has_image_namespace_and_resources():
+    from campaign.run.cluster import kubernetes_cluster_spec
+
+    execution = _execution({"cluster": "kubernetes", "kubernetes": {
+        "image": "registry.example.org/moc2dimes:0.1", "namespace": "edl-campaigns", "workers": 12,
+        "cpu": "1", "memory": "3Gi"}})
+    spec = kubernetes_cluster_spec(execution)
+    assert spec["kind"] == "DaskCluster" and spec["metadata"] == {"name": "moc2dimes", "namespace": "edl-campaigns"}
+    worker_group = spec["spec"]["worker"]
+    assert worker_group["replicas"] == 12
+    [container] = worker_group["spec"]["containers"]
+    assert container["image"] == "registry.example.org/moc2dimes:0.1"
+    assert container["resources"] == {"requests": {"cpu": "1", "memory": "3Gi"}, "limits": {"cpu": "1", "memory": "3Gi"}}
+    arguments = container["args"]
+    assert arguments[:2] == ["dask", "worker"]
+    assert arguments[arguments.index("--nthreads") + 1] == "1"
+    assert arguments[arguments.index("--memory-limit") + 1] == str(3 * 2**30)
+    assert {"name": "OPENBLAS_NUM_THREADS", "value": "1"} in container["env"]
+    [scheduler] = spec["spec"]["scheduler"]["spec"]["containers"]
+    assert scheduler["image"] == "registry.example.org/moc2dimes:0.1"
+    overridden = _execution({"cluster": "kubernetes", "workers": 5, "kubernetes": {"image": "x"}})
+    assert kubernetes_cluster_spec(overridden)["spec"]["worker"]["replicas"] == 5      # [execution] workers wins
+
+
+@pytest.mark.parametrize("kind, module, extra", [("slurm", "dask_jobqueue", "slurm"),
+                                                 ("kubernetes", "dask_kubernetes", "kubernetes")])
+def test_missing_optional_package_names_the_pip_extra(tmp_path, kind, module, extra):
+    """The package made unimportable in a fresh interpreter (as if not installed): one line, exit 2."""
+    table = f'cluster = "{kind}"' + ('\n[execution.kubernetes]\nimage = "x"' if kind == "kubernetes" else "")
+    path = campaign_file(tmp_path, execution=table)
+    out = tmp_path / "out"
+    script = (f"import sys; sys.modules[{module!r}] = None\nfrom campaign.cli import main\n"
+              f"sys.exit(main(['submit', {str(path)!r}, '--output', {str(out)!r}, '--no-progress']))")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert result.returncode == 2
+    line = stderr_line(result)
+    assert f"pip install 'moc2dimes[{extra}]'" in line and str(path) in line, line
+    assert not out.exists()
+
+
+def test_scheduler_backend_runs_for_real_and_gives_the_embedded_clusters_bits(tmp_path):
+    processes = DaskProcesses(tmp_path, workers=2)
+    try:
+        external = campaign_file(tmp_path / "external", execution=f'cluster = "scheduler"\nscheduler = "{processes.address}"')
+        result = run_campaign("submit", external, "--output", tmp_path / "external" / "out", "--no-progress")
+        assert result.returncode == 0, result.stderr
+        assert f"scheduler: {processes.address}  cluster: scheduler" in result.stdout
+    finally:
+        processes.close()
+    embedded = campaign_file(tmp_path / "embedded", execution="workers = 1")
+    result = run_campaign("submit", embedded, "--output", tmp_path / "embedded" / "out", "--no-progress")
+    assert result.returncode == 0, result.stderr
+    first = pd.read_parquet(tmp_path / "external" / "out" / "results.parquet")
+    second = pd.read_parquet(tmp_path / "embedded" / "out" / "results.parquet")
+    assert len(first) == 3
+    pd.testing.assert_frame_equal(first, second, check_exact=True)

@@ -1,0 +1,135 @@
+"""The layers point one way: every import statement of the project (top level and inside functions) is read
+with ``ast`` and checked against the allowed arrows below, plus: no import circles between modules, no
+function-local import of a project module, and inside the simulator the scene stage imports nothing from
+the detector stage.
+
+    campaign                      (top: configuration, plan, run, store, report, realism; the CLI)
+    sitedata        estimators    (simulator inputs | the estimator contract and plug-ins)
+    simulator       dimes_velocity
+    file_formats                  (every file format)
+    flight_interface              (bottom: what flight and simulator legitimately share)
+"""
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+#: package -> the project packages it may import (besides itself)
+ALLOWED = {
+    "flight_interface": set(),
+    "file_formats": {"flight_interface"},
+    "simulator": {"flight_interface", "file_formats"},
+    "dimes_velocity": {"flight_interface", "file_formats"},
+    "estimators": {"flight_interface", "file_formats", "dimes_velocity"},
+    "sitedata": {"flight_interface", "file_formats", "simulator"},
+    "campaign": {"flight_interface", "file_formats", "simulator", "dimes_velocity", "estimators", "sitedata"},
+}
+PROJECT = set(ALLOWED) | {"tests", "benchmarks"}
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _sources() -> dict[str, Path]:
+    return {_module_name(path): path for package in ALLOWED for path in sorted((REPO / package).rglob("*.py"))}
+
+
+MODULES = _sources()
+
+
+def _imports(module: str, path: Path) -> list[tuple[str, bool, int]]:
+    """(imported project module, inside a function?, line) of every import statement of ``path``."""
+    tree = ast.parse(path.read_text())
+    in_function = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            in_function.update(id(child) for child in ast.walk(node) if child is not node)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([node.module] if node.module else []))
+            # ``from package import module`` imports that module; ``from module import name`` the module
+            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in MODULES else base for alias in node.names]
+        else:
+            continue
+        for target in targets:
+            if target.split(".")[0] in PROJECT:
+                found.append((target, id(node) in in_function, node.lineno))
+    return found
+
+
+GRAPH = {module: _imports(module, path) for module, path in MODULES.items()}
+
+
+@pytest.mark.parametrize("package", sorted(ALLOWED))
+def test_package_imports_only_the_layers_below(package):
+    offenders = [f"{module}:{line} imports {target}" for module, imports in GRAPH.items()
+                 if module.split(".")[0] == package for target, _, line in imports
+                 if target.split(".")[0] not in ALLOWED[package] | {package}]
+    assert not offenders, offenders
+
+
+def test_the_scene_stage_imports_nothing_from_the_detector_stage():
+    offenders = [f"{module}:{line} imports {target}" for module, imports in GRAPH.items()
+                 if module.startswith("simulator.scene.") or module == "simulator.scene"
+                 for target, _, line in imports if target.startswith("simulator.detector")]
+    assert not offenders, offenders
+
+
+def test_no_function_local_import_of_a_project_module():
+    offenders = [f"{module}:{line} imports {target}" for module, imports in GRAPH.items()
+                 for target, local, line in imports if local]
+    assert not offenders, offenders
+
+
+def _resolve(target: str) -> str | None:
+    while target and target not in MODULES:
+        target = target.rpartition(".")[0]
+    return target or None
+
+
+def test_no_import_circles():
+    edges = defaultdict(set)
+    for module, imports in GRAPH.items():
+        for target, local, _ in imports:
+            resolved = _resolve(target)
+            if resolved and resolved != module:
+                edges[module].add(resolved)
+    state: dict[str, int] = {}
+    circles = []
+
+    def visit(module: str, trail: list[str]) -> None:
+        state[module] = 1
+        for nxt in sorted(edges[module]):
+            if state.get(nxt) == 1:
+                circles.append(trail[trail.index(nxt):] + [nxt] if nxt in trail else [module, nxt])
+            elif nxt not in state:
+                visit(nxt, trail + [nxt])
+        state[module] = 2
+
+    for module in sorted(MODULES):
+        if module not in state:
+            visit(module, [module])
+    assert not circles, circles
+
+
+def test_the_checker_sees_a_forbidden_arrow(tmp_path):
+    """The rule check is live: an estimator module importing the simulator is found."""
+    path = tmp_path / "probe.py"
+    path.write_text("from simulator.scene.terrain import Terrain\n\ndef f():\n    import campaign.cli\n")
+    found = _imports("dimes_velocity.probe", path)
+    assert ("simulator.scene.terrain", False, 1) in found and ("campaign.cli", True, 4) in found
+    assert not {target.split(".")[0] for target, _, _ in found} <= ALLOWED["dimes_velocity"]
