@@ -27,6 +27,7 @@ from simulator.detector import blooming, charge_generation, charge_transfer, opt
 from simulator.off_nominal import hot_pixels, particle_hits
 from flight_interface.camera import Camera
 from simulator.fields import RadianceFields, bin_rows, block_means
+from simulator.derived_cache import DERIVED
 
 PERIODS = ("flush", "exposure", "transfer")
 SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well
@@ -90,7 +91,7 @@ def as_radiance_fields(radiance: RadianceInput) -> RadianceFields:
 def pixel_gain(camera: Camera, falloff: bool = True, prnu: bool = True, per_block: bool = False) -> np.ndarray:
     """Photo-electron rate per unit radiance of every pixel, e-/s per W m^-2 sr^-1 um^-1, float32 (H, W)
     (or its mean over each binning block, (H/b, W)): responsivity x cos^4 falloff x PRNU (cached per camera)."""
-    cache = camera.__dict__.setdefault("_render_cache", {})
+    cache = DERIVED.of(camera, "render")
     key = ("gain", bool(falloff), bool(prnu), bool(per_block))
     if key not in cache:
         if per_block:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from flight_interface.camera import Camera
+from simulator.derived_cache import DERIVED
 
 
 def prnu_map(camera: Camera) -> np.ndarray:
@@ -16,7 +17,7 @@ def prnu_map(camera: Camera) -> np.ndarray:
 
     This is simulator truth: an estimator never sees it, only a flat field measured from simulated
     calibration exposures (:mod:`simulator.calibration`)."""
-    cache = camera.__dict__.setdefault("_render_cache", {})
+    cache = DERIVED.of(camera, "render")
     if "prnu_map" not in cache:
         rng = np.random.default_rng(camera.radiometry.prnu_seed)
         gains = 1.0 + camera.radiometry.prnu_sigma * rng.standard_normal((camera.height_px, camera.width_px))

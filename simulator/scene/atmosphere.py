@@ -80,6 +80,7 @@ import numpy as np
 
 from flight_interface.camera import Camera
 from simulator.scene import ground_mapping, photometry
+from simulator.derived_cache import DERIVED
 
 MARS_SCALE_HEIGHT_M = 11100.0       # ~ R T / (M g) at 210 K
 MIN_COSINE = 0.02                   # lines of sight and sun cosines are clipped here (grazing, horizon)
@@ -204,7 +205,7 @@ def orbital_haze(terrain, config) -> OrbitalHaze:
         When the orbital path I/F is not below the terrain's mean I/F (the inversion would need a
         negative surface): the optical depth is too large for this terrain.
     """
-    cache = terrain.__dict__.setdefault("_scene_cache", {})
+    cache = DERIVED.of(terrain, "scene")
     key = ("orbital_haze", config)
     if key in cache:
         return cache[key]

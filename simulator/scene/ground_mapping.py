@@ -24,6 +24,7 @@ from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.scene.descent_profile import Pose
 from flight_interface.frames import quat_to_matrix
+from simulator.derived_cache import DERIVED
 
 HORIZON_EPSILON = 1e-6      # |d_z| below this (unit ray) counts as sky
 MAX_MAP_COORDINATE = 1.0e7  # map coordinates are clipped here (far beyond any terrain)
@@ -63,7 +64,7 @@ def camera_pose(camera: Camera, pose: Pose) -> CameraPose:
 
 def camera_cache(camera: Camera) -> dict:
     """A per-camera cache dict (cameras are frozen dataclasses holding arrays, hence unhashable)."""
-    return camera.__dict__.setdefault("_scene_cache", {})
+    return DERIVED.of(camera, "scene")
 
 
 def node_positions(size_px: int, step_px: int) -> np.ndarray:
