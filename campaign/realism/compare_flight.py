@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import pandas as pd
 import numpy as np
 
 from flight_interface.tomlfields import ConfigError, load_toml, parse
@@ -236,7 +237,6 @@ def estimator_metrics(spec: FlightComparison, rendered: list) -> tuple[list[dict
 
 def compare(spec: FlightComparison) -> dict:
     """Render, measure and write every output to ``spec.output_dir``; return the summary (also comparison.json)."""
-    import pandas as pd
 
 
     terrain = load_class_terrain(spec.terrain_spec)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import cv2
 
 from sitedata import SITEDATA_DIR
 from campaign.realism.terrain_stats import ALTITUDES_M, DescentSampling, crater_density_per_km2, psd_slope, resample_to_ground_sample, tile_contrasts
@@ -117,7 +118,6 @@ def measure_reference_ranges(sampling: DescentSampling, realdata: Path = DEFAULT
 
 def measure_psd_slope_range(realdata: Path = DEFAULT_REALDATA) -> tuple[float, float]:
     """Min and max 4-64 px PSD slope over every real MOC NA image and CTX tile (raw pixels)."""
-    import cv2
 
 
     realdata = Path(realdata)

@@ -8,6 +8,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from PIL import Image
 import pandas as pd  # noqa: E402
 
 from flight_interface.camera import Camera  # noqa: E402
@@ -95,7 +96,6 @@ def estimate_vs_truth(results: pd.DataFrame, path: Path) -> Path:
 def save_descent_image(dn: np.ndarray, path: Path, low_dn: float | None = None, high_dn: float | None = None) -> Path:
     """A 12-bit descent image as an 8-bit PNG, stretched between ``low_dn`` and ``high_dn``
     (default: its 1st and 99th percentiles), rows repeated 4x to show the 1024x1024 aspect."""
-    from PIL import Image
 
     dn = np.asarray(dn, dtype=float)
     low = np.percentile(dn, 1) if low_dn is None else low_dn

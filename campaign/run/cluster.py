@@ -62,6 +62,7 @@ def jobqueue_cluster(execution: ExecutionConfig):
     """The SLURMCluster or PBSCluster of ``execution`` (its scheduler runs here; no job submitted yet:
     ``cluster.job_script()`` shows the script, :func:`start_cluster` scales it)."""
     jobs: BatchJobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
+    # dask-jobqueue is an optional extra (moc2dimes[slurm] / [pbs]): imported only for these backends
     if execution.cluster == "slurm":
         from dask_jobqueue import SLURMCluster as Cluster
     else:
@@ -84,6 +85,7 @@ def kubernetes_cluster_spec(execution: ExecutionConfig) -> dict:
     """The DaskCluster resource (a dict, as applied to Kubernetes) of ``[execution.kubernetes]``:
     namespace, image, one single-threaded worker per pod with the pod's CPU and memory as requests and
     limits, and the worker's memory limit equal to the pod's."""
+    # dask-kubernetes is an optional extra (moc2dimes[kubernetes]): imported only for that backend
     from dask_kubernetes.operator import make_cluster_spec
 
     pods = execution.kubernetes
@@ -122,6 +124,7 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
         else:
             cluster.scale(jobs=jobs.jobs)
     else:
+        # optional extra moc2dimes[kubernetes], as above
         from dask_kubernetes.operator import KubeCluster
 
         cluster = KubeCluster(custom_cluster_spec=kubernetes_cluster_spec(execution),

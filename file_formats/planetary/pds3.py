@@ -142,7 +142,7 @@ def _read_moc_predictive(path: Path, tree: dict, image_object: dict, encoding: s
     """A MOC predictively compressed product decoded by pdr, checked against the label's dimensions."""
     if band_index != 0:
         raise fail(path, f"band_index {band_index} is out of range; a MOC image has 1 band")
-    try:
+    try:   # pdr is heavy (it loads astropy, pandas ...): imported only for MOC-compressed products
         import pdr
     except ImportError:
         raise fail(path, f"ENCODING_TYPE = {encoding!r} needs the pdr package to decode (pip install pdr)") from None
