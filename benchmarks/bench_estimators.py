@@ -1,7 +1,7 @@
 """Several estimators per case: rendering happens once, each extra estimator costs only its own time.
 
 A fixed set of Gusev cases (one or two per class, the campaign's seeds and fidelity) is run the way a
-campaign worker runs it (:func:`campaign.run.case.simulate_case`), once with the reference estimator alone
+campaign worker runs it (:func:`campaign.run.case.compute_case`), once with the reference estimator alone
 (``sitedata/gusev.toml``) and once with the reference plus the phase-correlation example
 (``sitedata/examples/compare_estimators.toml``), and, on the same case inputs, the rendering alone and
 each estimator alone. Times are process CPU ms (one thread; less sensitive to other load on the
@@ -12,7 +12,6 @@ add ``render_ms``).
 """
 from __future__ import annotations
 
-import tempfile
 import time
 from pathlib import Path
 
@@ -41,13 +40,12 @@ def _timed(function, *args):
 
 
 def run() -> list[dict]:
-    from campaign.run.case import simulate_case, simulate_case_inputs
+    from campaign.run.case import PlanRow, compute_case, simulate_case_inputs
     from estimators.contract import EstimatorInputs
 
     single, plan = _resources(REPO / "sitedata" / "gusev.toml")
     double, plan_double = _resources(REPO / "sitedata" / "examples" / "compare_estimators.toml")
     assert plan.equals(plan_double), "both configurations must plan the same cases"
-    store = tempfile.mkdtemp(prefix="bench-estimators-")
     cpu: dict[str, list] = {}
     wall: dict[str, list] = {}
 
@@ -56,14 +54,14 @@ def run() -> list[dict]:
         wall.setdefault(key, []).append(wall_ms)
 
     for row in plan.to_dict("records"):
-        simulate_case(single, row, store)                          # warm: terrain strip, caches
-        simulate_case(double, row, store)
+        compute_case(single, PlanRow.from_record(row))           # warm: terrain strip, caches
+        compute_case(double, PlanRow.from_record(row))
         for _ in range(REPEATS):
-            _, cpu_ms, wall_ms = _timed(simulate_case, single, row, store)
+            _, cpu_ms, wall_ms = _timed(compute_case, single, PlanRow.from_record(row))
             record("case_reference_only", cpu_ms, wall_ms)
-            _, cpu_ms, wall_ms = _timed(simulate_case, double, row, store)
+            _, cpu_ms, wall_ms = _timed(compute_case, double, PlanRow.from_record(row))
             record("case_reference+phase_correlation", cpu_ms, wall_ms)
-            case, cpu_ms, wall_ms = _timed(simulate_case_inputs, double, row)
+            case, cpu_ms, wall_ms = _timed(simulate_case_inputs, double, PlanRow.from_record(row))
             record("render", cpu_ms, wall_ms)
             inputs = EstimatorInputs(tuple(image.dn for image in case.images),
                                      np.array([m.time_s for m in case.measurements.images]), case.measurements,

@@ -35,11 +35,11 @@ def _cases():
 def _render_case(resources, row, scene_config):
     """The case's three images (the campaign's seeds, with ``scene_config``) and its estimate:
     (images, velocity or None, render + sensors seconds, estimator seconds)."""
-    from campaign.run.case import simulate_case_inputs
+    from campaign.run.case import PlanRow, simulate_case_inputs
     from dimes_velocity.estimator import estimate_velocity
 
     started = time.perf_counter()
-    inputs = simulate_case_inputs(resources, row, scene_config)
+    inputs = simulate_case_inputs(resources, PlanRow.from_record(row), scene_config)
     render_s = time.perf_counter() - started
     started = time.perf_counter()
     estimate = estimate_velocity([image.dn for image in inputs.images], inputs.measurements, resources.camera,

@@ -126,6 +126,46 @@ def _state_times(profile: DescentProfile, camera, config: SensorConfig) -> np.nd
     return camera.timing.exposure_mid_time_s(times)
 
 
+CASE_ERROR_FIELDS = (
+    ("attitude_bias_east_rad", "absolute attitude-knowledge bias b, east axis (world)"),
+    ("attitude_bias_north_rad", "absolute attitude-knowledge bias b, north axis (world)"),
+    ("attitude_bias_up_rad", "absolute attitude-knowledge bias b, up axis (world)"),
+    ("imu_velocity_bias_east_mps", "constant IMU velocity bias, east"),
+    ("imu_velocity_bias_north_mps", "constant IMU velocity bias, north"),
+    ("imu_velocity_bias_up_mps", "constant IMU velocity bias, up"),
+    ("alignment_x_rad", "camera-to-lander alignment error a, body x"),
+    ("alignment_y_rad", "camera-to-lander alignment error a, body y"),
+    ("alignment_z_rad", "camera-to-lander alignment error a, body z"),
+)
+"""The errors :func:`measure` draws once per descent: (name with its SI unit as suffix, meaning), in the
+order of its ``truth`` dict."""
+
+IMAGE_ERROR_FIELDS = (
+    ("attitude_random_image{k}_east_rad", "between-image random attitude error r_k, east (world)"),
+    ("imu_velocity_error_image{k}_east_mps", "IMU velocity error (bias + random walk), east"),
+    ("attitude_random_image{k}_north_rad", "between-image random attitude error r_k, north (world)"),
+    ("imu_velocity_error_image{k}_north_mps", "IMU velocity error (bias + random walk), north"),
+    ("attitude_random_image{k}_up_rad", "between-image random attitude error r_k, up (world)"),
+    ("imu_velocity_error_image{k}_up_mps", "IMU velocity error (bias + random walk), up"),
+    ("angular_rate_noise_image{k}_x_radps", "angular-rate noise, body x"),
+    ("angular_rate_noise_image{k}_y_radps", "angular-rate noise, body y"),
+    ("angular_rate_noise_image{k}_z_radps", "angular-rate noise, body z"),
+    ("attitude_error_image{k}_rad", "total angle between measured and true attitude"),
+    ("radar_altitude_error_image{k}_m", "radar altitude error"),
+    ("heat_shield_prediction_error_image{k}_m", "norm of the heat-shield prediction error (0 when none)"),
+)
+"""The errors :func:`measure` draws per image ``k`` (from 1), in the order of its ``truth`` dict."""
+
+
+def error_fields(image_count: int) -> list[tuple[str, str]]:
+    """(name, meaning) of every error :func:`measure` returns for a descent of ``image_count`` images, in
+    the order of its ``truth`` dict (the case-level errors, then image 1, 2, ...). Names end with the SI
+    unit: ``_rad``, ``_radps`` (rad/s), ``_mps`` (m/s), ``_m``."""
+    per_image = [(name.format(k=k), f"{meaning}, image {k}")
+                 for k in range(1, image_count + 1) for name, meaning in IMAGE_ERROR_FIELDS]
+    return [*CASE_ERROR_FIELDS, *per_image]
+
+
 def measure(profile: DescentProfile, camera, sun_direction_world: np.ndarray, config: SensorConfig,
             rng: np.random.Generator) -> tuple[DescentMeasurements, dict[str, float]]:
     """Measurements at every image of ``profile`` and the errors drawn.

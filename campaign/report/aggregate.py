@@ -16,9 +16,14 @@ import math
 import numpy as np
 import pandas as pd
 
+from campaign.store.result_schema import RESULTS_SCHEMA, ResultSchemaError
+
 TABLE_COLUMNS = ["class", "cases", "valid", "failed", "pct_valid", "error_mean_3sigma_mps", "false_valid",
                  "worst_valid_error_mps", "ellipse_fraction", "weighted_pct_valid", "weighted_error_mps"]
 FALSE_VALID_MPS = 5.0
+COLUMNS_READ = ("class_name", "status", "valid", "velocity_error_mps")
+"""The result columns the tables are computed from (declared in :mod:`campaign.store.result_schema`)."""
+assert set(COLUMNS_READ) <= set(RESULTS_SCHEMA.names), "aggregate.py reads an undeclared result column"
 
 
 def mean_plus_3_sigma(errors_mps: np.ndarray) -> float:
@@ -38,13 +43,17 @@ def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: st
     Parameters
     ----------
     results : DataFrame
-        Case rows with ``class_name``, ``status`` ('ok' or 'failed'), ``valid`` and ``velocity_error_mps``.
+        Result rows (:data:`~campaign.store.result_schema.RESULTS_SCHEMA`); the tables read ``class_name``,
+        ``status`` ('ok' or 'failed'), ``valid`` and ``velocity_error_mps`` (m/s).
     fractions : dict
         Ellipse fraction of each class (summing to 1).
     false_valid_mps : float
         A valid case with a larger horizontal error is counted as false-valid (kept in
         ``table.attrs["false_valid_mps"]`` for the column heading).
     """
+    missing = [name for name in COLUMNS_READ if not results.empty and name not in results.columns]
+    if missing:
+        raise ResultSchemaError(f"results lack the declared column {missing[0]!r}")
     order = class_order or list(fractions)
     rows = []
     for class_name in order:

@@ -1,7 +1,7 @@
 """Run a planned campaign on dask.distributed and watch it (backends: :mod:`campaign.run.cluster`).
 
-Tasks are pure functions of small, picklable inputs (the :class:`~campaign.run.case.CampaignContext` and
-one plan row); each worker loads terrain, camera and trajectories once (see :mod:`campaign.run.case`)
+Tasks are pure functions of small, picklable inputs (the :class:`~campaign.run.worker.CampaignContext` and
+one plan row); each worker loads terrain, camera and trajectories once (see :mod:`campaign.run.worker`)
 and writes every result row durably itself, so the driver can die at any time without losing one.
 
 The driver never asks a worker for a result: a finished task's status (``ok`` / ``failed``) is read
@@ -21,7 +21,7 @@ import pandas as pd
 from dask.distributed import Client
 from distributed.comm.core import CommClosedError
 
-from campaign.run.case import CampaignContext, execute_case
+from campaign.run.worker import CampaignContext, execute_case
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.faults import CASE_MEMORY_MIB, InfrastructureError, RunStopped
 from campaign.run.progress import ProgressBar
@@ -79,7 +79,7 @@ class Watch:
 
 
 def submit_cases(client: Client, context: CampaignContext, rows: list[dict], store: CampaignStore) -> list[CaseTask]:
-    """Submit one :func:`~campaign.run.case.execute_case` task per plan row.
+    """Submit one :func:`~campaign.run.worker.execute_case` task per plan row.
 
     The context (a few kB) travels inside each task rather than being scattered: scattered data lives
     only on workers, and a killed worker would take it along and cancel every case waiting for it."""

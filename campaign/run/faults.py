@@ -5,7 +5,7 @@ computation raises: the simulation of its images and measurements. Everything el
 and never becomes a case's permanent record: the run stops, keeps every finished case, and the next
 ``campaign submit`` runs the unfinished ones:
 
-- on the worker, :class:`InfrastructureError` (raised by :func:`campaign.run.case.execute_case`): the case
+- on the worker, :class:`InfrastructureError` (raised by :func:`campaign.run.worker.execute_case`): the case
   file could not be written (``OSError``: ENOSPC, EDQUOT, EROFS, EIO, ...), the computation hit a
   storage error of that kind, or ran out of memory (``MemoryError``);
 - on the driver, :class:`RunStopped` (raised by :func:`campaign.run.dask_runner.wait_for_cases`): a worker died

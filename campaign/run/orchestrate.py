@@ -12,7 +12,7 @@ import pandas as pd
 from flight_interface.tomlfields import ConfigError
 
 from campaign.report.aggregate import format_table, site_table
-from campaign.run.case import CampaignContext, load_resources
+from campaign.run.worker import CampaignContext, load_resources
 from campaign.report.compare import COMPARISON_NOTE, comparison_table, estimator_names, format_comparison, with_estimator_column
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.plan.coverage import refusal

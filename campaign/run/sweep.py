@@ -38,7 +38,7 @@ import pyarrow as pa
 from campaign.report.aggregate import format_number, render_grid
 from campaign.report.compare import comparison_table, estimator_names, with_estimator_column
 from campaign.run.orchestrate import compact_after_stop, manifest_for, plan_campaign
-from campaign.run.case import CampaignContext
+from campaign.run.worker import CampaignContext
 from campaign.run.cluster import connected_client, require_backend
 from campaign.run.faults import RunStopped
 from campaign.run.dask_runner import Watch, submit_cases, wait_for_cases

@@ -34,12 +34,11 @@ from typing import Iterable
 
 import pandas as pd
 import pyarrow as pa
-import pyarrow.parquet as pq
+import pyarrow.compute as pc
 
-from campaign.store.case_files import CaseScan, atomic_write_bytes, atomic_write_table, fsync_directory, scan_case_files, sha256_bytes, sha256_file
+from campaign.store.case_files import CaseScan, atomic_write_bytes, atomic_write_table, fsync_directory, read_case_table, scan_case_files, sha256_bytes, sha256_file
 from campaign.store.lock import StoreLock, lock_path_for
-
-TIMING_COLUMNS = ("worker", "t_scene_ms", "t_camera_ms", "t_sensors_ms", "t_estimator_ms", "t_case_ms", "attempts")
+from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULTS_SCHEMA, TIMINGS_SCHEMA
 FRESH_HINT = "`campaign submit --fresh` moves this store aside (DIR.previous-<UTC time>) and starts afresh"
 
 
@@ -289,37 +288,40 @@ class CampaignStore:
         return CaseStatus(planned=len(planned), done=len(counted) - failed, failed=failed, bad=len(scan.bad),
                           outside_plan=len(scan.cases) - len(counted))
 
-    def read_case_rows(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
-                       planned: set[int] | None = None) -> pd.DataFrame:
-        """The rows of the verified case files of the planned cases (of ``case_ids`` if given), by case_id
-        (``scan`` and ``planned``: already read by the caller)."""
+    def read_case_table(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
+                        planned: set[int] | None = None) -> pa.Table:
+        """The rows of the verified case files of the planned cases (of ``case_ids`` if given), by case_id,
+        as one table of :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` (``scan`` and ``planned``:
+        already read by the caller). Raises ResultSchemaError for a file that does not fit the schema."""
         scan = self.scan() if scan is None else scan
         wanted = (self.planned_case_ids() if planned is None else planned) & set(scan.cases)
         if case_ids is not None:
             wanted &= {int(case_id) for case_id in case_ids}
-        tables = [pq.read_table(scan.cases[case_id].path) for case_id in sorted(wanted)]
-        if not tables:
-            return pd.DataFrame()
-        return pa.concat_tables(tables, promote_options="permissive").to_pandas()
+        tables = [read_case_table(scan.cases[case_id].path) for case_id in sorted(wanted)]
+        return pa.concat_tables(tables) if tables else CASE_FILE_SCHEMA.empty_table()
+
+    def read_case_rows(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
+                       planned: set[int] | None = None) -> pd.DataFrame:
+        """:meth:`read_case_table` as a DataFrame (empty, without columns, when no case is finished)."""
+        table = self.read_case_table(case_ids, scan, planned)
+        return table.to_pandas() if table.num_rows else pd.DataFrame()
 
     # --- compaction ----------------------------------------------------------------------------
     def compact(self) -> pd.DataFrame:
         """Write results.parquet (deterministic columns, sorted by case_id), timings.parquet and their record
         results.json, from the verified case files of the planned cases."""
         scan, planned = self.scan(), self.planned_case_ids()
-        rows = self.read_case_rows(scan=scan, planned=planned)
-        if rows.empty:
-            return rows
-        rows = rows.sort_values("case_id", kind="stable").reset_index(drop=True)
-        keys = ["case_id"] + (["estimator"] if "estimator" in rows.columns else [])
-        timing_columns = keys + [column for column in TIMING_COLUMNS if column in rows.columns]
-        results = rows.drop(columns=[column for column in TIMING_COLUMNS if column in rows.columns])
-        record = {"case_files_sha256": scan.fingerprint(planned), "cases": int(results["case_id"].nunique()),
-                  "results_sha256": atomic_write_table(self.results_path, pa.Table.from_pandas(results, preserve_index=False)),
-                  "timings_sha256": atomic_write_table(self.timings_path,
-                                                       pa.Table.from_pandas(rows[timing_columns], preserve_index=False))}
+        rows = self.read_case_table(scan=scan, planned=planned)
+        if rows.num_rows == 0:
+            return pd.DataFrame()
+        rows = rows.sort_by("case_id")           # a stable sort: estimators stay in [[estimators]] order
+        results = rows.select(RESULTS_SCHEMA.names)
+        record = {"case_files_sha256": scan.fingerprint(planned),
+                  "cases": len(pc.unique(results["case_id"])),
+                  "results_sha256": atomic_write_table(self.results_path, results),
+                  "timings_sha256": atomic_write_table(self.timings_path, rows.select(TIMINGS_SCHEMA.names))}
         atomic_write_bytes(self.results_record_path, json.dumps(record, indent=2, sort_keys=True).encode())
-        return results
+        return results.to_pandas()
 
     def results_problem(self, scan: CaseScan | None = None, planned: set[int] | None = None) -> str | None:
         """Why results.parquet cannot be trusted (None: it matches the verified case files of the plan)."""
@@ -342,5 +344,5 @@ class CampaignStore:
         scan, planned = self.scan(), self.planned_case_ids()
         if self.results_problem(scan, planned) is None:
             return pd.read_parquet(self.results_path)
-        rows = self.read_case_rows(scan=scan, planned=planned)
-        return rows.drop(columns=[c for c in TIMING_COLUMNS if c in rows.columns]) if not rows.empty else rows
+        rows = self.read_case_table(scan=scan, planned=planned)
+        return rows.select(RESULTS_SCHEMA.names).to_pandas() if rows.num_rows else pd.DataFrame()

@@ -9,8 +9,10 @@ renamed to that name (``os.replace`` is atomic on POSIX): the file and its recor
 one step. A kill at any instant leaves either no file, an ignored temporary file, or a complete file
 whose name verifies it. ``sha256sum`` checks a case file by hand against its name.
 
-A file is *verified* when its name has the record and its size and sha256 match it. Anything else in
+A file is *verified* when its name has the record, its size and sha256 match it and its Parquet schema is
+exactly the declared :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`. Anything else in
 ``cases/`` is *bad*: truncated, corrupted, a name without the record (an older version, or by hand),
+a file whose columns do not fit the declared result schema (the reason names the column),
 or not a case file at all. Bad files are never counted or read; :meth:`CampaignStore.reject_bad_files`
 moves them to ``rejected/`` so their cases are recomputed. A case recomputed after a kill can have two
 verified files for a moment (the worker removes the older one right after its rename); the newest
@@ -25,9 +27,12 @@ import re
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Mapping, Sequence
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from campaign.store.result_schema import CASE_FILE_SCHEMA, ResultSchemaError, rows_table, schema_problem
 
 CASE_FILE = re.compile(r"^case-(\d{6,})\.(ok|failed)\.(\d+)\.([0-9a-f]{64})\.parquet$")
 UNRECORDED_CASE_FILE = re.compile(r"^case-(\d+)\.(ok|failed)\.parquet$")
@@ -91,11 +96,17 @@ def fsync_directory(directory: Path) -> None:
         os.close(descriptor)
 
 
-def write_case_rows(cases_dir: Path, case_id: int, rows: list[dict], ok: bool) -> Path:
+def write_case_rows(cases_dir: Path, case_id: int, rows: Sequence[Mapping[str, Any]], ok: bool) -> Path:
     """Durably write a case's rows (one per estimator) in one file named with its size and sha256 (atomic
     rename), then remove any earlier file of the same case. ``ok``: the case was simulated (an
-    estimator's own failure is in its row)."""
-    data = table_bytes(pa.Table.from_pylist(rows))
+    estimator's own failure is in its row).
+
+    Raises
+    ------
+    campaign.store.result_schema.ResultSchemaError
+        A row does not fit :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` (nothing is written).
+    """
+    data = table_bytes(rows_table(rows, CASE_FILE_SCHEMA))
     target = cases_dir / case_file_name(case_id, ok, len(data), sha256_bytes(data))
     atomic_write_bytes(target, data, cases_dir / f"{TEMPORARY_PREFIX}{case_id:06d}-{uuid.uuid4().hex}.parquet")
     for entry in os.scandir(cases_dir):
@@ -130,8 +141,25 @@ class CaseScan:
         return sha256_bytes("\n".join(names).encode())
 
 
+def read_case_table(path: Path) -> pa.Table:
+    """The rows of a case file, checked against the declared schema.
+
+    Raises
+    ------
+    campaign.store.result_schema.ResultSchemaError
+        The file's columns do not fit :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` (the message
+        names the file and the column).
+    """
+    table = pq.read_table(path)
+    problem = schema_problem(table.schema, CASE_FILE_SCHEMA)
+    if problem is not None:
+        raise ResultSchemaError(f"{path}: {problem}")
+    return table
+
+
 def check_case_file(path: Path, match: re.Match) -> str | None:
-    """What is wrong with a file whose name has the record, or None when size and sha256 match it."""
+    """What is wrong with a file whose name has the record, or None when its size and sha256 match it and
+    its schema is the declared case-file schema."""
     recorded_size, recorded_digest = int(match.group(3)), match.group(4)
     try:
         size = path.stat().st_size
@@ -143,7 +171,11 @@ def check_case_file(path: Path, match: re.Match) -> str | None:
         return f"unreadable: {exc.strerror or exc}"
     if digest != recorded_digest:
         return f"corrupted: sha256 {digest[:16]}... differs from the {recorded_digest[:16]}... recorded at write time"
-    return None
+    try:
+        schema = pq.read_schema(path)
+    except (OSError, pa.ArrowException) as exc:
+        return f"unreadable as Parquet: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    return schema_problem(schema, CASE_FILE_SCHEMA)
 
 
 def scan_case_files(cases_dir: Path, verified_before: dict | None = None) -> CaseScan:

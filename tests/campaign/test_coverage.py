@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from campaign.run.orchestrate import plan_campaign
-from campaign.run.case import load_resources, simulate_case
+from campaign.run.case import PlanRow, compute_case
+from campaign.run.worker import load_resources
 from campaign.cli import main as campaign_main
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.plan.coverage import _mirror_pad
@@ -126,15 +127,17 @@ def test_case_seeing_outside_the_terrain_is_recorded_invalid(tmp_path):
     _, plan = plan_campaign(strict)
     row = plan.iloc[0].to_dict()
     row["offset_east_m"] += 1300.0                 # the 3 km strip's edge now crosses the images
-    (shifted,) = simulate_case(load_resources(strict), row, str(tmp_path))          # one estimator: one row
-    assert max(shifted["outside_terrain_fraction"]) > 0.1
-    assert shifted["valid"] is False and shifted["reason"] == "outside_terrain"
-    assert shifted["velocity_error_mps"] is None
-    (judged_by_estimator,) = simulate_case(load_resources(lenient), row, str(tmp_path))
-    assert judged_by_estimator["reason"] != "outside_terrain"
-    assert judged_by_estimator["outside_terrain_fraction"] == shifted["outside_terrain_fraction"]
-    (inside,) = simulate_case(load_resources(strict), plan.iloc[0].to_dict(), str(tmp_path))
-    assert max(inside["outside_terrain_fraction"]) == 0.0 and inside["reason"] != "outside_terrain"
+    shifted_case = compute_case(load_resources(strict), PlanRow.from_record(row))
+    (shifted,) = shifted_case.estimates                                              # one estimator: one row
+    assert max(shifted_case.truth.outside_terrain_fraction) > 0.1
+    assert shifted.valid is False and shifted.reason == "outside_terrain"
+    assert shifted.velocity_error_mps is None
+    lenient_case = compute_case(load_resources(lenient), PlanRow.from_record(row))
+    (judged_by_estimator,) = lenient_case.estimates
+    assert judged_by_estimator.reason != "outside_terrain"
+    assert lenient_case.truth.outside_terrain_fraction == shifted_case.truth.outside_terrain_fraction
+    inside_case = compute_case(load_resources(strict), PlanRow.from_record(plan.iloc[0].to_dict()))
+    assert max(inside_case.truth.outside_terrain_fraction) == 0.0 and inside_case.estimates[0].reason != "outside_terrain"
 
 
 def test_resample_mode_is_validated(tmp_path, capsys):

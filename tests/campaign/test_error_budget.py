@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from campaign.run.orchestrate import plan_campaign
-from campaign.run.case import load_resources, simulate_case
+from campaign.run.case import PlanRow, compute_case
+from campaign.run.worker import load_resources
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.run.error_budget import attitude_floor_mps
 from service_campaigns import campaign_file
@@ -36,11 +37,11 @@ def test_estimator_error_follows_the_floor_when_the_attitude_bias_dominates(tmp_
     config = load_campaign_config(campaign_file(tmp_path, cases={"gcp": 0, "gdcp": 5, "gkep": 0}, extra=sensors))
     _, plan = plan_campaign(config)
     resources = load_resources(config)
-    rows = [row for case in plan.to_dict("records") for row in simulate_case(resources, case, str(tmp_path))]
-    valid = [row for row in rows if row["valid"]]
-    assert len(valid) >= 3, [row["reason"] for row in rows]
-    floors = np.array([row["attitude_floor_mps"] for row in valid])
-    errors = np.array([row["velocity_error_mps"] for row in valid])
+    cases = [compute_case(resources, PlanRow.from_record(record)) for record in plan.to_dict("records")]
+    valid = [(case.truth, estimate) for case in cases for estimate in case.estimates if estimate.valid]
+    assert len(valid) >= 3, [estimate.reason for case in cases for estimate in case.estimates]
+    floors = np.array([truth.attitude_floor_mps for truth, _ in valid])
+    errors = np.array([estimate.velocity_error_mps for _, estimate in valid])
     assert floors.max() > 2.0                          # the bias dominates: floors of metres per second
     # within the scatter of matching and IMU-bias estimation (0.3-0.4 m/s rms on full campaigns)
     assert np.all(np.abs(errors - floors) <= 0.15 * floors + 0.7), np.c_[errors, floors]

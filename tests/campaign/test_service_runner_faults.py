@@ -49,7 +49,7 @@ def test_memory_error_in_a_case_is_infrastructure_not_a_failure(tmp_path):
     script = f"""
 import resource, sys
 from campaign.run.orchestrate import plan_campaign
-from campaign.run.case import CampaignContext, execute_case, load_resources
+from campaign.run.worker import CampaignContext, execute_case, load_resources
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.run.faults import InfrastructureError
 config = load_campaign_config({str(path)!r}, output_dir={str(tmp_path / 'out')!r})

@@ -53,6 +53,15 @@ def _case_files(store: Path) -> dict[int, Path]:
     return {int(CASE_FILE.match(p.name).group(1)): p for p in (store / "cases").iterdir() if CASE_FILE.match(p.name)}
 
 
+def _replaced(table: pa.Table, **values) -> pa.Table:
+    """``table`` with each named column set to one value in every row (its declared type kept)."""
+    for name, value in values.items():
+        index = table.schema.get_field_index(name)
+        table = table.set_column(index, table.schema.field(index), pa.array([value] * table.num_rows,
+                                                                             type=table.schema.field(index).type))
+    return table
+
+
 def _flip_byte(path: Path, offset: int) -> None:
     data = bytearray(path.read_bytes())
     data[offset] ^= 0xFF
@@ -133,12 +142,12 @@ def test_two_verified_files_of_one_case_count_once(reference, store):
     files: the newest counts, once."""
     files = _case_files(store)
     first, second, _ = sorted(files)
-    again = pq.read_table(files[first]).to_pandas().assign(t_case_ms=1.0)
-    data = table_bytes(pa.Table.from_pandas(again, preserve_index=False))
+    again = _replaced(pq.read_table(files[first]), t_case_ms=1.0)
+    data = table_bytes(again)
     newer = store / "cases" / case_file_name(first, True, len(data), sha256_bytes(data))
     newer.write_bytes(data)
-    failed = pq.read_table(files[second]).to_pandas().assign(status="failed", error="RuntimeError: test")
-    data = table_bytes(pa.Table.from_pandas(failed, preserve_index=False))
+    failed = _replaced(pq.read_table(files[second]), status="failed", error="RuntimeError: test")
+    data = table_bytes(failed)
     failed_path = store / "cases" / case_file_name(second, False, len(data), sha256_bytes(data))
     failed_path.write_bytes(data)
     for path in (newer, failed_path):
@@ -157,9 +166,11 @@ KILLED_WRITER = """
 import sys, itertools
 from pathlib import Path
 from campaign.store.case_files import write_case_rows
+from campaign.store.result_schema import CASE_FILE_SCHEMA
 cases = Path(sys.argv[1])
 for attempt in itertools.count():
-    rows = [{"case_id": 7, "estimator": "dimes", "attempt": attempt, "payload": "x" * (1000 + attempt % 5000)}]
+    rows = [{**dict.fromkeys(CASE_FILE_SCHEMA.names), "case_id": 7, "estimator": "dimes", "attempts": attempt,
+             "error": "x" * (1000 + attempt % 5000)}]
     write_case_rows(cases, 7, rows, ok=attempt % 2 == 0)
     if attempt == 0:
         print("writing", flush=True)

@@ -1,0 +1,170 @@
+"""Running cases on a worker process: the per-process cache, process tuning, retries, and writing a case's
+rows (ok or failed) and example PNGs to the store.
+
+Big read-only inputs (camera, trajectory set, terrain strips, calibration, estimators) are loaded once per
+worker process and kept in :data:`WORKER_CACHE` (one :class:`WorkerCache`: the campaigns' inputs by
+configuration hash, and the inputs they share by source); tasks themselves only carry the small
+:class:`CampaignContext` and one plan row. The case itself is computed by
+:func:`campaign.run.case.compute_case`.
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import socket
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+
+from campaign.configuration.campaign_file import CampaignConfig
+from campaign.report.plots import save_descent_image
+from campaign.run.case import (CampaignInputs, CaseRun, EstimatorResult, PlanRow, SharedInputs, case_rows,
+                               compute_case)
+from campaign.run.faults import InfrastructureError, describe, is_infrastructure
+from campaign.store.case_files import write_case_rows
+
+
+@dataclass
+class WorkerCache:
+    """Everything a worker process keeps between tasks.
+
+    Attributes
+    ----------
+    campaigns : dict
+        Configuration hash -> the campaign's :class:`~campaign.run.case.CampaignInputs`.
+    shared : SharedInputs
+        Inputs shared by the campaigns (or sweep points) the process serves, by source.
+    process_tuned : bool
+        :func:`tune_process` has run in this process.
+    """
+
+    campaigns: dict[str, CampaignInputs] = field(default_factory=dict)
+    shared: SharedInputs = field(default_factory=SharedInputs)
+    process_tuned: bool = False
+
+
+WORKER_CACHE = WorkerCache()
+"""The cache of this process (the only one)."""
+
+
+def keep_freed_memory_for_reuse() -> bool:
+    """Ask glibc to recycle freed image buffers instead of returning them to the kernel at once.
+
+    dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also freezes glibc's
+    mmap threshold at 128 KiB: every 1024 x 1024 array is then a fresh ``mmap`` whose pages the
+    kernel zero-fills on first touch, and a case runs 2.5 times slower (measured: 311 vs 125 ms),
+    most of it as system time. Raising both thresholds (mmap 32 MiB, the largest glibc accepts; trim
+    64 MiB) keeps a case's image buffers (4-12 MiB each) in the heap for reuse while larger scratch
+    (terrain generation) is still returned at once, so a worker stays well under its memory limit. Returns False where there is no
+    glibc (the setting is then simply not needed).
+    """
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3
+    return bool(libc.mallopt(m_trim_threshold, 64 << 20)) and bool(libc.mallopt(m_mmap_threshold, 32 << 20))
+
+
+def tune_process() -> None:
+    """Tune this process for cases: keep freed image buffers for reuse, one OpenCV thread (one worker
+    process per core: OpenCV's own threads would only contend)."""
+    keep_freed_memory_for_reuse()
+    cv2.setNumThreads(1)
+
+
+def load_resources(config: CampaignConfig, cache: WorkerCache = WORKER_CACHE) -> CampaignInputs:
+    """The campaign's inputs in this process (created on first use; the process is tuned once)."""
+    if not cache.process_tuned:
+        tune_process()
+        cache.process_tuned = True
+    if config.config_hash not in cache.campaigns:
+        cache.campaigns[config.config_hash] = CampaignInputs(config, cache.shared)
+    return cache.campaigns[config.config_hash]
+
+
+@dataclass(frozen=True)
+class CampaignContext:
+    """What every task needs besides its plan row (small and picklable).
+
+    Attributes
+    ----------
+    config : CampaignConfig
+        The validated campaign.
+    config_hash : str
+        Its configuration hash (the key of its inputs in the worker cache).
+    store_root : str
+        The campaign store's directory.
+    """
+
+    config: CampaignConfig
+    config_hash: str
+    store_root: str
+
+    @classmethod
+    def from_config(cls, config: CampaignConfig, store_root: Path) -> CampaignContext:
+        return cls(config=config, config_hash=config.config_hash, store_root=str(store_root))
+
+
+def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
+    """Run one case (a plan record) with retries and write its rows (ok or failed) to the store; return
+    the status.
+
+    Only an exception of the case's own computation (:func:`~campaign.run.case.compute_case`) is retried
+    and then recorded ``failed``. A storage error (``OSError`` such as ENOSPC, EDQUOT, EROFS, EIO) or
+    ``MemoryError``, in the computation or while writing the case file, is the machine's fault: nothing
+    is recorded, the writes remove their own temporary files and
+    :class:`~campaign.run.faults.InfrastructureError` is raised (the driver stops the run; the next
+    submit runs the case again)."""
+    config = context.config
+    plan = PlanRow.from_record(record)
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    attempts = config.execution.retries + 1
+    error = ""
+    started = time.perf_counter()
+    computation = None
+    for attempt in range(1, attempts + 1):
+        try:
+            computation = compute_case(load_resources(config), plan)
+            if plan.case_in_class == 0:
+                save_examples(Path(context.store_root), plan, computation.images_dn)
+            attempts_used = attempt
+            break
+        except Exception as exc:  # the case's own failure is recorded in its rows; the campaign goes on
+            if is_infrastructure(exc):
+                raise InfrastructureError(describe(exc, plan.case_id, "computing", worker, context.store_root)) from None
+            where = [line.strip() for line in traceback.format_exc().splitlines() if line.strip().startswith("File ")]
+            error = f"{type(exc).__name__}: {exc} | {where[-1] if where else ''}"
+            attempts_used = attempt
+    run = CaseRun(attempts=attempts_used, worker=worker, t_case_ms=1e3 * (time.perf_counter() - started))
+    if computation is None:
+        rows = case_rows(plan, config.seed, run, [EstimatorResult.of_failed_case(name, error)
+                                                  for name in config.estimator_names], truth=None)
+    else:
+        rows = case_rows(plan, config.seed, run, computation.estimates, computation.truth)
+    try:
+        write_case_rows(Path(context.store_root) / "cases", plan.case_id, [row.columns() for row in rows],
+                        ok=computation is not None)
+    except (OSError, MemoryError) as exc:       # the failed write removed its own temporary file
+        raise InfrastructureError(describe(exc, plan.case_id, "writing its result", worker, context.store_root)) from None
+    return "ok" if computation is not None else "failed"
+
+
+def save_examples(store_root: Path, plan: PlanRow, images_dn: tuple[np.ndarray, ...]) -> None:
+    """PNG examples of the first case of each class (for the report), written atomically."""
+    directory = store_root / "examples"
+    directory.mkdir(exist_ok=True)
+    for index, image in enumerate(images_dn):
+        target = directory / f"{plan.class_name}-case{plan.case_id:06d}-image{index + 1}.png"
+        temporary = directory / f".tmp-{os.getpid()}-{target.name}"
+        try:
+            save_descent_image(image, temporary)
+            os.replace(temporary, target)
+        except BaseException:                  # e.g. a full disk: leave no temporary file behind
+            temporary.unlink(missing_ok=True)
+            raise
