@@ -27,21 +27,20 @@ prints the JSON Schema). Errors are one line naming the file, the field and the 
 identifies the campaign's *results*: it is computed from content, never from paths or from which
 defaults were written out (:func:`hashed_content`): every resolved table except ``[execution]``,
 ``output_dir``, ``false_valid_mps`` and the case counts; the bytes of the camera, trajectory and terrain
-files; a digest of the code that computes results (:func:`code_digest`). So a campaign can be resumed on
+files; a digest of the code that computes results (:func:`~campaign.configuration.code_identity.code_digest`:
+the import closure of the case computation and the plug-ins' files). So a campaign can be resumed on
 another cluster, from another directory, or with more cases (case identity is (class, index within
 class)), but not with another camera or another version of the simulator or estimator.
 """
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import AfterValidator, Field, ValidationInfo, model_validator
+from pydantic import AfterValidator, Field, SkipValidation, ValidationInfo, model_validator
 
 from dimes_velocity.config import EstimatorConfig
 from estimators.registry import EstimatorEntry, EstimatorSpec, unique_names
@@ -50,6 +49,7 @@ from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig
 from sitedata.sites import MAX_CASES, Site
 
+from campaign.configuration.code_identity import code_digest, plugin_modules
 from campaign.configuration.estimators import CalibrationConfig, EstimatorTable, estimator_code_digests, estimator_tables
 from campaign.configuration.execution import ExecutionConfig
 
@@ -102,35 +102,133 @@ class CampaignFile(ConfigModel):
         return self
 
 
-@dataclass(frozen=True)
-class CampaignConfig:
-    """A validated campaign (see the module docstring for the tables)."""
+class CampaignConfig(ConfigModel):
+    """A campaign as the runtime uses it: the validated tables of one campaign file, the file they were
+    read from, and where its store is.
+
+    Built only by validation (:func:`campaign_config_from_data`, :meth:`with_output_dir`), never by hand
+    and never changed afterwards: the validator derives ``scene``, ``estimators`` and ``config_hash``
+    from the other fields (whatever a caller passes for them is replaced); every other derived value is
+    a property of the tables.
+    """
 
     source: Path
-    site: Site
-    seed: int
+    """The campaign file (relative paths in its ``[site]`` resolved against it)."""
+    tables: CampaignFile
+    """Every table of the file as written (validated; the manifest records them with defaults filled in)."""
     output_dir: Path
-    cases_per_class: dict
-    execution: ExecutionConfig
-    sensors: SensorConfig
-    estimator: EstimatorConfig    # the reference estimator's configuration ([estimator] defaults)
+    """The campaign's store: ``--output``, else ``[campaign] output_dir``, else ``runs/<site>``."""
+    cases_scale: CasesScale
+    """Factor on every class's case count: ``--cases-scale``, else ``[campaign] cases_scale``."""
     scene: SceneConfig
-    config_hash: str
-    resolved: dict                # every table with its defaults filled in (for the manifest)
-    max_outside_terrain_fraction: float = 0.0   # an image seeing more ground outside the terrain: invalid
-    false_valid_mps: float = 5.0  # tables: valid with a larger error counts as false-valid
-    calibration: CalibrationConfig = CalibrationConfig()
-    estimators: tuple[EstimatorSpec, ...] = ()   # in [[estimators]] order
+    """``[scene]`` with ``sun_distance_au`` taken from the site when the file does not give it (derived)."""
+    estimators: SkipValidation[tuple[EstimatorSpec, ...]] = ()
+    """The estimators of ``[[estimators]]`` in file order, default the reference alone (derived)."""
+    config_hash: str = ""
+    """sha256 identifying the campaign's results (derived; see :func:`hashed_content`)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _derived_values(cls, data, info: ValidationInfo):
+        if not isinstance(data, dict) or not isinstance(data.get("tables"), CampaignFile):
+            return data
+        tables = data["tables"]
+        label = (info.context or {}).get("source") or str(data.get("source"))
+        scene = tables.scene
+        if "sun_distance_au" not in scene.model_fields_set:
+            scene = SceneConfig.model_validate({**scene.model_dump(exclude_unset=True),
+                                                "sun_distance_au": tables.site.heliocentric_distance_au})
+        _, _, estimators = estimator_tables(tables.estimator, tables.estimators, label)
+        hashed = hashed_content(resolved_tables(tables), tables.site)
+        hashed["code_digest"] = code_digest(plugin_modules(estimators))
+        hashed["estimator_code_digests"] = estimator_code_digests(estimators)
+        config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
+        return {**data, "scene": scene, "estimators": estimators, "config_hash": config_hash}
+
+    def with_output_dir(self, output_dir: str | Path) -> CampaignConfig:
+        """This campaign with its store at ``output_dir`` (a validated copy; the hash is unchanged)."""
+        return CampaignConfig.model_validate({"source": self.source, "tables": self.tables,
+                                              "output_dir": Path(output_dir), "cases_scale": self.cases_scale})
+
+    @property
+    def site(self) -> Site:
+        return self.tables.site
+
+    @property
+    def seed(self) -> int:
+        return self.tables.campaign.seed
+
+    @property
+    def execution(self) -> ExecutionConfig:
+        return self.tables.execution
+
+    @property
+    def sensors(self) -> SensorConfig:
+        return self.tables.sensors
+
+    @property
+    def estimator(self) -> EstimatorConfig:
+        """The reference estimator's configuration (``[estimator]``, its defaults where the table gives none)."""
+        return self.tables.estimator.reference()
+
+    @property
+    def calibration(self) -> CalibrationConfig:
+        """How the calibration products are made (``[estimator] flat_field``, ``flat_field_frames``)."""
+        return self.tables.estimator.calibration()
+
+    @property
+    def max_outside_terrain_fraction(self) -> float:
+        return self.tables.campaign.max_outside_terrain_fraction
+
+    @property
+    def false_valid_mps(self) -> float:
+        return self.tables.campaign.false_valid_mps
+
+    @property
+    def cases_per_class(self) -> dict[str, int]:
+        """Class name -> number of cases: ``[campaign.cases]`` over the site's counts, times ``cases_scale``
+        (rounded half up, at least 1 for a class with a count)."""
+        cases = {}
+        for entry in self.site.classes:
+            count = self.tables.campaign.cases.get(entry.name, entry.cases)
+            cases[entry.name] = 0 if count == 0 else max(1, int(math.floor(count * self.cases_scale + 0.5)))
+        return cases
+
+    @property
+    def resolved(self) -> dict:
+        """Every table with its defaults filled in, as JSON values (recorded in the manifest)."""
+        return resolved_tables(self.tables)
 
     @property
     def estimator_names(self) -> list[str]:
         return [spec.name for spec in self.estimators]
 
 
+def resolved_tables(tables: CampaignFile) -> dict:
+    """Every table of ``tables`` with its defaults filled in, as JSON values."""
+    return {name: json.loads(json.dumps(getattr(tables, name), default=lambda value: value.model_dump(mode="json")))
+            for name in CampaignFile.model_fields}
+
+
 def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = None,
                          cases_scale: float | None = None) -> CampaignConfig:
-    """Load and validate a campaign TOML; ``output_dir`` and ``cases_scale`` override the file (and are
-    validated first, against the same declarations, naming the command-line flag)."""
+    """Load and validate a campaign TOML.
+
+    Parameters
+    ----------
+    path : str or Path
+        The campaign file.
+    output_dir : str or Path, optional
+        ``--output``: the store, instead of ``[campaign] output_dir``.
+    cases_scale : float, optional
+        ``--cases-scale``: instead of ``[campaign] cases_scale`` (validated first, against the same
+        declaration, errors naming the flag).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file (or flag), the field and the allowed values.
+    """
     path = Path(path)
     if cases_scale is not None:
         parse_field(CampaignTable, "cases_scale", cases_scale, COMMAND_LINE, "--cases-scale")
@@ -142,41 +240,32 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
                               cases_scale: float | None = None) -> CampaignConfig:
     """Validate an already parsed campaign TOML ``data`` (e.g. a base campaign with sweep overrides).
 
-    ``path`` is the campaign file the data came from (relative paths in ``[site]`` resolve against it);
-    ``source`` names the data in error messages (default: ``path``). Same hash semantics as
-    :func:`load_campaign_config`.
+    Parameters
+    ----------
+    data : dict
+        Parsed TOML.
+    path : str or Path
+        The campaign file the data came from (relative paths in ``[site]`` resolve against it).
+    source : str, optional
+        Names the data in error messages (default: ``path``).
+    output_dir, cases_scale
+        Command-line overrides, as for :func:`load_campaign_config`.
+
+    Returns
+    -------
+    CampaignConfig
+        Same hash semantics as :func:`load_campaign_config`.
     """
     path = Path(path)
     label = source or str(path)
     if not isinstance(data, dict) or "site" not in data:
         raise ConfigError(f"{label}: site is missing (a [site] table with the site, camera, sun and classes)")
     tables = parse(CampaignFile, data, label, context={"base_dir": path.parent, "source": label})
-    site = tables.site
-    site._source = path
-    scene = tables.scene
-    if "sun_distance_au" not in scene.model_fields_set:
-        scene = scene.model_copy(update={"sun_distance_au": site.heliocentric_distance_au})
     campaign = tables.campaign
-    out = Path(output_dir) if output_dir is not None else Path(campaign.output_dir or f"runs/{site.name.lower()}")
-    scale = cases_scale if cases_scale is not None else campaign.cases_scale
-    cases = {}
-    for entry in site.classes:
-        count = campaign.cases.get(entry.name, entry.cases)
-        cases[entry.name] = 0 if count == 0 else max(1, int(math.floor(count * scale + 0.5)))
-
-    calibration, estimator, estimators = estimator_tables(tables.estimator, tables.estimators, label)
-
-    resolved = {name: json.loads(json.dumps(getattr(tables, name), default=lambda value: value.model_dump(mode="json")))
-                for name in CampaignFile.model_fields}
-    hashed = hashed_content(resolved, site)
-    hashed["code_digest"] = code_digest()
-    hashed["estimator_code_digests"] = estimator_code_digests(estimators)
-    config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
-    return CampaignConfig(source=path, site=site, seed=campaign.seed, output_dir=out, cases_per_class=cases,
-                          execution=tables.execution, sensors=tables.sensors, estimator=estimator,
-                          scene=scene, config_hash=config_hash, resolved=resolved,
-                          max_outside_terrain_fraction=campaign.max_outside_terrain_fraction,
-                          false_valid_mps=campaign.false_valid_mps, calibration=calibration, estimators=estimators)
+    store = Path(output_dir) if output_dir is not None else Path(campaign.output_dir or f"runs/{tables.site.name.lower()}")
+    return parse(CampaignConfig, {"source": path, "tables": tables, "output_dir": store,
+                                  "cases_scale": campaign.cases_scale if cases_scale is None else float(cases_scale)},
+                 label, context={"source": label})
 
 
 HASH_EXCLUDED_CAMPAIGN_KEYS = ("output_dir", "false_valid_mps", "cases", "cases_scale")
@@ -204,26 +293,6 @@ def hashed_content(resolved: dict, site: Site) -> dict:
             if value is not None:
                 class_content["terrain"][name] = file_digest(Path(value))
     return content
-
-
-RESULT_CODE = ("flight_interface", "simulator", "dimes_velocity", "estimators", "sitedata", "campaign/run/case.py",
-               "campaign/run/error_budget.py")
-
-
-@functools.lru_cache(maxsize=4)
-def code_digest(root: Path = Path(__file__).resolve().parents[2], parts: tuple[str, ...] = RESULT_CODE) -> str:
-    """sha256 over the Python sources that compute a case's result (simulator, estimator, site data and
-    terrain generators, the case task), by path relative to ``root`` and contents. Part of the
-    configuration hash: results of different code are never mixed in one store, and a sweep point is
-    reused only when the code that computed it is unchanged."""
-    digest = hashlib.sha256()
-    for part in parts:
-        base = root / part
-        files = sorted(base.rglob("*.py")) if base.is_dir() else [base]
-        for file in files:
-            digest.update(str(file.relative_to(root).as_posix()).encode())
-            digest.update(file_digest(file).encode())
-    return digest.hexdigest()
 
 
 def file_digest(path: Path) -> str:

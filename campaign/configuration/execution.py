@@ -187,12 +187,14 @@ class ExecutionConfig(ConfigModel):
     def memory_limit_bytes(self) -> int:
         return parse_bytes(self.memory_limit)
 
-    def with_overrides(self, scheduler: str | None = None, workers: int | None = None) -> "ExecutionConfig":
+    def with_overrides(self, scheduler: str | None = None, workers: int | None = None) -> ExecutionConfig:
         """This configuration with the command line's ``--scheduler`` (cluster "scheduler") and
-        ``--workers`` applied (both already validated against these declarations)."""
-        update = {}
+        ``--workers`` applied: a validated copy (the table's checks hold for the result too)."""
+        update: dict = {}
         if scheduler:
             update.update(cluster="scheduler", scheduler=scheduler)
         if workers:
             update["workers"] = workers
-        return self.model_copy(update=update) if update else self
+        if not update:
+            return self
+        return ExecutionConfig.model_validate({**self.model_dump(exclude_unset=True), **update})

@@ -31,7 +31,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -146,7 +146,7 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None) -> SweepS
             raise ConfigError(f"{label}: axes: points {seen[config.config_hash]} and p{index:03d} are the same "
                               f"configuration ({values}); allowed: distinct points")
         seen[config.config_hash] = f"p{index:03d}"
-        config = replace(config, output_dir=point_store_dir(out, config.config_hash))
+        config = config.with_output_dir(point_store_dir(out, config.config_hash))
         points.append(SweepPoint(point_id=f"p{index:03d}", values=values, config=config))
     return SweepSpec(source=path, base_path=base_path, output_dir=out, mode=sweep.mode, axes=axes,
                      tolerances=tables.tolerances, points=points, base=base)
