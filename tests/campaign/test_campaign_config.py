@@ -75,20 +75,6 @@ def test_default_counts_are_the_papers():
     assert gusev.config_hash != meridiani.config_hash
 
 
-def test_code_digest_changes_with_the_result_code_only(tmp_path):
-    from campaign.configuration.campaign_file import code_digest
-
-    (tmp_path / "simulator").mkdir()
-    (tmp_path / "simulator" / "stage.py").write_text("GAIN = 1.0\n")
-    (tmp_path / "README.md").write_text("docs\n")
-    parts = ("simulator",)
-    first = code_digest(tmp_path, parts)
-    (tmp_path / "README.md").write_text("other docs\n")
-    assert code_digest.__wrapped__(tmp_path, parts) == first
-    (tmp_path / "simulator" / "stage.py").write_text("GAIN = 2.0\n")
-    assert code_digest.__wrapped__(tmp_path, parts) != first
-
-
 def test_hash_is_of_content_not_of_paths_defaults_or_counts(tmp_path):
     """The same campaign given by an absolute path, from another directory (its input files copied), with
     the default seed written out, or scaled (CLI or TOML) has one hash; a changed input byte does not."""
