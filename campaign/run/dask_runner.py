@@ -17,7 +17,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import pandas as pd
 from dask.distributed import Client
 from distributed.comm.core import CommClosedError
 
@@ -32,7 +31,7 @@ SCHEDULER_POLL_S = 1.0    # the scheduler's worker list, asked this often
 SCHEDULER_CALL_TIMEOUT_S = 20.0
 LOST_CONNECTION_GRACE_S = 10.0   # the client reconnects by itself within this time, or the scheduler is lost
 
-__all__ = ["CaseTask", "RunSummary", "Watch", "run_cases", "submit_cases", "wait_for_cases"]
+__all__ = ["CaseTask", "RunSummary", "Watch", "submit_cases", "wait_for_cases"]
 
 
 @dataclass(frozen=True)
@@ -63,7 +62,7 @@ class Watch:
     memory_limit: str = "1.5GiB"
 
     @classmethod
-    def from_execution(cls, execution: ExecutionConfig) -> "Watch":
+    def from_execution(cls, execution: ExecutionConfig) -> Watch:
         return cls(execution.stall_timeout_s, execution.no_workers_timeout_s, execution.paused_timeout_s,
                    execution.cluster, execution.memory_limit)
 
@@ -87,18 +86,6 @@ def submit_cases(client: Client, context: CampaignContext, rows: list[dict], sto
     futures = client.map(execute_case, [context] * len(rows), rows,
                          key=[f"case-{context.config_hash[:12]}-{case_id:06d}" for case_id in case_ids], pure=False)
     return [CaseTask(future, store, case_id) for future, case_id in zip(futures, case_ids)]
-
-
-def run_cases(context: CampaignContext, store: CampaignStore, plan: pd.DataFrame, client: Client,
-              progress: bool = True, watch: Watch | None = None) -> RunSummary:
-    """Submit every planned case that has no file in the store yet; wait for all of them (RunStopped
-    when the run cannot progress)."""
-    start = time.perf_counter()
-    finished = store.finished_case_ids()
-    todo = [row for row in plan.to_dict("records") if int(row["case_id"]) not in finished]
-    watch = watch or Watch.from_execution(context.config.execution)
-    done, failed = wait_for_cases(client, submit_cases(client, context, todo, store), watch, progress) if todo else (0, 0)
-    return RunSummary(len(todo), done, failed, time.perf_counter() - start)
 
 
 def wait_for_cases(client: Client, tasks: list[CaseTask], watch: Watch = Watch(), progress: bool = True,

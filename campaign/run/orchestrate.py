@@ -1,10 +1,14 @@
-"""Plan and submit a campaign: the glue between config, planner, store, dask runner and tables."""
+"""Plan and run campaigns: the one plan/prepare/run/compact path (:func:`run_store_points`) that
+``campaign submit`` (one store) and ``campaign sweep`` (one store per point) share, and the tables."""
 from __future__ import annotations
 
 import importlib.metadata
 import platform
 import sys
 import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -15,12 +19,13 @@ from campaign.report.aggregate import format_table, site_table
 from campaign.run.worker import CampaignContext, load_resources
 from campaign.report.compare import COMPARISON_NOTE, comparison_table, estimator_names, format_comparison, with_estimator_column
 from campaign.configuration.campaign_file import CampaignConfig
+from campaign.configuration.execution import ExecutionConfig
 from campaign.plan.coverage import refusal
 from campaign.plan.placement import ClassPlanInput, plan_class
 from campaign.report.plots import footprint_map
 from campaign.run.cluster import connected_client, require_backend
 from campaign.run.faults import RunStopped
-from campaign.run.dask_runner import RunSummary, Watch, run_cases
+from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
 from campaign.store.campaign_store import CampaignStore, StoreError
 
 PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pyarrow",
@@ -66,40 +71,142 @@ def manifest_for(config: CampaignConfig) -> dict:
     }
 
 
-def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | None = None,
-           fresh: bool = False, progress: bool = True, wait: bool = False) -> tuple[RunSummary, str]:
-    """Run every missing case of ``config``, compact the store and return the table text.
+@dataclass(frozen=True)
+class StorePoint:
+    """One campaign configuration, the store its cases go to, and what that store records of it."""
 
-    Order (so that a refusal changes nothing): check the cluster settings and plan (config errors),
-    check the store read-only (StoreError: another configuration, corrupt manifest, ... unless
-    ``fresh``), take the store's lock (:class:`~campaign.store.lock.StoreBusy` when another writer holds
-    it, unless ``wait``), check again under the lock, start or connect to the cluster, and only then
-    prepare the store (with ``fresh``: move the old store aside to ``DIR.previous-<UTC time>``), reject
-    bad case files and run.
+    config: CampaignConfig
+    manifest: dict          # the store's manifest.json content (before sealing)
+    plan: pd.DataFrame      # every planned case of the configuration
 
-    Raises RunStopped (one line) when the run could not go on: the finished cases are compacted first
-    (when the store was prepared; a cluster that cannot start leaves the store untouched)."""
-    execution = config.execution.with_overrides(scheduler, workers)
-    require_backend(execution, str(config.source))
-    resources, plan = plan_campaign(config)
-    store = CampaignStore(config.output_dir)
-    manifest = manifest_for(config)
-    store.check(manifest, plan, fresh=fresh)
-    with store.lock(wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)):
-        store.check(manifest, plan, fresh=fresh)
-        prepared = False
+    @property
+    def store_dir(self) -> Path:
+        return Path(self.config.output_dir)
+
+
+@dataclass(frozen=True)
+class PreparedPoint:
+    """A store brought up to date under its lock, and the plan rows it still has to run."""
+
+    point: StorePoint
+    store: CampaignStore
+    todo: list[dict]
+
+
+def plan_points(configs: list[CampaignConfig]) -> list[pd.DataFrame]:
+    """The plan of each configuration, planned once per distinct (campaign file, seed, case counts): a plan
+    depends only on the site, the seed and the case counts, which the points of a sweep share."""
+    plans: dict[tuple, pd.DataFrame] = {}
+    for config in configs:
+        key = (str(config.source), config.seed, tuple(sorted(config.cases_per_class.items())))
+        if key not in plans:
+            plans[key] = plan_campaign(config)[1]
+    return [plans[(str(config.source), config.seed, tuple(sorted(config.cases_per_class.items())))]
+            for config in configs]
+
+
+@dataclass(frozen=True)
+class StoresRun:
+    """What :func:`run_store_points` did: every point's prepared store, and the cases of this run."""
+
+    prepared: list[PreparedPoint]
+    done: int
+    failed: int
+
+    @property
+    def submitted(self) -> int:
+        return sum(len(entry.todo) for entry in self.prepared)
+
+
+def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, fresh: bool = False,
+                     progress: bool = True, wait: bool = False,
+                     on_note: Callable[[str], None] = lambda line: print(line, flush=True)) -> StoresRun:
+    """Run every missing case of every point's store on one cluster and compact the stores: the one
+    plan/prepare/run/compact path of ``campaign submit`` (one point) and ``campaign sweep`` (a point per
+    sweep configuration).
+
+    Order (so that a refusal changes nothing; the caller has planned and checked the cluster settings
+    with :func:`~campaign.run.cluster.require_backend`): check every store read-only (StoreError: another configuration, corrupt manifest, ... unless
+    ``fresh``), take every store's lock in path order (:class:`~campaign.store.lock.StoreBusy` when
+    another writer holds one, unless ``wait``), check again under the locks, start or connect to the
+    cluster, and only then prepare the stores (with ``fresh``: move an old store aside to
+    ``DIR.previous-<UTC time>``; ``on_note`` gets one line per action), reject bad case files and run all
+    missing cases together. A store is compacted when it ran cases or its results are not up to date.
+
+    Parameters
+    ----------
+    points : list of StorePoint
+        The configurations with their manifests and plans (distinct store directories).
+    execution : ExecutionConfig
+        Where the cases run (the command line's overrides applied).
+    fresh, progress, wait
+        As for :func:`submit`.
+    on_note : callable
+        Receives each line a store's preparation reports.
+
+    Returns
+    -------
+    StoresRun
+        Per point, its store and the plan rows that were still to run; done and failed cases of this run.
+
+    Raises
+    ------
+    RunStopped
+        One line, when the run could not go on: the finished cases are compacted first (a cluster that
+        cannot start leaves every store untouched).
+    """
+    stores = [CampaignStore(point.store_dir) for point in points]
+    for point, store in zip(points, stores):
+        store.check(point.manifest, point.plan, fresh=fresh)
+    with ExitStack() as locks:
+        for store in sorted(stores, key=lambda store: str(store.root)):
+            locks.enter_context(store.lock(wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)))
+        for point, store in zip(points, stores):
+            store.check(point.manifest, point.plan, fresh=fresh)
+        prepared: list[PreparedPoint] = []
+        done = failed = 0
         try:
             with connected_client(execution) as client:
-                for line in store.prepare(manifest, plan, fresh=fresh):
-                    print(line, flush=True)
-                prepared = True
-                context = CampaignContext.from_config(config, store.root)
-                summary = run_cases(context, store, store.plan(), client, progress=progress,
-                                    watch=Watch.from_execution(execution))
+                for point, store in zip(points, stores):
+                    for line in store.prepare(point.manifest, point.plan, fresh=fresh):
+                        on_note(line)
+                    finished = store.finished_case_ids()
+                    todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
+                    prepared.append(PreparedPoint(point, store, todo))
+                tasks = [task for entry in prepared if entry.todo
+                         for task in submit_cases(client, CampaignContext.from_config(entry.point.config, entry.store.root),
+                                                  entry.todo, entry.store)]
+                if tasks:
+                    done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
         except RunStopped as stop:
-            raise RunStopped(f"{stop}{compact_after_stop(store) if prepared else ''}") from None
-        store.compact()
-    return summary, write_table(store.root, config.false_valid_mps)
+            problems = {compact_after_stop(entry.store) for entry in prepared} - {""}
+            raise RunStopped(f"{stop}{min(problems, default='')}") from None
+        for entry in prepared:
+            if entry.todo or entry.store.results_problem() is not None:
+                entry.store.compact()
+    return StoresRun(prepared, done, failed)
+
+
+def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | None = None,
+           fresh: bool = False, progress: bool = True, wait: bool = False) -> tuple[RunSummary, str]:
+    """Run every missing case of ``config`` (:func:`run_store_points` with one point), compact the store
+    and return the run's summary and the table text.
+
+    Raises
+    ------
+    ConfigError
+        Cluster settings or a class whose terrain cannot hold the footprints (nothing written).
+    StoreError, StoreBusy, RunStopped
+        As :func:`run_store_points`.
+    """
+    start = time.perf_counter()
+    execution = config.execution.with_overrides(scheduler, workers)
+    require_backend(execution, str(config.source))
+    _, plan = plan_campaign(config)
+    point = StorePoint(config, manifest_for(config), plan)
+    run = run_store_points([point], execution, fresh=fresh, progress=progress, wait=wait)
+    summary = RunSummary(run.submitted, run.done, run.failed, time.perf_counter() - start)
+    return summary, write_table(point.store_dir, config.false_valid_mps)
 
 
 def compact_after_stop(store: CampaignStore) -> str:

@@ -26,9 +26,7 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
-from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,11 +35,8 @@ import pyarrow as pa
 
 from campaign.report.aggregate import format_number, render_grid
 from campaign.report.compare import comparison_table, estimator_names, with_estimator_column
-from campaign.run.orchestrate import compact_after_stop, manifest_for, plan_campaign
-from campaign.run.worker import CampaignContext
-from campaign.run.cluster import connected_client, require_backend
-from campaign.run.faults import RunStopped
-from campaign.run.dask_runner import Watch, submit_cases, wait_for_cases
+from campaign.run.orchestrate import StorePoint, manifest_for, plan_points, run_store_points
+from campaign.run.cluster import require_backend
 from campaign.store.campaign_store import CampaignStore, StoreError
 from campaign.store.case_files import atomic_write_bytes, atomic_write_table
 from campaign.configuration.sweep_file import SweepSpec, Tolerances
@@ -58,61 +53,29 @@ class SweepRun:
     unfinished: int = 0       # cases of all points failed or missing after the run (exit 1 when > 0)
 
 
-def prepare_points(spec: SweepSpec) -> list[tuple]:
-    """Create (or reopen and bring up to date) each point's store; return (point, store, rows still to run)
-    per point. Call it holding every point store's lock (:func:`point_locks`)."""
-    plans: dict[tuple, pd.DataFrame] = {}
-    prepared = []
-    for point in spec.points:
-        config = point.config
-        # the plan depends only on the site, seed and case counts: plan once per distinct triple
-        key = (config.seed, tuple(sorted(config.cases_per_class.items())))
-        if key not in plans:
-            plans[key] = plan_campaign(config)[1]
-        store = CampaignStore(config.output_dir)
-        # creates the store, or checks it and brings it up to date (another case count, a bad plan, bad case files)
-        store.prepare({**manifest_for(config), "sweep_file": str(spec.source), "sweep_point": point.values}, plans[key])
-        finished = store.finished_case_ids()
-        todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
-        prepared.append((point, store, todo))
-    return prepared
-
-
-def point_locks(spec: SweepSpec, stack: ExitStack, wait: bool = False) -> None:
-    """Take the writer lock of every point store (in path order, so two sweeps cannot deadlock)."""
-    for directory in sorted({str(point.config.output_dir) for point in spec.points}):
-        stack.enter_context(CampaignStore(directory).lock(
-            wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)))
+def sweep_store_points(spec: SweepSpec) -> list[StorePoint]:
+    """Each point's configuration with its store's manifest (the campaign's, plus the sweep file and the
+    point's axis values) and plan (planned once per distinct seed and case counts)."""
+    configs = [point.config for point in spec.points]
+    return [StorePoint(point.config, {**manifest_for(point.config), "sweep_file": str(spec.source),
+                                      "sweep_point": point.values}, plan)
+            for point, plan in zip(spec.points, plan_points(configs))]
 
 
 def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None = None,
               progress: bool = True, wait: bool = False) -> SweepRun:
-    """Run every point's missing cases together on one cluster, then compact each point's store; the
-    point stores' locks are held throughout (:class:`~campaign.store.lock.StoreBusy` if one is taken)."""
+    """Run every point's missing cases together on one cluster, then compact each point's store
+    (:func:`~campaign.run.orchestrate.run_store_points`, the path ``campaign submit`` takes with one
+    point); the point stores' locks are held throughout (:class:`~campaign.store.lock.StoreBusy` if one
+    is taken)."""
     start = time.perf_counter()
     execution = spec.base.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(spec.source))
-    with ExitStack() as stack:
-        point_locks(spec, stack, wait)
-        prepared = prepare_points(spec)
-        total = sum(len(todo) for _, _, todo in prepared)
-        done = failed = 0
-        if total:
-            try:
-                with connected_client(execution) as client:
-                    tasks = [task for point, store, todo in prepared if todo
-                             for task in submit_cases(client, CampaignContext.from_config(point.config, store.root),
-                                                      todo, store)]
-                    done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
-            except RunStopped as stop:
-                problems = {compact_after_stop(store) for _, store, todo in prepared if todo} - {""}
-                raise RunStopped(f"{stop}{min(problems, default='')}") from None
-        for _, store, todo in prepared:
-            if todo or store.results_problem() is not None:
-                store.compact()
-    reused = sum(1 for _, _, todo in prepared if not todo)
-    statuses = [store.status() for _, store, _ in prepared]
-    return SweepRun(len(prepared), reused, total, done, failed, time.perf_counter() - start,
+    run = run_store_points(sweep_store_points(spec), execution, progress=progress, wait=wait,
+                           on_note=lambda line: None)
+    reused = sum(1 for entry in run.prepared if not entry.todo)
+    statuses = [entry.store.status() for entry in run.prepared]
+    return SweepRun(len(run.prepared), reused, run.submitted, run.done, run.failed, time.perf_counter() - start,
                     unfinished=sum(status.failed + status.missing for status in statuses))
 
 
