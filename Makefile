@@ -13,6 +13,8 @@ run: install
 	campaign submit sitedata/gusev.toml
 
 test: install-test
+	$(PYTHON) -m ruff check .
+	$(PYTHON) -m mypy
 	$(PYTHON) -m pytest
 
 bench: install

@@ -16,9 +16,9 @@ import numpy as np
 
 from dimes_velocity import DimesEstimator
 from flight_interface.camera import load_camera
+from flight_interface.frames import quat_from_axis_angle
 from simulator.descent_image import render_descent_image
 from simulator.scene.descent_profile import constant_velocity_profile
-from flight_interface.frames import quat_from_axis_angle
 from simulator.scene.terrain import Terrain
 from simulator.sensors import SensorConfig, measure
 from sitedata.terrain.synthetic_terrain import synthetic_terrain

@@ -22,8 +22,8 @@ REPEATS = 3
 
 
 def _resources(path: Path):
-    from campaign.run.orchestrate import plan_campaign
     from campaign.configuration.campaign_file import load_campaign_config
+    from campaign.run.orchestrate import plan_campaign
 
     config = load_campaign_config(path, cases_scale=0.011)          # gcp 2, gdcp 1, gkep 1
     resources, plan = plan_campaign(config)

@@ -23,8 +23,8 @@ TIMING_REPEATS = 3
 
 
 def _cases():
-    from campaign.run.orchestrate import plan_campaign
     from campaign.configuration.campaign_file import load_campaign_config
+    from campaign.run.orchestrate import plan_campaign
 
     config = load_campaign_config(REPO / "sitedata" / "gusev.toml")
     resources, plan = plan_campaign(config)

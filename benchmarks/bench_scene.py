@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.timing import median_ms
-from simulator.scene import radiance
 from flight_interface.camera import load_camera
-from simulator.descent_image import render_descent_image
-from simulator.scene_config import REFERENCE_EFFECTS, AtmosphereConfig, SceneConfig
-from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
-from simulator.__main__ import crater_field, example_profile
 from flight_interface.frames import quat_from_axis_angle
+from simulator.__main__ import crater_field, example_profile
+from simulator.descent_image import render_descent_image
+from simulator.scene import radiance
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
+from simulator.scene_config import REFERENCE_EFFECTS, AtmosphereConfig, SceneConfig
 
 CAMERA = Path(__file__).resolve().parents[1] / "sitedata" / "cameras" / "mer_a.toml"
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
@@ -66,7 +66,7 @@ def run() -> list[dict]:
             ("full_image_example_tilted_heat_shield_halo", example_profile(), 0, default),
             ("full_image_example_tilted_heat_shield_halo_atmosphere", example_profile(), 0, dusty)):
         result = image(profile, index, config)
-        ms = median_ms(lambda: image(profile, index, config), 5)
+        ms = median_ms(lambda: image(profile, index, config), 5)  # noqa: B023 - called here, inside the loop
         rows.append({"name": f"scene/{name}", "ms": ms, "scene_ms": result.diagnostics.scene_ms,
                      "camera_ms": result.diagnostics.camera_ms,
                      "fields": sum(result.diagnostics.substeps.values()),

@@ -41,8 +41,8 @@ image refused as marks on the optics; a stated uncertainty with every valid velo
 """
 from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
 from dimes_velocity.estimator import DimesEstimator, estimate_velocity
-from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError
 from dimes_velocity.result import REASONS, FeatureMetrics, PairResult, StageTimings, VelocityEstimate
+from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError
 
 __all__ = [
     "DimesEstimator", "estimate_velocity", "EstimatorConfig", "estimator_config_from_data", "DescentMeasurements",

@@ -29,22 +29,26 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from typing import Sequence
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
 
-from flight_interface.camera import Camera
-
 from dimes_velocity import geometry
 from dimes_velocity.config import EstimatorConfig
-from dimes_velocity.features import FeatureSelector, interest_map
-from dimes_velocity.matching import match_template
-from flight_interface.measurements import DescentMeasurements, MeasurementError, validate_measurements
+from dimes_velocity.features import Candidate, FeatureSelector, interest_map
+from dimes_velocity.matching import Match, match_template
 from dimes_velocity.preprocess import FlatImage, flatten, make_flattening
 from dimes_velocity.result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
-from dimes_velocity.solution import combine_pairs, consensus, displacement_standard_error, velocity_uncertainty, weighted_displacement
-
+from dimes_velocity.solution import (
+    combine_pairs,
+    consensus,
+    displacement_standard_error,
+    velocity_uncertainty,
+    weighted_displacement,
+)
+from flight_interface.camera import Camera
+from flight_interface.measurements import DescentMeasurements, MeasurementError, validate_measurements
 
 MAX_BLUR_PX = 8.0   # cap on the resolution-equalising blur (images from very different altitudes)
 MATCH_PRECISION_PX = 0.1   # floor of a pair's displacement standard error (sub-pixel peak precision)
@@ -79,7 +83,7 @@ class RectifiedImage:
             losses = {"sky": 1.0 - float(visible.mean()), "saturated": float((visible & (codes == 1)).mean()),
                       "no_signal": float((visible & (codes == 2)).mean()),
                       "excluded_zone": float((visible & zone & ~bad_pixel).mean())}
-            self.unusable_reason = max(losses, key=losses.get)
+            self.unusable_reason = max(losses, key=losses.__getitem__)
         self.coarse = cv2.pyrDown(self.image)
 
     def noise_at(self, column: int, row: int) -> float:
@@ -289,13 +293,12 @@ class DimesEstimator:
         def result(reason: str, radius: float = 0.0, matched: int = 0, used: int = 0,
                    displacement: np.ndarray | None = None, sigma_m: float = 0.0) -> PairResult:
             ok = reason == "ok" and displacement is not None
-            d = displacement if ok else np.zeros(2)
+            d = displacement if ok and displacement is not None else np.zeros(2)
             return PairResult(index, index + 1, ok, reason, float(d[0]), float(d[1]), float(d[0] / dt_s),
                               float(d[1] / dt_s), float(sigma_m) if ok else 0.0, float(radius), matched, used)
 
-        for image in (a, b):
-            if image is None:
-                return result(unusable_reason), [], time.perf_counter() - t0, 0.0
+        if a is None or b is None:
+            return result(unusable_reason), [], time.perf_counter() - t0, 0.0
         for image in (a, b):
             if image.coverage < config.min_ground_coverage:
                 return result(image.unusable_reason), [], time.perf_counter() - t0, 0.0
@@ -317,7 +320,8 @@ class DimesEstimator:
             return result(reason, radius), [], t1 - t0, 0.0
 
         match_valid_b = _erode(b.valid, config.template_size_px // 2)
-        records = []
+        # feature, match, status, ground position in A, displacement, checks
+        records: list[tuple[Candidate, Match, str, np.ndarray, np.ndarray, _MatchCheck]] = []
         select_s = 0.0
         while feature is not None:
             predicted = np.array([feature.column, feature.row], dtype=float) + shift
@@ -334,7 +338,7 @@ class DimesEstimator:
                 status = "residual_exceeds_noise"
             ground_a = a.rectification.ground_of(feature.column, feature.row)
             displacement = (b.rectification.ground_of(*match.position_px) - ground_a) if status == "ok" else np.zeros(2)
-            records.append([feature, match, status, ground_a, displacement, check])
+            records.append((feature, match, status, ground_a, displacement, check))
             good_so_far = [r for r in records if r[2] == "ok"]
             if status == "ok" and _all_agree([r[4] for r in good_so_far], [(r[0].column, r[0].row) for r in good_so_far],
                                              config.agreeing_features_to_stop, config.feature_agreement_px * sample,

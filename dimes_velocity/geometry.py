@@ -28,9 +28,8 @@ import cv2
 import numpy as np
 
 from flight_interface import cahvor
-from flight_interface.frames import quat_to_matrix
 from flight_interface.camera import Camera
-
+from flight_interface.frames import quat_to_matrix
 from flight_interface.measurements import DescentMeasurements
 
 

@@ -27,15 +27,14 @@ pixels with less than ``min_signal_dn`` flattened signal (sky, deep shadow) are 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import lfilter
 
+from dimes_velocity.config import EstimatorConfig
 from flight_interface.calibration import readout_flat_field
 from flight_interface.camera import Camera
-
-from dimes_velocity.config import EstimatorConfig
 
 
 @dataclass(frozen=True)
@@ -77,6 +76,8 @@ class Flattening:
     read_noise_e: float
     exposure_s: float
     saturation_dn: float
+    _inverse_response: np.ndarray = field(init=False, repr=False, compare=False)   # set by __post_init__
+    _noise_scale: np.ndarray = field(init=False, repr=False, compare=False)
 
     @property
     def inverse_response(self) -> np.ndarray:

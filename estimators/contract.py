@@ -62,8 +62,9 @@ Ways in (``[[estimators]]`` entries of a campaign file, :mod:`estimators.registr
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Optional
+from typing import Any
 
 import numpy as np
 
@@ -95,15 +96,15 @@ class EstimatorInputs:
 class EstimatorOutput:
     """An estimator's answer (see the module docstring)."""
 
-    velocity_east_mps: Optional[float]
-    velocity_north_mps: Optional[float]
+    velocity_east_mps: float | None
+    velocity_north_mps: float | None
     valid: bool
     reason: str
     features: tuple = ()          # of dicts with (some of) FEATURE_METRICS, floats, and "status", str
-    velocity_uncertainty_mps: Optional[float] = None
+    velocity_uncertainty_mps: float | None = None
 
 
-def _number(data: Mapping, key: str, allow_null: bool) -> Optional[float]:
+def _number(data: Mapping, key: str, allow_null: bool) -> float | None:
     value = data[key]
     if value is None and allow_null:
         return None
@@ -118,6 +119,7 @@ def _number(data: Mapping, key: str, allow_null: bool) -> Optional[float]:
 def validate_output(result: Any) -> EstimatorOutput:
     """Check an estimator's answer (an :class:`EstimatorOutput` or a mapping such as parsed JSON) and
     return it as an :class:`EstimatorOutput`; raise :class:`ContractViolation` naming the field."""
+    data: Mapping[str, Any]
     if isinstance(result, EstimatorOutput):
         data = {"velocity_east_mps": result.velocity_east_mps, "velocity_north_mps": result.velocity_north_mps,
                 "valid": result.valid, "reason": result.reason, "features": list(result.features),
@@ -149,7 +151,7 @@ def validate_output(result: Any) -> EstimatorOutput:
     for index, feature in enumerate(features):
         if not isinstance(feature, Mapping):
             raise ContractViolation(f"features[{index}] must be an object; got {type(feature).__name__}")
-        record = {}
+        record: dict[str, float | str] = {}
         for key in FEATURE_METRICS:
             if key in feature and feature[key] is not None:
                 value = feature[key]

@@ -43,9 +43,8 @@ import numpy as np
 from dimes_velocity import geometry
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.preprocess import flatten, make_flattening
-from flight_interface.measurements import validate_measurements
-
 from estimators.contract import EstimatorInputs, EstimatorOutput
+from flight_interface.measurements import validate_measurements
 
 DEFAULTS = {
     "grid_size_px": 256,            # side of the common rectified grid (power of two: fast FFT)
@@ -125,11 +124,11 @@ def estimate(inputs: EstimatorInputs) -> EstimatorOutput:
         if float(np.linalg.norm(bias)) > p["max_velocity_bias_mps"]:
             return invalid("shift_out_of_range")
         biases.append(bias)
-    biases = np.array(biases)
-    spread = float(np.linalg.norm(biases[:, None, :] - biases[None, :, :], axis=-1).max())
+    stacked = np.array(biases)
+    spread = float(np.linalg.norm(stacked[:, None, :] - stacked[None, :, :], axis=-1).max())
     if spread > p["pair_agreement_mps"]:
         return invalid("pairs_disagree")
-    velocity = imu_last - biases.mean(axis=0)
+    velocity = imu_last - stacked.mean(axis=0)
     return EstimatorOutput(float(velocity[0]), float(velocity[1]), True, "ok")
 
 

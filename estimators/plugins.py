@@ -11,13 +11,12 @@ import importlib
 import time
 import traceback
 from dataclasses import dataclass, replace
-from typing import Optional
 
+from dimes_velocity.config import estimator_config_from_data
+from dimes_velocity.estimator import estimate_velocity
 from estimators.command import CommandEstimator
 from estimators.contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
 from estimators.registry import EstimatorSpec
-from dimes_velocity.config import estimator_config_from_data
-from dimes_velocity.estimator import estimate_velocity
 
 
 class ReferenceEstimator:
@@ -73,7 +72,7 @@ class EstimatorRun:
     """One estimator's outcome on one case: its output, or why there is none; wall time (ms)."""
 
     name: str
-    output: Optional[EstimatorOutput]
+    output: EstimatorOutput | None
     error: str
     elapsed_ms: float
 

@@ -35,15 +35,16 @@ from __future__ import annotations
 import importlib
 import re
 import shutil
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from flight_interface.tomlfields import ConfigModel, FieldProblem
 from dimes_velocity.config import estimator_config_from_data
 from estimators.command import check_template
+from flight_interface.tomlfields import ConfigModel, FieldProblem
 
 KINDS = ("reference", "python", "command")
 DEFAULT_NAME = "dimes"
@@ -53,8 +54,8 @@ CALLABLE_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 Timeout = Annotated[float, Field(gt=0.0, le=86400.0)]
 ImageFormat = Literal["png", "npy", "raw"]
 FlatFieldFormat = Literal["npy", "tiff", "fits"]
-IMAGE_FORMATS = ImageFormat.__args__
-FLAT_FIELD_FORMATS = FlatFieldFormat.__args__
+IMAGE_FORMATS = typing.get_args(ImageFormat)
+FLAT_FIELD_FORMATS = typing.get_args(FlatFieldFormat)
 
 
 class _Entry(ConfigModel):
@@ -125,7 +126,7 @@ class CommandEntry(_Entry):
 
 
 #: One ``[[estimators]]`` entry, by ``kind``.
-EstimatorEntry = Annotated[Union[ReferenceEntry, PythonEntry, CommandEntry], Field(discriminator="kind")]
+EstimatorEntry = Annotated[ReferenceEntry | PythonEntry | CommandEntry, Field(discriminator="kind")]
 
 
 def unique_names(entries: list) -> list:

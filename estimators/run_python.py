@@ -17,13 +17,14 @@ import json
 import sys
 
 import numpy as np
+
+from estimators.contract import ContractViolation, EstimatorInputs, output_to_dict, validate_output
 from file_formats.descent_images import InputFileError, load_image
-from file_formats.measurements_json import load_measurements
 from file_formats.flat_field_files import load_flat_field
+from file_formats.measurements_json import load_measurements
 from flight_interface.calibration import CalibrationError, CalibrationProducts
 from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError
-from estimators.contract import ContractViolation, EstimatorInputs, output_to_dict, validate_output
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,7 +9,6 @@ Whatever is read is checked and brought to read-out shape by
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
@@ -62,7 +61,7 @@ def save_flat_field(path: str | Path, flat: np.ndarray) -> Path:
     return path
 
 
-def flat_field_next_to(camera_path: str | Path) -> Optional[Path]:
+def flat_field_next_to(camera_path: str | Path) -> Path | None:
     """``<camera stem>.flat.<suffix>`` beside a camera TOML (first suffix of :data:`FLAT_FIELD_SUFFIXES`
     that exists), or None."""
     camera_path = Path(camera_path)

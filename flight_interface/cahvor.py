@@ -59,7 +59,7 @@ class Cahvor:
         """Vertical focal length in pixels."""
         return float(np.linalg.norm(np.cross(self.a, self.v)))
 
-    def transformed(self, rotation_matrix: np.ndarray, translation_m: np.ndarray) -> "Cahvor":
+    def transformed(self, rotation_matrix: np.ndarray, translation_m: np.ndarray) -> Cahvor:
         """The same camera expressed in another frame: ``X_new = R @ X_old + t``."""
         rotation_matrix = np.asarray(rotation_matrix, dtype=float)
         return Cahvor(

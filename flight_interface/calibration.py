@@ -19,7 +19,6 @@ Conventions
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -45,7 +44,7 @@ class CalibrationProducts:
         Where the flat field came from: ``"calibrated: N frames"``, ``"truth"``, a file path, ``"none"``.
     """
 
-    flat_field: Optional[np.ndarray] = None
+    flat_field: np.ndarray | None = None
     flat_field_source: str = "none"
 
 

@@ -30,12 +30,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from flight_interface import cahvor
+from flight_interface.cahvor import Cahvor
 from flight_interface.frames import quat_normalize, quat_to_matrix
 from flight_interface.tomlfields import ConfigModel, FieldProblem, fixed_vector, load
 
@@ -52,9 +53,14 @@ UNIT_NORM_TOLERANCE = 1e-6
 #: Full fields of view allowed (deg, exclusive).
 FOV_RANGE_DEG = (1.0, 170.0)
 
-Vector2 = fixed_vector(2)
-Vector3 = fixed_vector(3)
-Vector4 = fixed_vector(4)
+if TYPE_CHECKING:   # what the validators below produce, for the type checker
+    Vector2 = tuple[float, float]
+    Vector3 = tuple[float, float, float]
+    Vector4 = tuple[float, float, float, float]
+else:
+    Vector2 = fixed_vector(2)
+    Vector3 = fixed_vector(3)
+    Vector4 = fixed_vector(4)
 
 
 def _check_unit(model, *names: str) -> None:
@@ -101,7 +107,7 @@ class CahvorVectors(ConfigModel):
     """Horizontal vector (px)."""
     V: Vector3
     """Vertical vector (px)."""
-    O: Vector3
+    O: Vector3  # noqa: E741 - CAHVOR notation (C, A, H, V, O, R)
     """Optical axis (unit vector)."""
     R: Vector3
     """Radial distortion coefficients R0, R1, R2."""
@@ -145,12 +151,13 @@ class Geometry(ConfigModel):
                                "allowed: -0.5 < R0 < 0.5")
         return self
 
-    def to_cahvor(self, detector: Detector) -> cahvor.Cahvor:
+    def to_cahvor(self, detector: Detector) -> Cahvor:
         if self.cahvor is not None:
             return self.cahvor.to_cahvor()
+        assert self.focal_length_m is not None     # the validator requires it when no CAHVOR model is given
         centre = self.principal_point_px or ((detector.width_px - 1) / 2.0, (detector.height_px - 1) / 2.0)
-        return cahvor.cahvor_from_intrinsics(self.focal_length_m, detector.pixel_pitch_m, tuple(centre),
-                                             tuple(self.radial_distortion or (0.0, 0.0, 0.0)))
+        return cahvor.cahvor_from_intrinsics(self.focal_length_m, detector.pixel_pitch_m, tuple(centre),  # type: ignore[arg-type]
+                                             tuple(self.radial_distortion or (0.0, 0.0, 0.0)))  # type: ignore[arg-type]
 
 
 class Mounting(ConfigModel):

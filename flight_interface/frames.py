@@ -14,6 +14,8 @@ Conventions (used everywhere in the project):
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 
@@ -47,7 +49,7 @@ def quat_conjugate(quaternion: np.ndarray) -> np.ndarray:
     return np.asarray(quaternion, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def quat_from_axis_angle(axis: np.ndarray, angle_rad: float | np.ndarray) -> np.ndarray:
+def quat_from_axis_angle(axis: np.ndarray | Sequence[float], angle_rad: float | np.ndarray) -> np.ndarray:
     """Quaternion rotating by ``angle_rad`` (right-handed) about ``axis`` (finite, non-zero)."""
     axis = np.asarray(axis, dtype=float)
     norm = np.linalg.norm(axis, axis=-1, keepdims=True)

@@ -5,7 +5,6 @@ attitude is the lander body-to-world quaternion ``(w, x, y, z)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -42,8 +41,8 @@ class ImageMeasurement:
     angular_rate_radps: np.ndarray
     radar_altitude_m: float
     imu_velocity_mps: np.ndarray
-    heat_shield_offset_m: Optional[np.ndarray] = None
-    imu_position_m: Optional[np.ndarray] = None
+    heat_shield_offset_m: np.ndarray | None = None
+    imu_position_m: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

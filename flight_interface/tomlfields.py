@@ -15,6 +15,7 @@ from __future__ import annotations
 import tomllib
 import types
 import typing
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
@@ -60,7 +61,8 @@ def fixed_vector(length: int) -> Any:
             raise FieldProblem("", f"must be a list of {length} numbers; got {value!r}")
         return _as_tuple(value)
 
-    return Annotated[tuple[(float,) * length], BeforeValidator(as_tuple)]
+    # the tuple's length is a run-time value, which a static checker cannot express
+    return Annotated[tuple[(float,) * length], BeforeValidator(as_tuple)]  # type: ignore[misc]
 
 
 FloatList = Annotated[tuple[float, ...], BeforeValidator(_as_tuple)]
@@ -265,7 +267,7 @@ _EXPECTED = {"int_type": "an integer", "int_from_float": "an integer", "float_ty
              "tuple_type": "a list", "path_type": "a path (string)"}
 
 
-def _describe(error: dict, where: _Where) -> str:
+def _describe(error: Mapping[str, Any], where: _Where) -> str:
     kind, value, ctx = error["type"], error.get("input"), error.get("ctx") or {}
     path = where.path or "<root>"
     if kind == "missing":

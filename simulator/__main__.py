@@ -24,11 +24,11 @@ import cv2
 import numpy as np
 
 from flight_interface.camera import load_camera
-from simulator.descent_image import render_descent_image
-from simulator.scene_config import SceneConfig
-from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
+from simulator.descent_image import render_descent_image
+from simulator.scene.descent_profile import DescentProfile
 from simulator.scene.terrain import Terrain
+from simulator.scene_config import SceneConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         polygon = np.round(np.stack([cols, rows], axis=-1) * scale).astype(np.int32)
         cv2.polylines(canvas, [polygon], True, colours[index % 3], 2)
         row, col = terrain.world_to_pixel(diag.pose.position_m[0], diag.pose.position_m[1])
-        cv2.drawMarker(canvas, (int(round(col * scale)), int(round(row * scale))), colours[index % 3],
+        cv2.drawMarker(canvas, (int(np.round(col * scale)), int(np.round(row * scale))), colours[index % 3],
                        cv2.MARKER_CROSS, 18, 2)
         print(f"image {index}: t = {diag.exposure_start_s:.2f} s, altitude {diag.pose.position_m[2]:.0f} m, "
               f"mean DN {dn.mean():.0f}, sub-steps {diag.substeps}, heat shield in view: {diag.heat_shield_visible}, "

@@ -30,14 +30,12 @@ import sys
 
 import numpy as np
 
-from flight_interface.calibration import normalise_flat_field, readout_flat_field
-from flight_interface.camera import Camera
+from file_formats.flat_field_files import save_flat_field
+from flight_interface.calibration import CalibrationError, normalise_flat_field, readout_flat_field
+from flight_interface.camera import Camera, load_camera
+from flight_interface.tomlfields import ConfigError
 from simulator.detector.camera_chain import CameraEffects, pixel_gain, render_image
 from simulator.fields import RadianceFields
-from file_formats.flat_field_files import save_flat_field
-from flight_interface.calibration import CalibrationError
-from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError
 
 #: On-axis binned charge of a flat exposure, as a fraction of the smallest charge capacity.
 FLAT_LEVEL_FRACTION = 0.5

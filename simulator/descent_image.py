@@ -20,14 +20,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, radiance
 from flight_interface.camera import Camera
-from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
-from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
-from simulator.scene_config import SceneConfig
 from simulator.detector.camera_chain import RenderedImage, render_image
 from simulator.fields import RadianceFields, block_means
+from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
+from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, radiance
+from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
 from simulator.scene.terrain import Terrain
+from simulator.scene_config import SceneConfig
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ class DescentImage:
     def binned_mask(self, mask: np.ndarray, binning_rows: int) -> np.ndarray:
         """A full-frame mask reduced to the binned image: True where any of the binned rows is True."""
         height, width = mask.shape
-        return mask.reshape(height // binning_rows, binning_rows, width).any(axis=1)
+        return np.asarray(mask.reshape(height // binning_rows, binning_rows, width).any(axis=1))
 
 
 def image_start_time(profile: DescentProfile, image: int | float) -> float:

@@ -24,8 +24,11 @@ part of a preset: a preset changes how exactly the same physics is computed, nev
 """
 from __future__ import annotations
 
+from typing import Literal
+
+Preset = Literal["reference", "high", "default", "fast"]
 PRESETS = ("reference", "high", "default", "fast")
-DEFAULT_PRESET = "default"
+DEFAULT_PRESET: Preset = "default"
 #: Scene effect switches of the exact reference render (every shortcut off).
 REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
                          warp_smear_fields=False, pixel_area_filter=False)

@@ -12,16 +12,15 @@ given explicitly overrides it. Angles are degrees at this edge (``heat_shield_co
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 from pydantic import Field, field_validator, model_validator
 
 from flight_interface.tomlfields import ConfigModel, FieldProblem
 from simulator.detector.camera_chain import CameraEffects
+from simulator.fidelity import DEFAULT_PRESET, PRESETS, REFERENCE_EFFECTS, Preset, preset_fields
 from simulator.off_nominal import OffNominalConfig
 from simulator.scene import atmosphere, photometry
-
-from simulator.fidelity import DEFAULT_PRESET, PRESETS, REFERENCE_EFFECTS, preset_fields
 
 FRAME_PX = 1024
 
@@ -163,12 +162,12 @@ class SceneConfig(ConfigModel):
     def heat_shield_cone_angle_rad(self) -> float:
         return math.radians(self.heat_shield_cone_angle_deg)
 
-    def with_effects(self, **switches) -> "SceneConfig":
+    def with_effects(self, **switches) -> SceneConfig:
         """A copy with some scene effect switches changed, e.g. ``config.with_effects(shadows=False)``."""
         effects = SceneEffects.model_validate({**self.effects.model_dump(), **switches})
         return self.model_copy(update={"effects": effects})
 
-    def with_fields(self, **values) -> "SceneConfig":
+    def with_fields(self, **values) -> SceneConfig:
         """A copy with some fields changed (unvalidated, like ``dataclasses.replace``)."""
         return self.model_copy(update=values)
 
@@ -185,4 +184,4 @@ def apply_preset(config: SceneConfig, name: str) -> SceneConfig:
 def preset_config(name: str, base: SceneConfig | None = None) -> SceneConfig:
     """The :class:`SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
     preset_fields(name)                     # an unknown name: ValueError listing the allowed ones
-    return SceneConfig(fidelity=name) if base is None else apply_preset(base, name)
+    return SceneConfig(fidelity=cast(Preset, name)) if base is None else apply_preset(base, name)

@@ -43,10 +43,16 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+from flight_interface.frames import (
+    quat_conjugate,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalize,
+    quat_to_rotation_vector,
+)
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement
-from simulator.scene.descent_profile import DescentProfile
-from flight_interface.frames import quat_conjugate, quat_from_rotation_vector, quat_multiply, quat_normalize, quat_to_rotation_vector
 from flight_interface.tomlfields import ConfigModel
+from simulator.scene.descent_profile import DescentProfile
 
 STATE_TIMES = ("mid_exposure", "exposure_start")
 SIGMA_FIELDS = ("attitude_bias_sigma_deg", "attitude_random_sigma_deg", "alignment_sigma_deg",
@@ -85,14 +91,14 @@ class SensorConfig(ConfigModel):
     """Error of the heat-shield prediction per axis per image (m)."""
 
     @model_validator(mode="after")
-    def _perfect_zeroes_sigmas(self) -> "SensorConfig":
+    def _perfect_zeroes_sigmas(self) -> SensorConfig:
         if self.perfect:              # the given sigmas were validated; perfect overrides them
             for name in SIGMA_FIELDS:
                 object.__setattr__(self, name, 0.0)
         return self
 
     @classmethod
-    def exact(cls, state_time: str = "mid_exposure", heat_shield_prediction: bool = True) -> "SensorConfig":
+    def exact(cls, state_time: Literal["mid_exposure", "exposure_start"] = "mid_exposure", heat_shield_prediction: bool = True) -> SensorConfig:
         """Every sensor exact."""
         return cls(perfect=True, state_time=state_time, heat_shield_prediction=heat_shield_prediction)
 

@@ -15,7 +15,6 @@ import cv2
 import numpy as np
 
 from flight_interface.camera import Camera
-
 from flight_interface.frames import quat_to_matrix
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 from simulator.detector.camera_chain import CameraEffects, render_image
@@ -113,7 +112,7 @@ def constant_velocity_descent(camera: Camera, ground: Ground, rng: np.random.Gen
     if effects is None:
         effects = CameraEffects() if noise else CameraEffects(shot_noise=False, read_noise=False)
     images, records = [], []
-    for k, (time_s, position, attitude) in enumerate(zip(times, positions, attitudes)):
+    for _k, (time_s, position, attitude) in enumerate(zip(times, positions, attitudes)):
         radiance = radiance_field(camera, ground, position, attitude)
         rendered = render_image(camera, (radiance, radiance, radiance), rng, effects)
         images.append(rendered.dn if noise else np.rint(rendered.expected_dn).astype(np.uint16))

@@ -37,17 +37,24 @@ import functools
 import math
 import typing
 from pathlib import Path
-from typing import Annotated, Any, Literal, Optional, Union
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, PrivateAttr, ValidationInfo, create_model, model_validator
 
+from flight_interface.tomlfields import (
+    ConfigError,
+    ConfigModel,
+    ExistingFile,
+    FieldProblem,
+    InputPath,
+    fixed_vector,
+    load_toml,
+    parse,
+)
 from simulator.scene.terrain import Terrain
-from flight_interface.tomlfields import (ConfigError, ConfigModel, ExistingFile, FieldProblem, InputPath, fixed_vector,
-                                        load_toml, parse)
-
-from sitedata.terrain.synthetic_classes import CLASS_PRESETS, ClassTerrainParams
 from sitedata.terrain.real_terrain import load_terrain
+from sitedata.terrain.synthetic_classes import CLASS_PRESETS, ClassTerrainParams
 from sitedata.terrain.synthetic_terrain import synthetic_terrain
 
 ASTRONOMICAL_UNIT_M = 1.495978707e11
@@ -90,7 +97,7 @@ def _overrides_model() -> type[ConfigModel]:
             annotation = Annotated[int, Field(ge=1)]
         else:
             annotation = float
-        fields[field.name] = (Optional[annotation], None)
+        fields[field.name] = (annotation | None, None)
     return create_model("TerrainOverrides", __base__=ConfigModel, __doc__=_overrides_model.__doc__, **fields)
 
 
@@ -144,7 +151,7 @@ class FileTerrain(_TerrainSpec):
     """Side-car TOML, relative to the site file (default: none)."""
 
 
-TerrainSpec = Annotated[Union[SyntheticTerrain, FileTerrain], Field(discriminator="kind")]
+TerrainSpec = Annotated[SyntheticTerrain | FileTerrain, Field(discriminator="kind")]
 
 
 class SiteClass(ConfigModel):

@@ -217,7 +217,7 @@ def random_descent(renderer: Renderer, ground: np.ndarray, rng: np.random.Genera
     axis = rng.uniform(0.0, 2.0 * np.pi)
     tilt = np.radians(rng.uniform(0.0, max_tilt_deg))
     attitudes = []
-    for k in range(len(altitudes)):
+    for _k in range(len(altitudes)):
         wobble = np.radians(rng.uniform(-1.0, 1.0))
         q = multiply(quaternion([0, 0, 1], yaw + 0.5 * wobble),
                      quaternion([np.cos(axis), np.sin(axis), 0.0], tilt + wobble))

@@ -6,9 +6,20 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from adversarial_descents import (FAMILIES, AdversarialCase, Descent, Renderer, lattice_terrain, multiply,
-                                  quaternion, random_bias, random_descent, random_field, random_terrain,
-                                  ripple_terrain)
+from adversarial_descents import (
+    FAMILIES,
+    AdversarialCase,
+    Descent,
+    Renderer,
+    lattice_terrain,
+    multiply,
+    quaternion,
+    random_bias,
+    random_descent,
+    random_field,
+    random_terrain,
+    ripple_terrain,
+)
 
 ADVERSARIES = ("uncorrelated", "shifted_copy", "rotated_copy", "image_fixed_spots", "random_spots", "unmodelled_yaw",
                "unmodelled_tilt", "offset_gain_jump", "saturated_blobs", "heat_shield_occlusion")

@@ -24,8 +24,8 @@ def mer_a(mer_a_path):
 def site_strips(tmp_path_factory):
     """The shipped classes of both sites (preset + seed from the site files), full size:
     ``{class: (site name, ellipse fraction, Terrain)}``, built once per session in a fresh cache."""
-    from sitedata.terrain import synthetic_terrain
     from sitedata.sites import class_terrain_params, load_site
+    from sitedata.terrain import synthetic_terrain
 
     cache = tmp_path_factory.mktemp("terrain_cache")
     strips = {}

@@ -13,9 +13,10 @@ import contextlib
 import copy
 import io
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import tomli_w
 

@@ -104,7 +104,7 @@ def _resolve(target: str) -> str | None:
 def test_no_import_circles():
     edges = defaultdict(set)
     for module, imports in GRAPH.items():
-        for target, local, _ in imports:
+        for target, _local, _ in imports:
             resolved = _resolve(target)
             if resolved and resolved != module:
                 edges[module].add(resolved)

@@ -9,10 +9,10 @@ keyword or format at fault. A side-car TOML (:mod:`.sidecar`) supplies what a fi
 """
 from file_formats.planetary.image import OrbitalImage, ReaderError
 from file_formats.planetary.isis3 import read_isis3
+from file_formats.planetary.orbital_file import detect_format, load_orbital_image, read_image
 from file_formats.planetary.pds3 import read_pds3
 from file_formats.planetary.raster import read_raster
 from file_formats.planetary.sidecar import CropWindow, Sidecar, apply_sidecar, read_sidecar
-from file_formats.planetary.orbital_file import detect_format, load_orbital_image, read_image
 from file_formats.planetary.vicar import read_ddd, read_vicar
 
 __all__ = [

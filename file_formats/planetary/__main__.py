@@ -10,10 +10,9 @@ from __future__ import annotations
 import math
 import sys
 
+from file_formats.planetary.orbital_file import load_orbital_image
 from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.tomlfields import ConfigError
-
-from file_formats.planetary.orbital_file import load_orbital_image
 
 
 def describe(path: str, sidecar: str | None) -> str:

@@ -18,9 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from flight_interface.tomlfields import ConfigError
-
 from file_formats.planetary.pvl import LabelSyntaxError, ParsedLabel, parse_label
+from flight_interface.tomlfields import ConfigError
 
 
 class ReaderError(ConfigError):
@@ -87,7 +86,7 @@ class OrbitalImage:
     def shape(self) -> tuple[int, int]:
         return self.pixels.shape
 
-    def replace(self, **changes: Any) -> "OrbitalImage":
+    def replace(self, **changes: Any) -> OrbitalImage:
         """A copy with some fields changed."""
         return dataclasses.replace(self, **changes)
 

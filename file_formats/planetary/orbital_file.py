@@ -12,7 +12,7 @@ from file_formats.planetary.image import OrbitalImage, fail, file_size
 from file_formats.planetary.isis3 import looks_like_isis3, read_isis3
 from file_formats.planetary.pds3 import looks_like_pds3, read_pds3
 from file_formats.planetary.raster import looks_like_raster, read_raster
-from file_formats.planetary.sidecar import Sidecar, apply_sidecar, default_sidecar_path, read_sidecar, refuse_unknown
+from file_formats.planetary.sidecar import Sidecar, apply_sidecar, default_sidecar_path, read_sidecar
 from file_formats.planetary.vicar import looks_like_ddd, looks_like_vicar, read_ddd, read_vicar
 
 SUPPORTED_FORMATS = "PDS3 (.IMG/.LBL/.QUB), ISIS3 (.cub), VICAR, MSSS DDD, PNG, TIFF/GeoTIFF"

@@ -46,7 +46,7 @@ _ALLOWED_BITS = {"u": (8, 16, 32), "i": (8, 16, 32), "f": (32, 64)}
 _NO_ENCODING = {"N/A", "NONE", "NULL", "UNCOMPRESSED", "UNK"}
 _IMAGE_POINTERS = ("^IMAGE", "^SPECTRAL_QUBE", "^QUBE")
 _STORAGE = {"BAND_SEQUENTIAL": "BSQ", "LINE_INTERLEAVED": "BIL", "SAMPLE_INTERLEAVED": "BIP"}
-_QUBE_AXES = {("SAMPLE", "LINE", "BAND"): "BSQ", ("SAMPLE", "BAND", "LINE"): "BIL",
+_QUBE_AXES: dict[tuple[str, ...], str] = {("SAMPLE", "LINE", "BAND"): "BSQ", ("SAMPLE", "BAND", "LINE"): "BIL",
               ("BAND", "SAMPLE", "LINE"): "BIP"}
 
 
@@ -375,7 +375,7 @@ def _photometric_angles(tree: dict) -> tuple[float | None, float | None, float |
             value = value.value if value.unit.upper().startswith("DEG") else None
         ok = isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= upper
         angles.append(math.radians(value) if ok else None)
-    return tuple(angles)
+    return angles[0], angles[1], angles[2]
 
 
 def _dn_to_if(tree: dict) -> tuple[float | None, float | None]:

@@ -88,7 +88,9 @@ class _Parser:
         return LabelSyntaxError(f"{message} at byte {self.pos} (text there: \"{printable}\")")
 
     def skip_space(self) -> None:
-        self.pos = _SPACE.match(self.text, self.pos).end()
+        space = _SPACE.match(self.text, self.pos)
+        assert space is not None   # the pattern matches the empty string
+        self.pos = space.end()
 
     def block(self, closing: str | None, name: str | None) -> dict[str, Any]:
         scope: dict[str, Any] = {}
@@ -128,6 +130,7 @@ class _Parser:
     def _skip_end_line(self) -> None:
         # The END statement ends the label; consume the rest of its line (spaces, CR, LF).
         match = re.compile(r"[ \t]*(?:\r\n|\n\r|\n|\r)?").match(self.text, self.pos)
+        assert match is not None   # the pattern matches the empty string
         self.pos = match.end()
 
     def _peek_equals(self) -> bool:

@@ -84,7 +84,7 @@ def _decode(path: Path, size: int, band_index: int):
                              f"band); allowed modes: {', '.join(_MODE_DTYPES)}")
         image.load()
         array = np.asarray(image)
-        tags = {int(k): _plain(v) for k, v in image.tag_v2.items()} if file_format == "TIFF" else {}
+        tags = {int(k): _plain(v) for k, v in image.tag_v2.items()} if file_format == "TIFF" else {}  # type: ignore[attr-defined]  # TiffImageFile only
         info = {k: _plain(v) for k, v in image.info.items() if isinstance(v, (int, float, str, tuple))}
     return array, mode, file_format, pages, metres, notes, tags, info
 
@@ -101,7 +101,7 @@ def _plain(value):
 
 
 def _check_tiff_extents(path: Path, image: Image.Image, size: int) -> None:
-    tags = image.tag_v2
+    tags = image.tag_v2  # type: ignore[attr-defined]  # a TiffImageFile here (callers check the format)
     for offsets_tag, counts_tag, name in ((_TAG_STRIP_OFFSETS, _TAG_STRIP_COUNTS, "StripOffsets/StripByteCounts"),
                                           (_TAG_TILE_OFFSETS, _TAG_TILE_COUNTS, "TileOffsets/TileByteCounts")):
         if offsets_tag in tags:
@@ -117,7 +117,7 @@ def _check_tiff_extents(path: Path, image: Image.Image, size: int) -> None:
 
 
 def _geotiff_metres_per_pixel(path: Path, image: Image.Image, notes: list[str]) -> float | None:
-    tags = image.tag_v2
+    tags = image.tag_v2  # type: ignore[attr-defined]  # a TiffImageFile here (callers check the format)
     if _TAG_PIXEL_SCALE not in tags and _TAG_TRANSFORM not in tags:
         return None
     keys = {}

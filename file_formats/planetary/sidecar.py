@@ -29,9 +29,8 @@ from pathlib import Path
 
 from pydantic import Field, PrivateAttr, model_validator
 
-from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load
-
 from file_formats.planetary.image import OrbitalImage, fail
+from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load
 
 _TRIANGLE_TOLERANCE_DEG = 0.01
 

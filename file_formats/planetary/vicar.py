@@ -52,11 +52,11 @@ def parse_vicar_label(path: Path) -> tuple[dict, int]:
     label: dict = {}
     position = 0
     while True:
-        match = _VICAR_VALUE.match(text, position)
-        if match is None:
+        item = _VICAR_VALUE.match(text, position)
+        if item is None:
             break
-        key, value = match.group(1).upper(), match.group(2)
-        position = match.end()
+        key, value = item.group(1).upper(), item.group(2)
+        position = item.end()
         if key in ("PROPERTY", "TASK") and label:
             label.setdefault("_HISTORY", []).append((key, _vicar_value(value)))
             continue
@@ -151,7 +151,7 @@ def read_ddd(path: str | Path) -> OrbitalImage:
     if (type_word & 0xFFFFF000) == 0x567B0000 and type_word != 0x567B0108:
         raise fail(path, f"DDD type word 0x{type_word:08X} (new-format typed data) is not supported; "
                          f"allowed: 8-bit (0x567B0108) or the old header with 8/16/32 bits")
-    dtypes = {8: np.dtype("u1"), 16: np.dtype(">u2"), 32: np.dtype(">f4")}
+    dtypes: dict[int, np.dtype] = {8: np.dtype("u1"), 16: np.dtype(">u2"), 32: np.dtype(">f4")}
     if bits not in dtypes:
         raise fail(path, f"DDD bits-per-pixel word = {bits} is not supported; allowed: 8, 16, 32")
     dtype = dtypes[bits]

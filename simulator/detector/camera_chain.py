@@ -16,18 +16,18 @@ Follow the light::
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence, Union
 
 import numpy as np
 from pydantic import Field
 
-from flight_interface.tomlfields import ConfigModel
-from simulator.detector import blooming, charge_generation, charge_transfer, optics, readout
-from simulator.off_nominal import hot_pixels, particle_hits
 from flight_interface.camera import Camera
-from simulator.fields import RadianceFields, bin_rows, block_means
+from flight_interface.tomlfields import ConfigModel
 from simulator.derived_cache import DERIVED
+from simulator.detector import blooming, charge_generation, charge_transfer, optics, readout
+from simulator.fields import RadianceFields, bin_rows, block_means
+from simulator.off_nominal import hot_pixels, particle_hits
 
 PERIODS = ("flush", "exposure", "transfer")
 SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well
@@ -73,7 +73,7 @@ class RenderedImage:
     expected_charge_e: np.ndarray
 
 
-RadianceInput = Union[RadianceFields, Sequence[np.ndarray], Callable[[str], np.ndarray]]
+RadianceInput = RadianceFields | Sequence[np.ndarray] | Callable[[str], np.ndarray]
 
 
 def as_radiance_fields(radiance: RadianceInput) -> RadianceFields:
@@ -141,7 +141,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
 
     dark_rate = (charge_generation.dark_rate_e_per_s(camera, effects.dark_current_scale)
                  if effects.dark_current else 0.0)
-    rates: dict[int, np.ndarray] = {}
+    rates: dict[int | str, np.ndarray] = {}
     dust = artefacts.dust_transmission if artefacts is not None else None
     hot = artefacts.hot_pixels if artefacts is not None else None
     hits = artefacts.particle_hits if artefacts is not None and artefacts.particle_hits is not None else None

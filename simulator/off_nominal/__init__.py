@@ -25,11 +25,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from pydantic import Field
 
+from flight_interface.camera import Camera
+from flight_interface.tomlfields import ConfigModel
 from simulator.off_nominal.dust import DustParticles, draw_particles, transmission_map
 from simulator.off_nominal.hot_pixels import HotPixels, draw_hot_pixels
 from simulator.off_nominal.particle_hits import ParticleHits, draw_particle_hits
-from flight_interface.camera import Camera
-from flight_interface.tomlfields import ConfigModel
 
 
 class OffNominalConfig(ConfigModel):

@@ -79,8 +79,8 @@ import cv2
 import numpy as np
 
 from flight_interface.camera import Camera
-from simulator.scene import ground_mapping, photometry
 from simulator.derived_cache import DERIVED
+from simulator.scene import ground_mapping, photometry
 
 MARS_SCALE_HEIGHT_M = 11100.0       # ~ R T / (M g) at 210 K
 MIN_COSINE = 0.02                   # lines of sight and sun cosines are clipped here (grazing, horizon)
@@ -230,7 +230,7 @@ def orbital_haze(terrain, config) -> OrbitalHaze:
 
 def remove_orbital_haze(orbital_if: np.ndarray, haze: OrbitalHaze) -> np.ndarray:
     """``max(R_orb - C_o, 0)`` in place (float32 (H, W)); the caller's sky pixels (0) stay 0."""
-    cv2.subtract(orbital_if, float(haze.offset_if), dst=orbital_if)
+    cv2.subtract(orbital_if, float(haze.offset_if), dst=orbital_if)  # type: ignore[call-overload]  # cv2 stubs: no scalar
     cv2.threshold(orbital_if, 0.0, 0.0, cv2.THRESH_TOZERO, dst=orbital_if)   # one pass each (numpy: 2x slower)
     return orbital_if
 

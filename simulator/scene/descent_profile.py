@@ -10,12 +10,18 @@ Image timing: ``image_times_s[k]`` is the *start of the exposure* of image k. Th
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from typing import Optional
 
 import numpy as np
 
-from flight_interface.frames import (quat_conjugate, quat_from_axis_angle, quat_from_rotation_vector, quat_multiply,
-                         quat_normalize, quat_to_rotation_vector, slerp)
+from flight_interface.frames import (
+    quat_conjugate,
+    quat_from_axis_angle,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalize,
+    quat_to_rotation_vector,
+    slerp,
+)
 
 
 @dataclass(frozen=True)
@@ -27,7 +33,7 @@ class Pose:
     velocity_mps: np.ndarray        # (3,) world
     attitude_quat: np.ndarray       # (4,) body-to-world
     angular_rate_radps: np.ndarray  # (3,) body frame
-    heat_shield_position_m: Optional[np.ndarray] = None  # (3,) world, None when not tracked
+    heat_shield_position_m: np.ndarray | None = None  # (3,) world, None when not tracked
 
 
 @dataclass(frozen=True)
@@ -53,7 +59,7 @@ class DescentProfile:
     attitude_quat: np.ndarray
     angular_rate_radps: np.ndarray
     wind_mps: np.ndarray
-    heat_shield_position_m: Optional[np.ndarray]
+    heat_shield_position_m: np.ndarray | None
     image_times_s: np.ndarray
     name: str = "profile"
 
@@ -110,7 +116,7 @@ class DescentProfile:
         index, fraction = self._locate(time_s)
         return (1.0 - fraction) * self.wind_mps[index] + fraction * self.wind_mps[index + 1]
 
-    def translated(self, offset_m: np.ndarray, name: str | None = None) -> "DescentProfile":
+    def translated(self, offset_m: np.ndarray, name: str | None = None) -> DescentProfile:
         """The same profile moved horizontally by ``offset_m`` (east, north) — a placement on a terrain."""
         shift = np.array([offset_m[0], offset_m[1], 0.0])
         return DescentProfile(
@@ -121,7 +127,7 @@ class DescentProfile:
         )
 
 
-    def placed(self, heading_rad: float, offset_m: np.ndarray, name: str | None = None) -> "DescentProfile":
+    def placed(self, heading_rad: float, offset_m: np.ndarray, name: str | None = None) -> DescentProfile:
         """The profile turned by ``heading_rad`` about the world vertical through the origin
         (right-handed about +z: counter-clockwise seen from above), then moved by ``offset_m``
         (east, north). Positions, velocities, winds, attitudes and the heat shield turn together,

@@ -22,9 +22,9 @@ import numpy as np
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
-from simulator.scene.descent_profile import Pose
 from flight_interface.frames import quat_to_matrix
 from simulator.derived_cache import DERIVED
+from simulator.scene.descent_profile import Pose
 
 HORIZON_EPSILON = 1e-6      # |d_z| below this (unit ray) counts as sky
 MAX_MAP_COORDINATE = 1.0e7  # map coordinates are clipped here (far beyond any terrain)

@@ -36,8 +36,8 @@ from __future__ import annotations
 import numpy as np
 
 from flight_interface import cahvor
-from simulator.scene import ground_mapping
 from flight_interface.camera import Camera
+from simulator.scene import ground_mapping
 
 
 def cone_depth_m(diameter_m: float, cone_angle_rad: float) -> float:
@@ -183,9 +183,9 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
     ``(rows, cols, radiance float32)`` in window coordinates, or None when there is no edge."""
     padded = np.pad(hit, 1, mode="edge")   # 8-neighbourhood: corner-covered pixels count too
     edge = np.zeros_like(hit)
-    for d_row in (0, 1, 2):
-        for d_col in (0, 1, 2):
-            edge |= padded[d_row:d_row + hit.shape[0], d_col:d_col + hit.shape[1]] != hit
+    for shift_row in (0, 1, 2):
+        for shift_col in (0, 1, 2):
+            edge |= padded[shift_row:shift_row + hit.shape[0], shift_col:shift_col + hit.shape[1]] != hit
     rows, cols = np.nonzero(edge)
     if rows.size == 0:
         return None

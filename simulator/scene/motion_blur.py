@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulator.scene import ground_mapping
 from flight_interface.camera import Camera
+from simulator.scene import ground_mapping
 
 
 def sample_pixels(camera: Camera, per_axis: int = 9) -> np.ndarray:

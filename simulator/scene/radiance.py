@@ -38,13 +38,12 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from simulator.scene import atmosphere, ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
 from flight_interface.camera import Camera
-from simulator.scene.descent_profile import DescentProfile, Pose
 from flight_interface.frames import quat_to_matrix
 from simulator.fields import RadianceFields, block_means
+from simulator.scene import atmosphere, ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
+from simulator.scene.descent_profile import DescentProfile, Pose
 from simulator.scene.terrain import Terrain
-
 
 WARP_GRID_STEP_PX = 32
 
@@ -196,7 +195,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         gain, added = atmosphere.descent_fields(camera, cam, gmap, sun, moc_value, scale, haze, config.atmosphere,
                                                  photo_step)
         radiance *= gain
-    elif effects.photometric_correction:
+    elif moc_value is not None:      # effects.photometric_correction
         # the radiometric scale is folded into the ratio (on the node grid when coarse): one full-frame pass
         radiance *= photometric_ratio_field(camera, cam, gmap, sun, moc_value / scale, photo_step)
     else:
@@ -259,7 +258,9 @@ def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_m
 def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray) -> np.ndarray:
     """Resample a radiance field (H, W) at the (column, row) coordinates of ``flow`` (H, W, 2), bilinear;
     pixels whose source lies beyond the frame take the nearest edge value."""
-    return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
+    return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=cv2.INTER_LINEAR,  # type: ignore[call-overload]
+                     borderMode=cv2.BORDER_REPLICATE)
 
 
 def _clamped_pose(profile: DescentProfile, time_s: float) -> Pose:

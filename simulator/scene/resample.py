@@ -94,8 +94,7 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
     if may_leave_terrain:
         outside = outside_mask(terrain, col, row) & ~invalid
         if outside.any():
-            fill = np.float32(np.mean(source))
-            sampled[outside] = fill
+            sampled[outside] = np.float32(np.mean(source))
     else:
         outside = np.zeros(col.shape, dtype=bool)
     if any_invalid:

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simulator.scene import ground_mapping
 from flight_interface.camera import Camera
+from simulator.scene import ground_mapping
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ def shadow_centre_m(centre_m: np.ndarray, sun_world: np.ndarray) -> np.ndarray:
     return centre_m - (centre_m[2] / sun_world[2]) * sun_world
 
 
-def circle_overlap_fraction(sun_radius: np.ndarray, caster_radius: np.ndarray, separation: np.ndarray) -> np.ndarray:
+def circle_overlap_fraction(sun_radius: float | np.ndarray, caster_radius: np.ndarray, separation: np.ndarray) -> np.ndarray:
     """Fraction of a circle of radius ``sun_radius`` covered by a circle of radius ``caster_radius``
     whose centre is ``separation`` away (same angular units); broadcasting, float, in [0, 1]."""
     a = np.asarray(sun_radius, dtype=np.float64)

@@ -35,8 +35,15 @@ import numpy as np
 
 from flight_interface.tomlfields import ConfigError
 from simulator.scene.descent_profile import DescentProfile
-
-from sitedata.edl.dynamics import G_MARS_MPS2, pendulum_acceleration, project_onto_sphere, swing_twist_attitude, swing_twist_body_rate, tilt_angle_rad, twist_angle_rad
+from sitedata.edl.dynamics import (
+    G_MARS_MPS2,
+    pendulum_acceleration,
+    project_onto_sphere,
+    swing_twist_attitude,
+    swing_twist_body_rate,
+    tilt_angle_rad,
+    twist_angle_rad,
+)
 from sitedata.edl.parameters import EdlParameters, load_edl_parameters
 
 __all__ = ["EdlParameters", "generate_profiles", "load_edl_parameters", "profile_statistics", "within_limits"]

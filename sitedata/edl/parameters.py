@@ -194,7 +194,7 @@ class EdlParameters(ConfigModel):
     def output_path(self) -> Path:
         return self.set.output
 
-    def with_seed(self, seed: int) -> "EdlParameters":
+    def with_seed(self, seed: int) -> EdlParameters:
         """A copy drawing from another seed."""
         return self.model_copy(update={"set": self.set.model_copy(update={"seed": seed})})
 

@@ -29,17 +29,23 @@ or 3 ``altitudes_m``).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import pandas as pd
 from pydantic import Discriminator, Field, Tag, create_model, model_validator
 
-from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
 from flight_interface.tomlfields import ConfigModel, FieldProblem, FloatList, load_toml, parse
-
-from sitedata.edl.trajectory_io import DIMES_IMAGE_COUNT, HEAT_SHIELD_COLUMNS, REQUIRED_COLUMNS, TrajectoryFileError, frame_to_profiles, image_column
+from simulator.scene.descent_profile import DescentProfile
+from sitedata.edl.trajectory_io import (
+    DIMES_IMAGE_COUNT,
+    HEAT_SHIELD_COLUMNS,
+    REQUIRED_COLUMNS,
+    TrajectoryFileError,
+    frame_to_profiles,
+    image_column,
+)
 
 UNITS = {  # unit: (kind, scale to SI)
     "m": ("length", 1.0), "km": ("length", 1e3), "ft": ("length", 0.3048), "kft": ("length", 304.8),
@@ -94,8 +100,8 @@ def _source_kind(value: Any) -> str:
 
 
 #: "SOURCE", {column, unit | scale, offset} or {value}
-Source = Annotated[Union[Annotated[str, Tag("name")], Annotated[ColumnSource, Tag("column")],
-                         Annotated[ConstantSource, Tag("constant")]], Discriminator(_source_kind)]
+Source = Annotated[Annotated[str, Tag("name")] | Annotated[ColumnSource, Tag("column")]
+                   | Annotated[ConstantSource, Tag("constant")], Discriminator(_source_kind)]
 
 
 class _Columns(ConfigModel):

@@ -9,7 +9,8 @@ Usage (from the repository root)::
 SITE is the name of a parameter file ``sitedata/trajectories/edl_<SITE>.toml`` (default: every one) or
 the path of any parameter file (``.toml``, fields: :class:`sitedata.edl.parameters.EdlParameters`).
 ``stats`` also accepts any trajectory file (``.parquet`` / ``.csv``). Exit status 1 when a check or a
-verification fails; 2 with one line on stderr (naming the file and field) for bad input, nothing written. The paper's ranges (section 5) checked by ``stats``: images at 2000 / 1725 /
+verification fails; 2 with one line on stderr (naming the file and field) for bad input, nothing written.
+The paper's ranges (section 5) checked by ``stats``: images at 2000 / 1725 /
 ~1450 m, 3.75 s between images 2 and 3, vertical speed ~72 m/s, off-nadir < 30 deg, roll < 45 deg,
 angular rate < 60 deg/s, horizontal speed < 30 m/s, heat shield 140-200 m axial and 50-75 m lateral
 from the lander at the images; with both sites, Gusev windier with larger attitude excursions.
@@ -24,10 +25,9 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
-from sitedata import SITEDATA_DIR
 from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.tomlfields import ConfigError
-
+from sitedata import SITEDATA_DIR
 from sitedata.edl.generator import generate_profiles, load_edl_parameters, profile_statistics
 from sitedata.edl.trajectory_io import compact_frame, profiles_to_frame, read_profiles, write_profiles
 

@@ -42,16 +42,16 @@ POST-style whitespace tables are read by :mod:`sitedata.edl.post_table`, which m
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from simulator.scene.descent_profile import DescentProfile
 from flight_interface.tomlfields import ConfigError
+from simulator.scene.descent_profile import DescentProfile
 
 QUATERNION_NORM_TOLERANCE = 1e-6
 #: Images per profile of a DIMES trajectory (three descent images).
@@ -276,7 +276,7 @@ def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "prof
         block = slice(start, end)
 
         def stack(names: Sequence[str]) -> np.ndarray:
-            return np.stack([values[n][block] for n in names], axis=1)
+            return np.stack([values[n][block] for n in names], axis=1)  # noqa: B023 - called in this iteration
 
         profile = DescentProfile(
             time_s=time[block].copy(), position_m=stack(VECTOR_COLUMNS["position_m"]),

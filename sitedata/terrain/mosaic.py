@@ -17,7 +17,6 @@ import cv2
 import numpy as np
 
 from flight_interface.tomlfields import ConfigError
-
 from sitedata.sites import load_class_terrain, load_site
 
 OVERVIEW_REDUCTION = 4
@@ -61,7 +60,8 @@ def class_view(reflectance_if: np.ndarray, metres_per_pixel: float, title: str) 
     start = max(0, reflectance_if.shape[0] // 2 - DETAIL_ROWS // 2)
     detail = _scale_bar(to_uint8(reflectance_if[start:start + DETAIL_ROWS], low, high), metres_per_pixel)
     height = max(overview.shape[0], detail.shape[0])
-    pad = lambda im: np.pad(im, ((0, height - im.shape[0]), (0, 10)), constant_values=255)
+    def pad(im):
+        return np.pad(im, ((0, height - im.shape[0]), (0, 10)), constant_values=255)
     return _label(np.hstack([pad(overview), pad(detail)]),
                   [title, f"left: whole strip (1/{OVERVIEW_REDUCTION}); right: full-resolution detail "
                           f"(rows {start}-{start + DETAIL_ROWS}); I/F {low:.3f}-{high:.3f}"])

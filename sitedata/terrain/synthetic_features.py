@@ -6,7 +6,7 @@ with row index increasing southward and column index increasing eastward (north-
 """
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import cv2
 import numpy as np

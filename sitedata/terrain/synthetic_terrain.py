@@ -40,7 +40,6 @@ import cv2
 import numpy as np
 
 from simulator.scene.terrain import Terrain
-
 from sitedata.terrain import synthetic_features as feat
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS, OUTER_SCALE_M, ClassTerrainParams
 

@@ -69,7 +69,7 @@ def test_flight_metrics_table_summarises_templates_per_class():
                      "feature_contrast": [10.0 + k], "feature_correlation": [0.9, 0.1],
                      "feature_status": ["ok", "ambiguous_match"]})
     text = metrics_table(pd.DataFrame(rows), ["a"])
-    line = next(l for l in text.splitlines() if l.startswith("| a "))
+    line = next(row for row in text.splitlines() if row.startswith("| a "))
     assert "| 10 |" in line and "1004 [1001-1008]" in line and "14.5 [10.9-18.1]" in line
     assert "0.900 [0.900-0.900]" in line                      # the failed match's 0.1 is not a correlation
     assert "| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 0.88, 0.91, 1.00 |" in text

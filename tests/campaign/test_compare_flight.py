@@ -13,13 +13,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from campaign.realism.compare_flight import FlightImage, compare, load_flight, pose_profile
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
 from simulator.descent_image import render_descent_image
 from simulator.scene_config import preset_config
 from sitedata.sites import load_class_terrain, load_site
-
-from campaign.realism.compare_flight import FlightImage, compare, load_flight, pose_profile
 
 ROOT = Path(__file__).resolve().parents[2]
 SITE = ROOT / "sitedata" / "gusev.toml"

@@ -8,9 +8,9 @@ from types import SimpleNamespace
 import pandas as pd
 import pytest
 
+from campaign.configuration.sweep_file import Tolerances
 from campaign.report.compare import comparison_table, estimator_names, format_comparison, with_estimator_column
 from campaign.run.sweep import compare_to_baseline
-from campaign.configuration.sweep_file import Tolerances
 
 FRACTIONS = {"gcp": 0.6, "gdcp": 0.4}
 

@@ -35,20 +35,20 @@ from PIL import Image
 
 from campaign.cli import main as campaign_main
 from campaign.configuration.campaign_file import load_campaign_config
-from campaign.configuration.schemas import SCHEMA_TABLES, table_schema
-from campaign.configuration.sweep_file import load_sweep
-from dimes_velocity.__main__ import main as dimes_main
-from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError
-from fuzz_inputs import refusal_problems, with_value, run_main, schema_mutations, snapshot, toml_text
-from simulator.scene_config import SceneConfig
-from simulator.sensors import SensorConfig
-from campaign.realism.compare_flight import load_flight
 from campaign.configuration.estimators import EstimatorTable
 from campaign.configuration.execution import ExecutionConfig
-from sitedata.edl.parameters import load_edl_parameters
-from file_formats.planetary.__main__ import main as readers_main
+from campaign.configuration.schemas import SCHEMA_TABLES, table_schema
+from campaign.configuration.sweep_file import load_sweep
+from campaign.realism.compare_flight import load_flight
 from campaign.realism.terrain_stats_cli import main as terrain_stats_main
+from dimes_velocity.__main__ import main as dimes_main
+from file_formats.planetary.__main__ import main as readers_main
+from flight_interface.camera import load_camera
+from flight_interface.tomlfields import ConfigError
+from fuzz_inputs import refusal_problems, run_main, schema_mutations, snapshot, toml_text, with_value
+from simulator.scene_config import SceneConfig
+from simulator.sensors import SensorConfig
+from sitedata.edl.parameters import load_edl_parameters
 from sitedata.edl.trajectories_cli import main as trajectories_main
 from sitedata.edl.trajectory_io import read_profiles
 
@@ -217,7 +217,7 @@ def test_every_schema_violation_of_every_file_is_refused(work, kind):
                      ("image of the wrong shape", with_value(data, ("images", 0, "file"), "img.png")),
                      ("column outside the image", {**data, "column": 5000})]
     assert len(variants) >= 30
-    for index, (what, bad) in enumerate(variants):
+    for _index, (what, bad) in enumerate(variants):
         path = _mutated(work, kind, toml_text(bad))
         if LOADERS[kind] is not None:
             _guard(LOADERS[kind], path, what)

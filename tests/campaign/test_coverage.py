@@ -11,13 +11,13 @@ import cv2
 import numpy as np
 import pytest
 
-from campaign.run.orchestrate import plan_campaign
-from campaign.run.case import PlanRow, compute_case
-from campaign.run.worker import load_resources
 from campaign.cli import main as campaign_main
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.plan.coverage import _mirror_pad
 from campaign.plan.placement import footprint_points_m
+from campaign.run.case import PlanRow, compute_case
+from campaign.run.orchestrate import plan_campaign
+from campaign.run.worker import load_resources
 
 REPO = Path(__file__).resolve().parents[2]
 SIDECAR = "metres_per_pixel = {mpp}\nincidence_deg = 40.0\nemission_deg = 0.0\nphase_deg = 40.0\ndn_to_if_scale = 0.0015\n"

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from campaign.run.orchestrate import plan_campaign
-from campaign.run.case import PlanRow, compute_case
-from campaign.run.worker import load_resources
 from campaign.configuration.campaign_file import load_campaign_config
+from campaign.run.case import PlanRow, compute_case
 from campaign.run.error_budget import attitude_floor_mps
+from campaign.run.orchestrate import plan_campaign
+from campaign.run.worker import load_resources
 from service_campaigns import campaign_file
 
 

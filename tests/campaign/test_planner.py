@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from campaign.plan.placement import CASE_ID_STRIDE, ClassPlanInput, even_points, footprint_points_m, plan_class
-from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_from_axis_angle
+from simulator.scene.descent_profile import DescentProfile
 
 
 def _tilted_profile(tilt_deg: float, name: str) -> DescentProfile:

@@ -14,8 +14,17 @@ import pandas as pd
 import pytest
 
 from campaign.store.campaign_store import CampaignStore
-from service_campaigns import (REPO, DaskProcesses, campaign_command, campaign_file, case_files, low_camera_trajectory,
-                               run_campaign, stderr_line, wait_for_case_files)
+from service_campaigns import (
+    REPO,
+    DaskProcesses,
+    campaign_command,
+    campaign_file,
+    case_files,
+    low_camera_trajectory,
+    run_campaign,
+    stderr_line,
+    wait_for_case_files,
+)
 
 
 def _timed(*args, **kwargs):

@@ -20,10 +20,17 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from service_campaigns import file_tree, site_copy
 
 from campaign.store.campaign_store import CampaignStore, StoreError
-from campaign.store.case_files import CASE_FILE, case_file_name, scan_case_files, sha256_bytes, table_bytes, write_case_rows
+from campaign.store.case_files import (
+    CASE_FILE,
+    case_file_name,
+    scan_case_files,
+    sha256_bytes,
+    table_bytes,
+    write_case_rows,
+)
+from service_campaigns import file_tree, site_copy
 
 REPO = Path(__file__).resolve().parents[2]
 SITE = REPO / "sitedata" / "gusev.toml"

@@ -16,9 +16,9 @@ import time
 from pathlib import Path
 
 import pytest
-from service_campaigns import file_tree, site_copy
 
 from campaign.store.campaign_store import CampaignStore
+from service_campaigns import file_tree, site_copy
 
 REPO = Path(__file__).resolve().parents[2]
 SITE = REPO / "sitedata" / "gusev.toml"

@@ -89,8 +89,8 @@ def test_command_line_exit_code_and_bad_baseline(tmp_path):
 # --- runs on a real cluster -------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scheduler():
-    from campaign.run.cluster import start_cluster
     from campaign.configuration.execution import ExecutionConfig
+    from campaign.run.cluster import start_cluster
 
     client, cluster = start_cluster(ExecutionConfig(workers=2), quiet=True)
     yield client.scheduler.address
@@ -121,7 +121,7 @@ def test_results_are_one_dataset_keyed_by_point(first_sweep):
     assert per_point.size().to_dict() == {"p000": 5, "p001": 5}
     assert per_point["scene.camera_effects.dark_current_scale"].first().to_dict() == {"p000": 1.0, "p001": 2.0}
     assert per_point["config_hash"].nunique().eq(1).all() and results["config_hash"].nunique() == 2
-    for point_id, members in per_point:      # each point's rows are its campaign store's, under its hash
+    for _point_id, members in per_point:      # each point's rows are its campaign store's, under its hash
         store = out / "points" / members["config_hash"].iloc[0][:16]
         assert (store / "manifest.json").exists()
         assert sorted(members["case_id"]) == sorted(pd.read_parquet(store / "results.parquet")["case_id"])

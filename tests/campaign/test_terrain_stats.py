@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from sitedata.terrain import synthetic_features as feat
 from campaign.realism import terrain_stats as ts
+from sitedata.terrain import synthetic_features as feat
 
 REPO = Path(__file__).resolve().parents[2]
 REALDATA = REPO.parent / "shared" / "realdata"

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from dimes_velocity import geometry
-from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 from flight_interface import cahvor
 from flight_interface.frames import quat_from_axis_angle
+from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 
 
 def test_predicted_positions_integrate_linear_velocity_exactly():

@@ -2,16 +2,15 @@
 shadows, smear, noise) and measurements from the sensor models: the issue's done-when criteria."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 from dimes_velocity import DimesEstimator
-from simulator.sensors import SIGMA_FIELDS, SensorConfig, measure
-from sitedata.terrain.synthetic_terrain import synthetic_terrain
+from flight_interface.frames import quat_from_axis_angle
 from simulator.descent_image import render_descent_image
 from simulator.scene.descent_profile import constant_velocity_profile
-from flight_interface.frames import quat_from_axis_angle
+from simulator.sensors import SIGMA_FIELDS, SensorConfig, measure
+from sitedata.terrain.synthetic_terrain import synthetic_terrain
 
 ALTITUDES_M = (2000.0, 1725.0, 1450.0)
 DESCENT_RATE_MPS = 72.0

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from file_formats.measurements_json import measurements_to_dict
 from file_formats.flat_field_files import save_flat_field
+from file_formats.measurements_json import measurements_to_dict
 from simulator.calibration import simulate_flat_field
 from simulator.synthetic_descent import constant_velocity_descent, random_ground
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from test_readers_formats import write_isis, write_pds3, write_vicar
 
 from file_formats.descent_images import ImageDeclaration, InputFileError, bin_full_frame, read_descent_image
-from test_readers_formats import write_isis, write_pds3, write_vicar
 
 OFFSET = 20.0          # mer_a.toml adc_offset_dn
 MAX_DN = 4095

@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from file_formats.planetary import ReaderError, detect_format, read_ddd, read_image, read_isis3, read_pds3, read_vicar
 from sitedata.terrain.real_terrain import load_terrain
-from file_formats.planetary import (ReaderError, detect_format, read_ddd, read_image, read_isis3,
-                              read_pds3, read_vicar)
 
 REPO = Path(__file__).resolve().parents[2]
 REALDATA = REPO.parent / "shared" / "realdata"

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from test_readers_formats import write_isis, write_pds3, write_vicar
 
 from file_formats.planetary import ReaderError, read_ddd, read_image, read_isis3, read_pds3, read_vicar
-from test_readers_formats import write_isis, write_pds3, write_vicar
 
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 

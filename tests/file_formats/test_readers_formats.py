@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 from PIL import Image, TiffImagePlugin
 
-from sitedata.terrain.real_terrain import load_terrain
-from file_formats.planetary import (ReaderError, read_image, read_isis3, read_pds3, read_sidecar,
-                              read_vicar)
+from file_formats.planetary import ReaderError, read_image, read_isis3, read_pds3, read_sidecar, read_vicar
 from flight_interface.tomlfields import ConfigError
+from sitedata.terrain.real_terrain import load_terrain
 
 ISIS_NULL4, ISIS_HRS4 = 0xFF7FFFFB, 0xFF7FFFFF
 

@@ -176,7 +176,8 @@ def test_energy_is_not_created():
         for mu0 in (0.3, 0.8, 1.0):
             # upward flux of the path light over the incident flux mu0 (I/F units: F = flux / pi)
             up = integrate.quad(lambda mu: 2 * np.pi * mu * float(
-                atmosphere.path_reflectance(0.0, tau, mu0, mu, 0.0, config)), 1e-6, 1.0)[0] / (np.pi * mu0)
+                atmosphere.path_reflectance(0.0, tau, mu0, mu, 0.0, config)),  # noqa: B023 - integrated right here
+                1e-6, 1.0)[0] / (np.pi * mu0)
             scattered = albedo * (1.0 - np.exp(-tau / mu0))
             assert 0.0 < up < scattered
             if tau == 1e-3:

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle, rotate
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 
 
 def _swinging_profile():

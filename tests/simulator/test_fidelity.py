@@ -5,14 +5,14 @@ from pathlib import Path
 
 import numpy as np
 
+from flight_interface.camera import load_camera
+from flight_interface.frames import quat_from_axis_angle
+from simulator.descent_image import render_descent_image
 from simulator.fields import block_means
 from simulator.scene import ground_mapping, radiance
-from flight_interface.camera import load_camera
-from simulator.descent_image import render_descent_image
-from simulator.scene_config import SceneConfig
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
-from flight_interface.frames import quat_from_axis_angle
 from simulator.scene.terrain import Terrain
+from simulator.scene_config import SceneConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -207,8 +207,8 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
 def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
     import pytest
 
-    from simulator.scene_config import SceneConfig
     from flight_interface.tomlfields import ConfigError, load_toml, parse
+    from simulator.scene_config import SceneConfig
 
     path = tmp_path / "scene.toml"
     path.write_text('[scene]\nfidelity = "reference"\nsupersample = 2\n')

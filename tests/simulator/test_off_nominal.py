@@ -7,12 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator.detector import blooming
-from simulator.off_nominal import dust, hot_pixels, particle_hits
 from flight_interface.cahvor import cahvor_from_intrinsics
 from flight_interface.camera import load_camera
-from simulator.off_nominal import OffNominalArtefacts
+from simulator.detector import blooming
 from simulator.detector.camera_chain import CameraEffects, render_image
+from simulator.off_nominal import OffNominalArtefacts, dust, hot_pixels, particle_hits
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")

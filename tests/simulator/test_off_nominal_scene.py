@@ -8,16 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry
 from flight_interface.camera import load_camera
-from simulator.descent_image import render_descent_image
-from simulator.scene_config import SceneConfig
-from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile, scale_angular_rates
-from flight_interface.frames import quat_from_axis_angle, quat_multiply, quat_conjugate, quat_to_rotation_vector
-from simulator.off_nominal import (OffNominalArtefacts, OffNominalConfig, draw_case_artefacts,
-                                   with_particle_hits)
-from simulator.scene.terrain import Terrain
+from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector
 from flight_interface.tomlfields import ConfigError, parse
+from simulator.descent_image import render_descent_image
+from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig, draw_case_artefacts, with_particle_hits
+from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile, scale_angular_rates
+from simulator.scene.terrain import Terrain
+from simulator.scene_config import SceneConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")

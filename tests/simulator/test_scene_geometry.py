@@ -7,12 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from simulator.scene import ground_mapping, resample, radiance
 from flight_interface.camera import load_camera
-from simulator.scene_config import SceneConfig
-from simulator.scene.descent_profile import constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
+from simulator.scene import ground_mapping, radiance, resample
+from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.scene.terrain import Terrain
+from simulator.scene_config import SceneConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator.scene import ground_mapping, photometry, radiance, shadow
 from flight_interface.camera import load_camera
-from simulator.scene_config import REFERENCE_EFFECTS, SceneConfig
+from simulator.scene import ground_mapping, photometry, radiance, shadow
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.scene.terrain import Terrain
+from simulator.scene_config import REFERENCE_EFFECTS, SceneConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")

@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator.scene import heat_shield, motion_blur, photometry, radiance
 from flight_interface.camera import load_camera
-from simulator.descent_image import DescentImage, render_descent_image
-from simulator.scene_config import SceneConfig
-from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from flight_interface.frames import quat_from_axis_angle
-from simulator.scene.terrain import Terrain
 from flight_interface.tomlfields import ConfigError, load_toml, parse
+from simulator.descent_image import DescentImage, render_descent_image
+from simulator.scene import heat_shield, motion_blur, photometry, radiance
+from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
+from simulator.scene.terrain import Terrain
+from simulator.scene_config import SceneConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")

@@ -13,10 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simulator.detector import readout
 from flight_interface.camera import load_camera
-from simulator.detector.camera_chain import CameraEffects, render_image
 from flight_interface.tomlfields import ConfigError
+from simulator.detector import readout
+from simulator.detector.camera_chain import CameraEffects, render_image
 
 MER_A = (Path(__file__).resolve().parents[2] / "sitedata" / "cameras" / "mer_a.toml").read_text()
 SMALL = dict(width_px="64", height_px="64", principal_point_px="[31.5, 31.5]")   # 3 deg FOV, same optics

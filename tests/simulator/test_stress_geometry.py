@@ -11,9 +11,19 @@ from hypothesis import strategies as st
 
 from dimes_velocity import geometry
 from flight_interface import cahvor
-from flight_interface.frames import (matrix_to_quat, off_nadir_angle_rad, quat_conjugate, quat_from_axis_angle,
-                                  quat_from_rotation_vector, quat_multiply, quat_normalize, quat_to_matrix,
-                                  quat_to_rotation_vector, rotate, slerp)
+from flight_interface.frames import (
+    matrix_to_quat,
+    off_nadir_angle_rad,
+    quat_conjugate,
+    quat_from_axis_angle,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalize,
+    quat_to_matrix,
+    quat_to_rotation_vector,
+    rotate,
+    slerp,
+)
 
 CHEAP = settings(max_examples=300, deadline=None, derandomize=True)
 MEDIUM = settings(max_examples=40, deadline=None, derandomize=True)

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from flight_interface.frames import quat_from_axis_angle, quat_to_matrix
 from simulator.descent_image import render_descent_image
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
-from flight_interface.frames import quat_from_axis_angle, quat_to_matrix
 from simulator.scene.terrain import Terrain
 
 SUN = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])

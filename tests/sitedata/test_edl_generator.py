@@ -6,8 +6,14 @@ import pytest
 
 from flight_interface.frames import quat_conjugate, quat_multiply, quat_to_rotation_vector, rotate
 from flight_interface.tomlfields import ConfigError
-from sitedata.edl.dynamics import (G_MARS_MPS2, free_pendulum_swing, swing_twist_attitude, swing_twist_body_rate,
-                                   tilt_angle_rad, twist_angle_rad)
+from sitedata.edl.dynamics import (
+    G_MARS_MPS2,
+    free_pendulum_swing,
+    swing_twist_attitude,
+    swing_twist_body_rate,
+    tilt_angle_rad,
+    twist_angle_rad,
+)
 from sitedata.edl.generator import generate_profiles, load_edl_parameters, profile_statistics
 from sitedata.edl.trajectory_io import compact_frame, frame_to_profiles, profiles_to_frame, read_profiles
 

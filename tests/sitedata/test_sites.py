@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from flight_interface.tomlfields import ConfigError
+from sitedata.sites import ASTRONOMICAL_UNIT_M, class_terrain_params, load_class_terrain, load_site, sun_direction
 from sitedata.terrain import mosaic as terrain_mosaic
-from sitedata.sites import (ASTRONOMICAL_UNIT_M, class_terrain_params, load_class_terrain, load_site,
-                            sun_direction)
 
 REPO = Path(__file__).resolve().parents[2]
 SITEDATA = REPO / "sitedata"

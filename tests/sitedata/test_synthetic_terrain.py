@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from campaign.realism.terrain_stats import crater_density_per_km2
 from sitedata.terrain import synthetic_features as feat
 from sitedata.terrain import synthetic_terrain as st
-from campaign.realism.terrain_stats import crater_density_per_km2
 
 REPO = Path(__file__).resolve().parents[2]
 REALDATA = REPO.parent / "shared" / "realdata"
@@ -54,7 +54,8 @@ def read_moc_pds3(path: Path) -> np.ndarray:
     """Minimal reader for the attached-label uint8 MOC product (RECORD_BYTES, ^IMAGE, LINES, LINE_SAMPLES)."""
     raw = path.read_bytes()
     label = raw[:raw.find(b"\nEND\r\n") if b"\nEND\r\n" in raw else 4096].decode("ascii", "replace")
-    value = lambda key: int(re.search(rf"^\s*{re.escape(key)}\s*=\s*(\d+)", label, re.M).group(1))
+    def value(key):
+        return int(re.search(rf"^\s*{re.escape(key)}\s*=\s*(\d+)", label, re.M).group(1))
     record, start = value("RECORD_BYTES"), (value("^IMAGE") - 1) * value("RECORD_BYTES")
     lines, samples = value("LINES"), value("LINE_SAMPLES")
     assert record == samples

@@ -5,9 +5,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from simulator.scene.descent_profile import DescentProfile
 from flight_interface.frames import quat_from_axis_angle, rotate
 from flight_interface.tomlfields import ConfigError
+from simulator.scene.descent_profile import DescentProfile
 from sitedata.edl.post_table import read_post_table
 from sitedata.edl.trajectories_cli import check_set, compare_sites, main, set_statistics
 from sitedata.edl.trajectory_io import TrajectoryFileError, profiles_to_frame, read_profiles, write_profiles
