@@ -17,6 +17,8 @@ import pytest
 from campaign.store.campaign_store import CampaignStore
 from service_campaigns import site_copy
 
+pytestmark = [pytest.mark.cluster, pytest.mark.slow]
+
 REPO = Path(__file__).resolve().parents[2]
 SITE = REPO / "sitedata" / "gusev.toml"
 SCALE = "0.03"  # gcp 6, gdcp 3, gkep 2 cases

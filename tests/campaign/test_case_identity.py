@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import pandas as pd
 import pyarrow.parquet as pq
+import pytest
 
 from service_campaigns import campaign_file, run_campaign
+
+pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
 
 def _results(store) -> pd.DataFrame:

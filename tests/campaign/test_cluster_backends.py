@@ -119,6 +119,8 @@ def test_missing_optional_package_names_the_pip_extra(tmp_path, kind, module, ex
     assert not out.exists()
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_scheduler_backend_runs_for_real_and_gives_the_embedded_clusters_bits(tmp_path):
     processes = DaskProcesses(tmp_path, workers=2)
     try:

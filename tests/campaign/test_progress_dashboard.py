@@ -10,6 +10,8 @@ import sys
 import time
 import urllib.request
 
+import pytest
+
 from campaign.run.progress import ProgressBar
 from service_campaigns import REPO, campaign_command, campaign_file
 
@@ -80,6 +82,8 @@ def test_file_or_pipe_gets_plain_periodic_lines_and_a_last_line(tmp_path):
     assert matches[-1].group(4) == "0 s"
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_submit_links_a_dashboard_serving_the_task_stream_and_shows_tqdm_on_a_terminal(tmp_path):
     path = campaign_file(tmp_path, {"gcp": 3, "gdcp": 1, "gkep": 0}, "workers = 1")
     controller, terminal = os.openpty()

@@ -33,6 +33,8 @@ def _timed(*args, **kwargs):
     return result, time.monotonic() - started
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_failure_of_the_simulation_itself_is_recorded_exit_1_and_kept(tmp_path):
     trajectory = low_camera_trajectory(tmp_path / "low.parquet")
     path = campaign_file(tmp_path, {"gcp": 1, "gdcp": 0, "gkep": 0}, "workers = 1\nretries = 0",
@@ -91,6 +93,8 @@ def tiny_tmpfs(tmp_path):
     subprocess.run(["umount", "-l", str(mount_point)], check=False)
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_full_disk_stops_the_run_keeps_cases_and_the_next_submit_finishes(tmp_path, tiny_tmpfs):
     path = campaign_file(tmp_path, {"gcp": 2, "gdcp": 1, "gkep": 0}, "workers = 1")
     out = tiny_tmpfs / "store"
@@ -117,6 +121,8 @@ def test_full_disk_stops_the_run_keeps_cases_and_the_next_submit_finishes(tmp_pa
     # the nanny kills the worker above 95 % of the limit (a traceback before the fix)
     ("300MiB", 1, ["case 0 killed 2 workers (KilledWorker", "raise [execution] memory_limit (now 300MiB)"]),
 ])
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_memory_limit_too_small_stops_with_one_line(tmp_path, limit, cases, expected):
     path = campaign_file(tmp_path, {"gcp": cases, "gdcp": 0, "gkep": 0},
                          f'workers = 1\nmemory_limit = "{limit}"\npaused_timeout_s = 3')
@@ -145,6 +151,8 @@ def _start_submit(path: Path, out: Path) -> subprocess.Popen:
 
 
 @pytest.mark.parametrize("fault", ["scheduler killed", "workers killed", "workers hung"])
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_lost_cluster_stops_the_run_with_one_line(tmp_path, dask_processes, fault):
     path = campaign_file(tmp_path, {"gcp": 3, "gdcp": 1, "gkep": 0},
                          f'cluster = "scheduler"\nscheduler = "{dask_processes.address}"\n'

@@ -91,6 +91,8 @@ def store(reference, tmp_path) -> Path:
     return copy
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_a_clean_store_verifies_and_names_record_size_and_sha256(reference):
     files = _case_files(reference)
     assert sorted(files) == sorted(CampaignStore(reference).plan()["case_id"])
@@ -102,6 +104,8 @@ def test_a_clean_store_verifies_and_names_record_size_and_sha256(reference):
     assert result.returncode == 0 and "clean" in result.stdout, result.stdout
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomputed(reference, store):
     files = _case_files(store)
     first, second, third = sorted(files)
@@ -144,6 +148,8 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     assert _campaign("verify", store).returncode == 0
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_two_verified_files_of_one_case_count_once(reference, store):
     """A kill between a recomputed case's rename and the removal of its older file leaves two verified
     files: the newest counts, once."""
@@ -201,6 +207,8 @@ def test_a_writer_killed_at_any_instant_leaves_a_verified_file_or_an_ignored_one
             assert pq.read_table(path).column("case_id").to_pylist() == [7]
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_corrupt_or_edited_manifest_is_one_line(store):
     (store / "manifest.json").write_text('{"config_hash": "abc", "seed": ')
     before = file_tree(store)
@@ -214,6 +222,8 @@ def test_corrupt_or_edited_manifest_is_one_line(store):
     assert file_tree(store) == before
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, store):
     path = store / "manifest.json"
     manifest = json.loads(path.read_text())
@@ -244,6 +254,8 @@ def _site_with_seed(directory: Path, seed: int) -> Path:
     return site_copy(directory, f"\n[campaign]\nseed = {seed}\n", name=f"gusev-seed{seed}.toml")
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside(store, tmp_path):
     (store / "manifest.json").unlink()
     old_tree = file_tree(store)
@@ -266,6 +278,8 @@ def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside
     assert _campaign("verify", store).returncode == 0
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
     # the same campaign ([execution] is not hashed), giving up on a scheduler after 2 s
     site = site_copy(tmp_path, "\n[execution]\nconnect_timeout_s = 2\n", name="site.toml")
@@ -277,6 +291,8 @@ def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
     assert after == before, "--fresh moved or changed the store although the cluster was unusable"
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_another_case_count_reuses_the_cases_in_both_plans(reference, store):
     """Case identity is (class, index within class) and the configuration hash ignores case counts: a
     larger --cases-scale on the same store computes only the new cases, a smaller one runs nothing; the
@@ -295,6 +311,8 @@ def test_another_case_count_reuses_the_cases_in_both_plans(reference, store):
     assert _campaign("verify", store).returncode == 0
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_same_configuration_hash_with_a_differently_planned_case_is_refused(store):
     campaign = CampaignStore(store)
     manifest, plan = campaign.manifest(), campaign.plan()

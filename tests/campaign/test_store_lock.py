@@ -20,6 +20,8 @@ import pytest
 from campaign.store.campaign_store import CampaignStore
 from service_campaigns import file_tree, site_copy
 
+pytestmark = [pytest.mark.cluster, pytest.mark.slow]
+
 REPO = Path(__file__).resolve().parents[2]
 SITE = REPO / "sitedata" / "gusev.toml"
 SCALE = "0.005"   # gcp 1, gdcp 1, gkep 1 case

@@ -112,6 +112,8 @@ def first_sweep(tmp_path_factory, scheduler):
     return path, out
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_results_are_one_dataset_keyed_by_point(first_sweep):
     _, out = first_sweep
     results = pd.read_parquet(out / "results.parquet")
@@ -133,6 +135,8 @@ def test_results_are_one_dataset_keyed_by_point(first_sweep):
     assert "| point |" in (out / "sensitivity.md").read_text()
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_plots_of_each_metric_against_each_axis(first_sweep):
     _, out = first_sweep
     for metric in ("pct_valid", "error_mean_3sigma_mps"):
@@ -141,6 +145,8 @@ def test_plots_of_each_metric_against_each_axis(first_sweep):
             assert image.format == "PNG" and image.size[0] > 300 and image.size[1] > 200
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_rerun_computes_nothing_and_a_changed_value_only_its_point(first_sweep, scheduler, capsys):
     path, out = first_sweep
     before = _case_files(out)
@@ -164,6 +170,8 @@ def test_rerun_computes_nothing_and_a_changed_value_only_its_point(first_sweep, 
     assert pd.read_parquet(out / "results.parquet").equals(results)
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, capsys, tmp_path):
     path, out = first_sweep
     code, stdout, _ = _run(capsys, path, "--output", out, "--scheduler", scheduler)   # every point kept: 0 cases
@@ -188,6 +196,8 @@ def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, ca
 
 
 # --- issue 7, done when: the estimator degrades with lens dust and with the angular rate multiplier ----
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_estimator_degrades_with_dust_and_rate_multiplier(tmp_path, scheduler, capsys):
     """Nominal vs 300 dust particles (their shadows cover much of the frame) and vs 100x angular rates
     (tens of pixels of blur in 5.1 ms): each must lose >= 30 points of % valid or gain >= 1 m/s of error."""

@@ -26,6 +26,7 @@ def class_statistics(site_strips, mer_sampling):
             for name, (_, _, t) in site_strips.items()}
 
 
+@pytest.mark.slow
 def test_every_class_falls_inside_the_real_range_of_its_kind(class_statistics):
     assert set(class_statistics) == set(ref.KIND_OF_CLASS)
     for name, stats in class_statistics.items():

@@ -15,6 +15,8 @@ import pytest
 from adversarial_suite import build_suite, evaluate, format_rows
 from dimes_velocity import REASONS, DimesEstimator
 
+pytestmark = [pytest.mark.slow]
+
 
 @pytest.fixture(scope="module")
 def suite(mer_a):

@@ -193,6 +193,7 @@ sys.exit(code)
 """
 
 
+@pytest.mark.slow
 def test_estimator_reads_pds3_images_with_the_simulator_unimportable(case_files, mer_a_path, tmp_path):
     """The estimator is flight software: it and its file readers run with no simulator or campaign code."""
     from test_readers_formats import write_pds3

@@ -62,6 +62,7 @@ def test_blocker_really_blocks_the_simulator():
     assert result.returncode != 0 and "blocked import of simulator" in result.stderr
 
 
+@pytest.mark.slow
 def test_reference_cli_runs_on_files_with_simulator_unimportable(case_files, mer_a_path):
     images, measurements, flat = case_files
     argv = [*map(str, images), str(measurements), "--camera", str(mer_a_path), "--flat-field", str(flat), "--summary"]
@@ -73,6 +74,7 @@ def test_reference_cli_runs_on_files_with_simulator_unimportable(case_files, mer
     assert np.hypot(output["imu_bias_east_mps"] - BIAS[0], output["imu_bias_north_mps"] - BIAS[1]) < 0.5
 
 
+@pytest.mark.slow
 def test_phase_correlation_runs_on_files_with_simulator_unimportable(case_files, mer_a_path, tmp_path):
     images, measurements, flat = case_files
     output = tmp_path / "result.json"

@@ -13,6 +13,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+pytestmark = [pytest.mark.cluster, pytest.mark.slow]
+
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "sitedata" / "examples" / "compare_estimators.toml"
 PLUGINS = Path(__file__).resolve().parents[1] / "plugins"

@@ -193,6 +193,7 @@ def test_real_moc_example_campaign_terrain():
     assert 0.1 < terrain.reflectance_if.mean() < 0.3 and np.isfinite(terrain.reflectance_if).all()
 
 
+@pytest.mark.slow
 def test_inspect_command_reports_missing_terrain_facts(capsys):
     from file_formats.planetary.__main__ import main
 

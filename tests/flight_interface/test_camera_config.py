@@ -32,6 +32,7 @@ def test_camera_boresight_points_down_the_lander_axis(mer_a):
     (("camera_to_lander_quaternion = [0.0, 1.0, 0.0, 0.0]", "camera_to_lander_quaternion = [0.0, 2.0, 0.0, 0.0]"),
      "mounting.camera_to_lander_quaternion"),
 ])
+@pytest.mark.slow
 def test_bad_camera_toml_names_file_and_field(tmp_path, mer_a_path, edit, field):
     text = mer_a_path.read_text()
     assert edit[0] in text
@@ -47,6 +48,7 @@ def test_bad_camera_toml_names_file_and_field(tmp_path, mer_a_path, edit, field)
     assert len(result.stderr.strip().splitlines()) == 1 and field in result.stderr
 
 
+@pytest.mark.slow
 def test_toml_syntax_error_is_one_line(tmp_path):
     bad = tmp_path / "syntax.toml"
     bad.write_text("[camera\nname = 1")
@@ -55,6 +57,7 @@ def test_toml_syntax_error_is_one_line(tmp_path):
     assert len(result.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_camera_command_prints_derived_numbers(mer_a_path):
     result = subprocess.run([sys.executable, "-m", "campaign.cli", "camera", str(mer_a_path)],
                             capture_output=True, text=True, check=True)

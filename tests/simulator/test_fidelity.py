@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
@@ -143,6 +144,7 @@ def test_pixel_area_filter_is_the_exact_box_mean_of_a_quadratic():
     assert np.allclose(filtered[1:-1, 1:-1], box_mean[1:-1, 1:-1], rtol=0, atol=2e-3)
 
 
+@pytest.mark.slow
 def test_supersampled_pixel_on_a_step_edge_reads_its_coverage():
     """A bright/dark step on the ground along a north line: the pixel the edge crosses reads the mean
     weighted by the fraction of its 3 x 3 sub-samples on each side."""

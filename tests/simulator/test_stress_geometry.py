@@ -151,6 +151,7 @@ def test_rotation_vector_round_trip_up_to_half_a_turn(vector):
 
 @CHEAP
 @given(st.floats(1e-3, 2 * np.pi), st.floats(1e-4, 0.2), st.sampled_from([0, 1, 2]))
+@pytest.mark.slow
 def test_angular_rates_up_to_360_deg_per_s_integrate_to_the_closed_form_angle(rate_fraction, duration_s, axis):
     """Rate w (up to 2 pi rad/s) for t seconds about a body axis: the composed per-step rotations
     (1000 steps) equal one rotation by w t, and slerp between the ends is the rotation by w t / 2."""

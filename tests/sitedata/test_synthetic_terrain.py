@@ -75,6 +75,7 @@ def real_slope_range():
 
 # ----------------------------------------------------------------------------------------------
 # class ordering and realism
+@pytest.mark.slow
 def test_strip_geometry_and_values(site_strips):
     for name, (_, _, terrain) in site_strips.items():
         image = terrain.reflectance_if
@@ -87,6 +88,7 @@ def test_strip_geometry_and_values(site_strips):
         assert 0 < terrain.moc_incidence_rad < np.radians(60) and terrain.moc_phase_rad < np.radians(60)
 
 
+@pytest.mark.slow
 def test_rms_contrast_follows_the_documented_class_ordering(site_strips):
     contrast = {name: binned_rms_contrast(t.reflectance_if) for name, (_, _, t) in site_strips.items()}
     # paper Figs. 7 and 9: bright smooth plains lowest (hbsp lowest of all), cratered/tracked plains,
@@ -102,6 +104,7 @@ def test_rms_contrast_follows_the_documented_class_ordering(site_strips):
     # how bland against real MOC images of the same kind of ground: tests/campaign/test_terrain_calibration.py
 
 
+@pytest.mark.slow
 def test_feature_density_follows_the_documented_class_ordering(site_strips):
     # dark features (craters, pits, track segments, knob shadows) as campaign.realism.terrain_stats counts them
     density = {name: crater_density_per_km2(t.reflectance_if, t.metres_per_pixel)
@@ -110,6 +113,7 @@ def test_feature_density_follows_the_documented_class_ordering(site_strips):
     assert max(density["gcp"], density["hbsp"]) < 0.8 * min(density[n] for n in ("gdcp", "hdcp", "heb", "gkep")), density
 
 
+@pytest.mark.slow
 def test_power_spectrum_slope_lies_within_real_moc_and_ctx_images(site_strips, real_slope_range):
     low, high, real = real_slope_range
     assert -3.0 < low < high < -1.0, real          # the real images are neither white noise nor a blur
