@@ -25,25 +25,22 @@ import sys
 import time
 from pathlib import Path
 
-from flight_interface.command_line import USAGE_ERROR, OneLineParser as _Parser
-from flight_interface.tomlfields import ConfigError, parse_field
-from campaign.configuration.execution import ExecutionConfig
-from flight_interface.camera import load_camera
 from campaign.configuration.campaign_file import load_campaign_config
-from campaign.run.orchestrate import submit
-from campaign.store.campaign_store import CampaignStore
-from campaign.run.orchestrate import plan_campaign, write_plan_maps
-from campaign.store.verify import verify_store
-from campaign.run.orchestrate import write_table
-from campaign.report.markdown import write_report
-from campaign.run.sweep import compare_to_baseline, read_baseline, run_sweep, write_outputs
+from campaign.configuration.execution import ExecutionConfig
+from campaign.configuration.schemas import SCHEMA_TABLES, all_schemas, table_schema
 from campaign.configuration.sweep_file import load_sweep
 from campaign.realism.compare_flight import compare, load_flight, summary_lines
-from campaign.configuration.schemas import all_schemas, table_schema
-from campaign.configuration.schemas import SCHEMA_TABLES
+from campaign.report.markdown import write_report
 from campaign.run.faults import RunStopped
-from campaign.store.campaign_store import StoreError
+from campaign.run.orchestrate import plan_campaign, submit, write_plan_maps, write_table
+from campaign.run.sweep import compare_to_baseline, read_baseline, run_sweep, write_outputs
+from campaign.store.campaign_store import CampaignStore, StoreError
 from campaign.store.lock import StoreBusy
+from campaign.store.verify import verify_store
+from flight_interface.camera import load_camera
+from flight_interface.command_line import USAGE_ERROR
+from flight_interface.command_line import OneLineParser as _Parser
+from flight_interface.tomlfields import ConfigError, parse_field
 
 COMMAND_LINE = "command line"
 RUN_INCOMPLETE = 1      # exit code: cases failed, a run stopped, or a regression

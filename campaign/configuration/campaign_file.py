@@ -42,16 +42,20 @@ from typing import Annotated
 
 from pydantic import AfterValidator, Field, SkipValidation, ValidationInfo, model_validator
 
+from campaign.configuration.code_identity import code_digest, plugin_modules
+from campaign.configuration.estimators import (
+    CalibrationConfig,
+    EstimatorTable,
+    estimator_code_digests,
+    estimator_tables,
+)
+from campaign.configuration.execution import ExecutionConfig
 from dimes_velocity.config import EstimatorConfig
 from estimators.registry import EstimatorEntry, EstimatorSpec, unique_names
 from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load_toml, parse, parse_field
 from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig
 from sitedata.sites import MAX_CASES, Site
-
-from campaign.configuration.code_identity import code_digest, plugin_modules
-from campaign.configuration.estimators import CalibrationConfig, EstimatorTable, estimator_code_digests, estimator_tables
-from campaign.configuration.execution import ExecutionConfig
 
 COMMAND_LINE = "command line"
 #: A class's number of cases.

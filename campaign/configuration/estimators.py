@@ -28,8 +28,8 @@ from typing import Literal
 from pydantic import Field
 
 from dimes_velocity.config import EstimatorConfig
-from flight_interface.tomlfields import ConfigModel
 from estimators.registry import default_specs, estimator_specs
+from flight_interface.tomlfields import ConfigModel
 
 DEFAULT_FLAT_FIELD_FRAMES = 16
 

@@ -37,9 +37,14 @@ from typing import Any, Literal
 
 from pydantic import Field
 
+from campaign.configuration.campaign_file import (
+    CampaignConfig,
+    CaseCount,
+    CasesScale,
+    campaign_config_from_data,
+    load_campaign_config,
+)
 from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, load_toml, parse
-
-from campaign.configuration.campaign_file import CampaignConfig, CaseCount, CasesScale, campaign_config_from_data, load_campaign_config
 
 AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed",)

@@ -27,10 +27,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from campaign.plan.placement import HEADING_SEARCH_STEP_RAD, _turn, footprint_points_m
 from simulator.scene.terrain import Terrain
 from sitedata.sites import RESAMPLE_MODES
-
-from campaign.plan.placement import HEADING_SEARCH_STEP_RAD, _turn, footprint_points_m
 
 MARGIN_PX = 2.0
 

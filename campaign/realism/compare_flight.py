@@ -43,22 +43,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
-import pandas as pd
 import numpy as np
+import pandas as pd
 
-from flight_interface.tomlfields import ConfigError, load_toml, parse
+from campaign.realism.flight_file import FlightFile
+from campaign.realism.flight_plots import column_plot, scatter_plot, side_by_side
+from dimes_velocity import DescentMeasurements, DimesEstimator, ImageMeasurement
+from dimes_velocity.features import select_features, template_statistics
+from dimes_velocity.preprocess import flatten, make_flattening
 from file_formats.descent_images import InputFileError, load_image
 from flight_interface.camera import load_camera
-from sitedata.sites import load_site
-from campaign.realism.flight_file import FlightFile
 from flight_interface.frames import quat_from_rotation_vector, quat_multiply
-from simulator.scene.descent_profile import DescentProfile
+from flight_interface.tomlfields import ConfigError, load_toml, parse
 from simulator.descent_image import render_descent_image
-from dimes_velocity.features import select_features, template_statistics
-from dimes_velocity import DescentMeasurements, DimesEstimator, ImageMeasurement
-from dimes_velocity.preprocess import flatten, make_flattening
-from sitedata.sites import load_class_terrain
-from campaign.realism.flight_plots import column_plot, scatter_plot, side_by_side
+from simulator.scene.descent_profile import DescentProfile
+from sitedata.sites import load_class_terrain, load_site
 
 POSE_SPAN_S = 0.05            # the rendered profile spans the image time +- this (constant velocity and rate)
 TEXTURE_SIGMA_BLOCKS = 16.0   # Gaussian background removed before the texture correlation

@@ -29,13 +29,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import cv2
+import numpy as np
 
+from campaign.realism.terrain_stats import (
+    ALTITUDES_M,
+    DescentSampling,
+    crater_density_per_km2,
+    psd_slope,
+    resample_to_ground_sample,
+    tile_contrasts,
+)
+from file_formats.planetary import load_orbital_image, read_image
 from sitedata import SITEDATA_DIR
-from campaign.realism.terrain_stats import ALTITUDES_M, DescentSampling, crater_density_per_km2, psd_slope, resample_to_ground_sample, tile_contrasts
-from file_formats.planetary import load_orbital_image
-from file_formats.planetary import read_image
 
 SITEDATA = SITEDATA_DIR
 DEFAULT_REALDATA = SITEDATA.parent.parent / "shared" / "realdata"

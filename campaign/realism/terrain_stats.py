@@ -48,9 +48,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simulator.scene import photometry
-from flight_interface.camera import Camera
 from dimes_velocity.config import EstimatorConfig
+from flight_interface.camera import Camera
+from simulator.scene import photometry
 
 ALTITUDES_M = (1000.0, 2000.0)
 FOOTPRINT_SAMPLES = 256                 # the estimator's rectified image side

@@ -23,16 +23,20 @@ import numpy as np
 import pandas as pd
 from scipy import ndimage
 
-from sitedata import SITEDATA_DIR
+from campaign.realism.terrain_stats import (
+    TerrainStatistics,
+    descent_sampling,
+    nadir_photometric_ratio,
+    terrain_statistics,
+)
+from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
+from file_formats.planetary import load_orbital_image
 from flight_interface.camera import load_camera
 from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.tomlfields import ConfigError, load_toml
-
+from sitedata import SITEDATA_DIR
 from sitedata.sites import Site, load_class_terrain, load_site
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS
-from campaign.realism.terrain_stats import TerrainStatistics, descent_sampling, nadir_photometric_ratio, terrain_statistics
-from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
-from file_formats.planetary import load_orbital_image
 
 SITEDATA = SITEDATA_DIR
 SHIPPED_SITES = (SITEDATA / "gusev.toml", SITEDATA / "meridiani.toml")

@@ -8,7 +8,6 @@ pluggable) count as the reference estimator ``dimes``.
 """
 from __future__ import annotations
 
-
 import pandas as pd
 
 from campaign.report.aggregate import FALSE_VALID_MPS, format_number, render_grid, site_table

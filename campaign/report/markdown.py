@@ -4,12 +4,18 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from campaign.report import plots
-from campaign.report.aggregate import format_table, site_table
-from campaign.run.orchestrate import false_valid_threshold
-from campaign.report.compare import COMPARISON_NOTE, comparison_table, estimator_names, format_comparison, with_estimator_column
 from campaign.realism.flight_metrics import __doc__ as METRICS_DOC
 from campaign.realism.flight_metrics import metrics_table
+from campaign.report import plots
+from campaign.report.aggregate import format_table, site_table
+from campaign.report.compare import (
+    COMPARISON_NOTE,
+    comparison_table,
+    estimator_names,
+    format_comparison,
+    with_estimator_column,
+)
+from campaign.run.orchestrate import false_valid_threshold
 from campaign.store.campaign_store import CampaignStore, StoreError
 
 

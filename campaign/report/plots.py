@@ -8,14 +8,13 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from PIL import Image
 import pandas as pd  # noqa: E402
+from PIL import Image
 
+from campaign.plan.placement import footprint_outlines  # noqa: E402
 from flight_interface.camera import Camera  # noqa: E402
 from simulator.scene.descent_profile import DescentProfile  # noqa: E402
 from simulator.scene.terrain import Terrain  # noqa: E402
-
-from campaign.plan.placement import footprint_outlines  # noqa: E402
 
 IMAGE_COLOURS = ("tab:red", "tab:orange", "tab:cyan")
 

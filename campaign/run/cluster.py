@@ -19,15 +19,14 @@ import logging
 import os
 import re
 import sys
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 from dask.distributed import Client, LocalCluster
 
-from flight_interface.tomlfields import ConfigError
-
 from campaign.configuration.execution import BatchJobs, ExecutionConfig
 from campaign.run.faults import RunStopped
+from flight_interface.tomlfields import ConfigError
 
 #: backend -> (module it needs, pip distribution, extra of moc2dimes)
 OPTIONAL_BACKENDS = {"slurm": ("dask_jobqueue", "dask-jobqueue", "slurm"),

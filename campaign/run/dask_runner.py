@@ -20,10 +20,10 @@ from dataclasses import dataclass
 from dask.distributed import Client
 from distributed.comm.core import CommClosedError
 
-from campaign.run.worker import CampaignContext, execute_case
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.faults import CASE_MEMORY_MIB, InfrastructureError, RunStopped
 from campaign.run.progress import ProgressBar
+from campaign.run.worker import CampaignContext, execute_case
 from campaign.store.campaign_store import CampaignStore
 
 POLL_S = 0.25             # task states are local to the client: polling them costs nothing

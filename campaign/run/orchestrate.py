@@ -13,20 +13,25 @@ from pathlib import Path
 
 import pandas as pd
 
-from flight_interface.tomlfields import ConfigError
-
-from campaign.report.aggregate import format_table, site_table
-from campaign.run.worker import CampaignContext, load_resources
-from campaign.report.compare import COMPARISON_NOTE, comparison_table, estimator_names, format_comparison, with_estimator_column
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
 from campaign.plan.coverage import refusal
 from campaign.plan.placement import ClassPlanInput, plan_class
+from campaign.report.aggregate import format_table, site_table
+from campaign.report.compare import (
+    COMPARISON_NOTE,
+    comparison_table,
+    estimator_names,
+    format_comparison,
+    with_estimator_column,
+)
 from campaign.report.plots import footprint_map
 from campaign.run.cluster import connected_client, require_backend
-from campaign.run.faults import RunStopped
 from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
+from campaign.run.faults import RunStopped
+from campaign.run.worker import CampaignContext, load_resources
 from campaign.store.campaign_store import CampaignStore, StoreError
+from flight_interface.tomlfields import ConfigError
 
 PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pyarrow",
             "opencv-contrib-python-headless")

@@ -14,7 +14,6 @@ import time
 
 from tqdm import tqdm
 
-
 DEFAULT_COLUMNS = 100   # bar width on a terminal that reports no size (0 x 0, e.g. a fresh pty)
 DEFAULT_ROWS = 24       # tqdm draws nothing on a terminal of 0 rows
 

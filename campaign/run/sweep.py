@@ -33,14 +33,15 @@ from pathlib import Path
 import pandas as pd
 import pyarrow as pa
 
+from campaign.configuration.sweep_file import SweepSpec, Tolerances
 from campaign.report.aggregate import format_number, render_grid
 from campaign.report.compare import comparison_table, estimator_names, with_estimator_column
-from campaign.run.orchestrate import StorePoint, manifest_for, plan_points, run_store_points
+from campaign.report.sweep_plots import write_sweep_plots
 from campaign.run.cluster import require_backend
+from campaign.run.orchestrate import StorePoint, manifest_for, plan_points, run_store_points
 from campaign.store.campaign_store import CampaignStore, StoreError
 from campaign.store.case_files import atomic_write_bytes, atomic_write_table
-from campaign.configuration.sweep_file import SweepSpec, Tolerances
-from campaign.report.sweep_plots import write_sweep_plots
+
 
 @dataclass(frozen=True)
 class SweepRun:

@@ -14,17 +14,17 @@ import os
 import socket
 import time
 import traceback
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import cv2
 import numpy as np
 
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.report.plots import save_descent_image
-from campaign.run.case import (CampaignInputs, CaseRun, EstimatorResult, PlanRow, SharedInputs, case_rows,
-                               compute_case)
+from campaign.run.case import CampaignInputs, CaseRun, EstimatorResult, PlanRow, SharedInputs, case_rows, compute_case
 from campaign.run.faults import InfrastructureError, describe, is_infrastructure
 from campaign.store.case_files import write_case_rows
 

@@ -28,17 +28,27 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from campaign.store.case_files import CaseScan, atomic_write_bytes, atomic_write_table, fsync_directory, read_case_table, scan_case_files, sha256_bytes, sha256_file
+from campaign.store.case_files import (
+    CaseScan,
+    atomic_write_bytes,
+    atomic_write_table,
+    fsync_directory,
+    read_case_table,
+    scan_case_files,
+    sha256_bytes,
+    sha256_file,
+)
 from campaign.store.lock import StoreLock, lock_path_for
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULTS_SCHEMA, TIMINGS_SCHEMA
+
 FRESH_HINT = "`campaign submit --fresh` moves this store aside (DIR.previous-<UTC time>) and starts afresh"
 
 

@@ -76,7 +76,7 @@ class StoreLock:
         self.on_wait = on_wait
         self._descriptor: int | None = None
 
-    def acquire(self) -> "StoreLock":
+    def acquire(self) -> StoreLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         announced = False
@@ -112,7 +112,7 @@ class StoreLock:
             os.close(self._descriptor)
             self._descriptor = None
 
-    def __enter__(self) -> "StoreLock":
+    def __enter__(self) -> StoreLock:
         return self.acquire()
 
     def __exit__(self, *exc_info) -> None:

@@ -12,8 +12,9 @@ sensor model's declared errors (:func:`simulator.sensors.error_fields`) for the
 """
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import pyarrow as pa
 
