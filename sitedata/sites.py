@@ -184,6 +184,9 @@ class Site(ConfigModel):
 
     @model_validator(mode="after")
     def _classes_are_consistent(self, info: ValidationInfo):
+        # private attributes (where the site and each terrain came from, for messages) are set here,
+        # while validating, from the validation context; nothing sets them after validation
+        self._source = Path((info.context or {}).get("site_path", "."))
         seen: set[str] = set()
         for index, entry in enumerate(self.classes):
             if entry.name in seen:
@@ -249,9 +252,8 @@ def site_from_data(data: dict, path: str | Path, source: str | None = None) -> S
     label = source or str(path)
     if not isinstance(data, dict) or "site" not in data:
         raise ConfigError(f"{label}: site is missing (a [site] table with the site, camera, sun and classes)")
-    site = parse(Site, data["site"], label, "site", context={"base_dir": path.parent, "source": label})
-    site._source = path
-    return site
+    return parse(Site, data["site"], label, "site",
+                 context={"base_dir": path.parent, "source": label, "site_path": path})
 
 
 def load_site(path: str | Path) -> Site:

@@ -9,7 +9,7 @@ import math
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import AfterValidator, Field, PrivateAttr, model_validator
+from pydantic import AfterValidator, Field, PrivateAttr, ValidationInfo, model_validator
 
 from flight_interface.tomlfields import ConfigModel, FieldProblem, InputPath, fixed_vector, load
 
@@ -177,6 +177,12 @@ class EdlParameters(ConfigModel):
     limits: LimitsTable
     _source: Path = PrivateAttr(Path("."))
 
+    @model_validator(mode="after")
+    def _remember_the_file(self, info: ValidationInfo) -> EdlParameters:
+        # set while validating, from the validation context; nothing sets it after validation
+        self._source = Path((info.context or {}).get("parameter_path", "."))
+        return self
+
     @property
     def source(self) -> Path:
         """The parameter file."""
@@ -202,6 +208,4 @@ class EdlParameters(ConfigModel):
 def load_edl_parameters(path: str | Path) -> EdlParameters:
     """Read a site's trajectory-set TOML (one-line ConfigError naming file, field and allowed values)."""
     path = Path(path)
-    params = load(EdlParameters, path, context={"base_dir": path.parent})
-    params._source = path
-    return params
+    return load(EdlParameters, path, context={"base_dir": path.parent, "parameter_path": path})
