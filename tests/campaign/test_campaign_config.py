@@ -46,6 +46,7 @@ def test_bad_campaign_toml_is_one_line_exit_2_nothing_written(tmp_path, case, ex
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_missing_file_and_usage_errors_exit_2(tmp_path):
     result = subprocess.run([sys.executable, "-m", "campaign.cli", "submit", str(tmp_path / "none.toml")],
                             capture_output=True, text=True)

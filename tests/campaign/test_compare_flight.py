@@ -66,6 +66,7 @@ def flight(tmp_path_factory):
     return directory, image
 
 
+@pytest.mark.slow
 def test_right_pose_correlates_and_a_pose_20_m_off_does_not(flight):
     directory, image = flight
     right = run_cli(flight_toml(directory, "right", [image]))
