@@ -26,6 +26,7 @@ from campaign.report.compare import (
     with_estimator_column,
 )
 from campaign.report.plots import footprint_map
+from campaign.run.case import PlanRow
 from campaign.run.cluster import connected_client, require_backend
 from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
 from campaign.run.faults import RunStopped
@@ -267,7 +268,7 @@ def write_plan_maps(config: CampaignConfig, resources, plan: pd.DataFrame, out_d
     paths = []
     for class_name, members in plan.groupby("class_name", sort=False):
         terrain = resources.terrain(class_name)
-        placed = [resources.placed_profile(row) for row in members.to_dict("records")]
+        placed = [resources.placed_profile(PlanRow.from_record(row)) for row in members.to_dict("records")]
         path = out_dir / f"footprints-{class_name}.png"
         footprint_map(terrain, placed, resources.camera, path,
                       f"{config.site.name} {class_name}: {len(members)} cases (first 60 shown); "

@@ -97,7 +97,7 @@ def test_the_stated_scale_is_the_threshold_and_stretch_uses_it(tmp_path, capsys)
     assert plan["footprint_inside"].all()
     west, east, south, north = terrain.extent_m
     for row in plan.to_dict("records"):
-        points = footprint_points_m(resources.camera, resources.placed_profile(row))
+        points = footprint_points_m(resources.camera, resources.placed_profile(PlanRow.from_record(row)))
         assert west < points[:, 0].min() and points[:, 0].max() < east
         assert south < points[:, 1].min() and points[:, 1].max() < north
 
