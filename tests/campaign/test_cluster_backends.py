@@ -57,6 +57,7 @@ def test_scheduler_address_alone_selects_the_scheduler_backend():
     ("pbs", ["#PBS -N moc2dimes-worker", "#PBS -q debug", "#PBS -A proj42", "#PBS -l walltime=02:30:00",
              "#PBS -l select=1:ncpus=4:mem=8192MB", "#PBS -l place=scatter"]),
 ])
+@pytest.mark.cluster
 def test_batch_job_script_has_the_configured_resources_and_worker_command(kind, directives):
     from campaign.run.cluster import jobqueue_cluster
 
