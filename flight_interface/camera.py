@@ -351,6 +351,11 @@ class Camera:
         """On-axis photo-electrons per second per unit spectral radiance (W m^-2 sr^-1 um^-1)."""
         return self.radiometry.responsivity_e_per_s(self.pixel_pitch_m**2)
 
+    def __getstate__(self) -> dict[str, object]:
+        """Pickle the camera as designed: the derived arrays of the cached properties below (tens of MiB)
+        are left out and recomputed, bit for bit, where they are next needed."""
+        return {name: value for name, value in self.__dict__.items() if name not in _DERIVED_PROPERTIES}
+
     @cached_property
     def pixel_rays(self) -> np.ndarray:
         """Unit ray of every pixel centre in the camera frame, shape (height, width, 3), float64."""
@@ -427,3 +432,7 @@ def _check_distortion_increases_to_corners(model: cahvor.Cahvor, width: int, hei
     if not (low < horizontal < high and low < vertical < high):
         raise FieldProblem("geometry", f"gives a field of view of {horizontal:.1f} x {vertical:.1f} deg; allowed: "
                            f"{low:g} to {high:g} deg (check focal_length_m and pixel_pitch_m)")
+
+
+#: The cached properties of :class:`Camera` that a pickle leaves out (see ``Camera.__getstate__``).
+_DERIVED_PROPERTIES = frozenset(("pixel_rays", "field_angle_rad", "falloff_map"))

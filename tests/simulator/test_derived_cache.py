@@ -27,11 +27,13 @@ def test_entries_are_per_owner_and_stage_and_die_with_the_owner():
     assert cache.owners() == 1
 
 
-def test_a_camera_keeps_nothing_derived_on_itself(mer_a):
+def test_a_pickled_camera_carries_nothing_derived(mer_a):
     prnu = prnu_map(mer_a)
     assert prnu_map(mer_a) is prnu                                   # computed once per camera
-    assert not any(isinstance(value, dict) for value in vars(mer_a).values())
+    falloff = mer_a.falloff_map                                      # a cached property of the camera
+    assert not any(isinstance(value, dict) for value in vars(mer_a).values())   # no hidden cache dict
     restored = pickle.loads(pickle.dumps(mer_a))
     assert len(pickle.dumps(mer_a)) < prnu.nbytes / 4                # the 4 MiB map does not travel
     np.testing.assert_array_equal(prnu_map(restored), prnu)          # the same seeded map, recomputed
+    np.testing.assert_array_equal(restored.falloff_map, falloff)
     assert DERIVED.owners() >= 2
