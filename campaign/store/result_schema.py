@@ -185,6 +185,7 @@ def markdown_table(columns: Sequence[ResultColumn] = RESULT_COLUMNS) -> str:
     """The columns as a GitHub Markdown table (column, Arrow type, unit, meaning, file)."""
     lines = ["| Column | Arrow type | Unit | Meaning | In |", "|---|---|---|---|---|"]
     for c in columns:
-        where = "timings.parquet" if c.run_dependent else "results.parquet"
+        where = ("timings.parquet" if c.run_dependent
+                 else "both (row key)" if c.name in TIMINGS_SCHEMA.names else "results.parquet")
         lines.append(f"| `{c.name}` | `{c.arrow_type}` | {c.unit} | {c.meaning} | {where} |")
     return "\n".join(lines)

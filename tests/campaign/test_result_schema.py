@@ -65,6 +65,8 @@ def _write_recorded(store: Path, case_id: int, table: pa.Table) -> Path:
     return path
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_worker_files_and_compacted_results_have_the_declared_schema(reference):
     for path in _case_files(reference).values():
         assert pq.read_schema(path).remove_metadata() == CASE_FILE_SCHEMA
@@ -73,6 +75,8 @@ def test_worker_files_and_compacted_results_have_the_declared_schema(reference):
     assert sensor_columns == [SENSOR_PREFIX + name for name, _ in error_fields(3)]
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_store_rejects_case_files_with_an_unexpected_or_mistyped_column(reference, tmp_path):
     store = tmp_path / "store"
     shutil.copytree(reference, store)
@@ -132,3 +136,11 @@ def test_markdown_table_documents_every_column_with_type_and_unit():
     assert "| `velocity_error_mps` | `double` | m/s |" in markdown_table()
     assert "| `sensor_angular_rate_noise_image3_z_radps` | `double` | rad/s |" in markdown_table()
     assert all(column.meaning for column in RESULT_COLUMNS)
+
+
+def test_the_documented_columns_are_the_declared_schema():
+    """docs/campaigns.md shows the table generated from the schema, so the docs cannot drift from it."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "campaigns.md").read_text()
+    documented = text.split("<!-- result-schema:start -->\n")[1].split("\n<!-- result-schema:end -->")[0]
+    assert documented == markdown_table()
+    assert "`case_id` | `int64` |  | " in documented and "both (row key)" in documented
