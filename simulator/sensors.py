@@ -38,10 +38,10 @@ errors unchanged.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, ModelWrapValidatorHandler, model_validator
 
 from flight_interface.frames import (
     quat_conjugate,
@@ -90,12 +90,14 @@ class SensorConfig(ConfigModel):
     heat_shield_prediction_sigma_m: float = Field(10.0, ge=0.0, le=1000.0)
     """Error of the heat-shield prediction per axis per image (m)."""
 
-    @model_validator(mode="after")
-    def _perfect_zeroes_sigmas(self) -> SensorConfig:
-        if self.perfect:              # the given sigmas were validated; perfect overrides them
-            for name in SIGMA_FIELDS:
-                object.__setattr__(self, name, 0.0)
-        return self
+    @model_validator(mode="wrap")
+    @classmethod
+    def _perfect_zeroes_sigmas(cls, data: Any, handler: ModelWrapValidatorHandler[SensorConfig]) -> SensorConfig:
+        config = handler(data)        # the given sigmas are validated first
+        if not config.perfect:
+            return config
+        # perfect overrides them: a second validated model with zero sigmas (nothing is mutated)
+        return handler({**config.model_dump(), **dict.fromkeys(SIGMA_FIELDS, 0.0)})
 
     @classmethod
     def exact(cls, state_time: Literal["mid_exposure", "exposure_start"] = "mid_exposure", heat_shield_prediction: bool = True) -> SensorConfig:
