@@ -46,14 +46,11 @@ from campaign.store.case_files import (
     sha256_bytes,
     sha256_file,
 )
+from campaign.store.errors import StoreError
 from campaign.store.lock import StoreLock, lock_path_for
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULTS_SCHEMA, TIMINGS_SCHEMA
 
 FRESH_HINT = "`campaign submit --fresh` moves this store aside (DIR.previous-<UTC time>) and starts afresh"
-
-
-class StoreError(RuntimeError):
-    """The output directory holds another campaign (or is unusable); one-line message."""
 
 
 @dataclass(frozen=True)
