@@ -11,7 +11,10 @@
     campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
     campaign schema [T]    print the JSON Schema of every configuration table, or of table T
 
-Exit codes: 0 success (every case done), 1 cases failed or missing, a run stopped (one line naming the
+Exit codes: 0 success (every case done, no estimator row failed), 1 cases failed or missing, an estimator's
+row failed in the store (submit and sweep: one stderr line per such estimator with the count and the first
+reason, e.g. ``campaign: estimator flight: 4 of 4 rows failed; first: case 0 (estimator_failed): ...``),
+a run stopped (one line naming the
 cause and the fix: campaign.run.faults), a sweep regressed, another writer holds the store's lock (one line
 naming it; ``--wait`` waits instead) or ``verify`` found bad files, 2 usage or configuration
 error (one clear line on stderr, nothing written). Command-line values (--cases-scale, --workers,
@@ -92,10 +95,37 @@ def _cmd_submit(args) -> int:
     summary, table_text = submit(config, scheduler=args.scheduler, workers=args.workers, fresh=args.fresh,
                                  progress=not args.no_progress, wait=args.wait)
     print(table_text)
-    print(f"results: {config.output_dir}  ({summary.done} done, {summary.failed} failed this run)")
+    store = CampaignStore(config.output_dir)
+    counts = _estimator_counts(store.results())
+    print(f"results: {config.output_dir}  ({summary.done} done, {summary.failed} failed this run)"
+          f"{_failed_rows_note(counts)}")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
-    status = CampaignStore(config.output_dir).status()
-    return 0 if status.failed == 0 and status.missing == 0 else RUN_INCOMPLETE
+    status = store.status()
+    failed_rows = _report_failed_rows(counts)
+    return 0 if status.failed == 0 and status.missing == 0 and not failed_rows else RUN_INCOMPLETE
+
+
+def _estimator_counts(results) -> list:
+    """Per estimator its valid / invalid / failed rows (campaign.report.compare.estimator_counts)."""
+    from campaign.report.compare import estimator_counts
+
+    return estimator_counts(results) if not results.empty else []
+
+
+def _failed_rows_note(counts: list) -> str:
+    """"; estimator rows failed: NAME N, ... (stderr)" after the results line, "" when none failed."""
+    failed = [f"{count.name} {count.failed}" for count in counts if count.failed]
+    return f"; estimator rows failed: {', '.join(failed)} (reasons on stderr)" if failed else ""
+
+
+def _report_failed_rows(counts: list) -> int:
+    """One stderr line per estimator with failed rows (count and first reason); the number of failed rows
+    (the store's, not only this run's: a failed row is kept and never retried)."""
+    from campaign.report.compare import failure_lines
+
+    for line in failure_lines(counts):
+        print(f"campaign: {line}", file=sys.stderr, flush=True)
+    return sum(count.failed for count in counts)
 
 
 def _cmd_plan(args) -> int:
@@ -161,7 +191,7 @@ def _cmd_report(args) -> int:
 
 def _cmd_sweep(args) -> int:
     from campaign.configuration.sweep_file import load_sweep
-    from campaign.run.sweep import compare_to_baseline, read_baseline, run_sweep, write_outputs
+    from campaign.run.sweep import compare_to_baseline, read_baseline, run_sweep, sweep_results, write_outputs
 
     start = time.perf_counter()
     _check_cluster_flags(args)
@@ -173,11 +203,14 @@ def _cmd_sweep(args) -> int:
                     wait=args.wait)
     table, text = write_outputs(spec)
     print(text)
+    counts = _estimator_counts(sweep_results(spec))             # every point store's rows, not only this run's
     print(f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused; {run.done} cases done, "
-          f"{run.failed} failed this run)")
+          f"{run.failed} failed this run){_failed_rows_note(counts)}")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
+    failed_rows = _report_failed_rows(counts)
+    unfinished = run.unfinished or failed_rows
     if baseline is None:
-        return RUN_INCOMPLETE if run.unfinished else 0
+        return RUN_INCOMPLETE if unfinished else 0
     regressions, compared = compare_to_baseline(spec, table, baseline, spec.tolerances)
     for line in regressions:
         print(f"regression: {line}")
@@ -185,7 +218,7 @@ def _cmd_sweep(args) -> int:
         print(f"{len(regressions)} regressions against {args.baseline} ({compared} points compared)")
         return RUN_INCOMPLETE
     print(f"no regression ({compared} points compared against {args.baseline})")
-    return RUN_INCOMPLETE if run.unfinished else 0
+    return RUN_INCOMPLETE if unfinished else 0
 
 
 def _cmd_compare_flight(args) -> int:

@@ -32,8 +32,9 @@ def mean_plus_3_sigma(errors_mps: np.ndarray) -> float:
     errors_mps = errors_mps[np.isfinite(errors_mps)]
     if errors_mps.size == 0:
         return math.nan
-    spread = errors_mps.std(ddof=1) if errors_mps.size > 1 else 0.0
-    return float(errors_mps.mean() + 3.0 * spread)
+    with np.errstate(over="ignore", invalid="ignore"):    # 1e200 m/s errors: an infinite statistic, no warning
+        spread = errors_mps.std(ddof=1) if errors_mps.size > 1 else 0.0
+        return float(errors_mps.mean() + 3.0 * spread)
 
 
 def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: str,
@@ -62,7 +63,7 @@ def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: st
         ok = members[members["status"] == "ok"] if cases else members
         valid_mask = ok["valid"].astype(bool) if cases else pd.Series(dtype=bool)
         valid = int(valid_mask.sum()) if cases else 0
-        pct_valid = 100.0 * valid / cases if cases else math.nan
+        pct_valid = 100.0 * valid / len(ok) if len(ok) else math.nan      # failed rows are left out (TABLE_NOTE)
         valid_errors = ok.loc[valid_mask, "velocity_error_mps"].to_numpy(dtype=float) if valid else np.zeros(0)
         error = mean_plus_3_sigma(valid_errors) if valid else math.nan
         fraction = float(fractions[class_name])
@@ -112,6 +113,11 @@ def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
     return render_grid(headers, body, markdown)
 
 
+TABLE_NOTE = ("denominators: % valid = valid / (cases - failed); false-valid and worst valid over the valid rows; "
+              "error = mean + 3 sigma (sample sigma, ddof=1) over the valid rows with a finite error; failed rows "
+              "(the case's simulation or the estimator failed) enter none of them, only Failed")
+
+
 def render_grid(headers: list[str], body: list[list[str]], markdown: bool = False) -> str:
     """Rows of cell texts under ``headers``: right-aligned plain-text columns, or a GitHub Markdown table."""
     if markdown:
@@ -123,5 +129,10 @@ def render_grid(headers: list[str], body: list[list[str]], markdown: bool = Fals
 
 
 def format_number(value, pattern: str) -> str:
-    """``pattern.format(value)``, or "n/a" for a missing or NaN value."""
-    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else pattern.format(value)
+    """``pattern.format(value)``, "n/a" for a missing or NaN value, ``inf``/``-inf`` for an infinite one and
+    three significant digits for a magnitude of 1e7 or more (a stored 1e30 m/s stays one short cell)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    if isinstance(value, (float, np.floating)) and (math.isinf(value) or abs(value) >= 1e7):
+        return f"{float(value):.3g}" + ("%" if pattern.endswith("%") else "")
+    return pattern.format(value)

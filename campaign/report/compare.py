@@ -8,9 +8,11 @@ pluggable) count as the reference estimator ``dimes``.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import pandas as pd
 
-from campaign.report.aggregate import FALSE_VALID_MPS, format_number, render_grid, site_table
+from campaign.report.aggregate import FALSE_VALID_MPS, TABLE_NOTE, format_number, render_grid, site_table
 
 DEFAULT_ESTIMATOR = "dimes"
 COMPARISON_COLUMNS = ["estimator", "class", "cases", "valid", "failed", "pct_valid", "false_valid",
@@ -76,5 +78,52 @@ def format_comparison(table: pd.DataFrame, markdown: bool = False) -> str:
 
 COMPARISON_NOTE = ("false-valid: valid cases with a velocity error above [campaign] false_valid_mps "
                    f"(default {FALSE_VALID_MPS:g} m/s), of the valid cases; worst valid: the largest error of a "
-                   "valid case; err: mean + 3 sigma over valid cases (site row: ellipse-weighted)")
+                   "valid case; err: mean + 3 sigma over valid cases (site row: ellipse-weighted); " + TABLE_NOTE)
+
+
+@dataclass(frozen=True)
+class EstimatorCounts:
+    """One estimator's result rows: valid, invalid (ran, answered not valid) and failed (status 'failed':
+    the case's simulation or the estimator failed), and the first failed row as one line."""
+
+    name: str
+    rows: int
+    valid: int
+    invalid: int
+    failed: int
+    first_failure: str      # "case N (reason): error", "" when nothing failed
+
+
+def estimator_counts(results: pd.DataFrame) -> list[EstimatorCounts]:
+    """Per estimator (in [[estimators]] order) its valid / invalid / failed row counts, from result rows
+    (a sweep's rows, with ``point_id``, name the point of the first failure)."""
+    results = with_estimator_column(results)
+    counts = []
+    for name in estimator_names(results):
+        rows = results[results["estimator"] == name]
+        ok = rows["status"] == "ok"
+        valid = int((ok & rows["valid"].eq(True)).sum())
+        failed = rows[~ok]
+        first = ""
+        if len(failed):
+            row = failed.iloc[0]
+            text = row.get("error")
+            error = " ".join(text.split()) if isinstance(text, str) else ""
+            where = " ".join(f"{key.split('_')[0]} {row[key]}" for key in ("point_id", "case_id") if key in failed.columns)
+            reason = row.get("reason") if isinstance(row.get("reason"), str) and row.get("reason") else "failed"
+            first = f"{where} ({reason}): {error[:240] or 'no error text'}".lstrip()
+        counts.append(EstimatorCounts(name, len(rows), valid, int(ok.sum()) - valid, len(failed), first))
+    return counts
+
+
+def counts_line(counts: list[EstimatorCounts]) -> str:
+    """The headline's per-estimator counts: ``estimator rows: dimes 3 valid, 0 invalid, 0 failed; ...``."""
+    return "estimator rows: " + "; ".join(f"{c.name} {c.valid} valid, {c.invalid} invalid, {c.failed} failed"
+                                          for c in counts)
+
+
+def failure_lines(counts: list[EstimatorCounts]) -> list[str]:
+    """One stderr line per estimator with failed rows: its name, the count and the first reason."""
+    return [f"estimator {c.name}: {c.failed} of {c.rows} rows failed; first: {c.first_failure}"
+            for c in counts if c.failed]
 

@@ -7,11 +7,14 @@ from pathlib import Path
 from campaign.realism.flight_metrics import __doc__ as METRICS_DOC
 from campaign.realism.flight_metrics import metrics_table
 from campaign.report import plots
-from campaign.report.aggregate import format_table, site_table
+from campaign.report.aggregate import format_number, format_table, site_table
 from campaign.report.compare import (
     COMPARISON_NOTE,
     comparison_table,
+    counts_line,
+    estimator_counts,
     estimator_names,
+    failure_lines,
     format_comparison,
     with_estimator_column,
 )
@@ -44,6 +47,8 @@ def write_report(root: Path) -> Path:
         f"Configuration `{manifest['config_file']}` (hash `{manifest['config_hash'][:12]}`), seed {manifest['seed']}; "
         f"{status.planned} cases planned, {status.done} done, {status.failed} failed, {status.missing} missing; "
         f"estimators: {', '.join(f'`{name}`' for name in names)} (each ran on the same images and sensor draws).", "",
+        counts_line(estimator_counts(results)), "",
+        *(f"- **failed:** {line}" for line in failure_lines(estimator_counts(results))), "",
         "## Estimators side by side", "", format_comparison(comparison, markdown=True), "", COMPARISON_NOTE, "",
     ]
     for name in names:
@@ -112,6 +117,15 @@ def _false_valid_section(rows, level: str, false_valid_mps: float) -> list[str]:
         floor = getattr(row, "attitude_floor_mps", float("nan"))
         tilt_deg = math.degrees(math.hypot(getattr(row, "sensor_attitude_bias_east_rad", float("nan")),
                                            getattr(row, "sensor_attitude_bias_north_rad", float("nan"))))
-        lines.append(f"| {int(row.case_id)} | {row.class_name} | {row.velocity_error_mps:.2f} | "
-                     f"{row.velocity_uncertainty_mps:.2f} | {tilt_deg:.2f} | {floor:.2f} | {row.velocity_error_mps - floor:.2f} |")
+        cells = (row.velocity_error_mps, row.velocity_uncertainty_mps, tilt_deg, floor, row.velocity_error_mps - floor)
+        lines.append(f"| {int(row.case_id)} | {row.class_name} | "
+                     + " | ".join(format_number(_number(value), "{:.2f}") for value in cells) + " |")
     return lines + [""]
+
+
+def _number(value) -> float:
+    """A stored cell as a float (NaN for a null or non-numeric value)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan

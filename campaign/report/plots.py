@@ -17,6 +17,21 @@ from simulator.scene.descent_profile import DescentProfile  # noqa: E402
 from simulator.scene.terrain import Terrain  # noqa: E402
 
 IMAGE_COLOURS = ("tab:red", "tab:orange", "tab:cyan")
+PLOT_LIMIT_MPS = 1000.0
+"""Velocities and errors beyond this (m/s) are not to scale in the report's plots: a histogram draws them
+in its last bin and says how many, a scatter leaves them out and says how many (a stored 1e30 m/s or
+inf never makes a plot fail, and cases near the real 0-30 m/s range stay readable)."""
+
+
+def on_scale(values: np.ndarray, limit: float = PLOT_LIMIT_MPS) -> tuple[np.ndarray, str]:
+    """The finite ``values`` clipped to [-limit, limit] for a histogram, and a title note saying how many
+    were not finite or clipped ("" when none)."""
+    values = np.asarray(values, dtype=float)
+    finite = values[np.isfinite(values)]
+    clipped = int(np.count_nonzero(np.abs(finite) > limit))
+    notes = ([f"{values.size - finite.size} not finite, not drawn"] if finite.size < values.size else []) + \
+            ([f"{clipped} beyond {limit:g} drawn at +-{limit:g}"] if clipped else [])
+    return np.clip(finite, -limit, limit), (" (" + "; ".join(notes) + ")" if notes else "")
 
 
 def footprint_map(terrain: Terrain, placed_profiles: list[DescentProfile], camera: Camera, path: Path,
@@ -50,10 +65,15 @@ def error_histograms(results: pd.DataFrame, path: Path) -> Path:
     figure, axes_list = plt.subplots(1, len(classes), figsize=(4 * len(classes), 3.2), squeeze=False)
     for axes, class_name in zip(axes_list[0], classes):
         members = results[(results["class_name"] == class_name) & results["valid"].astype(bool)]
-        errors = members["velocity_error_mps"].dropna().to_numpy()
-        axes.hist(errors, bins=20, color="tab:blue")
+        errors = pd.to_numeric(members["velocity_error_mps"], errors="coerce").dropna().to_numpy(dtype=float)
+        shown, note = on_scale(errors)
+        if shown.size:
+            low, high = float(shown.min()), float(shown.max())
+            if high - low < 1e-6 * max(1.0, abs(high)):      # (nearly) equal values: numpy's default +-0.5 range
+                low, high = low - 0.5, high + 0.5
+            axes.hist(shown, bins=20, range=(low, high), color="tab:blue")
         axes.axvline(5.0, color="tab:red", linestyle="--", linewidth=1, label="5 m/s requirement")
-        axes.set_title(f"{class_name}: {len(errors)} valid", fontsize=9)
+        axes.set_title(f"{class_name}: {len(errors)} valid{note}", fontsize=9)
         axes.set_xlabel("velocity error (m/s)")
         axes.legend(fontsize=7)
     figure.tight_layout()
@@ -79,11 +99,16 @@ def estimate_vs_truth(results: pd.DataFrame, path: Path) -> Path:
     valid = results[results["valid"].astype(bool)]
     figure, axes_list = plt.subplots(1, 2, figsize=(8, 3.8))
     for axes, component in zip(axes_list, ("east", "north")):
-        truth = valid[f"truth_velocity_{component}_mps"]
-        estimate = valid[f"estimate_velocity_{component}_mps"]
+        truth = pd.to_numeric(valid[f"truth_velocity_{component}_mps"], errors="coerce").to_numpy(dtype=float)
+        estimate = pd.to_numeric(valid[f"estimate_velocity_{component}_mps"], errors="coerce").to_numpy(dtype=float)
+        drawn = np.isfinite(truth) & np.isfinite(estimate) & (np.abs(truth) <= PLOT_LIMIT_MPS) & (np.abs(estimate) <= PLOT_LIMIT_MPS)
+        truth, estimate = truth[drawn], estimate[drawn]
         axes.scatter(truth, estimate, s=6, alpha=0.7)
-        limits = [min(truth.min(), estimate.min(), 0) - 1, max(truth.max(), estimate.max(), 0) + 1] if len(valid) else [-30, 30]
+        limits = [min(truth.min(), estimate.min(), 0) - 1, max(truth.max(), estimate.max(), 0) + 1] if drawn.any() else [-30, 30]
         axes.plot(limits, limits, "k--", linewidth=0.8)
+        if not drawn.all():
+            axes.set_title(f"{int((~drawn).sum())} valid cases not drawn (non-finite or beyond "
+                           f"{PLOT_LIMIT_MPS:g} m/s)", fontsize=8)
         axes.set_xlabel(f"true {component} velocity (m/s)")
         axes.set_ylabel(f"estimated {component} velocity (m/s)")
     figure.tight_layout()

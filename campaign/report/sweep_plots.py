@@ -11,6 +11,7 @@ as categories in sweep order.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import matplotlib
@@ -88,4 +89,5 @@ def _cell(table: pd.DataFrame, point_id: str, class_name: str, column: str, esti
     rows = table[(table["point_id"] == point_id) & (table["class"] == class_name)]
     if estimator is not None:
         rows = rows[rows["estimator"] == estimator]
-    return float(rows[column].iloc[0]) if len(rows) else float("nan")
+    value = float(rows[column].iloc[0]) if len(rows) else float("nan")
+    return value if math.isfinite(value) else float("nan")      # an infinite stored statistic is not drawn

@@ -21,6 +21,8 @@ from campaign.report.aggregate import format_table, site_table
 from campaign.report.compare import (
     COMPARISON_NOTE,
     comparison_table,
+    counts_line,
+    estimator_counts,
     estimator_names,
     format_comparison,
     with_estimator_column,
@@ -246,7 +248,11 @@ def write_table(root: Path, false_valid_mps: float | None = None) -> str:
     heading = (f"{site}: {status.done + status.failed} of {status.planned} cases finished"
                f" ({status.failed} failed, {status.missing} missing), seed {manifest['seed']}"
                f"{', estimators ' + ', '.join(names) if names else ''}")
+    counts = estimator_counts(results)
     text, markdown = [heading], [heading, ""]
+    if counts:
+        text.append(counts_line(counts))
+        markdown[1:1] = ["", counts_line(counts)]
     for name in names:
         table = site_table(results[results["estimator"] == name], fractions, site, class_order=list(fractions),
                            false_valid_mps=threshold)

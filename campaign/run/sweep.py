@@ -35,7 +35,13 @@ import pyarrow as pa
 
 from campaign.configuration.sweep_file import SweepSpec, Tolerances
 from campaign.report.aggregate import format_number, render_grid
-from campaign.report.compare import comparison_table, estimator_names, with_estimator_column
+from campaign.report.compare import (
+    comparison_table,
+    counts_line,
+    estimator_counts,
+    estimator_names,
+    with_estimator_column,
+)
 from campaign.report.sweep_plots import write_sweep_plots
 from campaign.run.cluster import require_backend
 from campaign.run.orchestrate import StorePoint, manifest_for, plan_points, run_store_points
@@ -160,6 +166,8 @@ def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
     cases = {name: count for name, count in spec.base.cases_per_class.items()}
     heading = (f"Sweep {spec.source} on {spec.base.site.name} ({spec.mode}, {len(spec.points)} points, "
                f"cases per point {cases}, seed {spec.base.seed})")
+    if not results.empty:
+        heading += f"\n{counts_line(estimator_counts(results))} (all points)"
     atomic_write_bytes(out / "sensitivity.md", f"{heading}\n\n{format_sensitivity(spec, table, markdown=True)}\n".encode())
     table.to_csv(out / "sensitivity.csv", index=False)
     write_sweep_plots(spec, table, out / "plots")

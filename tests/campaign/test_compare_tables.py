@@ -9,7 +9,17 @@ import pandas as pd
 import pytest
 
 from campaign.configuration.sweep_file import Tolerances
-from campaign.report.compare import comparison_table, estimator_names, format_comparison, with_estimator_column
+from campaign.report.aggregate import format_number
+from campaign.report.compare import (
+    COMPARISON_NOTE,
+    comparison_table,
+    counts_line,
+    estimator_counts,
+    estimator_names,
+    failure_lines,
+    format_comparison,
+    with_estimator_column,
+)
 from campaign.run.sweep import compare_to_baseline
 
 FRACTIONS = {"gcp": 0.6, "gdcp": 0.4}
@@ -66,3 +76,24 @@ def test_baseline_regressions_are_per_estimator(results):
     regressions, compared = compare_to_baseline(spec, after, baseline, tolerances)
     assert compared == 1 and regressions and all("estimator pc" in line for line in regressions)
     assert any("gdcp % valid 100.0 -> 0.0" in line for line in regressions)
+
+
+def test_failed_rows_are_counted_per_estimator_and_left_out_of_pct_valid(results):
+    failing = results.assign(case_id=range(len(results)), reason="ok", error="")
+    failing.loc[failing["status"] == "failed", ["reason", "error"]] = ["estimator_failed", "field 'valid'\nmust be true"]
+    counts = {count.name: count for count in estimator_counts(failing)}
+    assert (counts["dimes"].valid, counts["dimes"].invalid, counts["dimes"].failed) == (5, 1, 0)
+    assert (counts["pc"].valid, counts["pc"].invalid, counts["pc"].failed) == (3, 2, 1)
+    assert counts_line(list(counts.values())) == ("estimator rows: dimes 5 valid, 1 invalid, 0 failed; "
+                                                  "pc 3 valid, 2 invalid, 1 failed")
+    assert failure_lines(list(counts.values())) == [
+        "estimator pc: 1 of 6 rows failed; first: case 9 (estimator_failed): field 'valid' must be true"]
+    table = comparison_table(results, FRACTIONS, "Site").set_index(["estimator", "class"])
+    assert table.loc[("pc", "gcp"), "pct_valid"] == pytest.approx(100 * 1 / 3)    # valid / (cases - failed)
+    assert "valid / (cases - failed)" in COMPARISON_NOTE
+
+
+def test_numbers_of_any_size_stay_short_cells():
+    assert format_number(1e30, "{:.2f}") == "1e+30" and format_number(float("inf"), "{:.2f}") == "inf"
+    assert format_number(-1e30, "{:.0f}%") == "-1e+30%" and format_number(float("nan"), "{:.2f}") == "n/a"
+    assert format_number(4.25, "{:.2f}") == "4.25"
