@@ -43,10 +43,17 @@ Output (:class:`EstimatorOutput`; as JSON an object with these keys)
     was used); stored in the campaign's ``feature_*`` columns.
 
 Other keys are allowed and ignored (diagnostics, timings). Anything else is a contract violation
-(:class:`ContractViolation`): a missing key, a wrong type, a valid result with a non-finite velocity,
-an empty reason, ``valid`` with a reason other than ``"ok"``. The campaign records a violation, a
-crash, a non-zero exit or a timeout as *that* estimator's failed result for the case, with the
+(:class:`ContractViolation`): a missing key, a wrong type, an empty reason, ``valid`` with a reason
+other than ``"ok"``; an implausible answer (:class:`ImplausibleOutput`, :func:`check_plausible`) is a
+valid result with a non-finite velocity or a horizontal speed not below the campaign's bound, or a
+stated uncertainty that is negative or not finite. The campaign records a violation, any exception
+(``SystemExit`` and ``KeyboardInterrupt`` included), a non-zero exit or a timeout as *that*
+estimator's failed result for the case (reason ``estimator_failed``, or ``implausible``), with the
 message; the other estimators' results for the case are kept.
+
+Every estimator gets its inputs read-only (:func:`read_only_inputs`: the arrays are read-only views, so
+a write raises ``ValueError`` inside the estimator; the campaign's cached flat field and camera arrays
+are read-only at their source).
 
 Ways in (``[[estimators]]`` entries of a campaign file, :mod:`estimators.registry`)
 ----------------------------------------------------------------------------------
@@ -61,9 +68,10 @@ Ways in (``[[estimators]]`` entries of a campaign file, :mod:`estimators.registr
 """
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -78,6 +86,11 @@ REQUIRED_KEYS = ("velocity_east_mps", "velocity_north_mps", "valid", "reason")
 
 class ContractViolation(Exception):
     """An estimator broke the contract (bad output, crash, non-zero exit, timeout); one-line message."""
+
+
+class ImplausibleOutput(ContractViolation):
+    """A well-formed answer that cannot be right (:func:`check_plausible`): a valid velocity that is not
+    finite or faster than the bound, a negative or non-finite stated uncertainty; the message names the check."""
 
 
 @dataclass(frozen=True)
@@ -112,7 +125,7 @@ def _number(data: Mapping, key: str, allow_null: bool) -> float | None:
         raise ContractViolation(f"field {key!r} must be a number; got {type(value).__name__} {value!r}"[:200])
     value = float(value)
     if not allow_null and not math.isfinite(value):
-        raise ContractViolation(f"field {key!r} must be finite when valid; got {value!r}")
+        raise ImplausibleOutput(f"field {key!r} must be finite when valid; got {value!r}")
     return value if math.isfinite(value) else None
 
 
@@ -165,9 +178,11 @@ def validate_output(result: Any) -> EstimatorOutput:
         checked.append(record)
     uncertainty = None
     if data.get("velocity_uncertainty_mps") is not None:
-        uncertainty = _number(data, "velocity_uncertainty_mps", allow_null=True)
-        if uncertainty is not None and uncertainty < 0:
-            raise ContractViolation(f"field 'velocity_uncertainty_mps' must be >= 0; got {uncertainty!r}")
+        _number(data, "velocity_uncertainty_mps", allow_null=True)         # the type check
+        uncertainty = float(data["velocity_uncertainty_mps"])
+        if not (math.isfinite(uncertainty) and uncertainty >= 0):
+            raise ImplausibleOutput(f"field 'velocity_uncertainty_mps' must be finite and >= 0 when given; "
+                                    f"got {uncertainty!r}")
     return EstimatorOutput(velocity_east_mps=east, velocity_north_mps=north, valid=valid, reason=reason.strip(),
                            features=tuple(checked), velocity_uncertainty_mps=uncertainty)
 
@@ -177,3 +192,53 @@ def output_to_dict(output: EstimatorOutput) -> dict:
     return {"velocity_east_mps": output.velocity_east_mps, "velocity_north_mps": output.velocity_north_mps,
             "valid": output.valid, "reason": output.reason, "features": [dict(f) for f in output.features],
             "velocity_uncertainty_mps": output.velocity_uncertainty_mps}
+
+
+def check_plausible(output: EstimatorOutput, max_horizontal_speed_mps: float | None) -> EstimatorOutput:
+    """``output`` if it is plausible, else raise :class:`ImplausibleOutput` naming the check: a valid
+    velocity must be finite (also checked by :func:`validate_output`) with a horizontal speed below
+    ``max_horizontal_speed_mps`` (None: no bound), a stated uncertainty finite and >= 0. An invalid
+    answer's velocity is not used, so it is not checked."""
+    if output.velocity_uncertainty_mps is not None and not (
+            math.isfinite(output.velocity_uncertainty_mps) and output.velocity_uncertainty_mps >= 0):
+        raise ImplausibleOutput(f"field 'velocity_uncertainty_mps' must be finite and >= 0 when given; "
+                                f"got {output.velocity_uncertainty_mps!r}")
+    if not output.valid:
+        return output
+    east, north = output.velocity_east_mps, output.velocity_north_mps
+    if east is None or north is None or not (math.isfinite(east) and math.isfinite(north)):
+        raise ImplausibleOutput(f"valid velocity must be finite; got ({east!r}, {north!r}) m/s")
+    speed = math.hypot(east, north)
+    if max_horizontal_speed_mps is not None and not speed < max_horizontal_speed_mps:
+        raise ImplausibleOutput(f"horizontal speed {speed:.4g} m/s of a valid answer is not below the bound "
+                                f"{max_horizontal_speed_mps:.4g} m/s")
+    return output
+
+
+def read_only(array: Any) -> Any:
+    """A read-only view of an ndarray (writing through it raises ``ValueError: assignment destination is
+    read-only``); anything else unchanged."""
+    if not isinstance(array, np.ndarray):
+        return array
+    view = array.view()
+    view.setflags(write=False)
+    return view
+
+
+def _read_only_fields(record: Any) -> Any:
+    """A copy of a dataclass record whose ndarray fields are read-only views."""
+    return replace(record, **{item.name: read_only(getattr(record, item.name)) for item in fields(record)
+                              if isinstance(getattr(record, item.name), np.ndarray)})
+
+
+def read_only_inputs(inputs: EstimatorInputs) -> EstimatorInputs:
+    """``inputs`` as every estimator receives them: the images, image times, measurement arrays and flat
+    field as read-only views (no data copied), the parameters a deep copy. A write into an input then raises
+    inside the estimator and fails only its own result, never another estimator's or a later case's."""
+    measurements = inputs.measurements
+    measurements = replace(measurements, images=tuple(_read_only_fields(image) for image in measurements.images),
+                           sun_direction_world=read_only(measurements.sun_direction_world))
+    return replace(inputs, images=tuple(read_only(image) for image in inputs.images),
+                   image_times_s=read_only(inputs.image_times_s), measurements=measurements,
+                   calibration=replace(inputs.calibration, flat_field=read_only(inputs.calibration.flat_field)),
+                   parameters=copy.deepcopy(dict(inputs.parameters)))

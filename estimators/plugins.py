@@ -1,12 +1,15 @@
 """Build estimators from their specs and run one on a case's inputs, whatever happens.
 
 :func:`build_estimator` turns an :class:`~estimators.registry.EstimatorSpec` into an object with
-``estimate(inputs) -> EstimatorOutput``; :func:`run_estimator` runs it and never raises: a contract
-violation, an exception, a non-zero exit or a timeout becomes an :class:`EstimatorRun` with
-``output = None`` and a one-line ``error``.
+``estimate(inputs) -> EstimatorOutput``; :func:`run_estimator` runs it on read-only inputs
+(:func:`estimators.contract.read_only_inputs`) and never raises: a contract violation, any exception
+(``SystemExit`` and ``KeyboardInterrupt`` included), a non-zero exit or a timeout becomes an
+:class:`EstimatorRun` with ``output = None``, ``failure = "estimator_failed"`` and a one-line ``error``;
+an implausible answer (:func:`estimators.contract.check_plausible`) the same with ``failure = "implausible"``.
 """
 from __future__ import annotations
 
+import copy
 import importlib
 import time
 import traceback
@@ -15,7 +18,15 @@ from dataclasses import dataclass, replace
 from dimes_velocity.config import estimator_config_from_data
 from dimes_velocity.estimator import estimate_velocity
 from estimators.command import CommandEstimator
-from estimators.contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
+from estimators.contract import (
+    ContractViolation,
+    EstimatorInputs,
+    EstimatorOutput,
+    ImplausibleOutput,
+    check_plausible,
+    read_only_inputs,
+    validate_output,
+)
 from estimators.registry import EstimatorSpec
 
 
@@ -49,7 +60,7 @@ class PythonEstimator:
         self.parameters = dict(parameters)
 
     def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
-        return validate_output(self.function(replace(inputs, parameters=self.parameters)))
+        return validate_output(self.function(replace(inputs, parameters=copy.deepcopy(self.parameters))))
 
 
 def build_estimator(spec: EstimatorSpec):
@@ -69,25 +80,35 @@ def build_estimator(spec: EstimatorSpec):
 
 @dataclass(frozen=True)
 class EstimatorRun:
-    """One estimator's outcome on one case: its output, or why there is none; wall time (ms)."""
+    """One estimator's outcome on one case: its output, or why there is none (``failure``: the row's
+    reason, ``estimator_failed`` or ``implausible``; ``error``: the one-line message); wall time (ms)."""
 
     name: str
     output: EstimatorOutput | None
     error: str
     elapsed_ms: float
+    failure: str = ""
 
 
-def run_estimator(name: str, estimator, inputs: EstimatorInputs) -> EstimatorRun:
-    """Run ``estimator`` on ``inputs``; any failure is returned as the run's ``error`` (never raised)."""
+def run_estimator(name: str, estimator, inputs: EstimatorInputs,
+                  max_horizontal_speed_mps: float | None = None) -> EstimatorRun:
+    """Run ``estimator`` on read-only ``inputs`` and check its answer's plausibility (a valid horizontal
+    speed below ``max_horizontal_speed_mps``, None: no bound); any failure is returned as the run's
+    ``failure`` and ``error``, never raised: whatever the plug-in raises, ``SystemExit`` and
+    ``KeyboardInterrupt`` included, ends here and the worker goes on."""
     started = time.perf_counter()
+    failure = "estimator_failed"
     try:
-        output = estimator.estimate(inputs)
-        output = validate_output(output)
-        error = ""
+        output = estimator.estimate(read_only_inputs(inputs))
+        output = check_plausible(validate_output(output), max_horizontal_speed_mps)
+        error, failure = "", ""
+    except ImplausibleOutput as exc:
+        output, error, failure = None, f"estimator {name}: implausible: {exc}"[:500], "implausible"
     except ContractViolation as exc:
         output, error = None, f"estimator {name}: {exc}"
-    except Exception as exc:  # the estimator's own crash: recorded, the other estimators go on
+    except BaseException as exc:  # noqa: B036 -- the plug-in's own crash or exit: recorded, never re-raised
         where = traceback.format_exc(limit=-1).splitlines()
         location = next((line.strip() for line in reversed(where) if line.strip().startswith("File ")), "")
-        output, error = None, f"estimator {name}: crashed: {type(exc).__name__}: {exc} | {location}"[:500]
-    return EstimatorRun(name, output, error, 1e3 * (time.perf_counter() - started))
+        what = f"{type(exc).__name__}: {exc}" if isinstance(exc, Exception) else repr(exc)
+        output, error = None, f"estimator {name}: crashed: {what} | {location}"[:500]
+    return EstimatorRun(name, output, error, 1e3 * (time.perf_counter() - started), failure)

@@ -4,9 +4,9 @@
         --flat-field FILE|none --parameters P.json --output RESULT.json IMAGE1 IMAGE2 IMAGE3
 
 Reads the images (PNG, .npy or raw uint16), measurements, camera and flat field, calls the function
-with :class:`estimators.contract.EstimatorInputs` and writes its output JSON. The campaign runs this
-as an external command (:mod:`estimators.command`), so a callable that hangs or crashes the
-interpreter costs only its own result. Exit status 2 for unusable input files, 1 for a result that
+with :class:`estimators.contract.EstimatorInputs` (read-only, as in a campaign) and writes its output
+JSON. The campaign runs this as an external command (:mod:`estimators.command`), so a callable that
+hangs or crashes the interpreter costs only its own result. Exit status 2 for unusable input files, 1 for a result that
 breaks the contract (one line on stderr); an exception in the callable prints its traceback (exit 1).
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from estimators.contract import ContractViolation, EstimatorInputs, output_to_dict, validate_output
+from estimators.contract import ContractViolation, EstimatorInputs, output_to_dict, read_only_inputs, validate_output
 from file_formats.descent_images import InputFileError, load_image
 from file_formats.flat_field_files import load_flat_field
 from file_formats.measurements_json import load_measurements
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
                              calibration=CalibrationProducts(flat, args.flat_field if flat is not None else "none"),
                              parameters=parameters)
     try:
-        output = validate_output(function(inputs))
+        output = validate_output(function(read_only_inputs(inputs)))
     except ContractViolation as exc:
         print(f"contract violation: {exc}", file=sys.stderr)
         return 1

@@ -17,9 +17,11 @@ calibration is drawn once per campaign from ``SeedSequence(seed, spawn_key=(FLAT
 (a stream no case uses) and cached per worker process.
 
 Estimators: each ``[[estimators]]`` entry is built once per worker process and runs on the same
-images, measurements and calibration products (:class:`estimators.contract.EstimatorInputs`). An
-estimator that violates the contract, crashes or times out gets a row with ``status = "failed"`` and
-the error; the other estimators' rows for the case are kept.
+images, measurements and calibration products (:class:`estimators.contract.EstimatorInputs`), handed
+over read-only (the cached flat field is read-only at its source). An estimator that violates the
+contract, raises anything (``SystemExit`` included), times out or answers implausibly (a valid horizontal
+speed not below :attr:`CampaignInputs.max_horizontal_speed_mps`) gets a row with ``status = "failed"``,
+reason ``estimator_failed`` or ``implausible``, and the error; the other estimators' rows are kept.
 """
 from __future__ import annotations
 
@@ -52,6 +54,27 @@ from sitedata.edl.trajectory_io import read_profiles
 from sitedata.sites import load_class_terrain
 
 FLAT_FIELD_STREAM = 0xF1A7   # spawn key of the flat-field calibration's noise stream
+#: Margin (m/s) above the trajectory set's fastest horizontal speed: a valid answer at or above the sum is
+#: ``implausible`` (no estimator can be that far off on a real descent; the reference stays within ~30 m/s
+#: of the truth by its 25 m/s bias search range).
+PLAUSIBLE_SPEED_MARGIN_MPS = 100.0
+
+
+def read_only_array(array: np.ndarray) -> np.ndarray:
+    """``array`` itself, made read-only (for arrays cached per process and handed to every estimator)."""
+    array.setflags(write=False)
+    return array
+
+
+def read_only_camera(camera: Camera) -> Camera:
+    """``camera`` itself with every array it holds read-only: its CAHVOR vectors, mounting and the derived
+    arrays computed so far (pixel rays, field angles, falloff map: called again after each case's rendering,
+    which computes them, and before its estimators run). The camera is shared by the simulator and every
+    estimator of the process, so no estimator may change it for the others."""
+    for value in [*vars(camera).values(), *vars(camera.model).values()]:
+        if isinstance(value, np.ndarray):
+            read_only_array(value)
+    return camera
 
 
 class SharedInputs:
@@ -126,9 +149,18 @@ class CampaignInputs:
     def __init__(self, config: CampaignConfig, shared: SharedInputs):
         self.config = config
         self.shared = shared
-        self.camera: Camera = shared.get("camera", config.site.camera_path, load_camera)
+        self.camera: Camera = shared.get("camera", config.site.camera_path,
+                                         lambda path: read_only_camera(load_camera(path)))
         self.profiles: list[DescentProfile] = shared.get("profiles", config.site.trajectory_path, read_profiles)
         self.built_estimators: list[tuple[EstimatorSpec, Any]] | None = None   # built on first use
+
+    @property
+    def max_horizontal_speed_mps(self) -> float:
+        """The plausibility bound of a valid answer (m/s): the fastest horizontal speed of any profile of the
+        trajectory set, at any time, plus :data:`PLAUSIBLE_SPEED_MARGIN_MPS`."""
+        fastest = self.shared.get("fastest-horizontal-speed", self.config.site.trajectory_path, lambda _: max(
+            (float(np.hypot(p.velocity_mps[:, 0], p.velocity_mps[:, 1]).max()) for p in self.profiles), default=0.0))
+        return fastest + PLAUSIBLE_SPEED_MARGIN_MPS
 
     def calibration(self) -> CalibrationProducts:
         """The campaign's calibration products (``[estimator] flat_field``), made once per process."""
@@ -140,13 +172,13 @@ class CampaignInputs:
         stat = camera_path.stat()
         if calibration.flat_field == "truth":
             flat = self.shared.get("flat_truth", (str(camera_path), stat.st_size, stat.st_mtime_ns, effects),
-                                   lambda _: true_flat_field(self.camera, effects))
+                                   lambda _: read_only_array(true_flat_field(self.camera, effects)))
             return CalibrationProducts(flat, "truth")
         frames, seed = calibration.flat_field_frames, self.config.seed
         key = (str(camera_path), stat.st_size, stat.st_mtime_ns, effects, frames, seed)
-        flat = self.shared.get("flat_calibrated", key, lambda _: simulate_flat_field(
+        flat = self.shared.get("flat_calibrated", key, lambda _: read_only_array(simulate_flat_field(
             self.camera, frames, np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(FLAT_FIELD_STREAM,))),
-            effects))
+            effects)))
         return CalibrationProducts(flat, f"calibrated: {frames} frames")
 
     def estimators(self) -> list[tuple[EstimatorSpec, Any]]:
@@ -306,7 +338,7 @@ class EstimatorResult:
         output = run.output
         if output is None:
             return cls(estimator=run.name, status="failed", error=run.error, estimate_velocity_east_mps=None,
-                       estimate_velocity_north_mps=None, valid=False, reason="estimator_failed",
+                       estimate_velocity_north_mps=None, valid=False, reason=run.failure or "estimator_failed",
                        velocity_error_mps=None, velocity_uncertainty_mps=0.0, feature_brightness=(),
                        feature_contrast=(), feature_correlation=(), feature_status=(), t_estimator_ms=run.elapsed_ms)
         valid = bool(output.valid) and not outside_terrain
@@ -373,7 +405,10 @@ def compute_case(resources: CampaignInputs, plan: PlanRow) -> CaseComputation:
                              measurements=inputs.measurements, camera=camera, calibration=resources.calibration())
     # an image that sees untextured ground outside the terrain cannot score: recorded invalid, never valid
     outside_terrain = max(truth.outside_terrain_fraction) > resources.config.max_outside_terrain_fraction
-    estimates = tuple(EstimatorResult.of_run(run_estimator(spec.name, estimator, shared), truth_velocity, outside_terrain)
+    read_only_camera(camera)                   # the derived arrays the rendering computed, before any estimator
+    bound = resources.max_horizontal_speed_mps
+    estimates = tuple(EstimatorResult.of_run(run_estimator(spec.name, estimator, shared, bound), truth_velocity,
+                                             outside_terrain)
                       for spec, estimator in resources.estimators())
     return CaseComputation(truth, estimates, images)
 

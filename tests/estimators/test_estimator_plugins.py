@@ -1,6 +1,7 @@
 """Pluggable estimators: the output contract, an external command (a small Python script run as a
 program) and Python callables plugged in, and every way of breaking the contract giving that
-estimator a clear failed result (never an exception for the campaign)."""
+estimator a clear failed result (never an exception for the campaign): writes into the read-only
+inputs, ``sys.exit``, ``KeyboardInterrupt``, implausible answers."""
 from __future__ import annotations
 
 import math
@@ -11,7 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimators.contract import ContractViolation, EstimatorInputs, validate_output
+from dimes_velocity import DimesEstimator
+from dimes_velocity.config import EstimatorConfig
+from estimators.contract import (
+    ContractViolation,
+    EstimatorInputs,
+    ImplausibleOutput,
+    check_plausible,
+    read_only_inputs,
+    validate_output,
+)
+from estimators.phase_correlation import estimate as phase_correlation
 from estimators.plugins import build_estimator, run_estimator
 from estimators.registry import EstimatorSpec
 from flight_interface.calibration import CalibrationProducts
@@ -164,3 +175,63 @@ def test_reference_behind_the_contract_matches_the_reference_estimator(inputs):
     assert run.output.valid == direct.valid and run.output.reason == direct.reason
     assert run.output.velocity_east_mps == direct.velocity_east_mps
     assert len(run.output.features) == len(direct.features)
+
+
+# --- isolation: read-only inputs, anything raised, implausible answers ------------------------------
+@pytest.mark.parametrize("target, failure, message", [
+    ("python_estimators:halves_image", "estimator_failed", "crashed: ValueError: output array is read-only"),
+    ("python_estimators:scales_flat", "estimator_failed", "crashed: ValueError: output array is read-only"),
+    ("python_estimators:changes_imu", "estimator_failed", "crashed: ValueError: assignment destination is read-only"),
+    ("python_estimators:exits", "estimator_failed", "crashed: SystemExit(3)"),
+    ("python_estimators:interrupts", "estimator_failed", "crashed: KeyboardInterrupt()"),
+    ("python_estimators:too_fast", "implausible", "horizontal speed 1e+30 m/s of a valid answer is not below the "
+                                                  "bound 130 m/s"),
+    ("python_estimators:negative_uncertainty", "implausible",
+     "field 'velocity_uncertainty_mps' must be finite and >= 0 when given; got -1.0"),
+])
+def test_a_plugin_that_writes_its_inputs_exits_or_answers_implausibly_fails_only_its_own_result(
+        inputs, target, failure, message):
+    reference = build_estimator(EstimatorSpec(name="dimes", kind="reference"))
+    before = run_estimator("dimes", reference, inputs, 130.0)
+    kept = [np.array(image) for image in inputs.images], np.array(inputs.calibration.flat_field)
+    imu = np.array(inputs.measurements.images[-1].imu_velocity_mps)
+    spec = EstimatorSpec(name="plugin", kind="python", callable=target, parameters={"bias": BIAS})
+    run = run_estimator(spec.name, build_estimator(spec), inputs, 130.0)
+    assert run.output is None and run.failure == failure, run
+    assert run.error.startswith("estimator plugin: ") and message in run.error, run.error
+    assert all(np.array_equal(image, copy) for image, copy in zip(inputs.images, kept[0]))
+    assert np.array_equal(inputs.calibration.flat_field, kept[1])
+    assert np.array_equal(inputs.measurements.images[-1].imu_velocity_mps, imu)
+    after = run_estimator("dimes", reference, inputs, 130.0)
+    assert after.error == "" and repr(after.output) == repr(before.output)      # repr: NaN features equal
+
+
+def test_the_reference_and_the_example_run_on_read_only_inputs_with_unchanged_answers(inputs):
+    """Both only read their inputs: on read-only inputs (as every estimator gets them) their answers are
+    those of a direct call on writable inputs, and plausible."""
+    writable = EstimatorInputs(images=tuple(np.array(image) for image in inputs.images),
+                               image_times_s=np.array(inputs.image_times_s), measurements=inputs.measurements,
+                               camera=inputs.camera, calibration=CalibrationProducts(
+                                   np.array(inputs.calibration.flat_field), "calibrated: 1 frames"))
+    direct = DimesEstimator(inputs.camera, EstimatorConfig(), writable.calibration.flat_field).estimate(
+        list(writable.images), writable.measurements)
+    run = run_estimator("dimes", build_estimator(EstimatorSpec(name="dimes", kind="reference")), inputs, 130.0)
+    assert run.error == "" and run.output.valid == direct.valid and run.output.valid
+    assert (run.output.velocity_east_mps, run.output.velocity_north_mps) == (direct.velocity_east_mps,
+                                                                             direct.velocity_north_mps)
+    spec = EstimatorSpec(name="pc", kind="python", callable="estimators.phase_correlation:estimate")
+    run = run_estimator(spec.name, build_estimator(spec), inputs, 130.0)
+    assert run.error == "" and repr(run.output) == repr(validate_output(phase_correlation(writable)))
+
+
+def test_read_only_inputs_are_views_and_plausibility_bounds_only_valid_answers(inputs):
+    frozen = read_only_inputs(inputs)
+    assert all(np.shares_memory(a, b) and not a.flags.writeable for a, b in zip(frozen.images, inputs.images))
+    assert not frozen.calibration.flat_field.flags.writeable and inputs.calibration.flat_field.flags.writeable
+    assert not frozen.measurements.images[0].attitude_quat.flags.writeable
+    invalid = validate_output({"velocity_east_mps": 1e30, "velocity_north_mps": 0.0, "valid": False, "reason": "x"})
+    assert check_plausible(invalid, 130.0) is invalid
+    with pytest.raises(ImplausibleOutput, match="not below the bound 130 m/s"):
+        check_plausible(validate_output({**GOOD, "velocity_east_mps": 130.0, "velocity_north_mps": 0.0}), 130.0)
+    with pytest.raises(ImplausibleOutput, match="must be finite when valid"):
+        validate_output({**GOOD, "velocity_east_mps": math.inf})

@@ -1,5 +1,6 @@
 """Python callables plugged in by the plugin tests (``kind = "python"``): one that keeps the contract,
-and ones that break it."""
+and ones that break it (bad output, crash, exit, writes into the read-only inputs, implausible answers)."""
+import sys
 import time
 
 import numpy as np
@@ -27,3 +28,45 @@ def forgets_valid(inputs):
 
 def hangs(inputs):
     time.sleep(120)
+
+
+def halves_image(inputs):
+    """Writes into its input images (``image //= 2``): must raise, the images are read-only."""
+    for image in inputs.images:
+        image //= 2
+    return imu_minus_bias(inputs)
+
+
+def scales_flat(inputs):
+    """Writes into the (per-worker cached) flat field: must raise, it is read-only."""
+    flat = inputs.calibration.flat_field
+    flat *= 1.5
+    return imu_minus_bias(inputs)
+
+
+def changes_imu(inputs):
+    """Writes into a measurement array: must raise, it is read-only."""
+    inputs.measurements.images[-1].imu_velocity_mps[:] = 0.0
+    return imu_minus_bias(inputs)
+
+
+def exits(inputs):
+    sys.exit(3)
+
+
+def interrupts(inputs):
+    raise KeyboardInterrupt
+
+
+def too_fast(inputs):
+    return {"velocity_east_mps": 1e30, "velocity_north_mps": 0.0, "valid": True, "reason": "ok"}
+
+
+def negative_uncertainty(inputs):
+    return {**imu_minus_bias(inputs), "velocity_uncertainty_mps": -1.0}
+
+
+def changes_camera(inputs):
+    """Writes into the camera model shared by the simulator and every estimator: must raise, it is read-only."""
+    inputs.camera.falloff_map[:] = 1.0
+    return imu_minus_bias(inputs)
