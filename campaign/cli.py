@@ -9,6 +9,7 @@
     campaign camera FILE   validate a camera TOML and print its derived numbers
     campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR
     campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
+    campaign export DIR CASE_ID OUT   a case's exact estimator inputs and its truth as files (replay it)
     campaign schema [T]    print the JSON Schema of every configuration table, or of table T
 
 Exit codes: 0 success (every case done, no estimator row failed), 1 cases failed or missing, an estimator's
@@ -234,6 +235,19 @@ def _cmd_compare_flight(args) -> int:
     return 0
 
 
+def _cmd_export(args) -> int:
+    from campaign.run.export import export_case
+
+    written = export_case(args.dir, args.case_id, args.out)
+    record = json.loads((Path(args.out) / "truth.json").read_text())
+    print(f"wrote {len(written)} files to {args.out}: {', '.join(path.name for path in written)}")
+    print(f"replay: {record['replay']}")
+    if not record["config_hash_matches_store"]:
+        print(f"campaign: note: {args.dir} was computed by other code or input files (configuration hash differs): "
+              "the export is of today's case, whose answer may differ from the stored one", file=sys.stderr)
+    return 0
+
+
 def _cmd_schema(args) -> int:
 
     print(json.dumps(table_schema(args.table) if args.table else all_schemas(), indent=2))
@@ -286,6 +300,13 @@ def build_parser() -> argparse.ArgumentParser:
     flight.add_argument("--out", help="output directory (default: output_dir in the file, else runs/compare-flight)")
     flight.add_argument("--column", type=int, help="raw image column of the profile and scatter (default 512)")
     flight.set_defaults(handler=_cmd_compare_flight)
+
+    export = commands.add_parser("export", help="write a case's exact estimator inputs (images, measurements, "
+                                 "flat field) and its truth as files, to replay it (see campaign/run/export.py)")
+    export.add_argument("dir", help="the campaign store")
+    export.add_argument("case_id", type=int, help="a case id of the store's plan (`campaign plan`, results.parquet)")
+    export.add_argument("out", help="output directory (created; files of an earlier export are replaced)")
+    export.set_defaults(handler=_cmd_export)
 
     camera = commands.add_parser("camera", help="validate a camera TOML and print its derived numbers")
     camera.add_argument("file")

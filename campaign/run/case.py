@@ -376,17 +376,15 @@ class CaseComputation:
     images_dn: tuple[np.ndarray, ...]
 
 
-def compute_case(resources: CampaignInputs, plan: PlanRow) -> CaseComputation:
-    """Simulate the three images and measurements of one case once and run every estimator on them."""
+def case_truth(resources: CampaignInputs, inputs: CaseInputs) -> CaseTruth:
+    """What the simulation knows about a simulated case (:func:`simulate_case_inputs`)."""
     camera = resources.camera
-    inputs = simulate_case_inputs(resources, plan)
     profile = inputs.profile
-    images = tuple(rendered.dn for rendered in inputs.images)
     last_time = float(profile.image_times_s[-1])
     truth_velocity = profile.pose(last_time).velocity_mps
     wind = profile.wind_at(last_time)
     first_mid, last_mid = (camera.timing.exposure_mid_time_s(float(profile.image_times_s[index])) for index in (0, -1))
-    truth = CaseTruth(
+    return CaseTruth(
         truth_velocity_east_mps=float(truth_velocity[0]), truth_velocity_north_mps=float(truth_velocity[1]),
         wind_east_mps=float(wind[0]), wind_north_mps=float(wind[1]),
         altitude_image1_m=float(profile.pose(float(profile.image_times_s[0])).position_m[2]),
@@ -401,8 +399,25 @@ def compute_case(resources: CampaignInputs, plan: PlanRow) -> CaseComputation:
         t_scene_ms=sum(rendered.diagnostics.scene_ms for rendered in inputs.images),
         t_camera_ms=sum(rendered.diagnostics.camera_ms for rendered in inputs.images),
         t_sensors_ms=inputs.sensors_ms)
-    shared = EstimatorInputs(images=images, image_times_s=np.array([m.time_s for m in inputs.measurements.images]),
-                             measurements=inputs.measurements, camera=camera, calibration=resources.calibration())
+
+
+def estimator_inputs(resources: CampaignInputs, inputs: CaseInputs) -> EstimatorInputs:
+    """What every estimator gets for a simulated case: its images (DN), times, measurements, the camera and
+    the campaign's calibration products."""
+    images = tuple(rendered.dn for rendered in inputs.images)
+    return EstimatorInputs(images=images, image_times_s=np.array([m.time_s for m in inputs.measurements.images]),
+                           measurements=inputs.measurements, camera=resources.camera,
+                           calibration=resources.calibration())
+
+
+def compute_case(resources: CampaignInputs, plan: PlanRow) -> CaseComputation:
+    """Simulate the three images and measurements of one case once and run every estimator on them."""
+    camera = resources.camera
+    inputs = simulate_case_inputs(resources, plan)
+    truth = case_truth(resources, inputs)
+    truth_velocity = inputs.profile.pose(float(inputs.profile.image_times_s[-1])).velocity_mps
+    shared = estimator_inputs(resources, inputs)
+    images = shared.images
     # an image that sees untextured ground outside the terrain cannot score: recorded invalid, never valid
     outside_terrain = max(truth.outside_terrain_fraction) > resources.config.max_outside_terrain_fraction
     read_only_camera(camera)                   # the derived arrays the rendering computed, before any estimator

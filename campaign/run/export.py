@@ -1,0 +1,198 @@
+"""``campaign export DIR CASE_ID OUT``: a campaign case's exact estimator inputs as files, to replay it.
+
+The case is simulated again from the store's manifest (its configuration as resolved) and its plan row,
+with the functions a worker uses (:func:`campaign.run.worker.load_resources`,
+:func:`campaign.run.case.simulate_case_inputs`, :func:`~campaign.run.case.estimator_inputs`,
+:func:`~campaign.run.case.case_truth`): a case is deterministic per (campaign seed, case id), so these
+are the inputs its estimators got. ``OUT`` receives::
+
+    image_1.png ... image_3.png   16-bit grey PNG of the binned DN as read out (256 x 1024 for MER); read
+                                  without a declaration, a 16-bit container holds camera DN as they are
+                                  (file_formats.descent_images), so the estimator gets the same uint16 array
+    measurements.json             file_formats.measurements_json (exact: JSON keeps every float64 bit)
+    flat_field.npy                the campaign's flat field (float32, read-out shape); only when its
+                                  [estimator] flat_field gives one (a stale one in OUT is removed)
+    estimator.toml                the reference estimator's parameters as an [estimator] table (--config)
+    truth.json                    what the estimator must not see: true velocity at the last image,
+                                  altitudes, wind, attitude floor, the case's sensor errors, the plan row,
+                                  and the store's result rows of the case; ``replay`` is the command line
+
+``python -m dimes_velocity OUT/image_1.png OUT/image_2.png OUT/image_3.png OUT/measurements.json --camera
+CAMERA.toml --flat-field OUT/flat_field.npy|none --config OUT/estimator.toml`` then answers what the
+campaign stored for its reference estimator, bit for bit (unless the case was recorded
+``outside_terrain``: the campaign overrides such an answer to invalid; ``truth.json`` says so).
+
+Errors (:class:`~campaign.store.errors.StoreError`, one line; nothing written): not a store, a case id
+not in the plan, ``OUT`` not a writable directory. Files are written to a temporary directory beside
+``OUT`` and moved in at the end.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import shlex
+import shutil
+import sys
+import tempfile
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from campaign.configuration.campaign_file import CampaignConfig, campaign_config_from_data, load_campaign_config
+from campaign.run.case import PlanRow, case_truth, estimator_inputs, simulate_case_inputs
+from campaign.run.worker import load_resources
+from campaign.store.campaign_store import CampaignStore
+from campaign.store.errors import StoreError
+from file_formats.flat_field_files import save_flat_field
+from file_formats.measurements_json import measurements_to_dict
+from flight_interface.tomlfields import ConfigError
+from simulator.scene_config import SceneConfig
+
+IMAGE_NAMES = ("image_1.png", "image_2.png", "image_3.png")
+FLAT_FIELD_NAME = "flat_field.npy"
+#: stored result columns copied into truth.json (per estimator)
+STORED_COLUMNS = ("estimator", "status", "error", "valid", "reason", "estimate_velocity_east_mps",
+                  "estimate_velocity_north_mps", "velocity_error_mps", "velocity_uncertainty_mps")
+
+
+def check_output_directory(out: Path) -> None:
+    """``out`` is an existing writable directory, or can be created (its nearest existing ancestor is a
+    writable directory); StoreError (one line) otherwise."""
+    if out.exists():
+        if not out.is_dir():
+            raise StoreError(f"{out}: exists and is not a directory; allowed: a directory (new or existing)")
+        if not os.access(out, os.W_OK | os.X_OK):
+            raise StoreError(f"{out}: not writable")
+        return
+    ancestor = out.absolute().parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
+        raise StoreError(f"{out}: cannot be created ({ancestor} is not a writable directory)")
+
+
+def _json_value(value: Any) -> Any:
+    """A JSON-ready value (numpy scalars and arrays as Python values; NaN as null)."""
+    if isinstance(value, np.ndarray):
+        return [_json_value(item) for item in value.tolist()]
+    if isinstance(value, (list, tuple)):
+        return [_json_value(item) for item in value]
+    if isinstance(value, dict):
+        return {str(key): _json_value(item) for key, item in value.items()}
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _toml_value(value: Any) -> str:
+    """A scalar (or list of scalars) parameter as TOML."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else ("nan" if value != value else ("inf" if value > 0 else "-inf"))
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return str(value)
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), np.asarray(image, dtype=np.uint16)):
+        raise OSError(f"{path}: cannot write PNG")
+
+
+def stored_config(store: CampaignStore, manifest: dict) -> CampaignConfig:
+    """The store's campaign: its campaign file when that still has the store's configuration hash, else
+    rebuilt from the manifest's resolved tables (a sweep point's store, or a changed or moved file).
+
+    The resolved tables cannot tell a ``[scene] sun_distance_au`` left out (the site's heliocentric distance
+    is then used) from one written out at the default: a rebuilt scene at the default takes the site's."""
+    config_file = Path(manifest.get("config_file", ""))
+    if config_file.is_file():
+        try:
+            config = load_campaign_config(config_file, output_dir=store.root)
+            if config.config_hash == manifest["config_hash"]:
+                return config
+        except ConfigError:
+            pass
+    tables = json.loads(json.dumps(manifest["config"]))
+    scene = tables.get("scene") or {}
+    if scene.get("sun_distance_au") == SceneConfig.model_fields["sun_distance_au"].default:
+        scene.pop("sun_distance_au")
+    return campaign_config_from_data(tables, config_file, source=f"{store.manifest_path}: config",
+                                     output_dir=store.root)
+
+
+def export_case(store_dir: str | Path, case_id: int, out: str | Path) -> list[Path]:
+    """Write case ``case_id`` of the campaign store ``store_dir`` into ``out`` (module docstring); return
+    the files written. StoreError (one line, nothing written) for a bad store, case id or ``out``."""
+    store, out = CampaignStore(store_dir), Path(out)
+    plan = store.plan()                             # StoreError: not a store, corrupt manifest or plan
+    manifest = store.manifest() or {}
+    rows = plan[plan["case_id"].astype(int) == int(case_id)]
+    if rows.empty:
+        ids = plan["case_id"].astype(int)
+        raise StoreError(f"{store.root}: case {case_id} is not in the plan ({len(ids)} cases, ids "
+                         f"{ids.min()} to {ids.max()}; `campaign status {store.root}`)")
+    check_output_directory(out)
+    config = stored_config(store, manifest)
+    row = PlanRow.from_record(rows.iloc[0].to_dict())
+    resources = load_resources(config)
+    inputs = simulate_case_inputs(resources, row)
+    truth = case_truth(resources, inputs)
+    shared = estimator_inputs(resources, inputs)
+    flat = shared.calibration.flat_field
+    reference = next((spec for spec in config.estimators if spec.kind == "reference"), None)
+    stored = store.results()
+    stored = stored[stored["case_id"].astype(int) == row.case_id] if not stored.empty else pd.DataFrame()
+    camera_path = str(Path(config.site.camera_path).resolve())
+    replay = [sys.executable, "-m", "dimes_velocity", *(str((out / name).absolute()) for name in IMAGE_NAMES),
+              str((out / "measurements.json").absolute()), "--camera", camera_path,
+              "--flat-field", str((out / FLAT_FIELD_NAME).absolute()) if flat is not None else "none"]
+    if reference is not None:
+        replay += ["--config", str((out / "estimator.toml").absolute())]
+    outside = max(truth.outside_terrain_fraction) > config.max_outside_terrain_fraction
+    truth_record = {
+        "case_id": row.case_id, "campaign_seed": config.seed, "store": str(store.root.absolute()),
+        "config_hash": config.config_hash, "config_hash_matches_store": config.config_hash == manifest["config_hash"],
+        "camera": camera_path, "flat_field_source": shared.calibration.flat_field_source,
+        "reference_estimator": reference.name if reference is not None else None,
+        "plan": _json_value(asdict(row)),
+        **{key: _json_value(value) for key, value in asdict(truth).items() if not key.startswith("t_")},
+        "outside_terrain": bool(outside),
+        "stored_results": [_json_value({column: record.get(column) for column in STORED_COLUMNS})
+                           for record in stored.to_dict("records")],
+        "replay": shlex.join(replay),
+    }
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.export-", dir=out.absolute().parent))
+    try:
+        for name, image in zip(IMAGE_NAMES, shared.images):
+            _write_png(staging / name, image)
+        (staging / "measurements.json").write_text(json.dumps(measurements_to_dict(shared.measurements), indent=1))
+        if flat is not None:
+            save_flat_field(staging / FLAT_FIELD_NAME, flat)
+        if reference is not None:
+            lines = ["[estimator]", *(f"{key} = {_toml_value(value)}" for key, value in sorted(reference.parameters.items()))]
+            (staging / "estimator.toml").write_text("\n".join(lines) + "\n")
+        (staging / "truth.json").write_text(json.dumps(truth_record, indent=1))
+        names = sorted(path.name for path in staging.iterdir())
+        if not out.exists():
+            os.rename(staging, out)
+        else:
+            for name in names:
+                os.replace(staging / name, out / name)
+            for name in (FLAT_FIELD_NAME, "estimator.toml"):      # never leave another campaign's file
+                if name not in names:
+                    (out / name).unlink(missing_ok=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return [out / name for name in names]
