@@ -143,7 +143,7 @@ class CampaignConfig(ConfigModel):
             scene = SceneConfig.model_validate({**scene.model_dump(exclude_unset=True),
                                                 "sun_distance_au": tables.site.heliocentric_distance_au})
         _, _, estimators = estimator_tables(tables.estimator, tables.estimators, label)
-        hashed = hashed_content(resolved_tables(tables), tables.site)
+        hashed = hashed_content(resolved_tables(tables, scene), tables.site)
         hashed["code_digest"] = code_digest(plugin_modules(estimators))
         hashed["estimator_code_digests"] = estimator_code_digests(estimators)
         config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
@@ -200,18 +200,22 @@ class CampaignConfig(ConfigModel):
 
     @property
     def resolved(self) -> dict:
-        """Every table with its defaults filled in, as JSON values (recorded in the manifest)."""
-        return resolved_tables(self.tables)
+        """Every table with its defaults filled in, as JSON values (recorded in the manifest); ``scene`` as
+        the cases use it (with the site's sun distance when the file leaves it out)."""
+        return resolved_tables(self.tables, self.scene)
 
     @property
     def estimator_names(self) -> list[str]:
         return [spec.name for spec in self.estimators]
 
 
-def resolved_tables(tables: CampaignFile) -> dict:
-    """Every table of ``tables`` with its defaults filled in, as JSON values."""
-    return {name: json.loads(json.dumps(getattr(tables, name), default=lambda value: value.model_dump(mode="json")))
-            for name in CampaignFile.model_fields}
+def resolved_tables(tables: CampaignFile, scene: SceneConfig) -> dict:
+    """Every table of ``tables`` with its defaults filled in, as JSON values, and ``[scene]`` as the cases
+    use it (``scene``: with the site's sun distance when the file leaves it out). So the hash and the
+    manifest tell a sun distance left out from one written out at the scene default."""
+    chosen = {name: scene if name == "scene" else getattr(tables, name) for name in CampaignFile.model_fields}
+    return {name: json.loads(json.dumps(value, default=lambda item: item.model_dump(mode="json")))
+            for name, value in chosen.items()}
 
 
 def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = None,

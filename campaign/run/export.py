@@ -51,7 +51,6 @@ from campaign.store.errors import StoreError
 from file_formats.flat_field_files import save_flat_field
 from file_formats.measurements_json import measurements_to_dict
 from flight_interface.tomlfields import ConfigError
-from simulator.scene_config import SceneConfig
 
 IMAGE_NAMES = ("image_1.png", "image_2.png", "image_3.png")
 FLAT_FIELD_NAME = "flat_field.npy"
@@ -111,10 +110,8 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 def stored_config(store: CampaignStore, manifest: dict) -> CampaignConfig:
     """The store's campaign: its campaign file when that still has the store's configuration hash, else
-    rebuilt from the manifest's resolved tables (a sweep point's store, or a changed or moved file).
-
-    The resolved tables cannot tell a ``[scene] sun_distance_au`` left out (the site's heliocentric distance
-    is then used) from one written out at the default: a rebuilt scene at the default takes the site's."""
+    rebuilt from the manifest's resolved tables (a sweep point's store, or a changed or moved file; the
+    manifest's ``[scene]`` is the scene as the cases used it, sun distance included)."""
     config_file = Path(manifest.get("config_file", ""))
     if config_file.is_file():
         try:
@@ -124,9 +121,6 @@ def stored_config(store: CampaignStore, manifest: dict) -> CampaignConfig:
         except ConfigError:
             pass
     tables = json.loads(json.dumps(manifest["config"]))
-    scene = tables.get("scene") or {}
-    if scene.get("sun_distance_au") == SceneConfig.model_fields["sun_distance_au"].default:
-        scene.pop("sun_distance_au")
     return campaign_config_from_data(tables, config_file, source=f"{store.manifest_path}: config",
                                      output_dir=store.root)
 

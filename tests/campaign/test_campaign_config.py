@@ -105,3 +105,22 @@ def test_hash_is_of_content_not_of_paths_defaults_or_counts(tmp_path):
     camera = elsewhere / "cameras" / "mer_a.toml"
     camera.write_text(camera.read_text() + "\n")          # same values, other bytes: another input file
     assert load_campaign_config(copied).config_hash != base
+
+
+def test_a_sun_distance_left_out_and_one_written_out_are_different_campaigns(tmp_path):
+    """Left out, the scene takes the site's heliocentric distance (Gusev 1.478 AU); written out at the
+    scene default (1.524 AU) it renders other radiances, so the hash and the manifest's scene differ."""
+    from campaign.configuration.campaign_file import load_campaign_config
+    from simulator.scene_config import SceneConfig
+
+    default_au = SceneConfig.model_fields["sun_distance_au"].default
+    left_out = load_campaign_config(_bad_copy(tmp_path, extra="\n[campaign]\nseed = 1\n"))
+    written = load_campaign_config(_bad_copy(tmp_path, extra=f"\n[campaign]\nseed = 1\n[scene]\nsun_distance_au = {default_au}\n"))
+    site_au = left_out.site.heliocentric_distance_au
+    assert site_au != default_au
+    assert left_out.scene.sun_distance_au == site_au and written.scene.sun_distance_au == default_au
+    assert left_out.resolved["scene"]["sun_distance_au"] == site_au
+    assert written.resolved["scene"]["sun_distance_au"] == default_au
+    assert left_out.config_hash != written.config_hash
+    same = load_campaign_config(_bad_copy(tmp_path, extra=f"\n[campaign]\nseed = 1\n[scene]\nsun_distance_au = {site_au}\n"))
+    assert same.config_hash == left_out.config_hash           # writing the used value out changes nothing
