@@ -23,7 +23,10 @@ Measurements JSON schema
     }
 
 Frames: world x east, y north, z up; attitude as in :mod:`flight_interface.frames`. Unknown keys are
-errors (a misspelt optional field must not be silently ignored).
+errors (a misspelt optional field must not be silently ignored). The record must be consistent
+(:func:`flight_interface.measurements.validate_measurements`): times strictly increasing, attitude
+quaternions of unit norm (within 1e-3), ``imu_position_m`` on every image or none, and when given its
+change between images within 5 m/s + |velocity change| of the trapezoid of ``imu_velocity_mps``.
 
 """
 from __future__ import annotations

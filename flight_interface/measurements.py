@@ -65,8 +65,32 @@ class DescentMeasurements:
 MAX_SPEED_MPS = 1e4
 
 
+#: Largest departure of an attitude quaternion's norm from 1. Flight software writes normalized
+#: quaternions (norm error ~1e-15); four components rounded to 4 decimals stay within ~2e-4. A norm
+#: off by more than 0.1 % is not a rounding of a unit quaternion but another quantity (a rotation
+#: vector, a scaled or truncated record), so it is refused rather than silently normalized.
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+#: IMU position/velocity consistency (m/s): the fixed part of the allowed disagreement between the
+#: IMU position change between two images, divided by their time difference, and the trapezoid of the
+#: two IMU velocities, ``|(p_k+1 - p_k) / dt - (v_k + v_k+1) / 2|`` (3-D). A real IMU integrates both
+#: from the same biased velocity at its own rate, so a constant bias cancels and the disagreement is
+#: (a) the trapezoid's error for non-constant acceleration, bounded by how far the velocity leaves
+#: the straight line between the two samples: a lander swinging on its bridle (~20 m, swing <= 10 deg)
+#: moves at most ~sqrt(g_mars L) * 0.17 ~ 1.5 m/s each way, so <= ~3 m/s; (b) accelerometer bias
+#: drift: 1 mg over a 4 s image interval is 0.04 m/s; (c) timing skew between the IMU and camera
+#: stamps: 10 ms at 2 m/s^2 is 0.02 m/s. 5 m/s covers all of them with margin. To it is added the
+#: velocity change between the two images ``|v_k+1 - v_k|``: whatever the velocity does between two
+#: samples, the mean velocity of a monotonic change lies between them (within |dv|/2 of the
+#: trapezoid), and a velocity random walk's bridge (sigma ~ sigma_rw sqrt(dt/12)) is a fraction of the
+#: walk's own increment. A ~24 m/s disagreement with steady velocities (positions moving, velocities
+#: 0) is a contradiction the estimator must not answer from.
+IMU_CONSISTENCY_MPS = 5.0
+
+
 class MeasurementError(ValueError):
-    """Illegal measurements (wrong shape, not finite, out of range); the message names the field."""
+    """Illegal or self-contradictory measurements (wrong shape, not finite, out of range, fields that
+    disagree with each other); the message names the field and the disagreement."""
 
 
 def _vector(value, length: int, name: str) -> np.ndarray:
@@ -79,10 +103,16 @@ def _vector(value, length: int, name: str) -> np.ndarray:
 
 
 def validate_measurements(measurements: DescentMeasurements, image_count: int | None = None) -> None:
-    """Raise :class:`MeasurementError` naming the field if the measurements cannot be used.
+    """Raise :class:`MeasurementError` naming the field if the measurements cannot be used or contradict
+    each other.
 
-    Checks: at least two images (``image_count`` of them if given), strictly increasing times,
-    unit-normable attitude quaternions, finite 3-vectors, radar altitude > 0, sun direction non-zero.
+    Checks: at least two images (``image_count`` of them if given), strictly increasing times, unit
+    attitude quaternions (norm within :data:`QUATERNION_NORM_TOLERANCE` of 1), finite 3-vectors, radar
+    altitude > 0, sun direction non-zero; ``imu_position_m`` given for every image or for none, and
+    when given, consistent with ``imu_velocity_mps`` and ``time_s`` (:data:`IMU_CONSISTENCY_MPS`).
+    An attitude pointing the camera far from nadir (or at the sky) is not refused here: the campaign's
+    sensor models at the largest allowed attitude-error sigmas produce such records, and the estimator
+    answers them invalid (``bad_attitude``), never valid.
     """
     images = measurements.images
     if image_count is not None and len(images) != image_count:
@@ -97,8 +127,10 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
             raise MeasurementError(f"{prefix}time_s = {image.time_s!r} must be finite and later than the previous image")
         previous = time_s
         quaternion = _vector(image.attitude_quat, 4, prefix + "attitude_quat")
-        if not 0.5 < np.linalg.norm(quaternion) < 2.0:
-            raise MeasurementError(f"{prefix}attitude_quat = {image.attitude_quat!r} must be a unit quaternion (w, x, y, z)")
+        norm = float(np.linalg.norm(quaternion))
+        if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
+            raise MeasurementError(f"{prefix}attitude_quat = {image.attitude_quat!r} must be a unit quaternion (w, x, y, z); "
+                                   f"norm {norm:.6g}, allowed 1 +- {QUATERNION_NORM_TOLERANCE:g}")
         _vector(image.angular_rate_radps, 3, prefix + "angular_rate_radps")
         velocity = _vector(image.imu_velocity_mps, 3, prefix + "imu_velocity_mps")
         if not np.linalg.norm(velocity) < MAX_SPEED_MPS:
@@ -111,6 +143,31 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
             _vector(image.heat_shield_offset_m, 3, prefix + "heat_shield_offset_m")
         if image.imu_position_m is not None:
             _vector(image.imu_position_m, 3, prefix + "imu_position_m")
+    _check_imu_positions(images)
     sun = _vector(measurements.sun_direction_world, 3, "sun_direction_world")
     if np.linalg.norm(sun) < 1e-9:
         raise MeasurementError("sun_direction_world must be a non-zero vector")
+
+
+def _check_imu_positions(images: tuple[ImageMeasurement, ...]) -> None:
+    """IMU positions for every image or none; when given, consistent with the velocities and times."""
+    given = [image.imu_position_m is not None for image in images]
+    if not any(given):
+        return
+    if not all(given):
+        raise MeasurementError(f"imu_position_m: given for {sum(given)} of {len(images)} images; "
+                               f"give it for every image or for none")
+    for k in range(len(images) - 1):
+        first, second = images[k], images[k + 1]
+        dt = float(second.time_s) - float(first.time_s)
+        position_rate = (np.asarray(second.imu_position_m, dtype=float) - np.asarray(first.imu_position_m, dtype=float)) / dt
+        v0 = np.asarray(first.imu_velocity_mps, dtype=float)
+        v1 = np.asarray(second.imu_velocity_mps, dtype=float)
+        disagreement = float(np.linalg.norm(position_rate - 0.5 * (v0 + v1)))
+        tolerance = IMU_CONSISTENCY_MPS + float(np.linalg.norm(v1 - v0))
+        if not disagreement <= tolerance:
+            raise MeasurementError(
+                f"images[{k}..{k + 1}]: imu_position_m and imu_velocity_mps disagree: the positions move at "
+                f"{np.linalg.norm(position_rate):.3g} m/s, {disagreement:.3g} m/s from the mean IMU velocity "
+                f"{np.linalg.norm(0.5 * (v0 + v1)):.3g} m/s over {dt:.3g} s; allowed {tolerance:.3g} m/s")
+
