@@ -351,6 +351,12 @@ class Camera:
         """On-axis photo-electrons per second per unit spectral radiance (W m^-2 sr^-1 um^-1)."""
         return self.radiometry.responsivity_e_per_s(self.pixel_pitch_m**2)
 
+    def __post_init__(self) -> None:
+        # shared by the simulator and every estimator of a process: no one may change it for the others
+        for value in (*vars(self).values(), *vars(self.model).values()):
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+
     def __getstate__(self) -> dict[str, object]:
         """Pickle the camera as designed: the derived arrays of the cached properties below (tens of MiB)
         are left out and recomputed, bit for bit, where they are next needed."""
@@ -359,12 +365,12 @@ class Camera:
     @cached_property
     def pixel_rays(self) -> np.ndarray:
         """Unit ray of every pixel centre in the camera frame, shape (height, width, 3), float64."""
-        return cahvor.unproject(self.model, cahvor.pixel_grid(self.width_px, self.height_px))
+        return _read_only(cahvor.unproject(self.model, cahvor.pixel_grid(self.width_px, self.height_px)))
 
     @cached_property
     def field_angle_rad(self) -> np.ndarray:
         """Angle of each pixel's ray from the optical axis O, shape (height, width)."""
-        return np.arccos(np.clip(self.pixel_rays @ self.model.o, -1.0, 1.0))
+        return _read_only(np.arccos(np.clip(self.pixel_rays @ self.model.o, -1.0, 1.0)))
 
     @cached_property
     def falloff_map(self) -> np.ndarray:
@@ -374,11 +380,17 @@ class Camera:
         pixel response non-uniformity is realised only by the simulator
         (:func:`simulator.detector.charge_generation.prnu_map`) and reaches an estimator only through a
         measured flat field (:mod:`flight_interface.calibration`)."""
-        return (np.cos(self.field_angle_rad) ** 4).astype(np.float32)
+        return _read_only((np.cos(self.field_angle_rad) ** 4).astype(np.float32))
 
     def fov_deg(self) -> tuple[float, float]:
         """Full horizontal and vertical field of view between the outer pixel edges (deg)."""
         return _fov_deg(self.model, self.width_px, self.height_px)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """``array`` itself, read-only (a camera's derived arrays are shared like the camera)."""
+    array.setflags(write=False)
+    return array
 
 
 def _fov_deg(model: cahvor.Cahvor, width: int, height: int) -> tuple[float, float]:

@@ -66,17 +66,6 @@ def read_only_array(array: np.ndarray) -> np.ndarray:
     return array
 
 
-def read_only_camera(camera: Camera) -> Camera:
-    """``camera`` itself with every array it holds read-only: its CAHVOR vectors, mounting and the derived
-    arrays computed so far (pixel rays, field angles, falloff map: called again after each case's rendering,
-    which computes them, and before its estimators run). The camera is shared by the simulator and every
-    estimator of the process, so no estimator may change it for the others."""
-    for value in [*vars(camera).values(), *vars(camera.model).values()]:
-        if isinstance(value, np.ndarray):
-            read_only_array(value)
-    return camera
-
-
 class SharedInputs:
     """Inputs shared by every campaign (or sweep point) a process serves, loaded once per source: the
     sweep's points differ in scene/sensor/estimator parameters, not in camera, trajectories or terrain.
@@ -149,18 +138,14 @@ class CampaignInputs:
     def __init__(self, config: CampaignConfig, shared: SharedInputs):
         self.config = config
         self.shared = shared
-        self.camera: Camera = shared.get("camera", config.site.camera_path,
-                                         lambda path: read_only_camera(load_camera(path)))
+        self.camera: Camera = shared.get("camera", config.site.camera_path, load_camera)
         self.profiles: list[DescentProfile] = shared.get("profiles", config.site.trajectory_path, read_profiles)
         self.built_estimators: list[tuple[EstimatorSpec, Any]] | None = None   # built on first use
-
-    @property
-    def max_horizontal_speed_mps(self) -> float:
-        """The plausibility bound of a valid answer (m/s): the fastest horizontal speed of any profile of the
-        trajectory set, at any time, plus :data:`PLAUSIBLE_SPEED_MARGIN_MPS`."""
-        fastest = self.shared.get("fastest-horizontal-speed", self.config.site.trajectory_path, lambda _: max(
-            (float(np.hypot(p.velocity_mps[:, 0], p.velocity_mps[:, 1]).max()) for p in self.profiles), default=0.0))
-        return fastest + PLAUSIBLE_SPEED_MARGIN_MPS
+        fastest = max((float(np.hypot(p.velocity_mps[:, 0], p.velocity_mps[:, 1]).max()) for p in self.profiles),
+                      default=0.0)
+        #: The plausibility bound of a valid answer (m/s): the fastest horizontal speed of any profile of the
+        #: trajectory set, at any time, plus :data:`PLAUSIBLE_SPEED_MARGIN_MPS`.
+        self.max_horizontal_speed_mps = fastest + PLAUSIBLE_SPEED_MARGIN_MPS
 
     def calibration(self) -> CalibrationProducts:
         """The campaign's calibration products (``[estimator] flat_field``), made once per process."""
@@ -412,7 +397,6 @@ def estimator_inputs(resources: CampaignInputs, inputs: CaseInputs) -> Estimator
 
 def compute_case(resources: CampaignInputs, plan: PlanRow) -> CaseComputation:
     """Simulate the three images and measurements of one case once and run every estimator on them."""
-    camera = resources.camera
     inputs = simulate_case_inputs(resources, plan)
     truth = case_truth(resources, inputs)
     truth_velocity = inputs.profile.pose(float(inputs.profile.image_times_s[-1])).velocity_mps
@@ -420,7 +404,6 @@ def compute_case(resources: CampaignInputs, plan: PlanRow) -> CaseComputation:
     images = shared.images
     # an image that sees untextured ground outside the terrain cannot score: recorded invalid, never valid
     outside_terrain = max(truth.outside_terrain_fraction) > resources.config.max_outside_terrain_fraction
-    read_only_camera(camera)                   # the derived arrays the rendering computed, before any estimator
     bound = resources.max_horizontal_speed_mps
     estimates = tuple(EstimatorResult.of_run(run_estimator(spec.name, estimator, shared, bound), truth_velocity,
                                              outside_terrain)
