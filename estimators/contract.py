@@ -36,7 +36,7 @@ Output (:class:`EstimatorOutput`; as JSON an object with these keys)
     ``"ok"`` when valid, else a short non-empty code saying why not (the estimator's own vocabulary).
 ``velocity_uncertainty_mps`` : number, optional
     The estimator's own stated 1-sigma horizontal velocity uncertainty (m/s), stored in the campaign's
-    ``velocity_uncertainty_mps`` column (0 when not given or not valid).
+    ``velocity_uncertainty_mps`` column (null, read as NaN, when not given or not valid).
 ``features`` : list of objects, optional
     Per-feature metrics, each with optional numbers ``brightness_dn``, ``contrast_dn``,
     ``correlation`` (paper Table 3) and an optional string ``status`` (``"ok"`` for a feature that

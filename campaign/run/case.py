@@ -324,7 +324,7 @@ class EstimatorResult:
         if output is None:
             return cls(estimator=run.name, status="failed", error=run.error, estimate_velocity_east_mps=None,
                        estimate_velocity_north_mps=None, valid=False, reason=run.failure or "estimator_failed",
-                       velocity_error_mps=None, velocity_uncertainty_mps=0.0, feature_brightness=(),
+                       velocity_error_mps=None, velocity_uncertainty_mps=None, feature_brightness=(),
                        feature_contrast=(), feature_correlation=(), feature_status=(), t_estimator_ms=run.elapsed_ms)
         valid = bool(output.valid) and not outside_terrain
         error = (float(np.hypot(output.velocity_east_mps - truth_velocity_mps[0],
@@ -335,7 +335,8 @@ class EstimatorResult:
             estimate_velocity_north_mps=float(output.velocity_north_mps) if valid else None,
             valid=valid, reason="outside_terrain" if outside_terrain else str(output.reason),
             velocity_error_mps=error,
-            velocity_uncertainty_mps=float(output.velocity_uncertainty_mps or 0.0) if valid else 0.0,
+            velocity_uncertainty_mps=(float(output.velocity_uncertainty_mps)     # none stated: null (NaN), never 0
+                                      if valid and output.velocity_uncertainty_mps is not None else None),
             feature_brightness=tuple(float(f.get("brightness_dn", np.nan)) for f in output.features),
             feature_contrast=tuple(float(f.get("contrast_dn", np.nan)) for f in output.features),
             feature_correlation=tuple(float(f.get("correlation", np.nan)) for f in output.features),

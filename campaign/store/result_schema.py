@@ -92,7 +92,7 @@ def declared_columns(image_count: int = IMAGE_COUNT) -> tuple[ResultColumn, ...]
         column("valid", flag, "", "the estimate is flagged valid (and the images see only terrain)"),
         column("reason", text, "", "the estimator's reason, or outside_terrain, estimator_failed, implausible, case_failed"),
         column("velocity_error_mps", f64, "m/s", "horizontal error of a valid estimate against the truth"),
-        column("velocity_uncertainty_mps", f64, "m/s", "the estimator's own uncertainty (0 unless valid)"),
+        column("velocity_uncertainty_mps", f64, "m/s", "the estimator's own stated uncertainty (null unless valid and stated)"),
         column("feature_brightness", pa.list_(f64), "DN", "mean brightness of each tracked feature"),
         column("feature_contrast", pa.list_(f64), "DN", "contrast of each tracked feature"),
         column("feature_correlation", pa.list_(f64), "", "correlation score of each tracked feature"),
