@@ -10,7 +10,7 @@ Usage::
         [--flat-field FILE|none]   # measured flat field (.npy, TIFF, FITS); default: <camera stem>.flat.*
                                    # beside the camera TOML if there is one, else the design falloff only
         [--big-endian]             # raw 16-bit images are big-endian
-        [--summary]                # print only velocity, valid, reason, uncertainty and bias
+        [--summary]                # print only velocity, valid, reason, uncertainty and bias (no inputs list)
 
 Images are PNG, TIFF, .npy, raw, PDS3, VICAR or ISIS3, binned (256 x 1024 for MER) or full frame
 (1024 x 1024, binned here as on chip); the rules (shapes, bit depth, DN scale) are in
@@ -37,6 +37,9 @@ from flight_interface.measurements import MeasurementError
 from flight_interface.tomlfields import ConfigError, load_toml
 
 PROG = "python -m dimes_velocity"
+#: what ``--summary`` prints (nothing else: no pairs, features, timings or inputs list)
+SUMMARY_KEYS = ("velocity_east_mps", "velocity_north_mps", "valid", "reason", "velocity_uncertainty_mps",
+                "imu_bias_east_mps", "imu_bias_north_mps")
 
 
 def build_parser() -> OneLineParser:
@@ -90,10 +93,9 @@ def main(argv: list[str] | None = None) -> int:
         return USAGE_ERROR
     output = result.to_dict()
     if args.summary:
-        output = {key: output[key] for key in ("velocity_east_mps", "velocity_north_mps", "valid", "reason",
-                                               "velocity_uncertainty_mps", "imu_bias_east_mps",
-                                               "imu_bias_north_mps")}
-    output["inputs"] = [f.describe() for f in files]
+        output = {key: output[key] for key in SUMMARY_KEYS}
+    else:
+        output["inputs"] = [f.describe() for f in files]
     print(json.dumps(output, indent=2))
     return 0
 

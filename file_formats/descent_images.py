@@ -19,7 +19,10 @@ the charges of ``b`` adjacent rows are summed before one read, so with the ADC o
 and a binned pixel is saturated (set to ``DN_max``) when any of its ``b`` pixels is at or above the
 single-pixel saturation level ``min(DN_max, full_well / gain + o)``. What a full-frame read differs
 in (``b`` reads instead of one, so ``b`` times the read-noise variance; a longer storage-area wait)
-is not undone. RGB/RGBA images need ``channel`` (r, g or b) or ``luminance`` (Rec. 709:
+is not undone. A full frame declared with fewer bits than the ADC's (``--bits 8``: DN = 16 x value)
+can only hold values up to the top bits of that saturation level (76 for MER's 1220 DN); a larger value
+is refused, since the file is then a stretch or look-up table of the DN, whose range ``--dn-scale``
+states (e.g. ``--dn-scale 4.784`` for 0..255 spanning 0..1220 DN). RGB/RGBA images need ``channel`` (r, g or b) or ``luminance`` (Rec. 709:
 ``0.2126 R + 0.7152 G + 0.0722 B``; alpha is ignored; grey images ignore both). Any other shape is refused with the list
 of accepted shapes.
 
@@ -169,6 +172,8 @@ def read_descent_image(path: str | Path, camera: Any,
     dn, saturated, rule = to_camera_dn(path, values, container_bits, label_bits, declaration, camera)
     full_frame = dn.shape[0] == rows and binning > 1
     if full_frame:
+        top = check_full_frame_top_bits(path, values, label_bits, declaration, camera)
+        saturated = top if saturated is None else (saturated if top is None else saturated | top)
         dn = bin_full_frame(dn, saturated, camera)
         rule += f"; full frame binned {binning}:1 in rows as on chip"
     elif saturated is not None:
@@ -183,6 +188,49 @@ def load_image(path: str | Path, camera: Any, declaration: ImageDeclaration = Im
     return read_descent_image(path, camera, declaration).dn
 
 
+def full_frame_pixel_saturation_dn(camera: Any) -> float:
+    """DN at which one full-frame (unbinned) pixel saturates: ``min(DN_max, full_well / gain + offset)``
+    (1220 DN for MER: the ADC gain is set so that the *binned* sum of 4 pixels fills the 12 bits)."""
+    electronics = camera.electronics
+    return float(min(electronics.max_dn, electronics.full_well_e / electronics.adc_gain_e_per_dn
+                     + electronics.adc_offset_dn))
+
+
+def check_full_frame_top_bits(path: Path, values: np.ndarray, label_bits: tuple | None,
+                              declaration: ImageDeclaration, camera: Any) -> np.ndarray | None:
+    """Refuse a full frame whose values cannot be the declared top bits of a full-frame pixel's DN;
+    else the mask of its values at the top (saturated), or None when the rule does not apply.
+
+    With ``bits`` below the camera's ``adc_bits`` (``--bits 8`` for MER, x16) and no ``--dn-scale``, a
+    value ``v`` is ``DN = 2^(adc_bits - bits) v + dn_offset``. One full-frame pixel reads at most
+    :func:`full_frame_pixel_saturation_dn` (1220 DN), so its top 8 bits are at most 76: a larger value
+    means the file holds something else (a display stretch or a look-up table of the 0..1220 DN range),
+    and reading it as the top bits would call every pixel above 76 saturated. Such a file is refused
+    (one line, naming the value, the limit and the ``--dn-scale`` that states the file's DN range).
+    A value at the limit (76) covers the saturation level (1216..1231 DN holds 1220) and is taken as
+    saturated, as the declared maximum of a binned file is.
+    """
+    bits, whose = declaration.bits, "--bits"
+    if bits is None and label_bits is not None:
+        bits, whose = label_bits
+    adc_bits = int(camera.electronics.adc_bits)
+    if declaration.dn_scale is not None or bits is None or bits >= adc_bits or not values.size:
+        return None
+    scale = 2.0 ** (adc_bits - bits)
+    offset = float(declaration.dn_offset) if declaration.dn_offset is not None else 0.0
+    saturation = full_frame_pixel_saturation_dn(camera)
+    limit = int(np.floor((saturation - offset) / scale))
+    largest = float(values.max())
+    if largest > limit:
+        span = 2 ** bits - 1
+        raise InputFileError(
+            f"{path}: full frame at {whose} {bits}: value {largest:g} would be {scale * largest + offset:g} DN, but one "
+            f"full-frame pixel saturates at {saturation:g} DN (value {limit} at {whose} {bits}; x{scale:g}), so these "
+            f"are not the top {bits} bits of the DN; state the file's DN range with --dn-scale S [--dn-offset O] "
+            f"(e.g. --dn-scale {saturation / span:.4g} if 0..{span} spans 0..{saturation:g} DN)")
+    return values >= limit
+
+
 def bin_full_frame(dn: np.ndarray, saturated: np.ndarray | None, camera: Any) -> np.ndarray:
     """Full-frame DN (H, W) -> binned DN (H / b, W) as the camera bins on chip (module docstring)."""
     electronics = camera.electronics
@@ -191,7 +239,7 @@ def bin_full_frame(dn: np.ndarray, saturated: np.ndarray | None, camera: Any) ->
     rows, columns = frame.shape
     blocks = (frame - np.float32(offset)).reshape(rows // binning, binning, columns)
     binned = np.minimum(blocks.sum(axis=1) + np.float32(offset), np.float32(max_dn))
-    pixel_saturation = min(max_dn, electronics.full_well_e / electronics.adc_gain_e_per_dn + offset)
+    pixel_saturation = full_frame_pixel_saturation_dn(camera)
     hot = frame >= np.float32(pixel_saturation)
     if saturated is not None:
         hot |= saturated
@@ -316,3 +364,37 @@ def _decode_raw(path: Path, camera: Any, declaration: ImageDeclaration) -> np.nd
     kind = "uint8 (--bits 8)" if sample_bytes == 1 else "uint16"
     raise InputFileError(f"{path}: not PNG/TIFF/.npy/PDS3/VICAR/ISIS3, and as raw {kind} samples without a header "
                          f"its {size} bytes match no accepted shape; expected bytes: {expected}")
+
+
+def write_descent_image(path: str | Path, dn: np.ndarray) -> Path:
+    """Write binned camera DN as a 16-bit grey PNG that :func:`read_descent_image` reads back unchanged.
+
+    The 16-bit container holds the DN as they are (no scaling, no stretch), the convention read
+    without a declaration; so the estimator gets the same ``uint16`` array from the file as in memory.
+
+    Parameters
+    ----------
+    path : path-like
+        Output file; must end in ``.png``.
+    dn : ndarray, (H / b, W) or (H, W), integer values 0..65535
+        Camera DN as read out (``uint16`` from the simulator).
+
+    Raises
+    ------
+    InputFileError
+        A non-integer, negative or too large value, a wrong suffix, or a file that cannot be written.
+    """
+    path = Path(path)
+    array = np.asarray(dn)
+    if path.suffix.lower() != ".png":
+        raise InputFileError(f"{path}: descent images are written as 16-bit PNG; allowed suffix: .png")
+    if array.ndim != 2 or array.size == 0:
+        raise InputFileError(f"{path}: expected a 2-D DN array; got shape {array.shape}")
+    if array.dtype != np.uint16:
+        if array.dtype.kind not in "uif" or not np.all(np.isfinite(array)) or np.any(array != np.round(array)) \
+                or array.min() < 0 or array.max() > 65535:
+            raise InputFileError(f"{path}: DN must be whole numbers 0 to 65535 to be written as 16-bit PNG")
+        array = array.astype(np.uint16)
+    if not cv2.imwrite(str(path), np.ascontiguousarray(array)):
+        raise InputFileError(f"{path}: cannot write PNG")
+    return path

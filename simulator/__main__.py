@@ -1,34 +1,52 @@
-"""Render an example descent sequence and write PNGs to look at (paper Figs. 1, 2 and 5).
+"""Render an example descent and write the estimator's exact inputs, to replay it (paper Figs. 1, 2, 5).
 
-    python -m simulator --out DIR [--seed 1] [--camera CAMERA.toml]
+    python -m simulator --out DIR [--seed 1] [--camera CAMERA.toml] [--flat-field calibrated|none] [--display]
 
-Writes, for the three images at 2000, 1725 and 1450 m of a tilted, windy descent with the sun 25 deg
-from the zenith and the heat shield falling below:
+Three images at 2000, 1725 and 1450 m of a tilted, windy descent (72 m/s down, 13 m/s drift) with the
+sun 25 deg from the zenith and the heat shield falling below, over a small textured crater field made
+here (the simulator imports no site data; campaign terrains are rendered by ``campaign submit``).
+``DIR`` receives what an estimator gets, in the layout of ``campaign export``::
 
-* ``image_K.png``     the 12-bit 1024 x 256 camera image, stretched to 8 bits (Fig. 1);
-* ``image_K_display.png`` the same with rows repeated 4x to the 45 x 45 deg aspect;
-* ``radiance_K.png``  the exposure radiance field (1024 x 1024): opposition halo around the anti-sun
-  point with the lander/backshell/parachute shadows at its centre (Fig. 2), heat shield;
-* ``footprint.png``   the terrain with the three image footprints and lander positions (+) (Fig. 5).
+    image_1.png ... image_3.png   16-bit grey PNG of the binned DN as read out (256 x 1024 for MER),
+                                  unstretched (file_formats.descent_images.write_descent_image)
+    measurements.json             the measured attitude, rates, radar altitude and biased IMU velocity
+                                  (simulator.sensors defaults; file_formats.measurements_json)
+    flat_field.npy                the simulated ground flat-field calibration (16 frames), float32,
+                                  read-out shape; only with --flat-field calibrated (the default)
+    truth.json                    what the estimator must not see: true velocity at the last image,
+                                  wind, altitudes, the sensor errors drawn; ``replay`` is the command
 
-Terrain: a small textured crater field made here (the simulator imports no site data; campaign
-terrains are rendered by ``campaign submit``, and ``python -m sitedata.terrain.mosaic`` shows them).
+``python -m dimes_velocity DIR/image_1.png DIR/image_2.png DIR/image_3.png DIR/measurements.json
+--camera CAMERA.toml --flat-field DIR/flat_field.npy`` (the ``replay`` line) then runs the reference
+estimator on exactly these inputs. ``--display`` adds pictures to look at: ``display_K.png`` (the
+image stretched to 8 bits, Fig. 1), ``display_K_tall.png`` (rows repeated to the 45 x 45 deg aspect),
+``radiance_K.png`` (the exposure radiance field: opposition halo, shadows, heat shield; Fig. 2) and
+``footprint.png`` (the terrain with the image footprints and lander positions; Fig. 5).
+Same seed, same files.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import shlex
 import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from flight_interface.camera import load_camera
+from file_formats.descent_images import write_descent_image
+from file_formats.flat_field_files import save_flat_field
+from file_formats.measurements_json import measurements_to_dict
+from flight_interface.camera import Camera, load_camera
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
-from simulator.descent_image import render_descent_image
+from simulator.calibration import DEFAULT_FLAT_FRAMES, simulate_flat_field
+from simulator.descent_image import DescentImage, render_descent_image
 from simulator.scene.descent_profile import DescentProfile
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import SceneConfig
+from simulator.sensors import SensorConfig, measure
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,46 +97,118 @@ def stretch(values: np.ndarray, low_pct: float = 0.5, high_pct: float = 99.5) ->
     return (np.clip((values - low) / max(high - low, 1e-12), 0, 1) * 255).astype(np.uint8)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", required=True, type=Path, help="output directory")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--camera", type=Path, default=ROOT / "sitedata" / "cameras" / "mer_a.toml")
-    args = parser.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
+IMAGE_NAMES = ("image_1.png", "image_2.png", "image_3.png")
+FLAT_FIELD_NAME = "flat_field.npy"
 
-    camera = load_camera(args.camera)
-    terrain = crater_field(args.seed)
-    profile = example_profile()
+
+def example_sun() -> np.ndarray:
+    """Unit vector toward the sun (world x east, y north, z up): 25 deg from the zenith, azimuth 200 deg."""
     incidence, azimuth = np.radians(25.0), np.radians(200.0)
-    sun = np.array([np.sin(incidence) * np.sin(azimuth), np.sin(incidence) * np.cos(azimuth), np.cos(incidence)])
-    config = SceneConfig()
-    seeds = np.random.SeedSequence(args.seed).spawn(len(profile.image_times_s))
+    return np.array([np.sin(incidence) * np.sin(azimuth), np.sin(incidence) * np.cos(azimuth), np.cos(incidence)])
 
+
+def _json_value(value):
+    """JSON-ready (numpy scalars and arrays as Python values, non-finite floats as null)."""
+    if isinstance(value, np.ndarray):
+        return [_json_value(item) for item in value.tolist()]
+    if isinstance(value, (list, tuple)):
+        return [_json_value(item) for item in value]
+    if isinstance(value, dict):
+        return {str(key): _json_value(item) for key, item in value.items()}
+    if isinstance(value, np.generic):
+        value = value.item()
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def write_display(out: Path, terrain: Terrain, camera: Camera, rendered: list[DescentImage]) -> None:
+    """The pictures to look at (``--display``): stretched images, radiance fields, footprint map."""
     view = stretch(terrain.reflectance_if)
     scale = min(1.0, 1400.0 / max(terrain.shape))
     canvas = cv2.cvtColor(cv2.resize(view, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
     colours = [(0, 0, 255), (0, 200, 0), (255, 80, 0)]
-    for index, seed in enumerate(seeds):
-        result = render_descent_image(terrain, profile, camera, index, sun, config, np.random.default_rng(seed))
-        diag = result.diagnostics
-        dn = result.dn.astype(np.float32)
-        cv2.imwrite(str(args.out / f"image_{index}.png"), stretch(dn))
-        cv2.imwrite(str(args.out / f"image_{index}_display.png"),
-                    np.repeat(stretch(dn), camera.binning_rows, axis=0))
-        cv2.imwrite(str(args.out / f"radiance_{index}.png"), stretch(result.radiance.exposure))
+    for index, result in enumerate(rendered):
+        number, diag = index + 1, result.diagnostics
+        picture = stretch(result.dn.astype(np.float32))
+        cv2.imwrite(str(out / f"display_{number}.png"), picture)
+        cv2.imwrite(str(out / f"display_{number}_tall.png"), np.repeat(picture, camera.binning_rows, axis=0))
+        cv2.imwrite(str(out / f"radiance_{number}.png"), stretch(result.radiance.exposure))
         rows, cols = terrain.world_to_pixel(diag.footprint_m[diag.footprint_hit, 0], diag.footprint_m[diag.footprint_hit, 1])
         polygon = np.round(np.stack([cols, rows], axis=-1) * scale).astype(np.int32)
         cv2.polylines(canvas, [polygon], True, colours[index % 3], 2)
         row, col = terrain.world_to_pixel(diag.pose.position_m[0], diag.pose.position_m[1])
         cv2.drawMarker(canvas, (int(np.round(col * scale)), int(np.round(row * scale))), colours[index % 3],
                        cv2.MARKER_CROSS, 18, 2)
+    cv2.imwrite(str(out / "footprint.png"), canvas)
+
+
+def truth_record(profile: DescentProfile, rendered: list[DescentImage], sensor_errors: dict, seed: int,
+                 camera_path: Path, flat_field_source: str, replay: list[str]) -> dict:
+    """truth.json: the keys of ``campaign export``'s truth that exist outside a campaign."""
+    last = float(profile.image_times_s[-1])
+    velocity, wind = profile.pose(last).velocity_mps, profile.wind_at(last)
+    return _json_value({
+        "seed": seed, "profile": profile.name, "camera": str(camera_path), "flat_field_source": flat_field_source,
+        "truth_velocity_east_mps": float(velocity[0]), "truth_velocity_north_mps": float(velocity[1]),
+        "wind_east_mps": float(wind[0]), "wind_north_mps": float(wind[1]),
+        "altitude_image1_m": float(profile.pose(float(profile.image_times_s[0])).position_m[2]),
+        "altitude_image3_m": float(profile.pose(last).position_m[2]),
+        "heat_shield_in_view": [bool(r.diagnostics.heat_shield_visible) for r in rendered],
+        "outside_terrain_fraction": [float(r.outside_terrain_mask.mean()) for r in rendered],
+        "sensor_errors": sensor_errors, "replay": shlex.join(replay)})
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m simulator", description=__doc__.split("\n")[0])
+    parser.add_argument("--out", required=True, type=Path, help="output directory")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--camera", type=Path, default=ROOT / "sitedata" / "cameras" / "mer_a.toml")
+    parser.add_argument("--flat-field", choices=("calibrated", "none"), default="calibrated",
+                        help="write a simulated ground flat-field calibration (default) or none")
+    parser.add_argument("--display", action="store_true",
+                        help="also write stretched 8-bit pictures, radiance fields and the footprint map")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    camera = load_camera(args.camera)
+    terrain = crater_field(args.seed)
+    profile = example_profile()
+    sun = example_sun()
+    # children 0..2: images (as before), 3: sensors, 4: flat-field calibration (spawned children do not
+    # depend on the count)
+    seeds = np.random.SeedSequence(args.seed).spawn(len(profile.image_times_s) + 2)
+    count = len(profile.image_times_s)
+    rendered = [render_descent_image(terrain, profile, camera, index, sun, SceneConfig(),
+                                     np.random.default_rng(seeds[index])) for index in range(count)]
+    measurements, sensor_errors = measure(profile, camera, sun, SensorConfig(), np.random.default_rng(seeds[count]))
+    images = [args.out / name for name in IMAGE_NAMES[:count]]
+    for path, result in zip(images, rendered):
+        write_descent_image(path, result.dn)
+    (args.out / "measurements.json").write_text(json.dumps(measurements_to_dict(measurements), indent=1))
+    flat_path = args.out / FLAT_FIELD_NAME
+    if args.flat_field == "calibrated":
+        save_flat_field(flat_path, simulate_flat_field(camera, DEFAULT_FLAT_FRAMES,
+                                                       np.random.default_rng(seeds[count + 1])))
+    else:
+        flat_path.unlink(missing_ok=True)           # never leave another run's flat field beside the images
+    camera_path = args.camera.resolve()
+    replay = [sys.executable, "-m", "dimes_velocity", *(str(p.absolute()) for p in images),
+              str((args.out / "measurements.json").absolute()), "--camera", str(camera_path),
+              "--flat-field", str(flat_path.absolute()) if args.flat_field == "calibrated" else "none"]
+    record = truth_record(profile, rendered, sensor_errors, args.seed, camera_path,
+                          args.flat_field, replay)
+    (args.out / "truth.json").write_text(json.dumps(record, indent=1))
+    if args.display:
+        write_display(args.out, terrain, camera, rendered)
+    for index, result in enumerate(rendered, start=1):
+        diag = result.diagnostics
         print(f"image {index}: t = {diag.exposure_start_s:.2f} s, altitude {diag.pose.position_m[2]:.0f} m, "
-              f"mean DN {dn.mean():.0f}, sub-steps {diag.substeps}, heat shield in view: {diag.heat_shield_visible}, "
-              f"anti-sun pixel {None if diag.anti_sun_pixel is None else np.round(diag.anti_sun_pixel, 1).tolist()}, "
+              f"mean DN {result.dn.mean():.0f}, heat shield in view: {diag.heat_shield_visible}, "
               f"scene {diag.scene_ms:.0f} ms, camera {diag.camera_ms:.0f} ms")
-    cv2.imwrite(str(args.out / "footprint.png"), canvas)
-    print(f"written to {args.out}: image_K.png, image_K_display.png, radiance_K.png (K = 0..2), footprint.png")
+    written = ", ".join([*IMAGE_NAMES[:count], "measurements.json",
+                         *([FLAT_FIELD_NAME] if args.flat_field == "calibrated" else []), "truth.json"])
+    print(f"written to {args.out}: {written}" + (" and display_K.png, display_K_tall.png, radiance_K.png, "
+                                                 "footprint.png" if args.display else ""))
+    print(f"replay: {record['replay']}")
     return 0
 
 

@@ -175,16 +175,3 @@ def test_scene_config_from_toml(tmp_path):
     path.write_text("[scene.effects]\nshadow = false\n")
     with pytest.raises(ConfigError, match="scene.effects.shadow is not a known field"):
         parse(SceneConfig, load_toml(path)["scene"], path, "scene")
-
-
-def test_example_command_writes_the_pngs(tmp_path):
-    import cv2
-
-    from simulator import __main__ as example
-    assert example.main(["--out", str(tmp_path), "--seed", "2"]) == 0
-    image = cv2.imread(str(tmp_path / "image_0.png"), cv2.IMREAD_UNCHANGED)
-    assert image.shape == (256, 1024) and image.std() > 5
-    assert cv2.imread(str(tmp_path / "radiance_2.png"), cv2.IMREAD_UNCHANGED).shape == (1024, 1024)
-    footprint = cv2.imread(str(tmp_path / "footprint.png"))
-    red = (footprint[..., 2] == 255) & (footprint[..., 1] == 0) & (footprint[..., 0] == 0)
-    assert red.sum() > 500          # the first image's footprint outline is drawn
