@@ -148,6 +148,25 @@ def full_frame(binned: np.ndarray, offset: int = 20) -> np.ndarray:
     return (frame + offset).astype(np.uint16)
 
 
+def test_8_bit_full_frame_stretch_is_refused_with_its_reason(case_files, mer_a_path, tmp_path, capsys):
+    """A full frame stretched to 8 bits (0..255) read with --bits 8 would be saturated above value 76:
+    exit 2, one line giving the reason and the --dn-scale that states the range; with it, the CLI runs."""
+    paths, measurements, _, descent = case_files
+    frames = []
+    for k, image in enumerate(descent.images):
+        frame = full_frame(image).astype(np.float64)
+        frames.append(tmp_path / f"stretch{k}.png")
+        cv2.imwrite(str(frames[-1]), np.round(frame * 255.0 / 1220.0).clip(0, 255).astype(np.uint8))
+    code, out, err = run_cli([*frames, measurements, "--camera", mer_a_path, "--bits", "8"], capsys)
+    assert one_line_error(code, out, err), err
+    assert f"{frames[0]}: full frame at --bits 8" in err and "one full-frame pixel saturates at 1220 DN" in err
+    code, out, err = run_cli([*frames, measurements, "--camera", mer_a_path, "--dn-scale", str(1220 / 255),
+                              "--summary"], capsys)
+    assert code == 0, err
+    assert set(json.loads(out)) == {"velocity_east_mps", "velocity_north_mps", "valid", "reason",
+                                    "velocity_uncertainty_mps", "imu_bias_east_mps", "imu_bias_north_mps"}
+
+
 def test_full_frame_16_bit_triple_runs_and_prints_json(case_files, mer_a_path, tmp_path, capsys):
     paths, measurements, _, descent = case_files
     frames = []

@@ -87,6 +87,30 @@ def test_8_bit_needs_a_declaration_then_is_the_top_8_bits(mer_a, tmp_path):
         read_descent_image(path, mer_a, ImageDeclaration(bits=12))
 
 
+def test_8_bit_full_frame_holds_the_top_bits_only_up_to_a_pixels_saturation(mer_a, tmp_path):
+    """One full-frame pixel saturates at 180000 e- / 150 e-/DN + 20 = 1220 DN, whose top 8 bits are
+    1220 // 16 = 76: a value above 76 cannot be the top 8 bits of the DN and is refused (one line, the
+    --dn-scale that states the file's range named); a file within 0..76 is read as declared."""
+    path = tmp_path / "full8.png"
+    frame = np.full((1024, 1024), 50, np.uint8)
+    frame[8, 3] = 76                                          # at the top: saturated pixel
+    cv2.imwrite(str(path), frame)
+    image = read_descent_image(path, mer_a, ImageDeclaration(bits=8))
+    assert image.full_frame and image.dn[0, 0] == 4 * (50 * 16 - OFFSET) + OFFSET == 3140
+    assert image.dn[2, 3] == MAX_DN                               # the block of row 8 holds the saturated pixel
+    frame[100, 200] = 77                                          # 77 x 16 = 1232 DN: more than a pixel holds
+    cv2.imwrite(str(path), frame)
+    with pytest.raises(InputFileError) as info:
+        read_descent_image(path, mer_a, ImageDeclaration(bits=8))
+    message = str(info.value)
+    assert message.startswith(f"{path}: full frame at --bits 8: value 77 would be 1232 DN") and "\n" not in message
+    assert "saturates at 1220 DN (value 76 at --bits 8" in message and "--dn-scale 4.784" in message
+    stretched = read_descent_image(path, mer_a, ImageDeclaration(dn_scale=1220 / 255))   # the stated range
+    assert stretched.dn[0, 0] == pytest.approx(4 * (50 * 1220 / 255 - OFFSET) + OFFSET, rel=1e-6)
+    cv2.imwrite(str(tmp_path / "binned8.png"), frame[:256])       # a binned pixel holds 4 pixels' charge: no limit
+    assert read_descent_image(tmp_path / "binned8.png", mer_a, ImageDeclaration(bits=8)).dn[100, 200] == 77 * 16
+
+
 def test_16_bit_values_beyond_the_camera_range_need_bits_16(mer_a, tmp_path):
     values = np.random.default_rng(3).integers(0, 65535, size=(256, 1024)).astype(np.uint16)
     path = tmp_path / "full_range.png"
