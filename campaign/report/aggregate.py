@@ -1,9 +1,11 @@
 """The paper's Tables 1 and 2: per appearance class cases, valid cases, % valid and velocity error
 (mean + 3 sigma over valid cases), then ellipse-fraction weighted % valid and error for the site.
 
-Weighted columns follow the paper: a class contributes ``fraction * %valid`` and
-``fraction * (mean + 3 sigma)``; the site's weighted figures are the sums over its classes
-(Gusev: 0.59 * 3.90 + 0.41 * 3.48 + 0 * 3.29 = 3.73 m/s).
+Weighted figures follow the paper: the site's ellipse-weighted % valid and error are
+``sum(fraction * class value) / sum(fraction)`` over the classes with a positive fraction (Gusev:
+0.59 * 3.90 + 0.41 * 3.48 + 0 * 3.29 = 3.73 m/s). A class's ``weighted_*`` columns in the data frame
+are its contribution ``fraction * value``; the printed table never shows a contribution as a class's %
+valid: a class row shows the class's own % valid (valid/ran), the site row the weighted figures.
 
 Beside every % valid the table counts the false-valid cases (valid, horizontal error above
 ``[campaign] false_valid_mps``, default 5 m/s, the DIMES requirement) and gives the worst error
@@ -12,6 +14,7 @@ of a valid case: a velocity flagged valid but wrong is what the lander must neve
 from __future__ import annotations
 
 import math
+import textwrap
 
 import numpy as np
 import pandas as pd
@@ -82,12 +85,24 @@ def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: st
         "false_valid": int(table["false_valid"].sum()),
         "worst_valid_error_mps": float(table["worst_valid_error_mps"].max()) if table["worst_valid_error_mps"].notna().any() else math.nan,
         "ellipse_fraction": float(table["ellipse_fraction"].sum()),
-        "weighted_pct_valid": float(table["weighted_pct_valid"].sum(min_count=len(table))),
-        "weighted_error_mps": float(table["weighted_error_mps"].sum(min_count=len(table))),
+        "weighted_pct_valid": weighted_mean(table["ellipse_fraction"], table["pct_valid"]),
+        "weighted_error_mps": weighted_mean(table["ellipse_fraction"], table["error_mean_3sigma_mps"]),
     }
     table = pd.concat([table, pd.DataFrame([total])], ignore_index=True)
     table.attrs["false_valid_mps"] = float(false_valid_mps)
     return table
+
+
+def weighted_mean(fractions: pd.Series, values: pd.Series) -> float:
+    """``sum(fraction * value) / sum(fraction)`` over the classes with a positive ellipse fraction (NaN when
+    one of them has no value, e.g. no case ran, or when no class has a positive fraction)."""
+    weights = fractions.to_numpy(dtype=float)
+    numbers = values.to_numpy(dtype=float)
+    inside = weights > 0.0
+    if not inside.any() or np.isnan(numbers[inside]).any():
+        return math.nan
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(np.sum(weights[inside] * numbers[inside]) / np.sum(weights[inside]))
 
 
 def _weighted(fraction: float, value: float) -> float:
@@ -97,25 +112,43 @@ def _weighted(fraction: float, value: float) -> float:
 
 
 def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
-    """Human-readable table (plain text, or GitHub Markdown)."""
+    """Human-readable table (plain text, or GitHub Markdown); its footer is :data:`TABLE_NOTE`.
+
+    A class row gives the class's own % valid with its denominator, ``valid/ran`` (ran = cases - failed);
+    the last (site) row gives the ellipse-weighted % valid and error (:func:`weighted_mean`) and the
+    summed counts. False-valid stands next to every % valid."""
     threshold = table.attrs.get("false_valid_mps", FALSE_VALID_MPS)
-    headers = ["Class", "Cases", "Valid", "Failed", "% valid", "Error m/s (mean+3s)", f"False-valid (>{threshold:g} m/s)",
-               "Worst valid m/s", "% ellipse", "Weighted % valid", "Weighted error m/s"]
+    headers = ["Class", "Cases", "Valid", "Failed", "% valid (valid/ran)", f"False-valid (>{threshold:g} m/s)",
+               "Error m/s mean+3s", "Worst valid m/s", "% ellipse"]
     body = []
-    for _, row in table.iterrows():
+    last = len(table) - 1
+    for position, (_, row) in enumerate(table.iterrows()):
+        site = position == last
+        if site:
+            pct = format_number(row["weighted_pct_valid"], "{:.1f}%") + " weighted"
+            error = format_number(row["weighted_error_mps"], "{:.2f}") + " weighted"
+        else:
+            ran = int(row["cases"]) - int(row["failed"])
+            pct = format_number(row["pct_valid"], "{:.1f}%") + f" ({int(row['valid'])}/{ran})"
+            error = format_number(row["error_mean_3sigma_mps"], "{:.2f}")
         body.append([
-            str(row["class"]), str(int(row["cases"])), str(int(row["valid"])), str(int(row["failed"])),
-            format_number(row["pct_valid"], "{:.0f}%"), format_number(row["error_mean_3sigma_mps"], "{:.2f}"),
-            str(int(row["false_valid"])), format_number(row["worst_valid_error_mps"], "{:.2f}"),
-            format_number(100 * row["ellipse_fraction"], "{:.0f}%"), format_number(row["weighted_pct_valid"], "{:.0f}%"),
-            format_number(row["weighted_error_mps"], "{:.2f}"),
+            str(row["class"]), str(int(row["cases"])), str(int(row["valid"])), str(int(row["failed"])), pct,
+            f"{int(row['false_valid'])}/{int(row['valid'])}", error, format_number(row["worst_valid_error_mps"], "{:.2f}"),
+            format_number(100 * row["ellipse_fraction"], "{:.0f}%"),
         ])
     return render_grid(headers, body, markdown)
 
 
-TABLE_NOTE = ("denominators: % valid = valid / (cases - failed); false-valid and worst valid over the valid rows; "
-              "error = mean + 3 sigma (sample sigma, ddof=1) over the valid rows with a finite error; failed rows "
-              "(the case's simulation or the estimator failed) enter none of them, only Failed")
+NOTE_WIDTH = 118
+"""Footers are wrapped to this many characters (every printed line within 120 columns)."""
+SIGMA_NOTE = ("error = mean + 3 sigma of the horizontal velocity error over the valid cases with a finite error, "
+              "sigma the sample standard deviation (ddof=1, n-1 in the denominator; 0 for a single case), not "
+              "the population one (ddof=0)")
+TABLE_NOTE = textwrap.fill("denominators: % valid = valid / (cases - failed) (shown as valid/ran); false-valid = valid cases with an error "
+              "above the threshold / valid cases; worst valid over the valid cases; " + SIGMA_NOTE + "; site row: "
+              "% valid and error ellipse-weighted, sum(fraction * class value) / sum(fraction) over the classes "
+              "with a positive ellipse fraction, counts summed; failed rows (the case's simulation or the "
+              "estimator failed) enter none of them, only Failed", NOTE_WIDTH)
 
 
 def render_grid(headers: list[str], body: list[list[str]], markdown: bool = False) -> str:
@@ -124,8 +157,11 @@ def render_grid(headers: list[str], body: list[list[str]], markdown: bool = Fals
         lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
         return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in body])
     widths = [max(len(h), *(len(cells[i]) for cells in body)) for i, h in enumerate(headers)]
-    lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths))]
-    return "\n".join(lines + ["  ".join(c.rjust(w) for c, w in zip(cells, widths)) for cells in body])
+
+    def line(cells: list[str]) -> str:     # first column (the class) left-aligned, numbers right-aligned
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return "\n".join([line(headers)] + [line(cells) for cells in body])
 
 
 def format_number(value, pattern: str) -> str:

@@ -8,11 +8,12 @@ pluggable) count as the reference estimator ``dimes``.
 """
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass
 
 import pandas as pd
 
-from campaign.report.aggregate import FALSE_VALID_MPS, TABLE_NOTE, format_number, render_grid, site_table
+from campaign.report.aggregate import FALSE_VALID_MPS, NOTE_WIDTH, TABLE_NOTE, format_number, render_grid, site_table
 
 DEFAULT_ESTIMATOR = "dimes"
 COMPARISON_COLUMNS = ["estimator", "class", "cases", "valid", "failed", "pct_valid", "false_valid",
@@ -53,32 +54,85 @@ def comparison_table(results: pd.DataFrame, fractions: dict[str, float], site_na
     return table
 
 
-def format_comparison(table: pd.DataFrame, markdown: bool = False) -> str:
-    """One row per class (and the site's weighted row); per estimator: % valid, false-valid, error."""
+LINE_WIDTH = 120
+"""The side-by-side comparison is split into blocks of estimators so that no printed line is wider."""
+GROUP_COLUMNS = ("% valid", "false-valid", "worst", "err")
+"""Column headings of an estimator's group (worst valid error and error mean + 3 sigma in m/s)."""
+
+
+def comparison_cells(table: pd.DataFrame, name: str, class_name: str, site: bool) -> list[str]:
+    """One estimator's cells for one class (or the site's weighted row): % valid with its denominator
+    (valid/ran), false-valid / valid, worst valid error, error mean + 3 sigma (m/s)."""
+    row = table[(table["estimator"] == name) & (table["class"] == class_name)].iloc[0]
+    if site:
+        pct = format_number(row["weighted_pct_valid"], "{:.1f}%")
+        error = format_number(row["weighted_error_mps"], "{:.2f}")
+    else:
+        ran = int(row["cases"]) - int(row["failed"])
+        pct = format_number(row["pct_valid"], "{:.1f}%") + f" ({int(row['valid'])}/{ran})"
+        error = format_number(row["error_mean_3sigma_mps"], "{:.2f}")
+    return [pct, f"{int(row['false_valid'])}/{int(row['valid'])}", format_number(row["worst_valid_error_mps"], "{:.2f}"),
+            error]
+
+
+def format_comparison(table: pd.DataFrame, markdown: bool = False, width: int = LINE_WIDTH) -> str:
+    """One row per class (and the site's weighted row); per estimator a group of columns: % valid
+    (valid/ran; site: ellipse-weighted), false-valid / valid, worst valid error and error
+    mean + 3 sigma (m/s). Plain text names each estimator on a line above its group and packs the
+    groups into blocks each within ``width`` characters (one estimator per block when two do not fit;
+    a name longer than its group is cut with "~" there and given in full on the block's title line).
+    Markdown gives the same blocks, each a table whose first group column names the estimator."""
     names = list(dict.fromkeys(table["estimator"]))
     classes = list(dict.fromkeys(table["class"]))
-    headers = ["Class"]
+    if not names:
+        return ""
+    site = classes[-1]
+    labels = [c if c != site else f"{site} (weighted)" for c in classes]
+    cells = {name: [comparison_cells(table, name, c, c == site) for c in classes] for name in names}
+    label_width = max(len("Class"), *(len(label) for label in labels))
+    widths = {name: [max(len(h), *(len(row[i]) for row in cells[name])) for i, h in enumerate(GROUP_COLUMNS)]
+              for name in names}
+
+    def group_width(name: str) -> int:      # its columns and the two spaces before each
+        return sum(w + 2 for w in widths[name])
+
+    blocks: list[list[str]] = []
     for name in names:
-        headers += [f"{name} % valid", f"{name} false-valid", f"{name} worst valid m/s", f"{name} err m/s"]
-    body = []
-    site = classes[-1] if classes else ""
-    for class_name in classes:
-        cells = [class_name if class_name != site else f"{site} (weighted)"]
-        for name in names:
-            row = table[(table["estimator"] == name) & (table["class"] == class_name)].iloc[0]
-            if class_name == site:
-                cells += [format_number(row["weighted_pct_valid"], "{:.0f}%"), f"{int(row['false_valid'])}/{int(row['valid'])}",
-                          format_number(row["worst_valid_error_mps"], "{:.2f}"), format_number(row["weighted_error_mps"], "{:.2f}")]
-            else:
-                cells += [format_number(row["pct_valid"], "{:.0f}%"), f"{int(row['false_valid'])}/{int(row['valid'])}",
-                          format_number(row["worst_valid_error_mps"], "{:.2f}"), format_number(row["error_mean_3sigma_mps"], "{:.2f}")]
-        body.append(cells)
-    return render_grid(headers, body, markdown)
+        if blocks and label_width + sum(group_width(n) for n in blocks[-1]) + group_width(name) <= width:
+            blocks[-1].append(name)
+        else:
+            blocks.append([name])
+    texts = []
+    for number, block in enumerate(blocks, start=1):
+        cut = any(len(name) > group_width(name) - 2 for name in block)
+        title = (f"estimators {', '.join(block)} (block {number} of {len(blocks)})"
+                 if len(blocks) > 1 or cut else "")
+        body = [[label] + [cell for name in block for cell in cells[name][k]] for k, label in enumerate(labels)]
+        if markdown:
+            headers = ["Class"] + [h + " m/s" * (i > 1) if i else f"{name} {h}" for name in block
+                                   for i, h in enumerate(GROUP_COLUMNS)]
+            grid = render_grid(headers, body, markdown=True)
+            texts.append((title + "\n\n" if title else "") + grid)
+            continue
+        column_widths = [label_width] + [w for name in block for w in widths[name]]
+        group_line = " " * label_width
+        for name in block:
+            room = group_width(name) - 2
+            shown = f"{name} (worst, err: m/s)" if len(name) + 21 <= room else name
+            shown = shown if len(shown) <= room else name[:room - 1] + "~"
+            group_line += "  " + shown.ljust(room, "-" if len(name) < room else " ")
+        lines = [group_line.rstrip()]
+        for row in [["Class", *[h for _ in block for h in GROUP_COLUMNS]], *body]:
+            lines.append("  ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                                   for i, (c, w) in enumerate(zip(row, column_widths))).rstrip())
+        texts.append("\n".join(([title] if title else []) + lines))
+    return ("\n\n" if markdown else "\n").join(texts)
 
 
-COMPARISON_NOTE = ("false-valid: valid cases with a velocity error above [campaign] false_valid_mps "
-                   f"(default {FALSE_VALID_MPS:g} m/s), of the valid cases; worst valid: the largest error of a "
-                   "valid case; err: mean + 3 sigma over valid cases (site row: ellipse-weighted); " + TABLE_NOTE)
+COMPARISON_NOTE = TABLE_NOTE + "\n" + textwrap.fill(
+    "false-valid: valid cases with a velocity error above [campaign] false_valid_mps "
+    f"(default {FALSE_VALID_MPS:g} m/s) / valid cases; worst valid: the largest error of a valid case; err: mean + 3 "
+    "sigma over valid cases (site row: ellipse-weighted, as % valid).", NOTE_WIDTH)
 
 
 @dataclass(frozen=True)

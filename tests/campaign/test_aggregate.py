@@ -73,3 +73,47 @@ def test_flight_metrics_table_summarises_templates_per_class():
     assert "| 10 |" in line and "1004 [1001-1008]" in line and "14.5 [10.9-18.1]" in line
     assert "0.900 [0.900-0.900]" in line                      # the failed match's 0.1 is not a correlation
     assert "| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 0.88, 0.91, 1.00 |" in text
+
+
+def _site_row_cells(text: str, site: str) -> list[str]:
+    return [line for line in text.splitlines() if line.startswith(site)][0].split()
+
+
+def test_class_rows_show_their_own_pct_valid_and_the_site_row_the_weighted_one():
+    # gcp 3/3 valid (100 %), gdcp 1 of 2 ran valid (50 %, one failed), gkep outside the ellipse, 0/2 valid
+    results = pd.DataFrame(_rows("gcp", [1.0, 2.0, 3.0]) + _rows("gdcp", [6.0], invalid=1, failed=1)
+                           + _rows("gkep", [], invalid=2))
+    fractions = {"gcp": 0.59, "gdcp": 0.41, "gkep": 0.0}
+    table = site_table(results, fractions, "Gusev")
+    text = format_table(table)
+    lines = {line.split()[0]: line for line in text.splitlines()[1:]}
+    cells = lines["gcp"].split()         # class cases valid failed %valid (v/ran) false-valid error worst %ellipse
+    assert cells[4:6] == ["100.0%", "(3/3)"] and cells.count("59%") == 1 and cells[-1] == "59%"   # 59 %: ellipse only
+    assert "50.0% (1/2)" in lines["gdcp"] and "0.0% (0/2)" in lines["gkep"]
+    # site: sum(weight * pct) / sum(weight) over classes inside the ellipse = (0.59*100 + 0.41*50) / 1.0
+    expected = (0.59 * 100.0 + 0.41 * 50.0) / (0.59 + 0.41)
+    assert table.iloc[-1]["weighted_pct_valid"] == pytest.approx(expected)
+    assert f"{expected:.1f}% weighted" in lines["Gusev"]
+    # false-valid next to every % valid, over the valid cases: gdcp's 6 m/s valid case is false-valid
+    assert _site_row_cells(text, "gdcp")[6] == "1/1" and _site_row_cells(text, "Gusev")[6] == "1/4"
+    # error: mean + 3 sample sigma of gcp's [1, 2, 3] = 2 + 3 * 1 = 5.00; site weighted (0.59*5 + 0.41*6)
+    assert "5.00" in lines["gcp"] and f"{0.59 * 5.0 + 0.41 * 6.0:.2f} weighted" in lines["Gusev"]
+
+
+def test_weighted_site_row_divides_by_the_sum_of_the_weights():
+    # fractions not summing to 1 (2 and 1): (2 * 100 + 1 * 0) / 3
+    results = pd.DataFrame(_rows("a", [1.0]) + _rows("b", [], invalid=1))
+    table = site_table(results, {"a": 2.0, "b": 1.0}, "site")
+    assert table.iloc[-1]["weighted_pct_valid"] == pytest.approx(200.0 / 3.0)
+
+
+def test_table_footer_states_the_sigma_convention_and_denominators():
+    from campaign.report.aggregate import TABLE_NOTE
+
+    note = " ".join(TABLE_NOTE.split())
+    assert "sample standard deviation (ddof=1" in note and "population" in note
+    assert "mean + 3 sigma of the horizontal velocity error over the valid cases" in note
+    assert "% valid = valid / (cases - failed)" in note
+    assert max(len(line) for line in TABLE_NOTE.splitlines()) <= 120
+    # the convention is the one computed: [1, 3] has sample sigma sqrt(2), population sigma 1
+    assert mean_plus_3_sigma(np.array([1.0, 3.0])) == pytest.approx(2.0 + 3.0 * math.sqrt(2.0))

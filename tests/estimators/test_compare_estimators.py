@@ -48,7 +48,9 @@ def test_example_has_both_estimators_for_every_case_and_table_prints_both(exampl
     assert list(timings.columns[:2]) == ["case_id", "estimator"] and len(timings) == len(results)
     table = _campaign("table", example_run).stdout
     assert "estimator dimes:" in table and "estimator phase_correlation:" in table
-    assert "dimes false-valid" in table and "phase_correlation % valid" in table
+    side_by_side = table.split("estimators side by side:")[1]      # estimator names head their column groups
+    assert "dimes (worst, err: m/s)" in side_by_side and "phase_correlation (worst, err: m/s)" in side_by_side
+    assert side_by_side.splitlines()[2].split().count("false-valid") == 2
     csv = pd.read_csv(example_run / "table.csv")
     assert set(csv["estimator"]) == {"dimes", "phase_correlation"} and "false_valid" in csv.columns
 
