@@ -21,10 +21,13 @@ Image files: ``image_format`` ``png`` (16-bit grey), ``npy``, or ``raw`` (little
 header, ``camera.binned_shape``). Failures (one line each, recorded as the estimator's failed result):
 ``timeout: no result within T s`` (the program's whole process group is killed), ``exit status N: <last
 line of stderr>``, ``killed by signal NAME``, ``wrote no result file``, ``result file is not valid
-JSON``, and any contract violation of the result.
+JSON``, and any contract violation of the result. A program that cannot be started at all (missing,
+not executable, not a program: ``ENOENT``, ``EACCES``, ``ENOEXEC``) raises :class:`ProgramNotRunnable`
+instead: that is the worker's set-up, not the case (:mod:`estimators.plugins`).
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -49,6 +52,12 @@ IMAGE_NAME = re.compile(r"^image([1-9][0-9]*)$")
 FLAT_SUFFIX = {"npy": ".npy", "tiff": ".tif", "fits": ".fits"}
 IMAGE_SUFFIX = {"png": ".png", "npy": ".npy", "raw": ".raw"}
 STDERR_TAIL = 300
+#: errno values of a program that cannot be started at all (set-up, not a case's failure)
+NOT_RUNNABLE_ERRNOS = frozenset({errno.ENOENT, errno.EACCES, errno.ENOEXEC, errno.ENOTDIR})
+
+
+class ProgramNotRunnable(Exception):
+    """The command's program cannot be started on this machine (one line: program and why)."""
 
 
 def check_template(argv: list[str]) -> str:
@@ -116,8 +125,11 @@ class CommandEstimator:
     """Runs an external program per case (see the module docstring)."""
 
     def __init__(self, name: str, argv: tuple, timeout_s: float, image_format: str = "png",
-                 flat_field_format: str = "npy", parameters: dict | None = None):
+                 flat_field_format: str = "npy", parameters: dict | None = None,
+                 python_path: tuple[str, ...] = ()):
         self.name = name
+        #: entries put before PYTHONPATH for the program (where an isolated python plug-in was found)
+        self.python_path = tuple(python_path)
         self.parameters = dict(parameters or {})
         self.argv = tuple(argv)
         self.timeout_s = float(timeout_s)
@@ -143,10 +155,16 @@ class CommandEstimator:
             shutil.rmtree(directory, ignore_errors=True)
 
     def _run(self, command: list[str], directory: Path) -> None:
+        environment = None
+        if self.python_path:
+            environment = {**os.environ, "PYTHONPATH": os.pathsep.join(
+                [*self.python_path, *filter(None, [os.environ.get("PYTHONPATH")])])}
         try:
             process = subprocess.Popen(command, cwd=directory, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                       stderr=subprocess.PIPE, start_new_session=True)
+                                       stderr=subprocess.PIPE, start_new_session=True, env=environment)
         except OSError as exc:
+            if exc.errno in NOT_RUNNABLE_ERRNOS:
+                raise ProgramNotRunnable(f"cannot start {command[0]!r}: {exc.strerror or exc}") from None
             raise ContractViolation(f"cannot start {command[0]!r}: {exc.strerror or exc}") from None
         try:
             _, stderr = process.communicate(timeout=self.timeout_s)

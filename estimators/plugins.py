@@ -6,18 +6,28 @@
 (``SystemExit`` and ``KeyboardInterrupt`` included), a non-zero exit or a timeout becomes an
 :class:`EstimatorRun` with ``output = None``, ``failure = "estimator_failed"`` and a one-line ``error``;
 an implausible answer (:func:`estimators.contract.check_plausible`) the same with ``failure = "implausible"``.
+
+*Set-up* is not a case's failure: building an estimator (importing a python plug-in's module, a
+reference estimator's parameters, a command's program that is missing or not executable in this
+process's machine) raises :class:`EstimatorSetupError` from :func:`build_estimator`, and a command
+whose program cannot be started (``ENOENT``, ``EACCES``, ``ENOEXEC``) raises it from
+:func:`run_estimator`: the campaign stops the run instead of recording failed rows.
 """
 from __future__ import annotations
 
 import copy
 import importlib
+import os
+import shutil
+import sys
 import time
 import traceback
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 from dimes_velocity.config import estimator_config_from_data
 from dimes_velocity.estimator import estimate_velocity
-from estimators.command import CommandEstimator
+from estimators.command import CommandEstimator, ProgramNotRunnable
 from estimators.contract import (
     ContractViolation,
     EstimatorInputs,
@@ -63,19 +73,85 @@ class PythonEstimator:
         return validate_output(self.function(replace(inputs, parameters=copy.deepcopy(self.parameters))))
 
 
+class EstimatorSetupError(Exception):
+    """An estimator cannot be loaded or started in this process (one line: estimator, error, fix); not a
+    case's failure: the campaign stops the run and records nothing for the cases it could not run."""
+
+
+def setup_fix(spec: EstimatorSpec) -> str:
+    """What makes ``spec`` loadable on a worker (the last part of a set-up error's line)."""
+    if spec.kind == "python":
+        module = spec.callable.split(":")[0]
+        return (f"make {module!r} and what it imports importable on every worker: a module file or package "
+                "outside site-packages is shipped to the workers by the campaign, its dependencies must be "
+                "installed there (see docs/estimators.md, where a plug-in module may live)")
+    if spec.kind == "command":
+        return (f"install {spec.argv[0]!r} at that path (or on PATH) with execute permission on every worker, "
+                "or use {config_dir} on a file system the workers share")
+    return "fix the estimator's parameters"
+
+
+def _describe(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"[:300]
+
+
 def build_estimator(spec: EstimatorSpec):
-    """The estimator object of a spec (built once per worker process by the campaign)."""
+    """The estimator object of a spec (built once per worker process by the campaign).
+
+    Raises
+    ------
+    EstimatorSetupError
+        When the estimator cannot be built here: a python module that does not import (or lacks the
+        callable), bad reference parameters, a command program that is missing or not executable."""
+    try:
+        return _build(spec)
+    except EstimatorSetupError:
+        raise
+    except BaseException as exc:  # noqa: B036 -- a plug-in's import may raise anything, SystemExit included
+        raise EstimatorSetupError(f"estimator {spec.name}: cannot be set up: {_describe(exc)}; "
+                                  f"{setup_fix(spec)}") from None
+
+
+def _build(spec: EstimatorSpec):
     if spec.kind == "reference":
         return ReferenceEstimator(spec.name, spec.parameters)
     if spec.kind == "python" and not spec.isolate:
         return PythonEstimator(spec.name, spec.callable, spec.parameters)
     if spec.kind == "python":
+        # imported here too: a module this process cannot import is a set-up error, not a failed row per
+        # case; its root (a directory or a shipped zip) goes on the child interpreter's PYTHONPATH
+        PythonEstimator(spec.name, spec.callable, spec.parameters)
         argv = ("{python}", "-m", "estimators.run_python", spec.callable, "--measurements", "{measurements}",
                 "--camera", "{camera}", "--flat-field", "{flat_field}", "--parameters", "{parameters}",
                 "--output", "{output}", "{images}")
-        return CommandEstimator(spec.name, argv, spec.timeout_s, "npy", "npy", spec.parameters)
+        return CommandEstimator(spec.name, argv, spec.timeout_s, "npy", "npy", spec.parameters,
+                                python_path=module_root(spec.callable.split(":")[0]))
+    check_program(spec.argv[0])
     return CommandEstimator(spec.name, spec.argv, spec.timeout_s, spec.image_format, spec.flat_field_format,
                             spec.parameters)
+
+
+def module_root(module_name: str) -> tuple[str, ...]:
+    """The sys.path entry a (imported) module was found under: its file's directory, up one level per
+    dot of the name (a directory or a zip archive); () for a module without a file."""
+    found = getattr(sys.modules.get(module_name), "__file__", None)
+    if not found:
+        return ()
+    path = Path(found)
+    levels = module_name.count(".") + (1 if path.name == "__init__.py" else 0)
+    return (str(path.parents[levels]),)
+
+
+def check_program(program: str) -> None:
+    """Raise EstimatorSetupError unless ``program`` (argv[0] of a command) runs here: ``{python}``, a
+    program on PATH or an executable file."""
+    if program == "{python}" or shutil.which(program) is not None:
+        return
+    path = Path(program)
+    if not path.is_file():
+        raise FileNotFoundError(f"{program!r} is not an executable file or a program on PATH on this machine")
+    if not os.access(path, os.X_OK):
+        raise PermissionError(f"{program!r} is not executable (no execute permission)")
 
 
 @dataclass(frozen=True)
@@ -95,13 +171,17 @@ def run_estimator(name: str, estimator, inputs: EstimatorInputs,
     """Run ``estimator`` on read-only ``inputs`` and check its answer's plausibility (a valid horizontal
     speed below ``max_horizontal_speed_mps``, None: no bound); any failure is returned as the run's
     ``failure`` and ``error``, never raised: whatever the plug-in raises, ``SystemExit`` and
-    ``KeyboardInterrupt`` included, ends here and the worker goes on."""
+    ``KeyboardInterrupt`` included, ends here and the worker goes on. Only a command's program that
+    cannot be started at all raises (:class:`EstimatorSetupError`): that is set-up, not the case."""
     started = time.perf_counter()
     failure = "estimator_failed"
     try:
         output = estimator.estimate(read_only_inputs(inputs))
         output = check_plausible(validate_output(output), max_horizontal_speed_mps)
         error, failure = "", ""
+    except ProgramNotRunnable as exc:
+        raise EstimatorSetupError(f"estimator {name}: cannot be set up: {exc}; install the program with execute "
+                                  "permission on every worker") from None
     except ImplausibleOutput as exc:
         output, error, failure = None, f"estimator {name}: implausible: {exc}"[:500], "implausible"
     except ContractViolation as exc:

@@ -16,6 +16,7 @@ import pandas as pd
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
 from campaign.plan.coverage import refusal
+from campaign.plan.density import footprint_density
 from campaign.plan.placement import ClassPlanInput, plan_class
 from campaign.report.aggregate import format_table, site_table
 from campaign.report.compare import (
@@ -32,10 +33,12 @@ from campaign.run.case import PlanRow
 from campaign.run.cluster import connected_client, require_backend
 from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
 from campaign.run.faults import RunStopped
+from campaign.run.plugin_setup import PluginSetupError, ship_plugin_code
 from campaign.run.worker import CampaignContext, load_resources
 from campaign.store.campaign_store import CampaignStore, StoreError
 from flight_interface.tomlfields import ConfigError
 
+FOOTPRINTS_DRAWN = 60   # outlines drawn on a footprint map; every case is in its density layer
 PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pyarrow",
             "opencv-contrib-python-headless")
 
@@ -73,6 +76,7 @@ def manifest_for(config: CampaignConfig) -> dict:
     return {
         "config_file": str(config.source), "config_hash": config.config_hash, "config": config.resolved,
         "seed": config.seed, "site": config.site.name, "cases_per_class": config.cases_per_class,
+        "estimators": config.estimator_names,     # what every case file records (campaign.store.case_identity)
         "ellipse_fractions": {entry.name: entry.ellipse_fraction for entry in config.site.classes},
         "python": platform.python_version(), "packages": versions,
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -137,7 +141,8 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, fr
     with :func:`~campaign.run.cluster.require_backend`): check every store read-only (StoreError: another configuration, corrupt manifest, ... unless
     ``fresh``), take every store's lock in path order (:class:`~campaign.store.lock.StoreBusy` when
     another writer holds one, unless ``wait``), check again under the locks, start or connect to the
-    cluster, and only then prepare the stores (with ``fresh``: move an old store aside to
+    cluster, ship the python plug-ins' code to its workers (:mod:`campaign.run.plugin_setup`; a worker that
+    cannot import one stops the run before any store changes), and only then prepare the stores (with ``fresh``: move an old store aside to
     ``DIR.previous-<UTC time>``; ``on_note`` gets one line per action), reject bad case files and run all
     missing cases together. A store is compacted when it ran cases or its results are not up to date.
 
@@ -175,6 +180,10 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, fr
         done = failed = 0
         try:
             with connected_client(execution) as client:
+                try:     # before any store changes: a worker that cannot import a plug-in changes nothing
+                    ship_plugin_code(client, [spec for point in points for spec in point.config.estimators])
+                except PluginSetupError as problem:
+                    raise RunStopped(f"run stopped before any case ran: {problem}") from None
                 for point, store in zip(points, stores):
                     for line in store.prepare(point.manifest, point.plan, fresh=fresh):
                         on_note(line)
@@ -263,8 +272,11 @@ def write_table(root: Path, false_valid_mps: float | None = None) -> str:
         text += ["estimators side by side:", format_comparison(comparison), COMPARISON_NOTE]
         markdown += ["### Estimators side by side", "", format_comparison(comparison, markdown=True), "",
                      COMPARISON_NOTE, ""]
-    (store.root / "table.md").write_text("\n".join(markdown) + "\n")
-    comparison.to_csv(store.root / "table.csv", index=False)
+    try:
+        (store.root / "table.md").write_text("\n".join(markdown) + "\n")
+        comparison.to_csv(store.root / "table.csv", index=False)
+    except OSError as exc:      # a read-only store (an archive, a read-only mount): printed, not written
+        text.append(f"note: table.md and table.csv not written in {store.root}: {exc.strerror or exc}")
     return "\n".join(text)
 
 
@@ -274,10 +286,13 @@ def write_plan_maps(config: CampaignConfig, resources, plan: pd.DataFrame, out_d
     paths = []
     for class_name, members in plan.groupby("class_name", sort=False):
         terrain = resources.terrain(class_name)
-        placed = [resources.placed_profile(PlanRow.from_record(row)) for row in members.to_dict("records")]
+        drawn = members.head(FOOTPRINTS_DRAWN)      # outlines of the first cases; all cases as a density
+        placed = [resources.placed_profile(PlanRow.from_record(row)) for row in drawn.to_dict("records")]
+        density = footprint_density(resources.camera, resources.profiles, members, terrain.extent_m)
         path = out_dir / f"footprints-{class_name}.png"
         footprint_map(terrain, placed, resources.camera, path,
-                      f"{config.site.name} {class_name}: {len(members)} cases (first 60 shown); "
-                      "+ lander at each image, red/orange/cyan image 1/2/3 footprints")
+                      f"{config.site.name} {class_name}: {len(members)} cases\nfirst {len(drawn)} drawn: + lander "
+                      "at each image,\nred/orange/cyan image 1/2/3 footprints;\ncolour: footprint centres of all",
+                      max_cases=FOOTPRINTS_DRAWN, density=density)
         paths.append(path)
     return paths

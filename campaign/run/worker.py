@@ -26,7 +26,10 @@ from campaign.configuration.campaign_file import CampaignConfig
 from campaign.report.plots import save_descent_image
 from campaign.run.case import CampaignInputs, CaseRun, EstimatorResult, PlanRow, SharedInputs, case_rows, compute_case
 from campaign.run.faults import InfrastructureError, describe, is_infrastructure
+from campaign.run.plugin_setup import PluginSetupError, worker_address
 from campaign.store.case_files import write_case_rows
+from campaign.store.case_identity import StoreIdentity
+from estimators.plugins import EstimatorSetupError, build_estimator
 
 
 @dataclass
@@ -78,6 +81,32 @@ def tune_process() -> None:
     cv2.setNumThreads(1)
 
 
+def set_up_estimators(resources: CampaignInputs) -> None:
+    """Build the campaign's estimators in this process once (``resources.built_estimators``).
+
+    Raises
+    ------
+    PluginSetupError
+        One line naming the estimator, this worker's address, the error and the fix, when one cannot be
+        built here (:class:`estimators.plugins.EstimatorSetupError`); nothing is cached, the next task tries again.
+    """
+    if resources.built_estimators is not None:
+        return
+    built = []
+    for spec in resources.config.estimators:
+        try:
+            built.append((spec, build_estimator(spec)))
+        except EstimatorSetupError as exc:
+            raise PluginSetupError(_on_worker(str(exc))) from None
+    resources.built_estimators = built
+
+
+def _on_worker(line: str) -> str:
+    """A set-up error's line with this worker's address after the estimator's name."""
+    head, _, rest = line.partition(": cannot be set up: ")
+    return f"{head} cannot be set up on worker {worker_address()}: {rest}" if rest else f"{line} (worker {worker_address()})"
+
+
 def load_resources(config: CampaignConfig, cache: WorkerCache = WORKER_CACHE) -> CampaignInputs:
     """The campaign's inputs in this process (created on first use; the process is tuned once)."""
     if not cache.process_tuned:
@@ -115,6 +144,11 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
     """Run one case (a plan record) with retries and write its rows (ok or failed) to the store; return
     the status.
 
+    First the campaign's estimators are built in this process (:func:`set_up_estimators`): a plug-in that
+    cannot be loaded or started here raises :class:`~campaign.run.plugin_setup.PluginSetupError` and nothing
+    is recorded for the case (the driver stops the run; the next submit runs the case again), as when a
+    command's program cannot be started during the case.
+
     Only an exception of the case's own computation (:func:`~campaign.run.case.compute_case`) is retried
     and then recorded ``failed``. A storage error (``OSError`` such as ENOSPC, EDQUOT, EROFS, EIO) or
     ``MemoryError``, in the computation or while writing the case file, is the machine's fault: nothing
@@ -130,11 +164,17 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
     computation = None
     for attempt in range(1, attempts + 1):
         try:
-            computation = compute_case(load_resources(config), plan)
+            resources = load_resources(config)
+            set_up_estimators(resources)
+            computation = compute_case(resources, plan)
             if plan.case_in_class == 0:
                 save_examples(Path(context.store_root), plan, computation.images_dn)
             attempts_used = attempt
             break
+        except PluginSetupError:
+            raise
+        except EstimatorSetupError as exc:      # a command's program could not be started: set-up, not the case
+            raise PluginSetupError(_on_worker(str(exc))) from None
         except Exception as exc:  # the case's own failure is recorded in its rows; the campaign goes on
             if is_infrastructure(exc):
                 raise InfrastructureError(describe(exc, plan.case_id, "computing", worker, context.store_root)) from None
@@ -148,8 +188,9 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
     else:
         rows = case_rows(plan, config.seed, run, computation.estimates, computation.truth)
     try:
+        identity = StoreIdentity(context.config_hash, config.seed, tuple(config.estimator_names))
         write_case_rows(Path(context.store_root) / "cases", plan.case_id, [row.columns() for row in rows],
-                        ok=computation is not None)
+                        ok=computation is not None, identity=identity)
     except (OSError, MemoryError) as exc:       # the failed write removed its own temporary file
         raise InfrastructureError(describe(exc, plan.case_id, "writing its result", worker, context.store_root)) from None
     return "ok" if computation is not None else "failed"
