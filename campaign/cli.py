@@ -148,6 +148,11 @@ def _cmd_plan(args) -> int:
 def _cmd_status(args) -> int:
     from campaign.store.campaign_store import CampaignStore
 
+    if (Path(args.dir) / "sweep.json").is_file() and not (Path(args.dir) / "manifest.json").exists():
+        from campaign.run.sweep_baseline import sweep_status_lines  # a sweep output directory: its point stores
+
+        print("\n".join(sweep_status_lines(args.dir)))
+        return 0
     status = CampaignStore(args.dir).status()
     print(f"{args.dir}: {status.planned} planned, {status.done} done, {status.failed} failed, {status.missing} missing")
     if status.bad:
@@ -192,19 +197,23 @@ def _cmd_report(args) -> int:
 
 def _cmd_sweep(args) -> int:
     from campaign.configuration.sweep_file import load_sweep
-    from campaign.run.sweep import compare_to_baseline, read_baseline, run_sweep, sweep_results, write_outputs
+    from campaign.report.baseline_gate import format_findings
+    from campaign.run.sweep import run_sweep, sweep_results, write_description, write_outputs
+    from campaign.run.sweep_baseline import compare_to_baseline, read_baseline
 
     start = time.perf_counter()
     _check_cluster_flags(args)
     _check_directory(args.output, "--output")
-    spec = load_sweep(args.file, output_dir=args.output)           # validates everything, writes nothing
+    spec = load_sweep(args.file, output_dir=args.output, cases_scale=args.cases_scale)   # validates, writes nothing
     _check_directory(spec.output_dir, f"{args.file}: sweep.output_dir")
-    baseline = read_baseline(args.baseline) if args.baseline else None
+    baseline = read_baseline(args.baseline, spec) if args.baseline else None   # before the run: as it was
+    write_description(spec)
     run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress,
                     wait=args.wait)
     table, text = write_outputs(spec)
     print(text)
-    counts = _estimator_counts(sweep_results(spec))             # every point store's rows, not only this run's
+    results = sweep_results(spec)                               # every point store's rows, not only this run's
+    counts = _estimator_counts(results)
     print(f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused; {run.done} cases done, "
           f"{run.failed} failed this run){_failed_rows_note(counts)}")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
@@ -212,11 +221,10 @@ def _cmd_sweep(args) -> int:
     unfinished = run.unfinished or failed_rows
     if baseline is None:
         return RUN_INCOMPLETE if unfinished else 0
-    regressions, compared = compare_to_baseline(spec, table, baseline, spec.tolerances)
-    for line in regressions:
-        print(f"regression: {line}")
-    if regressions:
-        print(f"{len(regressions)} regressions against {args.baseline} ({compared} points compared)")
+    findings, compared = compare_to_baseline(spec, results, baseline, spec.tolerances)
+    if findings:
+        print(f"regressions against {args.baseline}:\n{format_findings(findings)}")
+        print(f"{len(findings)} regressions against {args.baseline} ({compared} points compared)")
         return RUN_INCOMPLETE
     print(f"no regression ({compared} points compared against {args.baseline})")
     return RUN_INCOMPLETE if unfinished else 0
@@ -276,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--cases-scale", type=float)
     plan.set_defaults(handler=_cmd_plan)
 
-    for name, handler, text in (("status", _cmd_status, "count done, failed and missing cases"),
+    for name, handler, text in (("status", _cmd_status, "count done, failed and missing cases (per point of a sweep)"),
                                 ("table", _cmd_table, "print and write the paper's table"),
                                 ("report", _cmd_report, "write a Markdown report with plots"),
                                 ("verify", _cmd_verify, "check every file of a store; exit 1 if any is bad")):
@@ -290,6 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--baseline", help="a previous sweep's output directory; exit 1 on a regression")
     sweep.add_argument("--scheduler", help="tcp://host:port of an existing dask scheduler")
     sweep.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
+    sweep.add_argument("--cases-scale", type=float, help="multiply every class's case count ([sweep] cases_scale)")
     sweep.add_argument("--wait", action="store_true", help="wait for other writers' locks on point stores")
     sweep.add_argument("--no-progress", action="store_true")
     sweep.set_defaults(handler=_cmd_sweep)

@@ -14,9 +14,12 @@ A sweep file (e.g. ``sitedata/sweeps/nightly.toml``)::
     "scene.camera_effects.dark_current_scale" = [1.0, 30.0]
     sensors.attitude_random_sigma_deg = [0.05, 0.5]     # unquoted dotted keys work as well
 
-    [tolerances]                        # for --baseline
-    pct_valid_drop_points = 5.0         # a class's (or the weighted) % valid may fall this many points
-    error_increase_mps = 0.5            # its error mean+3 sigma (m/s) may grow this much
+    [tolerances]                        # for --baseline (campaign/report/baseline_gate.py has the rules)
+    false_valid_increase = 0            # false-valid cases a class (or the site) may gain
+    significance = 0.01                 # a % valid drop with a one-sided Fisher exact p below this, or an
+                                        # error growth whose bootstrap interval lies above 0 at this level
+    pct_valid_drop_points = 20.0        # a larger % valid drop counts whatever its p-value
+    error_increase_mps = 0.5            # an error mean+3 sigma growth (m/s) must exceed this to count
 
 Axis fields are any field of the ``[sensors]``, ``[estimator]`` and ``[scene]`` tables (including
 sub-tables such as ``scene.camera_effects``), or ``campaign.seed``. Each point's configuration is the
@@ -38,13 +41,15 @@ from typing import Any, Literal
 from pydantic import Field
 
 from campaign.configuration.campaign_file import (
+    COMMAND_LINE,
     CampaignConfig,
+    CampaignTable,
     CaseCount,
     CasesScale,
     campaign_config_from_data,
     load_campaign_config,
 )
-from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, load_toml, parse
+from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, load_toml, parse, parse_field
 
 AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed",)
@@ -68,12 +73,18 @@ class SweepTable(ConfigModel):
 
 
 class Tolerances(ConfigModel):
-    """``[tolerances]``: how much a metric may degrade against a baseline before it counts as a regression."""
+    """``[tolerances]``: when a metric counts as a regression against a baseline (the rules are in
+    :mod:`campaign.report.baseline_gate`)."""
 
-    pct_valid_drop_points: float = Field(5.0, ge=0.0, le=100.0)
-    """A class's (or the weighted) % valid may fall this many points."""
+    false_valid_increase: int = Field(0, ge=0, le=1_000_000)
+    """False-valid cases a class (or the site) may gain (0: any increase is a regression)."""
+    significance: float = Field(0.01, gt=0.0, le=0.5)
+    """Level of the one-sided Fisher exact test on % valid and of the error's bootstrap interval."""
+    pct_valid_drop_points: float = Field(20.0, ge=0.0, le=100.0)
+    """A larger drop of a class's (or the weighted) % valid is a regression whatever its p-value; the
+    default lets one case among 5 or more flip without tripping it (the exact test judges that)."""
     error_increase_mps: float = Field(0.5, ge=0.0, le=1e3)
-    """Its error mean + 3 sigma may grow this much (m/s)."""
+    """The error mean + 3 sigma (m/s) is judged only when it grows by more than this."""
 
 
 class SweepFile(ConfigModel):
@@ -118,8 +129,12 @@ def point_store_dir(output_dir: Path, config_hash: str) -> Path:
     return Path(output_dir) / "points" / config_hash[:16]
 
 
-def load_sweep(path: str | Path, output_dir: str | Path | None = None) -> SweepSpec:
+def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_scale: float | None = None) -> SweepSpec:
     """Read and validate a sweep file and every point's configuration (nothing is written).
+
+    ``output_dir`` (``--output``) replaces ``[sweep] output_dir``; ``cases_scale`` (``--cases-scale``)
+    replaces ``[sweep] cases_scale`` and the base's ``[campaign] cases_scale`` (case counts are not part of
+    a point's configuration hash: a scaled run is a prefix of the full one and shares its stores).
 
     Raises
     ------
@@ -136,6 +151,9 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None) -> SweepS
     base_data = load_toml(base_path)
     base_config = load_campaign_config(base_path)          # base errors name the base file
     campaign_overrides = _campaign_overrides(sweep, base_config, label)
+    if cases_scale is not None:
+        parse_field(CampaignTable, "cases_scale", cases_scale, COMMAND_LINE, "--cases-scale")
+        campaign_overrides["campaign.cases_scale"] = float(cases_scale)
     axes = _read_axes(tables.axes, label)
 
     combos = _combinations(axes, sweep.mode, label)

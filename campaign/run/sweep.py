@@ -15,17 +15,17 @@ Output directory (``[sweep] output_dir`` or ``--output``)::
                               with the false-valid count)
     OUT/plots/*.png           each metric against each axis (see :mod:`campaign.report.sweep_plots`)
 
-Baseline check: points are matched to the baseline's by their axis values (and rows by estimator;
-a baseline without an ``estimator`` column is the reference ``dimes``); for every class and for
-the weighted site totals, % valid may fall by at most ``pct_valid_drop_points`` and the error
-(mean + 3 sigma) may grow by at most ``error_increase_mps``. The configuration hash covers the result
-code (:func:`campaign.configuration.campaign_file.code_digest`), so after a code change every point is computed afresh; a
-nightly job writes into a fresh output directory and passes the previous night's as ``--baseline``.
+Baseline check (:mod:`campaign.run.sweep_baseline`, rules in :mod:`campaign.report.baseline_gate`):
+points are matched to the baseline's by their axis values and rows by estimator; per class and for the
+site, more false-valid cases, a % valid drop unlikely under sampling noise (or beyond the tolerance) and
+an error growth beyond the tolerance with its bootstrap interval above 0 are regressions. The
+configuration hash covers the result code (:func:`campaign.configuration.campaign_file.code_digest`), so
+after a code change every point is computed afresh; a nightly job writes into a fresh output directory
+and passes the previous night's as ``--baseline``.
 """
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +33,7 @@ from pathlib import Path
 import pandas as pd
 import pyarrow as pa
 
-from campaign.configuration.sweep_file import SweepSpec, Tolerances
+from campaign.configuration.sweep_file import SweepSpec
 from campaign.report.aggregate import format_number, render_grid
 from campaign.report.compare import (
     comparison_table,
@@ -45,7 +45,8 @@ from campaign.report.compare import (
 from campaign.report.sweep_plots import write_sweep_plots
 from campaign.run.cluster import require_backend
 from campaign.run.orchestrate import StorePoint, manifest_for, plan_points, run_store_points
-from campaign.store.campaign_store import CampaignStore, StoreError
+from campaign.run.sweep_baseline import value_text
+from campaign.store.campaign_store import CampaignStore
 from campaign.store.case_files import atomic_write_bytes, atomic_write_table
 
 
@@ -137,7 +138,7 @@ def format_sensitivity(spec: SweepSpec, table: pd.DataFrame, markdown: bool = Fa
         point_rows = table[table["point_id"] == point.point_id]
         for estimator in dict.fromkeys(point_rows["estimator"]):
             rows = point_rows[point_rows["estimator"] == estimator].set_index("class")
-            cells = [point.point_id, *(_value_text(value) for value in point.values.values()), str(estimator)]
+            cells = [point.point_id, *(value_text(value) for value in point.values.values()), str(estimator)]
             for name in classes:
                 cells += [format_number(rows.at[name, "pct_valid"], "{:.0f}"), str(int(rows.at[name, "false_valid"])),
                           format_number(rows.at[name, "error_mean_3sigma_mps"], "{:.2f}")]
@@ -146,10 +147,6 @@ def format_sensitivity(spec: SweepSpec, table: pd.DataFrame, markdown: bool = Fa
                       format_number(rows.at[site_name, "weighted_error_mps"], "{:.2f}")]
             body.append(cells)
     return render_grid(headers, body, markdown)
-
-
-def _value_text(value) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
@@ -161,8 +158,7 @@ def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
     if not results.empty:
         atomic_write_table(out / "results.parquet", pa.Table.from_pandas(results, preserve_index=False))
     table = sensitivity_table(spec, results)
-    description = sweep_description(spec)
-    atomic_write_bytes(out / "sweep.json", json.dumps(description, indent=2).encode())
+    write_description(spec)
     cases = {name: count for name, count in spec.base.cases_per_class.items()}
     heading = (f"Sweep {spec.source} on {spec.base.site.name} ({spec.mode}, {len(spec.points)} points, "
                f"cases per point {cases}, seed {spec.base.seed})")
@@ -174,78 +170,20 @@ def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
     return table, f"{heading}\n{format_sensitivity(spec, table)}"
 
 
+def write_description(spec: SweepSpec) -> None:
+    """Write OUT/sweep.json (before the run too, so `campaign status OUT` knows the points of a sweep
+    that was stopped)."""
+    Path(spec.output_dir).mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(Path(spec.output_dir) / "sweep.json", json.dumps(sweep_description(spec), indent=2).encode())
+
+
 def sweep_description(spec: SweepSpec) -> dict:
     return {
         "sweep_file": str(spec.source), "base": str(spec.base_path), "mode": spec.mode, "axes": spec.axes,
         "site": spec.base.site.name, "seed": spec.base.seed, "cases_per_class": spec.base.cases_per_class,
-        "tolerances": {"pct_valid_drop_points": spec.tolerances.pct_valid_drop_points,
-                       "error_increase_mps": spec.tolerances.error_increase_mps},
+        "cases_scale": spec.base.cases_scale, "false_valid_mps": spec.base.false_valid_mps,
+        "tolerances": spec.tolerances.model_dump(),
         "points": [{"point_id": p.point_id, "values": p.values, "config_hash": p.config_hash,
                     "store": str(Path("points") / p.config.output_dir.name)} for p in spec.points],
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
-
-
-def read_baseline(directory: str | Path) -> tuple[dict, pd.DataFrame]:
-    """A previous sweep's sweep.json and sensitivity.csv (StoreError when it is not a sweep directory)."""
-    directory = Path(directory)
-    description_path, table_path = directory / "sweep.json", directory / "sensitivity.csv"
-    if not description_path.is_file() or not table_path.is_file():
-        raise StoreError(f"{directory}: no sweep.json and sensitivity.csv: not a sweep output directory "
-                         "(allowed: the output directory of an earlier `campaign sweep`)")
-    return json.loads(description_path.read_text()), pd.read_csv(table_path, keep_default_na=True)
-
-
-def compare_to_baseline(spec: SweepSpec, table: pd.DataFrame, baseline: tuple[dict, pd.DataFrame],
-                        tolerances: Tolerances) -> tuple[list[str], int]:
-    """Regressions of ``table`` against a baseline sweep: one line each; and the number of points compared.
-
-    Points are matched by axis values (the same fields, equal values); per class % valid and error,
-    for the site row the weighted % valid and weighted error.
-    """
-    description, base_table = baseline
-    base_points = {_match_key(point["values"]): point["point_id"] for point in description.get("points", [])}
-    site_name = spec.base.site.name
-    regressions, compared = [], 0
-    for point in spec.points:
-        base_id = base_points.get(_match_key(point.values))
-        if base_id is None:
-            continue
-        compared += 1
-        point_rows = table[table["point_id"] == point.point_id]
-        base_rows = with_estimator_column(base_table[base_table["point_id"] == base_id])
-        for estimator in dict.fromkeys(point_rows["estimator"]):
-            now = point_rows[point_rows["estimator"] == estimator].set_index("class")
-            before = base_rows[base_rows["estimator"] == estimator].set_index("class")
-            where = f"{point.point_id} ({', '.join(f'{k}={_value_text(v)}' for k, v in point.values.items())})"
-            if len(point_rows["estimator"].unique()) > 1 or estimator != "dimes":
-                where += f" estimator {estimator}"
-            regressions += _regressions(now, before, where, site_name, tolerances)
-    return regressions, compared
-
-
-def _regressions(now: pd.DataFrame, before: pd.DataFrame, where: str, site_name: str, tolerances: Tolerances) -> list[str]:
-    """Regressions of one point and estimator (rows indexed by class) against its baseline rows."""
-    regressions = []
-    for name in now.index:
-        if name not in before.index or int(now.at[name, "cases"]) == 0 or int(before.at[name, "cases"]) == 0:
-            continue
-        valid_column, error_column = (("weighted_pct_valid", "weighted_error_mps") if name == site_name
-                                      else ("pct_valid", "error_mean_3sigma_mps"))
-        label = f"{name} weighted" if name == site_name else name
-        valid_now, valid_before = float(now.at[name, valid_column]), float(before.at[name, valid_column])
-        if valid_before - valid_now > tolerances.pct_valid_drop_points:
-            regressions.append(f"{where}: {label} % valid {valid_before:.1f} -> {valid_now:.1f} (drop "
-                               f"{valid_before - valid_now:.1f} points > {tolerances.pct_valid_drop_points:g})")
-        error_now, error_before = float(now.at[name, error_column]), float(before.at[name, error_column])
-        if math.isfinite(error_before) and not math.isfinite(error_now):
-            regressions.append(f"{where}: {label} error {error_before:.2f} m/s -> n/a (no valid cases)")
-        elif math.isfinite(error_before) and error_now - error_before > tolerances.error_increase_mps:
-            regressions.append(f"{where}: {label} error mean+3 sigma {error_before:.2f} -> {error_now:.2f} m/s "
-                               f"(+{error_now - error_before:.2f} > {tolerances.error_increase_mps:g})")
-    return regressions
-
-
-def _match_key(values: dict) -> tuple:
-    return tuple(sorted((field, json.dumps(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v))
-                        for field, v in values.items()))

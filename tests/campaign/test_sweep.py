@@ -189,10 +189,55 @@ def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, ca
                         extra="", name="noisy.toml")
     code, stdout, _ = _run(capsys, noisy, "--output", tmp_path / "out", "--scheduler", scheduler, "--baseline", out)
     assert code == 1, stdout
-    lines = [line for line in stdout.splitlines() if line.startswith("regression: ")]
-    assert any(line.startswith("regression: p000 (scene.camera_effects.dark_current_scale=1)") for line in lines)
-    assert any(line.startswith("regression: p001 (scene.camera_effects.dark_current_scale=2)") for line in lines)
-    assert "regressions against" in stdout
+    table = stdout[stdout.index(f"regressions against {out}:"):].splitlines()[1:]
+    assert table[0].split() == ["point", "class", "estimator", "metric", "baseline", "candidate", "test", "why"]
+    assert any("p000 (scene.camera_effects.dark_current_scale=1)" in line for line in table)
+    assert any("p001 (scene.camera_effects.dark_current_scale=2)" in line for line in table)
+    assert "regressions against" in table[-1] and "(2 points compared)" in table[-1]
+
+
+def _plugin_campaign(directory: Path, bias_east_mps: float) -> Path:
+    """Gusev with one estimator, ``probe``: the IMU velocity minus a bias (tests/plugins/python_estimators.py)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    for sub in ("cameras", "trajectories"):
+        (directory / sub).symlink_to(REPO / "sitedata" / sub)
+    path = directory / "gusev_probe.toml"
+    path.write_text(GUSEV.read_text() + '\n[[estimators]]\nname = "probe"\nkind = "python"\n'
+                    'callable = "plugins.python_estimators:imu_minus_bias"\n'
+                    f'[estimators.parameters]\nbias = [{bias_east_mps}, 0.0]\n')
+    return path
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
+def test_added_false_valid_cases_fail_the_gate_whatever_the_error_tolerance(tmp_path, scheduler, capsys):
+    """Baseline: the IMU velocity, valid. An identical sweep into a fresh directory recomputes every case
+    and passes; a candidate whose estimator is 30 m/s off (every valid case false-valid) fails with exit 1
+    although its error tolerance (1000 m/s) forgives any growth."""
+    axis = '"scene.camera_effects.dark_current_scale" = [1.0]'
+    honest = _sweep_file(tmp_path / "honest", axis, base=_plugin_campaign(tmp_path / "honest", 0.0))
+    code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "baseline", "--scheduler", scheduler)
+    assert code == 0, stdout
+    code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "again", "--scheduler", scheduler,
+                           "--baseline", tmp_path / "baseline")
+    assert code == 0 and "1 points, 0 reused; 5 cases done" in stdout, stdout
+    assert f"no regression (1 points compared against {tmp_path / 'baseline'})" in stdout
+    biased = _sweep_file(tmp_path / "biased", axis, base=_plugin_campaign(tmp_path / "biased", 30.0),
+                         extra="[tolerances]\nerror_increase_mps = 1000.0")
+    code, stdout, _ = _run(capsys, biased, "--output", tmp_path / "candidate", "--scheduler", scheduler,
+                           "--baseline", tmp_path / "baseline")
+    assert code == 1, stdout
+    baseline = pd.read_parquet(tmp_path / "baseline" / "results.parquet")
+    expected = {name: int((members["valid"] & (members["velocity_error_mps"] > 5.0)).sum())
+                for name, members in baseline.groupby("class_name")}
+    table = stdout[stdout.index("regressions against"):].splitlines()
+    rows = table[2:-1]                                          # heading, column names, rows, summary line
+    assert len(rows) == 3 and all(" probe " in row and " false-valid " in row for row in rows), table
+    assert {row.split(" probe ")[0].split(")")[-1].strip() for row in rows} == {"gcp", "gdcp", "Gusev weighted"}
+    for name, cases in (("gcp", 3), ("gdcp", 2)):               # every valid case is now false-valid
+        assert any(f" {name} " in row and f" {expected[name]} of {cases} valid  {cases} of {cases} valid " in row
+                   for row in rows), table
+    assert table[-1] == f"3 regressions against {tmp_path / 'baseline'} (1 points compared)"
 
 
 # --- issue 7, done when: the estimator degrades with lens dust and with the angular rate multiplier ----

@@ -1,0 +1,225 @@
+"""The statistics of ``campaign sweep --baseline``: is a candidate's result worse than its baseline's by
+more than sampling noise?
+
+For one sweep point and estimator, baseline and candidate are judged per appearance class and for the
+site (the weighted row), on their case rows (``class_name``, ``status``, ``valid``,
+``velocity_error_mps``; failed rows are left out, as in the tables). Three rules:
+
+* **false-valid** (valid, error above the false-valid threshold): a regression when the candidate's count
+  exceeds the baseline's by more than ``false_valid_increase`` (default 0: any increase). When the
+  two ran different numbers of cases the baseline count is scaled to the candidate's:
+  regression when ``fv_now > fv_before * n_now / n_before + false_valid_increase``.
+* **% valid**: a drop is a regression when it is unlikely under sampling noise, the one-sided Fisher
+  exact test on the 2 x 2 table (valid, not valid) x (baseline, candidate) giving ``p < significance``
+  (:func:`valid_drop_p_value`), or when it is larger than ``pct_valid_drop_points`` whatever ``p``
+  (a drop too large to wait for more cases). The site row tests the pooled counts of the classes inside
+  the ellipse (non-zero fraction) and compares the ellipse-weighted % valid (``sum(fraction * value) /
+  sum(fraction)`` over those classes, as in the tables) with the tolerance.
+* **error mean + 3 sigma** (over valid cases): a regression when the growth is larger than
+  ``error_increase_mps`` *and* its bootstrap interval lies above zero: both sets of valid errors are
+  resampled with replacement (:data:`BOOTSTRAP_RESAMPLES` times, seeded from the point, estimator and
+  class, so the same inputs give the same verdict), the statistic's growth computed each time, and
+  the interval is its ``significance`` and ``1 - significance`` quantiles (a one-sided test at
+  ``significance``: the baseline's value lies below the candidate's resampled values in all but that
+  fraction). The site row resamples every class and grows the ellipse-weighted sum. Without a valid
+  case on either side the error is not judged (the % valid rule sees that).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from fractions import Fraction
+
+import numpy as np
+import pandas as pd
+
+from campaign.report.aggregate import format_number, mean_plus_3_sigma, render_grid
+
+BOOTSTRAP_RESAMPLES = 2000
+GATE_HEADERS = ["point", "class", "estimator", "metric", "baseline", "candidate", "test", "why"]
+
+
+@dataclass(frozen=True)
+class GateRules:
+    """The thresholds of the three rules (from the sweep file's ``[tolerances]``)."""
+
+    false_valid_increase: int = 0
+    pct_valid_drop_points: float = 20.0
+    error_increase_mps: float = 0.5
+    significance: float = 0.01
+
+
+@dataclass(frozen=True)
+class ClassSample:
+    """One class's rows of one estimator: cases that ran (failed rows left out), valid cases,
+    false-valid cases and the valid cases' errors (m/s, shape (valid,))."""
+
+    cases: int
+    valid: int
+    false_valid: int
+    valid_errors_mps: np.ndarray
+
+    @property
+    def pct_valid(self) -> float:
+        return 100.0 * self.valid / self.cases if self.cases else math.nan
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One regression: where, which metric, both values, the test's figure and why it counts."""
+
+    point: str
+    class_name: str
+    estimator: str
+    metric: str
+    baseline: str
+    candidate: str
+    test: str
+    why: str
+
+    def cells(self) -> list[str]:
+        return [self.point, self.class_name, self.estimator, self.metric, self.baseline, self.candidate,
+                self.test, self.why]
+
+
+def class_sample(rows: pd.DataFrame, false_valid_mps: float) -> ClassSample:
+    """Counts and valid errors of result rows (one class, one estimator)."""
+    ok = rows[rows["status"] == "ok"] if len(rows) else rows
+    valid_mask = ok["valid"].astype(bool).to_numpy() if len(ok) else np.zeros(0, dtype=bool)
+    errors = ok["velocity_error_mps"].to_numpy(dtype=float)[valid_mask] if len(ok) else np.zeros(0)
+    with np.errstate(invalid="ignore"):
+        false_valid = int(np.count_nonzero(errors > false_valid_mps))
+    return ClassSample(int(len(ok)), int(valid_mask.sum()), false_valid, errors)
+
+
+def valid_drop_p_value(valid_before: int, cases_before: int, valid_now: int, cases_now: int) -> float:
+    """One-sided Fisher exact test that the candidate's valid fraction is lower than the baseline's.
+
+    With all margins fixed, the baseline's valid count is hypergeometric; ``p`` is the probability of
+    it being ``valid_before`` or more (the ``alternative="greater"`` p-value of
+    ``scipy.stats.fisher_exact([[valid_before, invalid_before], [valid_now, invalid_now]])``),
+    computed exactly with integer binomial coefficients. 10/10 vs 0/10 gives 1 / C(20, 10).
+    """
+    total, valid_total = cases_before + cases_now, valid_before + valid_now
+    highest = min(cases_before, valid_total)
+    tail = sum(math.comb(valid_total, k) * math.comb(total - valid_total, cases_before - k)
+               for k in range(valid_before, highest + 1))
+    return float(Fraction(tail, math.comb(total, cases_before)))
+
+
+def _resampled_statistic(errors_mps: np.ndarray, rng: np.random.Generator, resamples: int) -> np.ndarray:
+    """mean + 3 sigma (ddof=1; 0 spread for one value) of ``resamples`` bootstrap resamples, shape (resamples,)."""
+    errors_mps = errors_mps[np.isfinite(errors_mps)]
+    picks = errors_mps[rng.integers(0, errors_mps.size, size=(resamples, errors_mps.size))]
+    with np.errstate(over="ignore", invalid="ignore"):
+        spread = picks.std(axis=1, ddof=1) if errors_mps.size > 1 else np.zeros(resamples)
+        return picks.mean(axis=1) + 3.0 * spread
+
+
+def bootstrap_growth_interval(pairs: list[tuple[float, np.ndarray, np.ndarray]], seed_text: str,
+                              significance: float, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[float, float]:
+    """The (significance, 1 - significance) quantiles of the bootstrapped growth of sum(weight * (mean +
+    3 sigma)) from baseline to candidate.
+
+    Parameters
+    ----------
+    pairs : list of (weight, baseline valid errors (m/s), candidate valid errors (m/s))
+        One entry per class (weight 1 for a class row, the ellipse fraction for the site row); each error
+        array needs at least one finite value.
+    seed_text : str
+        Names what is judged; its sha256 seeds the generator (same inputs, same interval).
+    """
+    rng = np.random.default_rng(int.from_bytes(hashlib.sha256(seed_text.encode()).digest()[:8], "little"))
+    growth = np.zeros(resamples)
+    for weight, before, now in pairs:
+        growth += weight * (_resampled_statistic(now, rng, resamples) - _resampled_statistic(before, rng, resamples))
+    low, high = np.quantile(growth, [significance, 1.0 - significance])
+    return float(low), float(high)
+
+
+def judge(where: str, class_label: str, estimator: str, before: list[tuple[float, ClassSample]],
+          now: list[tuple[float, ClassSample]], rules: GateRules, seed_text: str, weighted: bool) -> list[Finding]:
+    """The regressions of one class (one entry, weight 1) or of the site (every class with its ellipse
+    fraction; ``weighted``) of one point and estimator."""
+    findings = []
+
+    def found(metric, base_text, now_text, test, why):
+        findings.append(Finding(where, class_label, estimator, metric, base_text, now_text, test, why))
+
+    cases_before, cases_now = sum(s.cases for _, s in before), sum(s.cases for _, s in now)
+    if cases_before == 0 or cases_now == 0:
+        return findings
+    fv_before, fv_now = sum(s.false_valid for _, s in before), sum(s.false_valid for _, s in now)
+    allowed = fv_before * cases_now / cases_before + rules.false_valid_increase
+    if fv_now > allowed + 1e-9:
+        valid_before, valid_now = sum(s.valid for _, s in before), sum(s.valid for _, s in now)
+        found("false-valid", f"{fv_before} of {valid_before} valid", f"{fv_now} of {valid_now} valid",
+              "count", f"{fv_now} > {allowed:g} allowed (baseline + {rules.false_valid_increase})")
+
+    judged = [(w if weighted else 1.0, b, n) for (w, b), (_, n) in zip(before, now) if w > 0 or not weighted]
+    if weighted:
+        pct_before, pct_now = _weighted_pct(before), _weighted_pct(now)
+    else:
+        pct_before, pct_now = before[0][1].pct_valid, now[0][1].pct_valid
+    drop = pct_before - pct_now
+    if judged and math.isfinite(drop) and drop > 0:
+        vb, nb = sum(b.valid for _, b, _ in judged), sum(b.cases for _, b, _ in judged)
+        vn, nn = sum(n.valid for _, _, n in judged), sum(n.cases for _, _, n in judged)
+        p_value = valid_drop_p_value(vb, nb, vn, nn) if nb and nn else 1.0
+        reasons = []
+        if p_value < rules.significance:
+            reasons.append(f"p < {rules.significance:g}")
+        if drop > rules.pct_valid_drop_points:
+            reasons.append(f"drop {drop:.1f} > {rules.pct_valid_drop_points:g} points")
+        if reasons:
+            found("weighted % valid" if weighted else "% valid", f"{pct_before:.1f} ({vb}/{nb})",
+                  f"{pct_now:.1f} ({vn}/{nn})", f"p = {p_value:.3g}", "; ".join(reasons))
+
+    pairs = [(w, b.valid_errors_mps[np.isfinite(b.valid_errors_mps)], n.valid_errors_mps[np.isfinite(n.valid_errors_mps)])
+             for w, b, n in judged]
+    if pairs and all(before_errors.size and now_errors.size for _, before_errors, now_errors in pairs):
+        error_before = sum(w * mean_plus_3_sigma(b) for w, b, _ in pairs)
+        error_now = sum(w * mean_plus_3_sigma(n) for w, _, n in pairs)
+        growth = error_now - error_before
+        if math.isfinite(growth) and growth > rules.error_increase_mps:
+            low, high = bootstrap_growth_interval(pairs, seed_text, rules.significance)
+            if low > 0:
+                level = 100.0 * (1.0 - 2.0 * rules.significance)
+                found("weighted error m/s" if weighted else "error mean+3 sigma m/s", format_number(error_before, "{:.2f}"),
+                      format_number(error_now, "{:.2f}"), f"growth [{low:+.2f}, {high:+.2f}] ({level:g} % bootstrap)",
+                      f"+{growth:.2f} > {rules.error_increase_mps:g} m/s, interval above 0")
+    return findings
+
+
+def _weighted_pct(entries: list[tuple[float, ClassSample]]) -> float:
+    return sum(0.0 if w == 0 else w * s.pct_valid for w, s in entries)
+
+
+def judge_point(where: str, seed_key: str, before_rows: pd.DataFrame, now_rows: pd.DataFrame,
+                fractions: dict[str, float], site_name: str, false_valid_mps: float,
+                rules: GateRules) -> list[Finding]:
+    """Every regression of one sweep point: per estimator of the candidate (rows ``estimator``; compared
+    with the baseline's rows of the same name), per class in ``fractions`` order, then the site."""
+    findings = []
+    for estimator in dict.fromkeys(now_rows["estimator"]) if len(now_rows) else []:
+        base = before_rows[before_rows["estimator"] == estimator] if len(before_rows) else before_rows
+        if base.empty:
+            continue
+        mine = now_rows[now_rows["estimator"] == estimator]
+        before = [(fractions[c], class_sample(base[base["class_name"] == c], false_valid_mps)) for c in fractions]
+        now = [(fractions[c], class_sample(mine[mine["class_name"] == c], false_valid_mps)) for c in fractions]
+        for index, name in enumerate(fractions):
+            findings += judge(where, name, estimator, [(1.0, before[index][1])], [(1.0, now[index][1])], rules,
+                              f"{seed_key}|{estimator}|{name}", weighted=False)
+        inside = sum(weight for weight in fractions.values() if weight > 0)   # site: sum(w x) / sum(w), w > 0
+        if inside > 0:
+            findings += judge(where, f"{site_name} weighted", estimator, [(w / inside, s) for w, s in before],
+                              [(w / inside, s) for w, s in now], rules, f"{seed_key}|{estimator}|{site_name}",
+                              weighted=True)
+    return findings
+
+
+def format_findings(findings: list[Finding]) -> str:
+    """The regression table (plain text, right-aligned columns)."""
+    return render_grid(GATE_HEADERS, [finding.cells() for finding in findings])

@@ -1,0 +1,168 @@
+"""A sweep against its baseline (``campaign sweep FILE --baseline DIR``) and the state of a sweep output
+directory (``campaign status DIR``).
+
+The baseline is a previous sweep's output directory: its ``sweep.json`` (axes, site, points with their
+values and store) and, per point, the case rows of the point's campaign store (``points/<hash>/``,
+verified like any store), else the point's rows of the directory's ``results.parquet``. It must sweep
+the same axes on the same site and share at least one point (the same axis values); anything else is
+one line naming the file and what is allowed (exit 2), read before the sweep runs, so a baseline that
+is the output directory itself is judged as it was. Matched points are judged by
+:mod:`campaign.report.baseline_gate` on the case rows of both sides, with this sweep's false-valid
+threshold.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+import pyarrow as pa
+
+from campaign.configuration.sweep_file import SweepSpec, Tolerances
+from campaign.report.aggregate import COLUMNS_READ
+from campaign.report.baseline_gate import Finding, GateRules, judge_point
+from campaign.report.compare import with_estimator_column
+from campaign.store.campaign_store import CampaignStore, StoreError
+
+ALLOWED = "allowed: the output directory of an earlier `campaign sweep` of the same sweep file"
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """A previous sweep: its directory, its sweep.json, and the case rows of each of its points that
+    match a point of this sweep (baseline point id -> rows, with an ``estimator`` column)."""
+
+    directory: Path
+    description: dict
+    rows: dict[str, pd.DataFrame]
+
+
+def read_description(directory: str | Path) -> dict:
+    """A sweep output directory's sweep.json, checked for the fields the baseline and status read."""
+    path = Path(directory) / "sweep.json"
+    if not path.is_file():
+        raise StoreError(f"{directory}: no sweep.json: not a sweep output directory ({ALLOWED})")
+    try:
+        description = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StoreError(f"{path}: cannot be read ({exc}); {ALLOWED}") from None
+    except ValueError as exc:
+        raise StoreError(f"{path}: not valid JSON ({exc}); {ALLOWED}") from None
+    points = description.get("points") if isinstance(description, dict) else None
+    if not isinstance(points, list) or not isinstance(description.get("axes"), dict) or not all(
+            isinstance(p, dict) and isinstance(p.get("point_id"), str) and isinstance(p.get("values"), dict)
+            and isinstance(p.get("store"), str) for p in points):
+        raise StoreError(f"{path}: not a sweep description (needs axes and points with point_id, values and "
+                         f"store); {ALLOWED}")
+    return description
+
+
+def read_baseline(directory: str | Path, spec: SweepSpec) -> Baseline:
+    """The baseline for ``spec`` (StoreError, one line, when it is missing, corrupt or incompatible)."""
+    directory = Path(directory)
+    description = read_description(directory)
+    path = directory / "sweep.json"
+    if sorted(description["axes"]) != sorted(spec.axes):
+        raise StoreError(f"{path}: the baseline sweeps {', '.join(sorted(description['axes'])) or 'no axes'}, this "
+                         f"sweep {', '.join(sorted(spec.axes))}; allowed: a baseline of the same axes")
+    if description.get("site") != spec.base.site.name:
+        raise StoreError(f"{path}: the baseline is of site {description.get('site')!r}, this sweep of "
+                         f"{spec.base.site.name!r}; allowed: a baseline of the same site")
+    wanted = {match_key(point.values) for point in spec.points}
+    matched = [point for point in description["points"] if match_key(point["values"]) in wanted]
+    if not matched:
+        raise StoreError(f"{path}: no point of this sweep has the axis values of a baseline point; allowed: a "
+                         "baseline sharing at least one point")
+    return Baseline(directory, description, {point["point_id"]: _point_rows(directory, point) for point in matched})
+
+
+def _point_rows(directory: Path, point: dict) -> pd.DataFrame:
+    """A baseline point's case rows: its store's (verified), else its rows of DIR/results.parquet."""
+    store = directory / point["store"]
+    try:
+        if (store / "manifest.json").is_file():
+            rows = CampaignStore(store).results()
+        elif (directory / "results.parquet").is_file():
+            everything = pd.read_parquet(directory / "results.parquet")
+            rows = everything[everything["point_id"] == point["point_id"]] if "point_id" in everything else everything[:0]
+        else:
+            rows = pd.DataFrame()
+    except (OSError, ValueError, KeyError, pa.ArrowException) as exc:
+        raise StoreError(f"{store}: the case rows of baseline point {point['point_id']} cannot be read "
+                         f"({' '.join(str(exc).split())[:200]}); {ALLOWED}") from None
+    if rows.empty:
+        raise StoreError(f"{store}: no case rows of baseline point {point['point_id']} (neither its store nor "
+                         f"{directory / 'results.parquet'} has them); {ALLOWED}")
+    missing = [name for name in COLUMNS_READ if name not in rows.columns]
+    if missing:
+        raise StoreError(f"{store}: the rows of baseline point {point['point_id']} lack the column {missing[0]!r}; "
+                         f"{ALLOWED}")
+    return with_estimator_column(rows.reset_index(drop=True))
+
+
+def gate_rules(tolerances: Tolerances) -> GateRules:
+    return GateRules(false_valid_increase=tolerances.false_valid_increase,
+                     pct_valid_drop_points=tolerances.pct_valid_drop_points,
+                     error_increase_mps=tolerances.error_increase_mps, significance=tolerances.significance)
+
+
+def compare_to_baseline(spec: SweepSpec, results: pd.DataFrame, baseline: Baseline,
+                        tolerances: Tolerances) -> tuple[list[Finding], int]:
+    """Regressions of this sweep's case rows (``results``, with ``point_id``) against the baseline, and the
+    number of points compared (points matched by their axis values)."""
+    base_ids = {match_key(point["values"]): point["point_id"] for point in baseline.description["points"]}
+    fractions = {entry.name: entry.ellipse_fraction for entry in spec.base.site.classes}
+    results = with_estimator_column(results)
+    rules = gate_rules(tolerances)
+    findings: list[Finding] = []
+    compared = 0
+    for point in spec.points:
+        key = match_key(point.values)
+        base_id = base_ids.get(key)
+        if base_id is None or base_id not in baseline.rows:
+            continue
+        compared += 1
+        mine = results[results["point_id"] == point.point_id] if not results.empty else results
+        where = f"{point.point_id} ({', '.join(f'{k}={value_text(v)}' for k, v in point.values.items())})"
+        findings += judge_point(where, repr(key), baseline.rows[base_id], mine, fractions, spec.base.site.name,
+                                spec.base.false_valid_mps, rules)
+    return findings, compared
+
+
+def sweep_status_lines(directory: str | Path) -> list[str]:
+    """Per point of a sweep output directory: planned, done, failed and missing cases of its store."""
+    directory = Path(directory)
+    description = read_description(directory)
+    planned_each = sum(int(count) for count in description.get("cases_per_class", {}).values())
+    lines, totals = [], [0, 0, 0, 0]
+    for point in description["points"]:
+        label = f"{point['point_id']} ({', '.join(f'{k}={value_text(v)}' for k, v in point['values'].items())})"
+        store = directory / point["store"]
+        if not (store / "manifest.json").is_file():
+            lines.append(f"{label}: no store yet ({store}): {planned_each} cases missing")
+            totals[0] += planned_each
+            totals[3] += planned_each
+            continue
+        try:
+            status = CampaignStore(store).status()
+        except StoreError as exc:
+            lines.append(f"{label}: {exc}")
+            continue
+        lines.append(f"{label}: {status.planned} planned, {status.done} done, {status.failed} failed, "
+                     f"{status.missing} missing" + (f" ({status.bad} bad case files)" if status.bad else ""))
+        for index, count in enumerate((status.planned, status.done, status.failed, status.missing)):
+            totals[index] += count
+    lines.append(f"{directory}: sweep of {len(description['points'])} points: {totals[0]} planned, {totals[1]} done, "
+                 f"{totals[2]} failed, {totals[3]} missing")
+    return lines
+
+
+def match_key(values: dict) -> tuple:
+    """Axis values as a comparable key (numbers as floats: 1 and 1.0 are the same point)."""
+    return tuple(sorted((field, json.dumps(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v))
+                        for field, v in values.items()))
+
+
+def value_text(value) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
