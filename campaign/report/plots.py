@@ -11,6 +11,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from PIL import Image
 
+from campaign.plan.density import FootprintDensity  # noqa: E402
 from campaign.plan.placement import footprint_outlines  # noqa: E402
 from flight_interface.camera import Camera  # noqa: E402
 from simulator.scene.descent_profile import DescentProfile  # noqa: E402
@@ -35,13 +36,20 @@ def on_scale(values: np.ndarray, limit: float = PLOT_LIMIT_MPS) -> tuple[np.ndar
 
 
 def footprint_map(terrain: Terrain, placed_profiles: list[DescentProfile], camera: Camera, path: Path,
-                  title: str, max_cases: int = 60) -> Path:
-    """The terrain strip with each case's lander track (+ at each image) and image footprints."""
+                  title: str, max_cases: int = 60, density: FootprintDensity | None = None) -> Path:
+    """The terrain strip with the first ``max_cases`` cases' lander tracks (+ at each image) and image
+    footprints; with ``density``, every case's footprint centre as a translucent 2-D histogram (colour bar:
+    cases per bin) under them."""
     west, east, south, north = terrain.extent_m
     height = 9.0
     width = max(3.0, height * (east - west) / max(north - south, 1e-9) + 1.5)
     figure, axes = plt.subplots(figsize=(width, height))
     axes.imshow(terrain.reflectance_if, cmap="gray", extent=(west, east, south, north), origin="upper")
+    if density is not None and density.binned:
+        shown = np.ma.masked_equal(density.counts, 0)
+        layer = axes.imshow(shown, cmap="viridis", alpha=0.55, extent=density.extent_m, origin="upper",
+                            interpolation="nearest")
+        figure.colorbar(layer, ax=axes, fraction=0.05, label=f"footprint centres per bin ({density.binned} cases)")
     for profile in placed_profiles[:max_cases]:
         for index, outline in enumerate(footprint_outlines(camera, profile)):
             if outline is not None:
