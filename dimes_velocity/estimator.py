@@ -28,7 +28,6 @@ How this follows the flight DIMES algorithm is in the package docstring (:mod:`d
 from __future__ import annotations
 
 import time
-from collections import Counter
 from collections.abc import Sequence
 
 import cv2
@@ -39,7 +38,7 @@ from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.features import Candidate, FeatureSelector, interest_map
 from dimes_velocity.matching import Match, match_template
 from dimes_velocity.preprocess import FlatImage, flatten, make_flattening
-from dimes_velocity.result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate
+from dimes_velocity.result import FeatureMetrics, PairResult, StageTimings, VelocityEstimate, failed_pair_reason
 from dimes_velocity.solution import (
     combine_pairs,
     consensus,
@@ -367,10 +366,11 @@ class DimesEstimator:
             status=s, used=rank in used)
             for rank, (f, m, s, g, d, c) in enumerate(records)]
         if not good:
-            reason = Counter(record[2] for record in records).most_common(1)[0][0]
-            return result(reason, radius), features, t1 - t0, t2 - t1
+            return result(failed_pair_reason([record[2] for record in records]), radius), features, t1 - t0, t2 - t1
         if not used:
             reason = "too_few_features" if len(good) < config.min_features_per_pair else "features_disagree"
+            if reason == "too_few_features":
+                reason = failed_pair_reason([record[2] for record in records], reason)
             return result(reason, radius, len(good)), features, t1 - t0, t2 - t1
         if len(used) > 1 and _span([(records[i][0].column, records[i][0].row) for i in used]) < config.min_group_span_px:
             return result("features_clustered", radius, len(good), len(used)), features, t1 - t0, t2 - t1

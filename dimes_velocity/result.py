@@ -11,12 +11,17 @@ saturated               too much of the ground is saturated
 excluded_zone           the zero-phase zone / heat shield cover too much of the ground
 no_overlap              no template fits in the overlap of the pair together with its search window
 low_contrast            no template has enough contrast over noise (bland or textureless scene)
+no_match_within_prior   no match within the prior: check attitude/IMU. Every tracked template of a
+                        pair failed (or too few matched), most often because its correlation peak lay
+                        on the edge of its search window or further from its prediction than the prior
+                        allows: the ground is not where the measured attitude, IMU velocity (or
+                        position) and radar altitude put it, beyond their configured uncertainties
+                        (``max_velocity_bias_mps``, ``attitude_uncertainty_deg``, ...), or the images
+                        do not show the same ground
 search_outside          (every tracked template failed, most often for this reason:) the search
                         window left the image
-search_border           the correlation peak was on the edge of the search window
 ambiguous_match         the second coarse-level correlation peak was too close to the best
 flat_peak               the coarse or fine correlation peak was not sharp enough
-outside_prior           the match lay further from its prediction than the prior allows
 low_correlation         the correlation peak was below ``min_correlation``
 match_in_excluded_area  the match fell on excluded ground (zone, saturated, no signal, off image)
 camera_fixed            the match did not move in the raw image: a mark on the optics or detector
@@ -30,20 +35,43 @@ sun_below_horizon       the measured sun direction is at or below the horizon: t
                         ground to track, whatever the images show (the estimator answers invalid,
                         as flight software must, rather than refusing the input)
 
+Per-feature statuses (``FeatureMetrics.status``) keep the finer codes: ``search_border`` (the
+correlation peak was on the edge of the search window) and ``outside_prior`` (the match lay further
+from its prediction than the prior allows) are the two that make up ``no_match_within_prior``.
+
 When the estimate is invalid, the velocity is the uncorrected IMU velocity at the last image and
 the bias is zero (never NaN).
 """
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import asdict, dataclass
 
 REASONS = (
     "ok", "bad_attitude", "sky", "no_signal", "saturated", "excluded_zone", "no_overlap", "low_contrast",
-    "search_outside", "search_border", "ambiguous_match", "flat_peak", "outside_prior", "low_correlation",
+    "no_match_within_prior", "search_outside", "ambiguous_match", "flat_peak", "low_correlation",
     "match_in_excluded_area", "camera_fixed", "residual_exceeds_noise", "too_few_features", "features_disagree",
     "features_clustered", "pairs_disagree", "sun_below_horizon",
 )
+
+#: Per-feature statuses saying the match was not found where the prior put it (on the search window's edge,
+#: or further from the prediction than the prior allows).
+PRIOR_FAILURES = ("search_border", "outside_prior")
+
+
+def failed_pair_reason(statuses: list[str], otherwise: str | None = None) -> str:
+    """A failed pair's reason from its templates' statuses: ``no_match_within_prior`` when the prior's
+    failures (:data:`PRIOR_FAILURES`, counted together) are the most common failure, else the most common
+    failure (``otherwise``, when given, instead of it)."""
+    failures = [status for status in statuses if status != "ok"]
+    if not failures:
+        return otherwise or "too_few_features"
+    counts = Counter("no_match_within_prior" if status in PRIOR_FAILURES else status for status in failures)
+    reason, count = counts.most_common(1)[0]
+    if counts["no_match_within_prior"] == count:       # ties go to the prior: it explains them all
+        return "no_match_within_prior"
+    return otherwise or reason
 
 
 @dataclass(frozen=True)
