@@ -7,6 +7,7 @@
     campaign table DIR     the paper's table (also written as table.md and table.csv in DIR)
     campaign report DIR    a Markdown report with PNG plots
     campaign camera FILE   validate a camera TOML and print its derived numbers
+    campaign cluster FILE  print the job script / pod spec a submit would use (submits nothing)
     campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR
     campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
     campaign export DIR CASE_ID OUT   a case's exact estimator inputs and its truth as files (replay it)
@@ -156,8 +157,11 @@ def _cmd_status(args) -> int:
     status = CampaignStore(args.dir).status()
     print(f"{args.dir}: {status.planned} planned, {status.done} done, {status.failed} failed, {status.missing} missing")
     if status.bad:
-        print(f"{args.dir}: {status.bad} bad case files not counted (`campaign verify {args.dir}` lists them; the next "
-              "submit moves them to rejected/ and computes their cases again)")
+        foreign = f", {status.foreign} of them foreign (another campaign's or without identity)" if status.foreign else ""
+        print(f"{args.dir}: {status.bad} bad case files not counted{foreign} (`campaign verify {args.dir}` lists them; "
+              "the next submit moves them to rejected/ and computes their cases again)")
+    if status.rejected:
+        print(f"{args.dir}: {status.rejected} files rejected earlier, in rejected/ (rejected/rejected.log says why)")
     if status.outside_plan:
         print(f"{args.dir}: {status.outside_plan} case files of cases outside the plan (kept, not counted)")
     return 0
@@ -256,6 +260,30 @@ def _cmd_export(args) -> int:
     return 0
 
 
+def _cmd_cluster(args) -> int:
+    from campaign.run.cluster import cluster_description, require_backend
+
+    config = _load(args)
+    execution = config.execution.with_overrides(args.scheduler, args.workers)
+    require_backend(execution, str(config.source))
+    text, note = cluster_description(execution)
+    print(text)
+    print(f"campaign: note: {note}; nothing was submitted", file=sys.stderr)
+    return 0
+
+
+def _cmd_check_estimators(args) -> int:
+    from campaign.run.check_estimators import check_estimators
+    from estimators.registry import plugin_imports_deferred
+
+    if args.cases < 1:
+        raise ConfigError(f"--cases = {args.cases} is not allowed; allowed: an integer >= 1")
+    _check_cluster_flags(args)
+    with plugin_imports_deferred():      # a module that does not import is the estimator's violation (exit 1)
+        config = _load(args)
+    return 1 if check_estimators(config, args.cases, args.scheduler) else 0
+
+
 def _cmd_schema(args) -> int:
 
     print(json.dumps(table_schema(args.table) if args.table else all_schemas(), indent=2))
@@ -316,6 +344,21 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("case_id", type=int, help="a case id of the store's plan (`campaign plan`, results.parquet)")
     export.add_argument("out", help="output directory (created; files of an earlier export are replaced)")
     export.set_defaults(handler=_cmd_export)
+
+    cluster = commands.add_parser("cluster", help="print the job script (slurm, pbs) or DaskCluster resource "
+                                  "(kubernetes) that submit would use; submits nothing")
+    cluster.add_argument("file")
+    cluster.add_argument("--scheduler", help="tcp://host:port of an existing dask scheduler")
+    cluster.add_argument("--workers", type=int, help="worker count (overrides [execution] workers)")
+    cluster.set_defaults(handler=_cmd_cluster)
+
+    check = commands.add_parser("check-estimators", help="run every declared estimator on a few planned cases on "
+                                "the driver and on a worker and check the contract (writes no store)")
+    check.add_argument("file")
+    check.add_argument("--cases", type=int, default=2, help="planned cases to check on (default 2)")
+    check.add_argument("--scheduler", help="tcp://host:port of a dask scheduler whose worker to check on "
+                       "(default: a one-worker local cluster)")
+    check.set_defaults(handler=_cmd_check_estimators)
 
     camera = commands.add_parser("camera", help="validate a camera TOML and print its derived numbers")
     camera.add_argument("file")
