@@ -7,7 +7,7 @@ its answer as JSON. Copy it (numpy and the standard library only), or write the 
     argv = ["{python}", "{config_dir}/minimal_command.py", "{images}", "--measurements", "{measurements}",
             "--camera", "{camera}", "--flat-field", "{flat_field}", "--parameters", "{parameters}",
             "--output", "{output}"]
-    image_format = "npy"          # or "png" (16-bit grey) or "raw" (little-endian uint16, no header)
+    image_format = "npy"          # or "png" (16-bit grey, the default) or "raw" (little-endian uint16)
     flat_field_format = "npy"
     timeout_s = 60
 
@@ -25,6 +25,18 @@ import sys
 import tomllib
 
 import numpy as np
+
+
+def read_image(path: str) -> np.ndarray:
+    """One image file as the uint16 DN array it holds: ``.npy`` (image_format = "npy"), 16-bit grey
+    ``.png`` (the default image_format) or headerless little-endian uint16 ``.raw``."""
+    if path.endswith(".npy"):
+        return np.load(path)
+    if path.endswith(".png"):
+        from PIL import Image  # lazy: only PNG needs Pillow; npy and raw need numpy alone
+        with Image.open(path) as image:
+            return np.asarray(image)
+    return np.fromfile(path, dtype="<u2")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
 
     features, signal_dn = [], []
     for path in args.images:
-        image = np.load(path)                   # uint16 DN as read out (image_format = "npy")
+        image = read_image(path)                # uint16 DN as read out
+        image = image.reshape(rows, columns) if image.ndim == 1 and image.size == rows * columns else image
         if image.shape != (rows, columns):
             print(f"{path}: image shape {image.shape}; expected ({rows}, {columns})", file=sys.stderr)
             return 2
