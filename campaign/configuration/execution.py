@@ -30,6 +30,27 @@ CLUSTERS = ("local", "scheduler", "slurm", "pbs", "kubernetes")
 WALLTIME = re.compile(r"^(\d+-)?\d{1,3}:\d{2}(:\d{2})?$")
 KUBERNETES_QUANTITY = re.compile(r"^\d+(\.\d+)?(m|k|M|G|T|Ki|Mi|Gi|Ti)?$")
 KUBERNETES_NAME = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
+_QUANTITY_FACTORS = {"": 1, "m": 1e-3, "k": 10**3, "M": 10**6, "G": 10**9, "T": 10**12,
+                     "Ki": 2**10, "Mi": 2**20, "Gi": 2**30, "Ti": 2**40}
+#: memory a worker pod keeps above dask's --memory-limit: this fraction of the pod's memory, at least
+#: KUBERNETES_HEADROOM_MIN_BYTES (the nanny process, interpreter and libraries outside dask's accounting)
+KUBERNETES_HEADROOM_FRACTION = 0.10
+KUBERNETES_HEADROOM_MIN_BYTES = 256 * 2**20
+#: smallest worker pod: dask's limit then leaves a case (about 550 MiB) below the 80 % pause threshold
+KUBERNETES_MIN_POD_BYTES = 2**30
+
+
+def kubernetes_bytes(quantity: str) -> int:
+    """Bytes of a Kubernetes memory quantity ("2Gi", "512Mi", "1G", "1000")."""
+    match = re.match(r"^(\d+(?:\.\d+)?)(\D*)$", quantity)
+    if match is None or match.group(2) not in _QUANTITY_FACTORS:
+        raise ValueError(f"{quantity!r} is not a Kubernetes quantity")
+    return int(float(match.group(1)) * _QUANTITY_FACTORS[match.group(2)])
+
+
+def kubernetes_headroom_bytes(pod_bytes: int) -> int:
+    """Memory of a worker pod of ``pod_bytes`` kept above dask's ``--memory-limit`` (bytes)."""
+    return max(int(KUBERNETES_HEADROOM_FRACTION * pod_bytes), KUBERNETES_HEADROOM_MIN_BYTES)
 
 
 def _memory_size(value: str) -> str:
@@ -102,14 +123,22 @@ class KubernetesPods(ConfigModel):
     cpu: str = "1"
     """CPU request and limit of one worker pod (Kubernetes quantity, e.g. "1", "500m")."""
     memory: str = "2Gi"
-    """Memory request and limit of one worker pod (Kubernetes quantity, e.g. "2Gi"); the worker's memory
-    limit is the same."""
+    """Memory request and limit of one worker pod (Kubernetes quantity, e.g. "2Gi", at least 1Gi); dask's
+    --memory-limit is 10 % (at least 256 MiB) lower, so dask pauses the worker before the pod is killed."""
 
     @field_validator("cpu", "memory")
     @classmethod
     def _quantity(cls, value: str) -> str:
         if not KUBERNETES_QUANTITY.match(value):
             raise FieldProblem("", f"= {value!r} is not a Kubernetes quantity; allowed: e.g. \"1\", \"500m\", \"2Gi\"")
+        return value
+
+    @field_validator("memory")
+    @classmethod
+    def _pod_memory(cls, value: str) -> str:
+        if kubernetes_bytes(value) < KUBERNETES_MIN_POD_BYTES:
+            raise FieldProblem("", f"= {value!r} is too small for a worker pod; allowed: at least \"1Gi\" (a case "
+                               "needs about 550 MiB below dask's pause threshold, and 10 % is kept as headroom)")
         return value
 
     @field_validator("namespace", "name")

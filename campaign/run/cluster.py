@@ -15,16 +15,23 @@ The optional packages are imported only for their backend; a missing one is a on
 from __future__ import annotations
 
 import importlib
+import json
 import logging
 import os
-import re
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 from dask.distributed import Client, LocalCluster
 
-from campaign.configuration.execution import BatchJobs, ExecutionConfig
+from campaign.configuration.execution import BatchJobs, ExecutionConfig, kubernetes_bytes, kubernetes_headroom_bytes
+from campaign.run.batch_jobs import (
+    SUBMIT_COMMANDS,
+    JobRecord,
+    recording_job_class,
+    require_submit_command,
+    wait_for_first_worker,
+)
 from campaign.run.faults import RunStopped
 from flight_interface.tomlfields import ConfigError
 
@@ -34,12 +41,10 @@ OPTIONAL_BACKENDS = {"slurm": ("dask_jobqueue", "dask-jobqueue", "slurm"),
                      "kubernetes": ("dask_kubernetes", "dask-kubernetes", "kubernetes")}
 SINGLE_THREAD_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 WORKER_JOB_NAME = "moc2dimes-worker"
+SCHEDULER_PLACEHOLDER = "tcp://SCHEDULER-ADDRESS:PORT"
 #: distributed's own log records on the driver during a run (the runner reports problems as one line;
 #: M2D_DASK_LOG_LEVEL=20 shows them, e.g. to debug a cluster)
 DRIVER_LOG_LEVEL = int(os.environ.get("M2D_DASK_LOG_LEVEL", logging.CRITICAL))
-_QUANTITY_FACTORS = {"": 1, "k": 10**3, "M": 10**6, "G": 10**9, "T": 10**12,
-                     "Ki": 2**10, "Mi": 2**20, "Gi": 2**30, "Ti": 2**40}
-
 
 def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> None:
     """Raise a one-line ConfigError when the package of ``execution.cluster`` is not installed."""
@@ -57,33 +62,55 @@ def default_worker_count() -> int:
     return max(1, os.cpu_count() or 1)
 
 
-def jobqueue_cluster(execution: ExecutionConfig):
-    """The SLURMCluster or PBSCluster of ``execution`` (its scheduler runs here; no job submitted yet:
-    ``cluster.job_script()`` shows the script, :func:`start_cluster` scales it)."""
+def _job_options(execution: ExecutionConfig) -> dict:
+    """Keyword arguments of dask-jobqueue's job (and cluster) for ``[execution.slurm]`` / ``[execution.pbs]``."""
     jobs: BatchJobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
-    # dask-jobqueue is an optional extra (moc2dimes[slurm] / [pbs]): imported only for these backends
-    if execution.cluster == "slurm":
-        from dask_jobqueue import SLURMCluster as Cluster
-    else:
-        from dask_jobqueue import PBSCluster as Cluster
     prologue = [f"export {name}={value}" for name, value in SINGLE_THREAD_ENVIRONMENT.items()] + list(jobs.prologue)
-    return Cluster(cores=jobs.cores, processes=jobs.cores, memory=jobs.memory, walltime=jobs.walltime,
-                   queue=jobs.queue or None, account=jobs.account or None, job_name=WORKER_JOB_NAME,
-                   job_extra_directives=list(jobs.job_extra), job_script_prologue=prologue,
-                   interface=jobs.interface or None, python=jobs.python or sys.executable,
+    return dict(cores=jobs.cores, processes=jobs.cores, memory=jobs.memory, walltime=jobs.walltime,
+                queue=jobs.queue or None, account=jobs.account or None, job_name=WORKER_JOB_NAME,
+                job_extra_directives=list(jobs.job_extra), job_script_prologue=prologue,
+                interface=jobs.interface or None, python=jobs.python or sys.executable)
+
+
+def _job_class(kind: str) -> type:
+    # dask-jobqueue is an optional extra (moc2dimes[slurm] / [pbs]): imported only for these backends
+    from dask_jobqueue.pbs import PBSJob
+    from dask_jobqueue.slurm import SLURMJob
+
+    return SLURMJob if kind == "slurm" else PBSJob
+
+
+def jobqueue_cluster(execution: ExecutionConfig, record: JobRecord | None = None):
+    """The SLURMCluster or PBSCluster of ``execution`` (its scheduler runs here; no job submitted yet:
+    :func:`start_cluster` scales it); its submissions go to ``record`` when given."""
+    # optional extra, as above
+    from dask_jobqueue import PBSCluster, SLURMCluster
+
+    Cluster = SLURMCluster if execution.cluster == "slurm" else PBSCluster
+    job_class = _job_class(execution.cluster)
+    return Cluster(**_job_options(execution), job_cls=recording_job_class(job_class, record or JobRecord()),
                    scheduler_options={"dashboard_address": ":0"}, silence_logs="error")
 
 
-def kubernetes_bytes(quantity: str) -> int:
-    """Bytes of a Kubernetes memory quantity ("2Gi", "512Mi", "1G", "1000")."""
-    number, suffix = re.match(r"^(\d+(?:\.\d+)?)(\D*)$", quantity).groups()
-    return int(float(number) * _QUANTITY_FACTORS[suffix])
+def batch_job_script(execution: ExecutionConfig, scheduler: str = SCHEDULER_PLACEHOLDER) -> str:
+    """The job script ``campaign submit`` would give ``sbatch`` / ``qsub`` for ``execution`` (one job; the
+    scheduler's address, known only when it runs, shown as ``scheduler``). Starts and submits nothing."""
+    job = _job_class(execution.cluster)(scheduler=scheduler, name=f"{WORKER_JOB_NAME}-0", **_job_options(execution))
+    return job.job_script()
+
+
+def kubernetes_worker_memory_limit(pod_memory: str) -> int:
+    """Bytes of dask's ``--memory-limit`` in a worker pod of ``pod_memory`` (Kubernetes quantity): the pod's
+    memory less :func:`~campaign.configuration.execution.kubernetes_headroom_bytes`, so that dask pauses the
+    worker (80 %) and its nanny restarts it (95 %) before the kernel kills the pod at its limit."""
+    pod_bytes = kubernetes_bytes(pod_memory)
+    return pod_bytes - kubernetes_headroom_bytes(pod_bytes)
 
 
 def kubernetes_cluster_spec(execution: ExecutionConfig) -> dict:
     """The DaskCluster resource (a dict, as applied to Kubernetes) of ``[execution.kubernetes]``:
     namespace, image, one single-threaded worker per pod with the pod's CPU and memory as requests and
-    limits, and the worker's memory limit equal to the pod's."""
+    limits, and the worker's memory limit below the pod's (:func:`kubernetes_worker_memory_limit`)."""
     # dask-kubernetes is an optional extra (moc2dimes[kubernetes]): imported only for that backend
     from dask_kubernetes.operator import make_cluster_spec
 
@@ -93,8 +120,73 @@ def kubernetes_cluster_spec(execution: ExecutionConfig) -> dict:
                              resources=resources, env=dict(SINGLE_THREAD_ENVIRONMENT), worker_command="dask worker")
     spec["metadata"]["namespace"] = pods.namespace
     worker = spec["spec"]["worker"]["spec"]["containers"][0]
-    worker["args"] += ["--nthreads", "1", "--memory-limit", str(kubernetes_bytes(pods.memory))]
+    worker["args"] += ["--nthreads", "1", "--memory-limit", str(kubernetes_worker_memory_limit(pods.memory))]
     return spec
+
+
+def cluster_description(execution: ExecutionConfig) -> tuple[str, str]:
+    """What ``campaign submit`` would hand the batch system or Kubernetes for ``execution``: (text, note).
+    The text is the job script (slurm, pbs; the scheduler's address, known only when it runs, as
+    :data:`SCHEDULER_PLACEHOLDER`) or the DaskCluster resource as JSON (kubernetes); the note says how many.
+    Starts and submits nothing."""
+    if execution.cluster in ("slurm", "pbs"):
+        jobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
+        count = -(-execution.workers // jobs.cores) if execution.workers else jobs.jobs
+        return batch_job_script(execution), (f"{count} such job(s) of {jobs.cores} single-threaded worker(s), "
+                                             f"submitted with {SUBMIT_COMMANDS[execution.cluster]}")
+    if execution.cluster == "kubernetes":
+        spec = kubernetes_cluster_spec(execution)
+        pods = execution.kubernetes
+        limit = kubernetes_worker_memory_limit(pods.memory)
+        return json.dumps(spec, indent=2), (f"{spec['spec']['worker']['replicas']} worker pod(s) of {pods.memory}; "
+                                            f"dask --memory-limit {limit / 2**20:.0f} MiB (pauses at 80 %)")
+    if execution.cluster == "scheduler":
+        return f"an existing dask scheduler at {execution.scheduler}", "its workers are started by whoever runs it"
+    return (f"an embedded LocalCluster of {execution.workers or default_worker_count()} single-threaded worker "
+            f"processes, memory_limit {execution.memory_limit} each"), "no job script: the workers run here"
+
+
+def _batch_cluster(execution: ExecutionConfig, quiet: bool) -> tuple[Client, object]:
+    """Submit the jobs and wait for their first worker (campaign.run.batch_jobs: a dead batch job stops
+    the run in one line); the jobs are cancelled when anything fails."""
+    require_submit_command(execution.cluster)
+    record = JobRecord()
+    cluster = jobqueue_cluster(execution, record)
+    try:
+        jobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
+        if execution.workers:
+            cluster.scale(n=execution.workers)
+        else:
+            cluster.scale(jobs=jobs.jobs)
+        client = Client(cluster)
+        try:
+            wait_for_first_worker(cluster, execution.cluster, record, execution.no_workers_timeout_s)
+        except BaseException:
+            _quietly(client.close)
+            raise
+    except BaseException:
+        _quietly(cluster.close)
+        raise
+    if not quiet:
+        print(f"{execution.cluster} jobs: {', '.join(record.submitted)}", flush=True)
+    return client, cluster
+
+
+def _kubernetes_cluster(execution: ExecutionConfig):
+    """The KubeCluster of ``execution``; no Kubernetes credentials or API: one line (RunStopped)."""
+    # optional extra moc2dimes[kubernetes] (and its kr8s client): imported only for this backend
+    import kr8s
+    from dask_kubernetes.operator import KubeCluster
+
+    try:
+        kr8s.api()      # credentials first: a KubeCluster that fails later leaves an exit-time traceback
+        return KubeCluster(custom_cluster_spec=kubernetes_cluster_spec(execution),
+                           namespace=execution.kubernetes.namespace, shutdown_on_close=True, quiet=True)
+    except Exception as exc:   # noqa: BLE001 - kr8s and the operator raise ValueError, kr8s.ServerError, OSError ...
+        raise RunStopped(f"cannot start the Kubernetes cluster ({_first_line(exc)}); check the credentials "
+                         "(KUBECONFIG, ~/.kube/config or the pod's service account), the namespace "
+                         f"{execution.kubernetes.namespace!r} and the dask-kubernetes operator; "
+                         "nothing was run or changed") from None
 
 
 def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Client, object | None]:
@@ -116,19 +208,10 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
                                processes=True, memory_limit=execution.memory_limit, dashboard_address="127.0.0.1:0",
                                host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
     elif execution.cluster in ("slurm", "pbs"):
-        cluster = jobqueue_cluster(execution)
-        jobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
-        if execution.workers:
-            cluster.scale(n=execution.workers)
-        else:
-            cluster.scale(jobs=jobs.jobs)
+        client, cluster = _batch_cluster(execution, quiet)
     else:
-        # optional extra moc2dimes[kubernetes], as above
-        from dask_kubernetes.operator import KubeCluster
-
-        cluster = KubeCluster(custom_cluster_spec=kubernetes_cluster_spec(execution),
-                              namespace=execution.kubernetes.namespace, shutdown_on_close=True, quiet=True)
-    if cluster is not None:
+        cluster = _kubernetes_cluster(execution)
+    if cluster is not None and execution.cluster not in ("slurm", "pbs"):
         try:
             client = Client(cluster)
         except BaseException:

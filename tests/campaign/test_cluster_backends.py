@@ -32,6 +32,8 @@ def _execution(data: dict) -> ExecutionConfig:
     ('stall_timeout_s = 0', "execution.stall_timeout_s = 0 is out of range; allowed: >= 1"),
     ('cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"\nmemory = "2 GB"',
      "execution.kubernetes.memory = '2 GB' is not a Kubernetes quantity"),
+    ('cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"\nmemory = "512Mi"',
+     "execution.kubernetes.memory = '512Mi' is too small for a worker pod; allowed: at least \"1Gi\""),
 ])
 def test_bad_execution_table_is_one_line_exit_2_nothing_written(tmp_path, capsys, lines, expected):
     path = campaign_file(tmp_path, execution=lines)
@@ -96,10 +98,16 @@ def test_kubernetes_spec_has_image_namespace_and_resources():
     arguments = container["args"]
     assert arguments[:2] == ["dask", "worker"]
     assert arguments[arguments.index("--nthreads") + 1] == "1"
-    assert arguments[arguments.index("--memory-limit") + 1] == str(3 * 2**30)
+    # dask's limit 10 % below the pod's 3 GiB: dask pauses (80 %) and restarts (95 %) before the pod is killed
+    assert arguments[arguments.index("--memory-limit") + 1] == str(3 * 2**30 - int(0.1 * 3 * 2**30))
     assert {"name": "OPENBLAS_NUM_THREADS", "value": "1"} in container["env"]
     [scheduler] = spec["spec"]["scheduler"]["spec"]["containers"]
     assert scheduler["image"] == "registry.example.org/moc2dimes:0.1"
+    small = _execution({"cluster": "kubernetes", "kubernetes": {"image": "x", "memory": "1Gi"}})
+    [container] = kubernetes_cluster_spec(small)["spec"]["worker"]["spec"]["containers"]
+    limit = int(container["args"][container["args"].index("--memory-limit") + 1])
+    assert limit == 2**30 - 256 * 2**20          # at least 256 MiB headroom: 768 MiB for dask
+    assert 0.8 * limit > 550 * 2**20             # a case (about 550 MiB) fits below the pause threshold
     overridden = _execution({"cluster": "kubernetes", "workers": 5, "kubernetes": {"image": "x"}})
     assert kubernetes_cluster_spec(overridden)["spec"]["worker"]["replicas"] == 5      # [execution] workers wins
 
