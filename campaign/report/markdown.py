@@ -6,7 +6,7 @@ from pathlib import Path
 
 from campaign.realism.flight_metrics import __doc__ as METRICS_DOC
 from campaign.realism.flight_metrics import metrics_table
-from campaign.report import plots
+from campaign.report import compare_plots, plots
 from campaign.report.aggregate import format_number, format_table, site_table
 from campaign.report.compare import (
     COMPARISON_NOTE,
@@ -18,6 +18,7 @@ from campaign.report.compare import (
     format_comparison,
     with_estimator_column,
 )
+from campaign.report.gallery import INVALID_PER_REASON, draw_gallery
 from campaign.run.orchestrate import false_valid_threshold
 from campaign.store.campaign_store import CampaignStore, StoreError
 
@@ -51,6 +52,20 @@ def write_report(root: Path) -> Path:
         *(f"- **failed:** {line}" for line in failure_lines(estimator_counts(results))), "",
         "## Estimators side by side", "", format_comparison(comparison, markdown=True), "", COMPARISON_NOTE, "",
     ]
+    compare_plots.error_cdf(results, list(fractions), site, names, out / "error_cdf.png", threshold)
+    compare_plots.valid_false_valid_bars(comparison, out / "valid_false_valid.png")
+    gallery_lines = draw_gallery(store, results, out, threshold)
+    (out / "gallery.md").write_text("\n".join(gallery_lines))
+    shown = sum(line.startswith("![case ") for line in gallery_lines)
+    lines += ["## Estimators compared on shared axes", "",
+              "Error CDF of the valid cases, one line per estimator; every panel on the same axes:", "",
+              "![error CDF](error_cdf.png)", "",
+              "% valid (valid/ran; the site's ellipse-weighted) and false-valid (of the valid cases) per class, "
+              "one bar per estimator, both panels on the same 0-100 % scale:", "",
+              "![% valid and false-valid](valid_false_valid.png)", "",
+              f"The [failure gallery](gallery.md) shows {shown} cases: each false-valid case and up to "
+              f"{INVALID_PER_REASON} invalid cases per reason and estimator, with their images, templates and "
+              "matches, error and attitude-knowledge floor.", ""]
     for name in names:
         rows = results[results["estimator"] == name]
         suffix = f"-{name}" if len(names) > 1 else ""
