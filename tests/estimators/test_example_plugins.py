@@ -31,7 +31,7 @@ from simulator.synthetic_descent import constant_velocity_descent, random_ground
 EXAMPLES = Path(minimal_python.__file__).parent
 VELOCITY = (12.0, -7.0, -72.0)
 IMU_BIAS = np.array([3.0, -2.0, 0.0])
-pytestmark = pytest.mark.slow          # two interpreters start (the command and the isolated callable)
+pytestmark = pytest.mark.slow          # interpreters start (the commands and the isolated callable)
 
 
 def docstring_entry(module) -> dict:
@@ -62,7 +62,8 @@ def specs(**changes):
     adapter = TypeAdapter(EstimatorEntry)
     validated = [adapter.validate_python(entry, context={"base_dir": EXAMPLES}) for entry in entries]
     python, command = estimator_specs(validated, {}, "examples")
-    return [python, replace(python, name="imu_only_isolated", isolate=True), command]
+    return [python, replace(python, name="imu_only_isolated", isolate=True), command,
+            *(replace(command, name=f"imu_only_{kind}", image_format=kind) for kind in ("png", "raw"))]
 
 
 def test_each_example_answers_the_imu_velocity_with_its_stated_uncertainty(inputs):
@@ -78,8 +79,8 @@ def test_each_example_answers_the_imu_velocity_with_its_stated_uncertainty(input
         assert output.velocity_uncertainty_mps == pytest.approx(1.5 * math.sqrt(2.0))
         assert len(output.features) == 3 and all(f["status"] == "ok" for f in output.features)
         answers.append(output)
-    # in process, isolated and as a program on files: the same answer (npy files keep every bit)
-    assert answers[0] == answers[1] == answers[2]
+    # in process, isolated and as a program on npy, PNG and raw files: the same answer, every bit
+    assert all(answer == answers[0] for answer in answers[1:])
     # a lit image: its flat-fielded mean is well above the 20 DN offset and inside the 12-bit range
     assert all(100.0 < f["brightness_dn"] < 4095.0 and f["contrast_dn"] > 0 for f in answers[0].features)
 
