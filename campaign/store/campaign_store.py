@@ -17,8 +17,10 @@ Layout::
     OUT/rejected/              bad files moved out of the way (never deleted), ``rejected.log`` says why
     OUT.lock                   beside the store: one writer at a time (:mod:`campaign.store.lock`)
 
-Integrity: every file is checked before it is trusted. A case file that is truncated, corrupted or
-has no record is not counted by ``status``, never read by ``table`` or compaction, and is moved to
+Integrity: every file is checked before it is trusted. A case file that is truncated, corrupted, has no
+record, does not fit the result schema or is *foreign* (the identity recorded inside it - configuration
+hash, case id, seed, estimators, schema version: :mod:`campaign.store.case_identity` - is not this
+store's) is not counted by ``status``, never read by ``table`` or compaction, and is moved to
 ``rejected/`` and recomputed by the next ``submit``. Case files of cases that are not in the plan are
 kept but not counted. A corrupt ``manifest.json`` or ``plan.parquet`` is a one-line error; ``campaign
 verify DIR`` lists every bad file.
@@ -46,6 +48,7 @@ from campaign.store.case_files import (
     sha256_bytes,
     sha256_file,
 )
+from campaign.store.case_identity import FOREIGN, StoreIdentity
 from campaign.store.errors import StoreError
 from campaign.store.lock import StoreLock, lock_path_for
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULTS_SCHEMA, TIMINGS_SCHEMA
@@ -61,6 +64,8 @@ class CaseStatus:
     failed: int
     bad: int = 0                 # case files that fail verification (their cases are missing)
     outside_plan: int = 0        # verified case files of cases not in the plan (kept, not counted)
+    foreign: int = 0             # of ``bad``: files of another campaign, schema version, or without identity
+    rejected: int = 0            # files moved to rejected/ earlier (see rejected/rejected.log)
 
     @property
     def missing(self) -> int:
@@ -119,12 +124,25 @@ class CampaignStore:
         self.results_record_path = self.root / "results.json"
         self.rejected_dir = self.root / "rejected"
         self.lock_path = lock_path_for(self.root)
-        self._verified: dict[str, tuple[int, int, int]] = {}   # case files this object has verified
+        self._verified: dict[str, tuple] = {}   # case files this object has verified
+        self._lock: StoreLock | None = None
 
     def lock(self, wait: bool = False, on_wait=None) -> StoreLock:
         """The store's writer lock (a context manager; :class:`~campaign.store.lock.StoreBusy` when held
-        elsewhere and not ``wait``)."""
-        return StoreLock(self.root, wait=wait, on_wait=on_wait)
+        elsewhere and not ``wait``). :meth:`prepare` extends it to the store directory it creates."""
+        self._lock = StoreLock(self.root, wait=wait, on_wait=on_wait)
+        return self._lock
+
+    def _hold_directory(self) -> None:
+        """Lock the store directory itself (created if needed) when this object holds the writer lock."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        if self._lock is not None and self._lock.held:
+            self._lock.hold_store_directory()
+
+    def identity(self) -> StoreIdentity | None:
+        """What the store's case files must record (from the verified manifest; None without one)."""
+        manifest, _ = self._manifest_state()
+        return StoreIdentity.of_manifest(manifest) if manifest is not None else None
 
     # --- identity: manifest and plan ----------------------------------------------------------
     def manifest(self) -> dict | None:
@@ -209,6 +227,7 @@ class CampaignStore:
         notes = []
         if fresh and self.root.exists():
             notes.append(f"moved the previous store aside to {self.move_aside()}")
+        self._hold_directory()                 # before the first write (a removed DIR.lock lets no one in)
         self.check(manifest, plan)
         existing = self.manifest()
         plan = plan.reset_index(drop=True)
@@ -217,17 +236,21 @@ class CampaignStore:
             self._record_plan(manifest, plan)
             return notes
         self.cases_dir.mkdir(parents=True, exist_ok=True)
+        recorded = {"cases_per_class": manifest["cases_per_class"], "estimators": manifest.get("estimators")}
         problem = self._plan_problem(existing)
         if problem is not None:
             if self.plan_path.exists():
                 self._reject(self.plan_path, problem)
             notes.append(f"{self.plan_path}: {problem}; written again from the configuration")
-            self._record_plan({**existing, "cases_per_class": manifest["cases_per_class"]}, plan)
+            self._record_plan({**existing, **recorded}, plan)
         elif set(pd.read_parquet(self.plan_path, columns=["case_id"])["case_id"]) != set(plan["case_id"]):
             old_size = existing.get("plan_cases", "?")   # check() found the cases in both planned identically
-            self._record_plan({**existing, "cases_per_class": manifest["cases_per_class"]}, plan)
+            self._record_plan({**existing, **recorded}, plan)
             notes.append(f"{self.root}: same configuration, plan of {len(plan)} cases recorded (was {old_size}); "
                          "the cases in both are unchanged and reused")
+        elif existing.get("estimators") != manifest.get("estimators"):   # a manifest from before they were recorded
+            self._record_plan({**existing, "estimators": manifest.get("estimators")}, plan)
+            notes.append(f"{self.root}: manifest.json now records the estimator list its case files must match")
         rejected = self.reject_bad_files()
         if rejected:
             notes.append(f"{self.root}: moved {rejected} bad or superseded case files to {self.rejected_dir} "
@@ -267,7 +290,7 @@ class CampaignStore:
 
     def reject_bad_files(self) -> int:
         """Move bad and superseded case files to ``rejected/`` (one log line each); return how many."""
-        scan = scan_case_files(self.cases_dir)          # everything hashed afresh before a run
+        scan = scan_case_files(self.cases_dir, expected=self.identity())   # everything hashed afresh before a run
         for path, reason in [*scan.bad, *scan.superseded]:
             self._reject(path, reason)
         if scan.bad or scan.superseded:
@@ -277,7 +300,7 @@ class CampaignStore:
     # --- reading -------------------------------------------------------------------------------
     def scan(self) -> CaseScan:
         """Every case file verified (files this object verified before and that are unchanged: by stat)."""
-        return scan_case_files(self.cases_dir, self._verified)
+        return scan_case_files(self.cases_dir, self._verified, self.identity())
 
     def finished_case_ids(self) -> dict[int, str]:
         """case_id -> 'ok' or 'failed' for every verified case file (works during a run and after a crash)."""
@@ -293,7 +316,15 @@ class CampaignStore:
         counted = [case for case_id, case in scan.cases.items() if case_id in planned]
         failed = sum(1 for case in counted if case.state == "failed")
         return CaseStatus(planned=len(planned), done=len(counted) - failed, failed=failed, bad=len(scan.bad),
-                          outside_plan=len(scan.cases) - len(counted))
+                          outside_plan=len(scan.cases) - len(counted),
+                          foreign=sum(1 for _, reason in scan.bad if reason.startswith(FOREIGN)),
+                          rejected=len(self.rejected_files()))
+
+    def rejected_files(self) -> list[Path]:
+        """The files moved to ``rejected/`` (``rejected.log`` says when and why)."""
+        if not self.rejected_dir.is_dir():
+            return []
+        return sorted(path for path in self.rejected_dir.iterdir() if path.name != "rejected.log")
 
     def read_case_table(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
                         planned: set[int] | None = None) -> pa.Table:

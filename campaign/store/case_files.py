@@ -9,19 +9,22 @@ renamed to that name (``os.replace`` is atomic on POSIX): the file and its recor
 one step. A kill at any instant leaves either no file, an ignored temporary file, or a complete file
 whose name verifies it. ``sha256sum`` checks a case file by hand against its name.
 
-A file is *verified* when its name has the record, its size and sha256 match it and its Parquet schema is
-exactly the declared :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`. Anything else in
-``cases/`` is *bad*: truncated, corrupted, a name without the record (an older version, or by hand),
-a file whose columns do not fit the declared result schema (the reason names the column),
-or not a case file at all. Bad files are never counted or read; :meth:`CampaignStore.reject_bad_files`
-moves them to ``rejected/`` so their cases are recomputed. A case recomputed after a kill can have two
-verified files for a moment (the worker removes the older one right after its rename); the newest
-counts, the others are *superseded* and never counted twice.
+A file is *verified* when its name has the record, its size and sha256 match it, its Parquet schema is
+exactly the declared :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` and the identity recorded
+inside it (:mod:`campaign.store.case_identity`: configuration hash, case id, seed, estimators, schema
+version) is the store's, with rows that agree. Anything else in ``cases/`` is *bad*: truncated,
+corrupted, a name without the record (an older version, or by hand), a file whose columns do not fit
+the declared result schema (the reason names the column), a *foreign* file (another campaign's, another
+schema version's, or one without an identity record), or not a case file at all. Bad files are
+never counted or read; :meth:`CampaignStore.reject_bad_files` moves them to ``rejected/`` so their
+cases are recomputed. A case recomputed after a kill can have two verified files for a moment (the
+worker removes the older one right after its rename); the newest counts, the others are *superseded* and never counted twice.
 """
 from __future__ import annotations
 
 import hashlib
 import io
+import json
 import os
 import re
 import uuid
@@ -33,6 +36,14 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from campaign.store.case_identity import (
+    StoreIdentity,
+    check_rows_match,
+    identity_metadata,
+    identity_problem,
+    read_identity,
+    rows_problem,
+)
 from campaign.store.result_schema import CASE_FILE_SCHEMA, ResultSchemaError, rows_table, schema_problem
 
 CASE_FILE = re.compile(r"^case-(\d{6,})\.(ok|failed)\.(\d+)\.([0-9a-f]{64})\.parquet$")
@@ -97,17 +108,39 @@ def fsync_directory(directory: Path) -> None:
         os.close(descriptor)
 
 
-def write_case_rows(cases_dir: Path, case_id: int, rows: Sequence[Mapping[str, Any]], ok: bool) -> Path:
+def store_identity(store_root: Path) -> StoreIdentity | None:
+    """The identity declared by the ``manifest.json`` of ``store_root`` (None: none, or not readable)."""
+    try:
+        manifest = json.loads((store_root / "manifest.json").read_text())
+        return StoreIdentity.of_manifest(manifest)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
+def write_case_rows(cases_dir: Path, case_id: int, rows: Sequence[Mapping[str, Any]], ok: bool,
+                    identity: StoreIdentity | None = None) -> Path:
     """Durably write a case's rows (one per estimator) in one file named with its size and sha256 (atomic
-    rename), then remove any earlier file of the same case. ``ok``: the case was simulated (an
-    estimator's own failure is in its row).
+    rename), recording ``identity`` inside it, then remove any earlier file of the same case. ``ok``:
+    the case was simulated (an estimator's own failure is in its row).
+
+    ``identity``: the campaign that computed the rows (the worker passes its own); None: the identity
+    of the store ``cases_dir`` belongs to, from its ``manifest.json`` (for tools rewriting a store's
+    cases), and no record at all when there is no manifest (such a file is foreign in every store).
 
     Raises
     ------
     campaign.store.result_schema.ResultSchemaError
-        A row does not fit :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` (nothing is written).
+        A row does not fit :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`, or the rows are not
+        case ``case_id`` of ``identity`` (nothing is written).
     """
-    data = table_bytes(rows_table(rows, CASE_FILE_SCHEMA))
+    identity = identity if identity is not None else store_identity(cases_dir.parent)
+    table = rows_table(rows, CASE_FILE_SCHEMA)
+    if identity is not None:
+        problem = check_rows_match(rows, identity, case_id)
+        if problem is not None:
+            raise ResultSchemaError(f"case {case_id}: {problem}")
+        table = table.replace_schema_metadata(identity_metadata(identity, case_id))
+    data = table_bytes(table)
     target = cases_dir / case_file_name(case_id, ok, len(data), sha256_bytes(data))
     atomic_write_bytes(target, data, cases_dir / f"{TEMPORARY_PREFIX}{case_id:06d}-{uuid.uuid4().hex}.parquet")
     for entry in os.scandir(cases_dir):
@@ -143,7 +176,7 @@ class CaseScan:
 
 
 def read_case_table(path: Path) -> pa.Table:
-    """The rows of a case file, checked against the declared schema.
+    """The rows of a case file, checked against the declared schema (without its identity record).
 
     Raises
     ------
@@ -155,12 +188,14 @@ def read_case_table(path: Path) -> pa.Table:
     problem = schema_problem(table.schema, CASE_FILE_SCHEMA)
     if problem is not None:
         raise ResultSchemaError(f"{path}: {problem}")
-    return table
+    return table.replace_schema_metadata(None)      # the identity record stays with its file
 
 
-def check_case_file(path: Path, match: re.Match) -> str | None:
-    """What is wrong with a file whose name has the record, or None when its size and sha256 match it and
-    its schema is the declared case-file schema."""
+def check_case_file(path: Path, match: re.Match, expected: StoreIdentity | None = None) -> str | None:
+    """What is wrong with a file whose name has the record, or None when its size and sha256 match it,
+    its schema is the declared case-file schema and its identity record is ``expected`` (the store's;
+    None: only the case id and schema version are checked) for the case of its name, with rows that
+    agree with it."""
     recorded_size, recorded_digest = int(match.group(3)), match.group(4)
     try:
         size = path.stat().st_size
@@ -176,15 +211,30 @@ def check_case_file(path: Path, match: re.Match) -> str | None:
         schema = pq.read_schema(path)
     except (OSError, pa.ArrowException) as exc:
         return f"unreadable as Parquet: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-    return schema_problem(schema, CASE_FILE_SCHEMA)
+    problem = schema_problem(schema, CASE_FILE_SCHEMA)
+    if problem is not None:
+        return problem
+    record, problem = read_identity(schema.metadata)
+    if record is None:
+        return problem
+    problem = identity_problem(record, int(match.group(1)), expected)
+    if problem is not None:
+        return problem
+    try:
+        rows = pq.read_table(path, columns=["case_id", "campaign_seed", "estimator"])
+    except (OSError, pa.ArrowException) as exc:
+        return f"unreadable as Parquet: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    return rows_problem(rows, record)
 
 
-def scan_case_files(cases_dir: Path, verified_before: dict | None = None) -> CaseScan:
-    """Verify every file in ``cases_dir`` (size and sha256 against its name) and sort them out.
+def scan_case_files(cases_dir: Path, verified_before: dict | None = None,
+                    expected: StoreIdentity | None = None) -> CaseScan:
+    """Verify every file in ``cases_dir`` (size and sha256 against its name, schema, identity against
+    ``expected``) and sort them out.
 
-    ``verified_before``: a cache, name -> (size, mtime, inode) of files this process has verified; a case
-    file is never rewritten in place (a new write has a new name), so an unchanged entry is not hashed
-    again (the runner polls the store while cases finish)."""
+    ``verified_before``: a cache, name -> (size, mtime, inode, expected identity) of files this process
+    has verified; a case file is never rewritten in place (a new write has a new name), so an unchanged
+    entry is not hashed again (the runner polls the store while cases finish)."""
     scan = CaseScan()
     if not cases_dir.is_dir():
         return scan
@@ -203,9 +253,9 @@ def scan_case_files(cases_dir: Path, verified_before: dict | None = None) -> Cas
                 scan.bad.append((path, "not a case file (allowed: case-<id>.<ok|failed>.<bytes>.<sha256>.parquet)"))
             continue
         stat = entry.stat()
-        identity = (stat.st_size, stat.st_mtime_ns, stat.st_ino)
+        identity = (stat.st_size, stat.st_mtime_ns, stat.st_ino, expected)
         if verified_before is None or verified_before.get(entry.name) != identity:
-            problem = check_case_file(path, match)
+            problem = check_case_file(path, match, expected)
             if problem is not None:
                 scan.bad.append((path, problem))
                 continue

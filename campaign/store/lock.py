@@ -9,7 +9,15 @@ The lock is the kernel's ``flock`` on the open file, not the file's existence: t
 when the holder's last descriptor closes, which includes the holder being killed (``kill -9``, OOM
 killer, a crashed driver). A lock left behind by a killed process is therefore free and the next writer
 simply takes it over; the stale holder record it finds is overwritten. The file is never removed
-(removing a lock file while another process waits on it would let two writers in). On NFS, Linux
+(removing a lock file while another process waits on it would let two writers in).
+
+Deleting ``DIR.lock`` does not let a second writer in: the writer also holds a ``flock`` on the store
+directory ``DIR`` itself for the run's life (taken with the file lock when ``DIR`` exists, else as soon as
+:meth:`CampaignStore.prepare` creates it and before it writes anything; taken again on the new ``DIR``
+after ``--fresh`` moved the old one aside). A second writer that gets a fresh ``DIR.lock`` finds the
+directory locked and is refused (or waits with ``--wait``) with a line naming the holder's pid (from
+``/proc/locks``). A file system that cannot ``flock`` a directory (some NFS set-ups) falls back to the
+lock file alone. On NFS, Linux
 emulates ``flock`` with POSIX byte-range locks, which the NFS lock manager shares between hosts.
 """
 from __future__ import annotations
@@ -56,6 +64,22 @@ def describe_holder(lock_path: Path) -> str:
             f"({holder.get('command', '?')})")
 
 
+def directory_holder(directory: Path) -> str:
+    """"pid N" of the process holding a ``flock`` on ``directory`` (from ``/proc/locks``), else "another
+    process"."""
+    try:
+        inode = os.stat(directory).st_ino
+        with open("/proc/locks") as handle:
+            lines = handle.read().splitlines()
+    except OSError:
+        return "another process"
+    for line in lines:
+        fields = line.split()
+        if len(fields) >= 6 and fields[1] == "FLOCK" and fields[5].rsplit(":", 1)[-1] == str(inode):
+            return f"pid {fields[4]}"
+    return "another process"
+
+
 class StoreLock:
     """The exclusive lock of one store; use as a context manager.
 
@@ -75,6 +99,11 @@ class StoreLock:
         self.wait = wait
         self.on_wait = on_wait
         self._descriptor: int | None = None
+        self._directory_descriptor: int | None = None
+
+    @property
+    def held(self) -> bool:
+        return self._descriptor is not None
 
     def acquire(self) -> StoreLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -95,6 +124,11 @@ class StoreLock:
                 announced = True
                 time.sleep(WAIT_POLL_S)
         self._descriptor = descriptor
+        try:
+            self.hold_store_directory()
+        except BaseException:
+            self.release()
+            raise
         record = {"host": socket.gethostname(), "pid": os.getpid(), "command": _command_line(),
                   "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         os.ftruncate(descriptor, 0)
@@ -102,7 +136,57 @@ class StoreLock:
         os.fsync(descriptor)
         return self
 
+    def hold_store_directory(self) -> None:
+        """Hold the ``flock`` of the store directory (when it exists; again on a new directory of the same
+        name after the old one was moved aside). Call it while holding the lock file.
+
+        Raises
+        ------
+        StoreBusy
+            Another process holds the directory's lock (its lock file was removed or replaced), unless
+            ``wait``: then this waits for it.
+        """
+        root = Path(os.path.abspath(self.store_root))
+        try:
+            descriptor = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
+        except (FileNotFoundError, NotADirectoryError):
+            return
+        if self._directory_descriptor is not None:
+            if os.path.samestat(os.fstat(self._directory_descriptor), os.fstat(descriptor)):
+                os.close(descriptor)
+                return
+            self._release_directory()          # the directory we held was moved aside
+        announced = False
+        while True:
+            try:
+                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                holder = directory_holder(root)
+                if not self.wait:
+                    os.close(descriptor)
+                    raise StoreBusy(f"{root}: another writer ({holder}) holds the lock of the store directory "
+                                    f"itself, although {self.path} was free (it was removed or replaced while "
+                                    "held); pass --wait to wait for it") from None
+                if not announced and self.on_wait is not None:
+                    self.on_wait(f"{root}: waiting for the store directory's lock held by {holder}")
+                announced = True
+                time.sleep(WAIT_POLL_S)
+            except OSError:                    # no flock on directories here (some NFS): the file lock alone
+                os.close(descriptor)
+                return
+        self._directory_descriptor = descriptor
+
+    def _release_directory(self) -> None:
+        if self._directory_descriptor is not None:
+            try:
+                fcntl.flock(self._directory_descriptor, fcntl.LOCK_UN)
+            finally:
+                os.close(self._directory_descriptor)
+                self._directory_descriptor = None
+
     def release(self) -> None:
+        self._release_directory()
         if self._descriptor is None:
             return
         try:

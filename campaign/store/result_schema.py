@@ -23,6 +23,11 @@ from simulator.sensors import error_fields
 IMAGE_COUNT = 3
 """Descent images per case (the three DIMES images)."""
 
+RESULT_SCHEMA_VERSION = 1
+"""Version of the declared case-file schema, recorded in every case file's identity metadata
+(:mod:`campaign.store.case_files`): raise it whenever a column is added, removed, renamed, retyped or
+changes meaning, so files of the old schema are rejected and recomputed instead of mixed in."""
+
 SENSOR_PREFIX = "sensor_"
 UNIT_SUFFIXES = (("_radps", "rad/s"), ("_rad", "rad"), ("_mps", "m/s"), ("_m", "m"))
 

@@ -30,6 +30,7 @@ from campaign.store.case_files import (
     table_bytes,
     write_case_rows,
 )
+from campaign.store.case_identity import StoreIdentity
 from service_campaigns import file_tree, site_copy
 
 REPO = Path(__file__).resolve().parents[2]
@@ -179,12 +180,14 @@ KILLED_WRITER = """
 import sys, itertools
 from pathlib import Path
 from campaign.store.case_files import write_case_rows
+from campaign.store.case_identity import StoreIdentity
 from campaign.store.result_schema import CASE_FILE_SCHEMA
 cases = Path(sys.argv[1])
+identity = StoreIdentity("0" * 64, 1, ("dimes",))
 for attempt in itertools.count():
-    rows = [{**dict.fromkeys(CASE_FILE_SCHEMA.names), "case_id": 7, "estimator": "dimes", "attempts": attempt,
-             "error": "x" * (1000 + attempt % 5000)}]
-    write_case_rows(cases, 7, rows, ok=attempt % 2 == 0)
+    rows = [{**dict.fromkeys(CASE_FILE_SCHEMA.names), "case_id": 7, "campaign_seed": 1, "estimator": "dimes",
+             "attempts": attempt, "error": "x" * (1000 + attempt % 5000)}]
+    write_case_rows(cases, 7, rows, ok=attempt % 2 == 0, identity=identity)
     if attempt == 0:
         print("writing", flush=True)
 """
@@ -200,7 +203,7 @@ def test_a_writer_killed_at_any_instant_leaves_a_verified_file_or_an_ignored_one
         time.sleep(delay_s)
         process.send_signal(signal.SIGKILL)
         process.wait()
-        scan = scan_case_files(cases)
+        scan = scan_case_files(cases, expected=StoreIdentity("0" * 64, 1, ("dimes",)))
         assert scan.bad == [], scan.bad
         assert list(scan.cases) == [7], "exactly one counted file for the case"
         for path in [scan.cases[7].path, *(path for path, _ in scan.superseded)]:
