@@ -68,57 +68,89 @@ def footprint_map(terrain: Terrain, placed_profiles: list[DescentProfile], camer
     return path
 
 
-def error_histograms(results: pd.DataFrame, path: Path) -> Path:
-    classes = list(dict.fromkeys(results["class_name"]))
-    figure, axes_list = plt.subplots(1, len(classes), figsize=(4 * len(classes), 3.2), squeeze=False)
-    for axes, class_name in zip(axes_list[0], classes):
+def error_histograms(results: pd.DataFrame, path: Path, estimator: str = "", false_valid_mps: float = 5.0,
+                     classes: list[str] | None = None) -> Path:
+    """One histogram of the valid cases' horizontal velocity error per class, every panel on the same
+    bins, x range and y range (a class without valid cases is an empty panel that says so)."""
+    classes = classes or list(dict.fromkeys(results["class_name"]))
+    shown = {}
+    for class_name in classes:
         members = results[(results["class_name"] == class_name) & results["valid"].astype(bool)]
-        errors = pd.to_numeric(members["velocity_error_mps"], errors="coerce").dropna().to_numpy(dtype=float)
-        shown, note = on_scale(errors)
-        if shown.size:
-            low, high = float(shown.min()), float(shown.max())
-            if high - low < 1e-6 * max(1.0, abs(high)):      # (nearly) equal values: numpy's default +-0.5 range
-                low, high = low - 0.5, high + 0.5
-            axes.hist(shown, bins=20, range=(low, high), color="tab:blue")
-        axes.axvline(5.0, color="tab:red", linestyle="--", linewidth=1, label="5 m/s requirement")
-        axes.set_title(f"{class_name}: {len(errors)} valid{note}", fontsize=9)
-        axes.set_xlabel("velocity error (m/s)")
+        errors = pd.to_numeric(members["velocity_error_mps"], errors="coerce").to_numpy(dtype=float)
+        shown[class_name] = (errors.size, *on_scale(errors))
+    drawn = np.concatenate([values for _, values, _ in shown.values()] + [np.zeros(0)])
+    low = min(0.0, float(drawn.min())) if drawn.size else 0.0
+    high = max(2.0 * false_valid_mps, float(drawn.max()) if drawn.size else 0.0)
+    bins = np.linspace(low, high, 21)
+    figure, axes_list = plt.subplots(1, len(classes), figsize=(4 * len(classes), 3.4), squeeze=False,
+                                     sharex=True, sharey=True)
+    for axes, class_name in zip(axes_list[0], classes):
+        count, values, note = shown[class_name]
+        if values.size:
+            axes.hist(values, bins=bins, color="tab:blue")
+        axes.axvline(false_valid_mps, color="tab:red", linestyle="--", linewidth=1,
+                     label=f"false-valid > {false_valid_mps:g} m/s")
+        axes.set_title(f"{estimator + ': ' if estimator else ''}{class_name}, {count} valid{note}", fontsize=8)
+        axes.set_xlabel("horizontal velocity error (m/s)")
         axes.legend(fontsize=7)
+    axes_list[0][0].set_ylabel("valid cases")
+    axes_list[0][0].set_xlim(low, high)
     figure.tight_layout()
     figure.savefig(path, dpi=90)
     plt.close(figure)
     return path
 
 
-def valid_fraction_bars(table: pd.DataFrame, path: Path) -> Path:
+def valid_fraction_bars(table: pd.DataFrame, path: Path, estimator: str = "") -> Path:
+    """% valid of each class (valid/ran on each bar; 0 % and "n/a" written, so they are seen) and the
+    site's ellipse-weighted % valid in the title."""
     classes = table.iloc[:-1]
-    figure, axes = plt.subplots(figsize=(5, 3.2))
-    axes.bar(classes["class"], classes["pct_valid"].fillna(0.0), color="tab:green")
-    axes.set_ylim(0, 105)
-    axes.set_ylabel("% valid")
-    axes.set_title(f"{table.iloc[-1]['class']}: weighted {table.iloc[-1]['weighted_pct_valid']:.0f}% valid", fontsize=9)
+    site = table.iloc[-1]
+    figure, axes = plt.subplots(figsize=(5, 3.4))
+    heights = classes["pct_valid"].astype(float).fillna(0.0).clip(0.0, 100.0)
+    bars = axes.bar(classes["class"], heights, color="tab:green")
+    for bar, (_, row) in zip(bars, classes.iterrows()):
+        ran = int(row["cases"]) - int(row["failed"])
+        text = f"{row['pct_valid']:.0f}%\n{int(row['valid'])}/{ran}" if ran else "n/a"
+        axes.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + 1, text, ha="center", va="bottom", fontsize=7)
+    axes.set_ylim(0, 120)
+    axes.set_ylabel("% valid (valid / ran)")
+    weighted = float(site["weighted_pct_valid"])
+    weighted_text = f"{weighted:.1f}%" if np.isfinite(weighted) else "n/a"
+    axes.set_title(f"{estimator + ': ' if estimator else ''}{site['class']} ellipse-weighted {weighted_text} valid",
+                   fontsize=9)
     figure.tight_layout()
     figure.savefig(path, dpi=90)
     plt.close(figure)
     return path
 
 
-def estimate_vs_truth(results: pd.DataFrame, path: Path) -> Path:
+def estimate_vs_truth(results: pd.DataFrame, path: Path, estimator: str = "") -> Path:
+    """Estimated against true velocity of the valid cases, east and north, both panels on the same
+    square x and y range (cases with a non-finite value or one beyond PLOT_LIMIT_MPS are counted, not drawn)."""
     valid = results[results["valid"].astype(bool)]
-    figure, axes_list = plt.subplots(1, 2, figsize=(8, 3.8))
-    for axes, component in zip(axes_list, ("east", "north")):
+    pairs, hidden = {}, {}
+    for component in ("east", "north"):
         truth = pd.to_numeric(valid[f"truth_velocity_{component}_mps"], errors="coerce").to_numpy(dtype=float)
         estimate = pd.to_numeric(valid[f"estimate_velocity_{component}_mps"], errors="coerce").to_numpy(dtype=float)
         drawn = np.isfinite(truth) & np.isfinite(estimate) & (np.abs(truth) <= PLOT_LIMIT_MPS) & (np.abs(estimate) <= PLOT_LIMIT_MPS)
-        truth, estimate = truth[drawn], estimate[drawn]
+        pairs[component] = (truth[drawn], estimate[drawn])
+        hidden[component] = int((~drawn).sum())
+    values = np.concatenate([np.concatenate(pair) for pair in pairs.values()] + [np.zeros(1)])
+    limits = [float(values.min()) - 1.0, float(values.max()) + 1.0]
+    figure, axes_list = plt.subplots(1, 2, figsize=(8, 4.0), sharex=True, sharey=True)
+    for axes, component in zip(axes_list, ("east", "north")):
+        truth, estimate = pairs[component]
         axes.scatter(truth, estimate, s=6, alpha=0.7)
-        limits = [min(truth.min(), estimate.min(), 0) - 1, max(truth.max(), estimate.max(), 0) + 1] if drawn.any() else [-30, 30]
         axes.plot(limits, limits, "k--", linewidth=0.8)
-        if not drawn.all():
-            axes.set_title(f"{int((~drawn).sum())} valid cases not drawn (non-finite or beyond "
-                           f"{PLOT_LIMIT_MPS:g} m/s)", fontsize=8)
+        note = (f"\n{hidden[component]} not drawn (non-finite or beyond {PLOT_LIMIT_MPS:g} m/s)"
+                if hidden[component] else "")
+        axes.set_title(f"{estimator + ': ' if estimator else ''}{component}, {truth.size} valid cases{note}", fontsize=8)
         axes.set_xlabel(f"true {component} velocity (m/s)")
         axes.set_ylabel(f"estimated {component} velocity (m/s)")
+        axes.set_aspect("equal", adjustable="box")
+    axes_list[0].set_xlim(*limits)
+    axes_list[0].set_ylim(*limits)
     figure.tight_layout()
     figure.savefig(path, dpi=90)
     plt.close(figure)

@@ -139,3 +139,42 @@ def test_template_marks_agree_with_the_estimators_own_image_motion(reported):
         assert abs(mark["motion_px"] - mark["estimator_motion_px"]) < 1.5, mark
         column, binned_row = mark["template"]
         assert 0 <= column < shared.images[0].shape[1] and 0 <= binned_row < shared.images[0].shape[0]
+
+
+def _extreme_rows():
+    """Two estimators; gcp with 1e30, inf, NaN and ordinary errors, gdcp with no valid case, gkep empty."""
+    rows = []
+    for name in ("dimes", "other"):
+        for error, east in ((1e30, 1e30), (math.inf, math.inf), (math.nan, math.nan), (2.0, 3.0), (-0.0, -1e30)):
+            rows.append({"estimator": name, "class_name": "gcp", "status": "ok", "valid": True, "reason": "ok",
+                         "velocity_error_mps": error, "estimate_velocity_east_mps": east,
+                         "estimate_velocity_north_mps": 0.0, "truth_velocity_east_mps": 1.0,
+                         "truth_velocity_north_mps": math.nan})
+        rows.append({"estimator": name, "class_name": "gdcp", "status": "ok", "valid": False, "reason": "sky",
+                     "velocity_error_mps": None, "estimate_velocity_east_mps": None, "estimate_velocity_north_mps": None,
+                     "truth_velocity_east_mps": 1.0, "truth_velocity_north_mps": 1.0})
+    return pd.DataFrame(rows)
+
+
+def test_plots_survive_nan_inf_1e30_and_empty_classes(tmp_path):
+    from campaign.report import plots
+    from campaign.report.aggregate import site_table
+    from campaign.report.compare import comparison_table
+
+    results = _extreme_rows()
+    fractions = {"gcp": 0.5, "gdcp": 0.5, "gkep": 0.0}
+    comparison = comparison_table(results, fractions, "Gusev", false_valid_mps=5.0)
+    written = [
+        compare_plots.error_cdf(results, list(fractions), "Gusev", ["dimes", "other"], tmp_path / "cdf.png", 5.0),
+        compare_plots.valid_false_valid_bars(comparison, tmp_path / "bars.png"),
+        compare_plots.error_cdf(results.iloc[:0], list(fractions), "Gusev", ["dimes"], tmp_path / "cdf_empty.png", 5.0),
+    ]
+    dimes = results[results["estimator"] == "dimes"]
+    table = site_table(dimes, fractions, "Gusev")
+    written += [plots.error_histograms(dimes, tmp_path / "hist.png", "dimes", 5.0, list(fractions)),
+                plots.valid_fraction_bars(table, tmp_path / "valid.png", "dimes"),
+                plots.estimate_vs_truth(dimes, tmp_path / "scatter.png", "dimes")]
+    for path in written:
+        assert _png_size(path)[0] > 100
+    # the bars of the empty gkep class and the 0 %-valid gdcp class are still drawn as text (n/a, 0%)
+    assert comparison.set_index(["estimator", "class"]).loc[("dimes", "gdcp"), "pct_valid"] == 0.0
