@@ -8,6 +8,13 @@ axis are those whose *other* axes equal the first point's values (for a grid: th
 their first value); when that leaves fewer than two points (a list sweep whose axes vary together),
 every point is plotted against the axis. Numeric axes are drawn to scale, others (booleans, strings)
 as categories in sweep order.
+
+Heat maps (grid sweeps with two or more axes): for every pair of axes and every estimator,
+``plots/heatmap-<estimator>-<axis>-x-<axis>.png``, the other axes held at the first point's values.
+Top row: % valid of each class (valid/ran) and the site's ellipse-weighted % valid; bottom row: false-valid
+as % of the valid cases, with the count; one cell per grid point, every panel on the same 0-100 %
+colour scale, each cell's number written in it (a point with 0 % valid is a dark cell reading "0%");
+a point without a value (no case ran, no valid case) is grey and reads "n/a".
 """
 from __future__ import annotations
 
@@ -18,6 +25,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 METRICS = {  # class column, site (weighted) column, axis label
@@ -80,6 +88,79 @@ def write_sweep_plots(spec, table: pd.DataFrame, out_dir: Path) -> list[Path]:
             figure.tight_layout()
             path = out_dir / f"{metric}-vs-{axis}.png"
             figure.savefig(path, dpi=90)
+            plt.close(figure)
+            paths.append(path)
+    if spec.mode == "grid":
+        paths += write_heat_maps(spec, table, out_dir)
+    return paths
+
+
+def grid_pairs(spec) -> list[tuple[str, str]]:
+    """Pairs of axes (in axis order) that both have two or more values."""
+    axes = [name for name in spec.axis_names if len(spec.axes[name]) >= 2]
+    return [(a, b) for position, a in enumerate(axes) for b in axes[position + 1:]]
+
+
+def heat_cell(table: pd.DataFrame, point_id: str | None, class_name: str, site: bool,
+              estimator) -> tuple[float, float, str, str]:
+    """(% valid, false-valid % of valid, % valid text, false-valid text) of one grid cell (NaN, "n/a"
+    when the point or its class has no value)."""
+    rows = table[(table["point_id"] == point_id) & (table["class"] == class_name)] if point_id else table.iloc[:0]
+    if estimator is not None and len(rows):
+        rows = rows[rows["estimator"] == estimator]
+    if not len(rows):
+        return math.nan, math.nan, "n/a", "n/a"
+    row = rows.iloc[0]
+    pct = float(row["weighted_pct_valid"] if site else row["pct_valid"])
+    valid, ran = int(row["valid"]), int(row["cases"]) - int(row["failed"])
+    false_valid = int(row["false_valid"])
+    pct_text = "n/a" if not math.isfinite(pct) else f"{pct:.0f}%" + ("" if site else f"\n{valid}/{ran}")
+    return (pct if math.isfinite(pct) else math.nan, 100.0 * false_valid / valid if valid else math.nan, pct_text,
+            f"{false_valid}/{valid}" if valid else "n/a")
+
+
+def write_heat_maps(spec, table: pd.DataFrame, out_dir: Path) -> list[Path]:
+    """The heat maps of a grid sweep (module docstring); return their paths."""
+    classes = [entry.name for entry in spec.base.site.classes if spec.base.cases_per_class.get(entry.name, 0) > 0]
+    site_name = spec.base.site.name
+    estimators = list(dict.fromkeys(table["estimator"])) if "estimator" in table.columns and len(table) else [None]
+    anchor = spec.points[0].values
+    colours = plt.get_cmap("viridis").with_extremes(bad="0.75")
+    paths = []
+    for x_axis, y_axis in grid_pairs(spec):
+        xs, ys = list(spec.axes[x_axis]), list(spec.axes[y_axis])
+        others = {k: v for k, v in anchor.items() if k not in (x_axis, y_axis)}
+        where = {(p.values[x_axis], p.values[y_axis]): p.point_id for p in spec.points
+                 if all(p.values[k] == v for k, v in others.items())}
+        panels = [(name, False) for name in classes] + [(site_name, True)]
+        for estimator in estimators:
+            figure, axes_grid = plt.subplots(2, len(panels), figsize=(3.6 * len(panels), 6.4), squeeze=False)
+            for column, (name, site) in enumerate(panels):
+                cells = [[heat_cell(table, where.get((x, y)), name, site, estimator) for x in xs] for y in ys]
+                for row, (index, label) in enumerate(((0, "% valid"), (1, "false-valid, % of valid"))):
+                    axes = axes_grid[row][column]
+                    values = np.array([[cell[index] for cell in line] for line in cells], dtype=float)
+                    image = axes.imshow(np.ma.masked_invalid(values), cmap=colours, vmin=0.0, vmax=100.0,
+                                        origin="lower", aspect="auto")
+                    for j, line in enumerate(cells):
+                        for i, cell in enumerate(line):
+                            value = values[j, i]
+                            axes.text(i, j, cell[2 + index], ha="center", va="center", fontsize=7,
+                                      color="white" if math.isfinite(value) and value < 60 else "black")
+                    axes.set_xticks(range(len(xs)), [str(v) for v in xs], fontsize=7)
+                    axes.set_yticks(range(len(ys)), [str(v) for v in ys], fontsize=7)
+                    axes.set_xlabel(x_axis, fontsize=7)
+                    axes.set_ylabel(y_axis, fontsize=7)
+                    kind = f"{name} ellipse-weighted" if site and index == 0 else name
+                    axes.set_title(f"{estimator + ': ' if estimator else ''}{kind} {label}", fontsize=8)
+                    figure.colorbar(image, ax=axes, label="%", fraction=0.046)
+            held = ", ".join(f"{k}={v}" for k, v in others.items())
+            figure.suptitle(f"{site_name} sweep: % valid and false-valid over {x_axis} x {y_axis}"
+                            + (f" ({held})" if held else ""), fontsize=9)
+            figure.tight_layout()
+            prefix = f"{estimator}-" if estimator is not None else ""
+            path = out_dir / f"heatmap-{prefix}{x_axis}-x-{y_axis}.png"
+            figure.savefig(path, dpi=80)
             plt.close(figure)
             paths.append(path)
     return paths
