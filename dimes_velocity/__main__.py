@@ -16,7 +16,7 @@ Images are PNG, TIFF, .npy, raw, PDS3, VICAR or ISIS3, binned (256 x 1024 for ME
 (1024 x 1024, binned here as on chip); the rules (shapes, bit depth, DN scale) are in
 :mod:`file_formats.descent_images`, the measurements schema in :mod:`file_formats.measurements_json`. The
 result (see :class:`dimes_velocity.result.VelocityEstimate`) is printed as JSON with an ``inputs``
-list saying how each file was read. Bad input prints one line naming the file and what to add or
+list saying how each file was read (``--summary``: the summary keys only). Bad input prints one line naming the file and what to add or
 change to stderr and exits with status 2. Legal inputs the estimator cannot trust (e.g. a sun at or
 below the horizon) are answered like in flight: ``"valid": false`` with a reason code, exit status 0.
 """

@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 from test_readers_formats import write_isis, write_pds3, write_vicar
 
-from file_formats.descent_images import ImageDeclaration, InputFileError, bin_full_frame, read_descent_image
+from file_formats.descent_images import (
+    ImageDeclaration,
+    InputFileError,
+    bin_full_frame,
+    read_descent_image,
+    write_descent_image,
+)
 
 OFFSET = 20.0          # mer_a.toml adc_offset_dn
 MAX_DN = 4095
@@ -234,3 +240,22 @@ def test_declaration_values_are_checked():
         ImageDeclaration(bits=10)
     with pytest.raises(InputFileError, match="--dn-scale -1.0 must be positive"):
         ImageDeclaration(dn_scale=-1.0)
+
+
+def test_written_descent_images_read_back_as_the_same_dn(binned_dn, mer_a, tmp_path):
+    """write_descent_image: 16-bit PNG of the DN as they are, read back without a declaration, unchanged."""
+
+
+    camera = mer_a
+    path = write_descent_image(tmp_path / "written.png", binned_dn)
+    image = read_descent_image(path, camera)
+    assert image.dn.dtype == np.uint16 and np.array_equal(image.dn, binned_dn)
+    assert np.array_equal(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), binned_dn)       # no stretch, no offset
+    as_float = write_descent_image(tmp_path / "float.png", binned_dn.astype(np.float64))  # whole numbers: fine
+    assert np.array_equal(read_descent_image(as_float, camera).dn, binned_dn)
+    for bad, message in ((binned_dn + 0.5, "whole numbers 0 to 65535"), (binned_dn.astype(np.int32) - 100, "whole numbers"),
+                         (binned_dn[0], "expected a 2-D DN array")):
+        with pytest.raises(InputFileError, match=message):
+            write_descent_image(tmp_path / "bad.png", bad)
+    with pytest.raises(InputFileError, match="allowed suffix: .png"):
+        write_descent_image(tmp_path / "image.tif", binned_dn)
