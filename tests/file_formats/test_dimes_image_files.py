@@ -244,8 +244,6 @@ def test_declaration_values_are_checked():
 
 def test_written_descent_images_read_back_as_the_same_dn(binned_dn, mer_a, tmp_path):
     """write_descent_image: 16-bit PNG of the DN as they are, read back without a declaration, unchanged."""
-
-
     camera = mer_a
     path = write_descent_image(tmp_path / "written.png", binned_dn)
     image = read_descent_image(path, camera)
