@@ -40,7 +40,9 @@ from file_formats.descent_images import write_descent_image
 from file_formats.flat_field_files import save_flat_field
 from file_formats.measurements_json import measurements_to_dict
 from flight_interface.camera import Camera, load_camera
+from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
+from flight_interface.tomlfields import ConfigError
 from simulator.calibration import DEFAULT_FLAT_FRAMES, simulate_flat_field
 from simulator.descent_image import DescentImage, render_descent_image
 from simulator.scene.descent_profile import DescentProfile
@@ -158,7 +160,7 @@ def truth_record(profile: DescentProfile, rendered: list[DescentImage], sensor_e
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m simulator", description=__doc__.split("\n")[0])
+    parser = OneLineParser(prog="python -m simulator", description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--camera", type=Path, default=ROOT / "sitedata" / "cameras" / "mer_a.toml")
@@ -167,9 +169,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--display", action="store_true",
                         help="also write stretched 8-bit pictures, radiance fields and the footprint map")
     args = parser.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out}: exists and is not a directory; allowed: a directory (new or existing)")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+        camera = load_camera(args.camera)
+    except (ConfigError, OSError) as exc:         # a bad camera file or an --out that cannot be a directory
+        message = str(exc) if isinstance(exc, ConfigError) else f"--out {args.out}: {exc.strerror or exc}"
+        print(f"python -m simulator: error: {message}", file=sys.stderr)
+        return USAGE_ERROR
+    return write_example(args, camera)
 
-    camera = load_camera(args.camera)
+
+def write_example(args: argparse.Namespace, camera: Camera) -> int:
+    """Render the example, write the files (module docstring), print what was written; 0."""
     terrain = crater_field(args.seed)
     profile = example_profile()
     sun = example_sun()

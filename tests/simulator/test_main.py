@@ -84,3 +84,23 @@ def test_no_flat_field_and_display_pictures_are_explicit(tmp_path):
     red = (footprint[..., 2] == 255) & (footprint[..., 1] == 0) & (footprint[..., 0] == 0)
     assert red.sum() > 500          # the first image's footprint outline is drawn
 
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--camera", "missing.toml"], "missing.toml: file not found"),
+    (["--seed", "x"], "argument --seed: invalid int value: 'x'"),
+    (["--flat-field", "truth"], "argument --flat-field: invalid choice: 'truth'"),
+    (["--out-is-a-file"], "exists and is not a directory; allowed: a directory"),
+])
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, arguments, message):
+    out = tmp_path / "case"
+    if arguments == ["--out-is-a-file"]:
+        out.write_text("")
+        arguments = []
+    with pytest.raises(SystemExit) as raised:
+        code = example.main(["--out", str(out), *arguments])
+        raise SystemExit(code)
+    err = capsys.readouterr().err
+    assert raised.value.code == 2 and err.count("\n") == 1 and err.startswith("python -m simulator: error: ")
+    assert message in err
+    assert not out.is_dir() or not any(out.iterdir())
