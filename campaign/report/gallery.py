@@ -139,9 +139,11 @@ def draw_case(images_dn, marks: list[dict] | None, case: GalleryCase, floor_mps:
     for index, dn in enumerate(images_dn):
         axes = figure.add_subplot(grid[0, index])
         image = np.asarray(dn, dtype=float)
+        height, width = image.shape
         low, high = np.percentile(image, [1, 99]) if image.size else (0.0, 1.0)
-        axes.imshow(image, cmap="gray", vmin=low, vmax=max(high, low + 1e-9), aspect=binning,
-                    interpolation="nearest")
+        shown = image[:, : width - width % binning].reshape(height, -1, binning).mean(axis=2)   # columns as rows:
+        axes.imshow(shown, cmap="gray", vmin=low, vmax=max(high, low + 1e-9), aspect=binning,   # a square grid,
+                    interpolation="nearest", extent=(-0.5, width - 0.5, height - 0.5, -0.5))    # drawn 4x faster
         for mark in marks or []:
             colour = STATUS_COLOURS[mark["state"]]
             if mark["pair"] == index:
@@ -153,7 +155,6 @@ def draw_case(images_dn, marks: list[dict] | None, case: GalleryCase, floor_mps:
                 if math.isfinite(mc):
                     axes.plot([pc, mc], [pr, mr], color=colour, linewidth=0.8)
                     axes.plot(mc, mr, marker="+", markersize=10, color=colour, linestyle="none")
-        height, width = image.shape
         axes.set_xlim(-0.5, width - 0.5)
         axes.set_ylim(height - 0.5, -0.5)
         axes.set_title(f"image {index + 1} (binned DN, 1st-99th percentile)", fontsize=8)
