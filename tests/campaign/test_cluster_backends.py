@@ -4,8 +4,10 @@ Kubernetes needed), a missing optional package named by its pip extra, and the "
 for real against `dask scheduler` / `dask worker` processes, giving the same bits as the embedded cluster."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -146,3 +148,47 @@ def test_scheduler_backend_runs_for_real_and_gives_the_embedded_clusters_bits(tm
     second = pd.read_parquet(tmp_path / "embedded" / "out" / "results.parquet")
     assert len(first) == 3
     pd.testing.assert_frame_equal(first, second, check_exact=True)
+
+
+@pytest.mark.parametrize("kind", ["slurm", "pbs"])
+def test_campaign_cluster_prints_the_job_script_and_submits_nothing(tmp_path, kind):
+    """No batch system on PATH: printing the script needs none, and nothing can have been submitted."""
+    table = f'cluster = "{kind}"\nworkers = 6\n[execution.{kind}]\nqueue = "debug"\ncores = 4\nmemory = "8GiB"'
+    path = campaign_file(tmp_path, execution=table)
+    result = run_campaign("cluster", path, env={"PATH": str(Path(sys.executable).parent)})
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == "#!/usr/bin/env bash"
+    assert ("#SBATCH -p debug" if kind == "slurm" else "#PBS -q debug") in lines
+    [worker] = [line for line in lines if "distributed.cli.dask_worker" in line]
+    assert "tcp://SCHEDULER-ADDRESS:PORT" in worker and "--nworkers 4" in worker and "--memory-limit 2.00GiB" in worker
+    submit = "sbatch" if kind == "slurm" else "qsub"
+    # 6 workers at 4 per job: ceil(6 / 4) = 2 jobs
+    assert stderr_line(result) == (f"campaign: note: 2 such job(s) of 4 single-threaded worker(s), submitted with "
+                                   f"{submit}; nothing was submitted")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["campaign.toml"]     # no store, no job output
+
+
+def test_campaign_cluster_prints_the_kubernetes_resource_without_credentials(tmp_path):
+    table = 'cluster = "kubernetes"\n[execution.kubernetes]\nimage = "registry.example.org/m2d:1"\nmemory = "4Gi"'
+    path = campaign_file(tmp_path, execution=table)
+    result = run_campaign("cluster", path, env={"HOME": str(tmp_path), "KUBECONFIG": str(tmp_path / "none")})
+    assert result.returncode == 0, result.stderr
+    spec = json.loads(result.stdout)
+    [container] = spec["spec"]["worker"]["spec"]["containers"]
+    assert container["resources"]["limits"]["memory"] == "4Gi"
+    limit = int(container["args"][container["args"].index("--memory-limit") + 1])
+    assert limit == 4 * 2**30 - int(0.4 * 2**30)      # 10 % of 4 GiB (> 256 MiB) kept above dask's limit
+    assert f"dask --memory-limit {limit / 2**20:.0f} MiB" in stderr_line(result)
+
+
+@pytest.mark.cluster
+def test_kubernetes_without_credentials_is_one_line_and_writes_nothing(tmp_path):
+    path = campaign_file(tmp_path, execution='cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"')
+    out = tmp_path / "out"
+    result = run_campaign("submit", path, "--output", out, "--no-progress", timeout=120,
+                          env={"HOME": str(tmp_path), "KUBECONFIG": str(tmp_path / "none")})
+    assert result.returncode == 1
+    line = stderr_line(result)
+    assert line.startswith("campaign: cannot start the Kubernetes cluster (") and "credentials" in line, line
+    assert not out.exists()

@@ -12,12 +12,14 @@ import re
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pandas as pd
 import pytest
 from slurm_node import SlurmNode, install_reason
 
+from campaign.cli import main
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.cluster import connected_client
 from campaign.run.faults import RunStopped
@@ -25,6 +27,7 @@ from flight_interface.tomlfields import parse
 from service_campaigns import REPO, campaign_command, campaign_file, stderr_line
 
 STOP_WITHIN_S = 30.0
+CASES = {"gcp": 1, "gdcp": 1, "gkep": 0}     # one case per SLURM job
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slurm]
 
@@ -60,7 +63,7 @@ def _submit(config: Path, out: Path, environment: dict, cwd: Path) -> tuple[subp
 @pytest.mark.slow
 def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slurm, tmp_path, record_property):
     before = set(slurm.jobs())
-    config = campaign_file(tmp_path / "slurm", execution=_slurm_table(tmp_path))
+    config = campaign_file(tmp_path / "slurm", cases=CASES, execution=_slurm_table(tmp_path))
     result, wall_s = _submit(config, tmp_path / "slurm" / "out", slurm.environment, tmp_path)
     assert result.returncode == 0, result.stderr
     [jobs_line] = [line for line in result.stdout.splitlines() if line.startswith("slurm jobs: ")]
@@ -81,13 +84,12 @@ def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slu
     assert all(re.search(rf"Registered to:\s+{re.escape(scheduler)}", log) for log in logs), logs
     assert 1 <= pd.read_parquet(tmp_path / "slurm" / "out" / "timings.parquet")["worker"].nunique() <= 2
 
-    local = campaign_file(tmp_path / "local", execution="workers = 2")
-    result, _ = _submit(local, tmp_path / "local" / "out", {}, tmp_path)
-    assert result.returncode == 0, result.stderr
+    local = campaign_file(tmp_path / "local", cases=CASES, execution="workers = 2")
+    assert main(["submit", str(local), "--output", str(tmp_path / "local" / "out"), "--no-progress"]) == 0
     on_slurm = pd.read_parquet(tmp_path / "slurm" / "out" / "results.parquet")   # no run-dependent column
     on_local = pd.read_parquet(tmp_path / "local" / "out" / "results.parquet")
     planned = pd.read_parquet(tmp_path / "slurm" / "out" / "plan.parquet")["case_id"]
-    assert len(on_slurm) == 3 and sorted(on_slurm["case_id"]) == sorted(planned)      # gcp 2 + gdcp 1, one estimator
+    assert len(on_slurm) == 2 and sorted(on_slurm["case_id"]) == sorted(planned)      # 2 cases, one estimator
     pd.testing.assert_frame_equal(on_slurm, on_local, check_exact=True)
 
 
@@ -110,12 +112,10 @@ def test_rejected_job_stops_the_run_in_one_line_naming_sbatch_and_its_error(slur
     assert line.startswith("campaign: sbatch rejected the worker job (exit 1): ") and "Invalid partition" in line, line
     assert wall_s < STOP_WITHIN_S, wall_s
     assert set(slurm.jobs()) == before                      # nothing was queued
-    assert not (tmp_path / "out" / "cases").exists()
+    assert not (tmp_path / "out").exists()
 
 
 def _execution(tmp_path: Path, **fields) -> ExecutionConfig:
-    import tomllib
-
     table = tomllib.loads("[execution]\n" + _slurm_table(tmp_path, **fields))["execution"]
     return parse(ExecutionConfig, table, "campaign.toml", prefix="execution")
 
