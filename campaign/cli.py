@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 
+from campaign.configuration.paths import check_input_file, check_output_dir, check_path_text
 from campaign.configuration.schemas import SCHEMA_TABLES, all_schemas, table_schema
 from campaign.run.faults import RunStopped
 from campaign.store.errors import StoreError
@@ -47,6 +49,9 @@ from flight_interface.tomlfields import ConfigError, parse_field
 
 COMMAND_LINE = "command line"
 RUN_INCOMPLETE = 1      # exit code: cases failed, a run stopped, or a regression
+INTERNAL_ERROR = 3      # exit code: an unexpected exception (a bug), one line
+INTERRUPTED = 130       # exit code: Ctrl-C (128 + SIGINT)
+BROKEN_PIPE = 141       # exit code: stdout's reader closed the pipe (128 + SIGPIPE), silent
 
 
 def _check_cluster_flags(args) -> None:
@@ -84,6 +89,7 @@ def _load(args):
     _check_directory(getattr(args, "out", None), "--out")
     config = load_campaign_config(args.file, output_dir=getattr(args, "output", None),
                                   cases_scale=getattr(args, "cases_scale", None))
+    args.store_dir = config.output_dir          # what an interrupt reports as kept (main)
     _check_directory(config.output_dir, f"{args.file}: campaign.output_dir")
     return config
 
@@ -372,12 +378,69 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+PATH_ARGUMENTS = {"file": "input", "dir": "text", "baseline": "text", "output": "directory", "out": "directory"}
+"""Path arguments of the commands and how they are checked before the command runs (campaign.configuration.paths)."""
 
-    parser = build_parser()
-    args = parser.parse_args(argv)
+
+def _check_path_arguments(args) -> None:
+    """Every path argument: not empty, not too long; an input file not a FIFO, device or dangling link (never
+    opened to find out); an output directory creatable and writable. One-line ConfigError, nothing written."""
+    for name, kind in PATH_ARGUMENTS.items():
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        label = name if name in ("file", "dir") else f"--{name}"
+        if kind == "input":
+            check_input_file(value, label)
+        elif kind == "directory":
+            check_output_dir(value, label)
+        else:
+            check_path_text(value, label)
+
+
+def _kept(args) -> str:
+    """After an interrupt: what the store holds (counted from its case files, nothing imported)."""
+    store = getattr(args, "store_dir", None)
+    if args.command not in ("submit", "sweep"):
+        return "files already written are kept"
+    if args.command == "sweep":
+        return f"finished cases are kept in the point stores; `campaign sweep {args.file}` again runs the rest"
+    cases = Path(store) / "cases" if store is not None else None
+    if cases is None or not cases.is_dir():
+        return "nothing was stored"
+    done = sum(1 for _ in cases.glob("case-*.parquet"))
+    return (f"{done} finished case files kept in {store} (a case being computed is not stored); "
+            f"`campaign submit {args.file}` again computes the missing ones")
+
+
+def _quiet_stdout() -> None:
+    """stdout's reader went away (`campaign table DIR | head -1`): send what is left to /dev/null, so the
+    interpreter's final flush does not complain either."""
     try:
-        return args.handler(args)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (AttributeError, OSError, ValueError):     # captured stdout (tests): nothing to redirect
+        pass
+
+
+def _os_problem(exc: OSError) -> str:
+    where = " -> ".join(str(name) for name in (exc.filename, exc.filename2) if name is not None)
+    reason = exc.strerror or type(exc).__name__
+    return f"{where}: {reason}" if where else reason
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one command. Exit codes (also in the module docstring and README): 0 success, 1 cases failed or
+    missing / run stopped / regression / lock held / bad store files, 2 bad input or a path the system refuses,
+    3 internal error (a bug; ``CAMPAIGN_TRACEBACK=1`` shows the traceback), 130 interrupted (Ctrl-C),
+    141 stdout closed by its reader. Every failure is one line on stderr, never a traceback."""
+    args = None
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        _check_path_arguments(args)
+        code = args.handler(args)
+        sys.stdout.flush()                  # a closed pipe shows here, not at interpreter exit
+        return code
     except (ConfigError, StoreError) as exc:
         print(f"campaign: error: {exc}", file=sys.stderr)
         return USAGE_ERROR
@@ -387,6 +450,27 @@ def main(argv: list[str] | None = None) -> int:
     except StoreBusy as exc:
         print(f"campaign: busy: {exc}", file=sys.stderr, flush=True)
         return RUN_INCOMPLETE
+    except KeyboardInterrupt:
+        print(f"campaign: interrupted; {_kept(args) if args is not None else 'nothing was written'}",
+              file=sys.stderr, flush=True)
+        return INTERRUPTED
+    except BrokenPipeError:
+        _quiet_stdout()
+        return BROKEN_PIPE
+    except OSError as exc:                  # a path the system refuses only when used (e.g. /proc, a full disk)
+        print(f"campaign: error: {_os_problem(exc)}", file=sys.stderr)
+        return USAGE_ERROR
+    except (MemoryError, RecursionError) as exc:
+        what = "out of memory" if isinstance(exc, MemoryError) else "input nested too deeply"
+        print(f"campaign: error: {what}: {' '.join(str(exc).split())[:300]}; allowed: sizes and nesting this "
+              "machine can hold (see the documented maxima in docs/configuration.md)", file=sys.stderr)
+        return USAGE_ERROR
+    except Exception as exc:
+        if os.environ.get("CAMPAIGN_TRACEBACK"):
+            raise
+        print(f"campaign: internal error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]} (a bug; "
+              "CAMPAIGN_TRACEBACK=1 shows where)", file=sys.stderr)
+        return INTERNAL_ERROR
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ Configuration is data: the core never parses text, it receives the typed objects
 """
 from __future__ import annotations
 
+import stat
 import tomllib
 import types
 import typing
@@ -94,8 +95,12 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     """Parse a TOML file; any I/O, encoding or syntax problem is a one-line :class:`ConfigError`."""
     path = Path(path)
     try:
+        if not stat.S_ISREG(path.stat().st_mode) and not path.is_dir():   # a FIFO would block, /dev/zero never ends
+            raise ConfigError(f"{path}: is not a regular file (a FIFO, device or socket); allowed: a TOML file")
         with path.open("rb") as handle:
             return tomllib.load(handle)
+    except RecursionError:
+        raise ConfigError(f"{path}: arrays or inline tables nested too deeply; allowed: the tables of its schema") from None
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
     except IsADirectoryError:

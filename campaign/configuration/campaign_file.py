@@ -50,6 +50,7 @@ from campaign.configuration.estimators import (
     estimator_tables,
 )
 from campaign.configuration.execution import ExecutionConfig
+from campaign.configuration.paths import check_input_file
 from dimes_velocity.config import EstimatorConfig
 from estimators.registry import EstimatorEntry, EstimatorSpec, unique_names
 from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load_toml, parse, parse_field
@@ -238,6 +239,7 @@ def load_campaign_config(path: str | Path, *, output_dir: str | Path | None = No
         One line naming the file (or flag), the field and the allowed values.
     """
     path = Path(path)
+    check_input_file(path, "campaign file")
     if cases_scale is not None:
         parse_field(CampaignTable, "cases_scale", cases_scale, COMMAND_LINE, "--cases-scale")
     return campaign_config_from_data(load_toml(path), path, output_dir=output_dir, cases_scale=cases_scale)
@@ -269,11 +271,26 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     if not isinstance(data, dict) or "site" not in data:
         raise ConfigError(f"{label}: site is missing (a [site] table with the site, camera, sun and classes)")
     tables = parse(CampaignFile, data, label, context={"base_dir": path.parent, "source": label})
+    check_site_paths(tables.site, label)
     campaign = tables.campaign
     store = Path(output_dir) if output_dir is not None else Path(campaign.output_dir or f"runs/{tables.site.name.lower()}")
     return parse(CampaignConfig, {"source": path, "tables": tables, "output_dir": store,
                                   "cases_scale": campaign.cases_scale if cases_scale is None else float(cases_scale)},
                  label, context={"source": label})
+
+
+def check_site_paths(site: Site, label: str) -> None:
+    """The site's input files (camera, trajectory set, terrain images and side-cars) must not be FIFOs,
+    devices, sockets or dangling links: refused by ``stat`` before anything opens them (reading a FIFO would
+    block; ``/dev/zero`` never ends). Also before the configuration hash reads their bytes."""
+    named = [("site.camera", site.camera_path), ("site.trajectory_set", site.trajectory_path)]
+    for index, entry in enumerate(site.classes):
+        for name in ("path", "sidecar"):
+            value = getattr(entry.terrain, name, None)
+            if value is not None:
+                named.append((f"site.classes[{index}].terrain.{name}", Path(value)))
+    for field, value in named:
+        check_input_file(value, f"{label}: {field}")
 
 
 HASH_EXCLUDED_CAMPAIGN_KEYS = ("output_dir", "false_valid_mps", "cases", "cases_scale")

@@ -25,6 +25,9 @@ from pydantic import Field, field_validator, model_validator
 from flight_interface.tomlfields import ConfigModel, FieldProblem, StringList
 
 SCHEDULER_SCHEMES = ("tcp://", "tls://", "inproc://")
+#: host:port for tcp/tls (port 1-65535; host a name, IPv4 or [IPv6]), anything non-empty after inproc://
+SCHEDULER_ADDRESS = re.compile(r"^(?:(?:tcp|tls)://(?:[A-Za-z0-9_.-]+|\[[0-9A-Fa-f:.]+\]):"
+                               r"(?:[1-9]\d{0,3}|[1-5]\d{4}|6[0-4]\d{3}|65[0-4]\d{2}|655[0-2]\d|6553[0-5])|inproc://.+)$")
 MIN_MEMORY_LIMIT_BYTES = 2**20
 CLUSTERS = ("local", "scheduler", "slurm", "pbs", "kubernetes")
 WALLTIME = re.compile(r"^(\d+-)?\d{1,3}:\d{2}(:\d{2})?$")
@@ -190,7 +193,7 @@ class ExecutionConfig(ConfigModel):
     @field_validator("scheduler")
     @classmethod
     def _address(cls, value: str) -> str:
-        if value and not value.startswith(SCHEDULER_SCHEMES):
+        if value and not (value.startswith(SCHEDULER_SCHEMES) and SCHEDULER_ADDRESS.match(value)):
             raise FieldProblem("", f"= {value!r} is not a scheduler address; allowed: \"\" (embedded) or "
                                "tcp://host:port")
         return value
