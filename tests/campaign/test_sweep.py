@@ -137,6 +137,17 @@ def test_results_are_one_dataset_keyed_by_point(first_sweep):
 
 @pytest.mark.cluster
 @pytest.mark.slow
+def test_status_of_a_sweep_directory_counts_each_point(first_sweep, capsys):
+    _, out = first_sweep
+    assert main(["status", str(out)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines == ["p000 (scene.camera_effects.dark_current_scale=1): 5 planned, 5 done, 0 failed, 0 missing",
+                     "p001 (scene.camera_effects.dark_current_scale=2): 5 planned, 5 done, 0 failed, 0 missing",
+                     f"{out}: sweep of 2 points: 10 planned, 10 done, 0 failed, 0 missing"]
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_plots_of_each_metric_against_each_axis(first_sweep):
     _, out = first_sweep
     for metric in ("pct_valid", "error_mean_3sigma_mps"):
@@ -214,17 +225,17 @@ def test_added_false_valid_cases_fail_the_gate_whatever_the_error_tolerance(tmp_
     """Baseline: the IMU velocity, valid. An identical sweep into a fresh directory recomputes every case
     and passes; a candidate whose estimator is 30 m/s off (every valid case false-valid) fails with exit 1
     although its error tolerance (1000 m/s) forgives any growth."""
-    axis = '"scene.camera_effects.dark_current_scale" = [1.0]'
+    axis, quick = '"scene.camera_effects.dark_current_scale" = [1.0]', ("--cases-scale", 0.3)   # gcp 3 -> 1, gdcp 2 -> 1
     honest = _sweep_file(tmp_path / "honest", axis, base=_plugin_campaign(tmp_path / "honest", 0.0))
-    code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "baseline", "--scheduler", scheduler)
-    assert code == 0, stdout
-    code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "again", "--scheduler", scheduler,
+    code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "baseline", "--scheduler", scheduler, *quick)
+    assert code == 0 and "cases per point {'gcp': 1, 'gdcp': 1, 'gkep': 0}" in stdout, stdout
+    code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "again", "--scheduler", scheduler, *quick,
                            "--baseline", tmp_path / "baseline")
-    assert code == 0 and "1 points, 0 reused; 5 cases done" in stdout, stdout
+    assert code == 0 and "1 points, 0 reused; 2 cases done" in stdout, stdout
     assert f"no regression (1 points compared against {tmp_path / 'baseline'})" in stdout
     biased = _sweep_file(tmp_path / "biased", axis, base=_plugin_campaign(tmp_path / "biased", 30.0),
                          extra="[tolerances]\nerror_increase_mps = 1000.0")
-    code, stdout, _ = _run(capsys, biased, "--output", tmp_path / "candidate", "--scheduler", scheduler,
+    code, stdout, _ = _run(capsys, biased, "--output", tmp_path / "candidate", "--scheduler", scheduler, *quick,
                            "--baseline", tmp_path / "baseline")
     assert code == 1, stdout
     baseline = pd.read_parquet(tmp_path / "baseline" / "results.parquet")
@@ -234,8 +245,8 @@ def test_added_false_valid_cases_fail_the_gate_whatever_the_error_tolerance(tmp_
     rows = table[2:-1]                                          # heading, column names, rows, summary line
     assert len(rows) == 3 and all(" probe " in row and " false-valid " in row for row in rows), table
     assert {row.split(" probe ")[0].split(")")[-1].strip() for row in rows} == {"gcp", "gdcp", "Gusev weighted"}
-    for name, cases in (("gcp", 3), ("gdcp", 2)):               # every valid case is now false-valid
-        assert any(f" {name} " in row and f" {expected[name]} of {cases} valid  {cases} of {cases} valid " in row
+    for name, count in (("gcp", 1), ("gdcp", 1)):               # every valid case is now false-valid
+        assert any(f" {name} " in row and f" {expected[name]} of {count} valid  {count} of {count} valid " in row
                    for row in rows), table
     assert table[-1] == f"3 regressions against {tmp_path / 'baseline'} (1 points compared)"
 
