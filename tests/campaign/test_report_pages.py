@@ -156,6 +156,7 @@ def _extreme_rows():
     return pd.DataFrame(rows)
 
 
+@pytest.mark.slow
 def test_plots_survive_nan_inf_1e30_and_empty_classes(tmp_path):
     from campaign.report import plots
     from campaign.report.aggregate import site_table
