@@ -8,6 +8,12 @@
                 KubeCluster; ``[execution.kubernetes]``; extra ``moc2dimes[kubernetes]``)
 
 Every worker runs one thread (a case is one CPU-bound task; BLAS and OpenCV threads are pinned to 1).
+Batch jobs are submitted and watched until their first worker connects by :mod:`campaign.run.batch_jobs`
+(a batch-system failure is one line naming the command and its error); :func:`cluster_description` is
+what ``campaign cluster FILE`` prints (job script or DaskCluster resource, nothing submitted); a
+Kubernetes worker's dask memory limit keeps a headroom below its pod's limit
+(:func:`~campaign.configuration.execution.kubernetes_headroom_bytes`).
+
 The optional packages are imported only for their backend; a missing one is a one-line
 :class:`~flight_interface.tomlfields.ConfigError` naming the pip extra, raised by
 :func:`require_backend` before anything is written.
@@ -169,6 +175,9 @@ def _batch_cluster(execution: ExecutionConfig, quiet: bool) -> tuple[Client, obj
         raise
     if not quiet:
         print(f"{execution.cluster} jobs: {', '.join(record.submitted)}", flush=True)
+    if record.rejected:      # the run goes on with the other jobs' workers, but says so
+        print(f"campaign: note: {len(record.rejected)} of {len(cluster.worker_spec)} {execution.cluster} jobs were "
+              f"not submitted; first: {record.rejected[0]}", file=sys.stderr, flush=True)
     return client, cluster
 
 
