@@ -146,7 +146,10 @@ class SlurmNode:
     def stop(self) -> None:
         """Cancel every job, stop the daemons (ours, by process group) and remove the directory."""
         if self.processes:
-            self.run("scancel", "--full", "-u", "root", check=False)   # every job of this private cluster
+            try:
+                self.run("scancel", "--full", "-u", "root", check=False)   # every job of this private cluster
+            except subprocess.TimeoutExpired:
+                pass                                                     # the daemons are stopped below anyway
         for process in reversed(self.processes):
             try:
                 os.killpg(process.pid, signal.SIGTERM)
