@@ -231,12 +231,14 @@ def _cmd_sweep(args) -> int:
     unfinished = run.unfinished or failed_rows
     if baseline is None:
         return RUN_INCOMPLETE if unfinished else 0
-    findings, compared = compare_to_baseline(spec, results, baseline, spec.tolerances)
-    if findings:
-        print(f"regressions against {args.baseline}:\n{format_findings(findings)}")
-        print(f"{len(findings)} regressions against {args.baseline} ({compared} points compared)")
+    gate = compare_to_baseline(spec, results, baseline, spec.tolerances)
+    for note in gate.notes:
+        print(f"note: {note}")
+    if gate.findings:
+        print(f"regressions against {args.baseline}:\n{format_findings(gate.findings)}")
+        print(f"{len(gate.findings)} regressions against {args.baseline} ({gate.compared} points compared)")
         return RUN_INCOMPLETE
-    print(f"no regression ({compared} points compared against {args.baseline})")
+    print(f"no regression ({gate.compared} points compared against {args.baseline})")
     return RUN_INCOMPLETE if unfinished else 0
 
 

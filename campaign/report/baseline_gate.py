@@ -154,8 +154,9 @@ def judge(where: str, class_label: str, estimator: str, before: list[tuple[float
     allowed = fv_before * cases_now / cases_before + rules.false_valid_increase
     if fv_now > allowed + 1e-9:
         valid_before, valid_now = sum(s.valid for _, s in before), sum(s.valid for _, s in now)
+        scaled = "count" if cases_now == cases_before else f"baseline count x {cases_now}/{cases_before} cases"
         found("false-valid", f"{fv_before} of {valid_before} valid", f"{fv_now} of {valid_now} valid",
-              "count", f"{fv_now} > {allowed:g} allowed (baseline + {rules.false_valid_increase})")
+              scaled, f"{fv_now} > {allowed:g} allowed (baseline + {rules.false_valid_increase})")
 
     judged = [(w if weighted else 1.0, b, n) for (w, b), (_, n) in zip(before, now) if w > 0 or not weighted]
     if weighted:
@@ -205,7 +206,7 @@ def judge_point(where: str, seed_key: str, before_rows: pd.DataFrame, now_rows: 
     for estimator in dict.fromkeys(now_rows["estimator"]) if len(now_rows) else []:
         base = before_rows[before_rows["estimator"] == estimator] if len(before_rows) else before_rows
         if base.empty:
-            continue
+            continue        # an estimator the baseline did not run: the caller notes it
         mine = now_rows[now_rows["estimator"] == estimator]
         before = [(fractions[c], class_sample(base[base["class_name"] == c], false_valid_mps)) for c in fractions]
         now = [(fractions[c], class_sample(mine[mine["class_name"] == c], false_valid_mps)) for c in fractions]

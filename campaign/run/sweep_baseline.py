@@ -107,27 +107,42 @@ def gate_rules(tolerances: Tolerances) -> GateRules:
                      error_increase_mps=tolerances.error_increase_mps, significance=tolerances.significance)
 
 
+@dataclass(frozen=True)
+class GateResult:
+    """The regressions found, the number of points compared, and notes on what was not compared."""
+
+    findings: list[Finding]
+    compared: int
+    notes: list[str]
+
+
 def compare_to_baseline(spec: SweepSpec, results: pd.DataFrame, baseline: Baseline,
-                        tolerances: Tolerances) -> tuple[list[Finding], int]:
-    """Regressions of this sweep's case rows (``results``, with ``point_id``) against the baseline, and the
-    number of points compared (points matched by their axis values)."""
+                        tolerances: Tolerances) -> GateResult:
+    """Regressions of this sweep's case rows (``results``, with ``point_id``) against the baseline (points
+    matched by their axis values); points without a baseline point and estimators the baseline point did
+    not run are named in the notes."""
     base_ids = {match_key(point["values"]): point["point_id"] for point in baseline.description["points"]}
     fractions = {entry.name: entry.ellipse_fraction for entry in spec.base.site.classes}
     results = with_estimator_column(results)
     rules = gate_rules(tolerances)
     findings: list[Finding] = []
-    compared = 0
+    notes, compared = [], 0
     for point in spec.points:
         key = match_key(point.values)
         base_id = base_ids.get(key)
+        where = f"{point.point_id} ({', '.join(f'{k}={value_text(v)}' for k, v in point.values.items())})"
         if base_id is None or base_id not in baseline.rows:
+            notes.append(f"{where}: no baseline point with these axis values: not compared")
             continue
         compared += 1
         mine = results[results["point_id"] == point.point_id] if not results.empty else results
-        where = f"{point.point_id} ({', '.join(f'{k}={value_text(v)}' for k, v in point.values.items())})"
-        findings += judge_point(where, repr(key), baseline.rows[base_id], mine, fractions, spec.base.site.name,
+        before = baseline.rows[base_id]
+        for estimator in dict.fromkeys(mine["estimator"]) if len(mine) else []:
+            if not (before["estimator"] == estimator).any():
+                notes.append(f"{where}: estimator {estimator} has no rows in baseline point {base_id}: not compared")
+        findings += judge_point(where, repr(key), before, mine, fractions, spec.base.site.name,
                                 spec.base.false_valid_mps, rules)
-    return findings, compared
+    return GateResult(findings, compared, notes)
 
 
 def sweep_status_lines(directory: str | Path) -> list[str]:

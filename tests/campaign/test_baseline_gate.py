@@ -21,7 +21,7 @@ from campaign.report.baseline_gate import (
     judge_point,
     valid_drop_p_value,
 )
-from campaign.run.sweep_baseline import read_baseline, sweep_status_lines
+from campaign.run.sweep_baseline import Baseline, compare_to_baseline, read_baseline, sweep_status_lines
 from campaign.store.campaign_store import StoreError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -228,3 +228,23 @@ def test_bad_cases_scale_is_one_line_exit_2(spec, tmp_path, capsys):
     stderr = capsys.readouterr().err
     assert code == 2 and "--cases-scale" in stderr and len(stderr.strip().splitlines()) == 1, stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_points_are_matched_by_axis_values_and_the_rest_is_noted(spec):
+    _, sweep = spec
+    description = _description(sweep)
+    description["points"] = [dict(description["points"][0], point_id="b007")]   # only p000's values, another id
+    baseline = Baseline(Path("."), description, {"b007": pd.DataFrame(_rows("gcp", [1.0] * 10) + _rows("gdcp", [1.0] * 10))})
+    results = pd.DataFrame([{**row, "point_id": point} for point in ("p000", "p001")
+                            for row in _rows("gcp", invalid=10) + _rows("gdcp", [1.0] * 10)
+                            + _rows("gcp", [1.0], estimator="pc")])
+    gate = compare_to_baseline(sweep, results, baseline, Tolerances())
+    assert gate.compared == 1
+    assert {(f.point.split()[0], f.class_name, f.estimator, f.metric) for f in gate.findings} == {
+        ("p000", "gcp", "dimes", "% valid"), ("p000", "Gusev weighted", "dimes", "weighted % valid")}
+    site = next(f for f in gate.findings if f.class_name == "Gusev weighted")   # 0.59 * 0 + 0.41 * 100 (gkep 0)
+    assert (site.baseline, site.candidate) == ("100.0 (20/20)", "41.0 (10/20)")
+    assert site.test == f"p = {math.comb(30, 20) / math.comb(40, 20):.3g}"   # the 10 invalid all in the candidate
+    assert gate.notes == [
+        "p000 (scene.camera_effects.dark_current_scale=1): estimator pc has no rows in baseline point b007: not compared",
+        "p001 (scene.camera_effects.dark_current_scale=2): no baseline point with these axis values: not compared"]
