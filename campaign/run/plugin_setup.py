@@ -11,8 +11,8 @@ shipped (a zip cannot hold an importable ``.so``); install it on the workers.
 How (:func:`ship_plugin_code`): each zip is registered with the scheduler as a dask worker plug-in
 (:class:`ShippedPlugin`, a :class:`distributed.diagnostics.plugin.UploadFile`): every worker, and every
 worker that joins later, writes it into its local directory, puts it on ``sys.path`` and imports the
-module, whatever the worker's current directory and ``PYTHONPATH``. The same module name is re-registered
-under the same plug-in name, so a second submit replaces the code of the first.
+module, whatever the worker's current directory and ``PYTHONPATH``. A module is registered under one plug-in
+name, so a second submit replaces the code of the first: the worker forgets the old modules and zip first.
 
 Set-up errors (:class:`PluginSetupError`, a :class:`~campaign.run.faults.InfrastructureError`): a shipped
 module that does not import on a worker (a dependency missing there), or an estimator that cannot be built
@@ -149,6 +149,12 @@ class ShippedPlugin(UploadFile):
         self.imports = code.imports
 
     async def setup(self, worker):
+        # a previous version of the plug-in on this worker (an earlier submit to a long-lived cluster) is
+        # forgotten first: its modules and its zip on sys.path, so every module is run from this zip
+        for name in [name for name in sys.modules if name == self.module or name.startswith(f"{self.module}.")]:
+            del sys.modules[name]
+        sys.path[:] = [entry for entry in sys.path if not Path(entry).name.startswith(f"moc2dimes-plugin-{self.module}-")]
+        importlib.invalidate_caches()
         try:
             await super().setup(worker)
             for name in self.imports:
