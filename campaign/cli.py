@@ -201,7 +201,7 @@ def _cmd_report(args) -> int:
     from campaign.report.markdown import write_report
 
     path = write_report(Path(args.dir))
-    print(f"wrote {path}")
+    print(f"wrote {path} and {path.parent / 'gallery.md'} (failure gallery), with their PNGs in {path.parent}")
     return 0
 
 
