@@ -93,6 +93,7 @@ def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slu
     pd.testing.assert_frame_equal(on_slurm, on_local, check_exact=True)
 
 
+@pytest.mark.slow
 def test_no_sbatch_on_path_stops_at_once_in_one_line(tmp_path):
     """Needs no SLURM: PATH holds only the interpreter's directory."""
     config = campaign_file(tmp_path, execution=_slurm_table(tmp_path))
@@ -103,6 +104,7 @@ def test_no_sbatch_on_path_stops_at_once_in_one_line(tmp_path):
     assert wall_s < STOP_WITHIN_S and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_rejected_job_stops_the_run_in_one_line_naming_sbatch_and_its_error(slurm, tmp_path):
     before = set(slurm.jobs())
     config = campaign_file(tmp_path, execution=_slurm_table(tmp_path, queue="nosuchpartition"))
