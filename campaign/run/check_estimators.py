@@ -109,6 +109,7 @@ def run_checks(config: CampaignConfig, records: list[dict], where: str = "") -> 
                 continue
             after = input_digests(shared)
             outcomes[spec.name].append(CaseOutcome(run, tuple(name for name in before if before[name] != after[name])))
+            before = after               # a change is charged to the estimator that made it
     return ProcessOutcome(where or f"worker {worker_address()}", setup_errors, outcomes)
 
 

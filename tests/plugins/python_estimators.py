@@ -70,3 +70,22 @@ def changes_camera(inputs):
     """Writes into the camera model shared by the simulator and every estimator: must raise, it is read-only."""
     inputs.camera.falloff_map[:] = 1.0
     return imu_minus_bias(inputs)
+
+
+def writes_through_base(inputs):
+    """Gets around the read-only view (writes into the array behind it): `campaign check-estimators` must
+    see the changed input."""
+    image = inputs.images[0]
+    if image.base is not None and image.base.flags.writeable:
+        image.base[0, 0] += 1
+    return imu_minus_bias(inputs)
+
+
+def differs_on_worker(inputs):
+    """Answers 1 m/s more east in a spawned (worker) process than in the driver's main process."""
+    import multiprocessing
+
+    answer = imu_minus_bias(inputs)
+    if multiprocessing.parent_process() is not None:
+        answer["velocity_east_mps"] += 1.0
+    return answer
