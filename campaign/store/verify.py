@@ -1,7 +1,8 @@
 """`campaign verify DIR`: check every file of a campaign store against its integrity record.
 
 Checked: ``manifest.json`` (valid JSON whose ``manifest_sha256`` matches its content), ``plan.parquet``
-(sha256 recorded in the manifest), every file in ``cases/`` (size and sha256 recorded in its name), and
+(sha256 recorded in the manifest), every file in ``cases/`` (size and sha256 recorded in its name, schema,
+and the identity recorded inside it against the store's: a *foreign* file is bad), and
 ``results.parquet`` / ``timings.parquet`` (sha256 recorded in ``results.json``, compacted from exactly the
 verified case files of the plan). Each bad file is one line ``path: what is wrong``; files that are
 fine but not counted (superseded copies of a case, cases outside the plan, temporary files of a killed
