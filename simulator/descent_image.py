@@ -133,8 +133,9 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     Returns
     -------
     DescentImage
-        ``.dn`` uint16 (256, 1024); ``.radiance`` the three fields (W m^-2 sr^-1 um^-1): exposure
-        (1024, 1024), flush and transfer (1024, 1024) or, when warped, per binning block (256, 1024);
+        ``.dn`` uint16 (256, 1024); ``.radiance`` the three fields (W m^-2 sr^-1 um^-1): (1024, 1024)
+        or, when warped, per binning block (256, 1024) - the smear fields, and all three when a long
+        blur was integrated by warp-and-accumulate (:mod:`simulator.scene.blur_warp`);
         ``.sky_mask``, ``.outside_terrain_mask``, ``.heat_shield_mask`` (1024, 1024) bool;
         ``.diagnostics`` (anti-sun pixel, sub-steps, footprint, timings...).
     """

@@ -32,7 +32,8 @@ class SceneEffects(ConfigModel):
 
     Physics switches: ``photometric_correction``, ``spectral_ratio``, ``shadows``, ``heat_shield``,
     ``motion_blur``. Fidelity shortcuts (switch off for the reference render): ``coarse_ray_grid``,
-    ``coarse_photometry``, ``share_still_fields``, ``warp_smear_fields``, ``pixel_area_filter``.
+    ``coarse_photometry``, ``share_still_fields``, ``warp_smear_fields``, ``warp_motion_blur``,
+    ``pixel_area_filter``.
     """
 
     photometric_correction: bool = True
@@ -54,6 +55,9 @@ class SceneEffects(ConfigModel):
     warp_smear_fields: bool = True
     """Shortcut: fast-flush and frame-transfer fields warped from the exposure-centre field along the
     ground-plane flow instead of re-rendered (simulator.scene.radiance.warped_field)."""
+    warp_motion_blur: bool = True
+    """Shortcut: a period blurred over many sub-poses as warp-and-accumulate of one rendered field at
+    binned resolution (simulator.scene.blur_warp) instead of one rendered field per sub-pose."""
     pixel_area_filter: bool = True
     """Shortcut: the pixel-area integral approximated from point samples
     (simulator.scene.radiance.pixel_area_average); the reference supersamples instead."""

@@ -30,6 +30,7 @@ from simulator.fields import RadianceFields, bin_rows, block_means
 from simulator.off_nominal import hot_pixels, particle_hits
 
 PERIODS = ("flush", "exposure", "transfer")
+BLOCK_EXPOSURE_BOUND_FACTOR = 1.5   # max pixel / max block mean allowance for an exposure given per block
 SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well
 
 
@@ -114,10 +115,12 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     camera : Camera
     radiance : RadianceFields, sequence of 3 arrays, or callable
         Radiance (W m^-2 sr^-1 um^-1) per pixel, shape (height, width), during fast flush, exposure
-        and frame transfer. Fields that are the same object are converted once. The flush and
-        transfer fields may instead be given per binning block, shape (height / b, width), each
-        block's mean radiance: they only enter through smear, i.e. block sums, so the block mean is
-        all that is needed (each block's pixel gains are averaged likewise).
+        and frame transfer. Fields that are the same object are converted once. Any field may instead
+        be given per binning block, shape (height / b, width), each block's mean radiance: smear and
+        binning only see block sums, so the block mean is all that is needed, with each block's pixel
+        gains averaged likewise (for the exposure this drops the in-block correlation of scene and
+        PRNU, a second-order term; the scene gives a blurred exposure this way, simulator.scene.blur_warp).
+        When a pixel may reach full well a block exposure is spread over its block's rows.
     rng : numpy.random.Generator
         Noise stream of this image (shot noise, then read noise).
     effects : CameraEffects
@@ -134,7 +137,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     expected_shape = (camera.height_px, camera.width_px)
     block_shape = (camera.height_px // camera.binning_rows, camera.width_px)
     for period, field in zip(PERIODS, (fields.flush, fields.exposure, fields.transfer)):
-        allowed = (expected_shape,) if period == "exposure" else (expected_shape, block_shape)
+        allowed = (expected_shape, block_shape)
         if np.shape(field) not in allowed:
             raise ValueError(f"radiance {period} field has shape {np.shape(field)}; expected "
                              f"{' or '.join(map(str, allowed))}")
@@ -147,16 +150,20 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
     hits = artefacts.particle_hits if artefacts is not None and artefacts.particle_hits is not None else None
 
     gain = pixel_gain(camera, effects.falloff, effects.prnu)           # responsivity x falloff x PRNU
-    if dust is not None:
-        gain = gain * dust
+    dusty: dict = {}
+    if dust is not None:   # the case's dust is the same in its three images: its gain is made once (cached on it)
+        dusty = DERIVED.of(dust, "render").setdefault((id(camera), bool(effects.falloff), bool(effects.prnu)), {})
+        if "gain" not in dusty:
+            dusty["gain"] = gain * dust
+        gain = dusty["gain"]
 
     def block_gain() -> np.ndarray:
         """Mean over each binning block of the pixels' gain (responsivity x falloff x dust x PRNU), (H/b, W)."""
         if dust is None:
             return pixel_gain(camera, effects.falloff, effects.prnu, per_block=True)
-        if "block_gain" not in rates:
-            rates["block_gain"] = block_means(gain, camera.binning_rows)
-        return rates["block_gain"]
+        if "block_gain" not in dusty:
+            dusty["block_gain"] = block_means(gain, camera.binning_rows)
+        return dusty["block_gain"]
 
     def generation_rate(field: np.ndarray) -> np.ndarray:
         key = id(field)
@@ -182,6 +189,7 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         return rates[key]
 
     rate_exposure = generation_rate(fields.exposure)
+    block_exposure = rate_exposure.shape == block_shape
     if effects.smear:
         rate_flush, rate_transfer = generation_rate(fields.flush), generation_rate(fields.transfer)
         timing = camera.timing
@@ -190,14 +198,18 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         timing = camera.timing.model_copy(update={"fast_flush_s": 0.0, "frame_transfer_s": 0.0})
 
     bound = charge_transfer.max_pixel_charge_bound_e(rate_flush, rate_exposure, rate_transfer, timing)
+    if block_exposure:   # a block mean hides its brightest pixel: PRNU and in-block structure, a safe factor
+        bound *= BLOCK_EXPOSURE_BOUND_FACTOR
     if hits is not None:
         bound += hits.max_pixel_charge_e
     if bound <= camera.electronics.full_well_e:
         charge = charge_transfer.binned_charge_e(rate_flush, rate_exposure, rate_transfer, timing,
-                                                 camera.binning_rows)
+                                                 camera.binning_rows, camera.height_px)
         if hits is not None:
             particle_hits.add_to_binned(charge, hits, camera.binning_rows)
     else:  # some pixel may saturate: bloom (or clip) each pixel at full well before binning
+        if block_exposure:   # each pixel of a block gets the block's mean field times its own gain
+            rate_exposure = generation_rate(np.repeat(fields.exposure, camera.binning_rows, axis=0))
         pixel = charge_transfer.pixel_charge_e(rate_flush, rate_exposure, rate_transfer, timing)
         if hits is not None:
             particle_hits.add_to_pixels(pixel, hits)

@@ -60,9 +60,10 @@ def pixel_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_trans
 
 
 def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
-                    timing: Timing, binning_rows: int) -> np.ndarray:
-    """Binned charge (e-) of ``binning_rows``-row blocks, exact, shape (N / b, width), float32."""
-    rows = rate_exposure.shape[0]
+                    timing: Timing, binning_rows: int, rows: int | None = None) -> np.ndarray:
+    """Binned charge (e-) of ``binning_rows``-row blocks, exact, shape (N / b, width), float32.
+    ``rows`` (N) is needed only when the exposure rate too is given per block (its mean)."""
+    rows = rate_exposure.shape[0] if rows is None else rows
     toward_last = timing.transfer_toward_last_row
     flush_blocks, flush_ramp = _block_sums(_flip(rate_flush, toward_last), binning_rows, rows)
     flush_before = cumsum_rows(flush_blocks) - flush_blocks          # blocks strictly before
@@ -77,7 +78,8 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
     transfer_smear = binning_rows * transfer_after + ((binning_rows + 1) * transfer_blocks - transfer_ramp)
 
     smear = (timing.fast_flush_s / rows) * flush_smear + (timing.frame_transfer_s / rows) * transfer_smear
-    exposure_blocks = bin_rows(rate_exposure, binning_rows)
+    exposure_blocks = (rate_exposure * np.float32(binning_rows) if is_block_mean(rate_exposure, rows, binning_rows)
+                       else bin_rows(rate_exposure, binning_rows))
     return (_flip(smear, toward_last) + np.float32(timing.exposure_s) * exposure_blocks).astype(np.float32)
 
 

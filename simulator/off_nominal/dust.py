@@ -34,16 +34,26 @@ surface"; lengths in m, image coordinates in pixels):
 Diffraction by the particle edge and the glass's own reflections are neglected (geometric optics:
 the particle is hundreds of wavelengths across and ~5000 pupil-to-wavelength Fresnel numbers away).
 
-Cost: each particle touches only the bounding box of its shadow; no full-frame pass per particle.
+Cost: the map is evaluated on nodes every :data:`NODE_STEP_PX` pixels (one node beyond each edge), each
+particle touching only the nodes in the bounding box of its shadow, and interpolated bilinearly to every
+pixel once (one full-frame pass per case, whatever the particle count). The shadow is smooth on that
+scale: its transition band is ``2 a f_px / d`` pixels wide (~23 px at the mean diameter) and a band
+narrower than the node step belongs to a particle whose depth ``(a / R)^2`` is below 1e-3; measured
+against the per-pixel evaluation (:func:`transmission_map_exact`) on 100-particle populations: max
+|difference| 1.3e-3, mean 5e-5 (tests: < 2e-3, < 1e-4).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
+from simulator.derived_cache import DERIVED
+
+NODE_STEP_PX = 4
 
 
 @dataclass(frozen=True)
@@ -119,8 +129,64 @@ def draw_particles(camera: Camera, rng: np.random.Generator, mean_count: float, 
     return DustParticles(np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1), diameters)
 
 
+def _node_beam_centres_m(camera: Camera, distance_m: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Beam centres (x, y) on the front element at the nodes (cached per camera and distance): node k
+    along an axis sits at pixel ``(k + 0.5) step - 0.5``, k = -1 .. size / step; and the first node's pixel."""
+    cache = DERIVED.of(camera, "dust")
+    key = ("nodes", NODE_STEP_PX, float(distance_m))
+    if key not in cache:
+        first = -0.5 * NODE_STEP_PX - 0.5
+        cols = first + NODE_STEP_PX * np.arange(camera.width_px // NODE_STEP_PX + 2)
+        rows = first + NODE_STEP_PX * np.arange(camera.height_px // NODE_STEP_PX + 2)
+        rays = cahvor.unproject(camera.model, np.stack(np.meshgrid(cols, rows), axis=-1))
+        e1, e2, axis = _axis_basis(camera)
+        along = rays @ axis
+        cache[key] = (distance_m * (rays @ e1) / along, distance_m * (rays @ e2) / along, first)
+    return cache[key]
+
+
 def transmission_map(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
-    """Relative transmission of every pixel (H, W) float32, 1 where no particle shadows it."""
+    """Relative transmission of every pixel (H, W) float32, 1 where no particle shadows it: evaluated
+    on the node grid and interpolated (module doc)."""
+    x, y, first = _node_beam_centres_m(camera, distance_m)
+    pupil = entrance_pupil_radius_m(camera)
+    e1, e2, axis = _axis_basis(camera)
+    focal_px = max(camera.model.hs, camera.model.vs)
+    radii = 0.5 * np.asarray(particles.diameters_m, dtype=float)
+    positions = np.asarray(particles.positions_m, dtype=float).reshape(-1, 2)
+    directions = (positions[:, :1] * e1 + positions[:, 1:] * e2) / distance_m + axis
+    centres, in_front = cahvor.project(camera.model, camera.model.c + directions)
+    # every (particle, node) pair in the particles' shadow boxes, evaluated in one vectorised pass
+    pair_nodes, pair_particles = [], []
+    for k in np.flatnonzero(np.atleast_1d(in_front)):
+        half = 1.1 * (pupil + radii[k]) / distance_m * focal_px + 3.0 + NODE_STEP_PX
+        col0 = max(int((centres[k, 0] - half - first) / NODE_STEP_PX), 0)
+        col1 = min(int((centres[k, 0] + half - first) / NODE_STEP_PX) + 2, x.shape[1])
+        row0 = max(int((centres[k, 1] - half - first) / NODE_STEP_PX), 0)
+        row1 = min(int((centres[k, 1] + half - first) / NODE_STEP_PX) + 2, x.shape[0])
+        if col1 <= col0 or row1 <= row0:
+            continue
+        rows, cols = np.mgrid[row0:row1, col0:col1]
+        pair_nodes.append((rows * x.shape[1] + cols).ravel())
+        pair_particles.append(np.full(rows.size, k))
+    nodes: np.ndarray = np.ones(x.shape, dtype=np.float32)
+    if pair_nodes:
+        node, particle = np.concatenate(pair_nodes), np.concatenate(pair_particles)
+        separation = np.hypot(x.ravel()[node] - positions[particle, 0], y.ravel()[node] - positions[particle, 1])
+        blocked = overlap_area(pupil, radii[particle], separation) / (np.pi * pupil**2)
+        with np.errstate(divide="ignore"):     # a black core (a > R) is log 0 = -inf: transmission 0
+            log_sum = np.bincount(node, weights=np.log(np.clip(1.0 - blocked, 0.0, 1.0)), minlength=x.size)
+        nodes = np.exp(log_sum).reshape(x.shape).astype(np.float32)
+    step = NODE_STEP_PX
+    node_rows, node_cols = nodes.shape
+    big = cv2.resize(nodes.astype(np.float32), (node_cols * step, node_rows * step),
+                     interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(big[step:step + camera.height_px, step:step + camera.width_px])
+
+
+def transmission_map_exact(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
+    """Relative transmission of every pixel (H, W) float32 evaluated pixel by pixel (the reference of
+    :func:`transmission_map`)."""
     transmission = np.ones((camera.height_px, camera.width_px), dtype=np.float32)
     pupil = entrance_pupil_radius_m(camera)
     e1, e2, axis = _axis_basis(camera)

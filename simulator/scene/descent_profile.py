@@ -10,6 +10,7 @@ Image timing: ``image_times_s[k]`` is the *start of the exposure* of image k. Th
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -180,10 +181,14 @@ class RateScaledProfile(DescentProfile):
     rate_multiplier: float = 1.0
     rate_centre_s: float = 0.0
 
+    @cached_property
+    def _centre_attitude(self) -> np.ndarray:
+        """Attitude at the (clamped) rate centre: the same for every pose of this profile."""
+        return DescentProfile.pose(self, float(np.clip(self.rate_centre_s, self.time_s[0], self.time_s[-1]))).attitude_quat
+
     def pose(self, time_s: float) -> Pose:
         base = super().pose(time_s)
-        centre_s = float(np.clip(self.rate_centre_s, self.time_s[0], self.time_s[-1]))
-        centre = super().pose(centre_s).attitude_quat
+        centre = self._centre_attitude
         relative = quat_to_rotation_vector(quat_multiply(quat_conjugate(centre), base.attitude_quat))
         attitude = quat_normalize(quat_multiply(centre, quat_from_rotation_vector(self.rate_multiplier * relative)))
         return replace(base, attitude_quat=attitude, angular_rate_radps=self.rate_multiplier * base.angular_rate_radps)

@@ -41,7 +41,16 @@ import numpy as np
 from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
 from simulator.fields import RadianceFields, block_means
-from simulator.scene import atmosphere, ground_mapping, heat_shield, motion_blur, photometry, resample, shadow
+from simulator.scene import (
+    atmosphere,
+    blur_warp,
+    ground_mapping,
+    heat_shield,
+    motion_blur,
+    photometry,
+    resample,
+    shadow,
+)
 from simulator.scene.descent_profile import DescentProfile, Pose
 from simulator.scene.terrain import Terrain
 
@@ -304,7 +313,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
     first = windows["flush"][0] if need_smear_fields else windows["exposure"][0]
     last = windows["transfer"][1] if need_smear_fields else windows["exposure"][1]
     total_shift = motion_blur.image_shift(camera, cam_at(first), cam_at(last), mpp)
-    centre = radiance_at_pose(terrain, camera, pose_at(timing.exposure_mid_time_s(t)), sun_world, config)
+    centre_s = timing.exposure_mid_time_s(t)
 
     def masks(pose_fields):
         sky = pose_fields[0].sky.copy()
@@ -320,20 +329,40 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
 
     still = effects.share_still_fields and total_shift < config.still_shift_terrain_px
     if still or not effects.motion_blur and not need_smear_fields:
+        centre = radiance_at_pose(terrain, camera, pose_at(centre_s), sun_world, config)
         sky, outside, shield = masks([centre])
         fields = RadianceFields(centre.radiance, centre.radiance, centre.radiance)
         return PeriodScene(fields, sky, outside, shield, {"flush": 0, "exposure": 1, "transfer": 0}, True, centre)
 
-    averaged, counts, exposure_fields, centre_blocks = {}, {}, [centre], None
+    counts = {}
     for period, (start, end) in windows.items():
         if period != "exposure" and not need_smear_fields:
             counts[period] = 0
-            continue
-        count = 1
-        if effects.motion_blur:
+        elif effects.motion_blur:
             shift = motion_blur.image_shift(camera, cam_at(start), cam_at(end), mpp)
-            count = motion_blur.substep_count(shift * config.substeps_per_terrain_px, config.max_substeps)
-        counts[period] = count
+            counts[period] = motion_blur.substep_count(shift * config.substeps_per_terrain_px, config.max_substeps)
+        else:
+            counts[period] = 1
+    if (effects.warp_motion_blur and effects.motion_blur and need_smear_fields
+            and counts["exposure"] >= blur_warp.MIN_EXPOSURE_SUBSTEPS):
+        warped = blur_warp.warped_period_fields(
+            camera, pose_at, cam_at, windows, centre_s, max(counts.values()),
+            lambda cam, pose: radiance_at_pose(terrain, cam, pose, sun_world, config),
+            lambda time_s: blur_warp.moving_world_points(pose_at(time_s), casters(pose_at(time_s), config),
+                                                         sun_unit_vector(sun_world)) if effects.shadows else [])
+        if warped is not None:
+            centre_pose = pose_at(centre_s)
+            centre = PoseField(warped.centre_radiance, warped.sky, warped.outside, warped.centre_heat_shield,
+                               ground_mapping.camera_pose(camera, centre_pose), warped.shadow_centres_m)
+            return PeriodScene(warped.fields, warped.sky, warped.outside, warped.heat_shield, warped.substeps,
+                               False, centre)
+
+    centre = radiance_at_pose(terrain, camera, pose_at(centre_s), sun_world, config)
+    averaged, exposure_fields, centre_blocks = {}, [centre], None
+    for period, (start, end) in windows.items():
+        count = counts[period]
+        if count == 0:
+            continue
         if period == "exposure" and count == 1:
             pose_fields = [centre]
         elif period != "exposure" and effects.warp_smear_fields:

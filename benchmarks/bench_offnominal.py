@@ -1,0 +1,118 @@
+"""Off-nominal scenes at nominal cost: case time with each off-nominal effect / the nominal case time.
+
+A fixed set of Gusev cases (the campaign's plan, seeds and default fidelity; ``CASES`` of them) is run
+as a campaign worker runs it (:func:`campaign.run.case.compute_case`: three images, sensors, reference
+estimator), once nominal and once per off-nominal point, interleaved case by case so that load on the
+machine hits every point alike. ``ratio_vs_nominal`` = median case time of the point / median nominal
+case time (process CPU time, one thread). Targets (issue "twice as fast per case"): <= 2.0 for the x60
+angular rate, <= 1.3 for 100 dust particles and for every other effect. The cost curve rows give the
+case time against the blur length (median pixels of image motion in the exposure, from the
+``angular_rate_multiplier``) and against the dust particle count: it should flatten, not grow linearly.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+CASES = 4
+REPEATS = 2
+TARGETS = {"angular_rate_x60": 2.0}
+DEFAULT_TARGET = 1.3
+POINTS = {
+    "angular_rate_x60": {"angular_rate_multiplier": 60.0},
+    "dust_100": {"dust_particle_count": 100},
+    "hot_pixels_1pct": {"hot_pixel_fraction": 0.01},
+    "particle_hits_1e4": {"particle_hit_rate_per_cm2_s": 1.0e4},
+    "heat_shield_glint": {"heat_shield_glint": True},
+    "no_blooming": {"blooming": False},
+    "dark_current_x100": {},                       # [scene.camera_effects] dark_current_scale
+}
+CURVE = {"angular_rate": [("angular_rate_multiplier", value) for value in (1.0, 5.0, 15.0, 30.0, 60.0)],
+         "dust": [("dust_particle_count", value) for value in (0, 10, 30, 100, 300)]}
+
+
+def _resources(updates: dict, camera_effects: dict | None = None):
+    """The Gusev campaign (cases_scale 0.05) with ``[scene.off_nominal]`` ``updates`` and
+    ``[scene.camera_effects]`` ``camera_effects``, planned, its per-worker products built."""
+    import tomllib
+
+    from campaign.configuration.campaign_file import campaign_config_from_data
+    from campaign.run.orchestrate import plan_campaign
+
+    path = REPO / "sitedata" / "gusev.toml"
+    data = tomllib.loads(path.read_text())
+    scene = data.setdefault("scene", {})
+    scene.setdefault("off_nominal", {}).update(updates)
+    scene.setdefault("camera_effects", {}).update(camera_effects or {})
+    resources, plan = plan_campaign(campaign_config_from_data(data, path, cases_scale=0.05))
+    resources.calibration()
+    resources.estimators()
+    return resources, plan
+
+
+def _cpu_ms(function) -> tuple[float, object]:
+    start = time.process_time()
+    result = function()
+    return 1e3 * (time.process_time() - start), result
+
+
+def run() -> list[dict]:
+    import cv2
+
+    from campaign.run.case import PlanRow, compute_case
+
+    cv2.setNumThreads(1)
+    configs = {"nominal": _resources({})}
+    for name, updates in POINTS.items():
+        configs[name] = _resources(updates, {"dark_current_scale": 100.0} if name == "dark_current_x100" else None)
+    for curve, points in CURVE.items():
+        for key, value in points:
+            configs[f"{curve}={value:g}"] = _resources({key: value})
+    plan = configs["nominal"][1]
+    rows = plan.to_dict("records")[::max(1, len(plan) // CASES)][:CASES]
+    times: dict[str, list[float]] = {name: [] for name in configs}
+    blur_px: dict[str, list[float]] = {name: [] for name in configs}
+    for row in rows:
+        for resources, _ in configs.values():
+            compute_case(resources, PlanRow.from_record(row))          # warm: terrain, caches
+        for _ in range(REPEATS):
+            for name, (resources, _) in configs.items():
+                ms, _ = _cpu_ms(lambda: compute_case(resources, PlanRow.from_record(row)))  # noqa: B023
+                times[name].append(ms)
+        for name, (resources, _) in configs.items():
+            if name.startswith("angular_rate="):
+                blur_px[name] += _exposure_blur_px(resources, PlanRow.from_record(row), float(name.split("=")[1]))
+    nominal = float(np.median(times["nominal"]))
+    table = [{"name": "offnominal/nominal", "cases": len(rows), "case_ms": nominal}]
+    for name in POINTS:
+        ratio = float(np.median(times[name])) / nominal
+        target = TARGETS.get(name, DEFAULT_TARGET)
+        table.append({"name": f"offnominal/{name}", "case_ms": float(np.median(times[name])),
+                      "ratio_vs_nominal": ratio, "target_ratio": target, "meets_target": bool(ratio <= target)})
+    for name in configs:
+        if "=" in name:
+            row = {"name": f"offnominal/curve/{name}", "case_ms": float(np.median(times[name])),
+                   "ratio_vs_nominal": float(np.median(times[name])) / nominal}
+            if blur_px[name]:
+                row["exposure_blur_px"] = float(np.median(blur_px[name]))
+            table.append(row)
+    return table
+
+
+def _exposure_blur_px(resources, plan_row, multiplier: float) -> list[float]:
+    """Largest image motion (camera px) during the exposure of each of the case's images."""
+    from simulator.scene import ground_mapping, motion_blur
+    from simulator.scene.descent_profile import scale_angular_rates
+
+    camera = resources.camera
+    profile = resources.placed_profile(plan_row)
+    blur = []
+    for start_s in profile.image_times_s:
+        scaled = scale_angular_rates(profile, multiplier, camera.timing.exposure_mid_time_s(start_s))
+        poses = [ground_mapping.camera_pose(camera, scaled.pose(float(t)))
+                 for t in (start_s, start_s + camera.timing.exposure_s)]
+        blur.append(motion_blur.image_shift(camera, *poses, terrain_mpp=1e-12))   # image px (the smaller unit)
+    return blur

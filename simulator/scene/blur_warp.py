@@ -1,0 +1,315 @@
+"""High motion blur at nominal cost: the three period fields as warp-and-accumulate of one rendered field.
+
+Physics. The terrain is the plane z = 0, so a ground point seen at pixel ``x`` at time ``t`` is seen
+at pixel ``sigma(x)`` at time ``t'``, where ``sigma`` is the ground-plane flow between the two camera
+poses (exact ray / plane intersection and CAHVOR projection, distortion included). The radiance a
+pixel integrates over a CCD period is the mean over sub-poses of the field of one rendered pose read
+through those flows. Everything ground-fixed (terrain, photometry, the opposition halo: the view
+direction of a ground point changes by the lander's translation only, centimetres in a 5 ms period)
+moves exactly with the flow; features that move on their own (the lander's and the heat shield's
+shadows, the heat shield itself) are checked: their true pixel at every sub-pose must land within
+:data:`MOVING_TOLERANCE_PX` of where the warp puts them, else the scene is rendered per sub-pose.
+
+Cost. One field is rendered at the exposure mid-time on a camera enlarged by a margin (the CAHVOR
+model with ``H' = H + M A``, ``V' = V + M A`` sees the original pixel (c, r) at (c + M, r + M)), so
+every sub-pose's view lies inside it. The rows enter the image only through 4-row binning blocks
+(smear and binning sum them), so the warps run at binned resolution on block means: columns keep full
+resolution, rows are resolved to a block, which is what the binned image can show. A fractional-block
+shift of a field with structure finer than a block along the motion would smooth it, so the first
+doubling levels, whose step moves the rows by less than :data:`FULL_RESOLUTION_ROW_SHIFT_PX`, run at full
+resolution; by then the accumulated field is averaged along the motion over that length and the
+rest runs on block means. ``N = 2^K`` equally
+spaced sub-poses are averaged with ``K`` warps by recursive doubling,
+``G_{m+1}(y) = (G_m(y) + G_m(sigma_{2^m}(y))) / 2``, exact when the flow over a time step does not
+depend on when the step starts (constant rates: a rotation at constant rate is a one-parameter group
+of image maps; the translation's departure from it is second order). That assumption is verified, not
+trusted: for a 5 x 5 grid of pixels and 9 sub-poses spread along the path (ends included) the composed map is compared with the exact one
+and must agree to :data:`GROUP_TOLERANCE_PX`: a quarter pixel for the exposure (the default count rule
+itself spaces sub-poses up to several pixels apart on long paths, ``max_substeps``), three quarters for
+the flush and transfer fields, which reach the image only through column sums over many rows (smear),
+and whose average is moved furthest from the rendered pose (1 to 1.5 periods). A last warp per period (flush, exposure, transfer) moves
+the average to the period's mid-time. So a 64-sub-pose blur costs about 6 + 3 block-resolution warps
+instead of 3 x 64 rendered fields.
+
+Bounds: the path (with margin) must stay within :data:`MAX_MARGIN_PX`, no pixel of the enlarged field
+may see the sky (the flow is defined on the ground only); otherwise :func:`warped_period_fields`
+returns None and the caller renders each sub-pose exactly. Measured against the exact sub-pose
+integration of the reference preset: ``make bench`` (offnominal rows) and tests/simulator.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from flight_interface import cahvor
+from flight_interface.camera import Camera
+from simulator.fields import RadianceFields, block_means
+from simulator.scene import ground_mapping, motion_blur, shadow
+from simulator.scene.descent_profile import Pose
+
+MIN_EXPOSURE_SUBSTEPS = 4      # below this the exact sub-pose renders are cheap enough (and bits unchanged)
+MARGIN_STEP_PX = 32            # margins are multiples of the flow node step (and of the binning rows)
+MAX_MARGIN_PX = 256
+GROUP_TOLERANCE_PX = {"exposure": 0.25, "flush": 0.75, "transfer": 0.75}   # composed vs exact map (px)
+MOVING_TOLERANCE_PX = 0.5      # shadows and heat shield: true pixel vs where the warp puts them
+FLOW_STEP_PX = 32
+FULL_RESOLUTION_ROW_SHIFT_PX = 8.0   # doubling levels with less row motion per step run at full resolution
+CHECK_GRID = 5
+CHECKED_LEAVES = 9
+
+
+@dataclass(frozen=True)
+class WarpedPeriods:
+    """The three period fields (block means, (H / b, W)) plus exposure masks and diagnostics."""
+
+    fields: RadianceFields
+    sky: np.ndarray
+    outside: np.ndarray
+    heat_shield: np.ndarray
+    substeps: dict
+    centre_radiance: np.ndarray       # the exposure-centre field, (H, W)
+    centre_heat_shield: np.ndarray | None
+    shadow_centres_m: list
+    margin_px: int
+
+
+def expanded_camera(camera: Camera, margin_px: int) -> Camera:
+    """``camera`` enlarged by ``margin_px`` on every side: its pixel (c + M, r + M) sees what ``camera``'s
+    pixel (c, r) sees (cached per camera and margin)."""
+    cache = ground_mapping.camera_cache(camera)
+    key = ("expanded", int(margin_px))
+    if key not in cache:
+        model = camera.model
+        detector = camera.detector.model_copy(update={"width_px": camera.width_px + 2 * margin_px,
+                                                      "height_px": camera.height_px + 2 * margin_px})
+        cache[key] = replace(camera, detector=detector,
+                             model=replace(model, h=model.h + margin_px * model.a, v=model.v + margin_px * model.a))
+    return cache[key]
+
+
+def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
+                 pixels: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray | None:
+    """Exact source pixels (..., 2) of the ground points that ``pixels`` see at ``target`` (camera-frame
+    ``rays`` of the pixels when known); None when any of them sees the sky or lands behind the camera."""
+    rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) if rays is None else rays
+    rays = rays @ target.camera_to_world.T
+    if not (target.ray_origin_m[2] > 0 and np.all(rays[..., 2] < -ground_mapping.HORIZON_EPSILON)):
+        return None
+    points = target.ray_origin_m + (-target.ray_origin_m[2] / rays[..., 2])[..., None] * rays
+    source_pixels, in_front = ground_mapping.world_to_pixels(camera, source, points)
+    return source_pixels if bool(np.all(in_front)) else None
+
+
+def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
+                source_offset_px: float, block_rows: int) -> np.ndarray | None:
+    """Flow map over ``camera``'s frame at ``block_rows``-row resolution: (H / b, W, 2) float32 (column,
+    block row) of the source pixels, shifted by ``source_offset_px`` (the source is an enlarged frame)."""
+    b = block_rows
+    rows = ground_mapping.node_positions(camera.height_px, FLOW_STEP_PX)
+    cols = ground_mapping.node_positions(camera.width_px, FLOW_STEP_PX)
+    grid = np.stack(np.meshgrid(cols, rows), axis=-1)
+    source_pixels = _flow_points(camera, target, source, grid, ground_mapping.camera_frame_rays(camera, grid))
+    if source_pixels is None:
+        return None
+    source_pixels = source_pixels + source_offset_px
+    source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (b - 1)) / b
+    return ground_mapping.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
+                                         row_step_px=FLOW_STEP_PX // b)
+
+
+def _remap(field: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
+    return cv2.remap(field, flow, None, interpolation=cv2.INTER_LINEAR,  # type: ignore[call-overload]
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
+class _Plan:
+    """Times and exact maps of the doubling scheme for one image (see module doc)."""
+
+    def __init__(self, camera: Camera, cam_at: Callable[[float], ground_mapping.CameraPose], centre_s: float,
+                 windows: dict, count: int):
+        self.levels = max(1, math.ceil(math.log2(count)))
+        self.count = 2 ** self.levels
+        self.camera, self.cam_at, self.centre_s, self.windows = camera, cam_at, centre_s, windows
+        lengths = {round(end - start, 12) for start, end in windows.values()}
+        self.step_s = {period: (end - start) / self.count for period, (start, end) in windows.items()}
+        self.ok = len(lengths) == 1          # one chain serves the three periods of equal length
+        self.delta_s = next(iter(self.step_s.values()))
+        self.average_centre_s = centre_s + 0.5 * (self.count - 1) * self.delta_s
+
+    def row_shift_px(self, level: int) -> float:
+        """Largest row motion (px) of the sample pixels over one step of ``level`` (2^level sub-poses)."""
+        pixels = motion_blur.sample_pixels(self.camera, CHECK_GRID)
+        moved = _flow_points(self.camera, self.cam_at(self.centre_s + (2 ** level) * self.delta_s),
+                             self.cam_at(self.centre_s), pixels)
+        return math.inf if moved is None else float(np.abs(moved[:, 1] - pixels[:, 1]).max())
+
+    def leaf_times(self, period: str) -> np.ndarray:
+        start, end = self.windows[period]
+        return motion_blur.substep_times(start, end, self.count)
+
+    def checked_leaves(self) -> np.ndarray:
+        """The leaves whose composed maps are checked: both ends and at most CHECKED_LEAVES in all, evenly
+        spread (the composition error varies smoothly along the path; measured on the nightly cases)."""
+        return np.unique(np.linspace(0, self.count - 1, min(self.count, CHECKED_LEAVES)).round().astype(int))
+
+    def composed(self, period: str, pixels: np.ndarray) -> tuple[np.ndarray | None, float]:
+        """Where the doubling scheme reads the centre field for every leaf: (N, P, 2) from pixels (P, 2)
+        (the same for every leaf) or (N, P, 2) (leaf by leaf), and the largest distance of any
+        intermediate position from its pixel (px); (None, inf) when a ray misses the ground."""
+        start, end = self.windows[period]
+        pixels = np.broadcast_to(pixels, (self.count, *pixels.shape[-2:]))
+        first = _flow_points(self.camera, self.cam_at(0.5 * (start + end)), self.cam_at(self.average_centre_s), pixels)
+        if first is None:
+            return None, math.inf
+        positions = first.copy()
+        reach = float(np.abs(first - pixels).max())
+        leaves = np.arange(self.count)
+        for level in reversed(range(self.levels)):
+            chosen = (leaves >> level) & 1 == 1
+            moved = _flow_points(self.camera, self.cam_at(self.centre_s + (2 ** level) * self.delta_s),
+                                 self.cam_at(self.centre_s), positions[chosen])
+            if moved is None:
+                return None, math.inf
+            positions[chosen] = moved
+            reach = max(reach, float(np.abs(positions - pixels).max()))
+        return positions, reach
+
+
+def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
+                         cam_at: Callable[[float], ground_mapping.CameraPose], windows: dict, centre_s: float,
+                         count: int, render: Callable[[Camera, Pose], Any],
+                         moving_points: Callable[[float], list]) -> WarpedPeriods | None:
+    """The flush, exposure and transfer fields of one image by warp-and-accumulate (module doc), or None
+    when the scene does not allow it (then render each sub-pose).
+
+    Parameters
+    ----------
+    windows : dict period -> (start_s, end_s)
+    centre_s : float, exposure mid-time (s), where the one field is rendered
+    count : int, sub-poses the blur needs (rounded up to a power of two)
+    render : (camera, pose) -> PoseField, the scene at one pose
+    moving_points : time_s -> list of world points (m) that move on their own (shadow centres, heat shield)
+    """
+    plan = _Plan(camera, cam_at, centre_s, windows, count)
+    if not plan.ok:
+        return None
+    pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
+    rays = ground_mapping.camera_frame_rays(camera, pixels)
+    reach = 0.0
+    for period in windows:
+        positions, period_reach = plan.composed(period, pixels)
+        if positions is None:
+            return None
+        times = plan.leaf_times(period)
+        for leaf in plan.checked_leaves():
+            exact = _flow_points(camera, cam_at(float(times[leaf])), cam_at(centre_s), pixels, rays)
+            if exact is None or not float(np.max(np.abs(positions[leaf] - exact))) <= GROUP_TOLERANCE_PX[period]:
+                return None
+        reach = max(reach, period_reach)
+        if not _moving_features_follow(plan, period, moving_points):
+            return None
+    margin = MARGIN_STEP_PX * math.ceil((1.1 * reach + 4.0) / MARGIN_STEP_PX)
+    if margin > MAX_MARGIN_PX:
+        return None
+    big = expanded_camera(camera, margin)
+    field = render(big, pose_at(centre_s))
+    if field.sky.any():
+        return None
+    b = camera.binning_rows
+    height, width = camera.height_px, camera.width_px
+    inner = (slice(margin, margin + height), slice(margin, margin + width))
+    # early levels (short paths, fine structure along the motion) at full resolution, then block means:
+    # a field already averaged over >= FULL_RESOLUTION_ROW_SHIFT_PX of row motion is smooth along it, and
+    # its fractional-block shifts interpolate well (module doc)
+    accumulated, block = field.radiance, 1
+    centre_cam = cam_at(centre_s)
+    for level in range(plan.levels):
+        level_cam = cam_at(centre_s + (2 ** level) * plan.delta_s)
+        if block == 1 and plan.row_shift_px(level) >= FULL_RESOLUTION_ROW_SHIFT_PX:
+            accumulated, block = block_means(accumulated, b), b
+        flow = _block_flow(big, level_cam, centre_cam, 0.0, block)
+        if flow is None:
+            return None
+        accumulated = cv2.addWeighted(accumulated, 0.5, _remap(accumulated, flow), 0.5, 0.0)
+    if block == 1:
+        accumulated = block_means(accumulated, b)
+    averaged = {}
+    for period, (start, end) in windows.items():
+        flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), float(margin), b)
+        if flow is None:
+            return None
+        averaged[period] = _remap(accumulated, flow)
+    outside = _mask_union(field.outside, camera, big, margin, plan, cam_at)
+    shield_full = field.heat_shield
+    shield = (_mask_union(shield_full, camera, big, margin, plan, cam_at) if shield_full is not None
+              else np.zeros((height, width), dtype=bool))
+    return WarpedPeriods(
+        RadianceFields(averaged["flush"], averaged["exposure"], averaged["transfer"]),
+        np.zeros((height, width), dtype=bool), outside, shield,
+        {period: plan.count for period in windows},
+        np.ascontiguousarray(field.radiance[inner]),
+        None if shield_full is None else np.ascontiguousarray(shield_full[inner]),
+        field.shadow_centres_m, margin)
+
+
+def _moving_features_follow(plan: _Plan, period: str, moving_points: Callable[[float], list]) -> bool:
+    """True when every self-moving point (shadow centres, heat shield) in or near the frame lands, at
+    every sub-pose, within :data:`MOVING_TOLERANCE_PX` of where the composed warp reads it in the
+    centre field (where the point is at the rendered pose)."""
+    camera = plan.camera
+    reference = moving_points(plan.centre_s)
+    if not reference:
+        return True
+    where_centre, front = ground_mapping.world_to_pixels(camera, plan.cam_at(plan.centre_s), np.asarray(reference))
+    times = plan.leaf_times(period)
+    checked = plan.checked_leaves()
+    pixels = np.zeros((len(times), len(reference), 2))
+    seen = np.array(front, dtype=bool)
+    for leaf in checked:
+        pixels[leaf], in_front = ground_mapping.world_to_pixels(camera, plan.cam_at(float(times[leaf])),
+                                                                np.asarray(moving_points(float(times[leaf]))))
+        seen &= in_front
+    size = np.array([camera.width_px, camera.height_px], dtype=float)
+    seen &= np.all((pixels[checked] > -64.0) & (pixels[checked] < size + 64.0), axis=(0, 2))
+    if not seen.any():
+        return True
+    positions, _ = plan.composed(period, pixels[:, seen])
+    return (positions is not None
+            and float(np.max(np.abs(positions[checked] - where_centre[seen]))) <= MOVING_TOLERANCE_PX)
+
+
+def _mask_union(mask: np.ndarray, camera: Camera, big: Camera, margin: int, plan: _Plan,
+                cam_at: Callable[[float], ground_mapping.CameraPose]) -> np.ndarray:
+    """Exposure-period union of a mask of the enlarged centre field: the mask read at the first, centre
+    and last exposure sub-poses (full resolution, nearest pixel)."""
+    height, width = camera.height_px, camera.width_px
+    union = mask[margin:margin + height, margin:margin + width].copy()
+    if not mask.any():
+        return union
+    rows = ground_mapping.node_positions(height, FLOW_STEP_PX)
+    cols = ground_mapping.node_positions(width, FLOW_STEP_PX)
+    grid = np.stack(np.meshgrid(cols, rows), axis=-1)
+    source_u8 = mask.astype(np.uint8)
+    for time_s in plan.leaf_times("exposure")[[0, -1]]:
+        source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.centre_s), grid)
+        if source is None:
+            continue
+        flow = ground_mapping.upsample_nodes(source + float(margin), FLOW_STEP_PX, height, width)
+        union |= cv2.remap(source_u8, flow, None, interpolation=cv2.INTER_NEAREST,  # type: ignore[call-overload]
+                           borderMode=cv2.BORDER_REPLICATE).astype(bool)
+    return union
+
+
+def moving_world_points(pose: Pose, casters: list, sun: np.ndarray) -> list:
+    """World points that move on their own at a pose: each caster's ground shadow centre and the heat
+    shield's position."""
+    points = [shadow.shadow_centre_m(np.asarray(caster.centre_m, dtype=float), sun) for caster in casters]
+    if pose.heat_shield_position_m is not None:
+        points.append(np.asarray(pose.heat_shield_position_m, dtype=float))
+    return points
