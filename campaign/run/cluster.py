@@ -99,9 +99,10 @@ def jobqueue_cluster(execution: ExecutionConfig, record: JobRecord | None = None
 
 
 def batch_job_script(execution: ExecutionConfig, scheduler: str = SCHEDULER_PLACEHOLDER) -> str:
-    """The job script ``campaign submit`` would give ``sbatch`` / ``qsub`` for ``execution`` (one job; the
-    scheduler's address, known only when it runs, shown as ``scheduler``). Starts and submits nothing."""
-    job = _job_class(execution.cluster)(scheduler=scheduler, name=f"{WORKER_JOB_NAME}-0", **_job_options(execution))
+    """The job script ``campaign submit`` would give ``sbatch`` / ``qsub`` for ``execution`` (its first job;
+    the scheduler's address, known only when it runs, shown as ``scheduler``). Starts and submits nothing."""
+    first_worker = f"{'SLURMCluster' if execution.cluster == 'slurm' else 'PBSCluster'}-0"   # as the cluster names it
+    job = _job_class(execution.cluster)(scheduler=scheduler, name=first_worker, **_job_options(execution))
     return job.job_script()
 
 

@@ -61,7 +61,8 @@ def _submit(config: Path, out: Path, environment: dict, cwd: Path) -> tuple[subp
 
 
 @pytest.mark.slow
-def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slurm, tmp_path, record_property):
+def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slurm, tmp_path, record_property,
+                                                                              capsys):
     before = set(slurm.jobs())
     config = campaign_file(tmp_path / "slurm", cases=CASES, execution=_slurm_table(tmp_path))
     result, wall_s = _submit(config, tmp_path / "slurm" / "out", slurm.environment, tmp_path)
@@ -82,6 +83,12 @@ def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slu
     # the jobs' dask workers registered with this run's scheduler, and the cases ran on at most two workers
     logs = [(tmp_path / f"slurm-{job_id}.out").read_text() for job_id in job_ids]
     assert all(re.search(rf"Registered to:\s+{re.escape(scheduler)}", log) for log in logs), logs
+    # campaign cluster FILE printed the script sbatch got (the first job's; the address known only at run time)
+    scripts = [slurm.run("scontrol", "write", "batch_script", job_id, "-").stdout for job_id in job_ids]
+    capsys.readouterr()
+    assert main(["cluster", str(config)]) == 0
+    printed = capsys.readouterr().out.replace("tcp://SCHEDULER-ADDRESS:PORT", scheduler)
+    assert printed.strip() in [script.strip() for script in scripts], (printed, scripts)
     assert 1 <= pd.read_parquet(tmp_path / "slurm" / "out" / "timings.parquet")["worker"].nunique() <= 2
 
     local = campaign_file(tmp_path / "local", cases=CASES, execution="workers = 2")
