@@ -179,3 +179,13 @@ def test_plots_survive_nan_inf_1e30_and_empty_classes(tmp_path):
         assert _png_size(path)[0] > 100
     # the bars of the empty gkep class and the 0 %-valid gdcp class are still drawn as text (n/a, 0%)
     assert comparison.set_index(["estimator", "class"]).loc[("dimes", "gdcp"), "pct_valid"] == 0.0
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
+def test_a_missing_stated_uncertainty_is_stored_nan_not_zero(reported):
+    results = pd.read_parquet(reported / "results.parquet")
+    declined = results[results["estimator"] == "decliner"]["velocity_uncertainty_mps"]
+    assert len(declined) == 3 and declined.isna().all()             # invalid, nothing stated: NaN, never 0
+    dimes = results[(results["estimator"] == "dimes") & results["valid"]]["velocity_uncertainty_mps"]
+    assert (dimes > 0).all()                                        # the reference states one when valid
