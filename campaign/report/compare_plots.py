@@ -129,7 +129,8 @@ def valid_false_valid_bars(comparison: pd.DataFrame, path: Path) -> Path:
         axes.set_title(f"{title}: {', '.join(estimators)}", fontsize=9)
         axes.legend(fontsize=7, loc="upper center", ncol=min(len(estimators), 4))
         axes.grid(axis="y", alpha=0.3)
-    axes_pair[0].set_ylim(0.0, 125.0)
+    axes_pair[0].set_ylim(0.0, 125.0)             # room above 100 % for the count texts
+    axes_pair[0].set_yticks(range(0, 101, 20))
     figure.tight_layout()
     figure.savefig(path, dpi=FIGURE_DPI)
     plt.close(figure)
