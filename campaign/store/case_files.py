@@ -202,29 +202,27 @@ def check_case_file(path: Path, match: re.Match, expected: StoreIdentity | None 
         if size != recorded_size:
             kind = "truncated" if size < recorded_size else "too long"
             return f"{kind}: {size} bytes, {recorded_size} recorded at write time"
-        digest = sha256_file(path)
+        data = path.read_bytes()             # case files are small (tens of kB): read once, hashed and parsed
     except OSError as exc:
         return f"unreadable: {exc.strerror or exc}"
+    digest = sha256_bytes(data)
     if digest != recorded_digest:
         return f"corrupted: sha256 {digest[:16]}... differs from the {recorded_digest[:16]}... recorded at write time"
     try:
-        schema = pq.read_schema(path)
+        parquet = pq.ParquetFile(pa.BufferReader(data))
+        schema = parquet.schema_arrow
+        problem = schema_problem(schema, CASE_FILE_SCHEMA)
+        if problem is not None:
+            return problem
+        record, problem = read_identity(schema.metadata)
+        if record is None:
+            return problem
+        problem = identity_problem(record, int(match.group(1)), expected)
+        if problem is not None:
+            return problem
+        return rows_problem(parquet.read(columns=["case_id", "campaign_seed", "estimator"]), record)
     except (OSError, pa.ArrowException) as exc:
         return f"unreadable as Parquet: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-    problem = schema_problem(schema, CASE_FILE_SCHEMA)
-    if problem is not None:
-        return problem
-    record, problem = read_identity(schema.metadata)
-    if record is None:
-        return problem
-    problem = identity_problem(record, int(match.group(1)), expected)
-    if problem is not None:
-        return problem
-    try:
-        rows = pq.read_table(path, columns=["case_id", "campaign_seed", "estimator"])
-    except (OSError, pa.ArrowException) as exc:
-        return f"unreadable as Parquet: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-    return rows_problem(rows, record)
 
 
 def scan_case_files(cases_dir: Path, verified_before: dict | None = None,
