@@ -173,7 +173,8 @@ class ExecutionConfig(ConfigModel):
     """Stop the run when no case has finished for this long while workers are up (s)."""
     no_workers_timeout_s: float = Field(300.0, ge=1.0, le=7 * 86400.0)
     """Stop the run when the scheduler has had no worker for this long (s); for slurm/pbs/kubernetes it
-    must cover the wait for jobs or pods to start."""
+    must cover the wait for jobs or pods to start (a rejected job, or a SLURM job that ended or can never
+    start, stops the run at once: campaign.run.batch_jobs)."""
     paused_timeout_s: float = Field(20.0, ge=1.0, le=86400.0)
     """Stop the run when every worker has been paused at its memory limit, with no case finishing, for this long (s)."""
     slurm: BatchJobs = BatchJobs()
