@@ -17,8 +17,8 @@ directory ``DIR`` itself for the run's life (taken with the file lock when ``DIR
 after ``--fresh`` moved the old one aside). A second writer that gets a fresh ``DIR.lock`` finds the
 directory locked and is refused (or waits with ``--wait``) with a line naming the holder's pid (from
 ``/proc/locks``). A file system that cannot ``flock`` a directory (some NFS set-ups) falls back to the
-lock file alone. On NFS, Linux
-emulates ``flock`` with POSIX byte-range locks, which the NFS lock manager shares between hosts.
+lock file alone. On NFS, Linux emulates ``flock`` with POSIX byte-range locks, which the NFS lock
+manager shares between hosts.
 """
 from __future__ import annotations
 
