@@ -171,8 +171,7 @@ def write_outputs(spec: SweepSpec) -> tuple[pd.DataFrame, str]:
 
 
 def write_description(spec: SweepSpec) -> None:
-    """Write OUT/sweep.json (before the run too, so `campaign status OUT` knows the points of a sweep
-    that was stopped)."""
+    """Write OUT/sweep.json (also when a sweep stops, so `campaign status OUT` knows all its points)."""
     Path(spec.output_dir).mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(Path(spec.output_dir) / "sweep.json", json.dumps(sweep_description(spec), indent=2).encode())
 

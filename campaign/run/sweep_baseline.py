@@ -130,7 +130,7 @@ def compare_to_baseline(spec: SweepSpec, results: pd.DataFrame, baseline: Baseli
     for point in spec.points:
         key = match_key(point.values)
         base_id = base_ids.get(key)
-        where = f"{point.point_id} ({', '.join(f'{k}={value_text(v)}' for k, v in point.values.items())})"
+        where = _point_label(point.point_id, point.values)
         if base_id is None or base_id not in baseline.rows:
             notes.append(f"{where}: no baseline point with these axis values: not compared")
             continue
@@ -146,14 +146,23 @@ def compare_to_baseline(spec: SweepSpec, results: pd.DataFrame, baseline: Baseli
 
 
 def sweep_status_lines(directory: str | Path) -> list[str]:
-    """Per point of a sweep output directory: planned, done, failed and missing cases of its store."""
+    """Per point of a sweep output directory: planned, done, failed and missing cases of its store, then the
+    totals. The points are sweep.json's; without one (a first sweep still running) the point stores'
+    under ``points/``, named by their store and axis values (from their manifests)."""
     directory = Path(directory)
-    description = read_description(directory)
-    planned_each = sum(int(count) for count in description.get("cases_per_class", {}).values())
+    if (directory / "sweep.json").is_file():
+        description = read_description(directory)
+        planned_each = sum(int(count) for count in description.get("cases_per_class", {}).values())
+        points = [(_point_label(point["point_id"], point["values"]), directory / point["store"])
+                  for point in description["points"]]
+    else:
+        planned_each = 0
+        points = []
+        for manifest_path in sorted((directory / "points").glob("*/manifest.json")):
+            values = (CampaignStore(manifest_path.parent).manifest() or {}).get("sweep_point") or {}
+            points.append((_point_label(f"points/{manifest_path.parent.name}", values), manifest_path.parent))
     lines, totals = [], [0, 0, 0, 0]
-    for point in description["points"]:
-        label = f"{point['point_id']} ({', '.join(f'{k}={value_text(v)}' for k, v in point['values'].items())})"
-        store = directory / point["store"]
+    for label, store in points:
         if not (store / "manifest.json").is_file():
             lines.append(f"{label}: no store yet ({store}): {planned_each} cases missing")
             totals[0] += planned_each
@@ -168,9 +177,13 @@ def sweep_status_lines(directory: str | Path) -> list[str]:
                      f"{status.missing} missing" + (f" ({status.bad} bad case files)" if status.bad else ""))
         for index, count in enumerate((status.planned, status.done, status.failed, status.missing)):
             totals[index] += count
-    lines.append(f"{directory}: sweep of {len(description['points'])} points: {totals[0]} planned, {totals[1]} done, "
+    lines.append(f"{directory}: sweep of {len(points)} points: {totals[0]} planned, {totals[1]} done, "
                  f"{totals[2]} failed, {totals[3]} missing")
     return lines
+
+
+def _point_label(name: str, values: dict) -> str:
+    return f"{name} ({', '.join(f'{k}={value_text(v)}' for k, v in values.items())})"
 
 
 def match_key(values: dict) -> tuple:

@@ -1,7 +1,8 @@
 """`campaign sweep` with real parts: a dask LocalCluster of worker processes, real Parquet stores.
 
 Validation errors are one line naming the sweep file and field (exit 2, nothing written); points are
-reused by configuration hash; a degraded configuration is caught by --baseline; plots are written;
+reused by configuration hash; a degraded configuration and an estimator that adds false-valid cases are
+caught by --baseline, an identical re-run is not; `campaign status` counts each point; plots are written;
 and the estimator degrades with lens dust and with the angular rate multiplier (issue 7, done when).
 """
 from __future__ import annotations
@@ -144,6 +145,19 @@ def test_status_of_a_sweep_directory_counts_each_point(first_sweep, capsys):
     assert lines == ["p000 (scene.camera_effects.dark_current_scale=1): 5 planned, 5 done, 0 failed, 0 missing",
                      "p001 (scene.camera_effects.dark_current_scale=2): 5 planned, 5 done, 0 failed, 0 missing",
                      f"{out}: sweep of 2 points: 10 planned, 10 done, 0 failed, 0 missing"]
+    description = (out / "sweep.json").read_bytes()        # a first sweep still running has no sweep.json yet:
+    (out / "sweep.json").unlink()                           # its point stores (manifests) name the points
+    try:
+        assert main(["status", str(out)]) == 0
+    finally:
+        (out / "sweep.json").write_bytes(description)
+    lines = capsys.readouterr().out.strip().splitlines()
+    stores = sorted(path.name for path in (out / "points").iterdir() if path.is_dir())     # not the .lock files
+    assert sorted(line.split(" (")[0] for line in lines[:2]) == [f"points/{name}" for name in stores]
+    assert {line.split(" (", 1)[1] for line in lines[:2]} == {
+        "scene.camera_effects.dark_current_scale=1): 5 planned, 5 done, 0 failed, 0 missing",
+        "scene.camera_effects.dark_current_scale=2): 5 planned, 5 done, 0 failed, 0 missing"}
+    assert lines[2] == f"{out}: sweep of 2 points: 10 planned, 10 done, 0 failed, 0 missing"
 
 
 @pytest.mark.cluster
