@@ -155,7 +155,8 @@ def _cmd_plan(args) -> int:
 def _cmd_status(args) -> int:
     from campaign.store.campaign_store import CampaignStore
 
-    if (Path(args.dir) / "sweep.json").is_file() and not (Path(args.dir) / "manifest.json").exists():
+    swept = (Path(args.dir) / "sweep.json").is_file() or (Path(args.dir) / "points").is_dir()
+    if swept and not (Path(args.dir) / "manifest.json").exists():
         from campaign.run.sweep_baseline import sweep_status_lines  # a sweep output directory: its point stores
 
         print("\n".join(sweep_status_lines(args.dir)))
@@ -217,9 +218,13 @@ def _cmd_sweep(args) -> int:
     spec = load_sweep(args.file, output_dir=args.output, cases_scale=args.cases_scale)   # validates, writes nothing
     _check_directory(spec.output_dir, f"{args.file}: sweep.output_dir")
     baseline = read_baseline(args.baseline, spec) if args.baseline else None   # before the run: as it was
-    write_description(spec)
-    run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress,
-                    wait=args.wait)
+    try:
+        run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress,
+                        wait=args.wait)
+    except RunStopped:
+        if any((point.config.output_dir / "manifest.json").exists() for point in spec.points):
+            write_description(spec)       # a stopped sweep's points, for `campaign status`
+        raise
     table, text = write_outputs(spec)
     print(text)
     results = sweep_results(spec)                               # every point store's rows, not only this run's
