@@ -226,7 +226,12 @@ def check_estimators(config: CampaignConfig, cases: int = DEFAULT_CASES, schedul
         except PluginSetupError as exc:         # the others still run; the broken one fails its build there too
             names = str(exc).split(" cannot be set up")[0].removeprefix("estimator ").split(", ")
             shipping_errors = {name: str(exc) for name in names}
-        worker = client.submit(run_checks, config, records, pure=False).result()
+        try:
+            worker = client.submit(run_checks, config, records, pure=False).result()
+        except Exception as exc:  # noqa: BLE001 -- the worker could not run the cases at all: every estimator's violation
+            text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+            worker = ProcessOutcome("worker", {spec.name: f"the worker could not run the cases: {text}"
+                                               for spec in config.estimators}, {})
         worker.setup_errors.update({name: line for name, line in shipping_errors.items() if name not in worker.setup_errors})
     resources = load_resources(config)
     sample = estimator_inputs(resources, simulate_case_inputs(resources, PlanRow.from_record(records[0])))
