@@ -49,7 +49,9 @@ valid result with a non-finite velocity or a horizontal speed not below the camp
 stated uncertainty that is negative or not finite. The campaign records a violation, any exception
 (``SystemExit`` and ``KeyboardInterrupt`` included), a non-zero exit or a timeout as *that*
 estimator's failed result for the case (reason ``estimator_failed``, or ``implausible``), with the
-message; the other estimators' results for the case are kept.
+message; the other estimators' results for the case are kept. Loading the estimator is not part of a
+case: a module that does not import, bad parameters or a program that cannot be started is a set-up error
+(:class:`estimators.plugins.EstimatorSetupError`) that stops a campaign run and records nothing.
 
 Every estimator gets its inputs read-only (:func:`read_only_inputs`: the arrays are read-only views, so
 a write raises ``ValueError`` inside the estimator; the campaign's cached flat field and camera arrays
