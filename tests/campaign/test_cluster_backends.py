@@ -183,6 +183,7 @@ def test_campaign_cluster_prints_the_kubernetes_resource_without_credentials(tmp
 
 
 @pytest.mark.cluster
+@pytest.mark.slow
 def test_kubernetes_without_credentials_is_one_line_and_writes_nothing(tmp_path):
     path = campaign_file(tmp_path, execution='cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"')
     out = tmp_path / "out"

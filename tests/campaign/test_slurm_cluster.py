@@ -72,7 +72,6 @@ def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slu
     scheduler = re.search(r"scheduler: (tcp://\S+)", result.stdout).group(1)
     record_property("slurm_job_ids", job_ids)
     record_property("slurm_run_wall_s", round(wall_s, 1))
-    print(f"SLURM quick look: jobs {job_ids}, {wall_s:.1f} s")
 
     # two jobs of one worker each, submitted to this SLURM cluster under the worker job name, cancelled at the end
     known = slurm.jobs()
@@ -98,6 +97,8 @@ def test_quick_look_through_sbatch_jobs_equals_the_local_cluster_bit_for_bit(slu
     planned = pd.read_parquet(tmp_path / "slurm" / "out" / "plan.parquet")["case_id"]
     assert len(on_slurm) == 2 and sorted(on_slurm["case_id"]) == sorted(planned)      # 2 cases, one estimator
     pd.testing.assert_frame_equal(on_slurm, on_local, check_exact=True)
+    with capsys.disabled():
+        print(f"\nSLURM quick look: jobs {', '.join(job_ids)}, campaign submit {wall_s:.1f} s", flush=True)
 
 
 @pytest.mark.slow
