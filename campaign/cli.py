@@ -19,7 +19,9 @@ reason, e.g. ``campaign: estimator flight: 4 of 4 rows failed; first: case 0 (es
 a run stopped (one line naming the
 cause and the fix: campaign.run.faults), a sweep regressed, another writer holds the store's lock (one line
 naming it; ``--wait`` waits instead) or ``verify`` found bad files, 2 usage or configuration
-error (one clear line on stderr, nothing written). Command-line values (--cases-scale, --workers,
+error (one clear line on stderr, nothing written; also a path the system refuses and running out of memory),
+3 internal error (one line; CAMPAIGN_TRACEBACK=1 shows the traceback), 130 interrupted (one line saying what the
+store kept), 141 stdout closed by its reader (silent). Never a traceback (see main). Command-line values (--cases-scale, --workers,
 --scheduler) are validated against the same declarations as the TOML fields, before anything is written.
 """
 from __future__ import annotations

@@ -187,3 +187,103 @@ def schema_mutations(schema: dict, data: dict, skip: tuple[tuple, ...] = ()) -> 
 
 def toml_text(data: dict) -> str:
     return tomli_w.dumps(data)
+
+
+# ------------------------------------------------------------------------------------------ bad paths
+def bad_input_paths(root: Path) -> list[tuple[str, Path | str]]:
+    """Paths that are no usable input file, generated under ``root`` (plus system devices): (class, path).
+
+    Classes: empty, a name over 255 bytes (256, 300), a path over 4095 bytes (short names), a directory, a
+    FIFO, character devices, a socket, a dangling symbolic link, a symbolic-link loop, a name below a file."""
+    import os
+    import socket
+
+    root.mkdir(parents=True, exist_ok=True)
+    regular = root / "regular.toml"
+    regular.write_text("")
+    (root / "a-directory.toml").mkdir(exist_ok=True)
+    fifo = root / "fifo.toml"
+    if not fifo.exists():
+        os.mkfifo(fifo)
+    sock = root / "sock.toml"
+    if not sock.exists():
+        server = socket.socket(socket.AF_UNIX)
+        server.bind(str(sock))
+        server.close()
+    dangling, loop = root / "dangling.toml", root / "loop.toml"
+    if not dangling.is_symlink():
+        dangling.symlink_to(root / "nowhere" / "x.toml")
+    if not loop.is_symlink():
+        loop.symlink_to(loop)
+    return [("empty", ""), ("name of 256 bytes", root / ("n" * 252 + ".toml")),
+            ("name of 300 bytes", root / ("é" * 148 + ".toml")),      # 296 bytes of UTF-8 + 5
+            ("path over 4095 bytes", root.joinpath(*(["d" * 200] * 21), "x.toml")),
+            ("directory", root / "a-directory.toml"), ("FIFO", fifo), ("device /dev/null", "/dev/null"),
+            ("device /dev/zero", "/dev/zero"), ("socket", sock), ("dangling symlink", dangling),
+            ("symlink loop", loop), ("below a file", regular / "x.toml")]
+
+
+def bad_output_dirs(root: Path) -> list[tuple[str, Path | str]]:
+    """Paths where no output directory can be made or written, generated under ``root``: (class, path).
+
+    Classes: empty, names too long, a regular file, a device, a FIFO, a socket, a dangling symbolic link, a
+    name below a file, a directory under /proc/sys (read-only even for root)."""
+    inputs = dict(bad_input_paths(root))
+    return [("empty", ""), ("name of 300 bytes", inputs["name of 300 bytes"]),
+            ("path over 4095 bytes", inputs["path over 4095 bytes"]), ("regular file", root / "regular.toml"),
+            ("device /dev/null", "/dev/null"), ("FIFO", inputs["FIFO"]), ("socket", inputs["socket"]),
+            ("dangling symlink", inputs["dangling symlink"]), ("below a file", root / "regular.toml" / "out"),
+            ("under /proc/sys", "/proc/sys/kernel/campaign-out")]
+
+
+def corrupt_file_variants(path: Path) -> list[tuple[str, Callable[[], None]]]:
+    """Ways to damage an existing file in place: (class, damage()). Empty, truncated to half, random bytes,
+    JSON of the wrong shape, a directory, a FIFO or a dangling symbolic link in its place."""
+    import os
+    import random
+    import shutil
+
+    original = path.read_bytes()
+
+    def replace_with(make: Callable[[], None]) -> Callable[[], None]:
+        def damage() -> None:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif path.exists() or path.is_symlink():
+                path.unlink()
+            make()
+        return damage
+
+    noise = bytes(random.Random(len(original)).getrandbits(8) for _ in range(512))
+    return [("empty", replace_with(lambda: path.write_bytes(b""))),
+            ("truncated", replace_with(lambda: path.write_bytes(original[:len(original) // 2]))),
+            ("random bytes", replace_with(lambda: path.write_bytes(noise))),
+            ("JSON list", replace_with(lambda: path.write_text("[1, 2, 3]"))),
+            ("JSON null", replace_with(lambda: path.write_text("null"))),
+            ("directory", replace_with(lambda: path.mkdir())),
+            ("FIFO", replace_with(lambda: os.mkfifo(path))),
+            ("dangling symlink", replace_with(lambda: path.symlink_to(path.parent / "nowhere")))]
+
+
+def deep_toml_texts(depths: tuple[int, ...] = (200, 1000, 5000)) -> list[tuple[str, str]]:
+    """TOML documents nested beyond any schema: arrays, inline tables and both mixed, at each depth
+    (class, text); the value sits under ``[site]`` so the file is otherwise a plausible campaign file."""
+    texts = []
+    for depth in depths:
+        texts.append((f"arrays x{depth}", "[site]\nname = " + "[" * depth + "]" * depth + "\n"))
+        texts.append((f"inline tables x{depth}", "[site]\nname = " + "{a = " * depth + "1" + "}" * depth + "\n"))
+        texts.append((f"mixed x{depth}", "[site]\nname = " + "[{a = " * (depth // 2) + "1" + "}]" * (depth // 2) + "\n"))
+        texts.append((f"dotted keys x{depth}", "[site]\n" + ".".join(["k"] * depth) + " = 1\n"))
+    return texts
+
+
+def no_traceback_problems(outcome: Outcome, allowed_codes: tuple[int, ...] = (1, 2)) -> list[str]:
+    """What breaks "no traceback, one line, documented exit code" for a command that may legitimately list
+    things on stdout (verify) or exit 1 (a store with bad files)."""
+    problems = []
+    if outcome.code not in allowed_codes:
+        problems.append(f"exit status {outcome.code}")
+    lines = [line for line in outcome.err.splitlines() if line.strip()]
+    if "Traceback" in outcome.err or len(lines) > 1:
+        problems.append(f"stderr: {outcome.err[-600:]!r}")
+    return problems

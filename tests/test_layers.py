@@ -107,7 +107,8 @@ def test_the_command_line_imports_only_light_modules_at_start():
            if not local and target.startswith("campaign.")}
     assert top <= {"campaign.configuration", "campaign.run", "campaign.store"}, top
     light = {_resolve(target) for target, local, _ in GRAPH["campaign.cli"] if not local}
-    assert light <= {"campaign.configuration.schemas", "campaign.run.faults", "campaign.store.errors",
+    assert light <= {"campaign.configuration.paths", "campaign.configuration.schemas", "campaign.run.faults",
+                     "campaign.store.errors",
                      "campaign.store.lock", "flight_interface.camera", "flight_interface.command_line",
                      "flight_interface.tomlfields"}, light
 

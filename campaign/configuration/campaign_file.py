@@ -279,10 +279,15 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
                  label, context={"source": label})
 
 
+#: Largest synthetic terrain strip (rows x cols) a class may declare: 4x the presets' 5000 x 1000 pixels.
+MAX_SYNTHETIC_TERRAIN_PIXELS = 20_000_000
+
+
 def check_site_paths(site: Site, label: str) -> None:
     """The site's input files (camera, trajectory set, terrain images and side-cars) must not be FIFOs,
     devices, sockets or dangling links: refused by ``stat`` before anything opens them (reading a FIFO would
-    block; ``/dev/zero`` never ends). Also before the configuration hash reads their bytes."""
+    block; ``/dev/zero`` never ends), also before the configuration hash reads their bytes. A synthetic
+    terrain may declare at most :data:`MAX_SYNTHETIC_TERRAIN_PIXELS` (rows x cols)."""
     named = [("site.camera", site.camera_path), ("site.trajectory_set", site.trajectory_path)]
     for index, entry in enumerate(site.classes):
         for name in ("path", "sidecar"):
@@ -291,6 +296,13 @@ def check_site_paths(site: Site, label: str) -> None:
                 named.append((f"site.classes[{index}].terrain.{name}", Path(value)))
     for field, value in named:
         check_input_file(value, f"{label}: {field}")
+    for index, entry in enumerate(site.classes):
+        if entry.terrain.kind == "synthetic":
+            params = entry.terrain.params()
+            if params.rows * params.cols > MAX_SYNTHETIC_TERRAIN_PIXELS:
+                raise ConfigError(f"{label}: site.classes[{index}].terrain.overrides: rows x cols = {params.rows} x "
+                                  f"{params.cols} is too large; allowed: at most {MAX_SYNTHETIC_TERRAIN_PIXELS:,} pixels "
+                                  "(the presets have 5000 x 1000)")
 
 
 HASH_EXCLUDED_CAMPAIGN_KEYS = ("output_dir", "false_valid_mps", "cases", "cases_scale")

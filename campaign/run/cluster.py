@@ -24,7 +24,9 @@ import importlib
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -51,6 +53,24 @@ SCHEDULER_PLACEHOLDER = "tcp://SCHEDULER-ADDRESS:PORT"
 #: distributed's own log records on the driver during a run (the runner reports problems as one line;
 #: M2D_DASK_LOG_LEVEL=20 shows them, e.g. to debug a cluster)
 DRIVER_LOG_LEVEL = int(os.environ.get("M2D_DASK_LOG_LEVEL", logging.CRITICAL))
+
+
+@contextmanager
+def workers_ignore_interrupts() -> Iterator[None]:
+    """Worker processes started inside ignore SIGINT (an ignored signal stays ignored across fork and exec).
+
+    Ctrl-C reaches the terminal's whole process group; only the driver answers it (it closes the cluster, keeps
+    the finished cases and prints one line, :func:`campaign.cli.main`) instead of every worker printing a
+    KeyboardInterrupt traceback. The driver itself ignores SIGINT only while its workers start."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
 
 def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> None:
     """Raise a one-line ConfigError when the package of ``execution.cluster`` is not installed."""
@@ -214,9 +234,10 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
                              f"{execution.connect_timeout_s:g} s ({_first_line(exc)}); start it, check the address, "
                              "or raise [execution] connect_timeout_s; nothing was run or changed") from None
     elif execution.cluster == "local":
-        cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
-                               processes=True, memory_limit=execution.memory_limit, dashboard_address="127.0.0.1:0",
-                               host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
+        with workers_ignore_interrupts():
+            cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
+                                   processes=True, memory_limit=execution.memory_limit,
+                                   dashboard_address="127.0.0.1:0", host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
     elif execution.cluster in ("slurm", "pbs"):
         client, cluster = _batch_cluster(execution, quiet)
     else:

@@ -38,6 +38,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from campaign.configuration.paths import special_kind
 from campaign.store.case_files import (
     CaseScan,
     atomic_write_bytes,
@@ -153,6 +154,9 @@ class CampaignStore:
         return manifest
 
     def _manifest_state(self) -> tuple[dict | None, str | None]:
+        kind = special_kind(self.manifest_path)     # stat only: reading a FIFO would block
+        if kind is not None:
+            return None, f"unreadable: it is {kind}, not a file"
         try:
             text = self.manifest_path.read_bytes()
         except FileNotFoundError:
