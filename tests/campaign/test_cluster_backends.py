@@ -14,6 +14,8 @@ import pytest
 
 from campaign.cli import main
 from campaign.configuration.execution import ExecutionConfig
+from campaign.run.cluster import connected_client
+from campaign.run.faults import RunStopped
 from flight_interface.tomlfields import ConfigError, parse
 from service_campaigns import REPO, DaskProcesses, campaign_file, run_campaign, stderr_line
 
@@ -193,3 +195,12 @@ def test_kubernetes_without_credentials_is_one_line_and_writes_nothing(tmp_path)
     line = stderr_line(result)
     assert line.startswith("campaign: cannot start the Kubernetes cluster (") and "credentials" in line, line
     assert not out.exists()
+
+
+@pytest.mark.parametrize("kind, command", [("slurm", "sbatch"), ("pbs", "qsub")])
+def test_missing_submit_command_stops_before_any_cluster_starts(monkeypatch, kind, command):
+    monkeypatch.setenv("PATH", str(Path(sys.executable).parent))       # no batch system here
+    with pytest.raises(RunStopped, match=rf"^cannot submit {kind.upper()} jobs: {command} is not on PATH; .*"
+                                         "nothing was run or changed$"):
+        with connected_client(_execution({"cluster": kind}), quiet=True):
+            pass
