@@ -30,8 +30,11 @@ POINTS = {
     "no_blooming": {"blooming": False},
     "dark_current_x100": {},                       # [scene.camera_effects] dark_current_scale
 }
-CURVE = {"angular_rate": [("angular_rate_multiplier", value) for value in (1.0, 5.0, 15.0, 30.0, 60.0)],
-         "dust": [("dust_particle_count", value) for value in (0, 10, 30, 100, 300)]}
+#: extra points of the cost curves (the nominal point and the x60 / dust_100 rows complete them)
+CURVE = {"angular_rate": [("angular_rate_multiplier", value) for value in (5.0, 15.0, 30.0)],
+         "dust": [("dust_particle_count", value) for value in (10, 30, 300)]}
+CURVE_ALIASES = {"angular_rate=1": "nominal", "angular_rate=60": "angular_rate_x60", "dust=0": "nominal",
+                 "dust=100": "dust_100"}
 
 
 def _resources(updates: dict, camera_effects: dict | None = None):
@@ -83,8 +86,11 @@ def run() -> list[dict]:
                 ms, _ = _cpu_ms(lambda: compute_case(resources, PlanRow.from_record(row)))  # noqa: B023
                 times[name].append(ms)
         for name, (resources, _) in configs.items():
+            multiplier = {"nominal": 1.0, "angular_rate_x60": 60.0}.get(name)
             if name.startswith("angular_rate="):
-                blur_px[name] += _exposure_blur_px(resources, PlanRow.from_record(row), float(name.split("=")[1]))
+                multiplier = float(name.split("=")[1])
+            if multiplier is not None:
+                blur_px[name] += _exposure_blur_px(resources, PlanRow.from_record(row), multiplier)
     nominal = float(np.median(times["nominal"]))
     table = [{"name": "offnominal/nominal", "cases": len(rows), "case_ms": nominal}]
     for name in POINTS:
@@ -92,13 +98,15 @@ def run() -> list[dict]:
         target = TARGETS.get(name, DEFAULT_TARGET)
         table.append({"name": f"offnominal/{name}", "case_ms": float(np.median(times[name])),
                       "ratio_vs_nominal": ratio, "target_ratio": target, "meets_target": bool(ratio <= target)})
-    for name in configs:
-        if "=" in name:
-            row = {"name": f"offnominal/curve/{name}", "case_ms": float(np.median(times[name])),
-                   "ratio_vs_nominal": float(np.median(times[name])) / nominal}
-            if blur_px[name]:
-                row["exposure_blur_px"] = float(np.median(blur_px[name]))
-            table.append(row)
+    curve_names = sorted([name for name in configs if "=" in name] + list(CURVE_ALIASES),
+                         key=lambda name: (name.split("=")[0], float(name.split("=")[1])))
+    for name in curve_names:
+        source = CURVE_ALIASES.get(name, name)
+        row = {"name": f"offnominal/curve/{name}", "case_ms": float(np.median(times[source])),
+               "ratio_vs_nominal": float(np.median(times[source])) / nominal}
+        if name.startswith("angular_rate="):
+            row["exposure_blur_px"] = float(np.median(blur_px[source]))
+        table.append(row)
     return table
 
 

@@ -7,12 +7,15 @@ pixel integrates over a CCD period is the mean over sub-poses of the field of on
 through those flows. Everything ground-fixed (terrain, photometry, the opposition halo: the view
 direction of a ground point changes by the lander's translation only, centimetres in a 5 ms period)
 moves exactly with the flow; features that move on their own (the lander's and the heat shield's
-shadows, the heat shield itself) are checked: their true pixel at every sub-pose must land within
-:data:`MOVING_TOLERANCE_PX` of where the warp puts them, else the scene is rendered per sub-pose.
+shadows, the heat shield itself) are checked in the exposure: their true pixel at every sub-pose must
+land within :data:`MOVING_TOLERANCE_PX` of where the warp puts them, else the scene is rendered per
+sub-pose. The flush and transfer fields follow the ground flow everywhere, as the ``warp_smear_fields``
+shortcut always has (they reach the image only through column sums over the whole frame).
 
-Cost. One field is rendered at the exposure mid-time on a camera enlarged by a margin (the CAHVOR
-model with ``H' = H + M A``, ``V' = V + M A`` sees the original pixel (c, r) at (c + M, r + M)), so
-every sub-pose's view lies inside it. The rows enter the image only through 4-row binning blocks
+Cost. One field is rendered at the exposure mid-time on a camera enlarged by margins (the CAHVOR
+model with ``H' = H + L A``, ``V' = V + T A`` sees the original pixel (c, r) at (c + L, r + T)), each
+side's margin as wide as the path reaches beyond it, so every sub-pose's view lies inside it. The rows
+enter the image only through 4-row binning blocks
 (smear and binning sum them), so the warps run at binned resolution on block means: columns keep full
 resolution, rows are resolved to a block, which is what the binned image can show. A fractional-block
 shift of a field with structure finer than a block along the motion would smooth it, so the first
@@ -23,9 +26,9 @@ spaced sub-poses are averaged with ``K`` warps by recursive doubling,
 ``G_{m+1}(y) = (G_m(y) + G_m(sigma_{2^m}(y))) / 2``, exact when the flow over a time step does not
 depend on when the step starts (constant rates: a rotation at constant rate is a one-parameter group
 of image maps; the translation's departure from it is second order). That assumption is verified, not
-trusted: for a 5 x 5 grid of pixels and 9 sub-poses spread along the path (ends included) the composed map is compared with the exact one
-and must agree to :data:`GROUP_TOLERANCE_PX`: a quarter pixel for the exposure (the default count rule
-itself spaces sub-poses up to several pixels apart on long paths, ``max_substeps``), three quarters for
+trusted: for a 5 x 5 grid of pixels and 5 sub-poses spread along the path (ends included) the composed map is compared with the exact one
+and must agree to :data:`GROUP_TOLERANCE_PX`: half a pixel for the exposure (the default count rule
+itself spaces sub-poses up to several pixels apart on long paths, ``max_substeps``), one pixel for
 the flush and transfer fields, which reach the image only through column sums over many rows (smear),
 and whose average is moved furthest from the rendered pose (1 to 1.5 periods). A last warp per period (flush, exposure, transfer) moves
 the average to the period's mid-time. So a 64-sub-pose blur costs about 6 + 3 block-resolution warps
@@ -55,12 +58,13 @@ from simulator.scene.descent_profile import Pose
 MIN_EXPOSURE_SUBSTEPS = 4      # below this the exact sub-pose renders are cheap enough (and bits unchanged)
 MARGIN_STEP_PX = 32            # margins are multiples of the flow node step (and of the binning rows)
 MAX_MARGIN_PX = 256
-GROUP_TOLERANCE_PX = {"exposure": 0.25, "flush": 0.75, "transfer": 0.75}   # composed vs exact map (px)
+EXPANDED_CAMERAS_KEPT = 4      # enlarged cameras cached per camera (least recently used dropped)
+GROUP_TOLERANCE_PX = {"exposure": 0.5, "flush": 1.0, "transfer": 1.0}   # composed vs exact map (px)
 MOVING_TOLERANCE_PX = 0.5      # shadows and heat shield: true pixel vs where the warp puts them
 FLOW_STEP_PX = 32
 FULL_RESOLUTION_ROW_SHIFT_PX = 8.0   # doubling levels with less row motion per step run at full resolution
 CHECK_GRID = 5
-CHECKED_LEAVES = 9
+CHECKED_LEAVES = 5
 
 
 @dataclass(frozen=True)
@@ -75,20 +79,25 @@ class WarpedPeriods:
     centre_radiance: np.ndarray       # the exposure-centre field, (H, W)
     centre_heat_shield: np.ndarray | None
     shadow_centres_m: list
-    margin_px: int
+    margins_px: tuple[int, int, int, int]
 
 
-def expanded_camera(camera: Camera, margin_px: int) -> Camera:
-    """``camera`` enlarged by ``margin_px`` on every side: its pixel (c + M, r + M) sees what ``camera``'s
-    pixel (c, r) sees (cached per camera and margin)."""
-    cache = ground_mapping.camera_cache(camera)
-    key = ("expanded", int(margin_px))
-    if key not in cache:
+def expanded_camera(camera: Camera, margins_px: tuple[int, int, int, int]) -> Camera:
+    """``camera`` enlarged by (left, right, top, bottom) margins: its pixel (c + left, r + top) sees what
+    ``camera``'s pixel (c, r) sees (cached per camera and margins)."""
+    cache = ground_mapping.camera_cache(camera).setdefault("expanded", {})
+    left, right, top, bottom = (int(m) for m in margins_px)
+    key = (left, right, top, bottom)
+    if key in cache:
+        cache[key] = cache.pop(key)               # most recently used last
+    else:
+        while len(cache) >= EXPANDED_CAMERAS_KEPT:   # each holds its own ray caches (tens of MiB): keep a few
+            del cache[next(iter(cache))]
         model = camera.model
-        detector = camera.detector.model_copy(update={"width_px": camera.width_px + 2 * margin_px,
-                                                      "height_px": camera.height_px + 2 * margin_px})
+        detector = camera.detector.model_copy(update={"width_px": camera.width_px + left + right,
+                                                      "height_px": camera.height_px + top + bottom})
         cache[key] = replace(camera, detector=detector,
-                             model=replace(model, h=model.h + margin_px * model.a, v=model.v + margin_px * model.a))
+                             model=replace(model, h=model.h + left * model.a, v=model.v + top * model.a))
     return cache[key]
 
 
@@ -106,9 +115,10 @@ def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: grou
 
 
 def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
-                source_offset_px: float, block_rows: int) -> np.ndarray | None:
+                source_offset_px: tuple[float, float], block_rows: int) -> np.ndarray | None:
     """Flow map over ``camera``'s frame at ``block_rows``-row resolution: (H / b, W, 2) float32 (column,
-    block row) of the source pixels, shifted by ``source_offset_px`` (the source is an enlarged frame)."""
+    block row) of the source pixels, shifted by ``source_offset_px`` (column, row; the source is an
+    enlarged frame)."""
     b = block_rows
     rows = ground_mapping.node_positions(camera.height_px, FLOW_STEP_PX)
     cols = ground_mapping.node_positions(camera.width_px, FLOW_STEP_PX)
@@ -116,7 +126,7 @@ def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: groun
     source_pixels = _flow_points(camera, target, source, grid, ground_mapping.camera_frame_rays(camera, grid))
     if source_pixels is None:
         return None
-    source_pixels = source_pixels + source_offset_px
+    source_pixels = source_pixels + np.asarray(source_offset_px, dtype=float)
     source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (b - 1)) / b
     return ground_mapping.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
                                          row_step_px=FLOW_STEP_PX // b)
@@ -158,27 +168,33 @@ class _Plan:
         spread (the composition error varies smoothly along the path; measured on the nightly cases)."""
         return np.unique(np.linspace(0, self.count - 1, min(self.count, CHECKED_LEAVES)).round().astype(int))
 
-    def composed(self, period: str, pixels: np.ndarray) -> tuple[np.ndarray | None, float]:
+    def composed(self, period: str, pixels: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
         """Where the doubling scheme reads the centre field for every leaf: (N, P, 2) from pixels (P, 2)
         (the same for every leaf) or (N, P, 2) (leaf by leaf), and the largest distance of any
-        intermediate position from its pixel (px); (None, inf) when a ray misses the ground."""
+        intermediate position from its pixel as (column, row) lows and highs, (2, 2) px; None when a ray
+        misses the ground."""
         start, end = self.windows[period]
         pixels = np.broadcast_to(pixels, (self.count, *pixels.shape[-2:]))
         first = _flow_points(self.camera, self.cam_at(0.5 * (start + end)), self.cam_at(self.average_centre_s), pixels)
+        extent = np.zeros((2, 2))
         if first is None:
-            return None, math.inf
+            return None, extent
         positions = first.copy()
-        reach = float(np.abs(first - pixels).max())
+
+        def extend(offsets: np.ndarray) -> None:
+            extent[0] = np.minimum(extent[0], offsets.reshape(-1, 2).min(axis=0))
+            extent[1] = np.maximum(extent[1], offsets.reshape(-1, 2).max(axis=0))
+        extend(first - pixels)
         leaves = np.arange(self.count)
         for level in reversed(range(self.levels)):
             chosen = (leaves >> level) & 1 == 1
             moved = _flow_points(self.camera, self.cam_at(self.centre_s + (2 ** level) * self.delta_s),
                                  self.cam_at(self.centre_s), positions[chosen])
             if moved is None:
-                return None, math.inf
+                return None, extent
             positions[chosen] = moved
-            reach = max(reach, float(np.abs(positions - pixels).max()))
-        return positions, reach
+            extend(positions - pixels)
+        return positions, extent
 
 
 def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
@@ -201,9 +217,9 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         return None
     pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
     rays = ground_mapping.camera_frame_rays(camera, pixels)
-    reach = 0.0
+    extent = np.zeros((2, 2))
     for period in windows:
-        positions, period_reach = plan.composed(period, pixels)
+        positions, period_extent = plan.composed(period, pixels)
         if positions is None:
             return None
         times = plan.leaf_times(period)
@@ -211,19 +227,22 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
             exact = _flow_points(camera, cam_at(float(times[leaf])), cam_at(centre_s), pixels, rays)
             if exact is None or not float(np.max(np.abs(positions[leaf] - exact))) <= GROUP_TOLERANCE_PX[period]:
                 return None
-        reach = max(reach, period_reach)
-        if not _moving_features_follow(plan, period, moving_points):
+        extent = np.array([np.minimum(extent[0], period_extent[0]), np.maximum(extent[1], period_extent[1])])
+        if period == "exposure" and not _moving_features_follow(plan, period, moving_points):
             return None
-    margin = MARGIN_STEP_PX * math.ceil((1.1 * reach + 4.0) / MARGIN_STEP_PX)
-    if margin > MAX_MARGIN_PX:
+    # per side: the furthest any read position lies beyond the frame (+10 % for pixels between samples)
+    left, top = (MARGIN_STEP_PX * math.ceil((1.1 * max(-low, 0.0) + 4.0) / MARGIN_STEP_PX) for low in extent[0])
+    right, bottom = (MARGIN_STEP_PX * math.ceil((1.1 * max(high, 0.0) + 4.0) / MARGIN_STEP_PX) for high in extent[1])
+    margins = (left, right, top, bottom)
+    if max(margins) > MAX_MARGIN_PX:
         return None
-    big = expanded_camera(camera, margin)
+    big = expanded_camera(camera, margins)
     field = render(big, pose_at(centre_s))
     if field.sky.any():
         return None
     b = camera.binning_rows
     height, width = camera.height_px, camera.width_px
-    inner = (slice(margin, margin + height), slice(margin, margin + width))
+    inner = (slice(top, top + height), slice(left, left + width))
     # early levels (short paths, fine structure along the motion) at full resolution, then block means:
     # a field already averaged over >= FULL_RESOLUTION_ROW_SHIFT_PX of row motion is smooth along it, and
     # its fractional-block shifts interpolate well (module doc)
@@ -233,7 +252,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         level_cam = cam_at(centre_s + (2 ** level) * plan.delta_s)
         if block == 1 and plan.row_shift_px(level) >= FULL_RESOLUTION_ROW_SHIFT_PX:
             accumulated, block = block_means(accumulated, b), b
-        flow = _block_flow(big, level_cam, centre_cam, 0.0, block)
+        flow = _block_flow(big, level_cam, centre_cam, (0.0, 0.0), block)
         if flow is None:
             return None
         accumulated = cv2.addWeighted(accumulated, 0.5, _remap(accumulated, flow), 0.5, 0.0)
@@ -241,13 +260,13 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         accumulated = block_means(accumulated, b)
     averaged = {}
     for period, (start, end) in windows.items():
-        flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), float(margin), b)
+        flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), (left, top), b)
         if flow is None:
             return None
         averaged[period] = _remap(accumulated, flow)
-    outside = _mask_union(field.outside, camera, big, margin, plan, cam_at)
+    outside = _mask_union(field.outside, camera, (left, top), plan, cam_at)
     shield_full = field.heat_shield
-    shield = (_mask_union(shield_full, camera, big, margin, plan, cam_at) if shield_full is not None
+    shield = (_mask_union(shield_full, camera, (left, top), plan, cam_at) if shield_full is not None
               else np.zeros((height, width), dtype=bool))
     return WarpedPeriods(
         RadianceFields(averaged["flush"], averaged["exposure"], averaged["transfer"]),
@@ -255,7 +274,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         {period: plan.count for period in windows},
         np.ascontiguousarray(field.radiance[inner]),
         None if shield_full is None else np.ascontiguousarray(shield_full[inner]),
-        field.shadow_centres_m, margin)
+        field.shadow_centres_m, margins)
 
 
 def _moving_features_follow(plan: _Plan, period: str, moving_points: Callable[[float], list]) -> bool:
@@ -284,25 +303,30 @@ def _moving_features_follow(plan: _Plan, period: str, moving_points: Callable[[f
             and float(np.max(np.abs(positions[checked] - where_centre[seen]))) <= MOVING_TOLERANCE_PX)
 
 
-def _mask_union(mask: np.ndarray, camera: Camera, big: Camera, margin: int, plan: _Plan,
+def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan: _Plan,
                 cam_at: Callable[[float], ground_mapping.CameraPose]) -> np.ndarray:
-    """Exposure-period union of a mask of the enlarged centre field: the mask read at the first, centre
-    and last exposure sub-poses (full resolution, nearest pixel)."""
+    """Exposure-period union of a mask of the enlarged centre field: the mask at the centre, first and last
+    exposure sub-poses, each moved rigidly by the flow at the centre of the mask's bounding box (the
+    masks are compact: the heat shield, terrain beyond the strip's edge), nearest pixel."""
     height, width = camera.height_px, camera.width_px
-    union = mask[margin:margin + height, margin:margin + width].copy()
-    if not mask.any():
+    union = mask[offset[1]:offset[1] + height, offset[0]:offset[0] + width].copy()
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
         return union
-    rows = ground_mapping.node_positions(height, FLOW_STEP_PX)
-    cols = ground_mapping.node_positions(width, FLOW_STEP_PX)
-    grid = np.stack(np.meshgrid(cols, rows), axis=-1)
-    source_u8 = mask.astype(np.uint8)
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    box = mask[r0:r1, c0:c1]
+    centre = np.array([[0.5 * (c0 + c1 - 1) - offset[0], 0.5 * (r0 + r1 - 1) - offset[1]]])
     for time_s in plan.leaf_times("exposure")[[0, -1]]:
-        source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.centre_s), grid)
+        source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.centre_s), centre)
         if source is None:
             continue
-        flow = ground_mapping.upsample_nodes(source + float(margin), FLOW_STEP_PX, height, width)
-        union |= cv2.remap(source_u8, flow, None, interpolation=cv2.INTER_NEAREST,  # type: ignore[call-overload]
-                           borderMode=cv2.BORDER_REPLICATE).astype(bool)
+        # a pixel x of the sub-pose image reads the centre field at x + d: the mask moves by -d
+        shift_col, shift_row = (int(round(v)) for v in (centre - source)[0])
+        top, left = r0 - offset[1] + shift_row, c0 - offset[0] + shift_col
+        dst_r0, dst_r1 = max(top, 0), min(top + box.shape[0], height)
+        dst_c0, dst_c1 = max(left, 0), min(left + box.shape[1], width)
+        if dst_r1 > dst_r0 and dst_c1 > dst_c0:
+            union[dst_r0:dst_r1, dst_c0:dst_c1] |= box[dst_r0 - top:dst_r1 - top, dst_c0 - left:dst_c1 - left]
     return union
 
 
