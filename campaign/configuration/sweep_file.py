@@ -17,7 +17,7 @@ A sweep file (e.g. ``sitedata/sweeps/nightly.toml``)::
     [tolerances]                        # for --baseline (campaign/report/baseline_gate.py has the rules)
     false_valid_increase = 0            # false-valid cases a class (or the site) may gain
     significance = 0.01                 # level of the one-sided Fisher exact test on a % valid drop and
-                                        # of the bootstrap test on an error growth
+                                        # of the permutation test on an error growth
     pct_valid_drop_points = 20.0        # a larger % valid drop counts whatever its p-value
     error_increase_mps = 0.5            # an error mean+3 sigma growth (m/s) must exceed this to count
 
@@ -79,7 +79,7 @@ class Tolerances(ConfigModel):
     false_valid_increase: int = Field(0, ge=0, le=1_000_000)
     """False-valid cases a class (or the site) may gain (0: any increase is a regression)."""
     significance: float = Field(0.01, gt=0.0, le=0.5)
-    """Level of the one-sided tests: Fisher exact on a % valid drop, bootstrap on an error growth."""
+    """Level of the one-sided tests: Fisher exact on a % valid drop, permutation on an error growth."""
     pct_valid_drop_points: float = Field(20.0, ge=0.0, le=100.0)
     """A larger drop of a class's (or the weighted) % valid is a regression whatever its p-value; the
     default lets one case among 5 or more flip without tripping it (the exact test judges that)."""

@@ -18,7 +18,7 @@ Output directory (``[sweep] output_dir`` or ``--output``)::
 Baseline check (:mod:`campaign.run.sweep_baseline`, rules in :mod:`campaign.report.baseline_gate`):
 points are matched to the baseline's by their axis values and rows by estimator; per class and for the
 site, more false-valid cases, a % valid drop unlikely under sampling noise (or beyond the tolerance) and
-an error growth beyond the tolerance and unlikely under a bootstrap test are regressions. The
+an error growth beyond the tolerance and unlikely under a permutation test are regressions. The
 configuration hash covers the result code (:func:`campaign.configuration.campaign_file.code_digest`), so
 after a code change every point is computed afresh; a nightly job writes into a fresh output directory
 and passes the previous night's as ``--baseline``.

@@ -1,6 +1,6 @@
 """The --baseline gate's decision rules on hand-made case rows, against independent answers: Fisher exact
-p-values in closed form (and scipy's), false-valid counts, bootstrap verdicts on errors built to be
-noise or a real shift (and the test's level on same-distribution pairs); the one-line refusal of a
+p-values in closed form (and scipy's), false-valid counts, permutation verdicts on errors built to be
+noise or a real shift (and the permutation test's level on same-distribution pairs); the one-line refusal of a
 corrupt or incompatible baseline directory; status of a sweep directory; --cases-scale."""
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from campaign.cli import main
 from campaign.configuration.sweep_file import Tolerances, load_sweep
 from campaign.report.baseline_gate import (
     GateRules,
-    bootstrap_growth_p_value,
     format_findings,
+    growth_p_value,
     judge_point,
     valid_drop_p_value,
 )
@@ -110,16 +110,17 @@ def test_false_valid_baseline_count_is_scaled_to_the_candidate_cases():
     assert ("gcp", "false-valid") in _metrics(_judge(before, higher, rules))
 
 
-# --- the error's bootstrap ---------------------------------------------------------------------------
-def test_a_real_error_shift_is_a_regression_with_its_bootstrap_p_value():
+# --- the error's permutation test ------------------------------------------------------------------
+def test_a_real_error_shift_is_a_regression_with_its_permutation_p_value():
     errors = np.random.default_rng(7).normal(1.0, 0.2, 30).clip(0.1)
     before = _rows("gcp", errors) + _rows("gdcp", errors)
     now = _rows("gcp", errors + 1.0) + _rows("gdcp", errors)   # gcp every error + 1 m/s: growth exactly 1 m/s
     findings = _judge(before, now)
     assert _metrics(findings) == {("gcp", "error mean+3 sigma m/s"), ("Gusev weighted", "weighted error m/s")}
     gcp = next(f for f in findings if f.class_name == "gcp")
-    # 1 m/s is 5 sigma of the errors: no resample of the pooled errors grows that much, p = 1 / (1 + 2000)
-    assert gcp.why == "+1.00 > 0.5 m/s; p < 0.01" and gcp.test == f"p = {1 / 2001:.3g} (bootstrap)"
+    # 1 m/s is 5 sigma of the errors: only the observed split of the 60 pooled errors (1 in C(60, 30)) grows
+    # that much, so no shuffle does, p = 1 / (1 + 2000)
+    assert gcp.why == "+1.00 > 0.5 m/s; p < 0.01" and gcp.test == f"p = {1 / 2001:.3g} (permutation)"
     site = next(f for f in findings if f.class_name == "Gusev weighted")
     assert site.why.startswith("+0.60 > 0.5 m/s")               # 0.6 * 1 m/s (gdcp unchanged, gkep weight 0)
     assert _judge(before, now, GateRules(error_increase_mps=1.0)) == []      # growth not above the tolerance
@@ -129,25 +130,31 @@ def test_one_outlier_among_five_is_noise_not_a_regression():
     before = np.array([1.0, 1.1, 0.9, 1.0, 1.05])
     now = np.array([1.0, 1.1, 0.9, 1.0, 2.0])           # mean+3 sigma 1.22 -> 2.57 m/s, but from one case
     assert _judge(_rows("gcp", before), _rows("gcp", now), GateRules(pct_valid_drop_points=100.0)) == []
-    # a 2.0 among ten pooled values lands in a resampled candidate set of five about 41 % of the time
-    assert bootstrap_growth_p_value([(1.0, before, now)], "key") > 0.05
+    # the 2.0 lands in the candidate half of a shuffle of the ten pooled values half of the time
+    assert growth_p_value([(1.0, before, now)], "key") > 0.05
 
 
-def test_bootstrap_test_keeps_its_level_and_sees_a_real_growth():
+def test_smallest_permutation_p_value_is_one_over_the_number_of_splits():
+    before, now = np.array([1.0, 1.1, 0.9, 1.0]), np.array([30.0, 31.0, 29.0, 30.5])   # every large one moved
+    p_value = growth_p_value([(1.0, before, now)], "key")
+    assert p_value == pytest.approx(1 / math.comb(8, 4), abs=0.006)       # 1/70 up to Monte Carlo error (2000)
+
+
+def test_permutation_test_keeps_its_level_and_sees_a_real_growth():
     """100 pairs from one distribution (9 valid cases each side) and 100 whose candidate errors are doubled
     (30 each side): a calibrated one-sided test rejects about 5 of the first at 5 % and 1 at 1 %."""
     rng = np.random.default_rng(2026)
-    same = [bootstrap_growth_p_value([(1.0, rng.gamma(4, 0.5, 9), rng.gamma(4, 0.5, 9))], f"a{k}") for k in range(100)]
-    doubled = [bootstrap_growth_p_value([(1.0, rng.gamma(4, 0.5, 30), 2.0 * rng.gamma(4, 0.5, 30))], f"b{k}")
+    same = [growth_p_value([(1.0, rng.gamma(4, 0.5, 9), rng.gamma(4, 0.5, 9))], f"a{k}") for k in range(100)]
+    doubled = [growth_p_value([(1.0, rng.gamma(4, 0.5, 30), 2.0 * rng.gamma(4, 0.5, 30))], f"b{k}")
                for k in range(100)]
     assert sum(p < 0.05 for p in same) <= 10 and sum(p < 0.01 for p in same) <= 3
     assert sum(p < 0.01 for p in doubled) >= 80
 
 
-def test_bootstrap_is_seeded_by_what_it_judges():
+def test_resampling_is_seeded_by_what_it_judges():
     pair = [(1.0, np.array([1.0, 2.0, 3.0, 2.5]), np.array([2.0, 3.0, 5.0, 2.2]))]
-    assert bootstrap_growth_p_value(pair, "a") == bootstrap_growth_p_value(pair, "a")
-    assert bootstrap_growth_p_value(pair, "a") != bootstrap_growth_p_value(pair, "b")
+    assert growth_p_value(pair, "a") == growth_p_value(pair, "a")
+    assert growth_p_value(pair, "a") != growth_p_value(pair, "b")
 
 
 def test_estimators_are_judged_against_their_own_baseline_rows():
