@@ -110,9 +110,11 @@ def fsync_directory(directory: Path) -> None:
 
 def store_identity(store_root: Path) -> StoreIdentity | None:
     """The identity declared by the ``manifest.json`` of ``store_root`` (None: none, or not readable)."""
+    path = store_root / "manifest.json"
+    if not path.is_file():                   # absent, or a FIFO/device (reading one could block)
+        return None
     try:
-        manifest = json.loads((store_root / "manifest.json").read_text())
-        return StoreIdentity.of_manifest(manifest)
+        return StoreIdentity.of_manifest(json.loads(path.read_text()))
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 
