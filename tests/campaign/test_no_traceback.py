@@ -269,9 +269,10 @@ def test_corrupt_store_files_are_one_line(tmp_path, interrupted, name):
             outcome = _outcome([command, store], tmp_path, damage_name == "FIFO")
             assert not no_traceback_problems(outcome), (name, damage_name, command, outcome.code, outcome.err)
             tried += 1
-        outcome = _outcome(["submit", GUSEV, "--output", store, "--cases-scale", "0.1", "--no-progress"], tmp_path,
-                           damage_name == "FIFO")
-        assert outcome.code == 2 and not no_traceback_problems(outcome), (name, damage_name, outcome.err)
+        if name == "manifest.json":         # refused before any cluster starts (a damaged plan is rewritten: it is derived)
+            outcome = _outcome(["submit", GUSEV, "--output", store, "--cases-scale", "0.1", "--no-progress"], tmp_path,
+                               damage_name == "FIFO")
+            assert outcome.code == 2 and not no_traceback_problems(outcome), (name, damage_name, outcome.err)
     assert tried == 8 * 4
 
 
