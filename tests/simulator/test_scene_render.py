@@ -142,6 +142,8 @@ def test_warped_blur_matches_the_sub_pose_integration(rate_deg_s):
         rms = float(np.sqrt(np.mean(error[8:-8, 8:-8] ** 2)) / np.mean(exact))
         assert rms < (0.015 if period == "exposure" else 0.02), (period, rms)
     assert not warped.sky.any() and warped.exposure_centre.radiance.shape == (1024, 1024)
+    again = radiance.period_fields(terrain, CAMERA, profile, 0.5, SUN, SceneConfig())   # cached enlarged camera
+    assert all(np.array_equal(getattr(again.fields, p), getattr(warped.fields, p)) for p in windows)
 
 
 def test_render_descent_image_end_to_end_and_deterministic():
