@@ -67,6 +67,7 @@ INPUT_COMMANDS = [["submit", "{}", "--no-progress"], ["plan", "{}"], ["sweep", "
                   ["compare-flight", "{}"]]
 
 
+@pytest.mark.slow
 def test_every_bad_input_path_of_every_command_is_one_line_exit_2(tmp_path):
     tried = 0
     for name, path in bad_input_paths(tmp_path / "inputs"):
@@ -276,6 +277,7 @@ def test_corrupt_store_files_are_one_line(tmp_path, interrupted, name):
     assert tried == 8 * 4
 
 
+@pytest.mark.slow
 def test_corrupt_baseline_sweep_json_is_one_line(tmp_path):
     baseline = tmp_path / "baseline"
     baseline.mkdir()
