@@ -218,7 +218,6 @@ def check_estimators(config: CampaignConfig, cases: int = DEFAULT_CASES, schedul
     _, plan = plan_campaign(config)
     records = checked_cases(plan, cases)
     case_ids = [int(record["case_id"]) for record in records]
-    driver = run_checks(config, records, where="driver")
     with connected_client(_worker_execution(scheduler), quiet=True) as client:
         shipping_errors: dict[str, str] = {}
         try:
@@ -226,8 +225,10 @@ def check_estimators(config: CampaignConfig, cases: int = DEFAULT_CASES, schedul
         except PluginSetupError as exc:         # the others still run; the broken one fails its build there too
             names = str(exc).split(" cannot be set up")[0].removeprefix("estimator ").split(", ")
             shipping_errors = {name: str(exc) for name in names}
+        on_worker = client.submit(run_checks, config, records, pure=False)
+        driver = run_checks(config, records, where="driver")            # meanwhile, in this process
         try:
-            worker = client.submit(run_checks, config, records, pure=False).result()
+            worker = on_worker.result()
         except Exception as exc:  # noqa: BLE001 -- the worker could not run the cases at all: every estimator's violation
             text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
             worker = ProcessOutcome("worker", {spec.name: f"the worker could not run the cases: {text}"
