@@ -5,7 +5,8 @@ What is shipped (:func:`shipped_code`): for every ``kind = "python"`` estimator,
 package of its ``callable`` as the driver imports it (``mine`` of ``mine:estimate``, the whole ``pkg/``
 directory of ``pkg.sub.mod:estimate``), zipped (``__pycache__`` and ``*.pyc`` left out), unless it is one
 of this project's packages or lives under the Python installation (standard library, ``site-packages``):
-installed packages are the workers' environment, never shipped. A compiled extension module cannot be
+installed packages are the workers' environment, never shipped. Neither is a namespace package (no
+``__init__.py``). A compiled extension module cannot be
 shipped (a zip cannot hold an importable ``.so``); install it on the workers.
 
 How (:func:`ship_plugin_code`): each zip is registered with the scheduler as a dask worker plug-in
