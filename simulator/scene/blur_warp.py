@@ -168,13 +168,13 @@ class _Plan:
         spread (the composition error varies smoothly along the path; measured on the nightly cases)."""
         return np.unique(np.linspace(0, self.count - 1, min(self.count, CHECKED_LEAVES)).round().astype(int))
 
-    def composed(self, period: str, pixels: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
-        """Where the doubling scheme reads the centre field for every leaf: (N, P, 2) from pixels (P, 2)
-        (the same for every leaf) or (N, P, 2) (leaf by leaf), and the largest distance of any
-        intermediate position from its pixel as (column, row) lows and highs, (2, 2) px; None when a ray
-        misses the ground."""
+    def composed(self, period: str, pixels: np.ndarray, leaves: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+        """Where the doubling scheme reads the centre field for the given leaves: (L, P, 2) from pixels
+        (P, 2) (the same for every leaf) or (L, P, 2) (leaf by leaf), and how far any intermediate
+        position lies from its pixel as (column, row) lows and highs, (2, 2) px (the end leaves, always
+        checked, reach furthest on a path that does not turn back); None when a ray misses the ground."""
         start, end = self.windows[period]
-        pixels = np.broadcast_to(pixels, (self.count, *pixels.shape[-2:]))
+        pixels = np.broadcast_to(pixels, (len(leaves), *pixels.shape[-2:]))
         first = _flow_points(self.camera, self.cam_at(0.5 * (start + end)), self.cam_at(self.average_centre_s), pixels)
         extent = np.zeros((2, 2))
         if first is None:
@@ -185,9 +185,10 @@ class _Plan:
             extent[0] = np.minimum(extent[0], offsets.reshape(-1, 2).min(axis=0))
             extent[1] = np.maximum(extent[1], offsets.reshape(-1, 2).max(axis=0))
         extend(first - pixels)
-        leaves = np.arange(self.count)
         for level in reversed(range(self.levels)):
             chosen = (leaves >> level) & 1 == 1
+            if not chosen.any():
+                continue
             moved = _flow_points(self.camera, self.cam_at(self.centre_s + (2 ** level) * self.delta_s),
                                  self.cam_at(self.centre_s), positions[chosen])
             if moved is None:
@@ -219,13 +220,14 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     rays = ground_mapping.camera_frame_rays(camera, pixels)
     extent = np.zeros((2, 2))
     for period in windows:
-        positions, period_extent = plan.composed(period, pixels)
+        checked = plan.checked_leaves()
+        positions, period_extent = plan.composed(period, pixels, checked)
         if positions is None:
             return None
         times = plan.leaf_times(period)
-        for leaf in plan.checked_leaves():
+        for index, leaf in enumerate(checked):
             exact = _flow_points(camera, cam_at(float(times[leaf])), cam_at(centre_s), pixels, rays)
-            if exact is None or not float(np.max(np.abs(positions[leaf] - exact))) <= GROUP_TOLERANCE_PX[period]:
+            if exact is None or not float(np.max(np.abs(positions[index] - exact))) <= GROUP_TOLERANCE_PX[period]:
                 return None
         extent = np.array([np.minimum(extent[0], period_extent[0]), np.maximum(extent[1], period_extent[1])])
         if period == "exposure" and not _moving_features_follow(plan, period, moving_points):
@@ -298,9 +300,9 @@ def _moving_features_follow(plan: _Plan, period: str, moving_points: Callable[[f
     seen &= np.all((pixels[checked] > -64.0) & (pixels[checked] < size + 64.0), axis=(0, 2))
     if not seen.any():
         return True
-    positions, _ = plan.composed(period, pixels[:, seen])
+    positions, _ = plan.composed(period, pixels[checked][:, seen], checked)
     return (positions is not None
-            and float(np.max(np.abs(positions[checked] - where_centre[seen]))) <= MOVING_TOLERANCE_PX)
+            and float(np.max(np.abs(positions - where_centre[seen]))) <= MOVING_TOLERANCE_PX)
 
 
 def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan: _Plan,
