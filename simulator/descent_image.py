@@ -24,6 +24,7 @@ from flight_interface.camera import Camera
 from simulator.detector.camera_chain import RenderedImage, render_image
 from simulator.fields import RadianceFields, block_means
 from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
+from simulator.off_nominal.moving_shadows import place_moving_shadows
 from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, radiance
 from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
 from simulator.scene.terrain import Terrain
@@ -148,11 +149,16 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     start_s = image_start_time(profile, image)
     off_nominal = config.off_nominal
     artefacts = _camera_artefacts(off_nominal, artefacts)
+    moving = None
+    if artefacts is not None and artefacts.moving_shadows is not None:   # placed on the unscaled profile
+        moving = place_moving_shadows(artefacts.moving_shadows, off_nominal, camera, profile, sun,
+                                      photometry.solar_angular_radius_rad(config.sun_distance_au),
+                                      config.shadow_diffuse_fraction)
     profile = scale_angular_rates(profile, off_nominal.angular_rate_multiplier, camera.timing.exposure_mid_time_s(start_s))
 
     started = time.perf_counter()
     periods = radiance.period_fields(terrain, camera, profile, start_s, sun, config,
-                                  need_smear_fields=camera_effects.smear)
+                                  need_smear_fields=camera_effects.smear, moving_shadows=moving)
     if (off_nominal.heat_shield_glint and config.effects.heat_shield and profile.heat_shield_position_m is not None
             and off_nominal.heat_shield_specular_reflectance > 0):
         _add_glint(periods, camera, profile, start_s, sun, config)

@@ -9,6 +9,7 @@ saturating it changes nothing and costs nothing). The physics of each effect liv
 * heat-shield specular glint      -> :mod:`simulator.heat_shield` (drawn into the radiance)
 * blooming                        -> :mod:`simulator.blooming` (charge above full well spills along columns)
 * high motion blur                -> :mod:`simulator.scene.descent_profile` (angular rate multiplier)
+* dust-devil and cloud shadows    -> :mod:`simulator.off_nominal.moving_shadows` (drawn per case, moving)
 * excessive dark current          -> ``[scene.camera_effects] dark_current_scale`` (already in the chain)
 
 TOML: ``[scene.off_nominal]``, declared once by :class:`OffNominalConfig` (SI units, angles in degrees
@@ -26,13 +27,13 @@ import numpy as np
 from pydantic import Field
 
 from flight_interface.camera import Camera
-from flight_interface.tomlfields import ConfigModel
 from simulator.off_nominal.dust import DustParticles, draw_particles, transmission_map
 from simulator.off_nominal.hot_pixels import HotPixels, draw_hot_pixels
+from simulator.off_nominal.moving_shadows import MovingShadowDraws, MovingShadowsConfig, draw_moving_shadows
 from simulator.off_nominal.particle_hits import ParticleHits, draw_particle_hits
 
 
-class OffNominalConfig(ConfigModel):
+class OffNominalConfig(MovingShadowsConfig):
     """``[scene.off_nominal]``: off-nominal effect parameters (SI units; the defaults are the nominal camera)."""
 
     dust_particle_count: int = Field(0, ge=0, le=100_000)
@@ -73,7 +74,8 @@ class OffNominalConfig(ConfigModel):
     @property
     def needs_case_artefacts(self) -> bool:
         """True when the case needs random artefacts (dust, hot pixels or particle hits)."""
-        return self.dust_particle_count > 0 or self.hot_pixel_fraction > 0 or self.particle_hit_rate_per_cm2_s > 0
+        return (self.dust_particle_count > 0 or self.hot_pixel_fraction > 0 or self.particle_hit_rate_per_cm2_s > 0
+                or self.moving_shadow_count > 0)
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,7 @@ class OffNominalArtefacts:
     particle_hits : ParticleHits or None, this image's particle charge
     blooming : bool, charge above full well spills along the columns (else it is clipped)
     dust_particles : DustParticles or None, the particles behind ``dust_transmission`` (diagnostics)
+    moving_shadows : MovingShadowDraws or None, the case's dust-devil and cloud shadows (scene)
     """
 
     dust_transmission: np.ndarray | None = None
@@ -94,13 +97,14 @@ class OffNominalArtefacts:
     particle_hits: ParticleHits | None = None
     blooming: bool = True
     dust_particles: DustParticles | None = None
+    moving_shadows: MovingShadowDraws | None = None
 
 
 def draw_case_artefacts(camera: Camera, config: OffNominalConfig, rng: np.random.Generator) -> OffNominalArtefacts:
     """The case-fixed artefacts (dust, then hot pixels, from ``rng``); no particle hits yet.
 
     Effects at their defaults draw nothing, so adding an effect never changes another's draws
-    except by its own position in the stream (dust first, hot pixels second).
+    except by its own position in the stream (dust first, hot pixels second, moving shadows third).
     """
     transmission = particles = hot = None
     if config.dust_particle_count > 0:
@@ -111,7 +115,7 @@ def draw_case_artefacts(camera: Camera, config: OffNominalConfig, rng: np.random
     if config.hot_pixel_fraction > 0:
         hot = draw_hot_pixels(camera, rng, config.hot_pixel_fraction, config.hot_pixel_amplitude_mean_e_per_s)
     return OffNominalArtefacts(dust_transmission=transmission, hot_pixels=hot, blooming=config.blooming,
-                               dust_particles=particles)
+                               dust_particles=particles, moving_shadows=draw_moving_shadows(config, rng))
 
 
 def with_particle_hits(artefacts: OffNominalArtefacts | None, camera: Camera, config: OffNominalConfig,

@@ -34,6 +34,7 @@ the field is rendered exactly instead. Measured error: ``make bench`` (fidelity 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import cv2
 import numpy as np
@@ -147,8 +148,11 @@ def subpixel_camera(camera: Camera, column_offset_px: float, row_offset_px: floa
 
 
 def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config,
-                     _sub_sample: bool = False) -> PoseField:
+                     _sub_sample: bool = False, moving_shadows=None) -> PoseField:
     """The radiance field (H, W) the camera sees at one instantaneous pose (see module doc).
+
+    ``moving_shadows`` (:class:`simulator.off_nominal.moving_shadows.MovingShadows` or None) darkens
+    the ground where the dust-devil and cloud shadows are at ``pose.time_s``, after the casters' shadows.
 
     With ``config.supersample = s > 1`` each pixel is the mean of ``s x s`` sub-pixel point samples on
     a regular grid (offsets ``(k + 0.5)/s - 0.5`` px; the samples themselves use no area shortcut);
@@ -158,8 +162,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     if samples > 1:
         single = config.model_copy(update={"supersample": 1})
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
-        parts = [radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single, _sub_sample=True)
-                 for dr in offsets for dc in offsets]
+        parts = [radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single, _sub_sample=True,
+                                  moving_shadows=moving_shadows) for dr in offsets for dc in offsets]
         radiance = motion_blur.average_fields([part.radiance for part in parts])
         shields = [part.heat_shield for part in parts if part.heat_shield is not None]
         centre = ground_mapping.camera_pose(camera, pose)
@@ -215,6 +219,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,
                                        photometry.solar_angular_radius_rad(config.sun_distance_au),
                                        config.shadow_diffuse_fraction)
+    if moving_shadows is not None:
+        moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s)
     if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky
         radiance += added
         if gmap.any_sky:
@@ -277,12 +283,13 @@ def _clamped_pose(profile: DescentProfile, time_s: float) -> Pose:
 
 
 def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exposure_start_s: float,
-                  sun_world: np.ndarray, config, need_smear_fields: bool = True) -> PeriodScene:
+                  sun_world: np.ndarray, config, need_smear_fields: bool = True, moving_shadows=None) -> PeriodScene:
     """Radiance fields of the fast flush, exposure and frame transfer of one image (see module doc).
 
     ``need_smear_fields=False`` (the camera's smear switch is off) computes only the exposure field
-    and passes it for all three periods.
+    and passes it for all three periods. ``moving_shadows``: as :func:`radiance_at_pose`.
     """
+    render = partial(radiance_at_pose, moving_shadows=moving_shadows)   # each pose's own shadow positions
     effects = config.effects
     timing = camera.timing
     t = float(exposure_start_s)
@@ -329,7 +336,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
 
     still = effects.share_still_fields and total_shift < config.still_shift_terrain_px
     if still or not effects.motion_blur and not need_smear_fields:
-        centre = radiance_at_pose(terrain, camera, pose_at(centre_s), sun_world, config)
+        centre = render(terrain, camera, pose_at(centre_s), sun_world, config)
         sky, outside, shield = masks([centre])
         fields = RadianceFields(centre.radiance, centre.radiance, centre.radiance)
         return PeriodScene(fields, sky, outside, shield, {"flush": 0, "exposure": 1, "transfer": 0}, True, centre)
@@ -347,9 +354,10 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
             and counts["exposure"] >= blur_warp.MIN_EXPOSURE_SUBSTEPS):
         warped = blur_warp.warped_period_fields(
             camera, pose_at, cam_at, windows, centre_s, max(counts.values()),
-            lambda cam, pose: radiance_at_pose(terrain, cam, pose, sun_world, config),
-            lambda time_s: blur_warp.moving_world_points(pose_at(time_s), casters(pose_at(time_s), config),
-                                                         sun_unit_vector(sun_world)) if effects.shadows else [])
+            lambda cam, pose: render(terrain, cam, pose, sun_world, config),
+            lambda time_s: (blur_warp.moving_world_points(pose_at(time_s), casters(pose_at(time_s), config),
+                                                          sun_unit_vector(sun_world)) if effects.shadows else [])
+            + (moving_shadows.points_m(time_s) if moving_shadows is not None else []))
         if warped is not None:
             centre_pose = pose_at(centre_s)
             centre = PoseField(warped.centre_radiance, warped.sky, warped.outside, warped.centre_heat_shield,
@@ -357,7 +365,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
             return PeriodScene(warped.fields, warped.sky, warped.outside, warped.heat_shield, warped.substeps,
                                False, centre)
 
-    centre = radiance_at_pose(terrain, camera, pose_at(centre_s), sun_world, config)
+    centre = render(terrain, camera, pose_at(centre_s), sun_world, config)
     averaged, exposure_fields, centre_blocks = {}, [centre], None
     for period, (start, end) in windows.items():
         count = counts[period]
@@ -369,11 +377,12 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
             if centre_blocks is None:
                 centre_blocks = block_means(centre.radiance, camera.binning_rows)
             averaged[period] = motion_blur.average_fields(
-                [_smear_field(terrain, camera, pose_at(float(time)), sun_world, config, centre, centre_blocks)
+                [_smear_field(terrain, camera, pose_at(float(time)), sun_world, config, centre, centre_blocks,
+                              moving_shadows)
                  for time in motion_blur.substep_times(start, end, count)])
             continue
         else:
-            pose_fields = [radiance_at_pose(terrain, camera, pose_at(float(time)), sun_world, config)
+            pose_fields = [render(terrain, camera, pose_at(float(time)), sun_world, config)
                            for time in motion_blur.substep_times(start, end, count)]
         if period == "exposure":
             exposure_fields = pose_fields
@@ -385,7 +394,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
 
 
 def _smear_field(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config, centre: PoseField,
-                 centre_blocks: np.ndarray) -> np.ndarray:
+                 centre_blocks: np.ndarray, moving_shadows=None) -> np.ndarray:
     """The radiance field at ``pose`` for smear, per binning block (block means, (H / b, W)): warped
     from the exposure-centre field's block means when the flow allows (:func:`flow_map`), else the
     block means of the field rendered exactly."""
@@ -394,6 +403,7 @@ def _smear_field(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.nda
     if not centre.sky.any() and WARP_GRID_STEP_PX % block_rows == 0:
         flow = flow_map(camera, centre.camera_pose, ground_mapping.camera_pose(camera, pose), block_rows=block_rows)
     if flow is None:
-        return block_means(radiance_at_pose(terrain, camera, pose, sun_world, config).radiance,
+        return block_means(radiance_at_pose(terrain, camera, pose, sun_world, config,
+                                            moving_shadows=moving_shadows).radiance,
                                            block_rows)
     return warped_field(centre_blocks, flow)
