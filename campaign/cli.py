@@ -67,6 +67,7 @@ def _check_cluster_flags(args) -> None:
 
 
 def _cmd_camera(args) -> int:
+    from simulator.detector import psf
 
     camera = load_camera(args.file)
     horizontal, vertical = camera.fov_deg()
@@ -74,6 +75,12 @@ def _cmd_camera(args) -> int:
           f"{camera.binned_shape[1]}, FOV {horizontal:.2f} x {vertical:.2f} deg, "
           f"focal {camera.model.hs:.1f} px, response {camera.responsivity_e_per_s:.4g} e-/s per W m^-2 sr^-1 um^-1, "
           f"dark {camera.electronics.dark_current_e_per_s():.4g} e-/s at {camera.electronics.ccd_temperature_k - 273.15:.1f} C")
+    nyquist = 0.5 / camera.pixel_pitch_m
+    optics_mtf, pixel_mtf = float(psf.optics_mtf(nyquist, camera)), float(psf.pixel_mtf(nyquist, camera.pixel_pitch_m))
+    ee80_um = 1e6 * psf.encircled_energy_radius_m(camera, 0.8)
+    print(f"optics: MTF at the pixel Nyquist frequency ({nyquist * 1e-3:.1f} cycles/mm) {optics_mtf:.3f} optics x "
+          f"{pixel_mtf:.3f} pixel = {optics_mtf * pixel_mtf:.3f}; 80 % encircled energy within {ee80_um:.2f} um "
+          f"({ee80_um * 1e-6 / camera.pixel_pitch_m:.2f} px) of the optics PSF")
     return 0
 
 

@@ -3,7 +3,8 @@
 A camera is data: a TOML file under ``sitedata/cameras/`` is validated here into a frozen
 :class:`Camera`. The file's tables are declared once, as the models below (:class:`CameraFile`:
 ``[camera]``, ``[detector]``, ``[geometry]``, ``[mounting]``, ``[timing]``, ``[radiometry]``,
-``[electronics]``); unknown keys are refused and errors name the file, the field and the allowed range.
+``[electronics]``, optional ``[optics]``); unknown keys are refused and errors name the file, the
+field and the allowed range.
 ``campaign schema camera`` prints the JSON Schema.
 
 Radiometric response (documented number)
@@ -38,7 +39,7 @@ from pydantic import Field, model_validator
 from flight_interface import cahvor
 from flight_interface.cahvor import Cahvor
 from flight_interface.frames import quat_normalize, quat_to_matrix
-from flight_interface.tomlfields import ConfigModel, FieldProblem, fixed_vector, load
+from flight_interface.tomlfields import ConfigModel, FieldProblem, FloatList, fixed_vector, load
 
 PLANCK_J_S = 6.62607015e-34
 SPEED_OF_LIGHT_M_S = 2.99792458e8
@@ -50,6 +51,9 @@ MAX_WELL_E = 1e10
 MAX_DARK_CURRENT_E_PER_S = 1e13
 #: A unit vector's norm may differ from 1 by this much.
 UNIT_NORM_TOLERANCE = 1e-6
+#: Largest rms wavefront error (waves at the band's shortest wavelength) of the optics' aberration term:
+#: the limit of the aberration transfer factor's validity (simulator.detector.psf).
+MAX_WAVEFRONT_ERROR_WAVES = 0.18
 #: Full fields of view allowed (deg, exclusive).
 FOV_RANGE_DEG = (1.0, 170.0)
 
@@ -234,6 +238,71 @@ class Radiometry(ConfigModel):
         return irradiance_per_radiance * pixel_area_m2 * band_um * self.mean_quantum_efficiency / photon_energy_j
 
 
+class Optics(ConfigModel):
+    """``[optics]``: the lens's image quality, the point-spread function (PSF) of the optics.
+
+    The PSF is the diffraction pattern of the circular aperture (focal ratio ``radiometry.f_number``)
+    averaged over the band with the weight optics transmission x quantum efficiency per wavelength,
+    blurred by an optional Gaussian (defocus, residual aberrations) and an optional random wavefront
+    error (:mod:`simulator.detector.psf`). Without the spectral tables the weight is flat over
+    ``radiometry.band_min_um`` .. ``band_max_um``.
+    """
+
+    spectral_wavelengths_um: FloatList | None = None
+    """Wavelengths (um) of the two spectral tables, increasing, inside the band [band_min_um, band_max_um]."""
+    spectral_transmission: FloatList | None = None
+    """Optics transmission at each wavelength, 0 .. 1."""
+    spectral_quantum_efficiency: FloatList | None = None
+    """Detector quantum efficiency at each wavelength, 0 .. 1."""
+    blur_sigma_um: float = Field(0.0, ge=0.0, le=1000.0)
+    """Standard deviation (um, in the focal plane) of a Gaussian blur: defocus and aberrations (0: none)."""
+    wavefront_error_rms_um: float = Field(0.0, ge=0.0, le=20.0)
+    """Random rms wavefront error (um); at most 0.18 waves at band_min_um (0: none)."""
+
+    @model_validator(mode="after")
+    def _tables(self):
+        tables = {"spectral_wavelengths_um": self.spectral_wavelengths_um,
+                  "spectral_transmission": self.spectral_transmission,
+                  "spectral_quantum_efficiency": self.spectral_quantum_efficiency}
+        given = [name for name, value in tables.items() if value is not None]
+        if given and len(given) != 3:
+            missing = next(name for name in tables if name not in given)
+            raise FieldProblem(missing, f"is missing; allowed: all three spectral tables ({', '.join(tables)}) or none")
+        if not given:
+            return self
+        wavelengths = np.asarray(self.spectral_wavelengths_um)
+        if len(wavelengths) < 2 or not np.all(np.diff(wavelengths) > 0):
+            raise FieldProblem("spectral_wavelengths_um", "must list at least 2 wavelengths (um), strictly increasing")
+        for name in ("spectral_transmission", "spectral_quantum_efficiency"):
+            values = np.asarray(tables[name])
+            if len(values) != len(wavelengths):
+                raise FieldProblem(name, f"has {len(values)} values; allowed: one per wavelength "
+                                   f"({len(wavelengths)} in spectral_wavelengths_um)")
+            if not (np.all(values >= 0.0) and np.all(values <= 1.0)):
+                raise FieldProblem(name, "has a value outside 0 .. 1; allowed: 0 <= value <= 1")
+        if not np.any(np.asarray(self.spectral_transmission) * np.asarray(self.spectral_quantum_efficiency) > 0):
+            raise FieldProblem("spectral_quantum_efficiency", "x spectral_transmission is 0 at every wavelength; "
+                               "allowed: a response > 0 somewhere in the band")
+        return self
+
+    def band_weights(self, band_min_um: float, band_max_um: float) -> tuple[np.ndarray, np.ndarray]:
+        """Wavelengths (m) and trapezoid-rule weights (sum 1) of the photo-electrons per wavelength,
+        transmission x QE (a photon spectrum flat across the band), shapes (n,), on a 5 nm grid."""
+        count = max(int(np.ceil((band_max_um - band_min_um) / 0.005)) + 1, 2)
+        wavelengths_um = np.linspace(band_min_um, band_max_um, count)
+        if self.spectral_wavelengths_um is None:
+            response = np.ones(count)
+        else:
+            table = np.asarray(self.spectral_wavelengths_um)
+            response = (np.interp(wavelengths_um, table, np.asarray(self.spectral_transmission), left=0.0, right=0.0)
+                        * np.interp(wavelengths_um, table, np.asarray(self.spectral_quantum_efficiency),
+                                    left=0.0, right=0.0))
+        trapezoid = np.full(count, wavelengths_um[1] - wavelengths_um[0])
+        trapezoid[[0, -1]] *= 0.5
+        weights = response * trapezoid
+        return wavelengths_um * 1e-6, weights / weights.sum()
+
+
 class Electronics(ConfigModel):
     """``[electronics]``: dark current, charge capacity and analogue-to-digital conversion
     (temperatures in Celsius at this edge; ``*_k`` properties in kelvin)."""
@@ -298,11 +367,26 @@ class CameraFile(ConfigModel):
     timing: Timing
     radiometry: Radiometry
     electronics: Electronics
+    optics: Optics = Optics()
 
     @model_validator(mode="after")
     def _geometry_is_usable(self):
         model = self.geometry.to_cahvor(self.detector)
         _check_distortion_increases_to_corners(model, self.detector.width_px, self.detector.height_px)
+        return self
+
+    @model_validator(mode="after")
+    def _optics_in_band(self):
+        band = (self.radiometry.band_min_um, self.radiometry.band_max_um)
+        table = self.optics.spectral_wavelengths_um
+        if table is not None and (table[0] > band[0] or table[-1] < band[1]):
+            raise FieldProblem("optics.spectral_wavelengths_um", f"cover {table[0]:g} .. {table[-1]:g} um; allowed: "
+                               f"from radiometry.band_min_um ({band[0]:g}) to band_max_um ({band[1]:g}) or wider")
+        largest = MAX_WAVEFRONT_ERROR_WAVES * band[0]
+        if self.optics.wavefront_error_rms_um > largest:
+            raise FieldProblem("optics.wavefront_error_rms_um", f"= {self.optics.wavefront_error_rms_um:g} is out of "
+                               f"range; allowed: <= {MAX_WAVEFRONT_ERROR_WAVES:g} waves at radiometry.band_min_um, "
+                               f"i.e. <= {largest:.4g} um")
         return self
 
 
@@ -320,6 +404,7 @@ class Camera:
     timing: Timing
     radiometry: Radiometry
     electronics: Electronics
+    optics: Optics = Optics()
 
     @property
     def width_px(self) -> int:
@@ -411,7 +496,7 @@ def camera_from_file(tables: CameraFile, source: str) -> Camera:
         model=tables.geometry.to_cahvor(tables.detector),
         camera_to_lander_quaternion=quat_normalize(np.array(tables.mounting.camera_to_lander_quaternion)),
         camera_position_in_lander_m=np.array(tables.mounting.camera_position_in_lander_m),
-        timing=tables.timing, radiometry=tables.radiometry, electronics=tables.electronics)
+        timing=tables.timing, radiometry=tables.radiometry, electronics=tables.electronics, optics=tables.optics)
 
 
 def load_camera(path: str | Path) -> Camera:

@@ -3,6 +3,7 @@
 Follow the light::
 
     radiance (W m^-2 sr^-1 um^-1)             flush, exposure, transfer fields, (1024, 1024)
+      -> psf.blurred_fields                   optics point-spread function (diffraction over the band, blur)
       -> optics.photoelectron_rate            cos^4 falloff, absolute response      (e-/s)
       -> charge_generation.apply_prnu         pixel response non-uniformity
       -> x dust transmission (off-nominal)    simulator.off_nominal.dust
@@ -25,7 +26,7 @@ from pydantic import Field
 from flight_interface.camera import Camera
 from flight_interface.tomlfields import ConfigModel
 from simulator.derived_cache import DERIVED
-from simulator.detector import blooming, charge_generation, charge_transfer, optics, readout
+from simulator.detector import blooming, charge_generation, charge_transfer, optics, psf, readout
 from simulator.fields import RadianceFields, bin_rows, block_means
 from simulator.off_nominal import hot_pixels, particle_hits
 
@@ -37,6 +38,8 @@ SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) gen
 class CameraEffects(ConfigModel):
     """``[scene.camera_effects]``: switches of the camera chain; all on is the nominal camera."""
 
+    optics_psf: bool = True
+    """The optics' point-spread function (the camera's [optics]; simulator.detector.psf)."""
     falloff: bool = True
     """cos^4 falloff with field angle."""
     prnu: bool = True
@@ -141,6 +144,8 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         if np.shape(field) not in allowed:
             raise ValueError(f"radiance {period} field has shape {np.shape(field)}; expected "
                              f"{' or '.join(map(str, allowed))}")
+    if effects.optics_psf:
+        fields = psf.blurred_fields(fields, camera)
 
     dark_rate = (charge_generation.dark_rate_e_per_s(camera, effects.dark_current_scale)
                  if effects.dark_current else 0.0)

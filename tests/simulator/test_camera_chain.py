@@ -78,8 +78,8 @@ def test_smear_of_a_single_bright_row(mer_a):
     field = np.zeros((1024, 1024), dtype=np.float32)
     field[bright_row] = radiance
     image = render_image(mer_a, RadianceFields(field, field, field), np.random.default_rng(4),
-                         CameraEffects(falloff=False, prnu=False, dark_current=False, shot_noise=False,
-                                       read_noise=False))
+                         CameraEffects(optics_psf=False, falloff=False, prnu=False, dark_current=False,
+                                       shot_noise=False, read_noise=False))   # one row: no lens blur
     timing = mer_a.timing
     rate = _responsivity(mer_a) * radiance
     per_row = np.zeros(N_ROWS)

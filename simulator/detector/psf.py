@@ -1,0 +1,195 @@
+"""Optics point-spread function (PSF): the lens's blur, applied to the radiance fields as an MTF.
+
+Model (camera ``[optics]``, :class:`flight_interface.camera.Optics`)
+-------------------------------------------------------------------
+The optical transfer function at spatial frequency ``f`` (cycles/m in the focal plane) is::
+
+    OTF(f) = sum_i w_i  D(f lambda_i N)  A_i(f lambda_i N)  x  exp(-2 pi^2 sigma^2 f^2)
+
+* ``D(v) = 2/pi (acos v - v sqrt(1 - v^2))`` for ``v < 1``, else 0: the diffraction MTF of an
+  unobstructed circular aperture of focal ratio ``N`` (cut-off ``1 / (lambda N)``), whose PSF is the
+  Airy pattern ``[2 J1(x) / x]^2``, ``x = pi r / (lambda N)`` (first dark ring at ``1.22 lambda N``);
+* ``w_i``: the band weight of wavelength ``lambda_i``, optics transmission x quantum efficiency (the
+  electrons per wavelength of a photon spectrum flat over the band), on a 5 nm grid (trapezoid rule);
+* ``A(v) = 1 - (W / 0.18)^2 (1 - 4 (v - 0.5)^2)``: the aberration transfer factor of a random rms
+  wavefront error ``W`` (waves at ``lambda_i``; Shannon, *The Art and Science of Optical Design*, 1997),
+  valid for ``W <= 0.18`` waves;
+* ``sigma``: a Gaussian blur (defocus, residual aberrations), um in the focal plane.
+
+It is real and >= 0 (the PSF is symmetric), 1 at ``f = 0`` (energy is conserved).
+
+Where it is applied
+-------------------
+The scene stage already integrates each pixel over its area (the pixel-area filter, or s x s
+supersampling), so a radiance field is the scene convolved with the pixel box and sampled at the pixel
+centres: the pixel aperture's MTF ``|sinc(f p)|`` is in it. Convolution commutes, so the optics' blur
+is the remaining factor: each field is multiplied by ``OTF`` in the frequency domain at the resolution
+it is sampled (12 um columns; 12 um rows, or ``b`` x 12 um rows for a field given per binning block),
+which is exact for the field's band-limited content. The frame is mirrored 16 px beyond its edges
+(what lies outside the view is unknown; a mirror keeps the local statistics); the few
+slightly negative values the band-limited filter leaves next to a sky edge are set to 0.
+:func:`system_mtf` (optics x pixel) is what ``campaign camera`` prints.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+import scipy.optimize
+import scipy.special
+
+from flight_interface.camera import Camera
+from simulator.derived_cache import DERIVED
+from simulator.fields import RadianceFields
+
+#: Mirrored margin beyond the frame edges (px along a row; rows scale with the field's row pitch).
+PAD_PX = 16
+#: Samples of the tabulated radial OTF (linear interpolation error below 1e-6).
+RADIAL_SAMPLES = 8192
+WAVEFRONT_LIMIT_WAVES = 0.18
+
+
+def diffraction_mtf(normalized_frequency: np.ndarray) -> np.ndarray:
+    """Diffraction MTF of a circular aperture at ``v = f lambda N`` (any shape): 0 for ``v >= 1``."""
+    v = np.clip(np.abs(np.asarray(normalized_frequency, dtype=float)), 0.0, 1.0)
+    return 2.0 / np.pi * (np.arccos(v) - v * np.sqrt(1.0 - v * v))
+
+
+def pixel_mtf(frequency_cyc_per_m: np.ndarray, pitch_m: float) -> np.ndarray:
+    """MTF of a pixel aperture of width ``pitch_m`` along one axis, ``|sinc(f p)|`` (any shape)."""
+    return np.abs(np.sinc(np.asarray(frequency_cyc_per_m, dtype=float) * pitch_m))
+
+
+def optics_mtf(frequency_cyc_per_m: np.ndarray, camera: Camera) -> np.ndarray:
+    """The optics' OTF (module doc) at radial focal-plane frequencies (cycles/m, any shape), float64."""
+    optics, radiometry = camera.optics, camera.radiometry
+    wavelengths_m, weights = optics.band_weights(radiometry.band_min_um, radiometry.band_max_um)
+    frequency = np.abs(np.asarray(frequency_cyc_per_m, dtype=float))
+    total = np.zeros(frequency.shape)
+    wavefront_m = optics.wavefront_error_rms_um * 1e-6
+    for wavelength_m, weight in zip(wavelengths_m, weights):
+        if weight == 0.0:
+            continue
+        v = frequency * wavelength_m * radiometry.f_number
+        term = diffraction_mtf(v)
+        if wavefront_m > 0.0:
+            waves = wavefront_m / wavelength_m
+            term = term * (1.0 - (waves / WAVEFRONT_LIMIT_WAVES) ** 2 * (1.0 - 4.0 * (np.minimum(v, 1.0) - 0.5) ** 2))
+        total += weight * term
+    sigma_m = optics.blur_sigma_um * 1e-6
+    if sigma_m > 0.0:
+        total *= np.exp(-2.0 * np.pi**2 * sigma_m**2 * frequency**2)
+    return total
+
+
+def system_mtf(frequency_cyc_per_m: np.ndarray, camera: Camera) -> np.ndarray:
+    """Optics x pixel aperture MTF along a row (cycles/m, any shape)."""
+    return optics_mtf(frequency_cyc_per_m, camera) * pixel_mtf(frequency_cyc_per_m, camera.pixel_pitch_m)
+
+
+def cutoff_frequency_cyc_per_m(camera: Camera) -> float:
+    """Highest frequency the optics pass, ``1 / (lambda_min N)`` (cycles/m)."""
+    return 1.0 / (camera.radiometry.band_min_um * 1e-6 * camera.radiometry.f_number)
+
+
+def encircled_energy(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
+    """Fraction of a point's energy inside ``radius_m`` (any shape) for the optics PSF (no pixel):
+    ``EE(r) = 2 pi r int_0^fc OTF(rho) J1(2 pi r rho) d rho`` (a circularly symmetric OTF)."""
+    rho = np.linspace(0.0, cutoff_frequency_cyc_per_m(camera), 20001)
+    otf = optics_mtf(rho, camera)
+    radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
+    integrand = otf[None, :] * scipy.special.j1(2.0 * np.pi * radius[:, None] * rho[None, :])
+    energy = 2.0 * np.pi * radius * np.trapezoid(integrand, rho, axis=1)
+    return energy.reshape(np.shape(radius_m))
+
+
+def psf_radial(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
+    """Optics PSF (fraction of a point's energy per m^2) at ``radius_m`` (any shape):
+    ``PSF(r) = 2 pi int_0^fc OTF(rho) J0(2 pi r rho) rho d rho``."""
+    rho = np.linspace(0.0, cutoff_frequency_cyc_per_m(camera), 20001)
+    otf = optics_mtf(rho, camera)
+    radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
+    integrand = otf[None, :] * scipy.special.j0(2.0 * np.pi * radius[:, None] * rho[None, :]) * rho[None, :]
+    return (2.0 * np.pi * np.trapezoid(integrand, rho, axis=1)).reshape(np.shape(radius_m))
+
+
+def encircled_energy_radius_m(camera: Camera, fraction: float = 0.8) -> float:
+    """Radius (m) holding ``fraction`` of a point's energy (optics PSF, no pixel)."""
+    scale = camera.radiometry.band_max_um * 1e-6 * camera.radiometry.f_number + 4.0 * camera.optics.blur_sigma_um * 1e-6
+    radii = np.linspace(0.0, 8.0 * scale, 401)[1:]
+    energy = encircled_energy(radii, camera)
+    above = int(np.argmax(energy >= fraction))
+    if energy[above] < fraction:
+        raise ValueError(f"{camera.source}: less than {fraction:.0%} of the PSF's energy within {radii[-1] * 1e6:.0f} um")
+    low = radii[above - 1] if above else 0.0
+    return float(scipy.optimize.brentq(lambda r: float(encircled_energy(r, camera)) - fraction, low, radii[above]))
+
+
+def _otf_grid(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.ndarray:
+    """The OTF on the rfft2 grid of a padded field of ``shape``, float32 (rows, cols // 2 + 1), cached."""
+    cache = DERIVED.of(camera, "psf")
+    key = (shape, row_pitch_m)
+    if key not in cache:
+        radial = np.linspace(0.0, cutoff_frequency_cyc_per_m(camera), RADIAL_SAMPLES)
+        table = optics_mtf(radial, camera)
+        fy = scipy.fft.fftfreq(shape[0], d=row_pitch_m)
+        fx = scipy.fft.rfftfreq(shape[1], d=camera.pixel_pitch_m)
+        frequency = np.hypot(fy[:, None], fx[None, :])
+        otf = np.interp(frequency, radial, table, right=0.0).astype(np.float32)
+        otf[0, 0] = 1.0                       # energy conserved exactly
+        otf.setflags(write=False)
+        cache[key] = otf
+    return cache[key]
+
+
+def blur_field(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
+    """A radiance field seen through the optics (module doc).
+
+    Parameters
+    ----------
+    field_w_m2_sr_um : ndarray, shape (height, width) or (height / b, width) per binning block
+        Pixel-area-averaged radiance, W m^-2 sr^-1 um^-1.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray, float32, same shape, >= 0 where the field is finite; NaN and inf pixels are kept as they
+    are (the chain reads them black / saturated) and take no part in the blur.
+
+    Raises
+    ------
+    ValueError
+        A finite value of the field is negative.
+    """
+    field = np.asarray(field_w_m2_sr_um, dtype=np.float32)
+    rows, cols = field.shape
+    row_pitch_m = camera.pixel_pitch_m * camera.height_px / rows
+    finite = bool(np.isfinite(field.sum()))
+    bad = None if finite else ~np.isfinite(field)
+    work = field if bad is None else np.where(bad, np.float32(0.0), field)
+    if float(work.min()) < 0.0:      # the chain's own check would no longer see it once blurred and clipped
+        raise ValueError(f"radiance field has negative values (min {float(work.min()):.4g} "
+                         "W m^-2 sr^-1 um^-1); radiance must be >= 0")
+    pad_rows = int(np.ceil(PAD_PX * camera.pixel_pitch_m / row_pitch_m))
+    padded_shape = (scipy.fft.next_fast_len(rows + 2 * pad_rows, real=True),
+                    scipy.fft.next_fast_len(cols + 2 * PAD_PX, real=True))
+    padded = np.pad(work, ((pad_rows, padded_shape[0] - rows - pad_rows), (PAD_PX, padded_shape[1] - cols - PAD_PX)),
+                    mode="symmetric")
+    spectrum = scipy.fft.rfft2(padded, workers=1)
+    spectrum *= _otf_grid(camera, padded_shape, row_pitch_m)
+    blurred = scipy.fft.irfft2(spectrum, s=padded_shape, workers=1)[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols]
+    out = np.maximum(blurred, np.float32(0.0)).astype(np.float32, copy=False)
+    if bad is not None:
+        out[bad] = field[bad]
+    return out
+
+
+def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:
+    """The three period fields seen through the optics; fields that are one object stay one object."""
+    done: dict[int, np.ndarray] = {}
+
+    def blur(field: np.ndarray) -> np.ndarray:
+        if id(field) not in done:
+            done[id(field)] = blur_field(field, camera)
+        return done[id(field)]
+
+    return RadianceFields(blur(fields.flush), blur(fields.exposure), blur(fields.transfer))
