@@ -8,9 +8,10 @@ A SOURCE is
 * an image file, optionally with a side-car: ``FILE`` or ``FILE:SIDECAR.toml`` (readers of
   :mod:`file_formats.planetary`); measured with the camera and sun of ``--site`` (default Gusev).
 
-The table (one row per terrain, :class:`campaign.realism.terrain_stats.TerrainStatistics`) is printed and
-written as CSV (``--csv``, default ``terrain_stats.csv``). Bad input: one line naming the source and
-what is wrong, exit code 2, nothing written.
+The table (one row per terrain, :class:`campaign.realism.terrain_stats.TerrainStatistics`) is printed on
+stdout; it is written as CSV only when asked (``--csv FILE``): the command writes no file of its own
+accord (synthetic strips go to the terrain cache, ``$MOC2DIMES_CACHE``). Bad input: one line naming the
+source and what is wrong, exit code 2, nothing written.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ import numpy as np
 import pandas as pd
 from scipy import ndimage
 
+from campaign.configuration.paths import check_path_text
 from campaign.realism.terrain_stats import (
     TerrainStatistics,
     descent_sampling,
@@ -154,10 +156,16 @@ def format_table(frame: pd.DataFrame) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = OneLineParser(prog="python -m campaign.realism.terrain_stats_cli", description=__doc__.splitlines()[0])
     parser.add_argument("sources", nargs="+", metavar="SOURCE", help="site TOML, preset name, or FILE[:SIDECAR.toml]")
-    parser.add_argument("--csv", default="terrain_stats.csv", help="CSV output (default terrain_stats.csv)")
+    parser.add_argument("--csv", help="also write the table as CSV to this file (default: print only)")
     parser.add_argument("--site", default=str(DEFAULT_SITE), help="site TOML whose camera and sun measure image files")
     parser.add_argument("--no-cache", action="store_true", help="regenerate synthetic terrain without the disk cache")
     args = parser.parse_args(argv)
+    if args.csv is not None:
+        try:
+            check_path_text(args.csv, "--csv")
+        except ConfigError as exc:
+            print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+            return USAGE_ERROR
     rows = []
     try:
         for source in args.sources:
@@ -167,7 +175,13 @@ def main(argv: list[str] | None = None) -> int:
         return USAGE_ERROR
     frame = to_frame(rows)
     print(format_table(frame))
-    frame.to_csv(args.csv, index=False)
+    if args.csv is None:
+        return 0
+    try:
+        frame.to_csv(args.csv, index=False)
+    except OSError as exc:
+        print(f"{parser.prog}: error: --csv {args.csv}: cannot be written ({exc.strerror or exc})", file=sys.stderr)
+        return USAGE_ERROR
     print(f"wrote {args.csv}")
     return 0
 
