@@ -244,7 +244,7 @@ def test_nothing_changes_without_saturation_and_blooming_switch_in_the_chain():
     assert bloomed is charge and lost == 0.0
     radiance = np.full((1024, 1024), 30.0, dtype=np.float32)
     radiance[500:502, 600] = 6000.0                      # ~5.7e6 e- per pixel: 30 full wells
-    effects = NOISE_FREE.model_copy(update=dict(smear=False, dark_current=False))
+    effects = NOISE_FREE.model_copy(update=dict(smear=False, dark_current=False, optics_psf=False))  # a sharp spike
     bloomed = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects).expected_charge_e
     clipped = render_image(CAMERA, [radiance] * 3, np.random.default_rng(0), effects,
                            OffNominalArtefacts(blooming=False)).expected_charge_e
