@@ -161,20 +161,22 @@ class MovingShadows:
         return self.diffuse_fraction + (1.0 - self.diffuse_fraction) * self.core_factor
 
     def darken(self, radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
-               pose: ground_mapping.CameraPose, time_s: float) -> None:
-        """Multiply ``radiance`` (H, W) in place by the shadows' darkening at ``time_s`` (module doc);
-        only the image windows that can hold a shadow are computed."""
+               pose: ground_mapping.CameraPose, time_s: float, grid_origin_m, metres_per_pixel: float) -> None:
+        """Multiply ``radiance`` (H, W) in place by the shadows' darkening at ``time_s`` (module doc).
+
+        The ground point of every pixel is read from ``ground_map`` (grid coordinates of the north-up
+        grid with origin ``grid_origin_m`` (east, north) and ``metres_per_pixel``); only the image
+        windows that can hold a shadow are computed.
+        """
         height, width = radiance.shape
         shift = self.velocity_mps * (time_s - self.reference_time_s)
-        direct = None
-        box = [height, 0, width, 0]          # row0, row1, col0, col1 of the union of windows
         angles = np.linspace(0.0, 2 * np.pi, RING_POINTS, endpoint=False)
         circle = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+        windows = []
         for k in range(len(self.start_m)):
             start = self.start_m[k] + shift[k]
-            end = start + self.length_m[k] * self.anti_sun
             reach = self.radius_m[k] + self.edge_m[k]
-            outline = np.vstack([start + reach * circle, end + reach * circle])
+            outline = np.vstack([start + reach * circle, start + self.length_m[k] * self.anti_sun + reach * circle])
             pixels, in_front = ground_mapping.world_to_pixels(
                 camera, pose, np.column_stack([outline, np.zeros(len(outline))]))
             far = np.abs(pixels - 0.5 * np.array([width, height])) > TRUSTED_PROJECTION_FRAMES * np.array([width, height])
@@ -188,26 +190,30 @@ class MovingShadows:
                 col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width)
                 row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
                 row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height)
-            if col1 <= col0 or row1 <= row0:
-                continue
-            rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
-            window_sky = ground_map.sky[row0:row1, col0:col1]
-            dz = np.where(window_sky, -1.0, rays[..., 2])
-            points = pose.ray_origin_m[:2] + (-pose.ray_origin_m[2] / dz)[..., None] * rays[..., :2]
-            relative = points - start
-            along = np.clip(relative @ self.anti_sun, 0.0, self.length_m[k])
-            distance = np.hypot(relative[..., 0] - along * self.anti_sun[0], relative[..., 1] - along * self.anti_sun[1])
-            covered = np.clip(0.5 - (distance - self.radius_m[k]) / self.edge_m[k], 0.0, 1.0)
-            covered[window_sky] = 0.0
-            if direct is None:
-                direct = np.ones((height, width), dtype=np.float32)
-            direct[row0:row1, col0:col1] *= (1.0 - (1.0 - self.core_factor[k]) * covered).astype(np.float32)
-            box = [min(box[0], row0), max(box[1], row1), min(box[2], col0), max(box[3], col1)]
-        if direct is None:
+            if col1 > col0 and row1 > row0:
+                windows.append((k, start, row0, row1, col0, col1))
+        if not windows:
             return
+        top, bottom = min(w[2] for w in windows), max(w[3] for w in windows)
+        left, right = min(w[4] for w in windows), max(w[5] for w in windows)
+        direct = np.ones((bottom - top, right - left), dtype=np.float32)
+        for k, start, row0, row1, col0, col1 in windows:
+            # ground east/north of the window's pixels relative to the shadow's start (float32: mm at km)
+            east = ground_map.col[row0:row1, col0:col1] * np.float32(metres_per_pixel) + np.float32(
+                grid_origin_m[0] - start[0])
+            north = np.float32(grid_origin_m[1] - start[1]) - ground_map.row[row0:row1, col0:col1] * np.float32(
+                metres_per_pixel)
+            along = np.clip(east * np.float32(self.anti_sun[0]) + north * np.float32(self.anti_sun[1]),
+                            np.float32(0.0), np.float32(self.length_m[k]))
+            distance = np.hypot(east - along * np.float32(self.anti_sun[0]), north - along * np.float32(self.anti_sun[1]))
+            covered = np.clip(np.float32(0.5 + self.radius_m[k] / self.edge_m[k]) - distance / np.float32(self.edge_m[k]),
+                              np.float32(0.0), np.float32(1.0))
+            if ground_map.any_sky:
+                covered[ground_map.sky[row0:row1, col0:col1]] = 0.0
+            direct[row0 - top:row1 - top, col0 - left:col1 - left] *= (
+                np.float32(1.0) - np.float32(1.0 - self.core_factor[k]) * covered)
         f = np.float32(self.diffuse_fraction)
-        window = (slice(box[0], box[1]), slice(box[2], box[3]))
-        radiance[window] *= f + (np.float32(1.0) - f) * direct[window]
+        radiance[top:bottom, left:right] *= f + (np.float32(1.0) - f) * direct
 
 
 def _may_overlap_footprint(camera: Camera, pose: ground_mapping.CameraPose, outline_m: np.ndarray) -> bool:

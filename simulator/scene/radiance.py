@@ -220,7 +220,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                        photometry.solar_angular_radius_rad(config.sun_distance_au),
                                        config.shadow_diffuse_fraction)
     if moving_shadows is not None:
-        moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s)
+        moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s, terrain.origin_m, terrain.metres_per_pixel)
     if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky
         radiance += added
         if gmap.any_sky:
