@@ -10,7 +10,8 @@ Placeholders (each a whole argument or part of one)
 ``{image1}`` ...    one image file (``{image1}``, ``{image2}``, ``{image3}``)
 ``{measurements}``  measurements JSON (schema: :mod:`file_formats.measurements_json`)
 ``{output}``        where the program must write its result JSON
-``{camera}``        the camera TOML (absolute path)
+``{camera}``        the camera TOML as designed, written into the case directory without the simulator-only
+                    ``radiometry.prnu_seed`` (:mod:`estimators.camera_view`; absolute path)
 ``{flat_field}``    the flat-field file (``flat_field_format``), or ``none`` when there is none
 ``{parameters}``    JSON file with the entry's ``parameters`` table
 ``{workdir}``       the case's working directory (also the program's current directory)
@@ -42,6 +43,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from estimators.camera_view import write_design_camera
 from estimators.contract import ContractViolation, EstimatorInputs, EstimatorOutput, validate_output
 from file_formats.flat_field_files import save_flat_field
 from file_formats.measurements_json import measurements_to_dict
@@ -96,7 +98,7 @@ def write_inputs(directory: Path, inputs: EstimatorInputs, image_format: str, fl
         flat = str(save_flat_field(directory / f"flat_field{FLAT_SUFFIX[flat_field_format]}",
                                    inputs.calibration.flat_field))
     values = {"images": images, "measurements": str(measurements), "output": str(directory / "result.json"),
-              "camera": str(Path(inputs.camera.source).resolve()), "flat_field": flat,
+              "camera": str(write_design_camera(directory / "camera.toml", inputs.camera).resolve()), "flat_field": flat,
               "parameters": str(parameters), "workdir": str(directory), "python": sys.executable}
     values.update({f"image{index}": path for index, path in enumerate(images, start=1)})
     return values

@@ -18,7 +18,8 @@ Inputs (:class:`EstimatorInputs`)
     east, y north, z up. As JSON: the schema in :mod:`file_formats.measurements_json`.
 ``camera``
     :class:`flight_interface.camera.Camera`: the camera model as designed (CAHVOR, mounting, timing,
-    radiometry, electronics), read from the camera TOML (``camera.source``).
+    radiometry, electronics), read from the camera TOML (``camera.source``), without the simulator-only
+    ``radiometry.prnu_seed`` (:mod:`estimators.camera_view`).
 ``calibration``
     :class:`flight_interface.calibration.CalibrationProducts`: the flat field (relative response per
     read-out pixel, shape ``camera.binned_shape``, about 1 on axis) or None.
@@ -78,6 +79,7 @@ from typing import Any
 
 import numpy as np
 
+from estimators.camera_view import estimator_camera
 from flight_interface.calibration import CalibrationProducts
 from flight_interface.camera import Camera
 from flight_interface.measurements import DescentMeasurements
@@ -105,6 +107,10 @@ class EstimatorInputs:
     camera: Camera
     calibration: CalibrationProducts = CalibrationProducts()
     parameters: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # the simulator's truth never reaches an estimator: the camera without radiometry.prnu_seed
+        object.__setattr__(self, "camera", estimator_camera(self.camera))
 
 
 @dataclass(frozen=True)

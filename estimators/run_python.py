@@ -18,12 +18,12 @@ import sys
 
 import numpy as np
 
+from estimators.camera_view import load_design_camera
 from estimators.contract import ContractViolation, EstimatorInputs, output_to_dict, read_only_inputs, validate_output
 from file_formats.descent_images import InputFileError, load_image
 from file_formats.flat_field_files import load_flat_field
 from file_formats.measurements_json import load_measurements
 from flight_interface.calibration import CalibrationError, CalibrationProducts
-from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError
 
 
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", required=True)
     args = parser.parse_args(argv)
     try:
-        camera = load_camera(args.camera)
+        camera = load_design_camera(args.camera)
         images = tuple(load_image(path, camera) for path in args.images)
         measurements = load_measurements(args.measurements)
         flat = None if args.flat_field == "none" else load_flat_field(args.flat_field, camera.binned_shape)

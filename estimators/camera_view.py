@@ -1,0 +1,119 @@
+"""The camera as an estimator receives it: the design, never the simulator's truth.
+
+A camera TOML carries one field that only the simulator may know: ``radiometry.prnu_seed``, the seed of
+the detector's realised pixel response non-uniformity (the true PRNU pattern). A flight estimator knows
+the pixel response only through a measured flat field (:mod:`flight_interface.calibration`), so the
+seed is withheld (:data:`TRUTH_FIELDS`) from everything an estimator gets:
+
+* python plug-ins: :class:`~estimators.contract.EstimatorInputs` replaces its camera by
+  :func:`estimator_camera` (the same camera whose ``radiometry`` has no ``prnu_seed`` attribute);
+* command plug-ins: ``{camera}`` is :func:`write_design_camera`'s copy of the camera TOML in the case
+  directory, without the withheld fields (:func:`load_design_camera` reads it back, as
+  ``python -m estimators.run_python`` does).
+
+``prnu_sigma`` (the datasheet's rms non-uniformity) is a design number and stays.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from flight_interface.camera import Camera, CameraFile, Radiometry, camera_from_file
+from flight_interface.tomlfields import load_toml, parse
+
+#: table -> fields of a camera TOML that an estimator never receives (simulator truth).
+TRUTH_FIELDS: dict[str, tuple[str, ...]] = {"radiometry": ("prnu_seed",)}
+PLACEHOLDER_SEED = 0        # fills a withheld seed only to validate a design file; stripped again at once
+_VIEWS: dict[int, tuple[Camera, Camera]] = {}     # id(camera) -> (camera, its estimator view), a few at most
+_MAX_VIEWS = 8
+
+
+def carries_truth(camera: Camera) -> bool:
+    """True when ``camera`` still has a withheld field (a simulator camera, not an estimator's view)."""
+    return any(hasattr(getattr(camera, table), name) for table, names in TRUTH_FIELDS.items() for name in names)
+
+
+def estimator_camera(camera: Camera) -> Camera:
+    """``camera`` without the withheld fields: a shallow copy (the same read-only arrays) whose
+    ``radiometry`` is a :class:`~flight_interface.camera.Radiometry` lacking ``prnu_seed`` (reading it
+    raises AttributeError; ``model_dump()`` leaves it out). One view per camera object is kept, so the
+    cached derived arrays (rays, falloff) are computed once per process."""
+    if not carries_truth(camera):
+        return camera
+    cached = _VIEWS.get(id(camera))
+    if cached is not None and cached[0] is camera:
+        return cached[1]
+    design = {name: value for name, value in camera.radiometry.model_dump().items()
+              if name not in TRUTH_FIELDS["radiometry"]}
+    view = copy.copy(camera)
+    object.__setattr__(view, "radiometry", Radiometry.model_construct(**design))
+    if len(_VIEWS) >= _MAX_VIEWS:
+        _VIEWS.clear()
+    _VIEWS[id(camera)] = (camera, view)
+    return view
+
+
+def design_tables(camera_path: str | Path) -> dict:
+    """The camera TOML's tables without the withheld fields."""
+    data = load_toml(Path(camera_path))
+    for table, names in TRUTH_FIELDS.items():
+        if isinstance(data.get(table), dict):
+            data[table] = {key: value for key, value in data[table].items() if key not in names}
+    return data
+
+
+def write_design_camera(path: Path, camera: Camera) -> Path:
+    """Write the TOML of ``camera`` (read from ``camera.source``) without the withheld fields to ``path``."""
+    path.write_text(toml_text(design_tables(camera.source)))
+    return path
+
+
+def load_design_camera(path: str | Path) -> Camera:
+    """Load a camera TOML for an estimator: with or without the withheld fields (a placeholder fills them
+    for validation only); the camera returned never has them (:func:`estimator_camera`).
+
+    Raises ConfigError (one line naming the file and field) like :func:`flight_interface.camera.load_camera`."""
+    data = load_toml(Path(path))
+    if isinstance(data.get("radiometry"), dict):
+        data["radiometry"] = {"prnu_seed": PLACEHOLDER_SEED, **data["radiometry"]}
+    return estimator_camera(camera_from_file(parse(CameraFile, data, str(path)), str(path)))
+
+
+def toml_text(tables: dict) -> str:
+    """A TOML document of ``tables`` (table -> key -> number, bool, string, list of those, or a sub-table)."""
+    lines: list[str] = []
+
+    def emit(prefix: str, table: dict) -> None:
+        lines.append(f"[{prefix}]")
+        nested = []
+        for key, value in table.items():
+            if isinstance(value, dict):
+                nested.append((key, value))
+            else:
+                lines.append(f"{key} = {_value(value)}")
+        for key, value in nested:
+            emit(f"{prefix}.{key}", value)
+
+    for name, table in tables.items():
+        if isinstance(table, dict):
+            emit(name, table)
+        else:
+            lines.insert(0, f"{name} = {_value(table)}")
+    return "\n".join(lines) + "\n"
+
+
+def _value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return ("nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")) if not math.isfinite(value) else repr(value)
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, str):
+        return json.dumps(value)        # a TOML basic string: JSON's escapes are TOML's
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_value(item) for item in value) + "]"
+    raise TypeError(f"camera TOML value {value!r} cannot be written")
