@@ -21,6 +21,7 @@ from simulator.detector.camera_chain import CameraEffects
 from simulator.fidelity import DEFAULT_PRESET, PRESETS, REFERENCE_EFFECTS, Preset, preset_fields
 from simulator.off_nominal import OffNominalConfig
 from simulator.scene import atmosphere, photometry
+from simulator.scene.relief import ReliefConfig
 
 FRAME_PX = 1024
 
@@ -105,6 +106,8 @@ class SceneConfig(ConfigModel):
     camera_effects: CameraEffects = CameraEffects()
     off_nominal: OffNominalConfig = OffNominalConfig()
     atmosphere: AtmosphereConfig = AtmosphereConfig()
+    relief: ReliefConfig = ReliefConfig()
+    """How a terrain's height field is rendered (simulator.scene.relief)."""
     sun_distance_au: float = Field(photometry.MARS_MEAN_SUN_DISTANCE_AU, gt=0.1, le=100.0)
     """Sun distance (AU); a campaign's default is its site's heliocentric distance."""
     spectral_ratio: float = Field(0.906, gt=0.0, le=10.0)

@@ -24,7 +24,8 @@ the campaign does with a terrain too small for the descent images' footprints (r
 same image at the coarser scale that holds them, or mirror-tile it; :mod:`campaign.plan.coverage`).
 
 Optional in a synthetic terrain table: ``overrides = { haze_optical_depth = 0.3, ... }`` (numeric
-fields of :class:`sitedata.terrain.synthetic_classes.ClassTerrainParams`). The ``[site]`` table is declared
+fields of :class:`sitedata.terrain.synthetic_classes.ClassTerrainParams`) and ``relief = true`` (the class's
+height field with the I/F of level ground, :mod:`sitedata.terrain.relief`). The ``[site]`` table is declared
 once, by :class:`Site` and its parts (:class:`Sun`, :class:`SiteClass`, :class:`SyntheticTerrain`,
 :class:`FileTerrain`); ``campaign schema site`` prints it. Other top-level tables (``[campaign]``,
 ``[sensors]``, ...) belong to other readers and are ignored here; unknown keys inside ``[site]`` are
@@ -52,8 +53,10 @@ from flight_interface.tomlfields import (
     load_toml,
     parse,
 )
+from simulator.scene.relief import ReliefTerrain
 from simulator.scene.terrain import Terrain
 from sitedata.terrain.real_terrain import load_terrain
+from sitedata.terrain.relief import relief_terrain
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS, ClassTerrainParams
 from sitedata.terrain.synthetic_terrain import synthetic_terrain
 
@@ -126,6 +129,9 @@ class SyntheticTerrain(_TerrainSpec):
     """Seed of the terrain generator."""
     overrides: TerrainOverrides | None = None
     """Preset parameters changed for this class."""
+    relief: bool = False
+    """Give the class its height field (craters, knobs, slopes of the preset), rendered with parallax,
+    occlusion, slope shading and cast shadows (sitedata.terrain.relief, simulator.scene.relief)."""
 
     @model_validator(mode="after")
     def _overrides_are_valid(self):
@@ -289,10 +295,14 @@ def load_class_terrain(spec: TerrainSpec, cache: bool = True) -> Terrain:
 def _memoised_class_terrain(spec: TerrainSpec) -> Terrain:
     terrain = _class_terrain(spec, cache=True)
     terrain.reflectance_if.setflags(write=False)
+    if isinstance(terrain, ReliefTerrain):
+        terrain.height_m.setflags(write=False)
     return terrain
 
 
 def _class_terrain(spec: TerrainSpec, cache: bool) -> Terrain:
+    if spec.kind == "synthetic" and spec.relief:
+        return relief_terrain(class_terrain_params(spec), spec.seed, cache=cache)
     if spec.kind == "synthetic":
         return synthetic_terrain(class_terrain_params(spec), spec.seed, cache=cache)
     if not spec.path.is_file():

@@ -49,6 +49,7 @@ from simulator.scene import (
     heat_shield,
     motion_blur,
     photometry,
+    relief,
     resample,
     shadow,
 )
@@ -185,6 +186,10 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     ray_step = config.ray_grid_step_px if effects.coarse_ray_grid else 0
     gmap = ground_mapping.map_to_ground_grid(camera, cam, (terrain.origin_m[0], terrain.origin_m[1]),
                                              terrain.metres_per_pixel, ray_step)
+    relief_hits = None
+    if relief.has_relief(terrain, config):   # parallax and occlusion of the height field (scene.relief)
+        gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config)
+        crop, inside = relief_hits.crop, False
     moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky if gmap.any_sky else None,
                                               crop, may_leave_terrain=not inside)
     if effects.pixel_area_filter and not _sub_sample:   # (a supersampled render averages point samples)
@@ -214,6 +219,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     else:
         radiance *= np.float32(scale)
 
+    if relief_hits is not None:      # slope photometry and cast shadows of the relief
+        radiance *= relief.shading_factor(relief_hits, sun, config)
     centres = []
     if effects.shadows:
         centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,

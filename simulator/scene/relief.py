@@ -1,0 +1,370 @@
+"""Terrain relief: a height field under the orbital image, seen with parallax, occlusion, slope shading
+and cast shadows (issue 23).
+
+A :class:`ReliefTerrain` is a :class:`~simulator.scene.terrain.Terrain` with a height field ``height_m``
+on the same grid (m above the datum z = 0 of the level frame; bilinear between pixel centres). Its
+``reflectance_if`` is the I/F the orbiter would have measured were the ground level (albedo pattern,
+haze, grain; no slope shading and no cast shadows): the descent geometry adds those here. A plain
+:class:`Terrain` never enters this module, so relief off renders exactly as before (same bits, same
+cost).
+
+Ray-height intersection (:func:`intersect_rays`), per pixel ray ``P(z) = O + (z - O_z) / d_z d``:
+
+1. bounds: the camera footprint between the planes of the global height extremes fixes a terrain
+   window; the window's own extremes ``z_top >= H >= z_bottom`` bound every first hit;
+2. march: ``z`` goes down from ``z_top`` in steps moving the ray by at most ``march_step_terrain_px``
+   terrain pixels horizontally, until ``f(z) = z - H(P(z)) <= 0`` (``f(z_bottom) <= 0`` always, so every
+   downward ray brackets a hit); the first sign change is the visible surface: nearer bumps occlude;
+3. refine: false position with the Illinois modification inside the bracket until ``|f| <=
+   height_tolerance_m`` (1 mm by default; the ground point is then within ``tolerance x tan(view
+   angle)`` of the exact one on the bilinear surface).
+
+A feature thinner than the march step along a grazing ray can be missed (the march samples it);
+at 0.5 px and DIMES view angles (< 45 deg) the bilinear surface has no such features.
+
+Shading (:func:`shading_factor`), relative to what the level-ground chain already computed
+(photometric ratio, atmosphere, spectral scale)::
+
+    factor = (1 - d) lit LS(n) / LS(flat) + d (1 + n_z) / 2,    LS = mu0 / (mu + mu0)
+
+with ``n`` the normal of the bilinear surface at the hit point, the phase function cancelling (the
+phase angle does not depend on the normal), ``d`` the diffuse (sky) fraction of the illumination
+(``shadow_diffuse_fraction``, reaching a facet in proportion to the sky it sees) and ``lit`` the direct
+sun: a point at height z is lit when ``z >= S(x, y)``, with ``S`` the height of the lowest sun ray
+clearing the terrain towards the sun, marched on the terrain grid once per terrain and sun
+(:func:`horizon_height`, steps of ``march_step_terrain_px``: a shadow edge is exact to that step).
+So a tilted plane with ``d = 0`` shows exactly eq. (1) at its tilted normal, and level ground keeps its
+flat-ground radiance. The lander's shadows and the motion-blur warps still use the level ground near the
+hit point (sub-pixel differences).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TypeGuard
+
+import cv2
+import numpy as np
+from pydantic import Field
+
+from flight_interface.camera import Camera
+from flight_interface.tomlfields import ConfigModel
+from simulator.derived_cache import DERIVED
+from simulator.scene import ground_mapping, photometry, resample
+from simulator.scene.terrain import Terrain
+
+MAX_MARCH_STEPS = 20_000        # a ray skimming the horizon stops marching here (taken at z_bottom)
+MAX_REFINE_ITERATIONS = 60
+SKIP_PX = 8                      # coarse skip of the ray march (grid pixels), bounded by a dilated height map
+
+
+class ReliefConfig(ConfigModel):
+    """``[scene.relief]``: how a terrain's height field is rendered (terrains without one are unaffected;
+    a class gets one with ``relief = true`` in its terrain table)."""
+
+    enabled: bool = True
+    """Render the height field of terrains that have one (off: level ground, as a plain terrain)."""
+    march_step_terrain_px: float = Field(0.5, ge=0.05, le=2.0)
+    """Largest horizontal move of a ray (and of a sun ray) per march step, in terrain pixels."""
+    height_tolerance_m: float = Field(1.0e-3, ge=1.0e-6, le=0.1)
+    """The refined hit point is within this height of the surface (m)."""
+    slope_photometry: bool = True
+    """Shade each point with the photometric function at its local normal."""
+    cast_shadows: bool = True
+    """Relief casts shadows (sun rays marched over the height field)."""
+    shadow_edge_m: float = Field(0.05, ge=0.0, le=10.0)
+    """Height band over which a point goes from shadow to light (penumbra, m)."""
+
+
+@dataclass(frozen=True)
+class ReliefTerrain(Terrain):
+    """A terrain with a height field.
+
+    Attributes
+    ----------
+    height_m : ndarray, float32, shape (rows, cols)
+        Height above the level datum z = 0 at each pixel centre (m), bilinear in between.
+    (others as :class:`Terrain`; ``reflectance_if`` holds no slope shading or cast shadows)
+    """
+
+    height_m: np.ndarray = field(kw_only=True)
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.height_m.shape != self.reflectance_if.shape or not np.all(np.isfinite(self.height_m)):
+            raise ValueError(f"terrain {self.name}: height_m must be finite, of the image's shape "
+                             f"{self.reflectance_if.shape}; got shape {self.height_m.shape}")
+
+
+def has_relief(terrain: Terrain, config) -> TypeGuard[ReliefTerrain]:
+    """True when ``terrain`` carries a height field and ``config.relief`` renders it."""
+    return isinstance(terrain, ReliefTerrain) and config.relief.enabled
+
+
+def _extremes(terrain: ReliefTerrain) -> tuple[float, float]:
+    cache = DERIVED.of(terrain, "relief")
+    if "extremes" not in cache:
+        cache["extremes"] = (float(terrain.height_m.min()), float(terrain.height_m.max()))
+    return cache["extremes"]
+
+
+def bilinear(grid: np.ndarray, col: np.ndarray, row: np.ndarray, gradient: bool = False):
+    """Bilinear interpolation of ``grid`` (rows, cols) at fractional (col, row) of equal shape, edges
+    replicated; float64. With ``gradient`` also the exact derivatives ``(d/dcol, d/drow)`` of the
+    bilinear surface."""
+    rows, cols = grid.shape
+    flat = grid.ravel() if grid.flags.c_contiguous else np.ascontiguousarray(grid).ravel()
+    col = np.clip(col, 0.0, cols - 1.0)
+    row = np.clip(row, 0.0, rows - 1.0)
+    c0 = np.minimum(col.astype(np.int64), max(cols - 2, 0))
+    r0 = np.minimum(row.astype(np.int64), max(rows - 2, 0))
+    fc, fr = col - c0, row - r0
+    index = r0 * cols + c0
+    right = 1 if cols > 1 else 0
+    down = cols if rows > 1 else 0
+    h00 = flat.take(index)
+    h01 = flat.take(index + right)
+    h10 = flat.take(index + down)
+    h11 = flat.take(index + down + right)
+    top = h00 + fc * (h01 - h00)
+    bottom = h10 + fc * (h11 - h10)
+    value = top + fr * (bottom - top)
+    if not gradient:
+        return value
+    return value, (1.0 - fr) * (h01 - h00) + fr * (h11 - h10), bottom - top
+
+
+@dataclass(frozen=True)
+class ReliefHits:
+    """Where each pixel's ray meets the height field.
+
+    Attributes
+    ----------
+    points_m : (H, W, 3) float64 world hit points (0 for sky)
+    sky : (H, W) bool
+    crop : resample.Crop holding every hit point
+    view_world : (H, W, 3) float64 unit vectors from the hit point to the camera
+    terrain : the terrain they are on
+    """
+
+    terrain: ReliefTerrain
+    points_m: np.ndarray
+    sky: np.ndarray
+    crop: resample.Crop
+    view_world: np.ndarray
+
+
+def march_window(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose) -> resample.Crop:
+    """Terrain window holding every first hit: the footprint between the planes of the global extremes
+    (the whole terrain when a border ray misses one of them)."""
+    low, high = _extremes(terrain)
+    rays = ground_mapping.camera_frame_rays(camera, ground_mapping.border_pixels(camera)) @ pose.camera_to_world.T
+    origin = pose.ray_origin_m
+    if not (np.all(rays[:, 2] < -ground_mapping.HORIZON_EPSILON) and origin[2] > high):
+        rows, cols = terrain.shape
+        return resample.Crop(0, rows, 0, cols)
+    corners = [origin + ((level - origin[2]) / rays[:, 2])[:, None] * rays for level in (low, high)]
+    points = np.concatenate(corners)
+    cols_px, rows_px = terrain.world_to_pixel(points[:, 0], points[:, 1])[::-1]
+    return resample.footprint_crop(terrain, cols_px, rows_px, True, margin_px=3)
+
+
+def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.ndarray, z_top: float,
+                   z_bottom: float, step_m: float, tolerance_m: float, skip_px: int = SKIP_PX,
+                   metres_per_pixel: float | None = None) -> np.ndarray:
+    """First intersection of downward rays with a bilinear height field (see module doc).
+
+    Parameters
+    ----------
+    heights : (rows, cols) height grid (m); to_grid : callable (east, north) -> (col, row) into it
+    origin_m : (3,) ray origin; rays : (N, 3) directions with d_z < 0 (any length)
+    z_top, z_bottom : bounds of the heights the rays can meet (m); step_m : horizontal march step (m)
+    tolerance_m : |z - H| at the returned points
+    skip_px, metres_per_pixel : before the march, rays skip ``skip_px`` grid pixels at a time while they
+        stay above the maximum of the heights within ``skip_px + 2`` pixels (a safe bound; 0: no skip)
+
+    Returns
+    -------
+    (N,) float64 heights z of the hit points (the point is ``origin + (z - O_z) / d_z d``).
+    """
+    rays = np.asarray(rays, dtype=np.float64)
+    count = len(rays)
+    slope = np.hypot(rays[:, 0], rays[:, 1]) / -rays[:, 2]          # horizontal move per metre of z
+    span = max(z_top - z_bottom, 0.0)
+    dz = np.minimum(step_m / np.maximum(slope, 1e-12), max(span, 1e-9))
+    dz = np.maximum(dz, span / MAX_MARCH_STEPS)
+
+    # grid coordinates are affine in z along each ray (to_grid is affine): col = col0 + z col1
+    col0, row0 = to_grid(origin_m[0] - origin_m[2] / rays[:, 2] * rays[:, 0],
+                         origin_m[1] - origin_m[2] / rays[:, 2] * rays[:, 1])
+    col_z, row_z = to_grid(origin_m[0] + (1.0 - origin_m[2]) / rays[:, 2] * rays[:, 0],
+                           origin_m[1] + (1.0 - origin_m[2]) / rays[:, 2] * rays[:, 1])
+    col_z, row_z = col_z - col0, row_z - row0
+
+    def residual(index, z, grid=heights):
+        return z - bilinear(grid, col0[index] + z * col_z[index], row0[index] + z * row_z[index])
+
+    start = np.full(count, z_top)
+    if skip_px > 0 and metres_per_pixel is not None and span > 0:
+        # coarse skip: from z to z - skip_dz the ray moves skip_px px, inside the dilation window of its start
+        size = 2 * (skip_px + 2) + 1
+        ceiling = cv2.dilate(np.asarray(heights, dtype=np.float32), np.ones((size, size), np.uint8),
+                             borderType=cv2.BORDER_REPLICATE)
+        skip_dz = skip_px * metres_per_pixel / np.maximum(slope, 1e-12)
+        active = np.nonzero(skip_dz < span)[0]
+        while active.size:
+            following = start[active] - skip_dz[active]
+            free = (following > z_bottom) & (residual(active, start[active], ceiling) + following - start[active] > 0)
+            start[active[free]] = following[free]
+            active = active[free]
+    upper = start.copy()
+    f_upper = residual(np.arange(count), upper)
+    lower = np.full(count, z_bottom)
+    f_lower = np.full(count, -1.0)
+    touching = f_upper <= 0                         # the start point is on the surface (its maximum)
+    lower[touching], f_lower[touching] = start[touching], f_upper[touching]
+    active = np.nonzero(~touching)[0]
+    k = 0
+    while active.size:
+        k += 1
+        z = np.maximum(start[active] - k * dz[active], z_bottom)
+        f = residual(active, z)
+        hit = (f <= 0) | (z <= z_bottom)             # f(z_bottom) <= 0: every ray ends bracketed
+        done, going = active[hit], active[~hit]
+        lower[done], f_lower[done] = z[hit], np.minimum(f[hit], 0.0)
+        upper[going], f_upper[going] = z[~hit], f[~hit]
+        active = going
+    # false position (Illinois) inside [lower, upper]: f(lower) <= 0 < f(upper)
+    active = np.nonzero((f_lower < -tolerance_m) & (upper > lower))[0]
+    result = lower.copy()
+    side = np.zeros(count, dtype=np.int8)
+    for _ in range(MAX_REFINE_ITERATIONS):
+        if not active.size:
+            break
+        fu, fl = f_upper[active], f_lower[active]
+        z = (lower[active] * fu - upper[active] * fl) / (fu - fl)
+        z = np.where((z > lower[active]) & (z < upper[active]), z, 0.5 * (lower[active] + upper[active]))
+        f = residual(active, z)
+        result[active] = z
+        below = f <= 0
+        i_below, i_above = active[below], active[~below]
+        lower[i_below], f_lower[i_below] = z[below], f[below]
+        f_upper[i_below[side[i_below] == -1]] *= 0.5          # Illinois: halve the stale end
+        upper[i_above], f_upper[i_above] = z[~below], f[~below]
+        f_lower[i_above[side[i_above] == 1]] *= 0.5
+        side[i_below], side[i_above] = -1, 1
+        converged = (np.abs(f) <= tolerance_m) | (upper[active] - lower[active] <= 1e-9)
+        active = active[~converged]
+    return result
+
+
+def find_hits(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose, rays: np.ndarray,
+              sky: np.ndarray, config) -> ReliefHits:
+    """Hit points of every pixel ray ``rays`` (H, W, 3) on the terrain's height field."""
+    crop = march_window(terrain, camera, pose)
+    heights = np.ascontiguousarray(terrain.height_m[crop.row0:crop.row1, crop.col0:crop.col1])
+    mpp = terrain.metres_per_pixel
+
+    def to_grid(east, north):
+        row, col = terrain.world_to_pixel(east, north)
+        return col - crop.col0, row - crop.row0
+
+    flat = np.asarray(rays, dtype=np.float64).reshape(-1, 3)
+    ground = ~sky.reshape(-1)
+    origin = pose.ray_origin_m
+    z = intersect_rays(heights, to_grid, origin, flat[ground], float(heights.max()), float(heights.min()),
+                       config.relief.march_step_terrain_px * mpp, config.relief.height_tolerance_m,
+                       metres_per_pixel=mpp)
+    points = np.zeros_like(flat)
+    points[ground] = origin + ((z - origin[2]) / flat[ground, 2])[:, None] * flat[ground]
+    points[ground, 2] = z
+    view = np.zeros_like(flat)
+    view[ground] = origin - points[ground]
+    view[ground] /= np.linalg.norm(view[ground], axis=1, keepdims=True)
+    shape = rays.shape
+    return ReliefHits(terrain, points.reshape(shape), sky, crop, view.reshape(shape))
+
+
+def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose,
+                      level_map: ground_mapping.GroundMap, config) -> tuple[ground_mapping.GroundMap, ReliefHits]:
+    """The ground map of the height field (hit points as terrain grid coordinates) and the hits."""
+    rays = level_map.rays()
+    hits = find_hits(terrain, camera, pose, rays, level_map.sky, config)
+    row, col = terrain.world_to_pixel(hits.points_m[..., 0], hits.points_m[..., 1])
+    col = col.astype(np.float32)
+    row = row.astype(np.float32)
+    if level_map.any_sky:
+        col[level_map.sky] = -ground_mapping.MAX_MAP_COORDINATE
+        row[level_map.sky] = -ground_mapping.MAX_MAP_COORDINATE
+    return ground_mapping.GroundMap(col, row, level_map.sky, level_map.any_sky, 0, None, rays), hits
+
+
+def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_px: float) -> np.ndarray:
+    """``S`` (rows, cols) float32: the height of the lowest sun ray that clears the terrain towards the
+    sun from each pixel centre, ``max_k H(p + k s) - k s tan(elevation)`` over steps ``s`` of
+    ``step_terrain_px`` towards the sun's azimuth (k >= 1, until the height range is climbed); a point
+    at height z is in the sun when ``z >= S``. Cached per terrain, sun and step."""
+    sun = np.asarray(sun_world, dtype=float)
+    cache = DERIVED.of(terrain, "relief")
+    key = ("horizon", tuple(np.round(sun, 12)), float(step_terrain_px))
+    if key in cache:
+        return cache[key]
+    low, high = _extremes(terrain)
+    heights = terrain.height_m
+    horizontal = float(np.hypot(sun[0], sun[1]))
+    result = np.full(heights.shape, low - 1.0, dtype=np.float32)   # below every height: lit
+    if horizontal > 1e-12 and high > low:
+        d_col, d_row = step_terrain_px * sun[0] / horizontal, -step_terrain_px * sun[1] / horizontal
+        climb = step_terrain_px * terrain.metres_per_pixel * sun[2] / horizontal
+        steps = min(int(np.ceil((high - low) / climb)), MAX_MARCH_STEPS)
+        pad = int(np.ceil(steps * step_terrain_px)) + 2
+        padded = np.pad(np.asarray(heights, dtype=np.float32), pad, mode="edge")
+        rows, cols = heights.shape
+        for k in range(1, steps + 1):
+            row_shift, col_shift = k * d_row, k * d_col
+            r, c = int(np.floor(row_shift)), int(np.floor(col_shift))
+            fr, fc = np.float32(row_shift - r), np.float32(col_shift - c)
+
+            def window(dr, dc, r=r, c=c):
+                return padded[pad + r + dr:pad + r + dr + rows, pad + c + dc:pad + c + dc + cols]
+            top = window(0, 0) * (1 - fc) + window(0, 1) * fc
+            bottom = window(1, 0) * (1 - fc) + window(1, 1) * fc
+            shifted = top * (1 - fr) + bottom * fr
+            shifted -= np.float32(k * climb)
+            np.maximum(result, shifted, out=result)
+    cache[key] = result
+    return result
+
+
+def shading_factor(hits: ReliefHits, sun_world: np.ndarray, config) -> np.ndarray:
+    """Radiance factor (H, W) float32 of slope photometry and cast shadows over level-ground radiance
+    (module doc); 1 for sky pixels."""
+    terrain = hits.terrain
+    relief = config.relief
+    shape = hits.sky.shape
+    ground = ~hits.sky
+    factor = np.ones(shape, dtype=np.float32)
+    if not (relief.slope_photometry or relief.cast_shadows):
+        return factor
+    points = hits.points_m[ground]
+    row, col = terrain.world_to_pixel(points[:, 0], points[:, 1])
+    mpp = terrain.metres_per_pixel
+    sun = np.asarray(sun_world, dtype=float)
+    view = hits.view_world[ground]
+    diffuse = float(config.shadow_diffuse_fraction)
+    if relief.slope_photometry:
+        _, d_col, d_row = bilinear(terrain.height_m, col, row, gradient=True)
+        normal = np.stack([-d_col / mpp, d_row / mpp, np.ones_like(d_col)], axis=1)   # rows run south
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        direct = photometry.lommel_seeliger(normal @ sun, np.einsum("ij,ij->i", normal, view))
+        direct /= np.maximum(photometry.lommel_seeliger(np.full(len(view), sun[2]), view[:, 2]), 1e-12)
+        sky_view = 0.5 * (1.0 + normal[:, 2])
+    else:
+        direct = np.ones(len(view))
+        sky_view = np.ones(len(view))
+    if relief.cast_shadows:
+        horizon = horizon_height(terrain, sun, relief.march_step_terrain_px)
+        above = points[:, 2] - bilinear(horizon, col, row)
+        band = max(relief.shadow_edge_m, 1e-9)
+        direct = direct * np.clip(above / band + 0.5, 0.0, 1.0)
+    factor[ground] = (1.0 - diffuse) * direct + diffuse * sky_view
+    return factor
