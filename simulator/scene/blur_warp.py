@@ -62,7 +62,7 @@ EXPANDED_CAMERAS_KEPT = 4      # enlarged cameras cached per camera (least recen
 GROUP_TOLERANCE_PX = {"exposure": 0.5, "flush": 1.0, "transfer": 1.0}   # composed vs exact map (px)
 MOVING_TOLERANCE_PX = 0.5      # shadows and heat shield: true pixel vs where the warp puts them
 FLOW_STEP_PX = 32
-FULL_RESOLUTION_ROW_SHIFT_PX = 8.0   # doubling levels with less row motion per step run at full resolution
+FULL_RESOLUTION_ROW_SHIFT_PX = 4.0   # doubling levels with less row motion per step run at full resolution
 CHECK_GRID = 5
 CHECKED_LEAVES = 5
 
