@@ -6,7 +6,9 @@ poses (exact ray / plane intersection and CAHVOR projection, distortion included
 pixel integrates over a CCD period is the mean over sub-poses of the field of one rendered pose read
 through those flows. Everything ground-fixed (terrain, photometry, the opposition halo: the view
 direction of a ground point changes by the lander's translation only, centimetres in a 5 ms period)
-moves exactly with the flow; features that move on their own (the lander's and the heat shield's
+moves exactly with the flow. Relief (scene.relief) only adds the parallax of that translation,
+``f T dh / Z^2``: 0.006 px for 50 m of relief seen from 2000 m at 72 m/s over 5 ms (rotation, the
+blur of the high-rate scenes, moves every depth alike); features that move on their own (the lander's and the heat shield's
 shadows, the heat shield itself) are checked in the exposure: their true pixel at every sub-pose must
 land within :data:`MOVING_TOLERANCE_PX` of where the warp puts them, else the scene is rendered per
 sub-pose. The flush and transfer fields follow the ground flow everywhere, as the ``warp_smear_fields``
