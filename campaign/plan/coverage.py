@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from campaign.plan.placement import HEADING_SEARCH_STEP_RAD, _turn, footprint_points_m
+from simulator.scene.relief import ReliefTerrain
 from simulator.scene.terrain import Terrain
 from sitedata.sites import RESAMPLE_MODES
 
@@ -138,9 +139,12 @@ def fit_terrain(terrain: Terrain, mode: str, cover: Coverage) -> Terrain:
     need_cols = max(cols, int(math.ceil(cover.required_extent_m[0] / mpp)) + 1)
     need_rows = max(rows, int(math.ceil(cover.required_extent_m[1] / mpp)) + 1)
     pad_c, pad_r = need_cols - cols, need_rows - rows
-    tiled = _mirror_pad(terrain.reflectance_if, (pad_r // 2, pad_r - pad_r // 2), (pad_c // 2, pad_c - pad_c // 2))
+    pads = (pad_r // 2, pad_r - pad_r // 2), (pad_c // 2, pad_c - pad_c // 2)
+    tiled = _mirror_pad(terrain.reflectance_if, *pads)
     origin = np.array([-(need_cols - 1) / 2 * mpp, (need_rows - 1) / 2 * mpp])
-    return replace(terrain, reflectance_if=tiled, origin_m=origin, name=f"{terrain.name}-mosaic{need_cols}x{need_rows}")
+    heights = {"height_m": _mirror_pad(terrain.height_m, *pads)} if isinstance(terrain, ReliefTerrain) else {}
+    return replace(terrain, reflectance_if=tiled, origin_m=origin, name=f"{terrain.name}-mosaic{need_cols}x{need_rows}",
+                   **heights)
 
 
 def _mirror_pad(image: np.ndarray, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:

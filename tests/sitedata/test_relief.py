@@ -95,3 +95,14 @@ def test_shipped_example_is_gusev_with_relief_on_every_class():
     for mine, theirs in zip(example.classes, gusev.classes):
         assert mine.terrain.model_dump() == {**theirs.terrain.model_dump(), "relief": True}
         assert (mine.name, mine.cases, mine.ellipse_fraction) == (theirs.name, theirs.cases, theirs.ellipse_fraction)
+
+
+def test_a_mosaicked_relief_terrain_tiles_its_heights_with_its_image():
+    from campaign.plan.coverage import Coverage, fit_terrain
+    height = np.arange(64 * 64, dtype=np.float32).reshape(64, 64)
+    terrain = ReliefTerrain(height / height.max(), 2.0, np.array([-63.0, 63.0]), 0.5, 0.0, 0.5, height_m=height)
+    cover = Coverage(scale_needed=2.0, failing=1, trajectories=1, required_extent_m=(300.0, 200.0),
+                     first_altitude_m=1000.0)
+    tiled = fit_terrain(terrain, "mosaic", cover)
+    assert isinstance(tiled, ReliefTerrain) and tiled.shape == tiled.height_m.shape == (101, 151)
+    assert np.array_equal(tiled.height_m / height.max(), tiled.reflectance_if)   # the same mirror tiling
