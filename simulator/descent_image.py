@@ -128,7 +128,8 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     artefacts : OffNominalArtefacts, optional
         The case's dust and hot pixels plus this image's particle hits
         (:func:`simulator.off_nominal.draw_case_artefacts`, :func:`~simulator.off_nominal.with_particle_hits`);
-        required when ``config.off_nominal`` asks for any of them. The heat-shield glint, blooming and
+        required when ``config.off_nominal`` asks for any of them or for moving shadows (their draws
+        are placed on the ground from ``profile``'s middle image). The heat-shield glint, blooming and
         the angular rate multiplier of ``config.off_nominal`` need no artefacts.
 
     Returns
@@ -187,9 +188,9 @@ def _camera_artefacts(off_nominal: OffNominalConfig, artefacts: OffNominalArtefa
     """The artefacts the camera chain applies: the given ones with the configured blooming switch."""
     if artefacts is None:
         if off_nominal.needs_case_artefacts:
-            raise ValueError("scene.off_nominal asks for dust, hot pixels or particle hits but no artefacts were "
-                             "given; draw them with simulator.off_nominal.draw_case_artefacts (once per case) and "
-                             "with_particle_hits (per image)")
+            raise ValueError("scene.off_nominal asks for dust, hot pixels, particle hits or moving shadows but no "
+                             "artefacts were given; draw them with simulator.off_nominal.draw_case_artefacts (once "
+                             "per case) and with_particle_hits (per image)")
         return None if off_nominal.blooming else OffNominalArtefacts(blooming=False)
     return artefacts if artefacts.blooming == off_nominal.blooming else replace(artefacts, blooming=off_nominal.blooming)
 
