@@ -170,13 +170,13 @@ def blur_field(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
         raise ValueError(f"radiance field has negative values (min {float(work.min()):.4g} "
                          "W m^-2 sr^-1 um^-1); radiance must be >= 0")
     pad_rows = int(np.ceil(PAD_PX * camera.pixel_pitch_m / row_pitch_m))
-    padded_shape = (scipy.fft.next_fast_len(rows + 2 * pad_rows, real=True),
-                    scipy.fft.next_fast_len(cols + 2 * PAD_PX, real=True))
+    padded_shape = (scipy.fft.next_fast_len(rows + 2 * pad_rows),
+                    scipy.fft.next_fast_len(cols + 2 * PAD_PX))
     padded = np.pad(work, ((pad_rows, padded_shape[0] - rows - pad_rows), (PAD_PX, padded_shape[1] - cols - PAD_PX)),
                     mode="symmetric")
-    spectrum = scipy.fft.rfft2(padded, workers=1)
+    spectrum = scipy.fft.rfft2(padded, workers=1, overwrite_x=True)
     spectrum *= _otf_grid(camera, padded_shape, row_pitch_m)
-    blurred = scipy.fft.irfft2(spectrum, s=padded_shape, workers=1)[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols]
+    blurred = scipy.fft.irfft2(spectrum, s=padded_shape, workers=1, overwrite_x=True)[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols]
     out = np.maximum(blurred, np.float32(0.0)).astype(np.float32, copy=False)
     if bad is not None:
         out[bad] = field[bad]
