@@ -203,15 +203,21 @@ class MovingShadows:
                 grid_origin_m[0] - start[0])
             north = np.float32(grid_origin_m[1] - start[1]) - ground_map.row[row0:row1, col0:col1] * np.float32(
                 metres_per_pixel)
-            along = np.clip(east * np.float32(self.anti_sun[0]) + north * np.float32(self.anti_sun[1]),
-                            np.float32(0.0), np.float32(self.length_m[k]))
-            distance = np.hypot(east - along * np.float32(self.anti_sun[0]), north - along * np.float32(self.anti_sun[1]))
-            covered = np.clip(np.float32(0.5 + self.radius_m[k] / self.edge_m[k]) - distance / np.float32(self.edge_m[k]),
-                              np.float32(0.0), np.float32(1.0))
+            if self.length_m[k] > 0:      # distance to the segment: remove the clipped along-axis part
+                along = np.clip(east * np.float32(self.anti_sun[0]) + north * np.float32(self.anti_sun[1]),
+                                np.float32(0.0), np.float32(self.length_m[k]))
+                east -= along * np.float32(self.anti_sun[0])
+                north -= along * np.float32(self.anti_sun[1])
+            # transmission 1 - (1 - T) clip(0.5 - (distance - r) / w, 0, 1), in place
+            covered = np.hypot(east, north, out=east)
+            covered *= np.float32(-1.0 / self.edge_m[k])
+            covered += np.float32(0.5 + self.radius_m[k] / self.edge_m[k])
+            np.clip(covered, np.float32(0.0), np.float32(1.0), out=covered)
             if ground_map.any_sky:
                 covered[ground_map.sky[row0:row1, col0:col1]] = 0.0
-            direct[row0 - top:row1 - top, col0 - left:col1 - left] *= (
-                np.float32(1.0) - np.float32(1.0 - self.core_factor[k]) * covered)
+            covered *= np.float32(-(1.0 - self.core_factor[k]))
+            covered += np.float32(1.0)
+            direct[row0 - top:row1 - top, col0 - left:col1 - left] *= covered
         f = np.float32(self.diffuse_fraction)
         radiance[top:bottom, left:right] *= f + (np.float32(1.0) - f) * direct
 
