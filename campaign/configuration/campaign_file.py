@@ -37,6 +37,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from pathlib import Path
 from typing import Annotated
 
@@ -151,9 +152,9 @@ class CampaignConfig(ConfigModel):
         return {**data, "scene": scene, "estimators": estimators, "config_hash": config_hash}
 
     def with_output_dir(self, output_dir: str | Path) -> CampaignConfig:
-        """This campaign with its store at ``output_dir`` (a validated copy; the hash is unchanged)."""
-        return CampaignConfig.model_validate({"source": self.source, "tables": self.tables,
-                                              "output_dir": Path(output_dir), "cases_scale": self.cases_scale})
+        """This campaign with its store at ``output_dir`` (a copy of this validated campaign: the output
+        directory is not part of the hash, so nothing is validated or hashed again)."""
+        return self.model_copy(update={"output_dir": Path(output_dir)})
 
     @property
     def site(self) -> Site:
@@ -332,10 +333,19 @@ def hashed_content(resolved: dict, site: Site) -> dict:
     return content
 
 
+_DIGESTS: dict[tuple, str] = {}     # (path, device, inode, size, mtime) -> sha256: a sweep hashes its inputs once
+
+
 def file_digest(path: Path) -> str:
-    """sha256 of a file's bytes ("missing" when it cannot be read: the loader reports that clearly)."""
+    """sha256 of a file's bytes ("missing" when it cannot be read: the loader reports that clearly). Kept
+    per process while the file's stat (device, inode, size, mtime) is unchanged: the points of a sweep
+    share their input files, which are hashed once."""
     try:
-        with open(path, "rb") as handle:
-            return hashlib.file_digest(handle, "sha256").hexdigest()
+        stat = os.stat(path)
+        key = (os.path.abspath(path), stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns)
+        if key not in _DIGESTS:
+            with open(path, "rb") as handle:
+                _DIGESTS[key] = hashlib.file_digest(handle, "sha256").hexdigest()
+        return _DIGESTS[key]
     except OSError:
         return "missing"

@@ -24,7 +24,13 @@ A sweep file (e.g. ``sitedata/sweeps/nightly.toml``)::
 Axis fields are any field of the ``[sensors]``, ``[estimator]`` and ``[scene]`` tables (including
 sub-tables such as ``scene.camera_effects``), or ``campaign.seed``. Each point's configuration is the
 base TOML with the point's values set, validated exactly like a campaign file; its campaign
-configuration hash (``[execution]`` and ``output_dir`` excluded) is the point's key. Errors are one
+configuration hash (``[execution]`` and ``output_dir`` excluded) is the point's key. A sweep has at most
+:data:`MAX_POINTS` points. Up to :data:`EAGER_POINTS` points are validated before anything runs: all
+of a smaller sweep; of a larger one the first point and, for every axis value, the first point that
+has it (so a bad value is refused before anything is written). The other points of a large sweep are
+validated when they are first used (:attr:`SweepPoint.config`, a few ms each): a point that fails
+there (a combination of valid values that the campaign refuses, or two points of one configuration)
+stops the sweep with one line naming the point, the points before it kept. Errors are one
 line naming the sweep file, the field and the allowed values. The file's tables are declared once, by
 :class:`SweepFile` (``campaign schema sweep``); axis values are validated by the campaign tables' own
 declarations when each point is validated.
@@ -32,9 +38,13 @@ declarations when each point is validated.
 from __future__ import annotations
 
 import copy
+import dataclasses
+import functools
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal
 
@@ -55,6 +65,7 @@ AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed",)
 MODES = ("grid", "list")
 MAX_POINTS = 10_000
+EAGER_POINTS = 256      # points validated before a sweep runs (module docstring); the rest when first used
 
 
 class SweepTable(ConfigModel):
@@ -102,11 +113,49 @@ class SweepPoint:
 
     point_id: str
     values: dict            # axis field -> value, in axis order
-    config: CampaignConfig  # output_dir is the point's store, OUT/points/<hash[:16]>
+    build: Callable[[], CampaignConfig] = dataclasses.field(compare=False, repr=False)
+
+    @cached_property
+    def config(self) -> CampaignConfig:
+        """The point's campaign, validated on first use (ConfigError, one line); output_dir is the point's
+        store, OUT/points/<hash[:16]>."""
+        return self.build()
 
     @property
     def config_hash(self) -> str:
         return self.config.config_hash
+
+
+class _PointBuilder:
+    """Validates the points of one sweep, each once, and refuses two points of one configuration."""
+
+    def __init__(self, base_data: dict, base_path: Path, label: str, output_dir: Path):
+        self.base_data, self.base_path, self.label, self.output_dir = base_data, base_path, label, output_dir
+        self.seen: dict[str, int] = {}
+
+    def __call__(self, index: int, values: dict) -> CampaignConfig:
+        point_data = _with_overrides(self.base_data, values, self.label)
+        config = campaign_config_from_data(point_data, self.base_path, output_dir=self.output_dir,
+                                           source=f"{self.label}: axis values applied to {self.base_path}")
+        first = self.seen.setdefault(config.config_hash, index)
+        if first != index:
+            raise ConfigError(f"{self.label}: axes: points p{first:03d} and p{index:03d} are the same "
+                              f"configuration ({values}); allowed: distinct points")
+        return config.with_output_dir(point_store_dir(self.output_dir, config.config_hash))
+
+
+def eager_indices(combos: list[dict], limit: int = EAGER_POINTS) -> list[int]:
+    """The points validated before a sweep runs: every point of a sweep of at most ``limit`` points, else
+    the first point and the first point having each axis value, up to ``limit`` (in point order)."""
+    if len(combos) <= limit:
+        return list(range(len(combos)))
+    chosen, covered = [0], {(name, repr(value)) for name, value in combos[0].items()}
+    for index, values in enumerate(combos):
+        pairs = {(name, repr(value)) for name, value in values.items()}
+        if not pairs <= covered and len(chosen) < limit:
+            chosen.append(index)
+            covered |= pairs
+    return sorted(chosen)
 
 
 @dataclass(frozen=True)
@@ -157,20 +206,14 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_sca
     axes = _read_axes(tables.axes, label)
 
     combos = _combinations(axes, sweep.mode, label)
-    point_label = f"{label}: axis values applied to {base_path}"
     base_overridden = _with_overrides(base_data, campaign_overrides, label)
     base = campaign_config_from_data(base_overridden, base_path, source=f"{label}: [sweep] applied to {base_path}",
                                      output_dir=out)
-    points, seen = [], {}
-    for index, values in enumerate(combos):
-        point_data = _with_overrides(base_overridden, values, label)
-        config = campaign_config_from_data(point_data, base_path, source=point_label, output_dir=out)
-        if config.config_hash in seen:
-            raise ConfigError(f"{label}: axes: points {seen[config.config_hash]} and p{index:03d} are the same "
-                              f"configuration ({values}); allowed: distinct points")
-        seen[config.config_hash] = f"p{index:03d}"
-        config = config.with_output_dir(point_store_dir(out, config.config_hash))
-        points.append(SweepPoint(point_id=f"p{index:03d}", values=values, config=config))
+    builder = _PointBuilder(base_overridden, base_path, label, out)
+    points = [SweepPoint(point_id=f"p{index:03d}", values=values, build=functools.partial(builder, index, values))
+              for index, values in enumerate(combos)]
+    for index in eager_indices(combos):
+        points[index].config        # noqa: B018 - validates (ConfigError, one line) before anything runs
     return SweepSpec(source=path, base_path=base_path, output_dir=out, mode=sweep.mode, axes=axes,
                      tolerances=tables.tolerances, points=points, base=base)
 

@@ -2,6 +2,7 @@
 ``campaign submit`` (one store) and ``campaign sweep`` (one store per point) share, and the tables."""
 from __future__ import annotations
 
+import functools
 import importlib.metadata
 import platform
 import sys
@@ -66,13 +67,20 @@ def plan_campaign(config: CampaignConfig):
     return resources, plan
 
 
-def manifest_for(config: CampaignConfig) -> dict:
+@functools.lru_cache(maxsize=1)
+def package_versions() -> dict[str, str]:
+    """The versions of :data:`PACKAGES` (read once per process: a sweep records them in every point's manifest)."""
     versions = {}
     for package in PACKAGES:
         try:
             versions[package] = importlib.metadata.version(package)
         except importlib.metadata.PackageNotFoundError:
             versions[package] = "not installed"
+    return versions
+
+
+def manifest_for(config: CampaignConfig) -> dict:
+    versions = dict(package_versions())
     return {
         "config_file": str(config.source), "config_hash": config.config_hash, "config": config.resolved,
         "seed": config.seed, "site": config.site.name, "cases_per_class": config.cases_per_class,
@@ -172,35 +180,58 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, fr
     for point, store in zip(points, stores):
         store.check(point.manifest, point.plan, fresh=fresh)
     with ExitStack() as locks:
-        for store in sorted(stores, key=lambda store: str(store.root)):
-            locks.enter_context(store.lock(wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)))
+        lock_stores(points, stores, locks, fresh=fresh, wait=wait)
+        with connected_client(execution) as client:
+            ship_estimators(client, [spec for point in points for spec in point.config.estimators])
+            return run_locked_points(client, points, stores, execution, fresh=fresh, progress=progress,
+                                     on_note=on_note)
+
+
+def lock_stores(points: list[StorePoint], stores: list[CampaignStore], locks: ExitStack, *, fresh: bool = False,
+                wait: bool = False) -> None:
+    """Take every store's lock in path order (held until ``locks`` closes; StoreBusy when another writer
+    holds one, unless ``wait``), then check every store again under its lock (StoreError)."""
+    for store in sorted(stores, key=lambda store: str(store.root)):
+        locks.enter_context(store.lock(wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)))
+    for point, store in zip(points, stores):
+        store.check(point.manifest, point.plan, fresh=fresh)
+
+
+def ship_estimators(client, specs: list) -> None:
+    """Ship the python plug-ins' code to the workers before any store changes (RunStopped, one line, when a
+    worker cannot import one: nothing changed)."""
+    try:
+        ship_plugin_code(client, specs)
+    except PluginSetupError as problem:
+        raise RunStopped(f"run stopped before any case ran: {problem}") from None
+
+
+def run_locked_points(client, points: list[StorePoint], stores: list[CampaignStore], execution: ExecutionConfig, *,
+                      fresh: bool = False, progress: bool = True,
+                      on_note: Callable[[str], None] = lambda line: print(line, flush=True)) -> StoresRun:
+    """With the stores locked (:func:`lock_stores`) and the plug-ins shipped: prepare each store and submit its
+    missing cases at once (they run while the next store is prepared), wait for all of them and compact
+    the stores (RunStopped: the finished cases compacted first, as :func:`run_store_points` says)."""
+    prepared: list[PreparedPoint] = []
+    tasks: list = []
+    done = failed = 0
+    try:
         for point, store in zip(points, stores):
-            store.check(point.manifest, point.plan, fresh=fresh)
-        prepared: list[PreparedPoint] = []
-        done = failed = 0
-        try:
-            with connected_client(execution) as client:
-                try:     # before any store changes: a worker that cannot import a plug-in changes nothing
-                    ship_plugin_code(client, [spec for point in points for spec in point.config.estimators])
-                except PluginSetupError as problem:
-                    raise RunStopped(f"run stopped before any case ran: {problem}") from None
-                for point, store in zip(points, stores):
-                    for line in store.prepare(point.manifest, point.plan, fresh=fresh):
-                        on_note(line)
-                    finished = store.finished_case_ids()
-                    todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
-                    prepared.append(PreparedPoint(point, store, todo))
-                tasks = [task for entry in prepared if entry.todo
-                         for task in submit_cases(client, CampaignContext.from_config(entry.point.config, entry.store.root),
-                                                  entry.todo, entry.store)]
-                if tasks:
-                    done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
-        except RunStopped as stop:
-            problems = {compact_after_stop(entry.store) for entry in prepared} - {""}
-            raise RunStopped(f"{stop}{min(problems, default='')}") from None
-        for entry in prepared:
-            if entry.todo or entry.store.results_problem() is not None:
-                entry.store.compact()
+            for line in store.prepare(point.manifest, point.plan, fresh=fresh):
+                on_note(line)
+            finished = store.finished_case_ids()
+            todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
+            prepared.append(PreparedPoint(point, store, todo))
+            if todo:
+                tasks += submit_cases(client, CampaignContext.from_config(point.config, store.root), todo, store)
+        if tasks:
+            done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
+    except RunStopped as stop:
+        problems = {compact_after_stop(entry.store) for entry in prepared} - {""}
+        raise RunStopped(f"{stop}{min(problems, default='')}") from None
+    for entry in prepared:
+        if entry.todo or entry.store.results_problem() is not None:
+            entry.store.compact()
     return StoresRun(prepared, done, failed)
 
 

@@ -26,7 +26,10 @@ and passes the previous night's as ``--baseline``.
 from __future__ import annotations
 
 import json
+import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,11 +46,22 @@ from campaign.report.compare import (
     with_estimator_column,
 )
 from campaign.report.sweep_plots import write_sweep_plots
-from campaign.run.cluster import require_backend
-from campaign.run.orchestrate import StorePoint, manifest_for, plan_points, run_store_points
+from campaign.run.cluster import connected_client, require_backend
+from campaign.run.orchestrate import (
+    StorePoint,
+    lock_stores,
+    manifest_for,
+    plan_campaign,
+    run_locked_points,
+    ship_estimators,
+)
 from campaign.run.sweep_baseline import value_text
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.case_files import atomic_write_bytes, atomic_write_table
+
+BATCH_CASES = 64       # planned cases of the points run together: prepared, locked, waited for and compacted
+BATCH_POINTS = 64      # at most this many point stores locked at once (two descriptors each)
+FIRST_BATCH_POINTS = 4
 
 
 @dataclass(frozen=True)
@@ -61,30 +75,87 @@ class SweepRun:
     unfinished: int = 0       # cases of all points failed or missing after the run (exit 1 when > 0)
 
 
-def sweep_store_points(spec: SweepSpec) -> list[StorePoint]:
-    """Each point's configuration with its store's manifest (the campaign's, plus the sweep file and the
-    point's axis values) and plan (planned once per distinct seed and case counts)."""
-    configs = [point.config for point in spec.points]
-    return [StorePoint(point.config, {**manifest_for(point.config), "sweep_file": str(spec.source),
-                                      "sweep_point": point.values}, plan)
-            for point, plan in zip(spec.points, plan_points(configs))]
+class PointStores:
+    """Each point's :class:`~campaign.run.orchestrate.StorePoint`, made when the sweep reaches the point: its
+    manifest (the campaign's, plus the sweep file and the point's axis values) and its plan, planned once
+    per distinct (campaign file, seed, case counts) and kept."""
+
+    def __init__(self, spec: SweepSpec):
+        self.spec = spec
+        self.plans: dict[tuple, pd.DataFrame] = {}
+
+    def __call__(self, point) -> StorePoint:
+        config = point.config
+        key = (str(config.source), config.seed, tuple(sorted(config.cases_per_class.items())))
+        if key not in self.plans:
+            self.plans[key] = plan_campaign(config)[1]
+        return StorePoint(config, {**manifest_for(config), "sweep_file": str(self.spec.source),
+                                   "sweep_point": point.values}, self.plans[key])
+
+
+def point_batches(spec: SweepSpec, planned_cases: int):
+    """The sweep's points in order, in runs of consecutive points holding about :data:`BATCH_CASES` planned
+    cases (at most :data:`BATCH_POINTS` points; a larger point alone); the first run is at most
+    :data:`FIRST_BATCH_POINTS` long, so the first cases are submitted as soon as the cluster is up."""
+    size = max(1, min(BATCH_POINTS, BATCH_CASES // max(1, planned_cases)))
+    first, total = 0, len(spec.points)
+    while first < total:
+        count = min(size, FIRST_BATCH_POINTS) if first == 0 else size
+        yield first, spec.points[first:first + count]
+        first += count
 
 
 def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None = None,
               progress: bool = True, wait: bool = False) -> SweepRun:
-    """Run every point's missing cases together on one cluster, then compact each point's store
-    (:func:`~campaign.run.orchestrate.run_store_points`, the path ``campaign submit`` takes with one
-    point); the point stores' locks are held throughout (:class:`~campaign.store.lock.StoreBusy` if one
-    is taken)."""
+    """Run every point's missing cases on one cluster, a batch of points at a time (:func:`point_batches`):
+    a batch's points are validated, planned and their stores checked and locked only when the sweep reaches
+    them; each store is prepared and its cases submitted at once (workers compute while the next store is
+    prepared); the batch's cases are waited for, its stores compacted and unlocked before the next batch.
+    A sweep of 10^4 points starts computing within seconds, and a sweep stopped at any time keeps every
+    finished case (the next run reuses finished points and runs the rest). With ``progress``, one line on
+    stderr when the cluster starts and per batch (points reached, cases done, failed, reused points).
+
+    Raises StoreBusy (a point store locked by another writer), StoreError, ConfigError (a point that
+    does not validate) or RunStopped, each after the batches before it were completed and compacted."""
     start = time.perf_counter()
     execution = spec.base.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(spec.source))
-    run = run_store_points(sweep_store_points(spec), execution, progress=progress, wait=wait,
-                           on_note=lambda line: None)
-    reused = sum(1 for entry in run.prepared if not entry.todo)
-    statuses = [entry.store.status() for entry in run.prepared]
-    return SweepRun(len(run.prepared), reused, run.submitted, run.done, run.failed, time.perf_counter() - start,
-                    unfinished=sum(status.failed + status.missing for status in statuses))
+    total = len(spec.points)
+    planned_each = sum(spec.base.cases_per_class.values())
+
+    def say(line: str) -> None:
+        if progress:
+            print(f"sweep: {line}", file=sys.stderr, flush=True)
+
+    say(f"{total} points of {planned_each} cases; starting the cluster")
+    stores_of = PointStores(spec)
+    reached = reused = submitted = done = failed = unfinished = 0
+    with ThreadPoolExecutor(max_workers=1) as planner, ExitStack() as cluster:
+        first_plan = planner.submit(stores_of, spec.points[0])      # planned while the cluster starts
+        client = cluster.enter_context(connected_client(execution))
+        first_plan.result()
+        ship_estimators(client, list(spec.base.estimators))
+        for first, batch in point_batches(spec, planned_each):
+            points = [stores_of(point) for point in batch]
+            stores = [CampaignStore(point.store_dir) for point in points]
+            for point, store in zip(points, stores):
+                store.check(point.manifest, point.plan)
+            say(f"points {batch[0].point_id}-{batch[-1].point_id} ({first + len(batch)} of {total}): "
+                f"{done} cases done, {failed} failed, {reused} points reused so far, "
+                f"{time.perf_counter() - start:.0f} s")
+            with ExitStack() as locks:
+                lock_stores(points, stores, locks, wait=wait)
+                run = run_locked_points(client, points, stores, execution, progress=progress, on_note=lambda line: None)
+                statuses = [entry.store.status() for entry in run.prepared]
+            reached += len(batch)
+            reused += sum(1 for entry in run.prepared if not entry.todo)
+            submitted += run.submitted
+            done += run.done
+            failed += run.failed
+            unfinished += sum(status.failed + status.missing for status in statuses)
+    say(f"all {reached} points: {done} cases done, {failed} failed this run, {reused} points reused, "
+        f"{time.perf_counter() - start:.0f} s")
+    return SweepRun(reached, reused, submitted, done, failed, time.perf_counter() - start, unfinished=unfinished)
 
 
 def point_keys(point) -> dict:

@@ -1,0 +1,130 @@
+"""A sweep at many points starts computing at once, with progress, and keeps results/resume semantics.
+
+Real parts: `campaign sweep` in a subprocess (its own LocalCluster of worker processes), real point stores;
+SIGINT as a user's Ctrl-C. The large sweep is 2000 grid points of one case each: point stores are prepared
+as the sweep reaches them (a batch of at most ``BATCH_POINTS``), so the first batch is submitted within
+seconds and, when the first case file appears, only the first batches' stores exist. The resumed sweep runs
+in batches of two points: every planned case ends up stored exactly once and the cases kept from the
+interrupted run are not computed again.
+"""
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from campaign.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+GUSEV = REPO / "sitedata" / "gusev.toml"
+ONE_CASE = "[sweep.cases]\ngcp = 1\ngdcp = 0\ngkep = 0\n"
+
+
+def _sweep_file(path: Path, axes: dict) -> Path:
+    lines = [f'"{field}" = [{", ".join(repr(v) for v in values)}]' for field, values in axes.items()]
+    path.write_text(f'[sweep]\nbase = "{GUSEV}"\n{ONE_CASE}[axes]\n' + "\n".join(lines) + "\n")
+    return path
+
+
+def _case_files(out: Path) -> dict:
+    return {p.relative_to(out): (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("points/*/cases/case-*.parquet")}
+
+
+def _start_and_interrupt(sweep: Path, out: Path, limit_s: float = 180.0) -> tuple[list, float | None, int, int]:
+    """Run `campaign sweep` until its first case file exists, then SIGINT it. Returns the stderr lines with
+    their times (s since launch), the time of the first case file, the point stores then, and the exit status."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    start = time.perf_counter()
+    process = subprocess.Popen([sys.executable, "-c", "import sys; from campaign.cli import main; sys.exit(main())",
+                                "sweep", str(sweep), "--output", str(out), "--workers", "1"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                               start_new_session=True)
+    lines: list[tuple[float, str]] = []
+
+    def read() -> None:
+        for line in process.stderr:
+            lines.append((time.perf_counter() - start, line.rstrip()))
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    first_case, stores = None, 0
+    while time.perf_counter() - start < limit_s and process.poll() is None:
+        if any(out.glob("points/*/cases/case-*.parquet")):
+            first_case = time.perf_counter() - start
+            stores = sum(1 for _ in out.glob("points/*/manifest.json"))
+            break
+        time.sleep(0.1)
+    if process.poll() is None:
+        os.killpg(process.pid, signal.SIGINT)
+    try:
+        code = process.wait(60)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        code = process.wait()
+    reader.join(10)
+    return lines, first_case, stores, code
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
+def test_a_sweep_of_2000_points_starts_computing_within_10_s_with_progress(tmp_path):
+    from campaign.run.sweep import BATCH_POINTS, FIRST_BATCH_POINTS
+
+    sweep = _sweep_file(tmp_path / "wide.toml", {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(40)],
+                                                 "sensors.attitude_random_sigma_deg": [0.01 + 0.01 * i for i in range(50)]})
+    lines, first_case, stores, code = _start_and_interrupt(sweep, tmp_path / "out")
+    text = "\n".join(f"{at:6.1f} s  {line}" for at, line in lines)
+    batch = [at for at, line in lines if re.match(r"sweep: points p000-p003 \(4 of 2000\): 0 cases done", line)]
+    assert lines and lines[0][1].startswith("sweep: 2000 points of 1 cases"), text
+    assert batch and batch[0] < 10.0, f"first batch of points submitted after {batch} s:\n{text}"
+    assert first_case is not None, text
+    assert 1 <= stores <= FIRST_BATCH_POINTS + BATCH_POINTS, f"{stores} point stores prepared before the first case"
+    assert code == 130 and "Traceback" not in text, text
+    print(f"2000 points: first progress line {lines[0][0]:.1f} s, first batch submitted {batch[0]:.1f} s, "
+          f"first case file {first_case:.1f} s, {stores} point stores then")
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    from campaign.configuration.execution import ExecutionConfig
+    from campaign.run.cluster import start_cluster
+
+    client, cluster = start_cluster(ExecutionConfig(workers=1), quiet=True)
+    yield client.scheduler.address
+    client.close()
+    cluster.close()
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
+def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_case(tmp_path, scheduler, monkeypatch,
+                                                                                     capsys):
+    import campaign.run.sweep as sweep_module
+
+    sweep = _sweep_file(tmp_path / "small.toml", {"scene.camera_effects.dark_current_scale": [1.0, 2.0, 3.0],
+                                                  "sensors.attitude_random_sigma_deg": [0.05, 0.1]})
+    out = tmp_path / "out"
+    _, first_case, _, code = _start_and_interrupt(sweep, out)
+    assert first_case is not None and code == 130
+    kept = _case_files(out)
+    assert len(kept) >= 1
+    monkeypatch.setattr(sweep_module, "BATCH_POINTS", 2)       # three batches of two points
+    code = main(["sweep", str(sweep), "--output", str(out), "--scheduler", scheduler, "--no-progress"])
+    stdout = capsys.readouterr().out
+    assert code == 0, stdout
+    after = _case_files(out)
+    assert {path: after[path] for path in kept} == kept, "a case kept from the interrupted run was computed again"
+    assert len(after) == 6 and len({path.parts[1] for path in after}) == 6          # one case in each point store
+    assert f"{6 - len(kept)} cases done" in stdout or len(kept) == 6, stdout
+    results = pd.read_parquet(out / "results.parquet")
+    assert sorted(results["point_id"]) == [f"p{i:03d}" for i in range(6)]               # one row per point
+    assert not results.duplicated(["point_id", "case_id"]).any()
+    assert results["config_hash"].nunique() == 6
