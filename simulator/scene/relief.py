@@ -117,7 +117,7 @@ def bilinear(grid: np.ndarray, col: np.ndarray, row: np.ndarray, gradient: bool 
     row = np.clip(row, 0.0, rows - 1.0)
     c0 = np.minimum(col.astype(np.int64), max(cols - 2, 0))
     r0 = np.minimum(row.astype(np.int64), max(rows - 2, 0))
-    fc, fr = col - c0, row - r0
+    fc, fr = col - c0.astype(col.dtype), row - r0.astype(row.dtype)
     index = r0 * cols + c0
     right = 1 if cols > 1 else 0
     down = cols if rows > 1 else 0
@@ -203,6 +203,13 @@ def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.
     def residual(index, z, grid=heights):
         return z - bilinear(grid, col0[index] + z * col_z[index], row0[index] + z * row_z[index])
 
+    # the march runs in float32 (coordinates to ~1e-4 px, heights to ~1e-5 m: far inside the tolerance)
+    coarse = [np.asarray(item, dtype=np.float32) for item in (col0, col_z, row0, row_z)]
+
+    def residual32(index, z, grid=heights):
+        z = np.asarray(z, dtype=np.float32)
+        return z - bilinear(grid, coarse[0][index] + z * coarse[1][index], coarse[2][index] + z * coarse[3][index])
+
     start = np.full(count, z_top)
     if skip_px > 0 and metres_per_pixel is not None and span > 0:
         # coarse skip: from z to z - skip_dz the ray moves skip_px px, inside the dilation window of its start
@@ -213,21 +220,21 @@ def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.
         active = np.nonzero(skip_dz < span)[0]
         while active.size:
             following = start[active] - skip_dz[active]
-            free = (following > z_bottom) & (residual(active, start[active], ceiling) + following - start[active] > 0)
+            free = (following > z_bottom) & (residual32(active, following, ceiling) > 0)
             start[active[free]] = following[free]
             active = active[free]
     upper = start.copy()
-    f_upper = residual(np.arange(count), upper)
+    f_upper = residual32(np.arange(count), start).astype(np.float64)
     lower = np.full(count, z_bottom)
     f_lower = np.full(count, -1.0)
-    touching = f_upper <= 0                         # the start point is on the surface (its maximum)
-    lower[touching], f_lower[touching] = start[touching], f_upper[touching]
+    touching = f_upper <= 0                         # the start point is on the surface (a maximum at z_top)
+    lower[touching], f_lower[touching] = start[touching], np.minimum(f_upper[touching], 0.0)
     active = np.nonzero(~touching)[0]
     k = 0
     while active.size:
         k += 1
         z = np.maximum(start[active] - k * dz[active], z_bottom)
-        f = residual(active, z)
+        f = residual32(active, z)
         hit = (f <= 0) | (z <= z_bottom)             # f(z_bottom) <= 0: every ray ends bracketed
         done, going = active[hit], active[~hit]
         lower[done], f_lower[done] = z[hit], np.minimum(f[hit], 0.0)
@@ -269,17 +276,17 @@ def find_hits(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.Camer
         return col - crop.col0, row - crop.row0
 
     flat = np.asarray(rays, dtype=np.float64).reshape(-1, 3)
-    ground = ~sky.reshape(-1)
+    ground = np.flatnonzero(~sky) if sky.any() else slice(None)
+    rays_ground = flat[ground]
     origin = pose.ray_origin_m
-    z = intersect_rays(heights, to_grid, origin, flat[ground], float(heights.max()), float(heights.min()),
+    z = intersect_rays(heights, to_grid, origin, rays_ground, float(heights.max()), float(heights.min()),
                        config.relief.march_step_terrain_px * mpp, config.relief.height_tolerance_m,
                        metres_per_pixel=mpp)
     points = np.zeros_like(flat)
-    points[ground] = origin + ((z - origin[2]) / flat[ground, 2])[:, None] * flat[ground]
+    points[ground] = origin + ((z - origin[2]) / rays_ground[:, 2])[:, None] * rays_ground
     points[ground, 2] = z
     view = np.zeros_like(flat)
-    view[ground] = origin - points[ground]
-    view[ground] /= np.linalg.norm(view[ground], axis=1, keepdims=True)
+    view[ground] = rays_ground / -np.sqrt(np.einsum("ij,ij->i", rays_ground, rays_ground))[:, None]
     shape = rays.shape
     return ReliefHits(terrain, points.reshape(shape), sky, crop, view.reshape(shape))
 
