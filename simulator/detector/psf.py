@@ -91,11 +91,19 @@ def cutoff_frequency_cyc_per_m(camera: Camera) -> float:
     return 1.0 / (camera.radiometry.band_min_um * 1e-6 * camera.radiometry.f_number)
 
 
+def _radial_otf(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """The OTF on 20001 radial frequencies from 0 to the cut-off (cycles/m), for the Hankel integrals (cached)."""
+    cache = DERIVED.of(camera, "psf")
+    if "radial" not in cache:
+        rho = np.linspace(0.0, cutoff_frequency_cyc_per_m(camera), 20001)
+        cache["radial"] = (rho, optics_mtf(rho, camera))
+    return cache["radial"]
+
+
 def encircled_energy(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
     """Fraction of a point's energy inside ``radius_m`` (any shape) for the optics PSF (no pixel):
     ``EE(r) = 2 pi r int_0^fc OTF(rho) J1(2 pi r rho) d rho`` (a circularly symmetric OTF)."""
-    rho = np.linspace(0.0, cutoff_frequency_cyc_per_m(camera), 20001)
-    otf = optics_mtf(rho, camera)
+    rho, otf = _radial_otf(camera)
     radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
     integrand = otf[None, :] * scipy.special.j1(2.0 * np.pi * radius[:, None] * rho[None, :])
     energy = 2.0 * np.pi * radius * np.trapezoid(integrand, rho, axis=1)
@@ -105,8 +113,7 @@ def encircled_energy(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
 def psf_radial(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
     """Optics PSF (fraction of a point's energy per m^2) at ``radius_m`` (any shape):
     ``PSF(r) = 2 pi int_0^fc OTF(rho) J0(2 pi r rho) rho d rho``."""
-    rho = np.linspace(0.0, cutoff_frequency_cyc_per_m(camera), 20001)
-    otf = optics_mtf(rho, camera)
+    rho, otf = _radial_otf(camera)
     radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
     integrand = otf[None, :] * scipy.special.j0(2.0 * np.pi * radius[:, None] * rho[None, :]) * rho[None, :]
     return (2.0 * np.pi * np.trapezoid(integrand, rho, axis=1)).reshape(np.shape(radius_m))
@@ -119,7 +126,8 @@ def encircled_energy_radius_m(camera: Camera, fraction: float = 0.8) -> float:
     energy = encircled_energy(radii, camera)
     above = int(np.argmax(energy >= fraction))
     if energy[above] < fraction:
-        raise ValueError(f"{camera.source}: less than {fraction:.0%} of the PSF's energy within {radii[-1] * 1e6:.0f} um")
+        raise ValueError(f"{camera.source}: less than {fraction:.0%} of the PSF's energy within "
+                         f"{radii[-1] * 1e6:.0f} um")
     low = radii[above - 1] if above else 0.0
     return float(scipy.optimize.brentq(lambda r: float(encircled_energy(r, camera)) - fraction, low, radii[above]))
 
@@ -176,8 +184,8 @@ def blur_field(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
                     mode="symmetric")
     spectrum = scipy.fft.rfft2(padded, workers=1, overwrite_x=True)
     spectrum *= _otf_grid(camera, padded_shape, row_pitch_m)
-    blurred = scipy.fft.irfft2(spectrum, s=padded_shape, workers=1, overwrite_x=True)[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols]
-    out = np.maximum(blurred, np.float32(0.0)).astype(np.float32, copy=False)
+    blurred = scipy.fft.irfft2(spectrum, s=padded_shape, workers=1, overwrite_x=True)
+    out = np.maximum(blurred[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols], np.float32(0.0)).astype(np.float32, copy=False)
     if bad is not None:
         out[bad] = field[bad]
     return out

@@ -123,8 +123,8 @@ def test_misspelt_camera_key_is_refused_not_zero_distortion(tmp_path, mer_a_path
     code, out, err = campaign(capsys, "camera", bad)
     assert code == 2 and out == "" and "geometry.radial_distorsion" in one_line(err)
     # unknown tables and keys anywhere in the file, too
-    bad.write_text(text + "\n[optics]\nf_number = 12.0\n")
-    with pytest.raises(ConfigError, match=r"optics is not a known field"):
+    bad.write_text(text + "\n[lens]\nf_number = 12.0\n")
+    with pytest.raises(ConfigError, match=r"lens is not a known field"):
         load_camera(bad)
     bad.write_text(text.replace("[electronics]", "[electronics]\nread_noise = 5.0"))
     with pytest.raises(ConfigError, match=r"electronics.read_noise is not a known field"):

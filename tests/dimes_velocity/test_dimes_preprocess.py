@@ -11,7 +11,7 @@ from dimes_velocity.preprocess import bin_columns, flatten, make_flattening
 from simulator.calibration import true_flat_field
 from simulator.detector.camera_chain import CameraEffects, render_image
 
-NOISE_FREE = CameraEffects(shot_noise=False, read_noise=False)
+NOISE_FREE = CameraEffects(shot_noise=False, read_noise=False, optics_psf=False)   # truth: the unblurred blocks
 
 
 def block_radiance(rng, low=20.0, high=60.0, blocks=256, size=4):
