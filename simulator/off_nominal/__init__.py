@@ -27,14 +27,15 @@ import numpy as np
 from pydantic import Field
 
 from flight_interface.camera import Camera
+from flight_interface.tomlfields import ConfigModel
 from simulator.off_nominal.dust import DustParticles, draw_particles, transmission_map
 from simulator.off_nominal.hot_pixels import HotPixels, draw_hot_pixels
 from simulator.off_nominal.moving_shadows import MovingShadowDraws, MovingShadowsConfig, draw_moving_shadows
 from simulator.off_nominal.particle_hits import ParticleHits, draw_particle_hits
 
 
-class OffNominalConfig(MovingShadowsConfig):
-    """``[scene.off_nominal]``: off-nominal effect parameters (SI units; the defaults are the nominal camera)."""
+class _CameraAndScenarioKeys(ConfigModel):
+    """The keys of ``[scene.off_nominal]`` before the moving shadows' (declared first, listed first)."""
 
     dust_particle_count: int = Field(0, ge=0, le=100_000)
     """Poisson mean of the number of dust particles on the front element per case."""
@@ -70,6 +71,11 @@ class OffNominalConfig(MovingShadowsConfig):
     @property
     def heat_shield_specular_roughness_rad(self) -> float:
         return math.radians(self.heat_shield_specular_roughness_deg)
+
+
+
+class OffNominalConfig(MovingShadowsConfig, _CameraAndScenarioKeys):
+    """``[scene.off_nominal]``: off-nominal effect parameters (SI units; the defaults are the nominal camera)."""
 
     @property
     def needs_case_artefacts(self) -> bool:
