@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from campaign.plan.placement import HEADING_SEARCH_STEP_RAD, _turn, footprint_points_m
+from simulator.scene.ground_mapping import border_pixels, camera_pose, ground_points
 from simulator.scene.relief import ReliefTerrain
 from simulator.scene.terrain import Terrain
 from sitedata.sites import RESAMPLE_MODES
@@ -82,11 +83,33 @@ def trajectory_boxes(camera, profiles) -> list[np.ndarray | None]:
     return boxes
 
 
+def relief_margin_m(terrain: Terrain, camera, profiles) -> float:
+    """Extra margin (m) for a terrain with heights: a border ray meets ground at height h < 0 further out,
+    by ``-h tan(theta)`` (theta its angle from the vertical), bounded by the strip's lowest height and the
+    steepest border ray of the trajectory set's images. 0 without heights (plans unchanged)."""
+    if not isinstance(terrain, ReliefTerrain):
+        return 0.0
+    lowest = float(np.min(terrain.height_m))
+    if lowest >= 0.0:
+        return 0.0
+    border = border_pixels(camera, 2)           # corners and edge midpoints: the farthest-reaching rays
+    steepest = 0.0
+    for profile in profiles:
+        for start in profile.image_times_s:
+            pose = camera_pose(camera, profile.pose(camera.timing.exposure_mid_time_s(float(start))))
+            points, hit = ground_points(camera, pose, border)
+            if hit.all():
+                reach = np.hypot(*(points[:, :2] - pose.ray_origin_m[:2]).T).max()
+                steepest = max(steepest, float(reach / pose.ray_origin_m[2]))
+    return -lowest * steepest
+
+
 def coverage(terrain: Terrain, camera, profiles, boxes: list[np.ndarray | None] | None = None) -> Coverage:
-    """How ``terrain`` holds the footprints of ``profiles`` (see module doc)."""
+    """How ``terrain`` holds the footprints of ``profiles`` (see module doc; a terrain with heights keeps
+    :func:`relief_margin_m` more on each side)."""
     boxes = trajectory_boxes(camera, profiles) if boxes is None else boxes
     west, east, south, north = terrain.extent_m
-    margin = 2.0 * MARGIN_PX * terrain.metres_per_pixel
+    margin = 2.0 * MARGIN_PX * terrain.metres_per_pixel + 2.0 * relief_margin_m(terrain, camera, profiles)
     usable = np.array([east - west - margin, north - south - margin])
     factors, required, failing = [], np.zeros(2), 0
     for box in boxes:

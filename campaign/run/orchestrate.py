@@ -16,7 +16,7 @@ import pandas as pd
 
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
-from campaign.plan.coverage import refusal
+from campaign.plan.coverage import refusal, relief_margin_m
 from campaign.plan.density import footprint_density
 from campaign.plan.placement import ClassPlanInput, plan_class
 from campaign.report.aggregate import format_table, site_table
@@ -61,7 +61,8 @@ def plan_campaign(config: CampaignConfig):
             raise ConfigError(f"{config.source}: {refusal(entry.name, terrain, cover)}")
         spec = ClassPlanInput(class_name=entry.name, class_index=index, ellipse_fraction=entry.ellipse_fraction,
                               cases=count, terrain_name=terrain.name, terrain_extent_m=terrain.extent_m,
-                              margin_m=2.0 * terrain.metres_per_pixel)
+                              margin_m=2.0 * terrain.metres_per_pixel
+                              + relief_margin_m(terrain, resources.camera, resources.profiles))
         frames.append(plan_class(resources.camera, resources.profiles, spec, config.seed))
     plan = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     return resources, plan

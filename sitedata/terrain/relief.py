@@ -16,8 +16,8 @@ The height field is the one the synthetic generator already builds before photom
 * gkep: flat-topped knobs and mesas 20-150 m across, 5-40 m high, scarps ~2 px wide;
 * heb: the 2 km crater's ejecta apron, hummocky, with secondaries.
 
-Measured on the Gusev strips (seed 4101-4103; :func:`relief_statistics`): height RMS 3.0 (gcp),
-4.3 (gdcp), 11.1 (gkep) m; the 1-km mean height varies by 1-2 m RMS, so the radar altitude above the
+Measured on the Gusev strips (seeds 4101-4103; :func:`relief_statistics`): height RMS 3.0 (gcp),
+4.4 (gdcp), 11.4 (gkep) m; the 1-km mean height varies by 1-2 m RMS, so the radar altitude above the
 datum z = 0 (the strip's mean plane) differs from the height above the local ground by that much.
 
 The paired I/F (:func:`level_ground_reflectance`) is the generator's MOC image without slope shading

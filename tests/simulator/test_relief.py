@@ -10,6 +10,7 @@ import pytest
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
 from flight_interface.tomlfields import ConfigError, parse
+from simulator.derived_cache import DERIVED
 from simulator.scene import ground_mapping, photometry, radiance, relief
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.scene.terrain import Terrain
@@ -180,9 +181,11 @@ def test_relief_off_and_plain_terrain_give_the_same_bits_and_level_relief_the_sa
     pose = pose_at(2000.0, quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(10.0)))
     config = SceneConfig()
     reference = radiance.radiance_at_pose(plain, CAMERA, pose, sun, config).radiance
+    owners_before = DERIVED.owners()
     off = radiance.radiance_at_pose(bumpy, CAMERA, pose, sun, config.with_fields(
         relief=relief.ReliefConfig(enabled=False))).radiance
     assert np.array_equal(reference, off)
+    assert DERIVED.owners() == owners_before          # relief off did no relief work (no bounds, no horizon)
     on_level = radiance.radiance_at_pose(level, CAMERA, pose, sun, config).radiance
     assert np.max(np.abs(on_level / reference - 1.0)) < 2e-3
     on_bumpy = radiance.radiance_at_pose(bumpy, CAMERA, pose, sun, config).radiance

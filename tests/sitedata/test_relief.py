@@ -106,3 +106,24 @@ def test_a_mosaicked_relief_terrain_tiles_its_heights_with_its_image():
     tiled = fit_terrain(terrain, "mosaic", cover)
     assert isinstance(tiled, ReliefTerrain) and tiled.shape == tiled.height_m.shape == (101, 151)
     assert np.array_equal(tiled.height_m / height.max(), tiled.reflectance_if)   # the same mirror tiling
+
+
+def test_planner_margin_is_the_parallax_of_the_lowest_ground_at_the_steepest_border_ray():
+    from campaign.plan.coverage import relief_margin_m
+    from flight_interface.camera import load_camera
+    from simulator.scene.descent_profile import constant_velocity_profile
+    from simulator.scene.terrain import Terrain
+    camera = load_camera(SITEDATA / "cameras" / "mer_a.toml")
+    profile = constant_velocity_profile([0.0, 0.0, 1500.0], [0.0, 0.0, 0.0], np.array([1.0, 0.0, 0.0, 0.0]),
+                                        2.0, [0.1, 0.5])
+    height = np.zeros((64, 64), np.float32)
+    height[10, 20] = -12.0
+    terrain = ReliefTerrain(np.ones((64, 64), np.float32), 3.0, np.zeros(2), 0.5, 0.0, 0.5, height_m=height)
+    # nadir camera: the steepest border ray is a corner's, tan(theta) = |corner ray horizontal| / vertical
+    corner = camera.pixel_rays[0, 0]
+    expected = 12.0 * np.hypot(corner[0], corner[1]) / abs(corner[2])
+    assert relief_margin_m(terrain, camera, [profile]) == pytest.approx(expected, rel=2e-3)
+    plain = Terrain(np.ones((64, 64), np.float32), 3.0, np.zeros(2), 0.5, 0.0, 0.5)
+    assert relief_margin_m(plain, camera, [profile]) == 0.0
+    assert relief_margin_m(ReliefTerrain(plain.reflectance_if, 3.0, np.zeros(2), 0.5, 0.0, 0.5,
+                                         height_m=np.abs(height)), camera, [profile]) == 0.0
