@@ -154,7 +154,7 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
             failed += run.failed
             unfinished += sum(status.failed + status.missing for status in statuses)
     say(f"all {reached} points: {done} cases done, {failed} failed this run, {reused} points reused, "
-        f"{time.perf_counter() - start:.0f} s")
+        f"{time.perf_counter() - start:.0f} s; now the tables and plots (every point's store is read)")
     return SweepRun(reached, reused, submitted, done, failed, time.perf_counter() - start, unfinished=unfinished)
 
 
