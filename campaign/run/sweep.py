@@ -137,9 +137,7 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
         ship_estimators(client, list(spec.base.estimators))
         for first, batch in point_batches(spec, planned_each):
             points = [stores_of(point) for point in batch]
-            stores = [CampaignStore(point.store_dir) for point in points]
-            for point, store in zip(points, stores):
-                store.check(point.manifest, point.plan)
+            stores = [CampaignStore(point.store_dir) for point in points]     # checked under their locks
             say(f"points {batch[0].point_id}-{batch[-1].point_id} ({first + len(batch)} of {total}): "
                 f"{done} cases done, {failed} failed, {reused} points reused so far, "
                 f"{time.perf_counter() - start:.0f} s")
