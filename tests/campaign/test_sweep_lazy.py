@@ -128,3 +128,32 @@ def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_c
     assert sorted(results["point_id"]) == [f"p{i:03d}" for i in range(6)]               # one row per point
     assert not results.duplicated(["point_id", "case_id"]).any()
     assert results["config_hash"].nunique() == 6
+
+
+def test_a_bad_value_anywhere_in_a_10000_point_grid_is_refused_before_anything_is_written(tmp_path, capsys):
+    rates = [0.01 * (i + 1) for i in range(100)]
+    rates[73] = -0.5                                          # one bad value, met first at point p073
+    sweep = _sweep_file(tmp_path / "grid.toml", {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(100)],
+                                                 "sensors.attitude_random_sigma_deg": rates})
+    out = tmp_path / "out"
+    start = time.perf_counter()
+    code = main(["sweep", str(sweep), "--output", str(out), "--no-progress"])
+    elapsed = time.perf_counter() - start
+    stderr = capsys.readouterr().err.strip()
+    assert code == 2 and len(stderr.splitlines()) == 1, stderr
+    assert "sensors.attitude_random_sigma_deg" in stderr and "-0.5" in stderr and str(sweep) in stderr, stderr
+    assert not out.exists() and elapsed < 30.0
+
+
+def test_the_points_validated_first_hold_every_axis_value():
+    from campaign.configuration.sweep_file import EAGER_POINTS, eager_indices
+
+    grid = [{"a": a, "b": b, "c": c} for a in range(20) for b in range(30) for c in (True, False)]   # 1200 points
+    chosen = eager_indices(grid)
+    assert chosen[0] == 0 and chosen == sorted(set(chosen)) and len(chosen) <= EAGER_POINTS
+    for name, values in (("a", range(20)), ("b", range(30)), ("c", (True, False))):
+        assert {grid[i][name] for i in chosen} == set(values)
+    small = grid[:EAGER_POINTS]
+    assert eager_indices(small) == list(range(EAGER_POINTS))                         # a small sweep: every point
+    listed = [{"a": i, "b": -i} for i in range(1000)]                              # more values than the limit
+    assert eager_indices(listed) == list(range(EAGER_POINTS))
