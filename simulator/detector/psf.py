@@ -37,7 +37,7 @@ import scipy.fft
 import scipy.optimize
 import scipy.special
 
-from flight_interface.camera import Camera
+from flight_interface.camera import MAX_WAVEFRONT_ERROR_WAVES, Camera
 from simulator.derived_cache import DERIVED
 from simulator.fields import RadianceFields
 
@@ -45,7 +45,6 @@ from simulator.fields import RadianceFields
 PAD_PX = 16
 #: Samples of the tabulated radial OTF (linear interpolation error below 1e-6).
 RADIAL_SAMPLES = 8192
-WAVEFRONT_LIMIT_WAVES = 0.18
 
 
 def diffraction_mtf(normalized_frequency: np.ndarray) -> np.ndarray:
@@ -73,7 +72,7 @@ def optics_mtf(frequency_cyc_per_m: np.ndarray, camera: Camera) -> np.ndarray:
         term = diffraction_mtf(v)
         if wavefront_m > 0.0:
             waves = wavefront_m / wavelength_m
-            term = term * (1.0 - (waves / WAVEFRONT_LIMIT_WAVES) ** 2 * (1.0 - 4.0 * (np.minimum(v, 1.0) - 0.5) ** 2))
+            term = term * (1.0 - (waves / MAX_WAVEFRONT_ERROR_WAVES) ** 2 * (1.0 - 4.0 * (np.minimum(v, 1.0) - 0.5) ** 2))
         total += weight * term
     sigma_m = optics.blur_sigma_um * 1e-6
     if sigma_m > 0.0:
