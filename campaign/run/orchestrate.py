@@ -114,18 +114,6 @@ class PreparedPoint:
     todo: list[dict]
 
 
-def plan_points(configs: list[CampaignConfig]) -> list[pd.DataFrame]:
-    """The plan of each configuration, planned once per distinct (campaign file, seed, case counts): a plan
-    depends only on the site, the seed and the case counts, which the points of a sweep share."""
-    plans: dict[tuple, pd.DataFrame] = {}
-    for config in configs:
-        key = (str(config.source), config.seed, tuple(sorted(config.cases_per_class.items())))
-        if key not in plans:
-            plans[key] = plan_campaign(config)[1]
-    return [plans[(str(config.source), config.seed, tuple(sorted(config.cases_per_class.items())))]
-            for config in configs]
-
-
 @dataclass(frozen=True)
 class StoresRun:
     """What :func:`run_store_points` did: every point's prepared store, and the cases of this run."""
@@ -142,9 +130,10 @@ class StoresRun:
 def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, fresh: bool = False,
                      progress: bool = True, wait: bool = False,
                      on_note: Callable[[str], None] = lambda line: print(line, flush=True)) -> StoresRun:
-    """Run every missing case of every point's store on one cluster and compact the stores: the one
-    plan/prepare/run/compact path of ``campaign submit`` (one point) and ``campaign sweep`` (a point per
-    sweep configuration).
+    """Run every missing case of every point's store on one cluster and compact the stores: the
+    plan/prepare/run/compact path of ``campaign submit`` (one point); ``campaign sweep`` takes the same
+    steps (:func:`lock_stores`, :func:`ship_estimators`, :func:`run_locked_points`) a batch of points at a
+    time (:func:`campaign.run.sweep.run_sweep`).
 
     Order (so that a refusal changes nothing; the caller has planned and checked the cluster settings
     with :func:`~campaign.run.cluster.require_backend`): check every store read-only (StoreError: another configuration, corrupt manifest, ... unless
