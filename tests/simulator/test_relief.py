@@ -100,12 +100,13 @@ def test_a_mesa_hides_the_ground_behind_its_edge_for_h_tan_theta(skip_px):
 
 # --- rendered: parallax, occlusion and a cast shadow ----------------------------------------------------
 
+@pytest.mark.slow                 # 2-3 s on an idle core, 6 s on the shared machine
 def test_plateau_edge_and_its_shadow_seen_from_a_known_pose():
-    """A mesa (west of east = 60 m, 8 m high, bright) beside dark level ground, sun from the west at
-    zenith 40 deg, nadir camera at 300 m: the bright edge is where the ray passes (20 m, 8 m), the ground
-    behind is in shadow up to 60 + 8 tan(40 deg) m (a shadow of h tan(zenith))."""
-    mpp, h, edge = 0.25, 8.0, 60.0
-    size = 1400
+    """A mesa (west of east = 40 m, 8 m high, bright) beside dark level ground, sun from the west at
+    zenith 40 deg, nadir camera at 200 m: the bright edge is where the ray passes (40 m, 8 m), the ground
+    behind is in shadow up to 40 + 8 tan(40 deg) m (a shadow of h tan(zenith))."""
+    mpp, h, edge = 0.25, 8.0, 40.0
+    size = 801                                          # grid nodes on multiples of 0.25 m: one at the edge
     east = (np.arange(size) - 0.5 * (size - 1)) * mpp
     top = east <= edge
     height = np.tile(np.where(top, h, 0.0), (size, 1))
@@ -115,18 +116,18 @@ def test_plateau_edge_and_its_shadow_seen_from_a_known_pose():
     sun = np.array([-np.sin(zenith), 0.0, np.cos(zenith)])
     diffuse = 0.3
     config = EXACT.with_fields(shadow_diffuse_fraction=diffuse)
-    field = radiance.radiance_at_pose(terrain, CAMERA, pose_at(300.0), sun, config)
-    cam = ground_mapping.camera_pose(CAMERA, pose_at(300.0))
+    field = radiance.radiance_at_pose(terrain, CAMERA, pose_at(200.0), sun, config)
+    cam = ground_mapping.camera_pose(CAMERA, pose_at(200.0))
     row = 511
     profile = field.radiance[row].astype(float)
     flat = radiance.radiance_at_pose(Terrain(np.full((size, size), 0.2, np.float32), mpp, terrain.origin_m,
                                              terrain.moc_incidence_rad, 0.0, terrain.moc_phase_rad),
-                                     CAMERA, pose_at(300.0), sun, config).radiance[row].astype(float)
+                                     CAMERA, pose_at(200.0), sun, config).radiance[row].astype(float)
     ratio = profile / flat                              # 2 on the mesa, 0.3 in its shadow, 1 in the sun
     assert ratio[400] == pytest.approx(2.0, rel=1e-3) and ratio[1000] == pytest.approx(1.0, rel=1e-3)
     predicted_edge = column_where_ray_passes(cam, row, edge, h)
     level_edge = column_where_ray_passes(cam, row, edge, 0.0)
-    assert predicted_edge - level_edge > 6.0            # parallax of the 8 m mesa: h tan(theta) = 1.6 m, 6.6 px
+    assert predicted_edge - level_edge > 8.0            # parallax of the 8 m mesa: h tan(theta) = 1.6 m, 9.8 px
     assert crossing_column(ratio, 0.5 * (2.0 + diffuse)) == pytest.approx(predicted_edge, abs=0.6)
     shadow_end = column_where_ray_passes(cam, row, edge + h * np.tan(zenith), 0.0)
     in_shadow = ratio[int(predicted_edge) + 2:int(shadow_end) - 1]
@@ -135,9 +136,10 @@ def test_plateau_edge_and_its_shadow_seen_from_a_known_pose():
     assert int(predicted_edge) + 2 + crossing_column(after, 0.5 * (1.0 + diffuse)) == pytest.approx(shadow_end, abs=0.6)
 
 
+@pytest.mark.slow                 # 2-3 s on an idle core, 6 s on the shared machine
 def test_tilted_plane_shading_is_the_photometric_function_at_the_tilted_normal():
     mpp, slope = 0.5, np.radians(20.0)
-    size = 480
+    size = 400
     east = (np.arange(size) - 0.5 * (size - 1)) * mpp
     height = np.tile(np.tan(slope) * east, (size, 1))   # z = tan(slope) east: rises to the east
     terrain = relief_terrain(np.full((size, size), 0.25), height, mpp)
