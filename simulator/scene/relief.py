@@ -200,10 +200,7 @@ def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.
                            origin_m[1] + (1.0 - origin_m[2]) / rays[:, 2] * rays[:, 1])
     col_z, row_z = col_z - col0, row_z - row0
 
-    def residual(index, z, grid=heights):
-        return z - bilinear(grid, col0[index] + z * col_z[index], row0[index] + z * row_z[index])
-
-    # the march runs in float32 (coordinates to ~1e-4 px, heights to ~1e-5 m: far inside the tolerance)
+    # evaluated in float32 (coordinates to ~1e-4 px, heights to ~1e-5 m: far inside the tolerance)
     coarse = [np.asarray(item, dtype=np.float32) for item in (col0, col_z, row0, row_z)]
 
     def residual32(index, z, grid=heights):
@@ -250,7 +247,7 @@ def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.
         fu, fl = f_upper[active], f_lower[active]
         z = (lower[active] * fu - upper[active] * fl) / (fu - fl)
         z = np.where((z > lower[active]) & (z < upper[active]), z, 0.5 * (lower[active] + upper[active]))
-        f = residual(active, z)
+        f = residual32(active, z).astype(np.float64)
         result[active] = z
         below = f <= 0
         i_below, i_above = active[below], active[~below]
@@ -353,7 +350,7 @@ def shading_factor(hits: ReliefHits, sun_world: np.ndarray, config) -> np.ndarra
     if not (relief.slope_photometry or relief.cast_shadows):
         return factor
     points = hits.points_m[ground]
-    row, col = terrain.world_to_pixel(points[:, 0], points[:, 1])
+    row, col = (item.astype(np.float32) for item in terrain.world_to_pixel(points[:, 0], points[:, 1]))
     mpp = terrain.metres_per_pixel
     sun = np.asarray(sun_world, dtype=float)
     view = hits.view_world[ground]
