@@ -111,7 +111,7 @@ def test_kubernetes_spec_has_image_namespace_and_resources():
     [container] = kubernetes_cluster_spec(small)["spec"]["worker"]["spec"]["containers"]
     limit = int(container["args"][container["args"].index("--memory-limit") + 1])
     assert limit == 2**30 - 256 * 2**20          # at least 256 MiB headroom: 768 MiB for dask
-    assert 0.8 * limit > 550 * 2**20             # a case (about 550 MiB) fits below the pause threshold
+    assert 0.8 * limit > 600 * 2**20             # a case (about 600 MiB) fits below the pause threshold
     overridden = _execution({"cluster": "kubernetes", "workers": 5, "kubernetes": {"image": "x"}})
     assert kubernetes_cluster_spec(overridden)["spec"]["worker"]["replicas"] == 5      # [execution] workers wins
 

@@ -117,7 +117,7 @@ def test_full_disk_stops_the_run_keeps_cases_and_the_next_submit_finishes(tmp_pa
 
 @pytest.mark.parametrize("limit, cases, expected", [
     # the first case runs; the worker keeps its memory and pauses at 80 % of the limit: a stall before the fix
-    ("600MiB", 2, ["all 1 workers paused at memory_limit 600MiB", "raise [execution] memory_limit (now 600MiB)"]),
+    ("680MiB", 2, ["all 1 workers paused at memory_limit 680MiB", "raise [execution] memory_limit (now 680MiB)"]),
     # the nanny kills the worker above 95 % of the limit (a traceback before the fix)
     ("300MiB", 1, ["case 0 killed 2 workers (KilledWorker", "raise [execution] memory_limit (now 300MiB)"]),
 ])
@@ -133,7 +133,7 @@ def test_memory_limit_too_small_stops_with_one_line(tmp_path, limit, cases, expe
     line = stderr_line(result)
     for text in expected:
         assert text in line, line
-    assert "about 550 MiB" in line and "1 left for the next submit" in line
+    assert "about 600 MiB" in line and "1 left for the next submit" in line
     assert len(case_files(out, "*.ok.*.parquet")) == cases - 1 and case_files(out, "*.failed.*.parquet") == []
     print(f"memory_limit {limit}: stopped after {seconds:.1f} s")
 
