@@ -16,10 +16,9 @@ seed is withheld (:data:`TRUTH_FIELDS`) from everything an estimator gets:
 from __future__ import annotations
 
 import copy
-import json
-import math
 from pathlib import Path
-from typing import Any
+
+import tomli_w
 
 from flight_interface.camera import Camera, CameraFile, Radiometry, camera_from_file
 from flight_interface.tomlfields import load_toml, parse
@@ -84,36 +83,4 @@ def load_design_camera(path: str | Path) -> Camera:
 
 def toml_text(tables: dict) -> str:
     """A TOML document of ``tables`` (table -> key -> number, bool, string, list of those, or a sub-table)."""
-    lines: list[str] = []
-
-    def emit(prefix: str, table: dict) -> None:
-        lines.append(f"[{prefix}]")
-        nested = []
-        for key, value in table.items():
-            if isinstance(value, dict):
-                nested.append((key, value))
-            else:
-                lines.append(f"{key} = {_value(value)}")
-        for key, value in nested:
-            emit(f"{prefix}.{key}", value)
-
-    for name, table in tables.items():
-        if isinstance(table, dict):
-            emit(name, table)
-        else:
-            lines.insert(0, f"{name} = {_value(table)}")
-    return "\n".join(lines) + "\n"
-
-
-def _value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return ("nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")) if not math.isfinite(value) else repr(value)
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, str):
-        return json.dumps(value)        # a TOML basic string: JSON's escapes are TOML's
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_value(item) for item in value) + "]"
-    raise TypeError(f"camera TOML value {value!r} cannot be written")
+    return tomli_w.dumps(tables)

@@ -32,7 +32,9 @@ change between images within 5 m/s + |velocity change| of the trapezoid of ``imu
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -124,3 +126,18 @@ def measurements_to_dict(measurements: DescentMeasurements) -> dict:
             record["imu_position_m"] = [float(v) for v in image.imu_position_m]
         images.append(record)
     return {"sun_direction_world": [float(v) for v in measurements.sun_direction_world], "images": images}
+
+
+def json_ready(value: Any) -> Any:
+    """``value`` as JSON can hold it (the side files next to the measurements, e.g. ``truth.json``): numpy
+    arrays and scalars as Python lists and numbers, tuples as lists, dict keys as strings, and non-finite
+    floats as null (JSON has no NaN or infinity)."""
+    if isinstance(value, np.ndarray):
+        return [json_ready(item) for item in value.tolist()]
+    if isinstance(value, (list, tuple)):
+        return [json_ready(item) for item in value]
+    if isinstance(value, dict):
+        return {str(key): json_ready(item) for key, item in value.items()}
+    if isinstance(value, np.generic):
+        value = value.item()
+    return None if isinstance(value, float) and not math.isfinite(value) else value

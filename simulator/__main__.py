@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import shlex
 import sys
 from pathlib import Path
@@ -38,7 +37,7 @@ import numpy as np
 
 from file_formats.descent_images import write_descent_image
 from file_formats.flat_field_files import save_flat_field
-from file_formats.measurements_json import measurements_to_dict
+from file_formats.measurements_json import json_ready, measurements_to_dict
 from flight_interface.camera import Camera, load_camera
 from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
@@ -109,19 +108,6 @@ def example_sun() -> np.ndarray:
     return np.array([np.sin(incidence) * np.sin(azimuth), np.sin(incidence) * np.cos(azimuth), np.cos(incidence)])
 
 
-def _json_value(value):
-    """JSON-ready (numpy scalars and arrays as Python values, non-finite floats as null)."""
-    if isinstance(value, np.ndarray):
-        return [_json_value(item) for item in value.tolist()]
-    if isinstance(value, (list, tuple)):
-        return [_json_value(item) for item in value]
-    if isinstance(value, dict):
-        return {str(key): _json_value(item) for key, item in value.items()}
-    if isinstance(value, np.generic):
-        value = value.item()
-    return None if isinstance(value, float) and not math.isfinite(value) else value
-
-
 def write_display(out: Path, terrain: Terrain, camera: Camera, rendered: list[DescentImage]) -> None:
     """The pictures to look at (``--display``): stretched images, radiance fields, footprint map."""
     view = stretch(terrain.reflectance_if)
@@ -148,7 +134,7 @@ def truth_record(profile: DescentProfile, rendered: list[DescentImage], sensor_e
     """truth.json: the keys of ``campaign export``'s truth that exist outside a campaign."""
     last = float(profile.image_times_s[-1])
     velocity, wind = profile.pose(last).velocity_mps, profile.wind_at(last)
-    return _json_value({
+    return json_ready({
         "seed": seed, "profile": profile.name, "camera": str(camera_path), "flat_field_source": flat_field_source,
         "truth_velocity_east_mps": float(velocity[0]), "truth_velocity_north_mps": float(velocity[1]),
         "wind_east_mps": float(wind[0]), "wind_north_mps": float(wind[1]),

@@ -55,7 +55,7 @@ class SceneEffects(ConfigModel):
     """Shortcut: one field for all three periods when the image moves by less than still_shift_terrain_px."""
     warp_smear_fields: bool = True
     """Shortcut: fast-flush and frame-transfer fields warped from the exposure-centre field along the
-    ground-plane flow instead of re-rendered (simulator.scene.radiance.warped_field)."""
+    ground-plane flow instead of re-rendered (simulator.scene.resample.warped_field)."""
     warp_motion_blur: bool = True
     """Shortcut: a period blurred over many sub-poses as warp-and-accumulate of one rendered field at
     binned resolution (simulator.scene.blur_warp) instead of one rendered field per sub-pose."""

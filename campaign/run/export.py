@@ -29,7 +29,6 @@ not in the plan, ``OUT`` not a writable directory. Files are written to a tempor
 from __future__ import annotations
 
 import json
-import math
 import os
 import shlex
 import shutil
@@ -37,19 +36,18 @@ import sys
 import tempfile
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
 
-import cv2
-import numpy as np
 import pandas as pd
+import tomli_w
 
 from campaign.configuration.campaign_file import CampaignConfig, campaign_config_from_data, load_campaign_config
 from campaign.run.case import PlanRow, case_truth, estimator_inputs, simulate_case_inputs
 from campaign.run.worker import load_resources
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.errors import StoreError
+from file_formats.descent_images import write_descent_image
 from file_formats.flat_field_files import save_flat_field
-from file_formats.measurements_json import measurements_to_dict
+from file_formats.measurements_json import json_ready, measurements_to_dict
 from flight_interface.tomlfields import ConfigError
 
 IMAGE_NAMES = ("image_1.png", "image_2.png", "image_3.png")
@@ -73,39 +71,6 @@ def check_output_directory(out: Path) -> None:
         ancestor = ancestor.parent
     if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
         raise StoreError(f"{out}: cannot be created ({ancestor} is not a writable directory)")
-
-
-def _json_value(value: Any) -> Any:
-    """A JSON-ready value (numpy scalars and arrays as Python values; NaN as null)."""
-    if isinstance(value, np.ndarray):
-        return [_json_value(item) for item in value.tolist()]
-    if isinstance(value, (list, tuple)):
-        return [_json_value(item) for item in value]
-    if isinstance(value, dict):
-        return {str(key): _json_value(item) for key, item in value.items()}
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def _toml_value(value: Any) -> str:
-    """A scalar (or list of scalars) parameter as TOML."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return repr(value) if math.isfinite(value) else ("nan" if value != value else ("inf" if value > 0 else "-inf"))
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
-    if isinstance(value, str):
-        return json.dumps(value)
-    return str(value)
-
-
-def _write_png(path: Path, image: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), np.asarray(image, dtype=np.uint16)):
-        raise OSError(f"{path}: cannot write PNG")
 
 
 def stored_config(store: CampaignStore, manifest: dict) -> CampaignConfig:
@@ -159,10 +124,10 @@ def export_case(store_dir: str | Path, case_id: int, out: str | Path) -> list[Pa
         "config_hash": config.config_hash, "config_hash_matches_store": config.config_hash == manifest["config_hash"],
         "camera": camera_path, "flat_field_source": shared.calibration.flat_field_source,
         "reference_estimator": reference.name if reference is not None else None,
-        "plan": _json_value(asdict(row)),
-        **{key: _json_value(value) for key, value in asdict(truth).items() if not key.startswith("t_")},
+        "plan": json_ready(asdict(row)),
+        **{key: json_ready(value) for key, value in asdict(truth).items() if not key.startswith("t_")},
         "outside_terrain": bool(outside),
-        "stored_results": [_json_value({column: record.get(column) for column in STORED_COLUMNS})
+        "stored_results": [json_ready({column: record.get(column) for column in STORED_COLUMNS})
                            for record in stored.to_dict("records")],
         "replay": shlex.join(replay),
     }
@@ -170,13 +135,13 @@ def export_case(store_dir: str | Path, case_id: int, out: str | Path) -> list[Pa
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.export-", dir=out.absolute().parent))
     try:
         for name, image in zip(IMAGE_NAMES, shared.images):
-            _write_png(staging / name, image)
+            write_descent_image(staging / name, image)
         (staging / "measurements.json").write_text(json.dumps(measurements_to_dict(shared.measurements), indent=1))
         if flat is not None:
             save_flat_field(staging / FLAT_FIELD_NAME, flat)
         if reference is not None:
-            lines = ["[estimator]", *(f"{key} = {_toml_value(value)}" for key, value in sorted(reference.parameters.items()))]
-            (staging / "estimator.toml").write_text("\n".join(lines) + "\n")
+            parameters = dict(sorted(reference.parameters.items()))
+            (staging / "estimator.toml").write_text(tomli_w.dumps({"estimator": parameters}))
         (staging / "truth.json").write_text(json.dumps(truth_record, indent=1))
         names = sorted(path.name for path in staging.iterdir())
         if not out.exists():

@@ -28,6 +28,7 @@ import os
 import socket
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 WAIT_POLL_S = 0.2
@@ -108,21 +109,9 @@ class StoreLock:
     def acquire(self) -> StoreLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        announced = False
-        while True:
-            try:
-                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                holder = describe_holder(self.path)
-                if not self.wait:
-                    os.close(descriptor)
-                    raise StoreBusy(f"{self.store_root}: another writer holds its lock {self.path}: {holder}; "
-                                    "pass --wait to wait for it") from None
-                if not announced and self.on_wait is not None:
-                    self.on_wait(f"{self.store_root}: waiting for the lock held by {holder}")
-                announced = True
-                time.sleep(WAIT_POLL_S)
+        self._flock_or_wait(descriptor, lambda: describe_holder(self.path),
+                            lambda holder: f"{self.store_root}: another writer holds its lock {self.path}: {holder}",
+                            lambda holder: f"{self.store_root}: waiting for the lock held by {holder}")
         self._descriptor = descriptor
         try:
             self.hold_store_directory()
@@ -156,26 +145,36 @@ class StoreLock:
                 os.close(descriptor)
                 return
             self._release_directory()          # the directory we held was moved aside
+        try:
+            self._flock_or_wait(descriptor, lambda: directory_holder(root),
+                                lambda holder: f"{root}: another writer ({holder}) holds the lock of the store "
+                                               f"directory itself, although {self.path} was free (it was removed or "
+                                               "replaced while held)",
+                                lambda holder: f"{root}: waiting for the store directory's lock held by {holder}")
+        except OSError:                        # no flock on directories here (some NFS): the file lock alone
+            os.close(descriptor)
+            return
+        self._directory_descriptor = descriptor
+
+    def _flock_or_wait(self, descriptor: int, holder: Callable[[], str], busy: Callable[[str], str],
+                       waiting: Callable[[str], str]) -> None:
+        """Take the exclusive ``flock`` of ``descriptor``; when another process holds it, raise
+        :class:`StoreBusy` (``busy(holder)`` + the --wait hint; the descriptor closed) or, with ``wait``,
+        say ``waiting(holder)`` once and poll every :data:`WAIT_POLL_S` seconds."""
         announced = False
         while True:
             try:
                 fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
+                return
             except BlockingIOError:
-                holder = directory_holder(root)
+                current = holder()
                 if not self.wait:
                     os.close(descriptor)
-                    raise StoreBusy(f"{root}: another writer ({holder}) holds the lock of the store directory "
-                                    f"itself, although {self.path} was free (it was removed or replaced while "
-                                    "held); pass --wait to wait for it") from None
+                    raise StoreBusy(f"{busy(current)}; pass --wait to wait for it") from None
                 if not announced and self.on_wait is not None:
-                    self.on_wait(f"{root}: waiting for the store directory's lock held by {holder}")
+                    self.on_wait(waiting(current))
                 announced = True
                 time.sleep(WAIT_POLL_S)
-            except OSError:                    # no flock on directories here (some NFS): the file lock alone
-                os.close(descriptor)
-                return
-        self._directory_descriptor = descriptor
 
     def _release_directory(self) -> None:
         if self._directory_descriptor is not None:

@@ -54,7 +54,7 @@ import numpy as np
 from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.fields import RadianceFields, block_means
-from simulator.scene import ground_mapping, motion_blur, shadow
+from simulator.scene import ground_mapping, motion_blur, resample, shadow
 from simulator.scene.descent_profile import Pose
 
 MIN_EXPOSURE_SUBSTEPS = 4      # below this the exact sub-pose renders are cheap enough (and bits unchanged)
@@ -132,12 +132,6 @@ def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: groun
     source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (b - 1)) / b
     return ground_mapping.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
                                          row_step_px=FLOW_STEP_PX // b)
-
-
-def _remap(field: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
-    return cv2.remap(field, flow, None, interpolation=cv2.INTER_LINEAR,  # type: ignore[call-overload]
-                     borderMode=cv2.BORDER_REPLICATE)
 
 
 class _Plan:
@@ -259,7 +253,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         flow = _block_flow(big, level_cam, centre_cam, (0.0, 0.0), block)
         if flow is None:
             return None
-        accumulated = cv2.addWeighted(accumulated, 0.5, _remap(accumulated, flow), 0.5, 0.0)
+        accumulated = cv2.addWeighted(accumulated, 0.5, resample.warped_field(accumulated, flow), 0.5, 0.0)
     if block == 1:
         accumulated = block_means(accumulated, b)
     averaged = {}
@@ -267,7 +261,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), (left, top), b)
         if flow is None:
             return None
-        averaged[period] = _remap(accumulated, flow)
+        averaged[period] = resample.warped_field(accumulated, flow)
     outside = _mask_union(field.outside, camera, (left, top), plan, cam_at)
     shield_full = field.heat_shield
     shield = (_mask_union(shield_full, camera, (left, top), plan, cam_at) if shield_full is not None

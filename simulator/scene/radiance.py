@@ -21,7 +21,7 @@ ends (the pose is held).
 
 Smear fields (fidelity shortcut ``warp_smear_fields``): the fast-flush and frame-transfer fields only
 enter the image through block sums of columns (smear, then 4-row binning), and their poses differ
-from the exposure's by a pixel or so. Instead of rendering them, :func:`warped_field` resamples the
+from the exposure's by a pixel or so. Instead of rendering them, :func:`~simulator.scene.resample.warped_field` resamples the
 block means of the exposure-centre field (shape (H / b, W)) along the exact ground-plane flow between
 the two poses (ground point of each block centre at the smear pose, projected with the exposure pose),
 computed on a node grid every :data:`WARP_GRID_STEP_PX` pixels and interpolated; the camera chain takes
@@ -277,14 +277,6 @@ def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_m
                                          row_step_px=step_px // block_rows)
 
 
-def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """Resample a radiance field (H, W) at the (column, row) coordinates of ``flow`` (H, W, 2), bilinear;
-    pixels whose source lies beyond the frame take the nearest edge value."""
-    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
-    return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=cv2.INTER_LINEAR,  # type: ignore[call-overload]
-                     borderMode=cv2.BORDER_REPLICATE)
-
-
 def _clamped_pose(profile: DescentProfile, time_s: float) -> Pose:
     return profile.pose(float(np.clip(time_s, profile.time_s[0], profile.time_s[-1])))
 
@@ -413,4 +405,4 @@ def _smear_field(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.nda
         return block_means(radiance_at_pose(terrain, camera, pose, sun_world, config,
                                             moving_shadows=moving_shadows).radiance,
                                            block_rows)
-    return warped_field(centre_blocks, flow)
+    return resample.warped_field(centre_blocks, flow)

@@ -100,3 +100,11 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
     if any_invalid:
         sampled[invalid] = 0.0
     return sampled, outside
+
+
+def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """Resample a radiance field (H, W) at the (column, row) coordinates of ``flow`` (H, W, 2), bilinear;
+    pixels whose source lies beyond the frame take the nearest edge value."""
+    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
+    return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=cv2.INTER_LINEAR,  # type: ignore[call-overload]
+                     borderMode=cv2.BORDER_REPLICATE)
