@@ -138,3 +138,32 @@ def _signal_group(process: subprocess.Popen, number: int) -> None:
         os.killpg(process.pid, number)
     except ProcessLookupError:
         pass
+
+
+#: a process that takes a store's lock (``StoreLock``), prints "locked" and holds it for 10 minutes
+LOCK_HOLDER_SCRIPT = ("import sys, time; from campaign.store.lock import StoreLock; "
+                      "lock = StoreLock(sys.argv[1]).acquire(); print('locked', flush=True); time.sleep(600)")
+
+
+def project_environment() -> dict:
+    """The environment with the checkout first on PYTHONPATH (subprocesses import this checkout's code)."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+
+
+def start_lock_holders():
+    """Generator behind the ``holder`` fixtures: yields ``start(store_dir) -> Popen`` (a real process holding
+    the store's real ``flock``, started once it says it holds it) and kills every holder afterwards."""
+    processes = []
+
+    def start(store: Path) -> subprocess.Popen:
+        process = subprocess.Popen([sys.executable, "-c", LOCK_HOLDER_SCRIPT, str(store)], stdout=subprocess.PIPE,
+                                   text=True, cwd=REPO, env=project_environment(), start_new_session=True)
+        assert process.stdout.readline().strip() == "locked"
+        processes.append(process)
+        return process
+
+    yield start
+    for process in processes:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait()

@@ -33,23 +33,15 @@ from campaign.store.case_files import (
 from campaign.store.case_identity import IDENTITY_KEY, StoreIdentity
 from campaign.store.lock import StoreBusy, StoreLock
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULT_SCHEMA_VERSION, ResultSchemaError, rows_table
-from service_campaigns import file_tree, site_copy
+from service_campaigns import file_tree, project_environment, site_copy, start_lock_holders
 
 REPO = Path(__file__).resolve().parents[2]
 SCALE = "0.005"               # gcp 1, gdcp 1, gkep 1 case
 SEED, OTHER_SEED = 5, 8
 HASH = "a" * 64
-HOLD = ("import sys, time; from campaign.store.lock import StoreLock; lock = StoreLock(sys.argv[1]).acquire(); "
-        "print('locked', flush=True); time.sleep(600)")
-
-
-def _environment() -> dict:
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
-
-
 def _campaign(*args, timeout=300) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "campaign.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO, env=_environment())
+                          timeout=timeout, cwd=REPO, env=project_environment())
 
 
 def _submit(site: Path, out: Path) -> list:
@@ -203,20 +195,8 @@ def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_tra
 
 @pytest.fixture()
 def holder():
-    processes = []
-
-    def start(store: Path) -> subprocess.Popen:
-        process = subprocess.Popen([sys.executable, "-c", HOLD, str(store)], stdout=subprocess.PIPE, text=True,
-                                   cwd=REPO, env=_environment(), start_new_session=True)
-        assert process.stdout.readline().strip() == "locked"
-        processes.append(process)
-        return process
-
-    yield start
-    for process in processes:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
+    """Start a process holding a store's lock: ``holder(store_dir) -> Popen`` (killed at the end)."""
+    yield from start_lock_holders()
 
 
 @pytest.mark.cluster

@@ -18,29 +18,21 @@ from pathlib import Path
 import pytest
 
 from campaign.store.campaign_store import CampaignStore
-from service_campaigns import file_tree, site_copy
+from service_campaigns import file_tree, project_environment, site_copy, start_lock_holders
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parents[2]
 SITE = REPO / "sitedata" / "gusev.toml"
 SCALE = "0.005"   # gcp 1, gdcp 1, gkep 1 case
-HOLD = ("import sys, time; from campaign.store.lock import StoreLock; lock = StoreLock(sys.argv[1]).acquire(); "
-        "print('locked', flush=True); time.sleep(600)")
-
-
-def _environment() -> dict:
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
-
-
 def _campaign(*args, timeout=300) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "campaign.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO, env=_environment())
+                          timeout=timeout, cwd=REPO, env=project_environment())
 
 
 def _popen_campaign(*args) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "campaign.cli", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=REPO, env=_environment(), start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, cwd=REPO, env=project_environment(), start_new_session=True)
 
 
 def _submit(out: Path, *extra, site: Path = SITE) -> list:
@@ -53,22 +45,9 @@ def _site_with_seed(directory: Path, seed: int) -> Path:
 
 
 @pytest.fixture()
-def holder(tmp_path):
+def holder():
     """Start a process holding a store's lock: ``holder(store_dir) -> Popen`` (killed at the end)."""
-    processes = []
-
-    def start(store: Path) -> subprocess.Popen:
-        process = subprocess.Popen([sys.executable, "-c", HOLD, str(store)], stdout=subprocess.PIPE, text=True,
-                                   cwd=REPO, env=_environment(), start_new_session=True)
-        assert process.stdout.readline().strip() == "locked"
-        processes.append(process)
-        return process
-
-    yield start
-    for process in processes:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
+    yield from start_lock_holders()
 
 
 def test_second_writer_is_told_who_holds_the_lock_and_wait_takes_over_a_killed_holder(tmp_path, holder):
