@@ -167,3 +167,15 @@ def start_lock_holders():
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
         process.wait()
+
+
+def campaign_with_command_estimator(directory: Path, name: str, program: str,
+                                    cases: dict | None = None) -> Path:
+    """A campaign file (``campaign_file``, one worker) running the reference ``dimes`` and a command estimator
+    ``name``: ``program`` (Python source) written to ``directory/<name>.py``, called with the output path."""
+    script = directory / f"{name}.py"
+    script.write_text(program)
+    estimators = (f'\n[[estimators]]\nname = "dimes"\nkind = "reference"\n\n[[estimators]]\nname = "{name}"\n'
+                  f'kind = "command"\nargv = ["{sys.executable}", "{script}", "{{output}}"]\n')
+    return campaign_file(directory, cases or {"gcp": 2, "gdcp": 1, "gkep": 0}, execution="workers = 1",
+                         extra=estimators)

@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import math
 import shutil
-import sys
 
 import pandas as pd
 import pytest
 
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.case_files import write_case_rows
-from service_campaigns import campaign_file, run_campaign
+from service_campaigns import campaign_with_command_estimator, run_campaign
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -28,19 +27,7 @@ json.dump({"velocity_east_mps": 1.0, "velocity_north_mps": 0.0, "valid": "yes", 
 def yes_store(tmp_path_factory):
     """A submitted Gusev campaign of 3 cases (gcp 2, gdcp 1, gkep 0) with the reference and `yes_man`."""
     directory = tmp_path_factory.mktemp("loud")
-    script = directory / "yes_estimator.py"
-    script.write_text(YES_ESTIMATOR)
-    estimators = f'''
-[[estimators]]
-name = "dimes"
-kind = "reference"
-
-[[estimators]]
-name = "yes_man"
-kind = "command"
-argv = ["{sys.executable}", "{script}", "{{output}}"]
-'''
-    config = campaign_file(directory, {"gcp": 2, "gdcp": 1, "gkep": 0}, execution="workers = 1", extra=estimators)
+    config = campaign_with_command_estimator(directory, "yes_man", YES_ESTIMATOR)
     out = directory / "out"
     return out, run_campaign("submit", config, "--output", out, "--no-progress")
 

@@ -6,7 +6,6 @@ reference's templates are drawn inside the images. Plus the selection rule on a 
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 import pandas as pd
@@ -14,7 +13,7 @@ import pytest
 from PIL import Image
 
 from campaign.report import compare_plots, gallery
-from service_campaigns import campaign_file, run_campaign
+from service_campaigns import campaign_with_command_estimator, run_campaign
 
 DECLINER = '''import json, sys
 json.dump({"velocity_east_mps": 0.0, "velocity_north_mps": 0.0, "valid": False, "reason": "declined"},
@@ -31,19 +30,7 @@ def _png_size(path) -> tuple[int, int]:
 @pytest.fixture(scope="module")
 def reported(tmp_path_factory):
     directory = tmp_path_factory.mktemp("report")
-    script = directory / "decliner.py"
-    script.write_text(DECLINER)
-    estimators = f'''
-[[estimators]]
-name = "dimes"
-kind = "reference"
-
-[[estimators]]
-name = "decliner"
-kind = "command"
-argv = ["{sys.executable}", "{script}", "{{output}}"]
-'''
-    config = campaign_file(directory, {"gcp": 2, "gdcp": 1, "gkep": 0}, execution="workers = 1", extra=estimators)
+    config = campaign_with_command_estimator(directory, "decliner", DECLINER)
     config.write_text(config.read_text().replace("[campaign]\n", "[campaign]\nfalse_valid_mps = 0.01\n", 1))
     out = directory / "out"
     submit = run_campaign("submit", config, "--output", out, "--no-progress")
