@@ -179,3 +179,15 @@ def campaign_with_command_estimator(directory: Path, name: str, program: str,
                   f'kind = "command"\nargv = ["{sys.executable}", "{script}", "{{output}}"]\n')
     return campaign_file(directory, cases or {"gcp": 2, "gdcp": 1, "gkep": 0}, execution="workers = 1",
                          extra=estimators)
+
+
+def embedded_scheduler(workers: int):
+    """Generator behind module ``scheduler`` fixtures: the address of a campaign's own embedded cluster
+    (``campaign.run.cluster.start_cluster``) with ``workers`` workers, closed afterwards."""
+    from campaign.configuration.execution import ExecutionConfig
+    from campaign.run.cluster import start_cluster
+
+    client, cluster = start_cluster(ExecutionConfig(workers=workers), quiet=True)
+    yield client.scheduler.address
+    client.close()
+    cluster.close()

@@ -16,6 +16,7 @@ import pytest
 from PIL import Image
 
 from campaign.cli import main
+from service_campaigns import embedded_scheduler
 
 REPO = Path(__file__).resolve().parents[2]
 GUSEV = REPO / "sitedata" / "gusev.toml"
@@ -90,13 +91,7 @@ def test_command_line_exit_code_and_bad_baseline(tmp_path):
 # --- runs on a real cluster -------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scheduler():
-    from campaign.configuration.execution import ExecutionConfig
-    from campaign.run.cluster import start_cluster
-
-    client, cluster = start_cluster(ExecutionConfig(workers=2), quiet=True)
-    yield client.scheduler.address
-    client.close()
-    cluster.close()
+    yield from embedded_scheduler(2)
 
 
 def _case_files(out: Path) -> dict:

@@ -22,6 +22,7 @@ import pandas as pd
 import pytest
 
 from campaign.cli import main
+from service_campaigns import embedded_scheduler
 
 REPO = Path(__file__).resolve().parents[2]
 GUSEV = REPO / "sitedata" / "gusev.toml"
@@ -94,13 +95,7 @@ def test_a_sweep_of_2000_points_starts_computing_within_10_s_with_progress(tmp_p
 
 @pytest.fixture(scope="module")
 def scheduler():
-    from campaign.configuration.execution import ExecutionConfig
-    from campaign.run.cluster import start_cluster
-
-    client, cluster = start_cluster(ExecutionConfig(workers=1), quiet=True)
-    yield client.scheduler.address
-    client.close()
-    cluster.close()
+    yield from embedded_scheduler(1)
 
 
 @pytest.mark.cluster
