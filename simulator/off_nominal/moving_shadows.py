@@ -186,10 +186,7 @@ class MovingShadows:
                     continue
                 row0, row1, col0, col1 = 0, height, 0, width
             else:
-                col0 = max(int(np.floor(pixels[:, 0].min())) - 2, 0)
-                col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width)
-                row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
-                row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height)
+                row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width, height)
             if col1 > col0 and row1 > row0:
                 windows.append((k, start, row0, row1, col0, col1))
         if not windows:

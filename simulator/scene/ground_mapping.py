@@ -306,6 +306,17 @@ def world_to_pixels(camera: Camera, pose: CameraPose, points_m: np.ndarray) -> t
     return cahvor.project(camera.model, in_camera)
 
 
+def pixel_window(pixels: np.ndarray, width_px: int, height_px: int) -> tuple[int, int, int, int]:
+    """Rows and columns ``(row0, row1, col0, col1)`` of the frame that hold projected points ``pixels``
+    (N, 2) (column, row) with a 2-pixel margin (bilinear footprint and rounding), clipped to the frame;
+    empty when ``row1 <= row0`` or ``col1 <= col0``."""
+    col0 = max(int(np.floor(pixels[:, 0].min())) - 2, 0)
+    col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width_px)
+    row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
+    row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height_px)
+    return row0, row1, col0, col1
+
+
 def border_pixels(camera: Camera, per_side: int = 16) -> np.ndarray:
     """Pixel coordinates around the image border (outer pixel edges), closed polygon order, (4*per_side, 2)."""
     w, h = camera.width_px - 0.5, camera.height_px - 0.5

@@ -97,10 +97,7 @@ def _bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.
     if not in_front.any():
         return None
     if in_front.all():
-        col0 = max(int(np.floor(pixels[:, 0].min())) - 2, 0)
-        col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width)
-        row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
-        row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height)
+        row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width, height)
     else:   # the camera is beside or inside the cone's extent: test every pixel
         col0, col1, row0, row1 = 0, width, 0, height
     if col1 <= col0 or row1 <= row0:

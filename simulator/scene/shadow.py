@@ -104,10 +104,7 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
         if not in_front.all():   # the shadow straddles the image plane: evaluate the whole frame
             col0, col1, row0, row1 = 0, width, 0, height
         else:
-            col0 = max(int(np.floor(pixels[:, 0].min())) - 2, 0)
-            col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width)
-            row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
-            row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height)
+            row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width, height)
         if col1 <= col0 or row1 <= row0:
             continue
         rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
