@@ -26,12 +26,27 @@ centres: the pixel aperture's MTF ``|sinc(f p)|`` is in it. Convolution commutes
 is the remaining factor: each field is multiplied by ``OTF`` in the frequency domain at the resolution
 it is sampled (12 um columns; 12 um rows, or ``b`` x 12 um rows for a field given per binning block),
 which is exact for the field's band-limited content. The frame is mirrored 16 px beyond its edges
-(what lies outside the view is unknown; a mirror keeps the local statistics); the few
-slightly negative values the band-limited filter leaves next to a sky edge are set to 0.
+(what lies outside the view is unknown; a mirror keeps the local statistics) and padded on to OpenCV's
+next fast DFT length; the product is taken on OpenCV's packed real spectrum (``cv2.dft``,
+``cv2.mulSpectrums``), single precision. The few slightly negative values the band-limited filter leaves
+next to a sky edge are set to 0.
+
+Smear fields
+------------
+A flush or transfer field reaches the charge only through column sums: the charge of row ``r`` gets
+``T/N`` times the sum of the column's rates over the rows the packet crosses
+(simulator.detector.charge_transfer). Blurring the field along a column moves light between rows of
+the same column, which leaves such a sum unchanged except for the light within the PSF's reach of
+where the sum starts or stops: of order ``w / N`` of the smear (``w`` ~ 1 px, ``N`` = 1024 rows).
+Across columns the blur is the line-spread function, whose transfer function is the OTF's section
+``OTF(f_x, 0)``. So a smear field that is not the exposure field itself is filtered along its rows
+only (a 1-D DFT per row, :func:`blur_field_along_rows`): a sixth of the 2-D cost, the same charge to
+``w / N`` (test: against the 2-D blur in the camera chain).
 :func:`system_mtf` (optics x pixel) is what ``campaign camera`` prints.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import scipy.fft
 import scipy.optimize
@@ -131,21 +146,82 @@ def encircled_energy_radius_m(camera: Camera, fraction: float = 0.8) -> float:
     return float(scipy.optimize.brentq(lambda r: float(encircled_energy(r, camera)) - fraction, low, radii[above]))
 
 
+def _padded_shape(rows: int, cols: int, pad_rows: int) -> tuple[int, int]:
+    """The DFT size of a field with its mirrored margins: OpenCV's next fast (2, 3, 5-smooth) length."""
+    return cv2.getOptimalDFTSize(rows + 2 * pad_rows), cv2.getOptimalDFTSize(cols + 2 * PAD_PX)
+
+
 def _otf_grid(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.ndarray:
-    """The OTF on the rfft2 grid of a padded field of ``shape``, float32 (rows, cols // 2 + 1), cached."""
+    """The OTF on the rfft2 grid of a padded field of ``shape``, float64 (rows, cols // 2 + 1), cached."""
     cache = DERIVED.of(camera, "psf")
-    key = (shape, row_pitch_m)
+    key = ("rfft2", shape, row_pitch_m)
     if key not in cache:
         radial = np.linspace(0.0, cutoff_frequency_cyc_per_m(camera), RADIAL_SAMPLES)
         table = optics_mtf(radial, camera)
         fy = scipy.fft.fftfreq(shape[0], d=row_pitch_m)
         fx = scipy.fft.rfftfreq(shape[1], d=camera.pixel_pitch_m)
         frequency = np.hypot(fy[:, None], fx[None, :])
-        otf = np.interp(frequency, radial, table, right=0.0).astype(np.float32)
+        otf = np.interp(frequency, radial, table, right=0.0)
         otf[0, 0] = 1.0                       # energy conserved exactly
         otf.setflags(write=False)
         cache[key] = otf
     return cache[key]
+
+
+def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.ndarray:
+    """The OTF as OpenCV's packed (CCS) spectrum of ``shape``, float32, for ``cv2.mulSpectrums`` (cached).
+
+    It is the forward DFT of the OTF's own periodic kernel (the inverse real DFT of :func:`_otf_grid`),
+    so OpenCV's packing of the half-spectrum is its own, whatever the parity of the sizes."""
+    cache = DERIVED.of(camera, "psf")
+    key = ("ccs", shape, row_pitch_m)
+    if key not in cache:
+        kernel = scipy.fft.irfft2(_otf_grid(camera, shape, row_pitch_m), s=shape)
+        packed = cv2.dft(kernel.astype(np.float32))
+        packed.setflags(write=False)
+        cache[key] = packed
+    return cache[key]
+
+
+def _row_otf_packed(camera: Camera, cols: int) -> np.ndarray:
+    """The OTF along a row, ``OTF(f_x, 0)``, laid out as OpenCV's packed spectrum of one real row of
+    ``cols`` samples (Re0, Re1, Im1, Re2, Im2, ..., and Re of the Nyquist term for even ``cols``):
+    real and symmetric, it multiplies a frequency's real and imaginary parts alike. float32 (cols,), cached."""
+    cache = DERIVED.of(camera, "psf")
+    key = ("row", cols)
+    if key not in cache:
+        otf = optics_mtf(scipy.fft.rfftfreq(cols, d=camera.pixel_pitch_m), camera)
+        otf[0] = 1.0
+        packed = np.empty(cols, dtype=np.float32)
+        packed[0] = otf[0]
+        pairs = (cols - 1) // 2
+        packed[1:2 * pairs + 1] = np.repeat(otf[1:pairs + 1], 2)
+        if cols % 2 == 0:
+            packed[-1] = otf[cols // 2]
+        packed.setflags(write=False)
+        cache[key] = packed
+    return cache[key]
+
+
+def _checked(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(field as float32, the field with non-finite pixels set to 0, mask of those pixels or None);
+    raises ValueError on a negative finite value."""
+    field = np.asarray(field_w_m2_sr_um, dtype=np.float32)
+    finite = bool(np.isfinite(field.sum()))
+    bad = None if finite else ~np.isfinite(field)
+    work = field if bad is None else np.where(bad, np.float32(0.0), field)
+    if float(work.min()) < 0.0:      # the chain's own check would no longer see it once blurred and clipped
+        raise ValueError(f"radiance field has negative values (min {float(work.min()):.4g} "
+                         "W m^-2 sr^-1 um^-1); radiance must be >= 0")
+    return field, np.ascontiguousarray(work), bad
+
+
+def _finished(blurred: np.ndarray, field: np.ndarray, bad: np.ndarray | None) -> np.ndarray:
+    """Clip the band-limited filter's small negative ringing to 0 and put the non-finite pixels back."""
+    out = np.maximum(blurred, np.float32(0.0))
+    if bad is not None:
+        out[bad] = field[bad]
+    return out
 
 
 def blur_field(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
@@ -167,36 +243,43 @@ def blur_field(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
     ValueError
         A finite value of the field is negative.
     """
-    field = np.asarray(field_w_m2_sr_um, dtype=np.float32)
+    field, work, bad = _checked(field_w_m2_sr_um)
     rows, cols = field.shape
     row_pitch_m = camera.pixel_pitch_m * camera.height_px / rows
-    finite = bool(np.isfinite(field.sum()))
-    bad = None if finite else ~np.isfinite(field)
-    work = field if bad is None else np.where(bad, np.float32(0.0), field)
-    if float(work.min()) < 0.0:      # the chain's own check would no longer see it once blurred and clipped
-        raise ValueError(f"radiance field has negative values (min {float(work.min()):.4g} "
-                         "W m^-2 sr^-1 um^-1); radiance must be >= 0")
     pad_rows = int(np.ceil(PAD_PX * camera.pixel_pitch_m / row_pitch_m))
-    padded_shape = (scipy.fft.next_fast_len(rows + 2 * pad_rows),
-                    scipy.fft.next_fast_len(cols + 2 * PAD_PX))
-    padded = np.pad(work, ((pad_rows, padded_shape[0] - rows - pad_rows), (PAD_PX, padded_shape[1] - cols - PAD_PX)),
-                    mode="symmetric")
-    spectrum = scipy.fft.rfft2(padded, workers=1, overwrite_x=True)
-    spectrum *= _otf_grid(camera, padded_shape, row_pitch_m)
-    blurred = scipy.fft.irfft2(spectrum, s=padded_shape, workers=1, overwrite_x=True)
-    out = np.maximum(blurred[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols], np.float32(0.0)).astype(np.float32, copy=False)
-    if bad is not None:
-        out[bad] = field[bad]
-    return out
+    padded_shape = _padded_shape(rows, cols, pad_rows)
+    padded = cv2.copyMakeBorder(work, pad_rows, padded_shape[0] - rows - pad_rows,
+                                PAD_PX, padded_shape[1] - cols - PAD_PX, cv2.BORDER_REFLECT)   # mirror: f e d | d e f
+    spectrum = cv2.mulSpectrums(cv2.dft(padded), _otf_packed(camera, padded_shape, row_pitch_m), 0)
+    blurred = cv2.idft(spectrum, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    return _finished(blurred[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols], field, bad)
+
+
+def blur_field_along_rows(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
+    """A smear-period radiance field through the optics' line-spread function across columns only
+    (``OTF(f_x, 0)`` along each row; the module doc's "Smear fields" says why this is the PSF's whole
+    effect on smear). Same parameters, returns and errors as :func:`blur_field`."""
+    field, work, bad = _checked(field_w_m2_sr_um)
+    cols = field.shape[1]
+    padded_cols = cv2.getOptimalDFTSize(cols + 2 * PAD_PX)
+    padded = cv2.copyMakeBorder(work, 0, 0, PAD_PX, padded_cols - cols - PAD_PX, cv2.BORDER_REFLECT)
+    spectrum = cv2.dft(padded, flags=cv2.DFT_ROWS)
+    spectrum *= _row_otf_packed(camera, padded_cols)
+    blurred = cv2.idft(spectrum, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    return _finished(blurred[:, PAD_PX:PAD_PX + cols], field, bad)
 
 
 def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:
-    """The three period fields seen through the optics; fields that are one object stay one object."""
-    done: dict[int, np.ndarray] = {}
+    """The three period fields seen through the optics: the exposure field through the PSF; a flush or
+    transfer field that is the exposure field's own object shares its blurred copy, any other one goes
+    through the line-spread function across columns (module doc, "Smear fields"). Fields that are one
+    object stay one object."""
+    exposure = blur_field(fields.exposure, camera)
+    done: dict[int, np.ndarray] = {id(fields.exposure): exposure}
 
-    def blur(field: np.ndarray) -> np.ndarray:
+    def smear(field: np.ndarray) -> np.ndarray:
         if id(field) not in done:
-            done[id(field)] = blur_field(field, camera)
+            done[id(field)] = blur_field_along_rows(field, camera)
         return done[id(field)]
 
-    return RadianceFields(blur(fields.flush), blur(fields.exposure), blur(fields.transfer))
+    return RadianceFields(smear(fields.flush), exposure, smear(fields.transfer))

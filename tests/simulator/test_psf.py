@@ -192,3 +192,35 @@ def test_bad_optics_tables_get_one_line_naming_the_field(tmp_path, mer_a_path, o
         load_camera(path)
     message = str(raised.value)
     assert "\n" not in message and str(path) in message and field in message, message
+
+
+@pytest.mark.parametrize("fx", [0.1, 0.3, 0.5])
+def test_smear_fields_see_the_line_spread_across_columns_only(mono, fx):
+    rows, cols = np.indices((256, 1024))
+    across = (40.0 + 10.0 * np.cos(2 * np.pi * fx * cols + 0.3)).astype(np.float32)
+    v = fx / PITCH_M * WAVELENGTH_M * 12.0
+    ratio = amplitude(psf.blur_field_along_rows(across, mono), fx, 0.0, 32) / amplitude(across, fx, 0.0, 32)
+    assert ratio == pytest.approx(closed_form_mtf(v), abs=2e-3)
+    along = (40.0 + 10.0 * np.cos(2 * np.pi * 0.25 * rows)).astype(np.float32)   # along a column: untouched
+    np.testing.assert_allclose(psf.blur_field_along_rows(along, mono), along, rtol=1e-5)
+
+
+def test_line_spread_smear_gives_the_charge_of_the_full_psf(mer_a):
+    # a textured scene whose flush/transfer fields differ from the exposure field: the chain filters them
+    # along rows only; the charge must equal that of the full 2-D PSF on all three to O(w / N) of the smear
+    rng = np.random.default_rng(3)
+    texture = (30.0 + 8.0 * rng.standard_normal((1024, 1024))).clip(0).astype(np.float32)
+    flush, transfer = np.roll(texture, 5, axis=1), np.roll(texture, -7, axis=0)
+    plain = dict(falloff=False, prnu=False, dark_current=False, shot_noise=False, read_noise=False)
+    chain = render_image(mer_a, (flush, texture, transfer), np.random.default_rng(0),
+                         CameraEffects(optics_psf=True, **plain)).expected_charge_e
+    full = [psf.blur_field(field, mer_a) for field in (flush, texture, transfer)]
+    exact = render_image(mer_a, full, np.random.default_rng(0),
+                         CameraEffects(optics_psf=False, **plain)).expected_charge_e
+    smear_only = render_image(mer_a, (flush, np.zeros_like(texture), transfer), np.random.default_rng(0),
+                              CameraEffects(optics_psf=False, **plain)).expected_charge_e
+    assert np.max(np.abs(chain - exact)) < 5e-4 * float(smear_only.mean())
+    # and the across-column part matters: without it the smear of this texture differs far more
+    unblurred = render_image(mer_a, (flush, full[1], transfer), np.random.default_rng(0),
+                             CameraEffects(optics_psf=False, **plain)).expected_charge_e
+    assert np.max(np.abs(unblurred - exact)) > 20 * np.max(np.abs(chain - exact))
