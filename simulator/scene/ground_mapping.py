@@ -11,10 +11,21 @@ interpolated bilinearly (``cv2.resize``) to every pixel *before* the division by
 scaled to unit boresight component, which makes them exactly affine in pixel coordinates for a
 distortion-free camera, so the interpolation is exact there and the horizon stays sharp (the division is
 per pixel). Lens distortion adds a small smooth residual (measured by the tests and the benchmark).
-``grid_step_px = 0`` rotates every cached pixel ray (reference).
+``grid_step_px = 0`` uses every cached pixel ray (reference): the numerators ``P_c``, ``P_r`` and
+``d_z`` are linear forms of the camera-frame ray, so each is one ``cv2.transform`` of the cached
+(H, W, 3) float32 rays with a 1 x 3 matrix (the rotation folded into the form) instead of rotating
+every ray and combining the components; the world rays themselves are rotated only for the windows
+that need them (shadows, heat shield) or on request (:meth:`GroundMap.rays`). Same equations, float32
+rounding of the folded coefficients (~1e-7 relative).
+
+Work arrays: full-frame intermediates that die inside one call (the upsampled planes before the
+division, an upsampled ratio or flow before it is applied) are written into per-thread scratch arrays
+(:func:`scratch`) instead of new allocations: a fresh 4 MiB array costs page faults on first touch
+(measured ~1.5 ms here, more on a loaded machine), as much as the arithmetic. Same operations, same bits.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -67,6 +78,25 @@ def camera_cache(camera: Camera) -> dict:
     return DERIVED.of(camera, "scene")
 
 
+SCRATCH_ARRAYS_KEPT = 12         # per thread: a few frame sizes (the camera, enlarged cameras) x a few uses
+_scratch_pools = threading.local()
+
+
+def scratch(name: str, shape: tuple[int, ...], dtype=np.float32) -> np.ndarray:
+    """A reusable work array of this thread for ``name`` (contents undefined, overwritten by the next
+    caller of the same name and shape): for intermediates that never leave the function using them."""
+    pool = getattr(_scratch_pools, "pool", None)
+    if pool is None:
+        pool = _scratch_pools.pool = {}
+    key = (name, tuple(shape), np.dtype(dtype).str)
+    array = pool.get(key)
+    if array is None:
+        while len(pool) >= SCRATCH_ARRAYS_KEPT:
+            del pool[next(iter(pool))]
+        array = pool[key] = np.empty(shape, dtype=dtype)
+    return array
+
+
 def node_positions(size_px: int, step_px: int) -> np.ndarray:
     """Pixel coordinates of the coarse grid nodes along one axis: ``(k + 0.5) step - 0.5`` for
     k = -1 .. size/step (one node beyond each edge, the layout that ``cv2.resize`` upsamples)."""
@@ -76,18 +106,24 @@ def node_positions(size_px: int, step_px: int) -> np.ndarray:
 
 
 def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_px: int,
-                   row_step_px: int | None = None) -> np.ndarray:
+                   row_step_px: int | None = None, scratch_name: str | None = None) -> np.ndarray:
     """Bilinear interpolation of values on the :func:`node_positions` grid to every pixel.
 
     ``node_values`` has shape (ny, nx) or (ny, nx, channels) with ny = height/row_step + 2,
     nx = width/step + 2 (``row_step_px`` defaults to ``step_px``; a different one serves a grid of
     coarser rows, e.g. binned rows, with the same node layout in its own units).
-    Returns float32 of shape (height, width[, channels]).
+    Returns float32 of shape (height, width[, channels]); with ``scratch_name`` it is a view of that
+    :func:`scratch` array (the caller must be done with it before the name is used again).
     """
     row_step_px = step_px if row_step_px is None else row_step_px
     ny, nx = node_values.shape[:2]
-    big = cv2.resize(np.ascontiguousarray(node_values, dtype=np.float32), (nx * step_px, ny * row_step_px),
-                     interpolation=cv2.INTER_LINEAR)
+    size = (nx * step_px, ny * row_step_px)
+    nodes = np.ascontiguousarray(node_values, dtype=np.float32)
+    if scratch_name is None:
+        big = cv2.resize(nodes, size, interpolation=cv2.INTER_LINEAR)
+    else:
+        big = scratch(scratch_name, (size[1], size[0]) + node_values.shape[2:])
+        cv2.resize(nodes, size, dst=big, interpolation=cv2.INTER_LINEAR)
     return big[row_step_px:row_step_px + height_px, step_px:step_px + width_px]
 
 
@@ -145,11 +181,15 @@ class GroundMap:
     length, when the map was built on the coarse grid; exact unit rays otherwise).
     """
 
-    def __init__(self, col, row, sky, any_sky, step_px, node_rays_world=None, full_rays=None):
+    def __init__(self, col, row, sky, any_sky, step_px, node_rays_world=None, full_rays=None,
+                 camera_rays=None, camera_to_world=None, ray_dz=None):
         self.col, self.row, self.sky, self.any_sky = col, row, sky, any_sky
         self._step = step_px
         self._nodes = node_rays_world
         self._full = full_rays
+        self.camera_rays = camera_rays          # exact map: the camera's unit pixel rays (H, W, 3) float32
+        self.camera_to_world = camera_to_world  # exact map: (3, 3) rotation of those rays
+        self.ray_dz = ray_dz                    # exact map: world d_z of every unit pixel ray (H, W) float32
 
     def rays(self, row0: int = 0, row1: int | None = None, col0: int = 0, col1: int | None = None) -> np.ndarray:
         """World ray directions of pixels ``[row0:row1, col0:col1]``, (rows, cols, 3) float32."""
@@ -158,7 +198,14 @@ class GroundMap:
         col1 = width if col1 is None else col1
         if self._full is not None:
             return self._full[row0:row1, col0:col1]
-        if (row0, row1, col0, col1) == (0, height, 0, width):
+        full = (row0, row1, col0, col1) == (0, height, 0, width)
+        if self.camera_rays is not None:      # exact map: rotate the cached unit rays of the window
+            window = self.camera_rays[row0:row1, col0:col1]
+            rotated = cv2.transform(window, self.camera_to_world)
+            if full:
+                self._full = rotated
+            return rotated
+        if full:
             self._full = upsample_nodes(self._nodes, self._step, height, width)
             return self._full
         return interpolate_nodes_window(self._nodes, self._step, row0, row1, col0, col1)
@@ -211,17 +258,18 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         nodes = node_rays(camera, grid_step_px) @ pose.camera_to_world.T
         dz_nodes = nodes[..., 2]
         planes = [col0 * dz_nodes - k * nodes[..., 0], row0 * dz_nodes + k * nodes[..., 1], dz_nodes]
-        col_num, row_num, dz = (upsample_nodes(plane, grid_step_px, height, width) for plane in planes)
+        col_num, row_num, dz = (upsample_nodes(plane, grid_step_px, height, width, scratch_name=name)
+                                for plane, name in zip(planes, ("map_col", "map_row", "map_dz")))
         # interpolation is a convex combination: all nodes below the horizon -> every pixel is
         unit_dz_max = float(np.max(dz_nodes / np.linalg.norm(nodes, axis=-1)))
         any_sky = altitude <= 0 or unit_dz_max >= -HORIZON_EPSILON
-        full_rays = None
     else:
         nodes = None
-        full_rays = world_rays(camera, pose, 0)
-        dz = np.ascontiguousarray(full_rays[..., 2])
-        col_num = np.float32(col0) * dz - np.float32(k) * full_rays[..., 0]
-        row_num = np.float32(row0) * dz + np.float32(k) * full_rays[..., 1]
+        camera_rays = pixel_rays_f32(camera)
+        rotation = pose.camera_to_world
+        # P_c, P_r and d_z are linear forms of the camera-frame ray: one transform pass each
+        forms = (col0 * rotation[2] - k * rotation[0], row0 * rotation[2] + k * rotation[1], rotation[2])
+        col_num, row_num, dz = (cv2.transform(camera_rays, form[None, :]) for form in forms)
         any_sky = altitude <= 0 or float(dz.max()) >= -HORIZON_EPSILON
     col = cv2.divide(col_num, dz)
     row = cv2.divide(row_num, dz)
@@ -235,7 +283,9 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         row[sky] = -MAX_MAP_COORDINATE
     else:
         sky = np.zeros((height, width), dtype=bool)
-    return GroundMap(col, row, sky, any_sky, grid_step_px, nodes, full_rays)
+    if grid_step_px > 0:
+        return GroundMap(col, row, sky, any_sky, grid_step_px, nodes)
+    return GroundMap(col, row, sky, any_sky, 0, camera_rays=camera_rays, camera_to_world=rotation, ray_dz=dz)
 
 
 CACHED_RAY_SETS = 64            # distinct small pixel sets whose camera rays are kept per camera
@@ -254,10 +304,30 @@ def view_directions(camera: Camera, pose: CameraPose, ground_map: GroundMap,
     return -rays / norm[..., None]
 
 
-def field_at_pixels(values: np.ndarray, camera: Camera, grid_step_px: int) -> np.ndarray:
-    """A field computed by :func:`view_directions`' layout, at every pixel (H, W) float32."""
+def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
+                 sun_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel cosines of the emission angle (ground-to-camera direction against the vertical) and
+    of the phase angle (against the sun), ((H, W), (H, W)) float32, new arrays.
+
+    On an exact map (``grid_step_px = 0``) the pixel rays are unit vectors, so ``cos e = -d_z`` and
+    ``cos phase = -(R^T s) . r`` (one transform of the cached camera-frame rays); otherwise from
+    :func:`view_directions`.
+    """
+    if ground_map.ray_dz is not None:
+        rotation = ground_map.camera_to_world
+        cos_emission = np.negative(ground_map.ray_dz)
+        cos_phase = cv2.transform(ground_map.camera_rays, -(rotation.T @ np.asarray(sun_world, dtype=float))[None, :])
+        return cos_emission, cos_phase
+    view = view_directions(camera, pose, ground_map, 0)
+    return np.ascontiguousarray(view[..., 2]), view @ np.asarray(sun_world, dtype=np.float32)
+
+
+def field_at_pixels(values: np.ndarray, camera: Camera, grid_step_px: int,
+                    scratch_name: str | None = None) -> np.ndarray:
+    """A field computed by :func:`view_directions`' layout, at every pixel (H, W) float32 (upsampled
+    into that :func:`scratch` array when ``scratch_name`` is given)."""
     if grid_step_px > 0:
-        return upsample_nodes(values, grid_step_px, camera.height_px, camera.width_px)
+        return upsample_nodes(values, grid_step_px, camera.height_px, camera.width_px, scratch_name=scratch_name)
     return np.asarray(values, dtype=np.float32)
 
 

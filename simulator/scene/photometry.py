@@ -136,6 +136,51 @@ def photometric_ratio(view_to_camera_world: np.ndarray, sun_world: np.ndarray, m
     return (value / np.float32(moc_model_value)).astype(np.float32)
 
 
+def photometric_ratio_from_cosines(cos_emission: np.ndarray, cos_phase: np.ndarray, sun_z: float,
+                                   moc_model_value: float) -> np.ndarray:
+    """:func:`photometric_ratio` from the cosines of the emission and phase angles of every pixel.
+
+    The same float32 operations in the same order (so the same bits for the same cosines), done in
+    place on the two given (H, W) float32 arrays (both are overwritten; the result is one of them) and
+    with the low-phase polynomial of equation (2) evaluated only where the phase angle is below
+    10 deg. ``sun_z`` is the cosine of the solar incidence on level ground (> 0: sun up).
+
+    Returns
+    -------
+    ndarray, float32, shape (H, W): the DIMES / MOC ratio.
+    """
+    ratio = np.maximum(cos_emission, np.float32(0.0), out=cos_emission)       # mu
+    mu0 = np.float32(max(sun_z, 0.0))
+    if mu0 > 0:      # mu0 / (mu + mu0): the sum never vanishes while the sun is up
+        ratio += mu0
+        np.divide(mu0, ratio, out=ratio)
+    else:
+        ratio[:] = 0.0
+    alpha = np.clip(cos_phase, -1.0, 1.0, out=cos_phase)
+    np.arccos(alpha, out=alpha)
+    np.degrees(alpha, out=alpha)
+    low = np.flatnonzero(alpha < 10.0)
+    low_phase = _low_phase_polynomial(alpha.ravel()[low]) if low.size else None
+    alpha -= np.float32(10.0)                                                 # eq. (3) and beyond, in place
+    alpha *= np.float32(1.03e-2)
+    np.subtract(np.float32(1.82), alpha, out=alpha)
+    if low_phase is not None:
+        alpha.ravel()[low] = low_phase
+    np.maximum(alpha, np.float32(PHASE_FUNCTION_FLOOR), out=alpha)
+    ratio *= alpha
+    ratio /= np.float32(moc_model_value)
+    return ratio
+
+
+def _low_phase_polynomial(alpha_deg: np.ndarray) -> np.ndarray:
+    """Equation (2) by Horner's rule in the dtype of ``alpha_deg`` (as :func:`phase_function`)."""
+    dtype = alpha_deg.dtype.type
+    low = np.zeros_like(alpha_deg)
+    for coefficient in reversed(_POLY_LOW_PHASE):
+        low = low * alpha_deg + dtype(coefficient)
+    return low
+
+
 def solar_band_irradiance_w_m2_um(sun_distance_au: float) -> float:
     """Band-mean (0.4-1.1 um) solar spectral irradiance at ``sun_distance_au``, W m^-2 um^-1."""
     if not sun_distance_au > 0:

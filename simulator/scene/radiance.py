@@ -113,9 +113,14 @@ def casters(pose: Pose, config) -> list[shadow.Caster]:
 def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
     """DIMES/MOC photometric ratio of every pixel (H, W) float32; on the coarse node grid and
-    interpolated when ``grid_step_px > 0``, else per pixel from the ground map's rays."""
+    interpolated when ``grid_step_px > 0``, else per pixel from the ground map's rays (emission and
+    phase cosines, :func:`~simulator.scene.photometry.photometric_ratio_from_cosines`)."""
+    if grid_step_px == 0:
+        cos_emission, cos_phase = ground_mapping.view_cosines(camera, pose, ground_map, sun)
+        return photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, float(sun[2]), moc_value)
     view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
-    return ground_mapping.field_at_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px)
+    return ground_mapping.field_at_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px,
+                                          scratch_name="photometric_ratio")
 
 
 HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not in supersampling's samples)
@@ -190,9 +195,12 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     if relief.has_relief(terrain, config):   # parallax and occlusion of the height field (scene.relief)
         gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config)
         crop, inside = relief_hits.crop, False
+    area_filter = effects.pixel_area_filter and not _sub_sample   # (a supersampled render averages point samples)
     moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky if gmap.any_sky else None,
-                                              crop, may_leave_terrain=not inside)
-    if effects.pixel_area_filter and not _sub_sample:   # (a supersampled render averages point samples)
+                                              crop, may_leave_terrain=not inside,
+                                              out=ground_mapping.scratch("point_samples", gmap.col.shape)
+                                              if area_filter else None)
+    if area_filter:
         moc_if = pixel_area_average(moc_if)
         if gmap.any_sky:
             moc_if[gmap.sky] = 0.0        # no terrain bleeding across the horizon
@@ -245,7 +253,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
 
 
 def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_mapping.CameraPose,
-             step_px: int = WARP_GRID_STEP_PX, block_rows: int = 1) -> np.ndarray | None:
+             step_px: int = WARP_GRID_STEP_PX, block_rows: int = 1,
+             scratch_name: str | None = None) -> np.ndarray | None:
     """Where each pixel of an image taken at ``target`` finds its ground point in an image taken at ``source``.
 
     With ``block_rows = b > 1`` the map is for blocks of ``b`` rows (row k centred on pixel row
@@ -255,7 +264,8 @@ def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_m
     -------
     ndarray (height / b, width, 2) float32 of (column, row) source coordinates, bilinear from the node
     grid, or None when a node's ray misses the ground or its point is behind or more than one node step
-    outside the source frame (the flow is then not a small smooth warp).
+    outside the source frame (the flow is then not a small smooth warp). With ``scratch_name`` the map
+    is a view of that :func:`~simulator.scene.ground_mapping.scratch` array (use it before the next call).
     """
     rows = ground_mapping.node_positions(camera.height_px, step_px)
     cols = ground_mapping.node_positions(camera.width_px, step_px)
@@ -270,11 +280,12 @@ def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_m
             or source_pixels[..., 1].max() > camera.height_px + margin):
         return None
     if block_rows == 1:
-        return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px, camera.width_px)
+        return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px, camera.width_px,
+                                             scratch_name=scratch_name)
     # node rows (k + 1/2) s - 1/2 in pixels are (k + 1/2) (s / b) - 1/2 in blocks: the same layout
     source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (block_rows - 1)) / block_rows
     return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px // block_rows, camera.width_px,
-                                         row_step_px=step_px // block_rows)
+                                         row_step_px=step_px // block_rows, scratch_name=scratch_name)
 
 
 def _clamped_pose(profile: DescentProfile, time_s: float) -> Pose:
@@ -380,8 +391,9 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
                               moving_shadows)
                  for time in motion_blur.substep_times(start, end, count)])
             continue
-        else:
-            pose_fields = [render(terrain, camera, pose_at(float(time)), sun_world, config)
+        else:   # an odd exposure count's middle sub-pose may be the centre instant itself: rendered above
+            pose_fields = [centre if float(time) == centre_s else render(terrain, camera, pose_at(float(time)),
+                                                                         sun_world, config)
                            for time in motion_blur.substep_times(start, end, count)]
         if period == "exposure":
             exposure_fields = pose_fields
@@ -400,7 +412,8 @@ def _smear_field(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.nda
     block_rows = camera.binning_rows
     flow = None
     if not centre.sky.any() and WARP_GRID_STEP_PX % block_rows == 0:
-        flow = flow_map(camera, centre.camera_pose, ground_mapping.camera_pose(camera, pose), block_rows=block_rows)
+        flow = flow_map(camera, centre.camera_pose, ground_mapping.camera_pose(camera, pose), block_rows=block_rows,
+                        scratch_name="smear_flow")
     if flow is None:
         return block_means(radiance_at_pose(terrain, camera, pose, sun_world, config,
                                             moving_shadows=moving_shadows).radiance,

@@ -6,6 +6,11 @@ image (and stays under its 32767-pixel source limit), then sample it at the frac
 coordinates of every pixel's ground point. Ground points outside the orbital strip are *flagged*
 (``outside``) and filled with the mean I/F of the sampled area: flat grey, no texture, as in the
 paper's Fig. 10 where the field of view left the MOC image.
+
+When the whole terrain is within ``cv2.remap``'s source limit the remap reads the terrain in place at
+the full-frame grid coordinates (no copy of the crop, no shifted coordinate maps: subtracting the
+crop's integer origin from a float32 coordinate is exact, and remap's bilinear weights depend only on
+the fractional part, so the samples are the same bits); the crop still gives the fill value.
 """
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ import numpy as np
 from simulator.scene.terrain import Terrain
 
 CROP_MARGIN_PX = 2
+REMAP_MAX_SOURCE_PX = 32767      # cv2.remap reads sources below this size in both axes
 
 
 @dataclass(frozen=True)
@@ -61,7 +67,8 @@ def outside_mask(terrain: Terrain, col: np.ndarray, row: np.ndarray) -> np.ndarr
 
 
 def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: np.ndarray | None,
-                   crop: Crop, may_leave_terrain: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                   crop: Crop, may_leave_terrain: bool = True,
+                   out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Bilinear terrain I/F at fractional grid coordinates.
 
     Parameters
@@ -72,29 +79,45 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
     crop : Crop holding every in-strip ground point (see :func:`footprint_crop`)
     may_leave_terrain : bool
         False when the caller knows every ground point is inside the strip (skips the mask pass).
+    out : (H, W) float32, optional
+        Array to write the samples into (e.g. a scratch array the caller filters at once).
 
     Returns
     -------
     reflectance_if : (H, W) float32, MOC I/F (fill value outside the strip, 0 for sky)
     outside : (H, W) bool, ground points outside the strip
     """
-    if invalid is None:
-        invalid = np.zeros(col.shape, dtype=bool)
-        any_invalid = False
-    else:
-        any_invalid = bool(invalid.any())
+    any_invalid = invalid is not None and bool(invalid.any())
     if crop.empty:
-        outside = ~invalid
+        outside = np.ones(col.shape, dtype=bool) if invalid is None else ~invalid
         fill = float(np.mean(terrain.reflectance_if[::16, ::16]))
-        return np.where(outside, np.float32(fill), np.float32(0.0)).astype(np.float32), outside
-    source = np.ascontiguousarray(terrain.reflectance_if[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
-    map_x = col - np.float32(crop.col0) if crop.col0 else col
-    map_y = row - np.float32(crop.row0) if crop.row0 else row
-    sampled = cv2.remap(source, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        sampled = np.where(outside, np.float32(fill), np.float32(0.0)).astype(np.float32)
+        if out is not None:
+            out[...] = sampled
+            sampled = out
+        return sampled, outside
+    terrain_if = terrain.reflectance_if
+
+    def crop_source():
+        return np.ascontiguousarray(terrain_if[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
+    if (terrain_if.dtype == np.float32 and terrain_if.flags.c_contiguous
+            and max(terrain_if.shape) < REMAP_MAX_SOURCE_PX):
+        source, map_x, map_y = terrain_if, col, row      # the crop's samples, read in place (module doc)
+    else:
+        source = crop_source()
+        map_x = col - np.float32(crop.col0) if crop.col0 else col
+        map_y = row - np.float32(crop.row0) if crop.row0 else row
+    remap_args = dict(interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if out is None:
+        sampled = cv2.remap(source, map_x, map_y, **remap_args)
+    else:
+        sampled = cv2.remap(source, map_x, map_y, dst=out, **remap_args)
     if may_leave_terrain:
-        outside = outside_mask(terrain, col, row) & ~invalid
+        outside = outside_mask(terrain, col, row)
+        if invalid is not None:
+            outside &= ~invalid
         if outside.any():
-            sampled[outside] = np.float32(np.mean(source))
+            sampled[outside] = np.float32(np.mean(crop_source()))
     else:
         outside = np.zeros(col.shape, dtype=bool)
     if any_invalid:
