@@ -1,4 +1,7 @@
-"""`make bench`: run every benchmarks/bench_*.py module's run() and print its rows (also as CSV)."""
+"""`make bench`: run every benchmarks/bench_*.py module's run() and print its rows (also as CSV), then one
+summary line per target of issue #22 (benchmarks/targets.py): measured, target, ratio, PASS / MISS.
+
+``python -m benchmarks camera estimator`` runs only the named modules."""
 from __future__ import annotations
 
 import os
@@ -14,6 +17,7 @@ import time
 from pathlib import Path
 
 import benchmarks
+from benchmarks.targets import summary_lines
 
 
 def main(argv: list[str]) -> int:
@@ -45,6 +49,10 @@ def main(argv: list[str]) -> int:
             writer.writeheader()
             writer.writerows(all_rows)
         print(f"written {path}")
+    summary = summary_lines(all_rows)
+    if summary:
+        print("\n== targets (issue #22)")
+        print("\n".join(summary))
     return 0
 
 

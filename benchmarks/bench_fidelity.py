@@ -4,8 +4,10 @@ For each preset (simulator/fidelity.py) and a fixed set of cases (two per Gusev 
 three images): ms per image and per case (single thread), the per-stage breakdown (scene, camera,
 estimator), the RMS and max DN error of the expected (noise-free) image against the ``reference``
 preset, and the change of the estimated velocity against the reference preset's estimate on the same
-noise seeds. Budgets (DESIGN.md): <= 20 ms per image (camera), <= 80 ms per case, expected-image RMS
-error < 0.5 DN at the default preset.
+noise seeds. Targets (issue #22, rows ``fidelity/default/...`` and ``fidelity/reference/...``): a case
+(3 images + sensors + reference estimator, one thread) <= 40 ms at the default preset; default vs
+reference expected-image RMS error <= 0.5 DN (the worst case) and velocity change <= 0.05 m/s (the worst
+case); <= 1 s per image at the reference preset.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.targets import CASE_MS, REFERENCE_IMAGE_MS, RMS_DN_VS_REFERENCE, VELOCITY_CHANGE_MPS, target_columns
 from simulator.fidelity import PRESETS
 from simulator.scene_config import preset_config
 
@@ -95,9 +98,18 @@ def run() -> list[dict]:
                "max_dn_vs_reference": float(np.max(peak)), "valid": valid,
                "dv_vs_reference_mean_mps": float(np.mean(dv)) if dv else float("nan"),
                "dv_vs_reference_max_mps": float(np.max(dv)) if dv else float("nan")}
-        if preset == "default":
-            row.update(budget_camera_ms=20.0, budget_case_ms=80.0, budget_rms_dn=0.5,
-                       meets_budgets=bool(row["camera_ms"] <= 20.0 and row["ms_per_case"] <= 80.0
-                                          and row["rms_dn_vs_reference_max"] < 0.5))
         table.append(row)
-    return table
+    return table + _target_rows({row["name"]: row for row in table})
+
+
+def _target_rows(rows: dict[str, dict]) -> list[dict]:
+    """One row per target of the fidelity presets (benchmarks/targets.py)."""
+    default, reference = rows["fidelity/default"], rows["fidelity/reference"]
+    return [
+        {"name": "fidelity/default/case", **target_columns(default["ms_per_case"], CASE_MS, "ms")},
+        {"name": "fidelity/default/rms_dn_vs_reference_max",
+         **target_columns(default["rms_dn_vs_reference_max"], RMS_DN_VS_REFERENCE, "DN")},
+        {"name": "fidelity/default/dv_vs_reference_max",
+         **target_columns(default["dv_vs_reference_max_mps"], VELOCITY_CHANGE_MPS, "m/s")},
+        {"name": "fidelity/reference/image", **target_columns(reference["ms_per_image"], REFERENCE_IMAGE_MS, "ms")},
+    ]

@@ -71,6 +71,6 @@ def run() -> list[dict]:
                      "camera_ms": result.diagnostics.camera_ms,
                      "fields": sum(result.diagnostics.substeps.values()),
                      "exposure_substeps": result.diagnostics.substeps["exposure"]})
-    rows.append({"name": "scene/case_3_images_still_nadir", "ms": median_ms(lambda: [image(still, k) for k in range(3)], 3),
-                 "target_ms_incl_estimator": 80.0})
+    # the case target (<= 40 ms with sensors and the estimator) is measured on campaign cases: bench_fidelity
+    rows.append({"name": "scene/case_3_images_still_nadir", "ms": median_ms(lambda: [image(still, k) for k in range(3)], 3)})
     return rows
