@@ -78,7 +78,7 @@ def camera_cache(camera: Camera) -> dict:
     return DERIVED.of(camera, "scene")
 
 
-SCRATCH_ARRAYS_KEPT = 12         # per thread: a few frame sizes (the camera, enlarged cameras) x a few uses
+SCRATCH_ARRAYS_KEPT = 16         # per thread (least recently used dropped): a few frame sizes x a few uses
 _scratch_pools = threading.local()
 
 
@@ -89,11 +89,12 @@ def scratch(name: str, shape: tuple[int, ...], dtype=np.float32) -> np.ndarray:
     if pool is None:
         pool = _scratch_pools.pool = {}
     key = (name, tuple(shape), np.dtype(dtype).str)
-    array = pool.get(key)
+    array = pool.pop(key, None)
     if array is None:
         while len(pool) >= SCRATCH_ARRAYS_KEPT:
-            del pool[next(iter(pool))]
-        array = pool[key] = np.empty(shape, dtype=dtype)
+            del pool[next(iter(pool))]      # a caller still holding it keeps it alive
+        array = np.empty(shape, dtype=dtype)
+    pool[key] = array                       # most recently used last
     return array
 
 
@@ -230,7 +231,7 @@ def interpolate_nodes_window(node_values: np.ndarray, step_px: int, row0: int, r
 
 
 def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[float, float],
-                       metres_per_pixel: float, grid_step_px: int) -> GroundMap:
+                       metres_per_pixel: float, grid_step_px: int, scratch_maps: bool = False) -> GroundMap:
     """Intersect every pixel's ray with the ground and express the points on a ground grid.
 
     Parameters
@@ -241,6 +242,10 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         Grid spacing (m).
     grid_step_px : int
         Coarse interpolation step (0: exact per-pixel rays).
+    scratch_maps : bool
+        Write ``col``, ``row`` (and the exact map's ``d_z``) into this thread's :func:`scratch` arrays:
+        the map is then valid only until the next such call for a frame of the same size (a render
+        that is done with its map before it renders again).
 
     Notes
     -----
@@ -269,10 +274,17 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         rotation = pose.camera_to_world
         # P_c, P_r and d_z are linear forms of the camera-frame ray: one transform pass each
         forms = (col0 * rotation[2] - k * rotation[0], row0 * rotation[2] + k * rotation[1], rotation[2])
-        col_num, row_num, dz = (cv2.transform(camera_rays, form[None, :]) for form in forms)
+        names = ("exact_col_num", "exact_row_num", "exact_dz" if scratch_maps else None)
+        col_num, row_num, dz = (cv2.transform(camera_rays, form[None, :]) if name is None
+                                else cv2.transform(camera_rays, form[None, :], dst=scratch(name, (height, width)))
+                                for form, name in zip(forms, names))
         any_sky = altitude <= 0 or float(dz.max()) >= -HORIZON_EPSILON
-    col = cv2.divide(col_num, dz)
-    row = cv2.divide(row_num, dz)
+    if scratch_maps:
+        col = cv2.divide(col_num, dz, dst=scratch("map_col_out", (height, width)))
+        row = cv2.divide(row_num, dz, dst=scratch("map_row_out", (height, width)))
+    else:
+        col = cv2.divide(col_num, dz)
+        row = cv2.divide(row_num, dz)
     if any_sky:
         sky = dz >= -np.float32(HORIZON_EPSILON)
         if altitude <= 0:   # camera at or below the ground: nothing sensible to see, all sky
@@ -307,7 +319,8 @@ def view_directions(camera: Camera, pose: CameraPose, ground_map: GroundMap,
 def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
                  sun_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel cosines of the emission angle (ground-to-camera direction against the vertical) and
-    of the phase angle (against the sun), ((H, W), (H, W)) float32, new arrays.
+    of the phase angle (against the sun), ((H, W), (H, W)) float32: this thread's :func:`scratch`
+    arrays ``cos_emission``, ``cos_phase`` on an exact map (use them before the next call).
 
     On an exact map (``grid_step_px = 0``) the pixel rays are unit vectors, so ``cos e = -d_z`` and
     ``cos phase = -(R^T s) . r`` (one transform of the cached camera-frame rays); otherwise from
@@ -315,8 +328,9 @@ def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
     """
     if ground_map.ray_dz is not None:
         rotation = ground_map.camera_to_world
-        cos_emission = np.negative(ground_map.ray_dz)
-        cos_phase = cv2.transform(ground_map.camera_rays, -(rotation.T @ np.asarray(sun_world, dtype=float))[None, :])
+        cos_emission = np.negative(ground_map.ray_dz, out=scratch("cos_emission", ground_map.ray_dz.shape))
+        cos_phase = cv2.transform(ground_map.camera_rays, -(rotation.T @ np.asarray(sun_world, dtype=float))[None, :],
+                                  dst=scratch("cos_phase", ground_map.ray_dz.shape))
         return cos_emission, cos_phase
     view = view_directions(camera, pose, ground_map, 0)
     return np.ascontiguousarray(view[..., 2]), view @ np.asarray(sun_world, dtype=np.float32)

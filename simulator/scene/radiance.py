@@ -114,7 +114,8 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
     """DIMES/MOC photometric ratio of every pixel (H, W) float32; on the coarse node grid and
     interpolated when ``grid_step_px > 0``, else per pixel from the ground map's rays (emission and
-    phase cosines, :func:`~simulator.scene.photometry.photometric_ratio_from_cosines`)."""
+    phase cosines, :func:`~simulator.scene.photometry.photometric_ratio_from_cosines`). The result is a
+    :func:`~simulator.scene.ground_mapping.scratch` array: multiply it in before the next call."""
     if grid_step_px == 0:
         cos_emission, cos_phase = ground_mapping.view_cosines(camera, pose, ground_map, sun)
         return photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, float(sun[2]), moc_value)
@@ -162,20 +163,31 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
 
     With ``config.supersample = s > 1`` each pixel is the mean of ``s x s`` sub-pixel point samples on
     a regular grid (offsets ``(k + 0.5)/s - 0.5`` px; the samples themselves use no area shortcut);
-    masks are the union over the samples.
+    masks are the union over the samples. (``_sub_sample``: one such sample, whose radiance is a
+    scratch array the caller adds up before rendering the next.)
     """
     samples = config.supersample
     if samples > 1:
         single = config.model_copy(update={"supersample": 1})
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
-        parts = [radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single, _sub_sample=True,
-                                  moving_shadows=moving_shadows) for dr in offsets for dc in offsets]
-        radiance = motion_blur.average_fields([part.radiance for part in parts])
-        shields = [part.heat_shield for part in parts if part.heat_shield is not None]
-        centre = ground_mapping.camera_pose(camera, pose)
-        return PoseField(radiance, np.logical_or.reduce([part.sky for part in parts]),
-                         np.logical_or.reduce([part.outside for part in parts]),
-                         np.logical_or.reduce(shields) if shields else None, centre, parts[0].shadow_centres_m)
+        # each sample's field lives in a scratch array: summed (in sample order, as average_fields) at once
+        total = sky = outside = shield = None
+        centres: list = []
+        for dr in offsets:
+            for dc in offsets:
+                part = radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single,
+                                        _sub_sample=True, moving_shadows=moving_shadows)
+                if total is None:
+                    total, sky, outside = part.radiance.copy(), part.sky.copy(), part.outside.copy()
+                    centres = part.shadow_centres_m
+                else:
+                    total += part.radiance
+                    sky |= part.sky
+                    outside |= part.outside
+                if part.heat_shield is not None:
+                    shield = part.heat_shield.copy() if shield is None else shield | part.heat_shield
+        total *= np.float32(1.0 / samples**2)
+        return PoseField(total, sky, outside, shield, ground_mapping.camera_pose(camera, pose), centres)
     effects = config.effects
     sun = sun_unit_vector(sun_world)
     cam = ground_mapping.camera_pose(camera, pose)
@@ -190,16 +202,18 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
 
     ray_step = config.ray_grid_step_px if effects.coarse_ray_grid else 0
     gmap = ground_mapping.map_to_ground_grid(camera, cam, (terrain.origin_m[0], terrain.origin_m[1]),
-                                             terrain.metres_per_pixel, ray_step)
+                                             terrain.metres_per_pixel, ray_step, scratch_maps=True)
     relief_hits = None
     if relief.has_relief(terrain, config):   # parallax and occlusion of the height field (scene.relief)
         gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config)
         crop, inside = relief_hits.crop, False
     area_filter = effects.pixel_area_filter and not _sub_sample   # (a supersampled render averages point samples)
+    # the point samples are filtered into a new array at once, and a supersampling sample's field is summed
+    # by the caller before the next sample: both live in scratch arrays
     moc_if, outside = resample.sample_terrain(terrain, gmap.col, gmap.row, gmap.sky if gmap.any_sky else None,
                                               crop, may_leave_terrain=not inside,
                                               out=ground_mapping.scratch("point_samples", gmap.col.shape)
-                                              if area_filter else None)
+                                              if area_filter or _sub_sample else None)
     if area_filter:
         moc_if = pixel_area_average(moc_if)
         if gmap.any_sky:
