@@ -5,7 +5,8 @@ as a campaign worker runs it (:func:`campaign.run.case.compute_case`: three imag
 estimator), once nominal and once per off-nominal point, interleaved case by case so that load on the
 machine hits every point alike. ``ratio_vs_nominal`` = median case time of the point / median nominal
 case time (process CPU time, one thread). Targets (issue "twice as fast per case"): <= 2.0 for the x60
-angular rate, <= 1.3 for 100 dust particles and for every other effect. The cost curve rows give the
+angular rate, <= 1.3 for 100 dust particles and for every other effect. The ``nightly/`` rows are the 9 points of the nightly
+sweep (sitedata/sweeps/nightly.toml), each within 2x of the nominal point. The cost curve rows give the
 case time against the blur length (median pixels of image motion in the exposure, from the
 ``angular_rate_multiplier``) and against the dust particle count: it should flatten, not grow linearly.
 """
@@ -35,6 +36,13 @@ POINTS = {
 #: extra points of the cost curves (the nominal point and the x60 / dust_100 rows complete them)
 CURVE = {"angular_rate": [("angular_rate_multiplier", value) for value in (5.0, 15.0, 30.0)],
          "dust": [("dust_particle_count", value) for value in (10, 30, 300)]}
+#: the nightly sweep's grid (sitedata/sweeps/nightly.toml: dust count x angular-rate multiplier); each point's case
+#: time must stay within NIGHTLY_TARGET x the nominal point's. Points already measured above are aliased.
+NIGHTLY_DUST = (0, 30, 100)
+NIGHTLY_RATE = (1.0, 30.0, 60.0)
+NIGHTLY_TARGET = 2.0
+NIGHTLY_ALIASES = {(0, 1.0): "nominal", (30, 1.0): "dust=30", (100, 1.0): "dust_100", (0, 30.0): "angular_rate=30",
+                   (0, 60.0): "angular_rate_x60"}
 CURVE_ALIASES = {"angular_rate=1": "nominal", "angular_rate=60": "angular_rate_x60", "dust=0": "nominal",
                  "dust=100": "dust_100"}
 
@@ -76,6 +84,11 @@ def run() -> list[dict]:
     for curve, points in CURVE.items():
         for key, value in points:
             configs[f"{curve}={value:g}"] = _resources({key: value})
+    for dust in NIGHTLY_DUST:
+        for rate in NIGHTLY_RATE:
+            if (dust, rate) not in NIGHTLY_ALIASES:
+                configs[_nightly_name(dust, rate)] = _resources({"dust_particle_count": dust,
+                                                                  "angular_rate_multiplier": rate})
     plan = configs["nominal"][1]
     rows = plan.to_dict("records")[::max(1, len(plan) // CASES)][:CASES]
     times: dict[str, list[float]] = {name: [] for name in configs}
@@ -100,7 +113,7 @@ def run() -> list[dict]:
         target = TARGETS.get(name, DEFAULT_TARGET)
         table.append({"name": f"offnominal/{name}", "case_ms": float(np.median(times[name])),
                       "ratio_vs_nominal": ratio, **target_columns(ratio, target, "x")})
-    curve_names = sorted([name for name in configs if "=" in name] + list(CURVE_ALIASES),
+    curve_names = sorted([name for name in configs if "=" in name and not name.startswith("nightly/")] + list(CURVE_ALIASES),
                          key=lambda name: (name.split("=")[0], float(name.split("=")[1])))
     for name in curve_names:
         source = CURVE_ALIASES.get(name, name)
@@ -109,7 +122,17 @@ def run() -> list[dict]:
         if name.startswith("angular_rate="):
             row["exposure_blur_px"] = float(np.median(blur_px[source]))
         table.append(row)
+    for dust in NIGHTLY_DUST:
+        for rate in NIGHTLY_RATE:
+            source = NIGHTLY_ALIASES.get((dust, rate), _nightly_name(dust, rate))
+            ratio = float(np.median(times[source])) / nominal
+            table.append({"name": f"offnominal/{_nightly_name(dust, rate)}", "case_ms": float(np.median(times[source])),
+                          "ratio_vs_nominal": ratio, **target_columns(ratio, NIGHTLY_TARGET, "x")})
     return table
+
+
+def _nightly_name(dust: int, rate: float) -> str:
+    return f"nightly/dust={dust},rate={rate:g}"
 
 
 def _exposure_blur_px(resources, plan_row, multiplier: float) -> list[float]:
