@@ -17,7 +17,13 @@ The three CCD periods (:func:`period_fields`): the fast flush ``[t - T_flush, t]
 fields at sub-poses spaced by one terrain pixel of image shift (motion_blur). When the whole window moves
 the image by less than ``still_shift_terrain_px`` the exposure-centre field stands for all three (the
 same array object, which the camera chain converts once). Times outside the profile are clamped to its
-ends (the pose is held).
+ends (the pose is held). An odd exposure sub-pose count has its middle sub-pose at the exposure mid-time;
+when that instant is bit-equal to the mid-time the centre field already rendered stands for it.
+
+Supersampling (``supersample = s > 1``, the reference) renders the ``s x s`` sub-pixel samples one after
+the other, each into scratch arrays (:func:`~simulator.scene.ground_mapping.scratch`), and adds each to
+the pose's sum before the next (the order and float32 sums of :func:`~simulator.scene.motion_blur.average_fields`);
+per-pixel photometry there uses :func:`~simulator.scene.photometry.photometric_ratio_from_cosines`.
 
 Smear fields (fidelity shortcut ``warp_smear_fields``): the fast-flush and frame-transfer fields only
 enter the image through block sums of columns (smear, then 4-row binning), and their poses differ
@@ -171,23 +177,23 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         single = config.model_copy(update={"supersample": 1})
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
         # each sample's field lives in a scratch array: summed (in sample order, as average_fields) at once
-        total = sky = outside = shield = None
-        centres: list = []
+        def sample(dc: float, dr: float) -> PoseField:
+            return radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single,
+                                    _sub_sample=True, moving_shadows=moving_shadows)
+        first = sample(offsets[0], offsets[0])
+        total, sky, outside, shield = first.radiance.copy(), first.sky.copy(), first.outside.copy(), first.heat_shield
         for dr in offsets:
             for dc in offsets:
-                part = radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single,
-                                        _sub_sample=True, moving_shadows=moving_shadows)
-                if total is None:
-                    total, sky, outside = part.radiance.copy(), part.sky.copy(), part.outside.copy()
-                    centres = part.shadow_centres_m
-                else:
-                    total += part.radiance
-                    sky |= part.sky
-                    outside |= part.outside
+                if dr == offsets[0] and dc == offsets[0]:
+                    continue
+                part = sample(dc, dr)
+                total += part.radiance
+                sky |= part.sky
+                outside |= part.outside
                 if part.heat_shield is not None:
                     shield = part.heat_shield.copy() if shield is None else shield | part.heat_shield
         total *= np.float32(1.0 / samples**2)
-        return PoseField(total, sky, outside, shield, ground_mapping.camera_pose(camera, pose), centres)
+        return PoseField(total, sky, outside, shield, ground_mapping.camera_pose(camera, pose), first.shadow_centres_m)
     effects = config.effects
     sun = sun_unit_vector(sun_world)
     cam = ground_mapping.camera_pose(camera, pose)

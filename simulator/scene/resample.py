@@ -91,15 +91,18 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
     if crop.empty:
         outside = np.ones(col.shape, dtype=bool) if invalid is None else ~invalid
         fill = float(np.mean(terrain.reflectance_if[::16, ::16]))
-        sampled = np.where(outside, np.float32(fill), np.float32(0.0)).astype(np.float32)
+        filled = np.where(outside, np.float32(fill), np.float32(0.0)).astype(np.float32)
         if out is not None:
-            out[...] = sampled
-            sampled = out
-        return sampled, outside
+            out[...] = filled
+            return out, outside
+        return filled, outside
     terrain_if = terrain.reflectance_if
 
-    def crop_source():
+    def crop_source() -> np.ndarray:
         return np.ascontiguousarray(terrain_if[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
+    source: np.ndarray
+    map_x: np.ndarray
+    map_y: np.ndarray
     if (terrain_if.dtype == np.float32 and terrain_if.flags.c_contiguous
             and max(terrain_if.shape) < REMAP_MAX_SOURCE_PX):
         source, map_x, map_y = terrain_if, col, row      # the crop's samples, read in place (module doc)
@@ -107,11 +110,8 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
         source = crop_source()
         map_x = col - np.float32(crop.col0) if crop.col0 else col
         map_y = row - np.float32(crop.row0) if crop.row0 else row
-    remap_args = dict(interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    if out is None:
-        sampled = cv2.remap(source, map_x, map_y, **remap_args)
-    else:
-        sampled = cv2.remap(source, map_x, map_y, dst=out, **remap_args)
+    sampled = cv2.remap(source, map_x, map_y, dst=out, interpolation=cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
     if may_leave_terrain:
         outside = outside_mask(terrain, col, row)
         if invalid is not None:
