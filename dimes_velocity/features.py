@@ -12,6 +12,7 @@ selected.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -62,18 +63,57 @@ def interest_map(image: np.ndarray, config: EstimatorConfig) -> np.ndarray:
     return cv2.cornerMinEigenVal(image, blockSize=config.template_size_px, ksize=3)
 
 
+def interest_window(image: np.ndarray, config: EstimatorConfig, top: int, bottom: int, left: int,
+                    right: int) -> np.ndarray:
+    """:func:`interest_map` on rows ``top:bottom`` and columns ``left:right`` only, float32.
+
+    Computed on the window grown by the operator's reach (``template_size_px // 2`` of the block plus
+    1 of the 3 x 3 Sobel), clipped to the image: inside the window every value has the same support
+    as in the whole-image map, and where the grown window meets the image edge it has the same border
+    (OpenCV's filters sum in float64, exactly for these float32 products: the values are the same,
+    tested against the whole-image map)."""
+    reach = config.template_size_px // 2 + 1
+    rows, columns = image.shape
+    top_r, left_r = max(top - reach, 0), max(left - reach, 0)
+    bottom_r, right_r = min(bottom + reach, rows), min(right + reach, columns)
+    grown = cv2.cornerMinEigenVal(image[top_r:bottom_r, left_r:right_r], blockSize=config.template_size_px, ksize=3)
+    return grown[top - top_r: bottom - top_r, left - left_r: right - left_r]
+
+
+@lru_cache(maxsize=8)
+def _plane_offsets(half: int) -> tuple[np.ndarray, float]:
+    """Template offsets ``-half .. half`` (float64, read-only) and ``(2 half + 1) sum(offsets^2)``."""
+    offsets = np.arange(-half, half + 1, dtype=np.float64)
+    offsets.setflags(write=False)
+    return offsets, (2 * half + 1) * float(offsets @ offsets)
+
+
 def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> tuple[float, float, float]:
     """Mean, standard deviation and detrended standard deviation of the (2 half + 1)^2 template at
     (column, row). The detrended value removes the best-fit plane: a smooth brightness ramp (the
-    photometric function, the opposition halo's flank) has contrast but nothing to correlate on."""
+    photometric function, the opposition halo's flank) has contrast but nothing to correlate on.
+
+    The same float64 reductions as ``patch.mean()`` and ``patch.std()`` (numpy's pairwise sums), with
+    the template's deviations from its mean shared by the standard deviation and the plane fit."""
     patch = image[row - half: row + half + 1, column - half: column + half + 1].astype(np.float64)
-    offsets = np.arange(-half, half + 1, dtype=np.float64)
-    norm = (2 * half + 1) * float(offsets @ offsets)
-    mean = float(patch.mean())
+    offsets, norm = _plane_offsets(half)
+    count = patch.size
+    mean = float(np.add.reduce(patch, axis=None)) / count
     slope_x = float((patch.sum(axis=0) @ offsets) / norm)
     slope_y = float((patch.sum(axis=1) @ offsets) / norm)
-    residual = patch - mean - slope_x * offsets[None, :] - slope_y * offsets[:, None]
-    return mean, float(patch.std()), float(residual.std())
+    centred = patch - mean
+    std = float(np.sqrt(np.add.reduce(centred * centred, axis=None) / count))
+    residual = centred - slope_x * offsets[None, :]
+    residual -= slope_y * offsets[:, None]
+    residual -= float(np.add.reduce(residual, axis=None)) / count
+    residual *= residual
+    return mean, std, float(np.sqrt(np.add.reduce(residual, axis=None) / count))
+
+
+def _edges(start: int, stop: int, cells: int) -> list[int]:
+    """``np.linspace(start, stop, cells + 1).astype(int)`` (the same float64 steps) as Python ints."""
+    step = (stop - start) / cells
+    return [int(i * step + start) for i in range(cells)] + [int(stop)]
 
 
 class FeatureSelector:
@@ -105,24 +145,27 @@ class FeatureSelector:
         self.chosen: list[Candidate] = []
         self.low_contrast = 0
         self._offers: list[tuple[float, int, int]] = []
-        if candidates.any():
-            if interest is None:
-                interest = interest_map(image, config)
-            rows = np.flatnonzero(candidates.any(axis=1))
+        rows = np.flatnonzero(candidates.any(axis=1))
+        if len(rows):
             columns = np.flatnonzero(candidates.any(axis=0))
-            row_edges = np.linspace(rows[0], rows[-1] + 1, config.feature_grid + 1).astype(int)
-            column_edges = np.linspace(columns[0], columns[-1] + 1, config.feature_grid + 1).astype(int)
-            scored = np.where(candidates, interest, -1.0)
-            for top, bottom in zip(row_edges[:-1], row_edges[1:]):
-                for left, right in zip(column_edges[:-1], column_edges[1:]):
-                    cell = scored[top:bottom, left:right]
+            top, bottom, left, right = int(rows[0]), int(rows[-1]) + 1, int(columns[0]), int(columns[-1]) + 1
+            if interest is None:           # only where a centre may be: the candidates' bounding box
+                interest = interest_window(image, config, top, bottom, left, right)
+            else:
+                interest = interest[top:bottom, left:right]
+            row_edges = _edges(top, bottom, config.feature_grid)
+            column_edges = _edges(left, right, config.feature_grid)
+            scored = np.where(candidates[top:bottom, left:right], interest, -1.0)
+            for upper, lower in zip(row_edges[:-1], row_edges[1:]):
+                for first, last in zip(column_edges[:-1], column_edges[1:]):
+                    cell = scored[upper - top:lower - top, first - left:last - left]
                     if cell.size == 0:
                         continue
                     index = int(np.argmax(cell))
                     row, column = divmod(index, cell.shape[1])
                     if cell[row, column] < 0:
                         continue
-                    self._offers.append((float(cell[row, column]), left + column, top + row))
+                    self._offers.append((float(cell[row, column]), first + column, upper + row))
             self._offers.sort(key=lambda offer: -offer[0])
         self.offered = len(self._offers)
         self._position = 0

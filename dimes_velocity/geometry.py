@@ -67,11 +67,27 @@ class CameraPose:
     off_nadir_rad: float
 
 
+_CAMERA_TO_LANDER: dict[int, tuple[Camera, np.ndarray]] = {}
+
+
+def _camera_to_lander(camera: Camera) -> np.ndarray:
+    """``camera.camera_to_lander_matrix``, computed once per camera (a camera is immutable)."""
+    cached = _CAMERA_TO_LANDER.get(id(camera))
+    if cached is not None and cached[0] is camera:
+        return cached[1]
+    matrix = camera.camera_to_lander_matrix
+    matrix.setflags(write=False)
+    if len(_CAMERA_TO_LANDER) > 16:
+        _CAMERA_TO_LANDER.clear()
+    _CAMERA_TO_LANDER[id(camera)] = (camera, matrix)
+    return matrix
+
+
 def camera_pose(camera: Camera, attitude_quat: np.ndarray, altitude_m: float,
                 horizontal_position_m: np.ndarray) -> CameraPose:
     """World-frame camera model for a lander at ``horizontal_position_m`` and ``altitude_m``."""
     body_to_world = quat_to_matrix(attitude_quat)
-    camera_to_world = body_to_world @ camera.camera_to_lander_matrix
+    camera_to_world = body_to_world @ _camera_to_lander(camera)
     lander = np.array([horizontal_position_m[0], horizontal_position_m[1], altitude_m], dtype=float)
     origin = lander + body_to_world @ camera.camera_position_in_lander_m
     model = camera.model.transformed(camera_to_world, origin)
@@ -145,27 +161,79 @@ class Rectification:
         return np.array([offset[0], -offset[1]])
 
 
-def _upsample(operator: tuple[np.ndarray, np.ndarray, np.ndarray], knot_values: np.ndarray) -> np.ndarray:
-    """Knot values (K+2, K+2, C) -> (C, size, size) float32 by separable Catmull-Rom (:func:`knot_operator`).
-
-    One small matrix product per knot interval and axis (4 knots each): O(size^2) work, and no
-    large BLAS call (a single big product may start BLAS threads that stall for ~20 ms on a busy
-    machine)."""
-    _, first, weights = operator
-    values = np.asarray(knot_values, dtype=np.float64)
-    extended, channels = values.shape[0], values.shape[2]
-    size = len(first)
+@lru_cache(maxsize=8)
+def _segments(size: int, knots: int) -> tuple[tuple[int, int, int, np.ndarray, np.ndarray], ...]:
+    """The knot intervals of :func:`knot_operator` as ``(lo, hi, first knot, weights (hi - lo, 4),
+    weights.T (4, hi - lo))``, contiguous (per rectified size and knot count, cached)."""
+    _, first, weights = knot_operator(size, knots)
     starts = np.flatnonzero(np.diff(first, prepend=-1))
     ends = np.append(starts[1:], size)
+    segments = tuple((int(lo), int(hi), int(first[lo]), np.ascontiguousarray(weights[lo:hi]),
+                      np.ascontiguousarray(weights[lo:hi].T)) for lo, hi in zip(starts, ends))
+    for segment in segments:
+        segment[3].setflags(write=False)
+        segment[4].setflags(write=False)
+    return segments
+
+
+def _upsample(size: int, knots: int, knot_values: np.ndarray,
+              cells: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """Knot values (K+2, K+2, C) -> (C, size, size) float32 by separable Catmull-Rom (:func:`knot_operator`).
+
+    One small matrix product per knot interval and axis (4 knots each), written straight into the
+    output (``out=``): O(size^2) work, and no large BLAS call (a single big product may start BLAS
+    threads that stall for ~20 ms on a busy machine). Both passes are 2-D products on contiguous
+    arrays: the row pass over all channels at once, the column pass over all channels' rows.
+
+    ``cells = (first row cell, end row cell, first column cell, end column cell)`` computes only the
+    pixels of those knot intervals (the same products, fewer of them): (C, rows, columns) of that block.
+    """
+    values = np.asarray(knot_values, dtype=np.float64)
+    extended, channels = values.shape[0], values.shape[2]
+    segments = _segments(size, knots)
+    row_segments = column_segments = segments
+    if cells is not None:
+        row_segments = tuple(seg for seg in segments if cells[0] <= seg[2] < cells[1])
+        column_segments = tuple(seg for seg in segments if cells[2] <= seg[2] < cells[3])
+        if not row_segments or not column_segments:
+            return np.empty((channels, 0, 0), np.float32)
+    row_lo, row_count = row_segments[0][0], row_segments[-1][1] - row_segments[0][0]
+    column_lo, column_count = column_segments[0][0], column_segments[-1][1] - column_segments[0][0]
     flat = values.reshape(extended, extended * channels)
-    rows = np.empty((size, extended * channels))
-    for lo, hi in zip(starts, ends):
-        rows[lo:hi] = weights[lo:hi] @ flat[first[lo]: first[lo] + 4]
-    rows = np.ascontiguousarray(rows.reshape(size, extended, channels).transpose(2, 0, 1))   # (C, size, K+2)
-    out = np.empty((channels, size, size), dtype=np.float32)
-    for lo, hi in zip(starts, ends):
-        out[:, :, lo:hi] = rows[:, :, first[lo]: first[lo] + 4] @ weights[lo:hi].T
-    return out
+    rows = np.empty((row_count, extended * channels))
+    for lo, hi, first, weights, _ in row_segments:
+        np.matmul(weights, flat[first: first + 4], out=rows[lo - row_lo: hi - row_lo])
+    rows = np.ascontiguousarray(rows.reshape(row_count, extended, channels).transpose(2, 0, 1)).reshape(
+        channels * row_count, extended)                                     # (C rows, K+2)
+    out = np.empty((channels * row_count, column_count))
+    for lo, hi, first, _, weights_t in column_segments:
+        np.matmul(rows[:, first: first + 4], weights_t, out=out[:, lo - column_lo: hi - column_lo])
+    return out.astype(np.float32).reshape(channels, row_count, column_count)
+
+
+def _support_extreme(values: np.ndarray, operation) -> np.ndarray:
+    """``operation`` (np.maximum / np.minimum) over the 4 x 4 knots of every cell: (K+2, K+2) -> (K-1, K-1)."""
+    rows = operation(operation(values[:-3], values[1:-2]), operation(values[2:-1], values[3:]))
+    return operation(operation(rows[:, :-3], rows[:, 1:-2]), operation(rows[:, 2:-1], rows[:, 3:]))
+
+
+# Catmull-Rom weights of a cell sum to 1 with at most 0.28125 negative (1-D: -t (1 - t) / 2 <= 1/8 for each
+# axis; 2-D: (1 + 1/8) / 8 twice): an interpolated value is at most max + 0.28125 (max - min) of the cell's
+# 4 x 4 knots.
+_CATMULL_ROM_OVERSHOOT = 0.28125
+_CONE_TEST_MARGIN = 1e-6       # covers float64 rounding and the float32 map values
+
+
+def _cone_cells(cosines: np.ndarray, threshold: float) -> tuple[int, int, int, int] | None:
+    """The block of knot cells (first row, end row, first column, end column) outside which no
+    interpolated cosine can exceed ``threshold`` (None: nowhere)."""
+    highest = _support_extreme(cosines, np.maximum)
+    lowest = _support_extreme(cosines, np.minimum)
+    possible = highest + _CATMULL_ROM_OVERSHOOT * (highest - lowest) > threshold - _CONE_TEST_MARGIN
+    if not possible.any():
+        return None
+    rows, columns = np.flatnonzero(possible.any(axis=1)), np.flatnonzero(possible.any(axis=0))
+    return int(rows[0]), int(rows[-1]) + 1, int(columns[0]), int(columns[-1]) + 1
 
 
 _FIELD_RADIUS: dict[int, tuple[Camera, float]] = {}
@@ -235,8 +303,7 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
         cones.append((shield / max(float(np.linalg.norm(shield)), 1e-9), heat_shield_half_angle_rad))
     cones = [(axis, cone_half) for axis, cone_half in cones
              if np.arccos(np.clip(axis @ pose.boresight, -1.0, 1.0)) < reach + cone_half]
-    channels += [rays @ axis for axis, _ in cones]
-    maps = _upsample(operator, np.stack(channels, axis=-1))
+    maps = _upsample(size, knots, np.stack(channels, axis=-1))
     map_x, map_y = maps[0], maps[1]
     rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
     cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
@@ -245,8 +312,19 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
         counts = np.bincount(cell_of_pixel(size, knots), minlength=knots - 1)
         visible &= np.repeat(np.repeat(cells, counts, axis=0), counts, axis=1)
     excluded = np.zeros((size, size), dtype=bool)
-    for cosine, (_, cone_half) in zip(maps[2:], cones):
-        excluded |= cosine > np.cos(cone_half)
+    segments = _segments(size, knots)
+    for axis, cone_half in cones:
+        # the cone's cosine is interpolated only over the knot cells where it may exceed cos(half angle)
+        cosines = rays @ axis
+        threshold = float(np.cos(cone_half))
+        block = _cone_cells(cosines, threshold)
+        if block is None:
+            continue
+        cosine = _upsample(size, knots, cosines[:, :, None], block)[0]
+        rows = [seg for seg in segments if block[0] <= seg[2] < block[1]]
+        columns = [seg for seg in segments if block[2] <= seg[2] < block[3]]
+        if rows and columns:
+            excluded[rows[0][0]: rows[-1][1], columns[0][0]: columns[-1][1]] |= cosine > threshold
     return Rectification(origin_m=origin, sample_m=float(sample_m), map_x=map_x, map_y=map_y,
                          visible=visible.astype(np.uint8), excluded_zone=excluded.astype(np.uint8))
 

@@ -26,6 +26,7 @@ Positions are ``(column, row)`` of template centres.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -37,6 +38,7 @@ _OFFSETS = np.array([(x, y) for y in (-1, 0, 1) for x in (-1, 0, 1)], dtype=floa
 _DESIGN = np.column_stack([np.ones(9), _OFFSETS[:, 0], _OFFSETS[:, 1], _OFFSETS[:, 0] ** 2,
                            _OFFSETS[:, 0] * _OFFSETS[:, 1], _OFFSETS[:, 1] ** 2])
 _FIT = np.linalg.pinv(_DESIGN)   # (6, 9): biquadratic coefficients from a raveled 3 x 3 patch
+_KERNEL_3X3 = np.ones((3, 3), np.uint8)
 
 
 @dataclass(frozen=True)
@@ -73,7 +75,7 @@ class Match:
 
 def _correlate(window: np.ndarray, template: np.ndarray) -> np.ndarray:
     result = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
-    if not np.isfinite(result).all():       # flat window or template
+    if not cv2.checkRange(result):          # NaN or infinite: flat window or template
         result = np.nan_to_num(result, nan=0.0, posinf=0.0, neginf=0.0)
     return result
 
@@ -89,11 +91,11 @@ def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -
     """Highest local maximum (3 x 3 neighbourhood) of ``surface`` further than ``exclusion_px`` from the
     best peak at ``best`` (column, row) in either direction; -1 when there is none. Points on the
     flanks of a broad main peak are not local maxima, so they do not count as a second peak."""
-    dilated = cv2.dilate(surface, np.ones((3, 3), np.uint8))
-    local = surface >= dilated
+    local = cv2.compare(surface, cv2.dilate(surface, _KERNEL_3X3), cv2.CMP_GE)      # 255 at local maxima
     column, row = best
-    local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = False
-    return float(surface[local].max()) if local.any() else -1.0
+    local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = 0
+    _, highest, _, where = cv2.minMaxLoc(surface, local)
+    return float(highest) if where[0] >= 0 else -1.0
 
 
 def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -125,15 +127,13 @@ def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
     return np.array([x, y]), min(max(value, -1.0), 1.0), curvature
 
 
-def _keys_weights(fraction: float) -> np.ndarray:
+def _keys_weights(fraction: float) -> tuple[float, float, float, float]:
     """Keys (a = -1/2) cubic convolution weights of the samples at -1, 0, 1, 2 for a point at ``fraction``."""
-    t = fraction
-    return np.array([
-        ((-0.5 * t + 1.0) * t - 0.5) * t,
-        (1.5 * t - 2.5) * t * t + 1.0,
-        ((-1.5 * t + 2.0) * t + 0.5) * t,
-        (0.5 * t - 0.5) * t * t,
-    ])
+    t = float(fraction)
+    return (((-0.5 * t + 1.0) * t - 0.5) * t,
+            (1.5 * t - 2.5) * t * t + 1.0,
+            ((-1.5 * t + 2.0) * t + 0.5) * t,
+            (0.5 * t - 0.5) * t * t)
 
 
 def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.ndarray:
@@ -143,18 +143,29 @@ def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.nd
     quantisation of the coordinates, unlike ``cv2.warpAffine``, which rounds to 1/32 pixel). The
     window must extend ``|offset| + 2`` pixels beyond the output on every side.
     """
+    return _shifted_window(np.asarray(window, dtype=np.float64), float(offset[0]), float(offset[1]), out_size)
+
+
+def _shifted_window(window: np.ndarray, offset_x: float, offset_y: float, out_size: int) -> np.ndarray:
+    """:func:`shift_window` of a float64 window: the horizontal 4-tap pass, then the vertical one, each
+    sum taken left to right (``((w0 s0 + w1 s1) + w2 s2) + w3 s3``) into one buffer."""
     first_out = window.shape[0] // 2 - out_size // 2
-    whole_x, whole_y = int(np.floor(offset[0])), int(np.floor(offset[1]))
-    wx, wy = _keys_weights(offset[0] - whole_x), _keys_weights(offset[1] - whole_y)
+    whole_x, whole_y = math.floor(offset_x), math.floor(offset_y)
+    wx, wy = _keys_weights(offset_x - whole_x), _keys_weights(offset_y - whole_y)
     fx, fy = first_out + whole_x - 1, first_out + whole_y - 1
-    rows = window[fy: fy + out_size + 3].astype(np.float64)
-    columns = (wx[0] * rows[:, fx: fx + out_size] + wx[1] * rows[:, fx + 1: fx + 1 + out_size]
-               + wx[2] * rows[:, fx + 2: fx + 2 + out_size] + wx[3] * rows[:, fx + 3: fx + 3 + out_size])
-    return (wy[0] * columns[0:out_size] + wy[1] * columns[1:out_size + 1]
-            + wy[2] * columns[2:out_size + 2] + wy[3] * columns[3:out_size + 3])
+    rows = window[fy: fy + out_size + 3]
+    columns = np.multiply(rows[:, fx: fx + out_size], wx[0])
+    term = np.empty_like(columns)
+    for k in (1, 2, 3):
+        columns += np.multiply(rows[:, fx + k: fx + k + out_size], wx[k], out=term)
+    out = np.multiply(columns[0:out_size], wy[0])
+    term = term[:out_size]
+    for k in (1, 2, 3):
+        out += np.multiply(columns[k: k + out_size], wy[k], out=term)
+    return out
 
 
-def _refine(image_a: np.ndarray, image_b: np.ndarray, centre_a: tuple[int, int], peak: np.ndarray,
+def _refine(image_a: np.ndarray, image_b: np.ndarray, centre_a: tuple[int, int], peak: tuple[int, int],
             offset: np.ndarray, half: int, iterations: int) -> tuple[np.ndarray, float]:
     """Inverse-compositional Gauss-Newton (Lucas-Kanade) refinement of the sub-pixel shift.
 
@@ -169,10 +180,11 @@ def _refine(image_a: np.ndarray, image_b: np.ndarray, centre_a: tuple[int, int],
     padded = _crop(image_a, int(centre_a[0]), int(centre_a[1]), half + 1)
     if window is None or padded is None:
         return offset, float("nan")
+    window = window.astype(np.float64)          # once: every re-sampling reads it
     padded = padded.astype(np.float64)
     template = padded[1:-1, 1:-1].ravel()
     count = template.size
-    centred = template - template.mean()
+    centred = template - float(np.add.reduce(template)) / count          # = template.mean()
     spread = float(np.sqrt(np.dot(centred, centred) / count))
     if not spread > 0:
         return offset, float("nan")
@@ -185,30 +197,36 @@ def _refine(image_a: np.ndarray, image_b: np.ndarray, centre_a: tuple[int, int],
         return offset, float("nan")
     size = 2 * half + 1
 
-    def normalised_at(shift: np.ndarray) -> np.ndarray | None:
-        moved = shift_window(window, shift, size).ravel()
-        moved = moved - moved.mean()
+    def normalised_at(shift_x: float, shift_y: float) -> np.ndarray | None:
+        moved = _shifted_window(window, shift_x, shift_y, size).ravel()
+        moved -= float(np.add.reduce(moved)) / count                       # = moved.mean()
         norm = float(np.sqrt(np.dot(moved, moved) / count))
-        return moved / norm if norm > 0 else None
+        return np.divide(moved, norm, out=moved) if norm > 0 else None
 
+    offset_x, offset_y = float(offset[0]), float(offset[1])
     correlation = float("nan")
     for step in range(iterations + 1):
-        normalised = normalised_at(offset)
+        normalised = normalised_at(offset_x, offset_y)
         if normalised is None:
-            return offset, float("nan")
+            return np.array([offset_x, offset_y]), float("nan")
         correlation = float(np.dot(normalised, target)) / count
         if step == iterations:
             break
-        error = normalised - target
+        error = np.subtract(normalised, target, out=normalised)
         ex, ey = np.dot(grad_x, error), np.dot(grad_y, error)
-        delta = np.array([hyy * ex - hxy * ey, hxx * ey - hxy * ex]) / determinant
-        offset = np.minimum(np.maximum(offset - delta, -1.5), 1.5)
-        if max(abs(delta[0]), abs(delta[1])) < 1e-3:
-            normalised = normalised_at(offset)
+        delta_x, delta_y = (hyy * ex - hxy * ey) / determinant, (hxx * ey - hxy * ex) / determinant
+        offset_x, offset_y = _clip(offset_x - delta_x, 1.5), _clip(offset_y - delta_y, 1.5)
+        if max(abs(delta_x), abs(delta_y)) < 1e-3:
+            normalised = normalised_at(offset_x, offset_y)
             if normalised is not None:
                 correlation = float(np.dot(normalised, target)) / count
             break
-    return offset, correlation
+    return np.array([offset_x, offset_y]), correlation
+
+
+def _clip(value: float, bound: float) -> float:
+    """``value`` clipped to ``[-bound, bound]`` (NaN stays NaN, as with ``np.minimum(np.maximum(...))``)."""
+    return -bound if value < -bound else bound if value > bound else value
 
 
 def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray, b_coarse: np.ndarray,
@@ -224,11 +242,13 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
         return Match(status, predicted_b.copy(), float(correlation), float(ratio), 0.0, float(coarse_curvature))
 
     # coarse level: the search over the whole window, so the distinct-peak tests are made here
-    parity = np.array([u % 2, v % 2])
+    # (positions as Python ints; round() rounds half to even, as np.rint)
+    parity_u, parity_v = u % 2, v % 2
     template_c = _crop(a_coarse, u // 2, v // 2, half_c)
-    radius_c = int(np.ceil(search_radius_px / 2.0)) + 1
-    centre_c = np.rint((predicted_b - parity) / 2.0).astype(int)
-    window_c = _crop(b_coarse, int(centre_c[0]), int(centre_c[1]), half_c + radius_c)
+    radius_c = math.ceil(search_radius_px / 2.0) + 1
+    centre_cu = round((float(predicted_b[0]) - parity_u) / 2.0)
+    centre_cv = round((float(predicted_b[1]) - parity_v) / 2.0)
+    window_c = _crop(b_coarse, centre_cu, centre_cv, half_c + radius_c)
     if template_c is None or window_c is None:
         return failed("search_outside")
     surface = _correlate(window_c, template_c)
@@ -246,32 +266,34 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
 
     # fine level (re-centred at most twice when the peak sits on the window's edge)
     template_f = _crop(a_fine, u, v, half_f)
-    guess = 2 * (centre_c - radius_c + np.array([i_col, i_row])) + parity
+    guess_u = 2 * (centre_cu - radius_c + i_col) + parity_u
+    guess_v = 2 * (centre_cv - radius_c + i_row) + parity_v
     radius_f = config.fine_search_radius_px
     for _ in range(3):
-        window_f = _crop(b_fine, int(guess[0]), int(guess[1]), half_f + radius_f)
+        window_f = _crop(b_fine, guess_u, guess_v, half_f + radius_f)
         if template_f is None or window_f is None:
             return failed("search_outside", best, ratio, coarse_curvature)
         fine = _correlate(window_f, template_f)
         _, _, _, (j_col, j_row) = cv2.minMaxLoc(fine)
-        step = np.array([j_col, j_row]) - radius_f
-        guess = guess + step
-        if abs(step[0]) < radius_f and abs(step[1]) < radius_f:
+        step_u, step_v = j_col - radius_f, j_row - radius_f
+        guess_u, guess_v = guess_u + step_u, guess_v + step_v
+        if abs(step_u) < radius_f and abs(step_v) < radius_f:
             break
     else:
         return failed("search_border", best, ratio, coarse_curvature)
     offset, correlation, curvature = fit_peak(fine[j_row - 1: j_row + 2, j_col - 1: j_col + 2])
     if config.subpixel_iterations > 0:
-        refined, value = _refine(a_fine, b_fine, (u, v), guess, offset, half_f, config.subpixel_iterations)
+        refined, value = _refine(a_fine, b_fine, (u, v), (guess_u, guess_v), offset, half_f,
+                                 config.subpixel_iterations)
         if np.isfinite(value):
             offset, correlation = refined, value
-    position = guess + offset
+    position = np.array([guess_u + offset[0], guess_v + offset[1]], dtype=float)
     if curvature < config.min_peak_curvature:
         status = "flat_peak"
-    elif float(np.hypot(*(position - predicted_b))) > search_radius_px:
+    elif float(np.hypot(position[0] - predicted_b[0], position[1] - predicted_b[1])) > search_radius_px:
         status = "outside_prior"
     elif correlation < config.min_correlation:
         status = "low_correlation"
     else:
         status = "ok"
-    return Match(status, position.astype(float), float(correlation), ratio, float(curvature), float(coarse_curvature))
+    return Match(status, position, float(correlation), ratio, float(curvature), float(coarse_curvature))

@@ -180,8 +180,17 @@ class FlatImage:
 
 
 def bin_columns(raw_dn: np.ndarray, binning: int) -> np.ndarray:
-    """Sum ``binning`` adjacent columns: (rows, cols) -> (rows, cols / binning), float32."""
-    raw = raw_dn.astype(np.float32)
+    """Sum ``binning`` adjacent columns: (rows, cols) -> (rows, cols / binning), float32.
+
+    The sum runs left to right in float32 (exact for integer DN: sums below 2^24). Integer images of
+    up to 16 bits are added into the float32 result directly, without a float32 copy of the raw image."""
+    raw = np.asarray(raw_dn)
+    if raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2:
+        total = raw[:, 0::binning].astype(np.float32)
+        for offset in range(1, binning):
+            np.add(total, raw[:, offset::binning], out=total)
+        return total
+    raw = raw.astype(np.float32)
     total = raw[:, 0::binning].copy()
     for offset in range(1, binning):
         total += raw[:, offset::binning]
@@ -198,7 +207,8 @@ def unsmear(charge_e: np.ndarray, flattening: Flattening) -> np.ndarray:
     n_rows = charge_e.shape[0]
     if ratio == 0.0:   # equal flush and transfer times (MER): G_k = (Q_k - gamma S) / d
         total = charge_e.sum(axis=0, dtype=np.float64) / (d + n_rows * gamma)
-        return ((charge_e - (gamma * total).astype(np.float32)[None, :]) / np.float32(d)).astype(np.float32)
+        rates = np.subtract(charge_e, (gamma * total).astype(np.float32)[None, :], dtype=np.float32)
+        return np.divide(rates, np.float32(d), out=rates)
     q = charge_e if flattening.toward_last_row else charge_e[::-1]
 
     # scipy.signal takes ~0.7 s to import (it loads scipy.stats): loaded here, at the first smear
@@ -231,13 +241,17 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
         saturated = brightest >= flattening.saturation_dn
     else:
         saturated = np.zeros((raw.shape[0], raw.shape[1] // b), dtype=bool)
-    summed_dn = bin_columns(raw, b) - np.float32(b * flattening.adc_offset_dn) - flattening.storage_dark_dn
-    charge_e = summed_dn * gain
-    rates = unsmear(charge_e, flattening) - np.float32(flattening.area_dark_e_per_s)
-    inverse_response = flattening.inverse_response
-    signal = rates * (np.float32(flattening.exposure_s) / gain) * inverse_response
+    # the same float32 operations in the same order as written out in the module docstring, in place
+    summed_dn = bin_columns(raw, b)
+    summed_dn -= np.float32(b * flattening.adc_offset_dn)
+    summed_dn -= flattening.storage_dark_dn
+    charge_e = np.multiply(summed_dn, gain, out=summed_dn)
+    signal = unsmear(charge_e, flattening)
+    signal -= np.float32(flattening.area_dark_e_per_s)
+    signal *= np.float32(flattening.exposure_s) / gain
+    signal *= flattening.inverse_response
     dark = signal < np.float32(config.min_signal_dn)
-    excluded = (saturated | dark).astype(np.uint8)
+    excluded = np.bitwise_or(saturated, dark).view(np.uint8)
     return FlatImage(signal_dn=signal, excluded=excluded,
                      saturated_fraction=float(np.count_nonzero(saturated)) / saturated.size,
                      dark_fraction=float(np.count_nonzero(dark)) / dark.size, charge_e=charge_e,
