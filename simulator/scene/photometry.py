@@ -63,6 +63,7 @@ MARS_SOIL_REFLECTANCE = np.array([
 ])
 
 _POLY_LOW_PHASE = (2.05, -3.93e-2, 2.09e-3, -4.86e-5, 4.93e-7, -1.72e-9)  # eq. (2), alpha in deg
+_DEGREES_PER_RADIAN_F32 = np.degrees(np.float32(1.0))   # x * this == np.degrees(x) for float32 x, bit for bit
 
 
 def phase_function(phase_rad: np.ndarray) -> np.ndarray:
@@ -141,9 +142,11 @@ def photometric_ratio_from_cosines(cos_emission: np.ndarray, cos_phase: np.ndarr
     """:func:`photometric_ratio` from the cosines of the emission and phase angles of every pixel.
 
     The same float32 operations in the same order (so the same bits for the same cosines), done in
-    place on the two given (H, W) float32 arrays (both are overwritten; the result is one of them) and
+    place on the two given (H, W) float32 arrays (both are overwritten; the result is one of them),
     with the low-phase polynomial of equation (2) evaluated only where the phase angle is below
-    10 deg. ``sun_z`` is the cosine of the solar incidence on level ground (> 0: sun up).
+    10 deg, the degree conversion as np.degrees' own float32 product, and without the floor (phase
+    angles from arccos lie in [0, 180] deg, where f >= f(180 deg) = 0.069 > ``PHASE_FUNCTION_FLOOR``).
+    ``sun_z`` is the cosine of the solar incidence on level ground (> 0: sun up).
 
     Returns
     -------
@@ -158,15 +161,15 @@ def photometric_ratio_from_cosines(cos_emission: np.ndarray, cos_phase: np.ndarr
         ratio[:] = 0.0
     alpha = np.clip(cos_phase, -1.0, 1.0, out=cos_phase)
     np.arccos(alpha, out=alpha)
-    np.degrees(alpha, out=alpha)
-    low = np.flatnonzero(alpha < 10.0)
-    low_phase = _low_phase_polynomial(alpha.ravel()[low]) if low.size else None
+    alpha *= _DEGREES_PER_RADIAN_F32                                          # np.degrees, bit for bit
+    low = np.flatnonzero(alpha < 10.0) if float(alpha.min()) < 10.0 else None
+    low_phase = _low_phase_polynomial(alpha.ravel()[low]) if low is not None and low.size else None
     alpha -= np.float32(10.0)                                                 # eq. (3) and beyond, in place
     alpha *= np.float32(1.03e-2)
     np.subtract(np.float32(1.82), alpha, out=alpha)
     if low_phase is not None:
         alpha.ravel()[low] = low_phase
-    np.maximum(alpha, np.float32(PHASE_FUNCTION_FLOOR), out=alpha)
+    # the floor never binds here: f(180 deg) = 0.069 > PHASE_FUNCTION_FLOOR and eq. (2) stays above 1.8
     ratio *= alpha
     ratio /= np.float32(moc_model_value)
     return ratio
