@@ -27,8 +27,8 @@ is the remaining factor: each field is multiplied by ``OTF`` in the frequency do
 it is sampled (12 um columns; 12 um rows, or ``b`` x 12 um rows for a field given per binning block),
 which is exact for the field's band-limited content. The frame is mirrored 16 px beyond its edges
 (what lies outside the view is unknown; a mirror keeps the local statistics) and padded on to the next
-11-smooth DFT length; the product is taken on OpenCV's packed real spectrum (``cv2.dft``,
-``cv2.mulSpectrums``), single precision. The few slightly negative values the band-limited filter leaves
+11-smooth DFT length; the product is taken on OpenCV's packed real spectrum (``cv2.dft``; the
+real OTF multiplies it elementwise), single precision. The few slightly negative values the band-limited filter leaves
 next to a sky edge are set to 0.
 
 Smear fields
@@ -149,7 +149,7 @@ def encircled_energy_radius_m(camera: Camera, fraction: float = 0.8) -> float:
 def _padded_shape(rows: int, cols: int, pad_rows: int) -> tuple[int, int]:
     """The DFT size of a field with its mirrored margins: the next 11-smooth length (1056 for 1024 + 2 x 16:
     OpenCV transforms it faster than the 5-smooth 1080, measured 13 vs 15.5 ms for the pair)."""
-    return scipy.fft.next_fast_len(rows + 2 * pad_rows, real=True), scipy.fft.next_fast_len(cols + 2 * PAD_PX, real=True)
+    return scipy.fft.next_fast_len(rows + 2 * pad_rows), scipy.fft.next_fast_len(cols + 2 * PAD_PX)
 
 
 def _otf_grid(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.ndarray:
@@ -170,15 +170,26 @@ def _otf_grid(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.
 
 
 def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.ndarray:
-    """The OTF as OpenCV's packed (CCS) spectrum of ``shape``, float32, for ``cv2.mulSpectrums`` (cached).
+    """The OTF laid out as OpenCV's packed (CCS) real spectrum of ``shape``: float32, cached.
 
-    It is the forward DFT of the OTF's own periodic kernel (the inverse real DFT of :func:`_otf_grid`),
-    so OpenCV's packing of the half-spectrum is its own, whatever the parity of the sizes."""
+    The OTF is real and even, so it multiplies a frequency's real and imaginary parts alike: each entry
+    of the packed layout (real parts, imaginary parts, and the vertically packed first column and, for
+    an even width, last column) gets its frequency's OTF, and the product is one elementwise multiply.
+    The values are taken from the forward DFT of the OTF's own periodic kernel (the inverse real DFT of
+    :func:`_otf_grid`), so OpenCV's packing is its own whatever the parity of the sizes; there the
+    imaginary entries are ~0 and take the real entry of their frequency."""
     cache = DERIVED.of(camera, "psf")
     key = ("ccs", shape, row_pitch_m)
     if key not in cache:
         kernel = scipy.fft.irfft2(_otf_grid(camera, shape, row_pitch_m), s=shape)
-        packed = cv2.dft(kernel.astype(np.float32))
+        spectrum = cv2.dft(kernel.astype(np.float32))
+        packed = spectrum.copy()
+        rows, cols = shape
+        last_col = cols - 1 if cols % 2 == 0 else cols      # an even width ends with a packed Nyquist column
+        packed[:, 2:last_col:2] = spectrum[:, 1:last_col - 1:2]           # (Re, Im) pairs along each row
+        last_row = rows - 1 if rows % 2 == 0 else rows
+        for col in ([0, cols - 1] if cols % 2 == 0 else [0]):             # (Re, Im) pairs down these columns
+            packed[2:last_row:2, col] = spectrum[1:last_row - 1:2, col]
         packed.setflags(write=False)
         cache[key] = packed
     return cache[key]
@@ -251,7 +262,8 @@ def blur_field(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
     padded_shape = _padded_shape(rows, cols, pad_rows)
     padded = cv2.copyMakeBorder(work, pad_rows, padded_shape[0] - rows - pad_rows,
                                 PAD_PX, padded_shape[1] - cols - PAD_PX, cv2.BORDER_REFLECT)   # mirror: f e d | d e f
-    spectrum = cv2.mulSpectrums(cv2.dft(padded), _otf_packed(camera, padded_shape, row_pitch_m), 0)
+    spectrum = cv2.dft(padded)
+    spectrum *= _otf_packed(camera, padded_shape, row_pitch_m)
     blurred = cv2.idft(spectrum, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
     return _finished(blurred[pad_rows:pad_rows + rows, PAD_PX:PAD_PX + cols], field, bad)
 
@@ -262,7 +274,7 @@ def blur_field_along_rows(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.nd
     effect on smear). Same parameters, returns and errors as :func:`blur_field`."""
     field, work, bad = _checked(field_w_m2_sr_um)
     cols = field.shape[1]
-    padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX, real=True)
+    padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX)
     padded = cv2.copyMakeBorder(work, 0, 0, PAD_PX, padded_cols - cols - PAD_PX, cv2.BORDER_REFLECT)
     spectrum = cv2.dft(padded, flags=cv2.DFT_ROWS)
     spectrum *= _row_otf_packed(camera, padded_cols)

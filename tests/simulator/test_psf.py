@@ -224,3 +224,27 @@ def test_line_spread_smear_gives_the_charge_of_the_full_psf(mer_a):
     unblurred = render_image(mer_a, (flush, full[1], transfer), np.random.default_rng(0),
                              CameraEffects(optics_psf=False, **plain)).expected_charge_e
     assert np.max(np.abs(unblurred - exact)) > 20 * np.max(np.abs(chain - exact))
+
+
+@pytest.mark.parametrize("shape", [(1024, 1024), (235, 997), (255, 1024)])
+def test_blur_equals_the_otf_product_on_the_mirrored_frame(mer_a, shape):
+    # independent path: numpy's complex FFT in float64 on the frame mirrored 16 px (rows of a per-block
+    # field 4 px: their pitch is 4x), times the radial OTF at each frequency, no padding to a fast length;
+    # odd and even padded sizes exercise both layouts of OpenCV's packed spectrum
+    rng = np.random.default_rng(5)
+    field = (20.0 + 5.0 * rng.random(shape)).astype(np.float32)
+    rows, cols = shape
+    row_pitch = PITCH_M * mer_a.height_px / rows
+    pad_rows = int(np.ceil(psf.PAD_PX * PITCH_M / row_pitch))
+    padded = np.pad(field.astype(float), ((pad_rows, pad_rows), (psf.PAD_PX, psf.PAD_PX)), mode="symmetric")
+    fy = np.fft.fftfreq(padded.shape[0], d=row_pitch)[:, None]
+    fx = np.fft.fftfreq(padded.shape[1], d=PITCH_M)[None, :]
+    otf = psf.optics_mtf(np.hypot(fy, fx), mer_a)
+    expected = np.fft.ifft2(np.fft.fft2(padded) * otf).real[pad_rows:pad_rows + rows, psf.PAD_PX:psf.PAD_PX + cols]
+    assert psf._padded_shape(rows, cols, pad_rows) == {(1024, 1024): (1056, 1056), (235, 997): (243, 1029),
+                                                        (255, 1024): (264, 1056)}[shape]
+    got = psf.blur_field(field, mer_a)
+    # the two differ only where each frame's periodic wrap differs (its own fast length): near the edges
+    inner = (slice(2 * pad_rows, rows - 2 * pad_rows), slice(32, cols - 32))
+    assert np.max(np.abs(got[inner] - expected[inner])) < 1e-4 * float(field.mean())
+    assert np.max(np.abs(got[inner] - field[inner])) > 0.5      # and the blur did act
