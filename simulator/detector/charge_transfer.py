@@ -78,8 +78,12 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
     transfer_smear = binning_rows * transfer_after + ((binning_rows + 1) * transfer_blocks - transfer_ramp)
 
     smear = (timing.fast_flush_s / rows) * flush_smear + (timing.frame_transfer_s / rows) * transfer_smear
-    exposure_blocks = (rate_exposure * np.float32(binning_rows) if is_block_mean(rate_exposure, rows, binning_rows)
-                       else bin_rows(rate_exposure, binning_rows))
+    if is_block_mean(rate_exposure, rows, binning_rows):
+        exposure_blocks = rate_exposure * np.float32(binning_rows)
+    elif rate_exposure is rate_flush and toward_last:    # a still image: the same rows summed in the same order
+        exposure_blocks = flush_blocks
+    else:
+        exposure_blocks = bin_rows(rate_exposure, binning_rows)
     return (_flip(smear, toward_last) + np.float32(timing.exposure_s) * exposure_blocks).astype(np.float32)
 
 

@@ -51,6 +51,10 @@ def test_binned_charge_is_the_sum_of_the_full_resolution_rows(direction):
     assert binned.shape == (rows // b, width) and binned.dtype == np.float32
     assert np.allclose(binned, full.reshape(rows // b, b, width).sum(axis=1), rtol=1e-4)
     assert charge_transfer.max_pixel_charge_bound_e(flush, exposure, transfer, _timing(direction)) >= full.max()
+    # a still image: one rate object for the three periods (its block sums are shared inside)
+    still = charge_transfer.binned_charge_e(exposure, exposure, exposure, _timing(direction), b)
+    still_full = charge_transfer.pixel_charge_e(exposure, exposure, exposure, _timing(direction)).astype(np.float64)
+    assert np.allclose(still, still_full.reshape(rows // b, b, width).sum(axis=1), rtol=1e-4)
 
 
 def test_block_mean_rates_stand_for_equal_rows():
