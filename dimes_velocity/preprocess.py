@@ -179,12 +179,22 @@ class FlatImage:
         return float(np.sqrt(charge + self.variance_floor_e2) * self.noise_scale[row, column])
 
 
-def bin_columns(raw_dn: np.ndarray, binning: int) -> np.ndarray:
+def bin_columns(raw_dn: np.ndarray, binning: int, highest: float | None = None) -> np.ndarray:
     """Sum ``binning`` adjacent columns: (rows, cols) -> (rows, cols / binning), float32.
 
-    The sum runs left to right in float32 (exact for integer DN: sums below 2^24). Integer images of
-    up to 16 bits are added into the float32 result directly, without a float32 copy of the raw image."""
+    The sum runs left to right in float32 (exact for integer DN: sums below 2^24). Unsigned integer
+    images whose sums cannot overflow their own type (``highest``: the image's maximum, when known)
+    are summed in that type and converted once; other integer images of up to 16 bits are added into
+    the float32 result directly, without a float32 copy of the raw image."""
     raw = np.asarray(raw_dn)
+    if raw.dtype.kind == "u" and raw.dtype.itemsize <= 2:
+        if highest is None:
+            highest = float(raw.max()) if raw.size else 0.0
+        if highest * binning <= np.iinfo(raw.dtype).max:          # exact in the raw integer type
+            summed = np.add(raw[:, 0::binning], raw[:, 1::binning]) if binning > 1 else raw.copy()
+            for offset in range(2, binning):
+                summed += raw[:, offset::binning]
+            return summed.astype(np.float32)
     if raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2:
         total = raw[:, 0::binning].astype(np.float32)
         for offset in range(1, binning):
@@ -234,7 +244,8 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
     b = flattening.binning
     gain = np.float32(flattening.gain_e_per_dn)
     raw = np.asarray(raw_dn)
-    if raw.max() >= flattening.saturation_dn:
+    highest = raw.max()
+    if highest >= flattening.saturation_dn:
         brightest = raw[:, 0::b]
         for offset in range(1, b):
             brightest = np.maximum(brightest, raw[:, offset::b])
@@ -242,7 +253,7 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
     else:
         saturated = np.zeros((raw.shape[0], raw.shape[1] // b), dtype=bool)
     # the same float32 operations in the same order as written out in the module docstring, in place
-    summed_dn = bin_columns(raw, b)
+    summed_dn = bin_columns(raw, b, float(highest))
     summed_dn -= np.float32(b * flattening.adc_offset_dn)
     summed_dn -= flattening.storage_dark_dn
     charge_e = np.multiply(summed_dn, gain, out=summed_dn)
