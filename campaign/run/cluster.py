@@ -7,7 +7,9 @@
 ``kubernetes``  scheduler and worker pods of a DaskCluster resource (dask-kubernetes' operator
                 KubeCluster; ``[execution.kubernetes]``; extra ``moc2dimes[kubernetes]``)
 
-Every worker runs one thread (a case is one CPU-bound task; BLAS and OpenCV threads are pinned to 1).
+Every worker runs one thread (a case is one CPU-bound task; BLAS and OpenCV threads are pinned to 1, the
+environment before the worker process starts and :class:`~campaign.run.worker.CaseWorkerSetup` when it has
+started), without dask's statistical profiler (:data:`WORKER_DASK_CONFIG`).
 Batch jobs are submitted and watched until their first worker connects by :mod:`campaign.run.batch_jobs`
 (a batch-system failure is one line naming the command and its error); :func:`cluster_description` is
 what ``campaign cluster FILE`` prints (job script or DaskCluster resource, nothing submitted); a
@@ -30,6 +32,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import dask
 from dask.distributed import Client, LocalCluster
 
 from campaign.configuration.execution import BatchJobs, ExecutionConfig, kubernetes_bytes, kubernetes_headroom_bytes
@@ -41,6 +44,7 @@ from campaign.run.batch_jobs import (
     wait_for_first_worker,
 )
 from campaign.run.faults import RunStopped
+from campaign.run.worker import CaseWorkerSetup
 from flight_interface.tomlfields import ConfigError
 
 #: backend -> (module it needs, pip distribution, extra of moc2dimes)
@@ -48,6 +52,13 @@ OPTIONAL_BACKENDS = {"slurm": ("dask_jobqueue", "dask-jobqueue", "slurm"),
                      "pbs": ("dask_jobqueue", "dask-jobqueue", "pbs"),
                      "kubernetes": ("dask_kubernetes", "dask-kubernetes", "kubernetes")}
 SINGLE_THREAD_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: dask settings of the campaign's worker processes. The statistical profiler samples the running task's
+#: stack every 10 ms from another thread of the worker (for the dashboard's profile page): measured on
+#: 30 Gusev cases in one worker, 25-30 ms more CPU per case (of about 300 ms) with it than without, taken
+#: from the cases when every core runs a worker.
+WORKER_DASK_CONFIG = {"distributed.worker.profile.enabled": False}
+#: the environment of a worker process that dask starts elsewhere (batch job, pod): one thread, no profiler
+WORKER_ENVIRONMENT = {**SINGLE_THREAD_ENVIRONMENT, "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
 WORKER_JOB_NAME = "moc2dimes-worker"
 SCHEDULER_PLACEHOLDER = "tcp://SCHEDULER-ADDRESS:PORT"
 #: distributed's own log records on the driver during a run (the runner reports problems as one line;
@@ -91,7 +102,7 @@ def default_worker_count() -> int:
 def _job_options(execution: ExecutionConfig) -> dict:
     """Keyword arguments of dask-jobqueue's job (and cluster) for ``[execution.slurm]`` / ``[execution.pbs]``."""
     jobs: BatchJobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
-    prologue = [f"export {name}={value}" for name, value in SINGLE_THREAD_ENVIRONMENT.items()] + list(jobs.prologue)
+    prologue = [f"export {name}={value}" for name, value in WORKER_ENVIRONMENT.items()] + list(jobs.prologue)
     return dict(cores=jobs.cores, processes=jobs.cores, memory=jobs.memory, walltime=jobs.walltime,
                 queue=jobs.queue or None, account=jobs.account or None, job_name=WORKER_JOB_NAME,
                 job_extra_directives=list(jobs.job_extra), job_script_prologue=prologue,
@@ -144,7 +155,7 @@ def kubernetes_cluster_spec(execution: ExecutionConfig) -> dict:
     pods = execution.kubernetes
     resources = {"requests": {"cpu": pods.cpu, "memory": pods.memory}, "limits": {"cpu": pods.cpu, "memory": pods.memory}}
     spec = make_cluster_spec(name=pods.name, image=pods.image, n_workers=execution.workers or pods.workers,
-                             resources=resources, env=dict(SINGLE_THREAD_ENVIRONMENT), worker_command="dask worker")
+                             resources=resources, env=dict(WORKER_ENVIRONMENT), worker_command="dask worker")
     spec["metadata"]["namespace"] = pods.namespace
     worker = spec["spec"]["worker"]["spec"]["containers"][0]
     worker["args"] += ["--nthreads", "1", "--memory-limit", str(kubernetes_worker_memory_limit(pods.memory))]
@@ -234,7 +245,7 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
                              f"{execution.connect_timeout_s:g} s ({_first_line(exc)}); start it, check the address, "
                              "or raise [execution] connect_timeout_s; nothing was run or changed") from None
     elif execution.cluster == "local":
-        with workers_ignore_interrupts():
+        with workers_ignore_interrupts(), dask.config.set(WORKER_DASK_CONFIG):   # each nanny keeps the config
             cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                    processes=True, memory_limit=execution.memory_limit,
                                    dashboard_address="127.0.0.1:0", host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
@@ -248,6 +259,13 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
         except BaseException:
             cluster.close()
             raise
+    try:
+        client.register_plugin(CaseWorkerSetup())       # present and future workers
+    except BaseException:
+        _quietly(client.close)
+        if cluster is not None:
+            _quietly(cluster.close)
+        raise
     if not quiet:
         print(f"dask dashboard: {client.dashboard_link}  scheduler: {client.scheduler.address}  "
               f"cluster: {execution.cluster}", flush=True)

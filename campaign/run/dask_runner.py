@@ -27,6 +27,10 @@ from campaign.run.worker import CampaignContext, execute_case
 from campaign.store.campaign_store import CampaignStore
 
 POLL_S = 0.25             # task states are local to the client: polling them costs nothing
+#: Reading the store (listing and stat-ing every case file) costs the driver CPU that grows with the cases
+#: written; on a machine whose cores all run workers that CPU is taken from the cases. The driver reads the
+#: store at most this share of its time (and at once when no task is left running).
+STORE_READ_SHARE = 0.02
 SCHEDULER_POLL_S = 1.0    # the scheduler's worker list, asked this often
 SCHEDULER_CALL_TIMEOUT_S = 20.0
 LOST_CONNECTION_GRACE_S = 10.0   # the client reconnects by itself within this time, or the scheduler is lost
@@ -96,14 +100,18 @@ def wait_for_cases(client: Client, tasks: list[CaseTask], watch: Watch = Watch()
     monitor = _Monitor(client, watch, len(tasks))
     bar = ProgressBar(len(tasks), enabled=progress, stream=stream)
     pending = list(tasks)
+    unread: list[tuple[CaseTask, str]] = []       # ended tasks whose case files were not read yet
+    next_read = 0.0
     done = failed = 0
     try:
-        while pending:
+        while pending or unread:
             time.sleep(POLL_S)
             states = [(task, task.future.status) for task in pending]      # one snapshot: states change meanwhile
             pending = [task for task, state in states if state == "pending"]
-            ended = [(task, state) for task, state in states if state != "pending"]
-            if ended:
+            unread += [(task, state) for task, state in states if state != "pending"]
+            if unread and (not pending or time.monotonic() >= next_read):
+                ended, unread = unread, []
+                read_start = time.monotonic()
                 # the store says what a case became (a finished result may already be "lost" with its worker)
                 stores = {id(task.store): task.store for task, _ in ended}
                 on_disk = {key: store.finished_case_ids() for key, store in stores.items()}
@@ -121,6 +129,7 @@ def wait_for_cases(client: Client, tasks: list[CaseTask], watch: Watch = Watch()
                 if broken:
                     pending += broken          # cancelled with the rest when the run stops
                     raise RunStopped(monitor.task_problem(broken[0]))
+                next_read = time.monotonic() + (time.monotonic() - read_start) / STORE_READ_SHARE
             monitor.check()
             bar.update(done + failed, failed)
     except RunStopped as stop:
