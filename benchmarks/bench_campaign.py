@@ -11,10 +11,11 @@ by the workers' own function (:func:`campaign.run.worker.execute_case`, into a s
 before the cluster run and half after, so that a change of load on the machine hits both alike.
 Efficiency = the one-thread median case wall time (``t_case_ms``, the same timer the workers record) /
 the median on the 2 workers of the same cases (target >= 95 %). On a machine with other work the 2
-workers share the cores with it, so the wall-time ratio also shows that load; the CPU per case
-(``cpu_ms_*``: thread CPU time of the case tasks, from dask's task metrics on the workers, and of the same
-calls here) does not, and tells extra work in the workers from waiting for a core. ``load_average``
-is the machine's 1-minute load average at the end.
+workers share the cores with it, so the wall-time ratio also shows that load; the median thread CPU time
+per case (``cpu_ms_*``: on the workers the CPU clock of the executing thread around each task,
+:class:`TaskCpuClock`; here around the same calls) does not, and ``cpu_efficiency`` (one thread / workers)
+tells extra work in the workers from waiting for a core. ``load_average`` is the machine's 1-minute
+load average at the end.
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import pandas as pd
+from distributed import WorkerPlugin
 
 from benchmarks.targets import CAMPAIGNS_WALL_S, PARALLEL_EFFICIENCY, WORKER_RSS_MIB, target_columns
 
@@ -37,16 +39,42 @@ EVERY = 8                       # one case in EVERY is also run in this process
 CASES_SCALE: float | None = None    # the campaigns' own case counts (a smaller scale: a quick look, not the target)
 
 
+class TaskCpuClock(WorkerPlugin):
+    """Thread CPU time of each task a worker runs: the CPU clock of the worker's one executing thread read
+    when the task starts and ends executing (the thread does nothing else meanwhile)."""
+
+    name = "bench-task-cpu-clock"
+
+    def setup(self, worker) -> None:
+        self.worker = worker
+        self.started: dict = {}
+        self.cpu_s: dict = {}
+
+    def _clock(self) -> float | None:
+        threads = list(getattr(self.worker.executors.get("default"), "_threads", ()))
+        if len(threads) != 1 or threads[0].ident is None:
+            return None
+        return time.clock_gettime(time.pthread_getcpuclockid(threads[0].ident))
+
+    def transition(self, key, start, finish, **kwargs) -> None:
+        if finish == "executing":
+            self.started[key] = self._clock()
+        elif start == "executing" and self.started.get(key) is not None:
+            end = self._clock()
+            if end is not None:
+                self.cpu_s[key] = end - self.started[key]
+
+
 def _worker_usage(dask_worker) -> dict:
-    """Peak RSS (MiB) of this worker process and its case tasks' thread CPU time (s), run inside it."""
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    task_cpu_s = sum(value for key, value in dask_worker.digests_total.items()
-                     if isinstance(key, tuple) and key[0] == "execute" and key[-2:] == ("thread-cpu", "seconds"))
-    return {"peak_rss_mib": usage.ru_maxrss / 1024.0, "task_cpu_s": float(task_cpu_s)}
+    """Peak RSS (MiB) of this worker process and its tasks' thread CPU s by key, run inside it."""
+    clock = dask_worker.plugins.get(TaskCpuClock.name)
+    return {"peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+            "task_cpu_s": dict(clock.cpu_s) if clock is not None else {}}
 
 
-def _run_campaigns(root: Path) -> tuple[float, int, list[dict]]:
-    """Plan and run both campaigns on one embedded cluster: (wall s, cases run, per-worker usage)."""
+def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
+    """Plan and run both campaigns on one embedded cluster: (wall s, cases run, peak RSS MiB per worker,
+    thread CPU ms per case by (site, case_id))."""
     from campaign.configuration.campaign_file import load_campaign_config
     from campaign.run.cluster import connected_client
     from campaign.run.orchestrate import (
@@ -70,10 +98,14 @@ def _run_campaigns(root: Path) -> tuple[float, int, list[dict]]:
     with ExitStack() as locks:
         lock_stores(points, stores, locks)
         with connected_client(execution, quiet=True) as client:
+            client.register_plugin(TaskCpuClock())
             ship_estimators(client, [spec for point in points for spec in point.config.estimators])
             run = run_locked_points(client, points, stores, execution, progress=False, on_note=lambda line: None)
             usage = list(client.run(_worker_usage).values())
-    return time.perf_counter() - start, run.done + run.failed, usage
+    keys = {point.config.config_hash[:12]: site for point, site in zip(points, SITES)}
+    task_cpu_ms = {(keys[key.split("-")[1]], int(key.split("-")[2])): 1e3 * cpu_s      # keys case-<hash>-<case id>
+                   for worker in usage for key, cpu_s in worker["task_cpu_s"].items() if str(key).startswith("case-")}
+    return time.perf_counter() - start, run.done + run.failed, [worker["peak_rss_mib"] for worker in usage], task_cpu_ms
 
 
 def _one_thread(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
@@ -116,15 +148,15 @@ def run() -> list[dict]:
                   for record in plan_campaign(load_campaign_config(REPO / "sitedata" / f"{site}.toml", cases_scale=CASES_SCALE))[1]
                   .to_dict("records")[::EVERY]]
         before = _one_thread(root / "one-thread-before", sample[0::2])
-        wall_s, cases, usage = _run_campaigns(root)
+        wall_s, cases, peak_rss_mib, task_cpu_ms = _run_campaigns(root)
         after = _one_thread(root / "one-thread-after", sample[1::2])
         one_thread = pd.concat([before, after])
         timings = pd.concat([pd.read_parquet(root / site / "timings.parquet").drop_duplicates("case_id").assign(site=site)
                              for site in SITES]).set_index(["site", "case_id"])
         on_workers = timings.loc[one_thread.index, "t_case_ms"]
-        cases_per_worker_cpu = sum(worker["task_cpu_s"] for worker in usage) * 1e3 / cases
-        peak_rss = max(worker["peak_rss_mib"] for worker in usage)
+        workers_cpu = pd.Series([task_cpu_ms.get(index, float("nan")) for index in one_thread.index])
         one_thread_ms, workers_ms = float(one_thread["t_case_ms"].median()), float(on_workers.median())
+        one_thread_cpu_ms, workers_cpu_ms = float(one_thread["cpu_ms"].median()), float(workers_cpu.median())
         return [
             {"name": "campaign/gusev+meridiani", "cases": cases, "workers": WORKERS, "wall_s": wall_s,
              "ms_per_case_median": float(timings["t_case_ms"].median()),
@@ -132,12 +164,12 @@ def run() -> list[dict]:
              "camera_ms_median": float(timings["t_camera_ms"].median()),
              "estimator_ms_median": float(timings["t_estimator_ms"].median()),
              **target_columns(wall_s, CAMPAIGNS_WALL_S, "s")},
-            {"name": "campaign/worker_peak_rss", "workers": WORKERS, **target_columns(peak_rss, WORKER_RSS_MIB, "MiB")},
+            {"name": "campaign/worker_peak_rss", "workers": WORKERS,
+             **target_columns(max(peak_rss_mib), WORKER_RSS_MIB, "MiB")},
             {"name": "campaign/parallel_efficiency", "cases": len(one_thread),
              "case_ms_one_thread": one_thread_ms, "case_ms_2_workers": workers_ms,
-             "cpu_ms_one_thread_mean": float(one_thread["cpu_ms"].mean()), "cpu_ms_2_workers_mean": cases_per_worker_cpu,
-             "cpu_ratio": float(one_thread["cpu_ms"].mean()) / cases_per_worker_cpu,
-             "load_average": os.getloadavg()[0],
+             "cpu_ms_one_thread": one_thread_cpu_ms, "cpu_ms_2_workers": workers_cpu_ms,
+             "cpu_efficiency": one_thread_cpu_ms / workers_cpu_ms, "load_average": os.getloadavg()[0],
              **target_columns(one_thread_ms / workers_ms, PARALLEL_EFFICIENCY, "x", at_most=False)},
         ]
     finally:
