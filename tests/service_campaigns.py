@@ -76,6 +76,20 @@ def run_campaign(*args, timeout: float = 300, env: dict | None = None) -> subpro
                           env={**os.environ, **(env or {})})
 
 
+def campaign_in_process(capfd, *args) -> subprocess.CompletedProcess:
+    """``campaign ARGS`` as ``campaign.cli.main`` in this process, with what a `campaign` process would give:
+    its exit code and everything written to file descriptors 1 and 2 (``capfd``: this process's prints and
+    logs, and those of the cluster's worker processes it starts). Saves the interpreter start, the imports
+    and the code digest (cached per process) that a subprocess pays on every command; used where the process
+    itself (a kill, a signal, a timeout) is not what is tested."""
+    from campaign.cli import main
+
+    capfd.readouterr()
+    code = main([str(arg) for arg in args])
+    out, err = capfd.readouterr()
+    return subprocess.CompletedProcess(["campaign", *map(str, args)], code, out, err)
+
+
 def stderr_line(result) -> str:
     """The single line a stopped or failed command prints on stderr (asserts there is exactly one)."""
     lines = result.stderr.strip().splitlines()

@@ -17,7 +17,7 @@ from campaign.configuration.execution import ExecutionConfig
 from campaign.run.cluster import connected_client
 from campaign.run.faults import RunStopped
 from flight_interface.tomlfields import ConfigError, parse
-from service_campaigns import REPO, DaskProcesses, campaign_file, run_campaign, stderr_line
+from service_campaigns import REPO, DaskProcesses, campaign_file, campaign_in_process, run_campaign, stderr_line
 
 BATCH = {"queue": "debug", "account": "proj42", "walltime": "02:30:00", "cores": 4, "memory": "8GiB", "jobs": 3,
          "prologue": ["source /opt/moc2dimes/venv/bin/activate"]}
@@ -134,17 +134,19 @@ def test_missing_optional_package_names_the_pip_extra(tmp_path, kind, module, ex
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_scheduler_backend_runs_for_real_and_gives_the_embedded_clusters_bits(tmp_path):
+def test_scheduler_backend_runs_for_real_and_gives_the_embedded_clusters_bits(tmp_path, capfd):
+    """Both submits are ``campaign.cli.main`` in this process (``campaign_in_process``): the cluster
+    processes are what is real here, the driver's interpreter start is not under test."""
     processes = DaskProcesses(tmp_path, workers=2)
     try:
         external = campaign_file(tmp_path / "external", execution=f'cluster = "scheduler"\nscheduler = "{processes.address}"')
-        result = run_campaign("submit", external, "--output", tmp_path / "external" / "out", "--no-progress")
+        result = campaign_in_process(capfd, "submit", external, "--output", tmp_path / "external" / "out", "--no-progress")
         assert result.returncode == 0, result.stderr
         assert f"scheduler: {processes.address}  cluster: scheduler" in result.stdout
     finally:
         processes.close()
     embedded = campaign_file(tmp_path / "embedded", execution="workers = 1")
-    result = run_campaign("submit", embedded, "--output", tmp_path / "embedded" / "out", "--no-progress")
+    result = campaign_in_process(capfd, "submit", embedded, "--output", tmp_path / "embedded" / "out", "--no-progress")
     assert result.returncode == 0, result.stderr
     first = pd.read_parquet(tmp_path / "external" / "out" / "results.parquet")
     second = pd.read_parquet(tmp_path / "embedded" / "out" / "results.parquet")

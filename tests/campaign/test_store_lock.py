@@ -2,7 +2,9 @@
 
 The holder is a real process holding the real ``flock`` (a small Python process using
 :class:`campaign.store.lock.StoreLock`, or a real ``campaign submit``); the other side is the
-``campaign`` CLI as a subprocess on a real dask LocalCluster.
+``campaign`` CLI on a real dask LocalCluster: a subprocess where it waits or races, else ``campaign.cli.main``
+in this process with its file descriptors captured (``service_campaigns.campaign_in_process``; the lock is
+a ``flock`` of another open file description, refused as between processes).
 """
 from __future__ import annotations
 
@@ -18,18 +20,13 @@ from pathlib import Path
 import pytest
 
 from campaign.store.campaign_store import CampaignStore
-from service_campaigns import file_tree, project_environment, site_copy, start_lock_holders
+from service_campaigns import campaign_in_process, file_tree, project_environment, site_copy, start_lock_holders
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parents[2]
 SITE = REPO / "sitedata" / "gusev.toml"
 SCALE = "0.005"   # gcp 1, gdcp 1, gkep 1 case
-def _campaign(*args, timeout=300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "campaign.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO, env=project_environment())
-
-
 def _popen_campaign(*args) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "campaign.cli", *map(str, args)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=REPO, env=project_environment(), start_new_session=True)
@@ -50,14 +47,14 @@ def holder():
     yield from start_lock_holders()
 
 
-def test_second_writer_is_told_who_holds_the_lock_and_wait_takes_over_a_killed_holder(tmp_path, holder):
+def test_second_writer_is_told_who_holds_the_lock_and_wait_takes_over_a_killed_holder(tmp_path, holder, capfd):
     out = tmp_path / "store"
     process = holder(out)
     record = json.loads((tmp_path / "store.lock").read_text())
     assert record["pid"] == process.pid and record["host"] == socket.gethostname()
     assert "StoreLock" in record["command"] and record["started"].endswith("Z")
 
-    refused = _campaign(*_submit(out))
+    refused = campaign_in_process(capfd, *_submit(out))
     assert refused.returncode == 1, refused.stdout + refused.stderr
     lines = refused.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in refused.stderr, refused.stderr
@@ -82,7 +79,7 @@ def test_second_writer_is_told_who_holds_the_lock_and_wait_takes_over_a_killed_h
     assert (tmp_path / "store.lock").read_text() == "", "a released lock keeps no holder record"
 
 
-def test_fresh_while_another_writer_holds_the_lock_changes_nothing(tmp_path, holder):
+def test_fresh_while_another_writer_holds_the_lock_changes_nothing(tmp_path, holder, capfd):
     out = tmp_path / "store"
     (out / "cases").mkdir(parents=True)
     (out / "cases" / "case-000000.ok.parquet").write_bytes(b"results of a running campaign")
@@ -90,13 +87,13 @@ def test_fresh_while_another_writer_holds_the_lock_changes_nothing(tmp_path, hol
     (out / "examples" / "gcp-case000000-image1.png").write_bytes(b"png")
     holder(out)
     before = file_tree(tmp_path)
-    result = _campaign(*_submit(out, "--fresh"))
+    result = campaign_in_process(capfd, *_submit(out, "--fresh"))
     assert result.returncode == 1 and len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert "another writer holds its lock" in result.stderr
     assert file_tree(tmp_path) == before, "--fresh changed something while another writer held the lock"
 
 
-def test_two_submits_of_different_configurations_at_once_accept_one(tmp_path):
+def test_two_submits_of_different_configurations_at_once_accept_one(tmp_path, capfd):
     """The prepare race: both start together on an empty store; the lock serialises them and the second,
     once it has the lock, finds the first's configuration and is refused (exit 2). Never two configs."""
     out = tmp_path / "store"
@@ -110,13 +107,13 @@ def test_two_submits_of_different_configurations_at_once_accept_one(tmp_path):
     assert "another configuration" in loser_err and len(loser_err.strip().splitlines()) <= 2, loser_err
     store = CampaignStore(out)
     assert store.manifest()["seed"] == int(winner.stem.removeprefix("gusev-seed"))
-    verify = _campaign("verify", out)
+    verify = campaign_in_process(capfd, "verify", out)
     assert verify.returncode == 0, verify.stdout
     results_seed = set(store.results()["case_id"])
     assert results_seed == set(store.plan()["case_id"])
 
 
-def test_sweep_takes_the_lock_of_each_point_store(tmp_path, holder):
+def test_sweep_takes_the_lock_of_each_point_store(tmp_path, holder, capfd):
     from campaign.configuration.sweep_file import load_sweep
 
     sweep = tmp_path / "sweep.toml"
@@ -127,7 +124,7 @@ def test_sweep_takes_the_lock_of_each_point_store(tmp_path, holder):
     process = holder(points[1].config.output_dir)
     before = {path: stat for path, stat in file_tree(out).items()        # the point stores (sweep.json, the
               if path.startswith("points") and not path.endswith(".lock")}  # sweep's own record, may be written)
-    result = _campaign("sweep", sweep, "--output", out, "--workers", "1", "--no-progress")
+    result = campaign_in_process(capfd, "sweep", sweep, "--output", out, "--workers", "1", "--no-progress")
     assert result.returncode == 1, result.stdout + result.stderr
     line = result.stderr.strip()
     assert len(line.splitlines()) == 1 and str(points[1].config.output_dir) in line and f"pid {process.pid}" in line
