@@ -207,7 +207,20 @@ class DimesEstimator:
         MeasurementError
             Illegal inputs only (wrong shapes, non-finite values, non-increasing times); any legal
             input returns a result, invalid with a reason when no trustworthy velocity is found.
+
+        OpenCV runs on one thread inside (restored after): on 256 x 256 images its thread hand-off
+        costs more than it saves, and on a loaded machine (one campaign worker per core) a parallel
+        call waits for a second thread's time slice. The results do not depend on it.
         """
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            return self._estimate(images, measurements)
+        finally:
+            cv2.setNumThreads(threads)
+
+    def _estimate(self, images: Sequence[np.ndarray], measurements: DescentMeasurements) -> VelocityEstimate:
+        """:meth:`estimate` (OpenCV's thread count already set)."""
         start = time.perf_counter()
         config = self.config
         validate_measurements(measurements)

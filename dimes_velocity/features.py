@@ -7,7 +7,8 @@ which is what a 2-D correlation needs. The allowed centres (``candidates``) are 
 ``feature_grid x feature_grid`` grid over their bounding box; each cell offers its most interesting
 centre, and the best offers with enough contrast (standard deviation of the template minus its
 best-fit plane, over the expected pixel noise), at least ``min_feature_spacing_px`` apart, are
-selected.
+selected. The interest is computed only over the candidates' bounding box grown by the operator's
+reach (:func:`interest_window`): the same values as the whole-image map there.
 """
 from __future__ import annotations
 

@@ -17,7 +17,10 @@ The ground -> image map is not a homography (CAHVOR radial distortion), so it is
 on a ``(K + 2) x (K + 2)`` grid of knots and interpolated in between by Catmull-Rom cubic convolution
 (separable, four knots per axis; 17 knots on 256 pixels: < 0.01 pixel);
 ``cv2.remap`` then resamples bilinearly. Points behind the camera spoil only the cells next to them,
-which are marked not visible.
+which are marked not visible. The exclusion cones (zero-phase zone, heat shield) are tested on the
+interpolated cosine of the ray's angle to the cone axis, evaluated only over the knot cells where it
+can exceed the cone's cosine: a Catmull-Rom value is at most ``max + 0.28125 (max - min)`` of its
+cell's 4 x 4 knots, so every other cell is outside the cone (the same mask as interpolating the whole grid).
 """
 from __future__ import annotations
 
