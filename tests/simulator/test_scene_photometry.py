@@ -175,3 +175,23 @@ def test_shadow_windows_hold_the_whole_penumbra():
     ratio = shaded.radiance / lit.radiance
     assert np.count_nonzero(expected < 0.999) > 200        # the shadows are in view
     assert np.max(np.abs(ratio - expected)) < 1e-4
+
+
+@pytest.mark.parametrize("sun_z", [0.87, 0.2, 0.0])
+def test_ratio_from_cosines_is_equation_1_over_the_moc_value(sun_z):
+    # the in-place fast form against equation (1) written out here in float64: mu0/(mu+mu0) f(alpha) / MOC,
+    # with phase angles over the whole range (below 10 deg: eq. (2); up to the anti-sun point: eq. (3))
+    rng = np.random.default_rng(11)
+    phase_deg = np.concatenate([np.linspace(0.0, 180.0, 721), rng.uniform(0.0, 12.0, 300)])
+    emission_deg = rng.uniform(0.0, 89.0, phase_deg.size)
+    alpha = phase_deg
+    f_low = 2.05 - 3.93e-2 * alpha + 2.09e-3 * alpha**2 - 4.86e-5 * alpha**3 + 4.93e-7 * alpha**4 - 1.72e-9 * alpha**5
+    f = np.where(alpha < 10.0, f_low, 1.82 - 1.03e-2 * (alpha - 10.0))
+    mu = np.cos(np.radians(emission_deg))
+    expected = (sun_z / (mu + sun_z) if sun_z > 0 else 0.0) * f / 0.61
+    cos_emission = mu.astype(np.float32).reshape(1, -1)
+    cos_phase = np.cos(np.radians(phase_deg)).astype(np.float32).reshape(1, -1)
+    got = photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, sun_z, 0.61)
+    assert got.dtype == np.float32 and got.shape == (1, phase_deg.size)
+    # float32 arccos near 0 and 180 deg is coarse (1e-3 deg): compare at float32 resolution of the angle
+    assert np.allclose(got.ravel(), expected, rtol=2e-4, atol=2e-4)
