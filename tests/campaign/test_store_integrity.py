@@ -2,8 +2,10 @@
 bad files never counted or read, moved to rejected/ and recomputed; manifest and plan verified; results
 trusted only when they match; ``--fresh`` checks everything and moves the old store aside.
 
-Real processes (the ``campaign`` CLI as a subprocess, a real dask LocalCluster), real files, damaged the
-way disks, editors and kills damage them.
+Real processes (the ``campaign`` CLI as a subprocess for the reference run and the unusable-cluster check, as
+``campaign.cli.main`` in this process with its file descriptors captured for the other commands, see
+``service_campaigns.campaign_in_process``; a real dask LocalCluster), real files, damaged the way disks,
+editors and kills damage them.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from campaign.store.case_files import (
     write_case_rows,
 )
 from campaign.store.case_identity import StoreIdentity
-from service_campaigns import file_tree, site_copy
+from service_campaigns import campaign_in_process, file_tree, site_copy
 
 REPO = Path(__file__).resolve().parents[2]
 SITE = REPO / "sitedata" / "gusev.toml"
@@ -76,6 +78,12 @@ def _flip_byte(path: Path, offset: int) -> None:
     path.write_bytes(bytes(data))
 
 
+@pytest.fixture()
+def cli(capfd):
+    """``cli(*args)``: the ``campaign`` command in this process (``service_campaigns.campaign_in_process``)."""
+    return lambda *args: campaign_in_process(capfd, *args)
+
+
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("integrity") / "reference"
@@ -94,20 +102,20 @@ def store(reference, tmp_path) -> Path:
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_a_clean_store_verifies_and_names_record_size_and_sha256(reference):
+def test_a_clean_store_verifies_and_names_record_size_and_sha256(reference, cli):
     files = _case_files(reference)
     assert sorted(files) == sorted(CampaignStore(reference).plan()["case_id"])
     for path in files.values():
         match = CASE_FILE.match(path.name)
         data = path.read_bytes()
         assert int(match.group(3)) == len(data) and match.group(4) == sha256_bytes(data)
-    result = _campaign("verify", reference)
+    result = cli("verify", reference)
     assert result.returncode == 0 and "clean" in result.stdout, result.stdout
 
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomputed(reference, store):
+def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomputed(reference, store, cli):
     files = _case_files(store)
     first, second, third = sorted(files)
     os.truncate(files[first], 100)                                 # truncated (disk full, killed copy)
@@ -119,12 +127,12 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     junk = store / "cases" / "notes.txt"
     junk.write_text("not a case")
 
-    status = _campaign("status", store)
+    status = cli("status", store)
     assert status.returncode == 0, status.stderr
     assert f"{store}: 3 planned, 0 done, 0 failed, 3 missing" in status.stdout
     assert "4 bad case files not counted" in status.stdout and "1 case files of cases outside the plan" in status.stdout
 
-    verify = _campaign("verify", store)
+    verify = cli("verify", store)
     assert verify.returncode == 1
     lines = verify.stdout.splitlines()
     for path, what in ((files[first], "truncated: 100 bytes"), (files[second], "corrupted: sha256"), (unrecorded, "unrecorded"),
@@ -132,11 +140,11 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
         assert any(line.startswith(f"{path}: {what}") for line in lines), (path, verify.stdout)
     assert str(stray) not in "\n".join(line for line in lines if not line.startswith("note:"))
 
-    table = _campaign("table", store)
+    table = cli("table", store)
     assert table.returncode == 0 and "Traceback" not in table.stderr, table.stderr
     assert "0 of 3 cases finished (0 failed, 3 missing)" in table.stdout
 
-    rerun = _campaign(*_submit(store))
+    rerun = cli(*_submit(store))
     assert rerun.returncode == 0, rerun.stderr
     assert "(3 done, 0 failed this run)" in rerun.stdout and "moved 4 bad or superseded case files" in rerun.stdout
     log = (store / "rejected" / "rejected.log").read_text().splitlines()
@@ -146,12 +154,12 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     assert stray.exists(), "a verified case file outside the plan is kept"
     pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
                                   pd.read_parquet(reference / "results.parquet"), check_exact=True)
-    assert _campaign("verify", store).returncode == 0
+    assert cli("verify", store).returncode == 0
 
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_two_verified_files_of_one_case_count_once(reference, store):
+def test_two_verified_files_of_one_case_count_once(reference, store, cli):
     """A kill between a recomputed case's rename and the removal of its older file leaves two verified
     files: the newest counts, once."""
     files = _case_files(store)
@@ -167,9 +175,9 @@ def test_two_verified_files_of_one_case_count_once(reference, store):
     for path in (newer, failed_path):
         os.utime(path, ns=(time.time_ns() + 10**9, time.time_ns() + 10**9))
 
-    status = _campaign("status", store)
+    status = cli("status", store)
     assert f"{store}: 3 planned, 2 done, 1 failed, 0 missing" in status.stdout, status.stdout
-    verify = _campaign("verify", store)
+    verify = cli("verify", store)
     assert f"note: {files[first]}: superseded by the newer {newer.name}" in verify.stdout
     results = CampaignStore(store).results()
     assert results["case_id"].is_unique and len(results) == 3
@@ -212,42 +220,42 @@ def test_a_writer_killed_at_any_instant_leaves_a_verified_file_or_an_ignored_one
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_corrupt_or_edited_manifest_is_one_line(store):
+def test_corrupt_or_edited_manifest_is_one_line(store, cli):
     (store / "manifest.json").write_text('{"config_hash": "abc", "seed": ')
     before = file_tree(store)
     for command in (["status", store], ["table", store], _submit(store)):
-        result = _campaign(*command)
+        result = cli(*command)
         assert result.returncode == 2, (command, result.stdout, result.stderr)
         line = _one_line(result.stderr)
         assert f"{store / 'manifest.json'}: corrupt: not valid JSON" in line and "--fresh" in line
-    verify = _campaign("verify", store)
+    verify = cli("verify", store)
     assert verify.returncode == 1 and f"{store / 'manifest.json'}: corrupt" in verify.stdout
     assert file_tree(store) == before
 
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, store):
+def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, store, cli):
     path = store / "manifest.json"
     manifest = json.loads(path.read_text())
     path.write_text(json.dumps({**manifest, "seed": 2}, indent=2))
-    result = _campaign("status", store)
+    result = cli("status", store)
     assert result.returncode == 2 and "corrupted or edited" in _one_line(result.stderr)
     path.write_text(json.dumps(manifest, indent=2, sort_keys=True))
 
     _flip_byte(store / "results.parquet", 200)
-    table = _campaign("table", store)
-    assert table.returncode == 0 and table.stdout == _campaign("table", reference).stdout.replace(str(reference), str(store))
-    verify = _campaign("verify", store)
+    table = cli("table", store)
+    assert table.returncode == 0 and table.stdout == cli("table", reference).stdout.replace(str(reference), str(store))
+    verify = cli("verify", store)
     assert verify.returncode == 1 and f"{store / 'results.parquet'}: corrupted" in verify.stdout
 
     _flip_byte(store / "plan.parquet", 100)
-    status = _campaign("status", store)
+    status = cli("status", store)
     assert status.returncode == 2 and f"{store / 'plan.parquet'}: corrupted or replaced" in _one_line(status.stderr)
-    rerun = _campaign(*_submit(store))
+    rerun = cli(*_submit(store))
     assert rerun.returncode == 0, rerun.stderr
     assert "written again from the configuration" in rerun.stdout and "(0 done, 0 failed this run)" in rerun.stdout
-    assert _campaign("verify", store).returncode == 0
+    assert cli("verify", store).returncode == 0
     pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
                                   pd.read_parquet(reference / "results.parquet"), check_exact=True)
 
@@ -259,15 +267,15 @@ def _site_with_seed(directory: Path, seed: int) -> Path:
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside(store, tmp_path):
+def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside(store, tmp_path, cli):
     (store / "manifest.json").unlink()
     old_tree = file_tree(store)
     site = _site_with_seed(tmp_path, 5)
-    refused = _campaign(*_submit(store, site=site))
+    refused = cli(*_submit(store, site=site))
     assert refused.returncode == 2 and "no manifest.json" in _one_line(refused.stderr)
     assert file_tree(store) == old_tree
 
-    fresh = _campaign(*_submit(store, "--fresh", site=site))
+    fresh = cli(*_submit(store, "--fresh", site=site))
     assert fresh.returncode == 0, fresh.stderr
     previous = [p for p in tmp_path.iterdir() if p.name.startswith("store.previous-")]
     assert len(previous) == 1 and f"moved the previous store aside to {previous[0]}" in fresh.stdout
@@ -278,7 +286,7 @@ def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside
     old_examples = {p.name: p.read_bytes() for p in (previous[0] / "examples").iterdir()}
     new_examples = {p.name: p.read_bytes() for p in (store / "examples").iterdir()}
     assert old_examples and all(new_examples.get(name) != data for name, data in old_examples.items())
-    assert _campaign("verify", store).returncode == 0
+    assert cli("verify", store).returncode == 0
 
 
 @pytest.mark.cluster
@@ -296,22 +304,22 @@ def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_another_case_count_reuses_the_cases_in_both_plans(reference, store):
+def test_another_case_count_reuses_the_cases_in_both_plans(reference, store, cli):
     """Case identity is (class, index within class) and the configuration hash ignores case counts: a
     larger --cases-scale on the same store computes only the new cases, a smaller one runs nothing; the
     cases outside the current plan are kept and reported, not counted."""
     before = {p.name for p in (store / "cases").iterdir()}
-    larger = _campaign(*_submit(store, scale="0.011"))   # gcp 2, gdcp 1, gkep 1
+    larger = cli(*_submit(store, scale="0.011"))   # gcp 2, gdcp 1, gkep 1
     assert larger.returncode == 0, larger.stderr
     assert "plan of 4 cases recorded (was 3)" in larger.stdout and "(1 done, 0 failed this run)" in larger.stdout
     assert before < {p.name for p in (store / "cases").iterdir()}, "the three cases of both plans are reused"
-    smaller = _campaign(*_submit(store))
+    smaller = cli(*_submit(store))
     assert smaller.returncode == 0 and "(0 done, 0 failed this run)" in smaller.stdout, smaller.stderr
-    status = _campaign("status", store).stdout
+    status = cli("status", store).stdout
     assert "3 planned, 3 done, 0 failed, 0 missing" in status and "1 case files of cases outside the plan" in status
     pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
                                   pd.read_parquet(reference / "results.parquet"), check_exact=True)
-    assert _campaign("verify", store).returncode == 0
+    assert cli("verify", store).returncode == 0
 
 
 @pytest.mark.cluster
