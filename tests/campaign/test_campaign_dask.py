@@ -1,7 +1,14 @@
 """The campaign service with real parts: dask LocalCluster, `dask scheduler` / `dask worker`
-processes on loopback, real Parquet stores; killing workers and the driver loses and duplicates nothing."""
+processes on loopback, real Parquet stores; killing workers and the driver loses and duplicates nothing.
+
+Commands whose process is not under test (the reference runs, reruns, status and table) run as
+``campaign.cli.main`` in this process: the same exit code, stdout and files as a `campaign` process, without
+an interpreter start, imports and code digest each; the driver that is killed, the submit on the external
+cluster and the refused submit (its whole stderr is one line) are `campaign` processes."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import signal
@@ -14,6 +21,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
+from campaign.cli import main
 from campaign.store.campaign_store import CampaignStore
 from service_campaigns import site_copy
 
@@ -30,6 +38,15 @@ def _campaign(*args, timeout=600, check=True):
                           timeout=timeout, check=check, cwd=REPO)
 
 
+def _in_process(*args) -> str:
+    """``campaign ARGS`` as ``campaign.cli.main`` in this process, asserted to exit 0; returns its stdout."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(arg) for arg in args])
+    assert code == 0, out.getvalue() + err.getvalue()
+    return out.getvalue()
+
+
 def _submit_args(out: Path, *extra):
     return ["submit", str(SITE), "--output", str(out), "--cases-scale", SCALE, "--no-progress", *extra]
 
@@ -41,8 +58,8 @@ def _results(out: Path) -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def reference_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("reference")
-    result = _campaign(*_submit_args(out, "--workers", "2"))
-    assert "wall time" in result.stdout and "Gusev" in result.stdout, result.stdout + result.stderr
+    stdout = _in_process(*_submit_args(out, "--workers", "2"))
+    assert "wall time" in stdout and "Gusev" in stdout, stdout
     return out
 
 
@@ -52,22 +69,22 @@ def test_reference_run_is_complete_and_printed(reference_run):
     assert sorted(results["case_id"]) == sorted(plan["case_id"])
     assert results["case_id"].is_unique
     assert set(results["status"]) <= {"ok", "failed"}
-    status = _campaign("status", str(reference_run)).stdout
+    status = _in_process("status", reference_run)
     assert f"{len(plan)} planned, {int((results.status == 'ok').sum())} done" in status
-    table = _campaign("table", str(reference_run)).stdout
+    table = _in_process("table", reference_run)
     assert "gcp" in table and "weighted" in table           # class rows and the ellipse-weighted site row
     assert (reference_run / "table.md").exists() and (reference_run / "table.csv").exists()
 
 
 def test_one_worker_gives_the_same_bits(reference_run, tmp_path):
-    _campaign(*_submit_args(tmp_path, "--workers", "1"))
+    _in_process(*_submit_args(tmp_path, "--workers", "1"))
     pd.testing.assert_frame_equal(_results(tmp_path), _results(reference_run), check_exact=True)
 
 
 def test_rerun_runs_nothing_and_changed_config_is_refused(reference_run, tmp_path):
     before = {p.name: p.stat().st_mtime_ns for p in (reference_run / "cases").iterdir()}
-    rerun = _campaign(*_submit_args(reference_run, "--workers", "1"))
-    assert "(0 done, 0 failed this run)" in rerun.stdout
+    rerun = _in_process(*_submit_args(reference_run, "--workers", "1"))
+    assert "(0 done, 0 failed this run)" in rerun
     assert {p.name: p.stat().st_mtime_ns for p in (reference_run / "cases").iterdir()} == before
     other_seed = site_copy(tmp_path, "\n[campaign]\nseed = 2\n")
     changed = _campaign("submit", str(other_seed), "--output", str(reference_run), "--cases-scale", SCALE,
@@ -98,8 +115,8 @@ def test_killed_driver_then_rerun_equals_uninterrupted_run(reference_run, tmp_pa
         process.wait()
     partial = CampaignStore(tmp_path).status()
     assert partial.done + partial.failed < partial.planned, "the kill came too late to test resuming"
-    rerun = _campaign(*_submit_args(tmp_path, "--workers", "2"))
-    assert f"({partial.missing} done, 0 failed this run)" in rerun.stdout or "failed this run" in rerun.stdout
+    rerun = _in_process(*_submit_args(tmp_path, "--workers", "2"))
+    assert f"({partial.missing} done, 0 failed this run)" in rerun or "failed this run" in rerun
     pd.testing.assert_frame_equal(_results(tmp_path), _results(reference_run), check_exact=True)
 
 

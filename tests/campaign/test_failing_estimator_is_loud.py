@@ -2,7 +2,10 @@
 answering ``"valid": "yes"`` beside the reference makes `campaign submit` exit 1 with one stderr line naming
 it, its count and its reason, and the table counts its failed rows; then the store's rows are rewritten
 through the store's own writer with extreme values (1e30, inf, NaN, negative uncertainty, an empty class)
-and `campaign table` and `campaign report` still exit 0 without a traceback."""
+and `campaign table` and `campaign report` still exit 0 without a traceback.
+
+The submit is a `campaign` process; table and report are ``campaign.cli.main`` in this process with its
+file descriptors captured (``service_campaigns.campaign_in_process``: no interpreter start and imports each)."""
 from __future__ import annotations
 
 import math
@@ -13,7 +16,7 @@ import pytest
 
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.case_files import write_case_rows
-from service_campaigns import campaign_with_command_estimator, run_campaign
+from service_campaigns import campaign_in_process, campaign_with_command_estimator, run_campaign
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -32,7 +35,7 @@ def yes_store(tmp_path_factory):
     return out, run_campaign("submit", config, "--output", out, "--no-progress")
 
 
-def test_failing_command_estimator_exits_1_with_one_stderr_line_and_counts_in_the_table(yes_store):
+def test_failing_command_estimator_exits_1_with_one_stderr_line_and_counts_in_the_table(yes_store, capfd):
     out, submit = yes_store
     assert submit.returncode == 1, submit.stdout + submit.stderr
     assert "Traceback" not in submit.stderr
@@ -44,7 +47,7 @@ def test_failing_command_estimator_exits_1_with_one_stderr_line_and_counts_in_th
     assert "failed this run); estimator rows failed: yes_man 3 (reasons on stderr)" in submit.stdout
     results = pd.read_parquet(out / "results.parquet")
     assert set(results.loc[results["estimator"] == "dimes", "status"]) == {"ok"}
-    table = run_campaign("table", out)
+    table = campaign_in_process(capfd, "table", out)
     assert table.returncode == 0 and "yes_man 0 valid, 0 invalid, 3 failed" in table.stdout
     section = table.stdout.split("estimator yes_man:")[1].split("estimators side by side:")[0]
     site_row = [line for line in section.splitlines() if line.strip().startswith("Gusev")][0]
@@ -61,7 +64,7 @@ EXTREMES = [  # (valid, velocity error, uncertainty, estimate east) per row of t
 ]
 
 
-def test_table_and_report_survive_extreme_stored_values(yes_store, tmp_path):
+def test_table_and_report_survive_extreme_stored_values(yes_store, tmp_path, capfd):
     source, _ = yes_store
     out = tmp_path / "extreme"
     shutil.copytree(source, out)
@@ -76,11 +79,11 @@ def test_table_and_report_survive_extreme_stored_values(yes_store, tmp_path):
                        estimate_velocity_east_mps=east, estimate_velocity_north_mps=-east)
         write_case_rows(store.cases_dir, case_id, rows, ok=True)
     store.compact()
-    table = run_campaign("table", out)
+    table = campaign_in_process(capfd, "table", out)
     assert table.returncode == 0 and "Traceback" not in table.stderr, table.stderr
     assert "dimes 2 valid, 1 invalid, 0 failed; yes_man 3 valid, 0 invalid, 0 failed" in table.stdout
     assert "1e+30" in table.stdout and "inf" in table.stdout
-    report = run_campaign("report", out)
+    report = campaign_in_process(capfd, "report", out)
     assert report.returncode == 0 and "Traceback" not in report.stderr, report.stderr
     text = (out / "report" / "report.md").read_text()
     assert "False-valid cases" in text and (out / "report" / "error_histograms-dimes.png").exists()

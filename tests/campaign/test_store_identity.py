@@ -3,8 +3,10 @@ seed, estimators, result-schema version) in its Parquet metadata, and the store 
 identity is the store's; the writer's lock survives the deletion of ``DIR.lock``; a read-only store can
 be inspected.
 
-Real parts: the ``campaign`` CLI as a subprocess on a real dask LocalCluster, two real campaigns with
-different seeds, real Parquet files, a real second process holding the lock, a real read-only bind mount.
+Real parts: the ``campaign`` CLI on a real dask LocalCluster (a subprocess for the two campaigns, then
+``campaign.cli.main`` in this process with its file descriptors captured, see
+``service_campaigns.campaign_in_process``), two real campaigns with different seeds, real Parquet files, a
+real second process holding the lock, a real read-only bind mount.
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ from campaign.store.case_files import (
 from campaign.store.case_identity import IDENTITY_KEY, StoreIdentity
 from campaign.store.lock import StoreBusy, StoreLock
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULT_SCHEMA_VERSION, ResultSchemaError, rows_table
-from service_campaigns import file_tree, project_environment, site_copy, start_lock_holders
+from service_campaigns import campaign_in_process, file_tree, project_environment, site_copy, start_lock_holders
 
 REPO = Path(__file__).resolve().parents[2]
 SCALE = "0.005"               # gcp 1, gdcp 1, gkep 1 case
@@ -126,13 +128,19 @@ def campaigns(tmp_path_factory) -> tuple[Path, Path]:
     return stores[0], stores[1]
 
 
+@pytest.fixture()
+def cli(capfd):
+    """``cli(*args)``: the ``campaign`` command in this process (``service_campaigns.campaign_in_process``)."""
+    return lambda *args: campaign_in_process(capfd, *args)
+
+
 def _site(store: Path) -> Path:
     return Path(json.loads((store / "manifest.json").read_text())["config_file"])
 
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaigns, tmp_path):
+def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaigns, tmp_path, cli):
     reference, other = campaigns
     store = tmp_path / "store"
     shutil.copytree(reference, store)
@@ -141,15 +149,15 @@ def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaig
     placed = _place(store, case_id, stranger.read_bytes())
     assert CASE_FILE.match(placed.name).group(4) == sha256_bytes(placed.read_bytes()), "its name verifies it"
 
-    status = _campaign("status", store)
+    status = cli("status", store)
     assert status.returncode == 0 and f"{store}: 3 planned, 2 done, 0 failed, 1 missing" in status.stdout, status.stdout
     assert "1 bad case files not counted, 1 of them foreign" in status.stdout
-    verify = _campaign("verify", store)
+    verify = cli("verify", store)
     assert verify.returncode == 1 and "Traceback" not in verify.stderr
     named = [line for line in verify.stdout.splitlines() if line.startswith(f"{placed}: foreign: ")]
     assert len(named) == 1 and f"campaign_seed {OTHER_SEED} (this store: {SEED})" in named[0], verify.stdout
 
-    rerun = _campaign(*_submit(_site(reference), store))
+    rerun = cli(*_submit(_site(reference), store))
     assert rerun.returncode == 0, rerun.stdout + rerun.stderr
     assert "(1 done, 0 failed this run)" in rerun.stdout and "moved 1 bad or superseded case files" in rerun.stdout
     assert (store / "rejected" / placed.name).read_bytes() == stranger.read_bytes(), "moved aside, not deleted"
@@ -158,13 +166,13 @@ def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaig
     results = pd.read_parquet(store / "results.parquet")
     assert set(results["campaign_seed"]) == {SEED}
     pd.testing.assert_frame_equal(results, pd.read_parquet(reference / "results.parquet"), check_exact=True)
-    assert _campaign("verify", store).returncode == 0
-    assert "1 files rejected earlier" in _campaign("status", store).stdout
+    assert cli("verify", store).returncode == 0
+    assert "1 files rejected earlier" in cli("status", store).stdout
 
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_traceback(campaigns, tmp_path):
+def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_traceback(campaigns, tmp_path, cli):
     reference, _ = campaigns
     store = tmp_path / "store"
     shutil.copytree(reference, store)
@@ -175,7 +183,7 @@ def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_tra
     kept = {path.name: path.read_bytes() for path in (foreign_schema, unrecorded)}
 
     for command in ("status", "verify", "table"):
-        result = _campaign(command, store)
+        result = cli(command, store)
         assert "Traceback" not in result.stdout + result.stderr, result.stderr
         assert result.returncode == (1 if command == "verify" else 0), result.stdout + result.stderr
         if command == "verify":
@@ -185,7 +193,7 @@ def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_tra
         if command == "table":
             assert "1 of 3 cases finished (0 failed, 2 missing)" in result.stdout
 
-    rerun = _campaign(*_submit(_site(reference), store))
+    rerun = cli(*_submit(_site(reference), store))
     assert rerun.returncode == 0, rerun.stdout + rerun.stderr
     assert "(2 done, 0 failed this run)" in rerun.stdout
     assert {name: (store / "rejected" / name).read_bytes() for name in kept} == kept, "nothing lost"
@@ -201,7 +209,7 @@ def holder():
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_deleting_the_lock_file_does_not_let_a_second_writer_in(campaigns, tmp_path, holder):
+def test_deleting_the_lock_file_does_not_let_a_second_writer_in(campaigns, tmp_path, holder, cli):
     reference, _ = campaigns
     store = tmp_path / "store"
     shutil.copytree(reference, store)
@@ -209,7 +217,7 @@ def test_deleting_the_lock_file_does_not_let_a_second_writer_in(campaigns, tmp_p
     process = holder(store)
     (tmp_path / "store.lock").unlink()                           # the bypass: remove the lock file
     before = file_tree(store)
-    refused = _campaign(*_submit(_site(reference), store))
+    refused = cli(*_submit(_site(reference), store))
     assert refused.returncode == 1, refused.stdout + refused.stderr
     lines = refused.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in refused.stderr, refused.stderr
@@ -240,7 +248,7 @@ def test_the_directory_lock_follows_a_fresh_store_and_a_new_one(tmp_path):
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_status_verify_and_table_work_on_a_read_only_store(campaigns, tmp_path):
+def test_status_verify_and_table_work_on_a_read_only_store(campaigns, tmp_path, cli):
     reference, _ = campaigns
     copy, mounted = tmp_path / "copy", tmp_path / "mounted"
     shutil.copytree(reference, copy)
@@ -252,11 +260,11 @@ def test_status_verify_and_table_work_on_a_read_only_store(campaigns, tmp_path):
         with pytest.raises(OSError):
             (mounted / "probe").write_text("x")               # writes really fail (root ignores chmod, not ro mounts)
         before = file_tree(copy)
-        status = _campaign("status", mounted)
+        status = cli("status", mounted)
         assert status.returncode == 0 and f"{mounted}: 3 planned, 3 done, 0 failed, 0 missing" in status.stdout
-        verify = _campaign("verify", mounted)
+        verify = cli("verify", mounted)
         assert verify.returncode == 0 and "clean" in verify.stdout, verify.stdout + verify.stderr
-        table = _campaign("table", mounted)
+        table = cli("table", mounted)
         assert table.returncode == 0 and "Traceback" not in table.stderr, table.stderr
         assert "3 of 3 cases finished" in table.stdout and "table.md and table.csv not written" in table.stdout
         assert file_tree(copy) == before

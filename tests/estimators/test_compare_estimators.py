@@ -2,7 +2,11 @@
 stores): the shipped example runs both estimators on every case, resumes, and `campaign table` prints
 both; with one worker and two more estimators (one failing) the failing plugin's rows are failed with
 its error while the example's estimators' rows are bit for bit those of the two-worker run (render
-once, estimate N times: neither the worker count nor an added estimator changes them)."""
+once, estimate N times: neither the worker count nor an added estimator changes them).
+
+The runs are `campaign` processes; the rerun and the tables are ``campaign.cli.main`` in this process with
+its file descriptors captured (``service_campaigns.campaign_in_process``: no interpreter start, imports and
+code digest for each)."""
 from __future__ import annotations
 
 import os
@@ -12,6 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+
+from service_campaigns import campaign_in_process
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -39,14 +45,14 @@ def example_run(tmp_path_factory):
     return out
 
 
-def test_example_has_both_estimators_for_every_case_and_table_prints_both(example_run):
+def test_example_has_both_estimators_for_every_case_and_table_prints_both(example_run, capfd):
     results = pd.read_parquet(example_run / "results.parquet")
     per_case = results.groupby("case_id")["estimator"].apply(list)
     assert len(per_case) == 3 and all(names == ["dimes", "phase_correlation"] for names in per_case)
     assert set(results["status"]) == {"ok"}
     timings = pd.read_parquet(example_run / "timings.parquet")
     assert list(timings.columns[:2]) == ["case_id", "estimator"] and len(timings) == len(results)
-    table = _campaign("table", example_run).stdout
+    table = campaign_in_process(capfd, "table", example_run).stdout
     assert "estimator dimes:" in table and "estimator phase_correlation:" in table
     side_by_side = table.split("estimators side by side:")[1]      # estimator names head their column groups
     assert "dimes (worst, err: m/s)" in side_by_side and "phase_correlation (worst, err: m/s)" in side_by_side
@@ -55,12 +61,13 @@ def test_example_has_both_estimators_for_every_case_and_table_prints_both(exampl
     assert set(csv["estimator"]) == {"dimes", "phase_correlation"} and "false_valid" in csv.columns
 
 
-def test_example_rerun_resumes_with_nothing_to_do(example_run):
-    rerun = _submit(EXAMPLE, example_run, 1)
-    assert "(0 done, 0 failed this run)" in rerun.stdout
+def test_example_rerun_resumes_with_nothing_to_do(example_run, capfd):
+    rerun = campaign_in_process(capfd, "submit", EXAMPLE, "--output", example_run, "--cases-scale", SCALE, "--workers", 1,
+                                "--no-progress")
+    assert rerun.returncode == 0 and "(0 done, 0 failed this run)" in rerun.stdout, rerun.stdout + rerun.stderr
 
 
-def test_failing_plugin_is_recorded_and_the_other_estimators_rows_are_unchanged(example_run, tmp_path):
+def test_failing_plugin_is_recorded_and_the_other_estimators_rows_are_unchanged(example_run, tmp_path, capfd):
     """One worker, four estimators (two of the example, a failing command, a Python callable) against the
     example's two workers: the example's estimators' rows are the same bits (worker count and added
     estimators change nothing)."""
@@ -97,5 +104,5 @@ callable = "python_estimators:imu_minus_bias"
         kept = results[results["estimator"] == name].reset_index(drop=True)
         alone = first[first["estimator"] == name].reset_index(drop=True)
         pd.testing.assert_frame_equal(kept[alone.columns], alone, check_exact=True)
-    table = _campaign("table", tmp_path / "out").stdout
+    table = campaign_in_process(capfd, "table", tmp_path / "out").stdout
     assert "broken_flight_code" in table and "imu_only" in table
