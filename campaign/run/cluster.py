@@ -8,7 +8,7 @@
                 KubeCluster; ``[execution.kubernetes]``; extra ``moc2dimes[kubernetes]``)
 
 Every worker runs one thread (a case is one CPU-bound task; BLAS and OpenCV threads are pinned to 1, the
-environment before the worker process starts and :class:`~campaign.run.worker.CaseWorkerSetup` when it has
+environment before the worker process starts and :class:`~campaign.run.process_tuning.CaseWorkerSetup` when it has
 started), without dask's statistical profiler (:data:`WORKER_DASK_CONFIG`).
 Batch jobs are submitted and watched until their first worker connects by :mod:`campaign.run.batch_jobs`
 (a batch-system failure is one line naming the command and its error); :func:`cluster_description` is
@@ -44,7 +44,7 @@ from campaign.run.batch_jobs import (
     wait_for_first_worker,
 )
 from campaign.run.faults import RunStopped
-from campaign.run.worker import CaseWorkerSetup
+from campaign.run.process_tuning import CaseWorkerSetup
 from flight_interface.tomlfields import ConfigError
 
 #: backend -> (module it needs, pip distribution, extra of moc2dimes)

@@ -1,4 +1,4 @@
-"""Running cases on a worker process: the per-process cache, process tuning, retries, and writing a case's
+"""Running cases on a worker process: the per-process cache, retries, and writing a case's
 rows (ok or failed) and example PNGs to the store.
 
 Big read-only inputs (camera, trajectory set, terrain strips, calibration, estimators) are loaded once per
@@ -9,7 +9,6 @@ configuration hash, and the inputs they share by source); tasks themselves only 
 """
 from __future__ import annotations
 
-import ctypes
 import functools
 import os
 import pickle
@@ -21,15 +20,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-from distributed import WorkerPlugin
 
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.report.plots import save_descent_image
 from campaign.run.case import CampaignInputs, CaseRun, EstimatorResult, PlanRow, SharedInputs, case_rows, compute_case
 from campaign.run.faults import InfrastructureError, describe, is_infrastructure
 from campaign.run.plugin_setup import PluginSetupError, worker_address
+from campaign.run.process_tuning import tune_once
 from campaign.store.case_files import write_case_rows
 from campaign.store.case_identity import StoreIdentity
 from estimators.plugins import EstimatorSetupError, build_estimator
@@ -45,60 +43,14 @@ class WorkerCache:
         Configuration hash -> the campaign's :class:`~campaign.run.case.CampaignInputs`.
     shared : SharedInputs
         Inputs shared by the campaigns (or sweep points) the process serves, by source.
-    process_tuned : bool
-        :func:`tune_process` has run in this process.
     """
 
     campaigns: dict[str, CampaignInputs] = field(default_factory=dict)
     shared: SharedInputs = field(default_factory=SharedInputs)
-    process_tuned: bool = False
 
 
 WORKER_CACHE = WorkerCache()
 """The cache of this process (the only one)."""
-
-
-def keep_freed_memory_for_reuse() -> bool:
-    """Ask glibc to recycle freed image buffers instead of returning them to the kernel at once.
-
-    dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also freezes glibc's
-    mmap threshold at 128 KiB: every 1024 x 1024 array is then a fresh ``mmap`` whose pages the
-    kernel zero-fills on first touch, and a case runs 2.5 times slower (measured: 311 vs 125 ms),
-    most of it as system time. Raising both thresholds (mmap 32 MiB, the largest glibc accepts; trim
-    64 MiB) keeps a case's image buffers (4-12 MiB each) in the heap for reuse while larger scratch
-    (terrain generation) is still returned at once, so a worker stays well under its memory limit. Returns False where there is no
-    glibc (the setting is then simply not needed).
-    """
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return False
-    m_trim_threshold, m_mmap_threshold = -1, -3
-    return bool(libc.mallopt(m_trim_threshold, 64 << 20)) and bool(libc.mallopt(m_mmap_threshold, 32 << 20))
-
-
-def tune_process() -> None:
-    """Tune this process for cases: keep freed image buffers for reuse, one OpenCV thread (one worker
-    process per core: OpenCV's own threads would only contend)."""
-    keep_freed_memory_for_reuse()
-    cv2.setNumThreads(1)
-
-
-def tune_once(cache: WorkerCache = WORKER_CACHE) -> None:
-    """:func:`tune_process` unless this process is tuned already."""
-    if not cache.process_tuned:
-        tune_process()
-        cache.process_tuned = True
-
-
-class CaseWorkerSetup(WorkerPlugin):
-    """Tunes each worker process as it starts (:func:`tune_process`), before any task runs on it: plug-in
-    checks and estimator set-up run single-threaded too, not only the cases (which tune on first use)."""
-
-    name = "moc2dimes-case-worker"
-
-    def setup(self, worker) -> None:
-        tune_once()
 
 
 def set_up_estimators(resources: CampaignInputs) -> None:
@@ -129,7 +81,7 @@ def _on_worker(line: str) -> str:
 
 def load_resources(config: CampaignConfig, cache: WorkerCache = WORKER_CACHE) -> CampaignInputs:
     """The campaign's inputs in this process (created on first use; the process is tuned once)."""
-    tune_once(cache)
+    tune_once()
     if config.config_hash not in cache.campaigns:
         cache.campaigns[config.config_hash] = CampaignInputs(config, cache.shared)
     return cache.campaigns[config.config_hash]
@@ -171,10 +123,17 @@ _CONTEXTS: dict[bytes, CampaignContext] = {}
 """The contexts this process has unpickled, by their fields' pickle (a campaign or sweep point each)."""
 
 
+MAX_CONTEXTS = 32
+"""Contexts kept per process: a sweep runs its points a batch at a time, so older ones are not needed again."""
+
+
 def context_from_pickle(fields_pickle: bytes) -> CampaignContext:
-    """The :class:`CampaignContext` of ``fields_pickle``, unpickled on its first use in this process."""
+    """The :class:`CampaignContext` of ``fields_pickle``, unpickled on its first use in this process (the
+    :data:`MAX_CONTEXTS` most recently made are kept: a 10^4-point sweep must not grow a worker)."""
     context = _CONTEXTS.get(fields_pickle)
     if context is None:
+        while len(_CONTEXTS) >= MAX_CONTEXTS:
+            del _CONTEXTS[next(iter(_CONTEXTS))]
         context = _CONTEXTS[fields_pickle] = CampaignContext(*pickle.loads(fields_pickle))
     return context
 

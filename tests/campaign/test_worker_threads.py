@@ -66,3 +66,11 @@ def test_a_task_context_is_unpickled_once_per_process(tmp_path):
     assert first == context and first.config.config_hash == config.config_hash
     other = pickle.loads(pickle.dumps(CampaignContext.from_config(config, tmp_path / "elsewhere")))
     assert other is not first and other.store_root == str(tmp_path / "elsewhere")
+    # a sweep's points each bring a context: a process keeps only the most recent ones
+    from campaign.run import worker
+
+    for index in range(worker.MAX_CONTEXTS + 8):
+        pickle.loads(pickle.dumps(CampaignContext.from_config(config, tmp_path / f"point-{index}")))
+    assert len(worker._CONTEXTS) == worker.MAX_CONTEXTS
+    recent = pickle.loads(pickle.dumps(CampaignContext.from_config(config, tmp_path / f"point-{worker.MAX_CONTEXTS + 7}")))
+    assert recent.store_root == str(tmp_path / f"point-{worker.MAX_CONTEXTS + 7}")
