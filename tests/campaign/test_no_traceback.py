@@ -223,11 +223,11 @@ class Interrupted:
 @pytest.fixture(scope="module")
 def interrupted(tmp_path_factory) -> Interrupted:
     """A real `campaign submit` on a 2-worker LocalCluster, interrupted by SIGINT to its process group once a
-    case file exists."""
+    case file exists (188 planned cases: far more than can finish between the first file and the signal)."""
     root = tmp_path_factory.mktemp("interrupted")
     store = root / "store"
     process = subprocess.Popen([sys.executable, "-m", "campaign.cli", "submit", str(GUSEV), "--output", str(store),
-                                "--cases-scale", "0.1", "--workers", "2", "--no-progress"], stdout=subprocess.PIPE,
+                                "--cases-scale", "0.5", "--workers", "2", "--no-progress"], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, cwd=root, env=ENV, start_new_session=True)
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and not list((store / "cases").glob("case-*.parquet")):
