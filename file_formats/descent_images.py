@@ -398,3 +398,28 @@ def write_descent_image(path: str | Path, dn: np.ndarray) -> Path:
     if not cv2.imwrite(str(path), np.ascontiguousarray(array)):
         raise InputFileError(f"{path}: cannot write PNG")
     return path
+
+
+def write_preview_png(path: str | Path, dn: np.ndarray, low_dn: float | None = None,
+                      high_dn: float | None = None) -> Path:
+    """A descent image as an 8-bit grey PNG for people to look at (not for reading back as DN).
+
+    Parameters
+    ----------
+    path : path-like
+        Output file (PNG).
+    dn : ndarray, (H / b, W)
+        Binned camera DN.
+    low_dn, high_dn : float, optional
+        The stretch: ``low_dn`` -> 0, ``high_dn`` -> 255, clipped (default: the image's 1st and 99th
+        percentiles). Rows are repeated 4x to show the 1024x1024 frame's aspect.
+    """
+    path = Path(path)
+    values = np.asarray(dn, dtype=float)
+    low = np.percentile(values, 1) if low_dn is None else low_dn
+    high = np.percentile(values, 99) if high_dn is None else high_dn
+    scaled = np.clip((values - low) / max(high - low, 1e-9), 0, 1)
+    preview = (255 * np.repeat(scaled, 4, axis=0)).astype(np.uint8)
+    if not cv2.imwrite(str(path), preview, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
+        raise InputFileError(f"{path}: cannot write PNG")
+    return path

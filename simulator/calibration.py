@@ -34,7 +34,7 @@ from file_formats.flat_field_files import save_flat_field
 from flight_interface.calibration import CalibrationError, normalise_flat_field, readout_flat_field
 from flight_interface.camera import Camera, load_camera
 from flight_interface.tomlfields import ConfigError
-from simulator.detector.camera_chain import CameraEffects, pixel_gain, render_image
+from simulator.detector.camera_chain import CameraEffects, expected_charge_e, pixel_gain, read_out
 from simulator.fields import RadianceFields
 
 #: On-axis binned charge of a flat exposure, as a fraction of the smallest charge capacity.
@@ -79,8 +79,9 @@ def simulate_flat_field(camera: Camera, frames: int, rng: np.random.Generator,
     dark = RadianceFields(flush=dark_block, exposure=np.zeros_like(source), transfer=dark_block)
     total = np.zeros((rows, columns), np.float64)
     for fields, sign in ((lit, 1.0), (dark, -1.0)):
+        charge_e = expected_charge_e(camera, fields, effects)     # the same scene every frame: one mean charge
         for _ in range(frames):
-            total += sign * render_image(camera, fields, rng, effects).dn
+            total += sign * read_out(camera, charge_e, rng, effects).dn
     return normalise_flat_field(total / frames)
 
 

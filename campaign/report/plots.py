@@ -9,7 +9,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from PIL import Image
 
 from campaign.plan.density import FootprintDensity  # noqa: E402
 from campaign.plan.placement import footprint_outlines  # noqa: E402
@@ -154,16 +153,4 @@ def estimate_vs_truth(results: pd.DataFrame, path: Path, estimator: str = "") ->
     figure.tight_layout()
     figure.savefig(path, dpi=90)
     plt.close(figure)
-    return path
-
-
-def save_descent_image(dn: np.ndarray, path: Path, low_dn: float | None = None, high_dn: float | None = None) -> Path:
-    """A 12-bit descent image as an 8-bit PNG, stretched between ``low_dn`` and ``high_dn``
-    (default: its 1st and 99th percentiles), rows repeated 4x to show the 1024x1024 aspect."""
-
-    dn = np.asarray(dn, dtype=float)
-    low = np.percentile(dn, 1) if low_dn is None else low_dn
-    high = np.percentile(dn, 99) if high_dn is None else high_dn
-    scaled = np.clip((dn - low) / max(high - low, 1e-9), 0, 1)
-    Image.fromarray((255 * np.repeat(scaled, 4, axis=0)).astype(np.uint8)).save(path)
     return path

@@ -23,7 +23,6 @@ from typing import Any
 import numpy as np
 
 from campaign.configuration.campaign_file import CampaignConfig
-from campaign.report.plots import save_descent_image
 from campaign.run.case import CampaignInputs, CaseRun, EstimatorResult, PlanRow, SharedInputs, case_rows, compute_case
 from campaign.run.faults import InfrastructureError, describe, is_infrastructure
 from campaign.run.plugin_setup import PluginSetupError, worker_address
@@ -31,6 +30,7 @@ from campaign.run.process_tuning import tune_once
 from campaign.store.case_files import write_case_rows
 from campaign.store.case_identity import StoreIdentity
 from estimators.plugins import EstimatorSetupError, build_estimator
+from file_formats.descent_images import write_preview_png
 
 
 @dataclass
@@ -202,7 +202,7 @@ def save_examples(store_root: Path, plan: PlanRow, images_dn: tuple[np.ndarray, 
         target = directory / f"{plan.class_name}-case{plan.case_id:06d}-image{index + 1}.png"
         temporary = directory / f".tmp-{os.getpid()}-{target.name}"
         try:
-            save_descent_image(image, temporary)
+            write_preview_png(temporary, image)
             os.replace(temporary, target)
         except BaseException:                  # e.g. a full disk: leave no temporary file behind
             temporary.unlink(missing_ok=True)

@@ -111,7 +111,20 @@ def pixel_gain(camera: Camera, falloff: bool = True, prnu: bool = True, per_bloc
 
 def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generator,
                  effects: CameraEffects = CameraEffects(), artefacts=None) -> RenderedImage:
-    """Render one descent image from the radiance fields of its three CCD periods.
+    """Render one descent image from the radiance fields of its three CCD periods:
+    :func:`read_out` of :func:`expected_charge_e` (parameters as there).
+
+    Returns
+    -------
+    RenderedImage
+    """
+    return read_out(camera, expected_charge_e(camera, radiance, effects, artefacts), rng, effects)
+
+
+def expected_charge_e(camera: Camera, radiance: RadianceInput, effects: CameraEffects = CameraEffects(),
+                      artefacts=None) -> np.ndarray:
+    """The mean charge of every binned pixel, from the radiance fields of the image's three CCD periods
+    (everything of the chain before the noise: no random draw).
 
     Parameters
     ----------
@@ -124,8 +137,6 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         gains averaged likewise (for the exposure this drops the in-block correlation of scene and
         PRNU, a second-order term; the scene gives a blurred exposure this way, simulator.scene.blur_warp).
         When a pixel may reach full well a block exposure is spread over its block's rows.
-    rng : numpy.random.Generator
-        Noise stream of this image (shot noise, then read noise).
     effects : CameraEffects
     artefacts : simulator.off_nominal.OffNominalArtefacts, optional
         Off-nominal artefacts of this image: dust transmission (on the photo-electron rate, after
@@ -134,7 +145,8 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
 
     Returns
     -------
-    RenderedImage
+    ndarray, float32 or float64, shape (height / b, width)
+        Charge per binned pixel (e-), before full-well and ADC clipping.
     """
     fields = as_radiance_fields(radiance)
     expected_shape = (camera.height_px, camera.width_px)
@@ -225,7 +237,16 @@ def render_image(camera: Camera, radiance: RadianceInput, rng: np.random.Generat
         charge = bin_rows(pixel, camera.binning_rows)
     if dark_rate:
         charge = charge + charge_generation.storage_dark_e(camera, dark_rate)
+    return charge
 
+
+def read_out(camera: Camera, charge_e: np.ndarray, rng: np.random.Generator,
+             effects: CameraEffects = CameraEffects()) -> RenderedImage:
+    """Read out a binned image of mean charge ``charge_e`` (e-, (height / b, width), from
+    :func:`expected_charge_e`): shot and read noise from ``rng`` (in that order), full well, gain, offset,
+    rounding and the ADC's range. The same charge read out again with the stream's next draws is
+    another exposure of the same scene (what a calibration's repeated flat frames are)."""
+    charge = charge_e
     electronics = camera.electronics
     noisy = readout.noisy_charge_e(rng, charge, electronics.read_noise_e, effects.shot_noise,
                                    effects.read_noise, effects.exact_poisson)

@@ -1,5 +1,5 @@
 """Report and realism helpers imported by no other test: the descent-image PNG stretch
-(campaign.report.plots), the masked-run finder of the flight plots (campaign.realism.flight_plots), the
+(file_formats.descent_images), the masked-run finder of the flight plots (campaign.realism.flight_plots), the
 FLIGHT.toml image entries (campaign.realism.flight_file) and the sweep-plot point choice
 (campaign.report.sweep_plots), against values worked out by hand."""
 from __future__ import annotations
@@ -12,14 +12,14 @@ from PIL import Image
 
 from campaign.realism.flight_file import FlightImageEntry
 from campaign.realism.flight_plots import _runs
-from campaign.report.plots import save_descent_image
 from campaign.report.sweep_plots import points_along
+from file_formats.descent_images import write_preview_png
 from flight_interface.tomlfields import FieldProblem
 
 
 def test_descent_png_is_stretched_clipped_and_rows_repeated(tmp_path):
     dn = np.array([[100, 200, 300], [50, 350, 250]], dtype=np.uint16)
-    path = save_descent_image(dn, tmp_path / "image.png", low_dn=100, high_dn=300)
+    path = write_preview_png(tmp_path / "image.png", dn, low_dn=100, high_dn=300)
     png = np.asarray(Image.open(path))
     assert png.shape == (8, 3) and png.dtype == np.uint8                  # rows repeated 4x (binned aspect)
     # (dn - 100) / 200 clipped to [0, 1], times 255, truncated
