@@ -50,6 +50,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from file_formats.descent_planetary import read_planetary
 from file_formats.errors import InputFileError
@@ -407,7 +408,7 @@ def write_preview_png(path: str | Path, dn: np.ndarray, low_dn: float | None = N
     Parameters
     ----------
     path : path-like
-        Output file (PNG).
+        Output file (PNG, whatever its suffix).
     dn : ndarray, (H / b, W)
         Binned camera DN.
     low_dn, high_dn : float, optional
@@ -419,7 +420,6 @@ def write_preview_png(path: str | Path, dn: np.ndarray, low_dn: float | None = N
     low = np.percentile(values, 1) if low_dn is None else low_dn
     high = np.percentile(values, 99) if high_dn is None else high_dn
     scaled = np.clip((values - low) / max(high - low, 1e-9), 0, 1)
-    preview = (255 * np.repeat(scaled, 4, axis=0)).astype(np.uint8)
-    if not cv2.imwrite(str(path), preview, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
-        raise InputFileError(f"{path}: cannot write PNG")
+    # PIL, not cv2.imwrite: a failed write (a full disk) raises OSError with its errno, and libpng prints nothing
+    Image.fromarray((255 * np.repeat(scaled, 4, axis=0)).astype(np.uint8)).save(path, format="PNG")
     return path
