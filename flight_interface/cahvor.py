@@ -141,20 +141,26 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
         Unit directions, pointing in front of the camera.
     """
     pixels = np.asarray(pixels, dtype=float)
-    column = pixels[..., 0:1]
-    row = pixels[..., 1:2]
-    distorted = np.cross(model.v - row * model.a, model.h - column * model.a)
-    distorted = distorted / np.linalg.norm(distorted, axis=-1, keepdims=True)
-    distorted = np.where((distorted @ model.a)[..., None] < 0, -distorted, distorted)
-    if not np.any(model.r):
-        return distorted
-    omega = distorted @ model.o
-    lam_distorted = distorted - omega[..., None] * model.o
-    u_distorted = np.linalg.norm(lam_distorted, axis=-1) / omega
-    u = _undistort_tangent(u_distorted, model.r, tolerance_rad, max_iterations)
-    scale = np.where(u_distorted > 0, u / np.where(u_distorted > 0, u_distorted, 1.0), 1.0)
-    undistorted = omega[..., None] * model.o + scale[..., None] * lam_distorted
-    return undistorted / np.linalg.norm(undistorted, axis=-1, keepdims=True)
+    column = pixels[..., 0]
+    row = pixels[..., 1]
+    # (V - y A) x (H - x A) = V x H - x (V x A) - y (A x H)   (A x A = 0): three constant vectors, one
+    # component at a time (no (..., 3) temporaries: a full frame is 10^6 rays)
+    base, per_column, per_row = np.cross(model.v, model.h), -np.cross(model.v, model.a), -np.cross(model.a, model.h)
+    ray = [base[k] + column * per_column[k] + row * per_row[k] for k in range(3)]
+    # unit length, pointing in front of the camera (+A)
+    sign = np.where(ray[0] * model.a[0] + ray[1] * model.a[1] + ray[2] * model.a[2] < 0, -1.0, 1.0)
+    sign /= np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
+    ray = [component * sign for component in ray]
+    if np.any(model.r):
+        omega = ray[0] * model.o[0] + ray[1] * model.o[1] + ray[2] * model.o[2]
+        lam_distorted = [ray[k] - omega * model.o[k] for k in range(3)]
+        u_distorted = np.sqrt(sum(component * component for component in lam_distorted)) / omega
+        u = _undistort_tangent(u_distorted, model.r, tolerance_rad, max_iterations)
+        scale = np.where(u_distorted > 0, u / np.where(u_distorted > 0, u_distorted, 1.0), 1.0)
+        ray = [omega * model.o[k] + scale * lam_distorted[k] for k in range(3)]
+        length = np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
+        ray = [component / length for component in ray]
+    return np.stack(ray, axis=-1)
 
 
 def distortion_turning_point(r: np.ndarray) -> float:
