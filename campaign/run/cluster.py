@@ -108,12 +108,15 @@ def use_worker_fork_server() -> None:
     later forks it the same way; the server starts at the first worker (call inside
     :func:`workers_ignore_interrupts`, with the one-thread environment set)."""
     import multiprocessing
+    import multiprocessing.forkserver
 
     from distributed.utils import get_mp_context
 
     dask.config.set({"distributed.worker.multiprocessing-method": WORKER_START_METHOD})
     get_mp_context()                 # dask sets its own preload list on its first forkserver context ...
     multiprocessing.get_context(WORKER_START_METHOD).set_forkserver_preload(list(WORKER_PRELOAD))   # ... ours replaces it
+    # start the server now: it imports the preload while this process starts the scheduler (not after it)
+    multiprocessing.forkserver.ensure_running()
 
 
 def default_worker_count() -> int:
