@@ -27,6 +27,7 @@ store kept), 141 stdout closed by its reader (silent). Never a traceback (see ma
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -312,7 +313,9 @@ def _cmd_schema(args) -> int:
     return 0
 
 
+@functools.cache
 def build_parser() -> argparse.ArgumentParser:
+    """The command line's parser (built once per process: parsing leaves it unchanged)."""
     parser = _Parser(prog="campaign", description="MOC2DIMES Monte Carlo campaigns")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
