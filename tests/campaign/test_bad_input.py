@@ -16,6 +16,7 @@ import pytest
 from campaign.cli import main as campaign_main
 from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError
+from fuzz_inputs import run_main
 from sitedata.edl.post_table import read_post_table
 from sitedata.edl.trajectory_io import TrajectoryFileError, read_profiles
 
@@ -69,10 +70,9 @@ def test_unusable_campaign_file_is_one_line_exit_2_nothing_written(tmp_path, mak
     path = make(tmp_path)
     out = tmp_path / "out"
     before = tree(tmp_path)
-    result = subprocess.run([sys.executable, "-m", "campaign.cli", "submit", str(path), "--output", str(out)],
-                            capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    assert result.returncode == 2
-    line = one_line(result.stderr)
+    result = run_main(campaign_main, ["submit", path, "--output", out], tmp_path)   # real processes: below
+    assert result.code == 2
+    line = one_line(result.err)
     assert str(path) in line and expected in line
     assert tree(tmp_path) == before
 

@@ -5,6 +5,9 @@ from pathlib import Path
 
 import pytest
 
+from campaign.cli import main as campaign_main
+from fuzz_inputs import run_main
+
 REPO = Path(__file__).resolve().parents[2]
 GUSEV = REPO / "sitedata" / "gusev.toml"
 
@@ -38,10 +41,9 @@ def _bad_copy(tmp_path: Path, extra: str = "", replace: tuple[str, str] | None =
 def test_bad_campaign_toml_is_one_line_exit_2_nothing_written(tmp_path, case, expected):
     path = _bad_copy(tmp_path, **case)
     out = tmp_path / "out"
-    result = subprocess.run([sys.executable, "-m", "campaign.cli", "submit", str(path), "--output", str(out)],
-                            capture_output=True, text=True, cwd=tmp_path)
-    assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
+    result = run_main(campaign_main, ["submit", path, "--output", out], tmp_path)   # (a real process: below)
+    assert result.code == 2, result.err
+    lines = result.err.strip().splitlines()
     assert len(lines) == 1 and expected in lines[0], lines
     assert not out.exists()
 
