@@ -45,3 +45,16 @@ def pytest_terminal_summary(terminalreporter):
         kinds = ", ".join(f"{kind} {count}" for kind, count in sorted(fuzz.TRIED.items()))
         terminalreporter.write_line(f"fuzz: {sum(fuzz.TRIED.values())} bad inputs tried ({kinds}); each must give "
                                     "exit 2, one stderr line, nothing written")
+
+
+def pytest_collection_modifyitems(items):
+    """Files with the most cluster and slow tests first (longest first): the two test processes
+    (``-n 2 --dist loadfile``) take files in this order, so the short unit-test files fill the end instead of
+    one process running a long cluster file alone while the other waits."""
+    weight: dict[str, int] = {}
+    for item in items:
+        path = str(item.path)
+        weight[path] = weight.get(path, 0) + 4 * bool(item.get_closest_marker("cluster")) + \
+            bool(item.get_closest_marker("slow"))
+    order = {path: rank for rank, path in enumerate(dict.fromkeys(str(item.path) for item in items))}
+    items.sort(key=lambda item: (-weight[str(item.path)], order[str(item.path)]))
