@@ -9,87 +9,40 @@ interrupted run are not computed again.
 """
 from __future__ import annotations
 
-import os
 import re
-import signal
-import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
+from benchmarks.bench_sweep_start import WIDE_AXES, first_batch_s, start_and_interrupt, sweep_file
 from campaign.cli import main
 from service_campaigns import embedded_scheduler
 
 REPO = Path(__file__).resolve().parents[2]
-GUSEV = REPO / "sitedata" / "gusev.toml"
-ONE_CASE = "[sweep.cases]\ngcp = 1\ngdcp = 0\ngkep = 0\n"
-
-
-def _sweep_file(path: Path, axes: dict) -> Path:
-    lines = [f'"{field}" = [{", ".join(repr(v) for v in values)}]' for field, values in axes.items()]
-    path.write_text(f'[sweep]\nbase = "{GUSEV}"\n{ONE_CASE}[axes]\n' + "\n".join(lines) + "\n")
-    return path
 
 
 def _case_files(out: Path) -> dict:
     return {p.relative_to(out): (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("points/*/cases/case-*.parquet")}
 
 
-def _start_and_interrupt(sweep: Path, out: Path, limit_s: float = 180.0) -> tuple[list, float | None, int, int]:
-    """Run `campaign sweep` until its first case file exists, then SIGINT it. Returns the stderr lines with
-    their times (s since launch), the time of the first case file, the point stores then, and the exit status."""
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    start = time.perf_counter()
-    process = subprocess.Popen([sys.executable, "-c", "import sys; from campaign.cli import main; sys.exit(main())",
-                                "sweep", str(sweep), "--output", str(out), "--workers", "1"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                               start_new_session=True)
-    lines: list[tuple[float, str]] = []
-
-    def read() -> None:
-        for line in process.stderr:
-            lines.append((time.perf_counter() - start, line.rstrip()))
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    first_case, stores = None, 0
-    while time.perf_counter() - start < limit_s and process.poll() is None:
-        if any(out.glob("points/*/cases/case-*.parquet")):
-            first_case = time.perf_counter() - start
-            stores = sum(1 for _ in out.glob("points/*/manifest.json"))
-            break
-        time.sleep(0.1)
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-    try:
-        code = process.wait(60)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        code = process.wait()
-    reader.join(10)
-    return lines, first_case, stores, code
-
-
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_a_sweep_of_2000_points_starts_computing_within_10_s_with_progress(tmp_path):
+def test_a_sweep_of_2000_points_starts_computing_at_its_first_batch_with_progress(tmp_path):
+    """Behaviour here; how soon (<= 10 s to the first batch) is the benchmark sweep/2000_points_first_batch."""
     from campaign.run.sweep import BATCH_POINTS, FIRST_BATCH_POINTS
 
-    sweep = _sweep_file(tmp_path / "wide.toml", {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(40)],
-                                                 "sensors.attitude_random_sigma_deg": [0.01 + 0.01 * i for i in range(50)]})
-    lines, first_case, stores, code = _start_and_interrupt(sweep, tmp_path / "out")
+    lines, first_case, stores, code = start_and_interrupt(sweep_file(tmp_path / "wide.toml", WIDE_AXES), tmp_path / "out")
     text = "\n".join(f"{at:6.1f} s  {line}" for at, line in lines)
-    batch = [at for at, line in lines if re.match(r"sweep: points p000-p003 \(4 of 2000\): 0 cases done", line)]
     assert lines and lines[0][1].startswith("sweep: 2000 points of 1 cases"), text
-    assert batch and batch[0] < 10.0, f"first batch of points submitted after {batch} s:\n{text}"
-    assert first_case is not None, text
+    batch = first_batch_s(lines)
+    assert re.search(rf"sweep: points p000-p{FIRST_BATCH_POINTS - 1:03d} \({FIRST_BATCH_POINTS} of 2000\): 0 cases done",
+                     text), text
+    assert first_case is not None and batch < first_case, text      # the first batch is announced, then computed
     assert 1 <= stores <= FIRST_BATCH_POINTS + BATCH_POINTS, f"{stores} point stores prepared before the first case"
     assert code == 130 and "Traceback" not in text, text
-    print(f"2000 points: first progress line {lines[0][0]:.1f} s, first batch submitted {batch[0]:.1f} s, "
+    print(f"2000 points: first progress line {lines[0][0]:.1f} s, first batch submitted {batch:.1f} s, "
           f"first case file {first_case:.1f} s, {stores} point stores then")
 
 
@@ -104,10 +57,10 @@ def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_c
                                                                                      capsys):
     import campaign.run.sweep as sweep_module
 
-    sweep = _sweep_file(tmp_path / "small.toml", {"scene.camera_effects.dark_current_scale": [1.0, 2.0, 3.0],
+    sweep = sweep_file(tmp_path / "small.toml", {"scene.camera_effects.dark_current_scale": [1.0, 2.0, 3.0],
                                                   "sensors.attitude_random_sigma_deg": [0.05, 0.1]})
     out = tmp_path / "out"
-    _, first_case, _, code = _start_and_interrupt(sweep, out)
+    _, first_case, _, code = start_and_interrupt(sweep, out)
     assert first_case is not None and code == 130
     kept = _case_files(out)
     assert len(kept) >= 1
@@ -128,7 +81,7 @@ def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_c
 def test_a_bad_value_anywhere_in_a_10000_point_grid_is_refused_before_anything_is_written(tmp_path, capsys):
     rates = [0.01 * (i + 1) for i in range(100)]
     rates[73] = -0.5                                          # one bad value, met first at point p073
-    sweep = _sweep_file(tmp_path / "grid.toml", {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(100)],
+    sweep = sweep_file(tmp_path / "grid.toml", {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(100)],
                                                  "sensors.attitude_random_sigma_deg": rates})
     out = tmp_path / "out"
     start = time.perf_counter()
