@@ -59,13 +59,6 @@ SINGLE_THREAD_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"
 WORKER_DASK_CONFIG = {"distributed.worker.profile.enabled": False}
 #: the environment of a worker process that dask starts elsewhere (batch job, pod): one thread, no profiler
 WORKER_ENVIRONMENT = {**SINGLE_THREAD_ENVIRONMENT, "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
-#: How the embedded cluster's nannies start worker processes: forked from one server process (started with
-#: the first local cluster of this process, ignoring SIGINT like the workers) that has imported
-#: :data:`WORKER_PRELOAD` once. A fresh interpreter per worker ("spawn", dask's default) pays those imports
-#: (about 3 s of CPU) in every worker of every cluster; a forked worker starts with them done.
-WORKER_START_METHOD = "forkserver"
-#: modules the fork server imports before it forks any worker (the case code and its dependencies)
-WORKER_PRELOAD = ("distributed", "campaign.run.worker")
 WORKER_JOB_NAME = "moc2dimes-worker"
 SCHEDULER_PLACEHOLDER = "tcp://SCHEDULER-ADDRESS:PORT"
 #: distributed's own log records on the driver during a run (the runner reports problems as one line;
@@ -100,23 +93,6 @@ def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> 
     except ImportError:
         raise ConfigError(f"{source}: execution.cluster = {execution.cluster!r} needs {distribution}, which is not "
                           f"installed; allowed: pip install 'moc2dimes[{extra}]', or another cluster") from None
-
-
-def use_worker_fork_server() -> None:
-    """Make this process's nannies start workers from the fork server (:data:`WORKER_START_METHOD`), which
-    preloads :data:`WORKER_PRELOAD`. Set for the whole process, so that a nanny restarting a lost worker
-    later forks it the same way; the server starts at the first worker (call inside
-    :func:`workers_ignore_interrupts`, with the one-thread environment set)."""
-    import multiprocessing
-    import multiprocessing.forkserver
-
-    from distributed.utils import get_mp_context
-
-    dask.config.set({"distributed.worker.multiprocessing-method": WORKER_START_METHOD})
-    get_mp_context()                 # dask sets its own preload list on its first forkserver context ...
-    multiprocessing.get_context(WORKER_START_METHOD).set_forkserver_preload(list(WORKER_PRELOAD))   # ... ours replaces it
-    # start the server now: it imports the preload while this process starts the scheduler (not after it)
-    multiprocessing.forkserver.ensure_running()
 
 
 def default_worker_count() -> int:
@@ -270,7 +246,6 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
                              "or raise [execution] connect_timeout_s; nothing was run or changed") from None
     elif execution.cluster == "local":
         with workers_ignore_interrupts(), dask.config.set(WORKER_DASK_CONFIG):   # each nanny keeps the config
-            use_worker_fork_server()
             cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                    processes=True, memory_limit=execution.memory_limit,
                                    dashboard_address="127.0.0.1:0", host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
