@@ -148,19 +148,24 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
     base, per_column, per_row = np.cross(model.v, model.h), -np.cross(model.v, model.a), -np.cross(model.a, model.h)
     ray = [base[k] + column * per_column[k] + row * per_row[k] for k in range(3)]
     # unit length, pointing in front of the camera (+A)
-    sign = np.where(ray[0] * model.a[0] + ray[1] * model.a[1] + ray[2] * model.a[2] < 0, -1.0, 1.0)
-    sign /= np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
+    sign = np.where(_dot(ray, model.a) < 0, -1.0, 1.0) / np.sqrt(_dot(ray, ray))
     ray = [component * sign for component in ray]
     if np.any(model.r):
-        omega = ray[0] * model.o[0] + ray[1] * model.o[1] + ray[2] * model.o[2]
+        omega = _dot(ray, model.o)
         lam_distorted = [ray[k] - omega * model.o[k] for k in range(3)]
-        u_distorted = np.sqrt(sum(component * component for component in lam_distorted)) / omega
+        u_distorted = np.sqrt(_dot(lam_distorted, lam_distorted)) / omega
         u = _undistort_tangent(u_distorted, model.r, tolerance_rad, max_iterations)
         scale = np.where(u_distorted > 0, u / np.where(u_distorted > 0, u_distorted, 1.0), 1.0)
         ray = [omega * model.o[k] + scale * lam_distorted[k] for k in range(3)]
-        length = np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
+        length = np.sqrt(_dot(ray, ray))
         ray = [component / length for component in ray]
     return np.stack(ray, axis=-1)
+
+
+def _dot(components, vector) -> np.ndarray:
+    """Dot product of a vector field given as its three component arrays with ``vector`` (3 components:
+    a constant vector or another field), component by component."""
+    return components[0] * vector[0] + components[1] * vector[1] + components[2] * vector[2]
 
 
 def distortion_turning_point(r: np.ndarray) -> float:

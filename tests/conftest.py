@@ -53,8 +53,6 @@ def pytest_collection_modifyitems(items):
     one process running a long cluster file alone while the other waits."""
     weight: dict[str, int] = {}
     for item in items:
-        path = str(item.path)
-        weight[path] = weight.get(path, 0) + 4 * bool(item.get_closest_marker("cluster")) + \
-            bool(item.get_closest_marker("slow"))
-    order = {path: rank for rank, path in enumerate(dict.fromkeys(str(item.path) for item in items))}
-    items.sort(key=lambda item: (-weight[str(item.path)], order[str(item.path)]))
+        weight[str(item.path)] = (weight.get(str(item.path), 0) + 4 * bool(item.get_closest_marker("cluster"))
+                                  + bool(item.get_closest_marker("slow")))
+    items.sort(key=lambda item: -weight[str(item.path)])     # stable: files of equal weight keep their order

@@ -246,12 +246,11 @@ def read_out(camera: Camera, charge_e: np.ndarray, rng: np.random.Generator,
     :func:`expected_charge_e`): shot and read noise from ``rng`` (in that order), full well, gain, offset,
     rounding and the ADC's range. The same charge read out again with the stream's next draws is
     another exposure of the same scene (what a calibration's repeated flat frames are)."""
-    charge = charge_e
     electronics = camera.electronics
-    noisy = readout.noisy_charge_e(rng, charge, electronics.read_noise_e, effects.shot_noise,
+    noisy = readout.noisy_charge_e(rng, charge_e, electronics.read_noise_e, effects.shot_noise,
                                    effects.read_noise, effects.exact_poisson)
     return RenderedImage(
         dn=readout.digitize(noisy, electronics),
-        expected_dn=readout.expected_dn(charge, electronics),
-        expected_charge_e=charge.astype(np.float32),
+        expected_dn=readout.expected_dn(charge_e, electronics),
+        expected_charge_e=charge_e.astype(np.float32),
     )
