@@ -36,14 +36,39 @@ def site_strips(tmp_path_factory):
             terrain = synthetic_terrain.synthetic_terrain(params, site_class.terrain.seed, cache_dir=cache)
             strips[site_class.name] = (site.name, site_class.ellipse_fraction, terrain)
     return strips
-def pytest_terminal_summary(terminalreporter):
-    """The fuzz suite's size (tests/campaign/test_config_fuzz.py): how many bad inputs it tried, by kind."""
+def _fuzz_counts() -> dict[str, int]:
+    """The bad inputs the fuzz suite (tests/campaign/test_config_fuzz.py) tried in this process, by kind."""
     import sys
 
     fuzz = sys.modules.get("test_config_fuzz")
-    if fuzz is not None and fuzz.TRIED:
-        kinds = ", ".join(f"{kind} {count}" for kind, count in sorted(fuzz.TRIED.items()))
-        terminalreporter.write_line(f"fuzz: {sum(fuzz.TRIED.values())} bad inputs tried ({kinds}); each must give "
+    return dict(fuzz.TRIED) if fuzz is not None else {}
+
+
+_FUZZ_TRIED_BY_WORKERS: dict[str, int] = {}
+
+
+def pytest_sessionfinish(session):
+    """In a pytest-xdist worker: hand this process's fuzz counts to the controlling process."""
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:
+        workeroutput["fuzz_tried"] = _fuzz_counts()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """In the controlling process: add up the fuzz counts each xdist worker ran (xdist's hook)."""
+    for kind, count in getattr(node, "workeroutput", {}).get("fuzz_tried", {}).items():
+        _FUZZ_TRIED_BY_WORKERS[kind] = _FUZZ_TRIED_BY_WORKERS.get(kind, 0) + count
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The fuzz suite's size: how many bad inputs it tried, by kind, summed over the test processes."""
+    tried = dict(_FUZZ_TRIED_BY_WORKERS)
+    for kind, count in _fuzz_counts().items():
+        tried[kind] = tried.get(kind, 0) + count
+    if tried:
+        kinds = ", ".join(f"{kind} {count}" for kind, count in sorted(tried.items()))
+        terminalreporter.write_line(f"fuzz: {sum(tried.values())} bad inputs tried ({kinds}); each must give "
                                     "exit 2, one stderr line, nothing written")
 
 
