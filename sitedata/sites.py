@@ -38,7 +38,7 @@ import functools
 import math
 import typing
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeAlias
 
 import numpy as np
 from pydantic import Field, PrivateAttr, ValidationInfo, create_model, model_validator
@@ -104,7 +104,15 @@ def _overrides_model() -> type[ConfigModel]:
     return create_model("TerrainOverrides", __base__=ConfigModel, __doc__=_overrides_model.__doc__, **fields)
 
 
-TerrainOverrides = _overrides_model()
+if TYPE_CHECKING:
+    # Built at run time from the dataclass's fields; statically what every such model is: a ConfigModel
+    # whose model_dump() gives keyword arguments of dataclasses.replace(ClassTerrainParams, ...).
+    TerrainOverrides: TypeAlias = ConfigModel
+    #: A name of CLASS_PRESETS (its keys, checked at run time).
+    PresetName: TypeAlias = str
+else:
+    TerrainOverrides = _overrides_model()
+    PresetName = Literal[tuple(CLASS_PRESETS)]
 
 
 class _TerrainSpec(ConfigModel):
@@ -123,7 +131,7 @@ class SyntheticTerrain(_TerrainSpec):
     """A synthetic appearance-class terrain: preset + seed (+ overrides), generated and cached."""
 
     kind: Literal["synthetic"]
-    preset: Literal[tuple(CLASS_PRESETS)]
+    preset: PresetName
     """Appearance-class preset (sitedata.terrain.synthetic_classes)."""
     seed: int = Field(ge=0, le=2**63 - 1)
     """Seed of the terrain generator."""
@@ -143,7 +151,7 @@ class SyntheticTerrain(_TerrainSpec):
 
     def params(self) -> ClassTerrainParams:
         """The preset's parameters with the overrides applied."""
-        changes = self.overrides.model_dump(exclude_none=True) if self.overrides is not None else {}
+        changes: dict[str, Any] = self.overrides.model_dump(exclude_none=True) if self.overrides is not None else {}
         return dataclasses.replace(CLASS_PRESETS[self.preset], **changes)
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import itertools
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 from pydantic import AfterValidator, Field, model_validator
@@ -14,6 +14,13 @@ from simulator.scene_config import SceneConfig
 
 MAX_IMAGES = 3
 
+if TYPE_CHECKING:   # what fixed_vector(n) produces, for the type checker
+    Vector3 = tuple[float, float, float]
+    Vector4 = tuple[float, float, float, float]
+else:
+    Vector3 = fixed_vector(3)
+    Vector4 = fixed_vector(4)
+
 
 class FlightImageEntry(ConfigModel):
     """``[[images]]``: one flight image with the lander's pose (SI, world frame of the terrain)."""
@@ -22,15 +29,15 @@ class FlightImageEntry(ConfigModel):
     """Raw image as the camera returns it (256 x 1024): 16-bit PNG, .npy, raw uint16."""
     time_s: float
     """Start of the exposure (s)."""
-    position_m: fixed_vector(3)
+    position_m: Vector3
     """Lander at time_s (east, north, up; m), above the ground plane z = 0."""
-    attitude_quat: fixed_vector(4)
+    attitude_quat: Vector4
     """Lander body-to-world (w, x, y, z)."""
-    velocity_mps: fixed_vector(3) = (0.0, 0.0, 0.0)
+    velocity_mps: Vector3 = (0.0, 0.0, 0.0)
     """Motion through the CCD periods (m/s)."""
-    angular_rate_radps: fixed_vector(3) = (0.0, 0.0, 0.0)
+    angular_rate_radps: Vector3 = (0.0, 0.0, 0.0)
     """Body frame (rad/s)."""
-    heat_shield_position_m: fixed_vector(3) | None = None
+    heat_shield_position_m: Vector3 | None = None
     """Drawn, and excluded by the estimator (m)."""
 
     @model_validator(mode="after")

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import NoReturn
 
 from pydantic import Field, PrivateAttr, model_validator
 
@@ -144,7 +145,7 @@ def _merge(image: OrbitalImage, sidecar: Sidecar, field: str, toml_key: str, not
     return from_sidecar
 
 
-def refuse_unknown(image: OrbitalImage, what: str, sidecar_field: str, sidecar_hint: str) -> None:
+def refuse_unknown(image: OrbitalImage, what: str, sidecar_field: str, sidecar_hint: str) -> NoReturn:
     """Raise a ReaderError saying ``what`` is unknown and which side-car field supplies it."""
     raise fail(image.source, f"{what} is unknown: the {image.file_format} file does not state it; give "
                              f"{sidecar_field} in a side-car TOML ({sidecar_hint})")

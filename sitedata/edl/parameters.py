@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 from pydantic import AfterValidator, Field, PrivateAttr, ValidationInfo, model_validator
 
@@ -23,8 +23,12 @@ def _is_range(value: tuple[float, float]) -> tuple[float, float]:
     return value
 
 
+if TYPE_CHECKING:   # what fixed_vector(2) produces, for the type checker
+    Pair = tuple[float, float]
+else:
+    Pair = fixed_vector(2)
 #: A uniform range [low, high], 0 <= low <= high.
-Range = Annotated[fixed_vector(2), AfterValidator(_is_range)]
+Range = Annotated[Pair, AfterValidator(_is_range)]
 
 
 class SetTable(ConfigModel):
@@ -41,7 +45,7 @@ class SetTable(ConfigModel):
 class ImagesTable(ConfigModel):
     """``[images]``: when the three images are taken."""
 
-    altitudes_m: fixed_vector(2)
+    altitudes_m: Pair
     """Lander altitudes at the start of exposure of images 1 and 2 (m), decreasing, > 0."""
     last_image_after_previous_s: Positive
     """Image 3 follows image 2 by this time (s)."""

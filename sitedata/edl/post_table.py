@@ -29,7 +29,7 @@ or 3 ``altitudes_m``).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeAlias
 
 import numpy as np
 import pandas as pd
@@ -55,6 +55,11 @@ UNITS = {  # unit: (kind, scale to SI)
     "rad/s": ("rate", 1.0), "deg/s": ("rate", np.pi / 180.0), "1": ("none", 1.0),
 }
 _ATTITUDE = ("qw", "qx", "qy", "qz")
+if TYPE_CHECKING:
+    #: A key of UNITS (checked at run time).
+    Unit: TypeAlias = str
+else:
+    Unit = Literal[tuple(UNITS)]
 
 
 def _kind(schema_column: str) -> str:
@@ -69,7 +74,7 @@ class ColumnSource(ConfigModel):
 
     column: str
     """Name of the source column (header)."""
-    unit: Literal[tuple(UNITS)] | None = None
+    unit: Unit | None = None
     """Unit of the source column; must suit the schema column's kind."""
     scale: float | None = None
     """Explicit factor to SI (instead of unit)."""
@@ -121,9 +126,15 @@ class _Columns(ConfigModel):
         return self
 
 
-ColumnsTable = create_model(
-    "ColumnsTable", __base__=_Columns, __doc__=_Columns.__doc__,
-    **{name: (Source | None, None) for name in [c for c in REQUIRED_COLUMNS if c != "profile_id"] + list(HEAT_SHIELD_COLUMNS)})
+if TYPE_CHECKING:
+    # Built at run time with one optional Source field per schema column; statically a _Columns whose
+    # fields are read by name (getattr).
+    ColumnsTable: TypeAlias = _Columns
+else:
+    ColumnsTable = create_model(
+        "ColumnsTable", __base__=_Columns, __doc__=_Columns.__doc__,
+        **{name: (Source | None, None)
+           for name in [c for c in REQUIRED_COLUMNS if c != "profile_id"] + list(HEAT_SHIELD_COLUMNS)})
 
 
 class EulerAngles(ConfigModel):
@@ -268,7 +279,7 @@ def read_post_table(path: str | Path, mapping: PostMapping | dict | str | Path, 
         for axis, name in enumerate(_ATTITUDE):
             frame[name] = quat[:, axis]
     images = mapping.images
-    if images.times_s is not None:
+    if images.altitudes_m is None:      # PostImages gives exactly one of times_s and altitudes_m
         times = np.array(images.times_s)
     else:
         crossings = []

@@ -34,7 +34,7 @@ from sitedata.edl.trajectory_io import compact_frame, profiles_to_frame, read_pr
 TRAJECTORY_DIR = SITEDATA_DIR / "trajectories"
 
 # (statistic columns, low, high) - the paper's representative values; None = unbounded
-PAPER_RANGES = {
+PAPER_RANGES: dict[str, tuple[list[str], float | None, float | None]] = {
     "altitude at image 1 (m)": (["altitude_image1_m"], 1999.0, 2001.0),
     "altitude at image 2 (m)": (["altitude_image2_m"], 1724.0, 1726.0),
     "altitude at image 3 (m)": (["altitude_image3_m"], 1400.0, 1500.0),
@@ -72,6 +72,17 @@ def set_statistics(path: str | Path) -> pd.DataFrame:
     return pd.DataFrame([profile_statistics(p) for p in read_profiles(path)])
 
 
+def _allowed(low: float | None, high: float | None) -> str:
+    """The range [low, high) as printed (None: no bound on that side)."""
+    if low is None and high is None:
+        return "(reported)"
+    if low is None:
+        return f"< {high:g}"
+    if high is None:
+        return f">= {low:g}"
+    return f"= {0.5 * (low + high):g}" if high - low < 1e-6 else f"[{low:g}, {high:g})"
+
+
 def check_set(stats: pd.DataFrame) -> list[tuple[str, float, float, float, str, bool]]:
     """Rows (quantity, min, mean, max, allowed, ok) checking a set's statistics against the paper."""
     rows = []
@@ -82,9 +93,7 @@ def check_set(stats: pd.DataFrame) -> list[tuple[str, float, float, float, str, 
             continue
         values = stats[present].to_numpy().ravel()
         ok = bool((low is None or values.min() >= low) and (high is None or values.max() < high))
-        allowed = ("(reported)" if low is None and high is None
-                   else f"= {0.5 * (low + high):g}" if high - low < 1e-6 else f"[{low:g}, {high:g})")
-        rows.append((label, values.min(), values.mean(), values.max(), allowed, ok))
+        rows.append((label, values.min(), values.mean(), values.max(), _allowed(low, high), ok))
     vertical = stats[[f"vertical_speed_image{k}_mps" for k in (1, 2, 3)]].to_numpy().mean()
     low, high = VERTICAL_SPEED_MEAN_RANGE_MPS
     rows.append(("vertical speed mean (~72 m/s)", vertical, vertical, vertical, f"[{low:g}, {high:g}]",

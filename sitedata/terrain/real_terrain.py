@@ -51,9 +51,12 @@ def load_terrain(path: str | Path, sidecar: str | Path | Sidecar | None = None, 
     hint = f"{default_sidecar_path(path).name} beside the image, or sidecar=..."
     if image.metres_per_pixel is None:
         refuse_unknown(image, "metres per pixel", "metres_per_pixel", hint)
-    for field in ("incidence", "emission", "phase"):
-        if getattr(image, f"{field}_rad") is None:
-            refuse_unknown(image, f"the orbital observation's {field} angle", f"{field}_deg", hint)
+    if image.incidence_rad is None:
+        refuse_unknown(image, "the orbital observation's incidence angle", "incidence_deg", hint)
+    if image.emission_rad is None:
+        refuse_unknown(image, "the orbital observation's emission angle", "emission_deg", hint)
+    if image.phase_rad is None:
+        refuse_unknown(image, "the orbital observation's phase angle", "phase_deg", hint)
     if image.dn_to_if_scale is None:
         refuse_unknown(image, "the DN-to-I/F calibration", "dn_to_if_scale (and dn_to_if_offset)", hint)
     valid_fraction = float(image.valid.mean())

@@ -45,6 +45,7 @@ contrast"), fewer dark features on gcp/hbsp than on the other classes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypedDict
 
 #: Outer scale of the albedo and relief spectra (m): patches larger than this are not brighter.
 OUTER_SCALE_M = 1000.0
@@ -142,8 +143,19 @@ class ClassTerrainParams:
         return self.rows * self.cols * (self.metres_per_pixel / 1000.0) ** 2
 
 
-_GUSEV_MOC = dict(moc_incidence_deg=45.0, moc_sun_azimuth_deg=255.0, haze_optical_depth=0.5, haze_path_if=0.045)
-_MERIDIANI_MOC = dict(moc_incidence_deg=40.0, moc_sun_azimuth_deg=260.0, haze_optical_depth=0.5, haze_path_if=0.04)
+class _MocObservation(TypedDict):
+    """The MOC observation and haze fields a site's presets share."""
+
+    moc_incidence_deg: float
+    moc_sun_azimuth_deg: float
+    haze_optical_depth: float
+    haze_path_if: float
+
+
+_GUSEV_MOC = _MocObservation(moc_incidence_deg=45.0, moc_sun_azimuth_deg=255.0, haze_optical_depth=0.5,
+                             haze_path_if=0.045)
+_MERIDIANI_MOC = _MocObservation(moc_incidence_deg=40.0, moc_sun_azimuth_deg=260.0, haze_optical_depth=0.5,
+                                 haze_path_if=0.04)
 
 # Calibrated (issue 15) so that each class's footprint-tile contrast at the descent camera's sample (1 and
 # 2 km) and its dark-feature density fall inside the real MOC NA range of its kind of ground

@@ -227,8 +227,9 @@ def surface_fields(params: ClassTerrainParams, seed: int) -> tuple[np.ndarray, n
     rim_brightening = 1.0 + params.crater_rim_albedo_contrast * np.minimum(rim_albedo, 1.5)
     albedo = params.normal_albedo_mean * (1.0 + albedo_mod) * rim_brightening
     if params.track_length_per_km2 > 0:
+        narrowest_m, widest_m = params.track_width_m
         tracks = feat.draw_tracks(shape, params.track_length_per_km2 * params.area_km2 * 1000.0 / mpp,
-                                  tuple(w / mpp for w in params.track_width_m), np.radians(params.track_azimuth_deg),
+                                  (narrowest_m / mpp, widest_m / mpp), np.radians(params.track_azimuth_deg),
                                   np.radians(params.track_azimuth_spread_deg), params.track_mean_length_m / mpp,
                                   rng["tracks"])
         albedo *= 1.0 - params.track_albedo_contrast * tracks
