@@ -20,7 +20,8 @@ from pathlib import Path
 
 import tomli_w
 
-from flight_interface.camera import Camera, CameraFile, Radiometry, camera_from_file
+from flight_interface.camera import Camera, camera_from_file
+from flight_interface.camera_file import CameraFile, Radiometry
 from flight_interface.tomlfields import load_toml, parse
 
 #: table -> fields of a camera TOML that an estimator never receives (simulator truth).

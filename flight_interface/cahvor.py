@@ -218,3 +218,15 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     """Pixel-centre coordinates ``(column, row)`` of a width x height frame, shape (height, width, 2)."""
     columns, rows = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
     return np.stack([columns, rows], axis=-1)
+
+
+def field_of_view_deg(model: Cahvor, width: int, height: int) -> tuple[float, float]:
+    """Full horizontal and vertical field of view between the outer pixel edges (deg)."""
+    half_w, half_h = width / 2.0, height / 2.0
+    centre = np.array([model.hc, model.vc])
+    edges = np.array([[centre[0] - half_w, centre[1]], [centre[0] + half_w, centre[1]],
+                      [centre[0], centre[1] - half_h], [centre[0], centre[1] + half_h]])
+    rays = unproject(model, edges)
+    horizontal = np.degrees(np.arccos(np.clip(rays[0] @ rays[1], -1, 1)))
+    vertical = np.degrees(np.arccos(np.clip(rays[2] @ rays[3], -1, 1)))
+    return float(horizontal), float(vertical)

@@ -21,7 +21,7 @@ SCHEMA_TABLES = {
     "estimator": ("campaign.configuration.estimators:EstimatorTable",
                   "[estimator] of a campaign file: calibration products and the reference estimator's parameters"),
     "scene": ("simulator.scene_config:SceneConfig", "[scene] of a campaign file"),
-    "camera": ("flight_interface.camera:CameraFile", "a camera TOML file (sitedata/cameras/mer_a.toml)"),
+    "camera": ("flight_interface.camera_file:CameraFile", "a camera TOML file (sitedata/cameras/mer_a.toml)"),
     "sweep": ("campaign.configuration.sweep_file:SweepFile", "a sweep TOML file (sitedata/sweeps/nightly.toml)"),
     "trajectory_set": ("sitedata.edl.parameters:EdlParameters",
                        "a trajectory-set parameter file (sitedata/trajectories/edl_gusev.toml)"),

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flight_interface.camera import Timing
+from flight_interface.camera_file import Timing
 from simulator.fields import bin_rows
 
 

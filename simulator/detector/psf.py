@@ -1,6 +1,6 @@
 """Optics point-spread function (PSF): the lens's blur, applied to the radiance fields as an MTF.
 
-Model (camera ``[optics]``, :class:`flight_interface.camera.Optics`)
+Model (camera ``[optics]``, :class:`flight_interface.camera_file.Optics`)
 -------------------------------------------------------------------
 The optical transfer function at spatial frequency ``f`` (cycles/m in the focal plane) is::
 
@@ -52,7 +52,8 @@ import scipy.fft
 import scipy.optimize
 import scipy.special
 
-from flight_interface.camera import MAX_WAVEFRONT_ERROR_WAVES, Camera
+from flight_interface.camera import Camera
+from flight_interface.camera_file import MAX_WAVEFRONT_ERROR_WAVES
 from simulator.derived_cache import DERIVED
 from simulator.fields import RadianceFields
 

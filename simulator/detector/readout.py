@@ -17,7 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from flight_interface.camera import Electronics
+from flight_interface.camera_file import Electronics
 
 
 def shot_noise_e(rng: np.random.Generator, mean_e: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ z up from the ground plane; attitude: body-to-world quaternion ``(w, x, y, z)``)
 
 Image timing: ``image_times_s[k]`` is the *start of the exposure* of image k. The fast flush occupies
 ``[t - T_flush, t]``, the exposure ``[t, t + T_exp]`` and the frame transfer
-``[t + T_exp, t + T_exp + T_transfer]`` (durations from the camera's :class:`~flight_interface.camera.Timing`).
+``[t + T_exp, t + T_exp + T_transfer]`` (durations from the camera's :class:`~flight_interface.camera_file.Timing`).
 """
 from __future__ import annotations
 

@@ -20,7 +20,8 @@ from estimators.examples import minimal_python
 from file_formats import measurements_json
 from flight_interface.cahvor import Cahvor
 from flight_interface.calibration import CalibrationProducts
-from flight_interface.camera import Camera, Detector, Electronics, Radiometry, Timing
+from flight_interface.camera import Camera
+from flight_interface.camera_file import Detector, Electronics, Radiometry, Timing
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "estimators.md"

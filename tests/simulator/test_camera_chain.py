@@ -4,7 +4,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from flight_interface.camera import PLANCK_J_S, SPEED_OF_LIGHT_M_S
+from flight_interface.camera_file import PLANCK_J_S, SPEED_OF_LIGHT_M_S
 from simulator.detector.camera_chain import CameraEffects, render_image
 from simulator.fields import RadianceFields
 
@@ -27,7 +27,7 @@ def _responsivity(camera):
 
 def test_documented_responsivity_number(mer_a):
     assert mer_a.responsivity_e_per_s == pytest.approx(_responsivity(mer_a), rel=1e-12)
-    # the number documented in flight_interface/camera.py
+    # the number documented in flight_interface/camera_file.py
     assert mer_a.responsivity_e_per_s == pytest.approx(1.86e5, rel=0.01)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flight_interface.camera import Timing
+from flight_interface.camera_file import Timing
 from simulator.detector import charge_transfer
 
 T_F, T_E, T_T = 0.004, 0.005, 0.003

@@ -12,7 +12,8 @@ import scipy.integrate
 import scipy.special
 
 from campaign.cli import main as campaign_main
-from flight_interface.camera import Optics, load_camera
+from flight_interface.camera import load_camera
+from flight_interface.camera_file import Optics
 from flight_interface.tomlfields import ConfigError
 from simulator.detector import psf
 from simulator.detector.camera_chain import CameraEffects, render_image

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from flight_interface.camera import Timing
+from flight_interface.camera_file import Timing
 from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector, rotate
 from flight_interface.tomlfields import ConfigError, parse
 from simulator.scene.descent_profile import DescentProfile
