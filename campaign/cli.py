@@ -299,7 +299,7 @@ def _cmd_check_estimators(args) -> int:
     if args.cases < 1:           # before the stack is imported: a usage error is instant
         raise ConfigError(f"--cases = {args.cases} is not allowed; allowed: an integer >= 1")
     from campaign.run.check_estimators import check_estimators
-    from estimators.registry import plugin_imports_deferred
+    from estimators.entries import plugin_imports_deferred
 
     _check_cluster_flags(args)
     with plugin_imports_deferred():      # a module that does not import is the estimator's violation (exit 1)

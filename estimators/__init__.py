@@ -1,7 +1,7 @@
 """Velocity estimators behind one contract, so a campaign can run and compare any of them.
 
 * :mod:`estimators.contract`          the contract: inputs, output, violations (read this first);
-* :mod:`estimators.registry`          ``[[estimators]]`` entries -> validated specs;
+* :mod:`estimators.entries`           ``[[estimators]]`` entries -> validated specs;
 * :mod:`estimators.plugins`           specs -> estimator objects; running one on a case, failures caught;
 * :mod:`estimators.command`           external programs (a compiled flight estimator runs unchanged);
 * :mod:`estimators.run_python`        a Python callable run in its own process (``isolate = true``);

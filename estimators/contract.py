@@ -58,7 +58,7 @@ Every estimator gets its inputs read-only (:func:`read_only_inputs`: the arrays 
 a write raises ``ValueError`` inside the estimator; the campaign's cached flat field and camera arrays
 are read-only at their source).
 
-Ways in (``[[estimators]]`` entries of a campaign file, :mod:`estimators.registry`)
+Ways in (``[[estimators]]`` entries of a campaign file, :mod:`estimators.entries`)
 ----------------------------------------------------------------------------------
 ``kind = "reference"``  the reference DIMES estimator (:mod:`dimes_velocity`), parameters = its
                         ``EstimatorConfig`` fields; the default when a campaign names no estimator.

@@ -1,6 +1,6 @@
 """Build estimators from their specs and run one on a case's inputs, whatever happens.
 
-:func:`build_estimator` turns an :class:`~estimators.registry.EstimatorSpec` into an object with
+:func:`build_estimator` turns an :class:`~estimators.entries.EstimatorSpec` into an object with
 ``estimate(inputs) -> EstimatorOutput``; :func:`run_estimator` runs it on read-only inputs
 (:func:`estimators.contract.read_only_inputs`) and never raises: a contract violation, any exception
 (``SystemExit`` and ``KeyboardInterrupt`` included), a non-zero exit or a timeout becomes an
@@ -37,7 +37,7 @@ from estimators.contract import (
     read_only_inputs,
     validate_output,
 )
-from estimators.registry import EstimatorSpec
+from estimators.entries import EstimatorSpec
 
 
 class ReferenceEstimator:

@@ -17,7 +17,7 @@ A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
 ``[sensors]``    sensor noise (:mod:`simulator.sensors`)
 ``[estimator]``  calibration products (``flat_field``, ``flat_field_frames``) and the reference
                  estimator's parameters (:mod:`campaign.configuration.estimators`, :mod:`dimes_velocity.config`)
-``[[estimators]]`` the estimators to compare on every case (:mod:`estimators.registry`); default: the
+``[[estimators]]`` the estimators to compare on every case (:mod:`estimators.entries`); default: the
                  reference estimator alone, named ``dimes``
 ``[scene]``      scene parameters, ``[scene.effects]`` and ``[scene.camera_effects]`` switches
                  (:mod:`simulator.scene_config`); ``sun_distance_au`` defaults to the site's
@@ -53,7 +53,7 @@ from campaign.configuration.estimators import (
 from campaign.configuration.execution import ExecutionConfig
 from campaign.configuration.paths import check_input_file
 from dimes_velocity.config import EstimatorConfig
-from estimators.registry import EstimatorEntry, EstimatorSpec, unique_names
+from estimators.entries import EstimatorEntry, EstimatorSpec, unique_names
 from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load_toml, parse, parse_field
 from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig

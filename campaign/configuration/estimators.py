@@ -13,7 +13,7 @@ entry)::
     flat_field_frames = 16       # flat (and dark) exposures of the calibration, 1..1024 (default 16)
     min_correlation = 0.7        # any EstimatorConfig field
 
-``[[estimators]]`` lists the estimators to run on every case (:mod:`estimators.registry`); without it
+``[[estimators]]`` lists the estimators to run on every case (:mod:`estimators.entries`); without it
 the campaign runs the reference estimator alone, named ``dimes``. The ``[estimator]`` table is declared
 once, by :class:`EstimatorTable` (:class:`CalibrationConfig` fields plus the reference's
 :class:`~dimes_velocity.config.EstimatorConfig` fields).
@@ -28,7 +28,7 @@ from typing import Literal
 from pydantic import Field
 
 from dimes_velocity.config import EstimatorConfig
-from estimators.registry import default_specs, estimator_specs
+from estimators.entries import default_specs, estimator_specs
 from flight_interface.tomlfields import ConfigModel
 
 DEFAULT_FLAT_FIELD_FRAMES = 16

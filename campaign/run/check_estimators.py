@@ -38,8 +38,8 @@ from campaign.run.orchestrate import plan_campaign
 from campaign.run.plugin_setup import PluginSetupError, ship_plugin_code, worker_address
 from campaign.run.worker import load_resources
 from estimators.contract import EstimatorInputs, EstimatorOutput
+from estimators.entries import EstimatorSpec
 from estimators.plugins import EstimatorRun, EstimatorSetupError, build_estimator, run_estimator
-from estimators.registry import EstimatorSpec
 from file_formats.measurements_json import measurements_to_dict
 
 DEFAULT_CASES = 2
@@ -207,7 +207,7 @@ def check_estimators(config: CampaignConfig, cases: int = DEFAULT_CASES, schedul
     Parameters
     ----------
     config : CampaignConfig
-        The campaign (loaded within :func:`estimators.registry.plugin_imports_deferred`, so that a module
+        The campaign (loaded within :func:`estimators.entries.plugin_imports_deferred`, so that a module
         that does not import is reported here rather than refusing the file).
     cases : int
         Planned cases to run every estimator on (>= 1).

@@ -40,7 +40,7 @@ from distributed.diagnostics.plugin import UploadFile
 
 from campaign.configuration.code_identity import PROJECT_PACKAGES
 from campaign.run.faults import InfrastructureError
-from estimators.registry import EstimatorSpec
+from estimators.entries import EstimatorSpec
 
 
 class PluginSetupError(InfrastructureError):

@@ -22,9 +22,9 @@ from estimators.contract import (
     read_only_inputs,
     validate_output,
 )
+from estimators.entries import EstimatorSpec
 from estimators.phase_correlation import estimate as phase_correlation
 from estimators.plugins import build_estimator, run_estimator
-from estimators.registry import EstimatorSpec
 from flight_interface.calibration import CalibrationProducts
 from simulator.calibration import simulate_flat_field
 from simulator.synthetic_descent import constant_velocity_descent, random_ground

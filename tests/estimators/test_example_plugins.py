@@ -20,9 +20,9 @@ import pytest
 from pydantic import TypeAdapter
 
 from estimators.contract import EstimatorInputs
+from estimators.entries import EstimatorEntry, estimator_specs
 from estimators.examples import minimal_command, minimal_python
 from estimators.plugins import build_estimator, run_estimator
-from estimators.registry import EstimatorEntry, estimator_specs
 from flight_interface.calibration import CalibrationProducts
 from flight_interface.measurements import DescentMeasurements
 from simulator.calibration import simulate_flat_field

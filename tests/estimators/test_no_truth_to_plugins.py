@@ -14,8 +14,8 @@ import pytest
 
 from estimators.camera_view import TRUTH_FIELDS, load_design_camera
 from estimators.contract import EstimatorInputs
+from estimators.entries import EstimatorSpec
 from estimators.plugins import build_estimator, run_estimator
-from estimators.registry import EstimatorSpec
 from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError, load_toml
 from simulator.synthetic_descent import constant_velocity_descent, random_ground

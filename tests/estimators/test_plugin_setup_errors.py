@@ -16,8 +16,8 @@ import pytest
 
 from campaign.run.plugin_setup import shipped_code
 from estimators.contract import EstimatorInputs
+from estimators.entries import EstimatorSpec
 from estimators.plugins import EstimatorSetupError, build_estimator, module_root, run_estimator
-from estimators.registry import EstimatorSpec
 from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 REPO = Path(__file__).resolve().parents[2]

@@ -37,7 +37,6 @@ import contextvars
 import importlib
 import re
 import shutil
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -48,7 +47,6 @@ from dimes_velocity.config import estimator_config_from_data
 from estimators.command import check_template
 from flight_interface.tomlfields import ConfigModel, FieldProblem
 
-KINDS = ("reference", "python", "command")
 DEFAULT_NAME = "dimes"
 DEFAULT_TIMEOUT_S = 60.0
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -56,10 +54,8 @@ CALLABLE_PATTERN = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 Timeout = Annotated[float, Field(gt=0.0, le=86400.0)]
 ImageFormat = Literal["png", "npy", "raw"]
 FlatFieldFormat = Literal["npy", "tiff", "fits"]
-IMAGE_FORMATS = typing.get_args(ImageFormat)
 #: False while :func:`plugin_imports_deferred` is active: a python entry's module is not imported at validation
 IMPORT_PLUGINS = contextvars.ContextVar("IMPORT_PLUGINS", default=True)
-FLAT_FIELD_FORMATS = typing.get_args(FlatFieldFormat)
 
 
 class _Entry(ConfigModel):
