@@ -30,7 +30,23 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Cahvor:
-    """A CAHVOR model; vectors are float arrays of shape (3,), lengths in m, H and V in pixels."""
+    """A CAHVOR model; vectors are float arrays of shape (3,), lengths in m, H and V in pixels.
+
+    Parameters
+    ----------
+    c : ndarray, shape (3,)
+        Centre of projection (m).
+    a : ndarray, shape (3,)
+        Pointing axis, unit vector.
+    h : ndarray, shape (3,)
+        Horizontal vector (px): ``hs`` times the image x axis plus ``hc`` times A.
+    v : ndarray, shape (3,)
+        Vertical vector (px): ``vs`` times the image y axis plus ``vc`` times A.
+    o : ndarray, shape (3,)
+        Optical axis of the radial distortion, unit vector.
+    r : ndarray, shape (3,)
+        Radial distortion coefficients R0, R1, R2 (dimensionless).
+    """
 
     c: np.ndarray
     a: np.ndarray
@@ -60,7 +76,20 @@ class Cahvor:
         return float(np.linalg.norm(np.cross(self.a, self.v)))
 
     def transformed(self, rotation_matrix: np.ndarray, translation_m: np.ndarray) -> Cahvor:
-        """The same camera expressed in another frame: ``X_new = R @ X_old + t``."""
+        """The same camera expressed in another frame: ``X_new = R @ X_old + t``.
+
+        Parameters
+        ----------
+        rotation_matrix : ndarray, shape (3, 3)
+            Rotation R from the model's frame to the new frame.
+        translation_m : ndarray, shape (3,)
+            Translation t (m), in the new frame.
+
+        Returns
+        -------
+        Cahvor
+            The model in the new frame (R unchanged).
+        """
         rotation_matrix = np.asarray(rotation_matrix, dtype=float)
         return Cahvor(
             c=rotation_matrix @ self.c + np.asarray(translation_m, dtype=float),
@@ -74,7 +103,24 @@ class Cahvor:
 
 def cahvor_from_intrinsics(focal_length_m: float, pixel_pitch_m: float, principal_point_px: tuple[float, float],
                            radial_distortion: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Cahvor:
-    """A CAHVOR model in the camera frame (C at the origin, A = O = +z, H along +x, V along +y)."""
+    """A CAHVOR model in the camera frame (C at the origin, A = O = +z, H along +x, V along +y).
+
+    Parameters
+    ----------
+    focal_length_m : float
+        Focal length (m).
+    pixel_pitch_m : float
+        Pixel pitch (m).
+    principal_point_px : tuple of float
+        ``(column, row)`` of the principal point (px, pixel centres at integers).
+    radial_distortion : tuple of float, optional
+        R0, R1, R2 (dimensionless); default none.
+
+    Returns
+    -------
+    Cahvor
+        The model, focal lengths ``hs = vs = focal_length_m / pixel_pitch_m`` (px).
+    """
     focal_px = focal_length_m / pixel_pitch_m
     axis = np.array([0.0, 0.0, 1.0])
     hc, vc = principal_point_px
@@ -132,8 +178,14 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
 
     Parameters
     ----------
+    model : Cahvor
+        The camera model.
     pixels : ndarray, shape (..., 2)
-        ``(column, row)`` image coordinates.
+        ``(column, row)`` image coordinates (px).
+    tolerance_rad : float, optional
+        Convergence tolerance of the distortion inversion (tangent of the field angle).
+    max_iterations : int, optional
+        Largest number of Newton steps of the distortion inversion.
 
     Returns
     -------
@@ -169,8 +221,21 @@ def _dot(components, vector) -> np.ndarray:
 
 
 def distortion_turning_point(r: np.ndarray) -> float:
-    """Smallest undistorted tangent ``u* > 0`` where ``d/du [u (1 + R0 + R1 u^2 + R2 u^4)] = 0``;
-    ``inf`` when the distortion increases for every ``u`` (e.g. R1, R2 >= 0). Memoised per R."""
+    """Smallest undistorted tangent where the distorted tangent stops increasing.
+
+    That is ``u* > 0`` where ``d/du [u (1 + R0 + R1 u^2 + R2 u^4)] = 0``. Memoised per R.
+
+    Parameters
+    ----------
+    r : ndarray, shape (3,)
+        Radial distortion coefficients R0, R1, R2.
+
+    Returns
+    -------
+    float
+        ``u*`` (tangent of the field angle); ``inf`` when the distortion increases for every ``u``
+        (e.g. R1, R2 >= 0).
+    """
     return _turning_point(*(float(value) for value in r))
 
 
@@ -209,19 +274,56 @@ def _undistort_tangent(u_distorted: np.ndarray, r: np.ndarray, tolerance: float,
 
 
 def field_angle_rad(model: Cahvor, pixels: np.ndarray) -> np.ndarray:
-    """Angle between the (undistorted) ray through each image point and the optical axis O, rad."""
+    """Angle between the (undistorted) ray through each image point and the optical axis O.
+
+    Parameters
+    ----------
+    model : Cahvor
+        The camera model.
+    pixels : ndarray, shape (..., 2)
+        ``(column, row)`` image coordinates (px).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Field angle (rad).
+    """
     rays = unproject(model, pixels)
     return np.arccos(np.clip(rays @ model.o, -1.0, 1.0))
 
 
 def pixel_grid(width: int, height: int) -> np.ndarray:
-    """Pixel-centre coordinates ``(column, row)`` of a width x height frame, shape (height, width, 2)."""
+    """Pixel-centre coordinates ``(column, row)`` of a width x height frame.
+
+    Parameters
+    ----------
+    width, height : int
+        Columns and rows of the frame (px).
+
+    Returns
+    -------
+    ndarray, shape (height, width, 2)
+        ``(column, row)`` of every pixel centre (px), float64.
+    """
     columns, rows = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
     return np.stack([columns, rows], axis=-1)
 
 
 def field_of_view_deg(model: Cahvor, width: int, height: int) -> tuple[float, float]:
-    """Full horizontal and vertical field of view between the outer pixel edges (deg)."""
+    """Full horizontal and vertical field of view between the outer pixel edges.
+
+    Parameters
+    ----------
+    model : Cahvor
+        The camera model.
+    width, height : int
+        Columns and rows of the frame (px).
+
+    Returns
+    -------
+    tuple of float
+        Horizontal and vertical field of view (deg), through the principal point.
+    """
     half_w, half_h = width / 2.0, height / 2.0
     centre = np.array([model.hc, model.vc])
     edges = np.array([[centre[0] - half_w, centre[1]], [centre[0] + half_w, centre[1]],

@@ -56,6 +56,25 @@ def readout_flat_field(array: np.ndarray, binned_shape: tuple[int, int], source:
     the mean of its pixels'). Raises :class:`CalibrationError` for another shape, non-finite values
     or a median response below :data:`MIN_RESPONSE` (a dark frame, not a flat). Single dead pixels
     are kept: consumers clip responses at :data:`MIN_RESPONSE`.
+
+    Parameters
+    ----------
+    array : ndarray, shape (rows, columns) or (rows * b, columns)
+        The flat field, read-out or full-frame shape, any numeric dtype (relative response).
+    binned_shape : tuple of int
+        ``(rows, columns)`` of the read-out image (``camera.binned_shape``).
+    source : str, optional
+        Name of the file or source, for the error message.
+
+    Returns
+    -------
+    ndarray, shape ``binned_shape``, float32
+        The flat field in read-out shape.
+
+    Raises
+    ------
+    CalibrationError
+        Wrong shape or dtype, non-finite values, or a median response <= :data:`MIN_RESPONSE`.
     """
     array = np.asarray(array)
     rows, columns = binned_shape
@@ -77,7 +96,23 @@ def readout_flat_field(array: np.ndarray, binned_shape: tuple[int, int], source:
 
 
 def normalise_flat_field(flat: np.ndarray) -> np.ndarray:
-    """Divide by the mean of the central ``1/8 x 1/8`` of the array (about 1 on the optical axis), float32."""
+    """Divide by the mean of the central ``1/8 x 1/8`` of the array (about 1 on the optical axis).
+
+    Parameters
+    ----------
+    flat : ndarray, shape (rows, columns)
+        Relative response (any positive scale).
+
+    Returns
+    -------
+    ndarray, shape (rows, columns), float32
+        The response divided by its central mean.
+
+    Raises
+    ------
+    CalibrationError
+        The central mean is not a positive finite number.
+    """
     flat = np.asarray(flat, dtype=np.float64)
     rows, columns = flat.shape
     half_rows, half_columns = max(1, int(rows * CENTRAL_FRACTION / 2)), max(1, int(columns * CENTRAL_FRACTION / 2))

@@ -1,6 +1,8 @@
-"""The runtime camera: a validated camera file (:mod:`flight_interface.camera_file`) as a frozen
-:class:`Camera`, with the CAHVOR model and mounting as arrays and the per-pixel rays, field angles and
-design falloff derived from them (computed once, read-only, shared by the simulator and the estimators).
+"""The runtime camera: a validated camera file as a frozen :class:`Camera`.
+
+The file's tables are declared in :mod:`flight_interface.camera_file`. A :class:`Camera` holds them with
+the CAHVOR model and mounting as arrays, and derives the per-pixel rays, field angles and design falloff
+(computed once, read-only, shared by the simulator and the estimators).
 """
 from __future__ import annotations
 
@@ -18,8 +20,31 @@ from flight_interface.tomlfields import load
 
 @dataclass(frozen=True)
 class Camera:
-    """A descent camera: the validated file tables plus the CAHVOR model in the camera frame and the
-    mounting on the lander (arrays)."""
+    """A descent camera: the validated file tables, the CAHVOR model and the mounting (arrays).
+
+    Parameters
+    ----------
+    name : str
+        Human-readable camera name (``[camera] name``).
+    source : str
+        The camera file's path (or another description of where the camera came from).
+    detector : Detector
+        The CCD array and its on-chip binning.
+    model : Cahvor
+        CAHVOR model in the camera frame.
+    camera_to_lander_quaternion : ndarray, shape (4,)
+        Camera-to-lander rotation, unit quaternion (w, x, y, z); read-only.
+    camera_position_in_lander_m : ndarray, shape (3,)
+        Camera position in the lander body frame (m); read-only.
+    timing : Timing
+        Frame-transfer CCD timing (s).
+    radiometry : Radiometry
+        Optics and CCD photo response.
+    electronics : Electronics
+        Dark current, wells and ADC.
+    optics : Optics, optional
+        The point-spread function of the optics.
+    """
 
     name: str
     source: str
@@ -34,18 +59,22 @@ class Camera:
 
     @property
     def width_px(self) -> int:
+        """Columns of the array (px)."""
         return self.detector.width_px
 
     @property
     def height_px(self) -> int:
+        """Rows of the array, before binning (px)."""
         return self.detector.height_px
 
     @property
     def pixel_pitch_m(self) -> float:
+        """Pixel pitch (m)."""
         return self.detector.pixel_pitch_m
 
     @property
     def binning_rows(self) -> int:
+        """Rows summed on chip."""
         return self.detector.binning_rows
 
     @property
@@ -55,6 +84,7 @@ class Camera:
 
     @property
     def camera_to_lander_matrix(self) -> np.ndarray:
+        """Camera-to-lander rotation matrix, shape (3, 3)."""
         return quat_to_matrix(self.camera_to_lander_quaternion)
 
     @property
@@ -94,7 +124,13 @@ class Camera:
         return _read_only((np.cos(self.field_angle_rad) ** 4).astype(np.float32))
 
     def fov_deg(self) -> tuple[float, float]:
-        """Full horizontal and vertical field of view between the outer pixel edges (deg)."""
+        """Full horizontal and vertical field of view between the outer pixel edges.
+
+        Returns
+        -------
+        tuple of float
+            Horizontal and vertical field of view (deg).
+        """
         return cahvor.field_of_view_deg(self.model, self.width_px, self.height_px)
 
 
@@ -105,7 +141,20 @@ def _read_only(array: np.ndarray) -> np.ndarray:
 
 
 def camera_from_file(tables: CameraFile, source: str) -> Camera:
-    """The runtime :class:`Camera` of validated camera tables."""
+    """The runtime :class:`Camera` of validated camera tables.
+
+    Parameters
+    ----------
+    tables : CameraFile
+        The validated tables of a camera file.
+    source : str
+        Where they came from (the file's path), kept as ``Camera.source``.
+
+    Returns
+    -------
+    Camera
+        The camera, its quaternion normalised.
+    """
     return Camera(
         name=tables.camera.name, source=source, detector=tables.detector,
         model=tables.geometry.to_cahvor(tables.detector),
@@ -115,7 +164,17 @@ def camera_from_file(tables: CameraFile, source: str) -> Camera:
 
 
 def load_camera(path: str | Path) -> Camera:
-    """Load and validate a camera TOML file (fields: :class:`CameraFile`).
+    """Load and validate a camera TOML file (fields: :class:`~flight_interface.camera_file.CameraFile`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The camera file.
+
+    Returns
+    -------
+    Camera
+        The camera, ``source`` the path as given.
 
     Raises
     ------

@@ -122,6 +122,13 @@ class CahvorVectors(ConfigModel):
         return self
 
     def to_cahvor(self) -> cahvor.Cahvor:
+        """The model as arrays.
+
+        Returns
+        -------
+        Cahvor
+            The six vectors as float arrays of shape (3,).
+        """
         return cahvor.Cahvor(c=np.array(self.C), a=np.array(self.A), h=np.array(self.H), v=np.array(self.V),
                              o=np.array(self.O), r=np.array(self.R))
 
@@ -153,6 +160,18 @@ class Geometry(ConfigModel):
         return self
 
     def to_cahvor(self, detector: Detector) -> Cahvor:
+        """The CAHVOR model in the camera frame, from the explicit model or the intrinsics.
+
+        Parameters
+        ----------
+        detector : Detector
+            The array (pixel pitch; its centre is the default principal point).
+
+        Returns
+        -------
+        Cahvor
+            The camera model.
+        """
         if self.cahvor is not None:
             return self.cahvor.to_cahvor()
         assert self.focal_length_m is not None     # the validator requires it when no CAHVOR model is given
@@ -195,8 +214,20 @@ class Timing(ConfigModel):
         return self.transfer_direction == "toward_last_row"
 
     def exposure_mid_time_s(self, exposure_start_s):
-        """Mid-exposure time(s) (s) of exposures starting at ``exposure_start_s`` (s, scalar or array):
-        the instant an image's pose, footprint and measured state refer to."""
+        """Mid-exposure time(s) of exposures starting at ``exposure_start_s``.
+
+        The instant an image's pose, footprint and measured state refer to.
+
+        Parameters
+        ----------
+        exposure_start_s : float or ndarray
+            Start of each exposure (s).
+
+        Returns
+        -------
+        float or ndarray
+            Mid-exposure time(s) (s), the shape of ``exposure_start_s``.
+        """
         return exposure_start_s + 0.5 * self.exposure_s
 
 
@@ -228,7 +259,18 @@ class Radiometry(ConfigModel):
         return self
 
     def responsivity_e_per_s(self, pixel_area_m2: float) -> float:
-        """On-axis photo-electrons per second per unit spectral radiance (W m^-2 sr^-1 um^-1)."""
+        """On-axis photo-electrons per second per unit spectral radiance (module docstring: ``k``).
+
+        Parameters
+        ----------
+        pixel_area_m2 : float
+            Area of one pixel (m^2).
+
+        Returns
+        -------
+        float
+            Electrons per second per (W m^-2 sr^-1 um^-1).
+        """
         photon_energy_j = PLANCK_J_S * SPEED_OF_LIGHT_M_S / (self.effective_wavelength_um * 1e-6)
         irradiance_per_radiance = np.pi * self.optics_transmission / (4.0 * self.f_number**2)
         band_um = self.band_max_um - self.band_min_um
@@ -283,8 +325,23 @@ class Optics(ConfigModel):
         return self
 
     def band_weights(self, band_min_um: float, band_max_um: float) -> tuple[np.ndarray, np.ndarray]:
-        """Wavelengths (m) and trapezoid-rule weights (sum 1) of the photo-electrons per wavelength,
-        transmission x QE (a photon spectrum flat across the band), shapes (n,), on a 5 nm grid."""
+        """Wavelengths and trapezoid-rule weights of the photo-electrons per wavelength, on a 5 nm grid.
+
+        The weight is transmission x QE (a photon spectrum flat across the band); without the spectral
+        tables it is flat over the band.
+
+        Parameters
+        ----------
+        band_min_um, band_max_um : float
+            The band (um).
+
+        Returns
+        -------
+        wavelengths_m : ndarray, shape (n,)
+            Wavelengths (m).
+        weights : ndarray, shape (n,)
+            Weight of each wavelength (sum 1).
+        """
         count = max(int(np.ceil((band_max_um - band_min_um) / 0.005)) + 1, 2)
         wavelengths_um = np.linspace(band_min_um, band_max_um, count)
         if self.spectral_wavelengths_um is None:
@@ -336,18 +393,32 @@ class Electronics(ConfigModel):
 
     @property
     def dark_reference_temperature_k(self) -> float:
+        """Temperature of ``dark_current_ref_e_per_s`` (K)."""
         return self.dark_reference_temperature_c + ZERO_CELSIUS_K
 
     @property
     def ccd_temperature_k(self) -> float:
+        """CCD temperature during the descent (K)."""
         return self.ccd_temperature_c + ZERO_CELSIUS_K
 
     @property
     def max_dn(self) -> int:
+        """Largest digital number of the ADC (DN)."""
         return 2**self.adc_bits - 1
 
     def dark_current_e_per_s(self, temperature_k: float | None = None) -> float:
-        """Dark current per pixel at ``temperature_k`` (default: the configured CCD temperature)."""
+        """Dark current per pixel (module docstring: ``D(T)``).
+
+        Parameters
+        ----------
+        temperature_k : float or None, optional
+            CCD temperature (K); default the configured ``ccd_temperature_c``.
+
+        Returns
+        -------
+        float
+            Dark current (e-/s per pixel); ``inf`` beyond float range.
+        """
         temperature_k = self.ccd_temperature_k if temperature_k is None else temperature_k
         exponent = (temperature_k - self.dark_reference_temperature_k) / self.dark_doubling_temperature_k
         with np.errstate(over="ignore"):
@@ -358,13 +429,21 @@ class CameraFile(ConfigModel):
     """A camera TOML file (e.g. ``sitedata/cameras/mer_a.toml``)."""
 
     camera: CameraName
+    """``[camera]``: identification."""
     detector: Detector
+    """``[detector]``: the CCD array and its binning."""
     geometry: Geometry
+    """``[geometry]``: intrinsics or a CAHVOR model."""
     mounting: Mounting
+    """``[mounting]``: camera-to-lander rotation and position."""
     timing: Timing
+    """``[timing]``: flush, exposure, frame transfer, read-out (s)."""
     radiometry: Radiometry
+    """``[radiometry]``: optics and CCD photo response."""
     electronics: Electronics
+    """``[electronics]``: dark current, wells, ADC."""
     optics: Optics = Optics()
+    """``[optics]``: point-spread function (optional; default diffraction over a flat band)."""
 
     @model_validator(mode="after")
     def _geometry_is_usable(self):

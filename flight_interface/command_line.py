@@ -11,4 +11,11 @@ class OneLineParser(argparse.ArgumentParser):
     """``argparse`` whose usage errors are one line (``prog: error: message``) and exit status 2."""
 
     def error(self, message: str):
+        """Print ``prog: error: message`` as one line on stderr and exit with status 2.
+
+        Parameters
+        ----------
+        message : str
+            The error; its whitespace runs (line breaks included) become single spaces.
+        """
         self.exit(USAGE_ERROR, f"{self.prog}: error: {' '.join(message.split())}\n")

@@ -20,9 +20,22 @@ import numpy as np
 
 
 def quat_normalize(quaternion: np.ndarray) -> np.ndarray:
-    """Unit quaternion(s) with non-negative w (the same rotation), shape (..., 4).
+    """Unit quaternion(s) with non-negative w (the same rotation).
 
-    Raises ValueError for a zero or non-finite quaternion (no rotation to normalise to).
+    Parameters
+    ----------
+    quaternion : ndarray, shape (..., 4)
+        Quaternion(s) (w, x, y, z), any non-zero finite norm.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        Unit quaternion(s), ``w >= 0``.
+
+    Raises
+    ------
+    ValueError
+        A zero or non-finite quaternion (no rotation to normalise to).
     """
     quaternion = np.asarray(quaternion, dtype=float)
     norm = np.sqrt(np.add.reduce(quaternion * quaternion, axis=-1, keepdims=True))   # np.linalg.norm's sum, less overhead
@@ -33,7 +46,18 @@ def quat_normalize(quaternion: np.ndarray) -> np.ndarray:
 
 
 def quat_multiply(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """Hamilton product ``left * right`` (apply ``right`` first), broadcasting over leading axes."""
+    """Hamilton product ``left * right`` (apply ``right`` first), broadcasting over leading axes.
+
+    Parameters
+    ----------
+    left, right : ndarray, shape (..., 4)
+        Quaternions (w, x, y, z).
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        The product.
+    """
     left, right = np.asarray(left, dtype=float), np.asarray(right, dtype=float)
     lw, lx, ly, lz = left[..., 0], left[..., 1], left[..., 2], left[..., 3]
     rw, rx, ry, rz = right[..., 0], right[..., 1], right[..., 2], right[..., 3]
@@ -46,12 +70,36 @@ def quat_multiply(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 
 
 def quat_conjugate(quaternion: np.ndarray) -> np.ndarray:
-    """Inverse of a unit quaternion."""
+    """Inverse of a unit quaternion.
+
+    Parameters
+    ----------
+    quaternion : ndarray, shape (..., 4)
+        Unit quaternion(s) (w, x, y, z).
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        The conjugate(s) ``(w, -x, -y, -z)``.
+    """
     return np.asarray(quaternion, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def quat_from_axis_angle(axis: np.ndarray | Sequence[float], angle_rad: float | np.ndarray) -> np.ndarray:
-    """Quaternion rotating by ``angle_rad`` (right-handed) about ``axis`` (finite, non-zero)."""
+    """Quaternion rotating by ``angle_rad`` (right-handed) about ``axis``.
+
+    Parameters
+    ----------
+    axis : array_like, shape (3,)
+        Rotation axis, finite and non-zero (any length).
+    angle_rad : float or ndarray, shape (...)
+        Rotation angle(s) (rad).
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        Unit quaternion(s) (w, x, y, z).
+    """
     axis = np.asarray(axis, dtype=float)
     norm = np.linalg.norm(axis, axis=-1, keepdims=True)
     if not np.all((norm > 0) & np.isfinite(norm)) or not np.all(np.isfinite(angle_rad)):
@@ -63,7 +111,18 @@ def quat_from_axis_angle(axis: np.ndarray | Sequence[float], angle_rad: float | 
 
 
 def quat_from_rotation_vector(rotation_vector_rad: np.ndarray) -> np.ndarray:
-    """Quaternion of the rotation ``exp([v]x)``: axis ``v/|v|``, angle ``|v|`` (rad)."""
+    """Quaternion of the rotation ``exp([v]x)``: axis ``v/|v|``, angle ``|v|``.
+
+    Parameters
+    ----------
+    rotation_vector_rad : ndarray, shape (..., 3)
+        Rotation vector(s) v (rad).
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        Unit quaternion(s) (w, x, y, z).
+    """
     rotation_vector_rad = np.asarray(rotation_vector_rad, dtype=float)
     angle = np.linalg.norm(rotation_vector_rad, axis=-1, keepdims=True)
     if not np.all(np.isfinite(angle)):
@@ -75,7 +134,18 @@ def quat_from_rotation_vector(rotation_vector_rad: np.ndarray) -> np.ndarray:
 
 
 def quat_to_rotation_vector(quaternion: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`quat_from_rotation_vector` (angle in [0, pi])."""
+    """Inverse of :func:`quat_from_rotation_vector` (angle in [0, pi]).
+
+    Parameters
+    ----------
+    quaternion : ndarray, shape (..., 4)
+        Unit quaternion(s) (w, x, y, z).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Rotation vector(s) (rad).
+    """
     quaternion = quat_normalize(quaternion)
     vector = quaternion[..., 1:]
     sin_half = np.linalg.norm(vector, axis=-1, keepdims=True)
@@ -85,7 +155,18 @@ def quat_to_rotation_vector(quaternion: np.ndarray) -> np.ndarray:
 
 
 def quat_to_matrix(quaternion: np.ndarray) -> np.ndarray:
-    """Rotation matrix/matrices (..., 3, 3) of unit quaternion(s)."""
+    """Rotation matrix/matrices of unit quaternion(s).
+
+    Parameters
+    ----------
+    quaternion : ndarray, shape (..., 4)
+        Unit quaternion(s) (w, x, y, z).
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
     unit = quat_normalize(quaternion)
     w, x, y, z = unit[..., 0], unit[..., 1], unit[..., 2], unit[..., 3]
     matrix = np.empty(unit.shape[:-1] + (3, 3))
@@ -96,7 +177,18 @@ def quat_to_matrix(quaternion: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:
-    """Unit quaternion of a 3x3 rotation matrix (Shepperd's method, numerically stable)."""
+    """Unit quaternion of a 3x3 rotation matrix (Shepperd's method, numerically stable).
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (3, 3)
+        Rotation matrix.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        Unit quaternion (w, x, y, z).
+    """
     m = np.asarray(matrix, dtype=float)
     trace = np.trace(m)
     candidates = np.array([trace, m[0, 0], m[1, 1], m[2, 2]])
@@ -117,12 +209,38 @@ def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:
 
 
 def rotate(quaternion: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Rotate vectors (..., 3) by unit quaternion(s) (..., 4), broadcasting over leading axes."""
+    """Rotate vectors by unit quaternion(s), broadcasting over leading axes.
+
+    Parameters
+    ----------
+    quaternion : ndarray, shape (..., 4)
+        Unit quaternion(s) (w, x, y, z).
+    vectors : ndarray, shape (..., 3)
+        Vectors to rotate.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Rotated vectors.
+    """
     return np.einsum("...ij,...j->...i", quat_to_matrix(quaternion), np.asarray(vectors, dtype=float))
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, fraction: float | np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation from ``q0`` (fraction 0) to ``q1`` (fraction 1), shortest arc."""
+    """Spherical linear interpolation from ``q0`` (fraction 0) to ``q1`` (fraction 1), shortest arc.
+
+    Parameters
+    ----------
+    q0, q1 : ndarray, shape (..., 4)
+        Unit quaternions (w, x, y, z) at the ends.
+    fraction : float or ndarray, shape (...)
+        Where between them, 0 .. 1.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        Unit quaternion(s).
+    """
     q0 = quat_normalize(q0)
     q1 = quat_normalize(q1)
     fraction = np.asarray(fraction, dtype=float)[..., None]
@@ -139,6 +257,17 @@ def slerp(q0: np.ndarray, q1: np.ndarray, fraction: float | np.ndarray) -> np.nd
 
 
 def off_nadir_angle_rad(attitude: np.ndarray) -> np.ndarray:
-    """Angle between the lander's -z axis (camera side) and world nadir, rad."""
+    """Angle between the lander's -z axis (camera side) and world nadir.
+
+    Parameters
+    ----------
+    attitude : ndarray, shape (..., 4)
+        Lander-to-world unit quaternion(s) (w, x, y, z).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Off-nadir angle(s) (rad).
+    """
     down_in_world = rotate(attitude, np.array([0.0, 0.0, -1.0]))
     return np.arccos(np.clip(-down_in_world[..., 2], -1.0, 1.0))

@@ -113,6 +113,18 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
     An attitude pointing the camera far from nadir (or at the sky) is not refused here: the campaign's
     sensor models at the largest allowed attitude-error sigmas produce such records, and the estimator
     answers them invalid (``bad_attitude``), never valid.
+
+    Parameters
+    ----------
+    measurements : DescentMeasurements
+        The record to check.
+    image_count : int or None, optional
+        Number of images the record must describe; None: any number >= 2.
+
+    Raises
+    ------
+    MeasurementError
+        The first problem found, naming the field.
     """
     images = measurements.images
     if image_count is not None and len(images) != image_count:

@@ -30,9 +30,18 @@ class ConfigError(ValueError):
 
 
 class FieldProblem(ValueError):
-    """Raised by a validator for a check that involves several fields: names the field at fault
-    (relative to the model being validated; "" = the value being validated itself) so the one-line
-    error points at it. The message follows the field's dotted path, e.g. ``"= 3 must divide ..."``."""
+    """Raised by a validator for a check that involves several fields: names the field at fault.
+
+    The one-line error then points at that field. The message follows the field's dotted path,
+    e.g. ``"= 3 must divide ..."``.
+
+    Parameters
+    ----------
+    field : str
+        The field at fault, relative to the model being validated; ``""`` = the value being validated.
+    message : str
+        What is wrong and what is allowed.
+    """
 
     def __init__(self, field: str, message: str):
         super().__init__(message)
@@ -55,7 +64,18 @@ def _as_tuple(value: Any) -> Any:
 
 
 def fixed_vector(length: int) -> Any:
-    """Annotation of a TOML list of exactly ``length`` finite numbers, held as a tuple of floats."""
+    """Annotation of a TOML list of exactly ``length`` finite numbers, held as a tuple of floats.
+
+    Parameters
+    ----------
+    length : int
+        Number of elements.
+
+    Returns
+    -------
+    Annotated
+        ``tuple[float, ...]`` of that length, with a validator that names a wrong length.
+    """
 
     def as_tuple(value: Any) -> Any:
         if isinstance(value, list) and len(value) != length:
@@ -92,7 +112,23 @@ ExistingFile = Annotated[Path, BeforeValidator(_existing_file)]
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML file; any I/O, encoding or syntax problem is a one-line :class:`ConfigError`."""
+    """Parse a TOML file; any I/O, encoding or syntax problem is a one-line :class:`ConfigError`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    dict
+        The parsed tables.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file and the problem.
+    """
     path = Path(path)
     try:
         if not stat.S_ISREG(path.stat().st_mode) and not path.is_dir():   # a FIFO would block, /dev/zero never ends
@@ -116,8 +152,31 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 
 
 def parse(model: type[Model], data: Any, source: str | Path, prefix: str = "", context: dict | None = None) -> Model:
-    """Validate ``data`` (parsed TOML) as ``model``; errors are one-line :class:`ConfigError` naming
-    ``source``, the dotted field path (under ``prefix``, e.g. ``"scene"``) and the allowed values."""
+    """Validate ``data`` (parsed TOML) as ``model``.
+
+    Parameters
+    ----------
+    model : type of BaseModel
+        The model (a :class:`ConfigModel`).
+    data : Any
+        Parsed TOML (a dict of tables).
+    source : str or Path
+        The file (or other source) named in errors.
+    prefix : str, optional
+        Dotted path of ``data`` in its file (e.g. ``"scene"``), prefixed to field paths in errors.
+    context : dict or None, optional
+        Validation context (e.g. ``base_dir`` for relative paths).
+
+    Returns
+    -------
+    BaseModel
+        The validated ``model`` instance.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file, the field and the allowed values.
+    """
     try:
         return model.model_validate(data, context=context)
     except ValidationError as exc:
@@ -125,8 +184,31 @@ def parse(model: type[Model], data: Any, source: str | Path, prefix: str = "", c
 
 
 def parse_field(model: type[Model], field: str, value: Any, source: str, label: str) -> Any:
-    """Validate one value (e.g. a command-line flag) against ``model``'s declaration of ``field`` (the
-    model's other fields must have defaults); errors name ``label`` (e.g. ``--workers``) instead."""
+    """Validate one value (e.g. a command-line flag) against ``model``'s declaration of ``field``.
+
+    Parameters
+    ----------
+    model : type of BaseModel
+        The model declaring ``field``; its other fields must have defaults.
+    field : str
+        The field's name.
+    value : Any
+        The value to validate.
+    source : str
+        The source named in errors.
+    label : str
+        What errors call the value (e.g. ``--workers``) instead of the field's name.
+
+    Returns
+    -------
+    Any
+        The validated value.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file, the field and the allowed values.
+    """
     try:
         return getattr(model.model_validate({field: value}), field)
     except ValidationError as exc:
@@ -137,13 +219,50 @@ def parse_field(model: type[Model], field: str, value: Any, source: str, label: 
 
 
 def load(model: type[Model], path: str | Path, context: dict | None = None) -> Model:
-    """:func:`load_toml` then :func:`parse` the whole file as ``model``."""
+    """:func:`load_toml` then :func:`parse` the whole file as ``model``.
+
+    Parameters
+    ----------
+    model : type of BaseModel
+        The model of the whole file.
+    path : str or Path
+        The file.
+    context : dict or None, optional
+        Validation context (e.g. ``base_dir`` for relative paths).
+
+    Returns
+    -------
+    BaseModel
+        The validated ``model`` instance.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file, the field and the allowed values.
+    """
     return parse(model, load_toml(path), path, context=context)
 
 
 # --------------------------------------------------------------------------------- error translation
 def translate(exc: ValidationError, model: type[BaseModel], source: str, prefix: str = "") -> ConfigError:
-    """The first problem of a pydantic ``ValidationError`` as a one-line :class:`ConfigError`."""
+    """The first problem of a pydantic ``ValidationError`` as a one-line :class:`ConfigError`.
+
+    Parameters
+    ----------
+    exc : ValidationError
+        The error of validating ``model``.
+    model : type of BaseModel
+        The model validated.
+    source : str
+        The file (or other source) named in the message.
+    prefix : str, optional
+        Dotted path of the validated data in its file.
+
+    Returns
+    -------
+    ConfigError
+        The error to raise: source, dotted field path, problem and what is allowed.
+    """
     errors = exc.errors(include_url=False)
     error = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])   # a typo before "missing"
     where = _walk(model, error["loc"], prefix)
@@ -238,7 +357,18 @@ def _tag_of(model: type[BaseModel]) -> str | None:
 
 
 def describe_range(metadata: list) -> str:
-    """'>= 0 and <= 30' from annotated-types bounds (``Field(ge=..., le=...)``)."""
+    """'>= 0 and <= 30' from annotated-types bounds (``Field(ge=..., le=...)``).
+
+    Parameters
+    ----------
+    metadata : list
+        A field's annotation metadata.
+
+    Returns
+    -------
+    str
+        The bounds joined by ``and``, lower first; ``"any finite number"`` without bounds.
+    """
     parts = []
     for item in metadata:
         for kind, symbol in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
