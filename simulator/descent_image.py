@@ -22,11 +22,13 @@ import numpy as np
 
 from flight_interface.camera import Camera
 from simulator.detector.camera_chain import RenderedImage, render_image
-from simulator.fields import RadianceFields, block_means
+from simulator.fields import RadianceFields
 from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
 from simulator.off_nominal.moving_shadows import place_moving_shadows
-from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry, radiance
+from simulator.scene import ground_mapping, photometry, shadow
 from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
+from simulator.scene.periods import period_fields
+from simulator.scene.radiance import sun_unit_vector
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import SceneConfig
 
@@ -146,7 +148,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     if rng is None:
         camera_effects = camera_effects.model_copy(update={"shot_noise": False, "read_noise": False})
         rng = np.random.default_rng(0)   # unused: every random draw is switched off
-    sun = radiance.sun_unit_vector(sun_world)
+    sun = sun_unit_vector(sun_world)
     start_s = image_start_time(profile, image)
     off_nominal = config.off_nominal
     artefacts = _camera_artefacts(off_nominal, artefacts)
@@ -158,11 +160,8 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     profile = scale_angular_rates(profile, off_nominal.angular_rate_multiplier, camera.timing.exposure_mid_time_s(start_s))
 
     started = time.perf_counter()
-    periods = radiance.period_fields(terrain, camera, profile, start_s, sun, config,
-                                  need_smear_fields=camera_effects.smear, moving_shadows=moving)
-    if (off_nominal.heat_shield_glint and config.effects.heat_shield and profile.heat_shield_position_m is not None
-            and off_nominal.heat_shield_specular_reflectance > 0):
-        _add_glint(periods, camera, profile, start_s, sun, config)
+    periods = period_fields(terrain, camera, profile, start_s, sun, config,
+                            need_smear_fields=camera_effects.smear, moving_shadows=moving)
     scene_ms = 1e3 * (time.perf_counter() - started)
 
     started = time.perf_counter()
@@ -170,7 +169,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     camera_ms = 1e3 * (time.perf_counter() - started)
 
     cam = periods.exposure_centre.camera_pose
-    anti_sun = radiance.shadow.shadow_centre_m(cam.ray_origin_m, sun) if cam.ray_origin_m[2] > 0 else cam.ray_origin_m
+    anti_sun = shadow.shadow_centre_m(cam.ray_origin_m, sun) if cam.ray_origin_m[2] > 0 else cam.ray_origin_m
     pixel, in_front = ground_mapping.world_to_pixels(camera, cam, anti_sun)
     in_image = bool(in_front) and (-0.5 <= pixel[0] <= camera.width_px - 0.5) and (-0.5 <= pixel[1] <= camera.height_px - 0.5)
     footprint, hit = ground_mapping.footprint_m(camera, cam)
@@ -193,47 +192,3 @@ def _camera_artefacts(off_nominal: OffNominalConfig, artefacts: OffNominalArtefa
                              "per case) and with_particle_hits (per image)")
         return None if off_nominal.blooming else OffNominalArtefacts(blooming=False)
     return artefacts if artefacts.blooming == off_nominal.blooming else replace(artefacts, blooming=off_nominal.blooming)
-
-
-def _add_glint(periods: radiance.PeriodScene, camera: Camera, profile: DescentProfile, start_s: float,
-               sun: np.ndarray, config: SceneConfig) -> None:
-    """Add the heat-shield specular glint to the period fields in place, averaged over the same
-    sub-poses as the scene (:mod:`simulator.motion_blur`); a field standing for several periods gets
-    the glint of the exposure (or of the first period it stands for)."""
-    timing = camera.timing
-    windows = {"flush": (start_s - timing.fast_flush_s, start_s),
-               "exposure": (start_s, start_s + timing.exposure_s),
-               "transfer": (start_s + timing.exposure_s, start_s + timing.exposure_s + timing.frame_transfer_s)}
-    by_field: dict[int, list[str]] = {}
-    for period in ("exposure", "flush", "transfer"):
-        by_field.setdefault(id(getattr(periods.fields, period)), []).append(period)
-    irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
-    off_nominal = config.off_nominal
-    for periods_of_field in by_field.values():
-        period = periods_of_field[0]
-        field_array = getattr(periods.fields, period)
-        count = 1 if periods.shared else max(int(periods.substeps.get(period, 1)), 1)
-        times = ([timing.exposure_mid_time_s(start_s)] if periods.shared
-                 else motion_blur.substep_times(*windows[period], count))
-        for time_s in times:
-            pose = profile.pose(float(np.clip(time_s, profile.time_s[0], profile.time_s[-1])))
-            glint = heat_shield.glint_window(
-                camera, ground_mapping.camera_pose(camera, pose), np.asarray(pose.heat_shield_position_m, dtype=float),
-                sun, irradiance, config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad,
-                off_nominal.heat_shield_specular_reflectance, off_nominal.heat_shield_specular_roughness_rad)
-            if glint is not None:
-                row0, col0, window = glint
-                window = window * np.float32(1.0 / len(times))
-                if field_array.shape[0] != camera.height_px:   # a smear field given as binning-block means
-                    row0, window = _block_mean_window(row0, window, camera.height_px // field_array.shape[0])
-                field_array[row0:row0 + window.shape[0], col0:col0 + window.shape[1]] += window
-
-
-def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[int, np.ndarray]:
-    """A full-resolution window starting at ``row0`` as means of whole ``block_rows``-row blocks:
-    (first block index, (blocks, w) float32)."""
-    first = row0 // block_rows
-    end = -(-(row0 + window.shape[0]) // block_rows)
-    padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)
-    padded[row0 - first * block_rows:row0 - first * block_rows + window.shape[0]] = window
-    return first, block_means(padded, block_rows)

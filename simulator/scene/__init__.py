@@ -2,6 +2,8 @@
 
 Read in this order: ``descent_profile`` (pose in time) -> ``terrain`` / ``resample`` (orbital I/F) ->
 ``ground_mapping`` (pixel rays meet the ground) -> ``photometry`` (I/F, sun, opposition halo) ->
-``shadow`` (lander and parachute) -> ``heat_shield`` (in view, glint) -> ``motion_blur`` (sub-poses
-per period) -> ``radiance`` (composes them: radiance fields for fast flush, exposure, frame transfer).
+``shadow`` (lander and parachute) -> ``heat_shield`` (in view, glint) -> ``radiance`` (composes them:
+the radiance field at one pose) -> ``motion_blur`` (how each CCD period integrates the motion, chosen in
+one place) -> ``blur_warp`` / ``smear_warp`` (the warp shortcuts) -> ``periods`` (radiance fields for
+fast flush, exposure, frame transfer, with the heat-shield glint).
 """

@@ -57,7 +57,6 @@ from simulator.fields import RadianceFields, block_means
 from simulator.scene import ground_mapping, motion_blur, resample, shadow
 from simulator.scene.descent_profile import Pose
 
-MIN_EXPOSURE_SUBSTEPS = 4      # below this the exact sub-pose renders are cheap enough (and bits unchanged)
 MARGIN_STEP_PX = 32            # margins are multiples of the flow node step (and of the binning rows)
 MAX_MARGIN_PX = 256
 EXPANDED_CAMERAS_KEPT = 4      # enlarged cameras cached per camera (least recently used dropped)

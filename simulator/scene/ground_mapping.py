@@ -20,12 +20,10 @@ rounding of the folded coefficients (~1e-7 relative).
 
 Work arrays: full-frame intermediates that die inside one call (the upsampled planes before the
 division, an upsampled ratio or flow before it is applied) are written into per-thread scratch arrays
-(:func:`scratch`) instead of new allocations: a fresh 4 MiB array costs page faults on first touch
-(measured ~1.5 ms here, more on a loaded machine), as much as the arithmetic. Same operations, same bits.
+(:func:`simulator.scratch.scratch`) instead of new allocations.
 """
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import cv2
@@ -36,6 +34,7 @@ from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
 from simulator.derived_cache import DERIVED
 from simulator.scene.descent_profile import Pose
+from simulator.scratch import scratch
 
 HORIZON_EPSILON = 1e-6      # |d_z| below this (unit ray) counts as sky
 MAX_MAP_COORDINATE = 1.0e7  # map coordinates are clipped here (far beyond any terrain)
@@ -78,26 +77,6 @@ def camera_cache(camera: Camera) -> dict:
     return DERIVED.of(camera, "scene")
 
 
-SCRATCH_ARRAYS_KEPT = 16         # per thread (least recently used dropped): a few frame sizes x a few uses
-_scratch_pools = threading.local()
-
-
-def scratch(name: str, shape: tuple[int, ...], dtype=np.float32) -> np.ndarray:
-    """A reusable work array of this thread for ``name`` (contents undefined, overwritten by the next
-    caller of the same name and shape): for intermediates that never leave the function using them."""
-    pool = getattr(_scratch_pools, "pool", None)
-    if pool is None:
-        pool = _scratch_pools.pool = {}
-    key = (name, tuple(shape), np.dtype(dtype).str)
-    array = pool.pop(key, None)
-    if array is None:
-        while len(pool) >= SCRATCH_ARRAYS_KEPT:
-            del pool[next(iter(pool))]      # a caller still holding it keeps it alive
-        array = np.empty(shape, dtype=dtype)
-    pool[key] = array                       # most recently used last
-    return array
-
-
 def node_positions(size_px: int, step_px: int) -> np.ndarray:
     """Pixel coordinates of the coarse grid nodes along one axis: ``(k + 0.5) step - 0.5`` for
     k = -1 .. size/step (one node beyond each edge, the layout that ``cv2.resize`` upsamples)."""
@@ -114,7 +93,7 @@ def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_
     nx = width/step + 2 (``row_step_px`` defaults to ``step_px``; a different one serves a grid of
     coarser rows, e.g. binned rows, with the same node layout in its own units).
     Returns float32 of shape (height, width[, channels]); with ``scratch_name`` it is a view of that
-    :func:`scratch` array (the caller must be done with it before the name is used again).
+    :func:`~simulator.scratch.scratch` array (the caller must be done with it before the name is used again).
     """
     row_step_px = step_px if row_step_px is None else row_step_px
     ny, nx = node_values.shape[:2]
@@ -148,21 +127,6 @@ def pixel_rays_f32(camera: Camera) -> np.ndarray:
     if "pixel_rays_f32" not in cache:
         cache["pixel_rays_f32"] = np.ascontiguousarray(camera.pixel_rays, dtype=np.float32)
     return cache["pixel_rays_f32"]
-
-
-def world_rays(camera: Camera, pose: CameraPose, grid_step_px: int) -> np.ndarray:
-    """World ray directions of every pixel, shape (height, width, 3), float32.
-
-    With ``grid_step_px > 0`` they are interpolated from the coarse grid and *not* unit length (each is
-    scaled to unit component along the boresight); with 0 they are the exact unit rays.
-    """
-    rotation = pose.camera_to_world.astype(np.float32)
-    if grid_step_px > 0:
-        nodes = node_rays(camera, grid_step_px) @ pose.camera_to_world.T
-        return upsample_nodes(nodes, grid_step_px, camera.height_px, camera.width_px)
-    rays = pixel_rays_f32(camera)
-    flat = rays.reshape(-1, 3) @ rotation.T
-    return flat.reshape(rays.shape)
 
 
 class GroundMap:
@@ -243,7 +207,7 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
     grid_step_px : int
         Coarse interpolation step (0: exact per-pixel rays).
     scratch_maps : bool
-        Write ``col``, ``row`` (and the exact map's ``d_z``) into this thread's :func:`scratch` arrays:
+        Write ``col``, ``row`` (and the exact map's ``d_z``) into this thread's :func:`~simulator.scratch.scratch` arrays:
         the map is then valid only until the next such call for a frame of the same size (a render
         that is done with its map before it renders again).
 
@@ -319,7 +283,7 @@ def view_directions(camera: Camera, pose: CameraPose, ground_map: GroundMap,
 def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
                  sun_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel cosines of the emission angle (ground-to-camera direction against the vertical) and
-    of the phase angle (against the sun), ((H, W), (H, W)) float32: this thread's :func:`scratch`
+    of the phase angle (against the sun), ((H, W), (H, W)) float32: this thread's :func:`~simulator.scratch.scratch`
     arrays ``cos_emission``, ``cos_phase`` on an exact map (use them before the next call).
 
     On an exact map (``grid_step_px = 0``) the pixel rays are unit vectors, so ``cos e = -d_z`` and
@@ -339,7 +303,7 @@ def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
 def field_at_pixels(values: np.ndarray, camera: Camera, grid_step_px: int,
                     scratch_name: str | None = None) -> np.ndarray:
     """A field computed by :func:`view_directions`' layout, at every pixel (H, W) float32 (upsampled
-    into that :func:`scratch` array when ``scratch_name`` is given)."""
+    into that :func:`~simulator.scratch.scratch` array when ``scratch_name`` is given)."""
     if grid_step_px > 0:
         return upsample_nodes(values, grid_step_px, camera.height_px, camera.width_px, scratch_name=scratch_name)
     return np.asarray(values, dtype=np.float32)

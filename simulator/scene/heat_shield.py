@@ -12,8 +12,8 @@ Kapton, solar absorptance ~0.93), ``L = reflectance * E_band / pi * max(0, n.s)`
 normal on the side the camera sees; the rim's cast shadow on the interior (only for sun elevations
 below the 20 deg wall slope) is not modelled.
 
-Specular glint (off-nominal, :func:`glint_window`, added to the radiance by
-:func:`simulator.descent_image.render_descent_image` when ``heat_shield_glint`` is on): the Kapton
+Specular glint (off-nominal, :func:`glint_window`, added to the period fields by :func:`add_glint`, which
+:func:`simulator.scene.periods.period_fields` calls when ``heat_shield_glint`` is on): the Kapton
 film is glossy; its quilted, wrinkled blanket is a surface of mirror facets whose slopes are
 Gaussian (Beckmann distribution, rms slope ``tan(sigma)``). Torrance-Sparrow reflection of the sun
 (a point source: its 0.17 deg radius at Mars is small against sigma >= 0.5 deg), with constant
@@ -33,11 +33,15 @@ the rays of its bounding box intersected with the cone (:func:`draw_heat_shield`
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
-from simulator.scene import ground_mapping
+from simulator.fields import RadianceFields, block_means
+from simulator.scene import ground_mapping, motion_blur, photometry
+from simulator.scene.descent_profile import Pose
 
 
 def cone_depth_m(diameter_m: float, cone_angle_rad: float) -> float:
@@ -244,3 +248,72 @@ def glint_window(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.n
     value = specular_radiance(facing, np.asarray(sun_world, dtype=float), -rays, irradiance_w_m2_um,
                               reflectance, roughness_rad)
     return row0, col0, np.where(hit, value, 0.0).astype(np.float32)
+
+
+def add_glint(fields: RadianceFields, shared: bool, substeps: dict[str, int], camera: Camera,
+              pose_at: Callable[[float], Pose], windows: dict[str, tuple[float, float]], centre_s: float,
+              sun_world: np.ndarray, config) -> None:
+    """Add the heat-shield specular glint to the period fields in place.
+
+    Each field gets the glint averaged over the same sub-poses as the scene
+    (:mod:`simulator.scene.motion_blur`); a field standing for several periods gets the glint of the
+    exposure (or of the first period it stands for).
+
+    Parameters
+    ----------
+    fields : RadianceFields
+        The flush, exposure and transfer fields (W m^-2 sr^-1 um^-1), (H, W) or per binning block
+        (H / b, W) float32; changed in place.
+    shared : bool
+        One field stands for all three periods (its glint is the one at the exposure mid-time).
+    substeps : dict of str to int
+        Sub-poses of each period.
+    camera : Camera
+        The descent camera.
+    pose_at : callable
+        ``time_s -> Pose``: the lander pose (with the heat shield position) at a time (s).
+    windows : dict of str to (float, float)
+        ``period -> (start_s, end_s)`` (s).
+    centre_s : float
+        Exposure mid-time (s).
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Heat shield geometry, ``sun_distance_au`` and the off-nominal specular reflectance and roughness.
+
+    Returns
+    -------
+    None
+    """
+    first_periods: list[str] = []        # the first period of each distinct field object
+    for period in ("exposure", "flush", "transfer"):
+        if not any(getattr(fields, other) is getattr(fields, period) for other in first_periods):
+            first_periods.append(period)
+    irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
+    off_nominal = config.off_nominal
+    for period in first_periods:
+        field_array = getattr(fields, period)
+        count = 1 if shared else max(int(substeps.get(period, 1)), 1)
+        times = [centre_s] if shared else motion_blur.substep_times(*windows[period], count)
+        for time_s in times:
+            pose = pose_at(float(time_s))
+            glint = glint_window(
+                camera, ground_mapping.camera_pose(camera, pose), np.asarray(pose.heat_shield_position_m, dtype=float),
+                sun_world, irradiance, config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad,
+                off_nominal.heat_shield_specular_reflectance, off_nominal.heat_shield_specular_roughness_rad)
+            if glint is not None:
+                row0, col0, window = glint
+                window = window * np.float32(1.0 / len(times))
+                if field_array.shape[0] != camera.height_px:   # a smear field given as binning-block means
+                    row0, window = _block_mean_window(row0, window, camera.height_px // field_array.shape[0])
+                field_array[row0:row0 + window.shape[0], col0:col0 + window.shape[1]] += window
+
+
+def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[int, np.ndarray]:
+    """A full-resolution window starting at ``row0`` as means of whole ``block_rows``-row blocks:
+    (first block index, (blocks, w) float32)."""
+    first = row0 // block_rows
+    end = -(-(row0 + window.shape[0]) // block_rows)
+    padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)
+    padded[row0 - first * block_rows:row0 - first * block_rows + window.shape[0]] = window
+    return first, block_means(padded, block_rows)

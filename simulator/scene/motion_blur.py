@@ -1,4 +1,4 @@
-"""Motion blur: how many sub-poses each CCD period needs, decided from the actual image motion.
+"""Motion blur: how each CCD period's motion is integrated, and how many sub-poses it needs.
 
 Paper 3.2: radiance fields are generated along the descent profile during the fast flush, exposure and
 frame transfer "in steps corresponding to one MOC pixel of image shift" and averaged (typically 2-4).
@@ -10,8 +10,25 @@ coarser of the two units, ``min(ground / terrain_mpp, image_px)``: when a camera
 terrain pixels (far field) one step per camera pixel already samples the blur. The count is
 ``max(1, ceil(max shift))`` capped at ``max_substeps``; a still camera costs one field. Sub-poses sit
 at the midpoints of equal sub-intervals of the period.
+
+The method is chosen here, in one place (:func:`choose_blur`), from the motion and the fidelity switches:
+
+* ``"still"``: the whole window moves the image by less than ``still_shift_terrain_px`` (switch
+  ``share_still_fields``), or neither motion blur nor smear is wanted: the field at the exposure
+  mid-time stands for all three periods;
+* ``"warp"``: warp-and-accumulate of one rendered field (:mod:`simulator.scene.blur_warp`, switch
+  ``warp_motion_blur``) when the exposure needs at least :data:`MIN_EXPOSURE_SUBSTEPS` sub-poses;
+  the warp checks its own validity and, when the scene does not allow it, the periods fall back to
+  ``"sub_poses"``;
+* ``"sub_poses"``: each period is the mean of the fields rendered at its sub-poses; with
+  ``warp_smear_fields`` the flush and transfer sub-poses are warped from the exposure-centre field
+  instead (:mod:`simulator.scene.smear_warp`).
 """
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -61,3 +78,75 @@ def average_fields(fields: list[np.ndarray]) -> np.ndarray:
         total += field
     total *= np.float32(1.0 / len(fields))
     return total
+
+
+MIN_EXPOSURE_SUBSTEPS = 4      # fewer exposure sub-poses: rendered exactly (cheap enough, and bits unchanged)
+
+BlurMethod = Literal["still", "warp", "sub_poses"]
+
+
+@dataclass(frozen=True)
+class BlurChoice:
+    """How the motion of one image's three CCD periods is integrated (module doc).
+
+    Parameters
+    ----------
+    method : {"still", "warp", "sub_poses"}
+        One shared field, warp-and-accumulate, or the mean of rendered sub-poses.
+    substeps : dict of str to int
+        Sub-poses per period (``"flush"``, ``"exposure"``, ``"transfer"``); 0 when the period's
+        field is shared or unused.
+    warp_smear_fields : bool
+        With ``"sub_poses"``: the flush and transfer sub-poses are warped from the exposure-centre field.
+    """
+
+    method: BlurMethod
+    substeps: dict[str, int]
+    warp_smear_fields: bool
+
+
+def choose_blur(camera: Camera, cam_at: Callable[[float], ground_mapping.CameraPose],
+                windows: dict[str, tuple[float, float]], terrain_mpp: float, config,
+                need_smear_fields: bool) -> BlurChoice:
+    """Choose how the three CCD periods of one image integrate the motion, and their sub-pose counts.
+
+    Parameters
+    ----------
+    camera : Camera
+        The descent camera.
+    cam_at : callable
+        ``time_s -> CameraPose``: the camera's world pose at a time (s).
+    windows : dict of str to (float, float)
+        ``period -> (start_s, end_s)`` of the fast flush, exposure and frame transfer (s).
+    terrain_mpp : float
+        Terrain pixel size (m), the unit of the image shift.
+    config : simulator.scene_config.SceneConfig
+        Effect switches (``motion_blur``, ``share_still_fields``, ``warp_motion_blur``,
+        ``warp_smear_fields``), ``still_shift_terrain_px``, ``substeps_per_terrain_px``, ``max_substeps``.
+    need_smear_fields : bool
+        False when the camera's smear is off: only the exposure field is needed.
+
+    Returns
+    -------
+    BlurChoice
+        The method and the sub-poses per period.
+    """
+    effects = config.effects
+    first = windows["flush"][0] if need_smear_fields else windows["exposure"][0]
+    last = windows["transfer"][1] if need_smear_fields else windows["exposure"][1]
+    total_shift = image_shift(camera, cam_at(first), cam_at(last), terrain_mpp)
+    still = effects.share_still_fields and total_shift < config.still_shift_terrain_px
+    if still or not effects.motion_blur and not need_smear_fields:
+        return BlurChoice("still", {"flush": 0, "exposure": 1, "transfer": 0}, False)
+    counts = {}
+    for period, (start, end) in windows.items():
+        if period != "exposure" and not need_smear_fields:
+            counts[period] = 0
+        elif effects.motion_blur:
+            shift = image_shift(camera, cam_at(start), cam_at(end), terrain_mpp)
+            counts[period] = substep_count(shift * config.substeps_per_terrain_px, config.max_substeps)
+        else:
+            counts[period] = 1
+    warp = (effects.warp_motion_blur and effects.motion_blur and need_smear_fields
+            and counts["exposure"] >= MIN_EXPOSURE_SUBSTEPS)
+    return BlurChoice("warp" if warp else "sub_poses", counts, bool(effects.warp_smear_fields))

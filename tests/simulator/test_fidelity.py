@@ -10,7 +10,7 @@ from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
 from simulator.descent_image import render_descent_image
 from simulator.fields import block_means
-from simulator.scene import ground_mapping, radiance
+from simulator.scene import ground_mapping, periods, radiance, smear_warp
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import SceneConfig
@@ -50,7 +50,7 @@ def test_flow_of_a_translating_nadir_camera_is_the_ground_shift_over_the_gsd():
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [60.0, 0.0, 0.0], LEVEL, 1.0, [0.5])
     source = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
     target = ground_mapping.camera_pose(CAMERA, profile.pose(0.51))
-    flow = radiance.flow_map(CAMERA, source, target)
+    flow = smear_warp.flow_map(CAMERA, source, target)
     assert flow is not None
     grid = np.stack(np.meshgrid(np.arange(CAMERA.width_px), np.arange(CAMERA.height_px)), axis=-1)
     shift = flow - grid
@@ -70,8 +70,8 @@ def test_block_flow_is_the_pixel_flow_at_block_centres_in_block_units():
     profile = turning_profile()
     source = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
     target = ground_mapping.camera_pose(CAMERA, profile.pose(0.506))
-    pixel_flow = radiance.flow_map(CAMERA, source, target)
-    block_flow = radiance.flow_map(CAMERA, source, target, block_rows=4)
+    pixel_flow = smear_warp.flow_map(CAMERA, source, target)
+    block_flow = smear_warp.flow_map(CAMERA, source, target, block_rows=4)
     assert block_flow.shape == (256, 1024, 2)
     # block k is centred on pixel row 4k + 1.5: the mean of the pixel flow of rows 4k+1 and 4k+2
     centre = 0.5 * (pixel_flow[1::4] + pixel_flow[2::4])
@@ -99,7 +99,7 @@ def test_flow_is_refused_when_the_horizon_is_in_view():
     tilted = np.array([np.cos(np.radians(40.0)), np.sin(np.radians(40.0)), 0.0, 0.0])  # 80 deg off nadir
     profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], tilted, 1.0, [0.5])
     pose = ground_mapping.camera_pose(CAMERA, profile.pose(0.5))
-    assert radiance.flow_map(CAMERA, pose, pose) is None
+    assert smear_warp.flow_map(CAMERA, pose, pose) is None
 
 
 def test_warped_smear_fields_match_rendered_ones_in_column_sums():
@@ -107,8 +107,8 @@ def test_warped_smear_fields_match_rendered_ones_in_column_sums():
     profile = turning_profile()
     exact_config = SceneConfig().with_effects(warp_smear_fields=False, share_still_fields=False)
     warped_config = SceneConfig().with_effects(share_still_fields=False)
-    exact = radiance.period_fields(terrain, CAMERA, profile, 0.5, SUN, exact_config)
-    warped = radiance.period_fields(terrain, CAMERA, profile, 0.5, SUN, warped_config)
+    exact = periods.period_fields(terrain, CAMERA, profile, 0.5, SUN, exact_config)
+    warped = periods.period_fields(terrain, CAMERA, profile, 0.5, SUN, warped_config)
     assert warped.fields.exposure is not warped.fields.flush
     exposure_blocks = block_means(warped.fields.exposure, CAMERA.binning_rows)
     for period in ("flush", "transfer"):

@@ -10,7 +10,7 @@ from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
 from flight_interface.tomlfields import ConfigError, load_toml, parse
 from simulator.descent_image import DescentImage, render_descent_image
-from simulator.scene import heat_shield, motion_blur, photometry, radiance
+from simulator.scene import heat_shield, motion_blur, periods, photometry, radiance
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import SceneConfig
@@ -92,11 +92,11 @@ def rotating_profile(rate_deg_s: float) -> DescentProfile:
 def test_substep_count_follows_the_actual_image_shift():
     terrain = textured_terrain()
     config = SceneConfig().with_effects(warp_motion_blur=False)     # one rendered field per sub-pose
-    still = radiance.period_fields(terrain, CAMERA, rotating_profile(0.0), 0.5, SUN, config)
+    still = periods.period_fields(terrain, CAMERA, rotating_profile(0.0), 0.5, SUN, config)
     assert still.shared and still.fields.flush is still.fields.exposure is still.fields.transfer
 
     rate = 60.0
-    blurred = radiance.period_fields(terrain, CAMERA, rotating_profile(rate), 0.5, SUN, config)
+    blurred = periods.period_fields(terrain, CAMERA, rotating_profile(rate), 0.5, SUN, config)
     # closed form: during the 5.1 ms exposure the sight line of the edge row (field angle theta_e, with
     # distortion) sweeps by rate * T; its ground point moves h (tan(theta_e + d) - tan(theta_e))
     height = 2000.0 - 0.5
@@ -126,7 +126,7 @@ def test_warped_blur_matches_the_sub_pose_integration(rate_deg_s):
     resampling: its pixel-to-pixel contrast is ~10 %); campaign terrain is ~0.1 % (docs/simulator.md)."""
     terrain = textured_terrain()
     profile = rotating_profile(rate_deg_s)
-    warped = radiance.period_fields(terrain, CAMERA, profile, 0.5, SUN, SceneConfig())
+    warped = periods.period_fields(terrain, CAMERA, profile, 0.5, SUN, SceneConfig())
     count = warped.substeps["exposure"]
     assert count >= 4 and count & (count - 1) == 0                   # a power of two: recursive doubling
     assert warped.fields.exposure.shape == (256, 1024)               # warped at binned resolution
@@ -142,7 +142,7 @@ def test_warped_blur_matches_the_sub_pose_integration(rate_deg_s):
         rms = float(np.sqrt(np.mean(error[8:-8, 8:-8] ** 2)) / np.mean(exact))
         assert rms < (0.015 if period == "exposure" else 0.02), (period, rms)
     assert not warped.sky.any() and warped.exposure_centre.radiance.shape == (1024, 1024)
-    again = radiance.period_fields(terrain, CAMERA, profile, 0.5, SUN, SceneConfig())   # cached enlarged camera
+    again = periods.period_fields(terrain, CAMERA, profile, 0.5, SUN, SceneConfig())   # cached enlarged camera
     assert all(np.array_equal(getattr(again.fields, p), getattr(warped.fields, p)) for p in windows)
 
 
