@@ -32,15 +32,39 @@ _MAX_VIEWS = 8
 
 
 def carries_truth(camera: Camera) -> bool:
-    """True when ``camera`` still has a withheld field (a simulator camera, not an estimator's view)."""
+    """Whether ``camera`` still has a withheld field (a simulator camera, not an estimator's view).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    bool
+        True when a field of :data:`TRUTH_FIELDS` can be read from it.
+    """
     return any(hasattr(getattr(camera, table), name) for table, names in TRUTH_FIELDS.items() for name in names)
 
 
 def estimator_camera(camera: Camera) -> Camera:
-    """``camera`` without the withheld fields: a shallow copy (the same read-only arrays) whose
-    ``radiometry`` is a :class:`~flight_interface.camera.Radiometry` lacking ``prnu_seed`` (reading it
-    raises AttributeError; ``model_dump()`` leaves it out). One view per camera object is kept, so the
-    cached derived arrays (rays, falloff) are computed once per process."""
+    """``camera`` without the withheld fields.
+
+    One view per camera object is kept, so the cached derived arrays (rays, falloff) are computed once
+    per process.
+
+    Parameters
+    ----------
+    camera : Camera
+        A camera, with or without the withheld fields.
+
+    Returns
+    -------
+    Camera
+        ``camera`` itself if it has none; else a shallow copy (the same read-only arrays) whose
+        ``radiometry`` is a :class:`~flight_interface.camera_file.Radiometry` lacking ``prnu_seed``
+        (reading it raises AttributeError; ``model_dump()`` leaves it out).
+    """
     if not carries_truth(camera):
         return camera
     cached = _VIEWS.get(id(camera))
@@ -57,7 +81,18 @@ def estimator_camera(camera: Camera) -> Camera:
 
 
 def design_tables(camera_path: str | Path) -> dict:
-    """The camera TOML's tables without the withheld fields."""
+    """The camera TOML's tables without the withheld fields.
+
+    Parameters
+    ----------
+    camera_path : str or Path
+        The camera TOML.
+
+    Returns
+    -------
+    dict
+        Its parsed tables, less :data:`TRUTH_FIELDS`.
+    """
     data = load_toml(Path(camera_path))
     for table, names in TRUTH_FIELDS.items():
         if isinstance(data.get(table), dict):
@@ -66,16 +101,44 @@ def design_tables(camera_path: str | Path) -> dict:
 
 
 def write_design_camera(path: Path, camera: Camera) -> Path:
-    """Write the TOML of ``camera`` (read from ``camera.source``) without the withheld fields to ``path``."""
+    """Write the TOML of ``camera`` (read from ``camera.source``) without the withheld fields.
+
+    Parameters
+    ----------
+    path : Path
+        The file to write.
+    camera : Camera
+        The camera; its ``source`` is the camera TOML read.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     path.write_text(toml_text(design_tables(camera.source)))
     return path
 
 
 def load_design_camera(path: str | Path) -> Camera:
-    """Load a camera TOML for an estimator: with or without the withheld fields (a placeholder fills them
-    for validation only); the camera returned never has them (:func:`estimator_camera`).
+    """Load a camera TOML for an estimator, with or without the withheld fields.
 
-    Raises ConfigError (one line naming the file and field) like :func:`flight_interface.camera.load_camera`."""
+    A placeholder fills the withheld fields for validation only.
+
+    Parameters
+    ----------
+    path : str or Path
+        The camera TOML.
+
+    Returns
+    -------
+    Camera
+        The camera, without the withheld fields (:func:`estimator_camera`).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file and field, like :func:`flight_interface.camera.load_camera`.
+    """
     data = load_toml(Path(path))
     if isinstance(data.get("radiometry"), dict):
         data["radiometry"] = {"prnu_seed": PLACEHOLDER_SEED, **data["radiometry"]}
@@ -83,5 +146,16 @@ def load_design_camera(path: str | Path) -> Camera:
 
 
 def toml_text(tables: dict) -> str:
-    """A TOML document of ``tables`` (table -> key -> number, bool, string, list of those, or a sub-table)."""
+    """A TOML document of ``tables``.
+
+    Parameters
+    ----------
+    tables : dict
+        Table -> key -> number, bool, string, list of those, or a sub-table.
+
+    Returns
+    -------
+    str
+        The TOML text.
+    """
     return tomli_w.dumps(tables)

@@ -63,7 +63,19 @@ class ProgramNotRunnable(Exception):
 
 
 def check_template(argv: list[str]) -> str:
-    """'' when ``argv`` uses only known placeholders (``{images}`` only as a whole argument), else why not."""
+    """Check a command template's placeholders.
+
+    Parameters
+    ----------
+    argv : list of str
+        Program and arguments, with placeholders.
+
+    Returns
+    -------
+    str
+        ``''`` when ``argv`` uses only known placeholders (``{images}`` only as a whole argument),
+        else why not (one line, starting with the argument's index).
+    """
     for position, item in enumerate(argv):
         for name in PLACEHOLDER.findall(item):
             if name not in NAMES and not IMAGE_NAME.match(name):
@@ -75,8 +87,24 @@ def check_template(argv: list[str]) -> str:
 
 
 def write_inputs(directory: Path, inputs: EstimatorInputs, image_format: str, flat_field_format: str) -> dict:
-    """Write a case's inputs into ``directory``; return the placeholder values (paths as strings)."""
+    """Write a case's inputs into ``directory``.
 
+    Parameters
+    ----------
+    directory : Path
+        An existing, empty directory.
+    inputs : EstimatorInputs
+        The case's inputs.
+    image_format : str
+        ``png``, ``npy`` or ``raw``.
+    flat_field_format : str
+        ``npy``, ``tiff`` or ``fits``.
+
+    Returns
+    -------
+    dict
+        Placeholder name -> value (paths as strings; ``images`` a list of them).
+    """
     images = []
     for index, image in enumerate(inputs.images, start=1):
         path = directory / f"image{index}{IMAGE_SUFFIX[image_format]}"
@@ -105,7 +133,25 @@ def write_inputs(directory: Path, inputs: EstimatorInputs, image_format: str, fl
 
 
 def expand(argv: tuple | list, values: dict) -> list[str]:
-    """The command line for one case (``{images}`` becomes one argument per image)."""
+    """The command line for one case (``{images}`` becomes one argument per image).
+
+    Parameters
+    ----------
+    argv : tuple or list of str
+        Program and arguments, with placeholders.
+    values : dict
+        Placeholder values (:func:`write_inputs`).
+
+    Returns
+    -------
+    list of str
+        The command.
+
+    Raises
+    ------
+    ContractViolation
+        A placeholder without a value (e.g. ``{image3}`` of a two-image case).
+    """
     command: list[str] = []
     for item in argv:
         if item == "{images}":
@@ -124,7 +170,25 @@ def expand(argv: tuple | list, values: dict) -> list[str]:
 
 
 class CommandEstimator:
-    """Runs an external program per case (see the module docstring)."""
+    """Runs an external program per case (see the module docstring).
+
+    Parameters
+    ----------
+    name : str
+        The estimator's name (results' ``estimator`` column).
+    argv : tuple of str
+        Program and arguments, with placeholders.
+    timeout_s : float
+        Wall-time limit per case (s).
+    image_format : str, optional
+        ``png`` (16-bit), ``npy`` or ``raw``.
+    flat_field_format : str, optional
+        ``npy``, ``tiff`` or ``fits``.
+    parameters : dict or None, optional
+        Written to ``{parameters}`` (JSON).
+    python_path : tuple of str, optional
+        Entries put before PYTHONPATH for the program.
+    """
 
     def __init__(self, name: str, argv: tuple, timeout_s: float, image_format: str = "png",
                  flat_field_format: str = "npy", parameters: dict | None = None,
@@ -139,6 +203,23 @@ class CommandEstimator:
         self.flat_field_format = flat_field_format
 
     def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
+        """Write the inputs into a fresh directory, run the program there and read its result.
+
+        Parameters
+        ----------
+        inputs : EstimatorInputs
+            The case's inputs (their ``parameters`` replaced by the estimator's).
+
+        Returns
+        -------
+        EstimatorOutput
+            The validated result file.
+
+        Raises
+        ------
+        ContractViolation
+            The program failed, timed out, or wrote no valid result.
+        """
         directory = Path(tempfile.mkdtemp(prefix=f"estimator-{self.name}-"))
         try:
             values = write_inputs(directory, replace(inputs, parameters=self.parameters), self.image_format,

@@ -99,7 +99,23 @@ class ImplausibleOutput(ContractViolation):
 
 @dataclass(frozen=True)
 class EstimatorInputs:
-    """Everything an estimator receives for one case (see the module docstring)."""
+    """Everything an estimator receives for one case (the module docstring says more).
+
+    Parameters
+    ----------
+    images : tuple of ndarray, each shape ``camera.binned_shape``, uint16
+        The descent images in time order (DN).
+    image_times_s : ndarray, shape (n_images,)
+        Start of each image's exposure (s).
+    measurements : DescentMeasurements
+        Measured attitude, rates, radar altitude, IMU velocity per image; the sun direction.
+    camera : Camera
+        The camera as designed; replaced by its estimator view (:func:`estimators.camera_view.estimator_camera`).
+    calibration : CalibrationProducts, optional
+        The flat field (or none).
+    parameters : Mapping, optional
+        The estimator's own parameters (JSON types).
+    """
 
     images: tuple
     image_times_s: np.ndarray
@@ -115,7 +131,21 @@ class EstimatorInputs:
 
 @dataclass(frozen=True)
 class EstimatorOutput:
-    """An estimator's answer (see the module docstring)."""
+    """An estimator's answer (the module docstring says more).
+
+    Parameters
+    ----------
+    velocity_east_mps, velocity_north_mps : float or None
+        Horizontal velocity at the last image, world frame (m/s); None when not valid.
+    valid : bool
+        True only when the estimator vouches for the velocity.
+    reason : str
+        ``"ok"`` when valid, else a short code saying why not.
+    features : tuple of dict, optional
+        Per-feature metrics (:data:`FEATURE_METRICS`, floats) and ``status`` (str).
+    velocity_uncertainty_mps : float or None, optional
+        The estimator's stated 1-sigma horizontal velocity uncertainty (m/s).
+    """
 
     velocity_east_mps: float | None
     velocity_north_mps: float | None
@@ -138,8 +168,24 @@ def _number(data: Mapping, key: str, allow_null: bool) -> float | None:
 
 
 def validate_output(result: Any) -> EstimatorOutput:
-    """Check an estimator's answer (an :class:`EstimatorOutput` or a mapping such as parsed JSON) and
-    return it as an :class:`EstimatorOutput`; raise :class:`ContractViolation` naming the field."""
+    """Check an estimator's answer and return it as an :class:`EstimatorOutput`.
+
+    Parameters
+    ----------
+    result : EstimatorOutput or Mapping
+        The answer, or a mapping such as parsed JSON.
+
+    Returns
+    -------
+    EstimatorOutput
+        The checked answer (features reduced to the known metrics, reason stripped).
+
+    Raises
+    ------
+    ContractViolation
+        Naming the field at fault (:class:`ImplausibleOutput` for a non-finite valid velocity or a bad
+        uncertainty).
+    """
     data: Mapping[str, Any]
     if isinstance(result, EstimatorOutput):
         data = {"velocity_east_mps": result.velocity_east_mps, "velocity_north_mps": result.velocity_north_mps,
@@ -196,17 +242,47 @@ def validate_output(result: Any) -> EstimatorOutput:
 
 
 def output_to_dict(output: EstimatorOutput) -> dict:
-    """The JSON form of an :class:`EstimatorOutput`."""
+    """The JSON form of an :class:`EstimatorOutput`.
+
+    Parameters
+    ----------
+    output : EstimatorOutput
+        The answer.
+
+    Returns
+    -------
+    dict
+        The output's keys (module docstring) with JSON values.
+    """
     return {"velocity_east_mps": output.velocity_east_mps, "velocity_north_mps": output.velocity_north_mps,
             "valid": output.valid, "reason": output.reason, "features": [dict(f) for f in output.features],
             "velocity_uncertainty_mps": output.velocity_uncertainty_mps}
 
 
 def check_plausible(output: EstimatorOutput, max_horizontal_speed_mps: float | None) -> EstimatorOutput:
-    """``output`` if it is plausible, else raise :class:`ImplausibleOutput` naming the check: a valid
-    velocity must be finite (also checked by :func:`validate_output`) with a horizontal speed below
-    ``max_horizontal_speed_mps`` (None: no bound), a stated uncertainty finite and >= 0. An invalid
-    answer's velocity is not used, so it is not checked."""
+    """Check that an answer is plausible.
+
+    A valid velocity must be finite (also checked by :func:`validate_output`) with a horizontal speed
+    below the bound, a stated uncertainty finite and >= 0. An invalid answer's velocity is not used, so
+    it is not checked.
+
+    Parameters
+    ----------
+    output : EstimatorOutput
+        The answer.
+    max_horizontal_speed_mps : float or None
+        Bound on a valid answer's horizontal speed (m/s); None: no bound.
+
+    Returns
+    -------
+    EstimatorOutput
+        ``output`` itself.
+
+    Raises
+    ------
+    ImplausibleOutput
+        Naming the check that failed.
+    """
     if output.velocity_uncertainty_mps is not None and not (
             math.isfinite(output.velocity_uncertainty_mps) and output.velocity_uncertainty_mps >= 0):
         raise ImplausibleOutput(f"field 'velocity_uncertainty_mps' must be finite and >= 0 when given; "
@@ -224,8 +300,19 @@ def check_plausible(output: EstimatorOutput, max_horizontal_speed_mps: float | N
 
 
 def read_only(array: Any) -> Any:
-    """A read-only view of an ndarray (writing through it raises ``ValueError: assignment destination is
-    read-only``); anything else unchanged."""
+    """A read-only view of an ndarray; anything else unchanged.
+
+    Parameters
+    ----------
+    array : Any
+        An ndarray or any other value.
+
+    Returns
+    -------
+    Any
+        A read-only view of the array (writing through it raises ``ValueError: assignment destination
+        is read-only``), or ``array`` itself.
+    """
     if not isinstance(array, np.ndarray):
         return array
     view = array.view()
@@ -240,9 +327,22 @@ def _read_only_fields(record: Any) -> Any:
 
 
 def read_only_inputs(inputs: EstimatorInputs) -> EstimatorInputs:
-    """``inputs`` as every estimator receives them: the images, image times, measurement arrays and flat
-    field as read-only views (no data copied), the parameters a deep copy. A write into an input then raises
-    inside the estimator and fails only its own result, never another estimator's or a later case's."""
+    """``inputs`` as every estimator receives them.
+
+    A write into an input then raises inside the estimator and fails only its own result, never another
+    estimator's or a later case's.
+
+    Parameters
+    ----------
+    inputs : EstimatorInputs
+        A case's inputs.
+
+    Returns
+    -------
+    EstimatorInputs
+        The images, image times, measurement arrays and flat field as read-only views (no data copied),
+        the parameters a deep copy.
+    """
     measurements = inputs.measurements
     measurements = replace(measurements, images=tuple(_read_only_fields(image) for image in measurements.images),
                            sun_direction_world=read_only(measurements.sun_direction_world))

@@ -76,12 +76,14 @@ class ReferenceEntry(_Entry):
     """The reference DIMES estimator (:mod:`dimes_velocity`)."""
 
     kind: Literal["reference"]
+    """``reference``."""
 
 
 class PythonEntry(_Entry):
     """A python callable ``package.module:function`` given the case's inputs."""
 
     kind: Literal["python"]
+    """``python``."""
     callable: str
     """``package.module:function`` (must import and name a callable)."""
     isolate: bool = False
@@ -100,6 +102,7 @@ class CommandEntry(_Entry):
     """An external program run on files (placeholders: :mod:`estimators.command`)."""
 
     kind: Literal["command"]
+    """``command``."""
     argv: Annotated[list[str], Field(min_length=1)]
     """Program, then arguments with placeholders; ``{config_dir}`` is the campaign file's directory."""
     timeout_s: Timeout = DEFAULT_TIMEOUT_S
@@ -107,6 +110,7 @@ class CommandEntry(_Entry):
     image_format: ImageFormat = "png"
     """png (16-bit), npy, raw (little-endian uint16, no header)."""
     flat_field_format: FlatFieldFormat = "npy"
+    """npy, tiff, fits: the ``{flat_field}`` file's format."""
 
     @field_validator("argv")
     @classmethod
@@ -130,7 +134,23 @@ EstimatorEntry = Annotated[ReferenceEntry | PythonEntry | CommandEntry, Field(di
 
 
 def unique_names(entries: list) -> list:
-    """Validator of the ``[[estimators]]`` array: names unique."""
+    """Validator of the ``[[estimators]]`` array: names unique.
+
+    Parameters
+    ----------
+    entries : list
+        The validated entries (:data:`EstimatorEntry`).
+
+    Returns
+    -------
+    list
+        ``entries`` itself.
+
+    Raises
+    ------
+    FieldProblem
+        Naming the first entry whose name is used twice.
+    """
     seen: set[str] = set()
     for index, entry in enumerate(entries):
         if entry.name in seen:
@@ -177,15 +197,44 @@ class EstimatorSpec:
 
 
 def default_specs(reference_parameters: dict) -> list[EstimatorSpec]:
-    """The estimator list of a campaign without ``[[estimators]]``: the reference estimator alone."""
+    """The estimator list of a campaign without ``[[estimators]]``: the reference estimator alone.
+
+    Parameters
+    ----------
+    reference_parameters : dict
+        The ``[estimator]`` table's EstimatorConfig fields.
+
+    Returns
+    -------
+    list of EstimatorSpec
+        One spec, ``name = "dimes"``, ``kind = "reference"``.
+    """
     return [EstimatorSpec(name=DEFAULT_NAME, kind="reference", parameters=dict(reference_parameters))]
 
 
 def estimator_specs(entries: list, reference_parameters: dict, source: str) -> list[EstimatorSpec]:
-    """Specs of validated ``[[estimators]]`` entries; a reference entry's parameters (over the
-    ``[estimator]`` table's ``reference_parameters``) are checked as EstimatorConfig fields, errors
-    naming ``source`` and ``estimators[i].parameters.<field>``."""
+    """Specs of validated ``[[estimators]]`` entries.
 
+    Parameters
+    ----------
+    entries : list
+        The validated entries (:data:`EstimatorEntry`), in file order.
+    reference_parameters : dict
+        The ``[estimator]`` table's EstimatorConfig fields; a reference entry's parameters override them.
+    source : str
+        The campaign file, named in errors.
+
+    Returns
+    -------
+    list of EstimatorSpec
+        One spec per entry, in order; other kinds' parameters as JSON types.
+
+    Raises
+    ------
+    ConfigError
+        A reference entry's parameter that is not a valid EstimatorConfig field, naming ``source`` and
+        ``estimators[i].parameters.<field>``.
+    """
     specs = []
     for index, entry in enumerate(entries):
         if entry.kind == "reference":
@@ -204,9 +253,16 @@ def estimator_specs(entries: list, reference_parameters: dict, source: str) -> l
 
 @contextlib.contextmanager
 def plugin_imports_deferred():
-    """Within the block, validating a python entry checks only the form of ``callable``, not that it imports:
+    """Within the block, validating a python entry checks only the form of ``callable``, not that it imports.
+
     ``campaign check-estimators`` reports a module that does not import as a set-up violation of that
-    estimator (exit 1) instead of refusing the file."""
+    estimator (exit 1) instead of refusing the file.
+
+    Yields
+    ------
+    None
+        Nothing; the check is restored when the block ends.
+    """
     token = IMPORT_PLUGINS.set(False)
     try:
         yield
@@ -215,8 +271,20 @@ def plugin_imports_deferred():
 
 
 def check_callable(target: str) -> None:
-    """``package.module:function`` must import and name a callable (raises FieldProblem; only the form is
-    checked within :func:`plugin_imports_deferred`)."""
+    """Check that ``package.module:function`` imports and names a callable.
+
+    Only the form is checked within :func:`plugin_imports_deferred`.
+
+    Parameters
+    ----------
+    target : str
+        ``package.module:function``.
+
+    Raises
+    ------
+    FieldProblem
+        A malformed target, a module that cannot be imported, or no such callable in it.
+    """
     if not CALLABLE_PATTERN.match(target):
         raise FieldProblem("", f"= {target!r} is not allowed; allowed: 'package.module:function'")
     if not IMPORT_PLUGINS.get():

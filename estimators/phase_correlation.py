@@ -88,7 +88,19 @@ def _flattening(inputs: EstimatorInputs, min_signal_dn: float):
 
 
 def estimate(inputs: EstimatorInputs) -> EstimatorOutput:
-    """Phase-correlation velocity estimate for one case (contract of :mod:`estimators.contract`)."""
+    """Phase-correlation velocity estimate for one case (contract of :mod:`estimators.contract`).
+
+    Parameters
+    ----------
+    inputs : EstimatorInputs
+        The case's images, measurements, camera, flat field and parameters (module docstring).
+
+    Returns
+    -------
+    EstimatorOutput
+        The velocity (m/s, world east and north) and validity; when invalid, the IMU's velocity and a
+        reason code of the module docstring.
+    """
     p = _parameters(inputs.parameters)
     measurements = inputs.measurements
     validate_measurements(measurements)

@@ -41,15 +41,38 @@ from estimators.entries import EstimatorSpec
 
 
 class ReferenceEstimator:
-    """The reference DIMES estimator (:mod:`dimes_velocity`) behind the contract."""
+    """The reference DIMES estimator (:mod:`dimes_velocity`) behind the contract.
+
+    Parameters
+    ----------
+    name : str
+        The estimator's name (results' ``estimator`` column).
+    parameters : dict
+        :class:`~dimes_velocity.config.EstimatorConfig` fields.
+
+    Raises
+    ------
+    ConfigError
+        A parameter that is not an EstimatorConfig field or out of range.
+    """
 
     def __init__(self, name: str, parameters: dict):
-
         self.name = name
         self.config = estimator_config_from_data(dict(parameters), f"estimator {name}", "parameters")
 
     def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
+        """Run :func:`dimes_velocity.estimator.estimate_velocity` on a case.
 
+        Parameters
+        ----------
+        inputs : EstimatorInputs
+            The case's inputs.
+
+        Returns
+        -------
+        EstimatorOutput
+            The velocity, validity, reason, per-feature metrics and stated uncertainty.
+        """
         result = estimate_velocity(list(inputs.images), inputs.measurements, inputs.camera, self.config,
                                    inputs.calibration.flat_field)
         features = tuple({"brightness_dn": float(f.brightness_dn), "contrast_dn": float(f.contrast_dn),
@@ -61,7 +84,17 @@ class ReferenceEstimator:
 
 
 class PythonEstimator:
-    """A ``package.module:function`` called in this process with the case's :class:`EstimatorInputs`."""
+    """A ``package.module:function`` called in this process with the case's :class:`EstimatorInputs`.
+
+    Parameters
+    ----------
+    name : str
+        The estimator's name (results' ``estimator`` column).
+    target : str
+        ``package.module:function``; the module is imported here.
+    parameters : dict
+        Handed to the function as ``inputs.parameters`` (a deep copy per case).
+    """
 
     def __init__(self, name: str, target: str, parameters: dict):
         module_name, function_name = target.split(":")
@@ -70,6 +103,18 @@ class PythonEstimator:
         self.parameters = dict(parameters)
 
     def estimate(self, inputs: EstimatorInputs) -> EstimatorOutput:
+        """Call the function on a case.
+
+        Parameters
+        ----------
+        inputs : EstimatorInputs
+            The case's inputs.
+
+        Returns
+        -------
+        EstimatorOutput
+            The function's answer, validated (:func:`estimators.contract.validate_output`).
+        """
         return validate_output(self.function(replace(inputs, parameters=copy.deepcopy(self.parameters))))
 
 
@@ -79,7 +124,18 @@ class EstimatorSetupError(Exception):
 
 
 def setup_fix(spec: EstimatorSpec) -> str:
-    """What makes ``spec`` loadable on a worker (the last part of a set-up error's line)."""
+    """What makes ``spec`` loadable on a worker (the last part of a set-up error's line).
+
+    Parameters
+    ----------
+    spec : EstimatorSpec
+        The estimator.
+
+    Returns
+    -------
+    str
+        The advice, one line.
+    """
     if spec.kind == "python":
         module = spec.callable.split(":")[0]
         return (f"make {module!r} and what it imports importable on every worker: a module file or package "
@@ -98,11 +154,23 @@ def _describe(exc: BaseException) -> str:
 def build_estimator(spec: EstimatorSpec):
     """The estimator object of a spec (built once per worker process by the campaign).
 
+    Parameters
+    ----------
+    spec : EstimatorSpec
+        The estimator.
+
+    Returns
+    -------
+    ReferenceEstimator or PythonEstimator or CommandEstimator
+        An object with ``estimate(inputs) -> EstimatorOutput`` (an isolated python callable is a
+        :class:`~estimators.command.CommandEstimator` running :mod:`estimators.run_python`).
+
     Raises
     ------
     EstimatorSetupError
         When the estimator cannot be built here: a python module that does not import (or lacks the
-        callable), bad reference parameters, a command program that is missing or not executable."""
+        callable), bad reference parameters, a command program that is missing or not executable.
+    """
     try:
         return _build(spec)
     except EstimatorSetupError:
@@ -132,8 +200,19 @@ def _build(spec: EstimatorSpec):
 
 
 def module_root(module_name: str) -> tuple[str, ...]:
-    """The sys.path entry a (imported) module was found under: its file's directory, up one level per
-    dot of the name (a directory or a zip archive); () for a module without a file."""
+    """The sys.path entry an (imported) module was found under.
+
+    Parameters
+    ----------
+    module_name : str
+        Dotted name of a module already imported.
+
+    Returns
+    -------
+    tuple of str
+        Its file's directory, up one level per dot of the name (a directory or a zip archive); ``()``
+        for a module without a file.
+    """
     found = getattr(sys.modules.get(module_name), "__file__", None)
     if not found:
         return ()
@@ -143,8 +222,20 @@ def module_root(module_name: str) -> tuple[str, ...]:
 
 
 def check_program(program: str) -> None:
-    """Raise EstimatorSetupError unless ``program`` (argv[0] of a command) runs here: ``{python}``, a
-    program on PATH or an executable file."""
+    """Check that ``program`` (argv[0] of a command) runs here.
+
+    Parameters
+    ----------
+    program : str
+        ``{python}``, a program on PATH or the path of an executable file.
+
+    Raises
+    ------
+    FileNotFoundError
+        Not on PATH and no such file.
+    PermissionError
+        A file without execute permission.
+    """
     if program == "{python}" or shutil.which(program) is not None:
         return
     path = Path(program)
@@ -156,8 +247,21 @@ def check_program(program: str) -> None:
 
 @dataclass(frozen=True)
 class EstimatorRun:
-    """One estimator's outcome on one case: its output, or why there is none (``failure``: the row's
-    reason, ``estimator_failed`` or ``implausible``; ``error``: the one-line message); wall time (ms)."""
+    """One estimator's outcome on one case: its output, or why there is none.
+
+    Parameters
+    ----------
+    name : str
+        The estimator's name.
+    output : EstimatorOutput or None
+        The checked answer; None when the run failed.
+    error : str
+        The failure's one-line message (``""`` when none).
+    elapsed_ms : float
+        Wall time of the run (ms).
+    failure : str, optional
+        The row's reason when the run failed: ``estimator_failed`` or ``implausible``; ``""`` otherwise.
+    """
 
     name: str
     output: EstimatorOutput | None
@@ -168,11 +272,32 @@ class EstimatorRun:
 
 def run_estimator(name: str, estimator, inputs: EstimatorInputs,
                   max_horizontal_speed_mps: float | None = None) -> EstimatorRun:
-    """Run ``estimator`` on read-only ``inputs`` and check its answer's plausibility (a valid horizontal
-    speed below ``max_horizontal_speed_mps``, None: no bound); any failure is returned as the run's
-    ``failure`` and ``error``, never raised: whatever the plug-in raises, ``SystemExit`` and
-    ``KeyboardInterrupt`` included, ends here and the worker goes on. Only a command's program that
-    cannot be started at all raises (:class:`EstimatorSetupError`): that is set-up, not the case."""
+    """Run ``estimator`` on read-only ``inputs`` and check its answer's plausibility.
+
+    Any failure is returned as the run's ``failure`` and ``error``, never raised: whatever the plug-in
+    raises, ``SystemExit`` and ``KeyboardInterrupt`` included, ends here and the worker goes on.
+
+    Parameters
+    ----------
+    name : str
+        The estimator's name, in error messages.
+    estimator : object
+        An object of :func:`build_estimator`.
+    inputs : EstimatorInputs
+        The case's inputs (handed over read-only).
+    max_horizontal_speed_mps : float or None, optional
+        Bound on a valid answer's horizontal speed (m/s); None: no bound.
+
+    Returns
+    -------
+    EstimatorRun
+        The output or the failure, and the wall time.
+
+    Raises
+    ------
+    EstimatorSetupError
+        Only when a command's program cannot be started at all: that is set-up, not the case.
+    """
     started = time.perf_counter()
     failure = "estimator_failed"
     try:

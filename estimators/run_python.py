@@ -28,8 +28,20 @@ from flight_interface.tomlfields import ConfigError
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``callable`` on a case's files and write its answer to ``--output`` (JSON).
 
+    Parameters
+    ----------
+    argv : list of str or None, optional
+        The arguments; None: ``sys.argv[1:]``.
 
+    Returns
+    -------
+    int
+        Exit status: 0 when an answer (valid or not) was written, 2 when an input file cannot be read,
+        1 for an answer that breaks the contract (message on stderr); the callable's own exception
+        propagates.
+    """
     parser = argparse.ArgumentParser(prog="python -m estimators.run_python")
     parser.add_argument("callable", help="package.module:function")
     parser.add_argument("images", nargs="+")

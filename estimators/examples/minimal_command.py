@@ -28,8 +28,19 @@ import numpy as np
 
 
 def read_image(path: str) -> np.ndarray:
-    """One image file as the uint16 DN array it holds: ``.npy`` (image_format = "npy"), 16-bit grey
-    ``.png`` (the default image_format) or headerless little-endian uint16 ``.raw``."""
+    """One image file as the uint16 DN array it holds.
+
+    Parameters
+    ----------
+    path : str
+        ``.npy`` (image_format = "npy"), 16-bit grey ``.png`` (the default image_format) or headerless
+        little-endian uint16 ``.raw``.
+
+    Returns
+    -------
+    ndarray, uint16
+        The image (DN); a ``.raw`` file is flat, shape (n,).
+    """
     if path.endswith(".npy"):
         return np.load(path)
     if path.endswith(".png"):
@@ -40,6 +51,18 @@ def read_image(path: str) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Read the case's files, write the answer.
+
+    Parameters
+    ----------
+    argv : list of str or None, optional
+        The arguments (``--help`` lists them); None: ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        Exit status: 0 when an answer was written, 2 for an image of the wrong shape.
+    """
     parser = argparse.ArgumentParser(description="minimal command estimator")
     parser.add_argument("images", nargs="+", help="image files in time order ({images})")
     parser.add_argument("--measurements", required=True, help="measurements JSON ({measurements})")

@@ -26,7 +26,19 @@ import numpy as np
 
 
 def estimate(inputs: Any) -> dict:
-    """One case's answer from its :class:`estimators.contract.EstimatorInputs` (read-only arrays)."""
+    """One case's answer.
+
+    Parameters
+    ----------
+    inputs : estimators.contract.EstimatorInputs
+        The case's images, measurements, camera, flat field and parameters (read-only arrays).
+
+    Returns
+    -------
+    dict
+        The answer's JSON form: horizontal IMU velocity at the last image (m/s, east and north),
+        ``valid``, ``reason``, per-image ``features`` and, when valid, ``velocity_uncertainty_mps``.
+    """
     parameters = inputs.parameters                       # dict from [estimators.parameters] (JSON types)
     bias_sigma_mps = float(parameters.get("imu_bias_sigma_mps", 2.0))
     min_signal_dn = float(parameters.get("min_signal_dn", 50.0))
