@@ -54,7 +54,6 @@ from flight_interface.measurements import DescentMeasurements, ImageMeasurement
 from flight_interface.tomlfields import ConfigModel
 from simulator.scene.descent_profile import DescentProfile
 
-STATE_TIMES = ("mid_exposure", "exposure_start")
 SIGMA_FIELDS = ("attitude_bias_sigma_deg", "attitude_random_sigma_deg", "alignment_sigma_deg",
                 "angular_rate_noise_sigma_dps", "radar_altitude_sigma_percent", "imu_velocity_bias_sigma_mps",
                 "imu_vertical_velocity_bias_sigma_mps", "imu_velocity_random_walk_mps_per_sqrt_s",

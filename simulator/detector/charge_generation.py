@@ -1,7 +1,7 @@
 """Charge generation: pixel response non-uniformity and thermal (dark) electrons.
 
 Stage 2 of the camera chain, acting on generation *rates* (e-/s) of the image area, so that the
-frame-transfer integration in :mod:`simulator.charge_transfer` treats photo and thermal charge alike.
+frame-transfer integration in :mod:`simulator.detector.charge_transfer` treats photo and thermal charge alike.
 """
 from __future__ import annotations
 

@@ -89,7 +89,7 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
 
 def is_block_mean(rate: np.ndarray, rows: int, binning_rows: int) -> bool:
     """True when a smear-period rate is given per ``binning_rows``-row block (shape (rows / b, W), the
-    block's mean) rather than per pixel row (see :func:`simulator.scene.radiance.period_fields`)."""
+    block's mean) rather than per pixel row (see :func:`simulator.scene.periods.period_fields`)."""
     return rate.shape[0] * binning_rows == rows and binning_rows > 1
 
 

@@ -289,11 +289,11 @@ def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:
     through the line-spread function across columns (module doc, "Smear fields"). Fields that are one
     object stay one object."""
     exposure = blur_field(fields.exposure, camera)
-    done: dict[int, np.ndarray] = {id(fields.exposure): exposure}
-
-    def smear(field: np.ndarray) -> np.ndarray:
-        if id(field) not in done:
-            done[id(field)] = blur_field_along_rows(field, camera)
-        return done[id(field)]
-
-    return RadianceFields(smear(fields.flush), exposure, smear(fields.transfer))
+    flush = exposure if fields.flush is fields.exposure else blur_field_along_rows(fields.flush, camera)
+    if fields.transfer is fields.exposure:
+        transfer = exposure
+    elif fields.transfer is fields.flush:
+        transfer = flush
+    else:
+        transfer = blur_field_along_rows(fields.transfer, camera)
+    return RadianceFields(flush, exposure, transfer)

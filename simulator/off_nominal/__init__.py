@@ -4,10 +4,10 @@ Every effect is switched off by its default except CCD blooming (a real CCD bloo
 saturating it changes nothing and costs nothing). The physics of each effect lives in its own module:
 
 * dust on the front lens element  -> :mod:`simulator.off_nominal.dust` (transmission map, fixed for the case)
-* hot pixels (dark spikes)        -> :mod:`simulator.hot_pixels` (extra dark rate, fixed for the case)
-* energetic particle hits         -> :mod:`simulator.particle_hits` (charge tracks, new for every image)
-* heat-shield specular glint      -> :mod:`simulator.heat_shield` (drawn into the radiance)
-* blooming                        -> :mod:`simulator.blooming` (charge above full well spills along columns)
+* hot pixels (dark spikes)        -> :mod:`simulator.off_nominal.hot_pixels` (extra dark rate, fixed for the case)
+* energetic particle hits         -> :mod:`simulator.off_nominal.particle_hits` (charge tracks, new for every image)
+* heat-shield specular glint      -> :mod:`simulator.scene.heat_shield` (drawn into the radiance)
+* blooming                        -> :mod:`simulator.detector.blooming` (charge above full well spills along columns)
 * high motion blur                -> :mod:`simulator.scene.descent_profile` (angular rate multiplier)
 * dust-devil and cloud shadows    -> :mod:`simulator.off_nominal.moving_shadows` (drawn per case, moving)
 * excessive dark current          -> ``[scene.camera_effects] dark_current_scale`` (already in the chain)

@@ -13,7 +13,7 @@ Model (SI units; positions in pixels of the full-resolution array, row 0 first):
   - frame transfer: hits in the image area (final-row density ~ N - j) plus hits in the part of the
     storage area already filled (density ~ j): weight ``T_t``, uniform;
   - read-out: the storage area is shielded from light, not from particles; binned row k waits
-    ``T_r (n - k) / n`` (see :func:`simulator.charge_generation.storage_dark_e`), so half the hits
+    ``T_r (n - k) / n`` (see :func:`simulator.detector.charge_generation.storage_dark_e`), so half the hits
     count, with density proportional to ``N - j``.
 
   The effective window is ``T_eff = T_f / 2 + T_e + T_t + T_r / 2`` (0.113 s for MER, dominated by

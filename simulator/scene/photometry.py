@@ -7,8 +7,8 @@ Paper section 3.2, equations (1)-(3)::
                                + 4.93e-7 a^4 - 1.72e-9 a^5                    (2)
     f(10 deg < alpha < 60 deg) = 1.82 - 1.03e-2 (a - 10)                     (3)
 
-with ``a`` the phase angle in degrees (the paper prints the ranges of (3) as "10 > alpha > 60"; we read
-them as 10 < alpha < 60 as DESIGN.md says). Equation (2) ends at f(10) = 1.8222 and (3) starts at
+with ``a`` the phase angle in degrees (the paper prints the ranges of (3) as "10 > alpha > 60", an empty
+range; we read them as 10 < alpha < 60, where (3) continues (2) at 10 deg). Equation (2) ends at f(10) = 1.8222 and (3) starts at
 1.82: the 0.12 % step is the paper's own and is kept. **Beyond 60 deg** the paper gives nothing; we
 continue (3) linearly (the same slope), which is continuous at 60 deg and stays positive up to 186 deg,
 and clip f at ``PHASE_FUNCTION_FLOOR`` so no geometry ever yields a non-positive reflectance. DIMES
@@ -45,7 +45,6 @@ from __future__ import annotations
 import numpy as np
 
 SOLAR_TEMPERATURE_K = 5772.0
-TOTAL_SOLAR_IRRADIANCE_1AU_W_M2 = 1361.0
 DIMES_BAND_UM = (0.4, 1.1)
 MOC_BAND_UM = (0.5, 0.9)
 SOLAR_BAND_IRRADIANCE_1AU_W_M2_UM = 1251.0   # see module docstring; checked by tests against Planck

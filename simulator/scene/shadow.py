@@ -11,7 +11,7 @@ Direct sunlight scales by ``1 - occluded``; skylight (dust-scattered, a configur
 ``diffuse_fraction`` of the total illumination, ~0.3 on Mars at optical depth ~0.5) still reaches the
 shadow, so the radiance is multiplied by ``1 - (1 - diffuse_fraction) * occluded``.
 
-The opposition halo is *not* modelled here: it comes from f(alpha) in :mod:`simulator.photometry`,
+The opposition halo is *not* modelled here: it comes from f(alpha) in :mod:`simulator.scene.photometry`,
 and the shadows fall at its centre because the casters lie on the sun line through the camera.
 
 Where the casters are (documented defaults, configurable in ``SceneConfig``): the lander disc at the
