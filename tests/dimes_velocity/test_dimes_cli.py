@@ -8,11 +8,11 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from dimes_velocity.__main__ import main
 from file_formats.descent_images import ImageDeclaration, InputFileError, load_image
 from file_formats.measurements_json import measurements_from_dict, measurements_to_dict
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 VELOCITY = (12.0, -7.0, -72.0)
 BIAS = (6.0, -3.0)

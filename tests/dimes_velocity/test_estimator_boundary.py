@@ -11,11 +11,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from file_formats.flat_field_files import save_flat_field
 from file_formats.measurements_json import measurements_to_dict
 from simulator.calibration import simulate_flat_field
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 REPO = Path(__file__).resolve().parents[2]
 VELOCITY = (9.0, -5.0, -70.0)

@@ -11,11 +11,11 @@ import json
 import cv2
 import numpy as np
 import pytest
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from dimes_velocity import DimesEstimator, MeasurementError
 from dimes_velocity.__main__ import main
 from file_formats.measurements_json import measurements_to_dict
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 VELOCITY = (24.0, 0.0, -72.0)           # true: 24 m/s east
 BIAS = np.array([6.0, -3.0, 0.0])       # a 3-sigma IMU velocity bias of the campaign's 2 m/s

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from dimes_velocity import REASONS, DimesEstimator, MeasurementError
 from flight_interface.frames import quat_from_axis_angle
 from flight_interface.tomlfields import ConfigError, parse
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.sensors import SensorConfig, measure
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 VELOCITY = np.array([12.0, -7.0, -72.0])
 

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from dimes_velocity import REASONS, DimesEstimator
 from dimes_velocity.result import failed_pair_reason
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
 from flight_interface.measurements import DescentMeasurements
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 VELOCITY = (12.0, -7.0, -72.0)
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from dimes_velocity import DimesEstimator
 from dimes_velocity.config import EstimatorConfig
@@ -27,7 +28,6 @@ from estimators.phase_correlation import estimate as phase_correlation
 from estimators.plugins import build_estimator, run_estimator
 from flight_interface.calibration import CalibrationProducts
 from simulator.calibration import simulate_flat_field
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 PLUGINS = Path(__file__).resolve().parents[1] / "plugins"
 SCRIPT = PLUGINS / "command_estimator.py"

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pydantic import TypeAdapter
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from estimators.contract import EstimatorInputs
 from estimators.entries import EstimatorEntry, estimator_specs
@@ -26,7 +27,6 @@ from estimators.plugins import build_estimator, run_estimator
 from flight_interface.calibration import CalibrationProducts
 from flight_interface.measurements import DescentMeasurements
 from simulator.calibration import simulate_flat_field
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 EXAMPLES = Path(minimal_python.__file__).parent
 VELOCITY = (12.0, -7.0, -72.0)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from estimators.camera_view import TRUTH_FIELDS, load_design_camera
 from estimators.contract import EstimatorInputs
@@ -18,7 +19,6 @@ from estimators.entries import EstimatorSpec
 from estimators.plugins import build_estimator, run_estimator
 from flight_interface.camera import load_camera
 from flight_interface.tomlfields import ConfigError, load_toml
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 PROBE = '''
 import pickle

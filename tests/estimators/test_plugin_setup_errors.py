@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic_descent import constant_velocity_descent, random_ground
 
 from campaign.run.plugin_setup import shipped_code
 from estimators.contract import EstimatorInputs
 from estimators.entries import EstimatorSpec
 from estimators.plugins import EstimatorSetupError, build_estimator, module_root, run_estimator
-from simulator.synthetic_descent import constant_velocity_descent, random_ground
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -1,6 +1,7 @@
-"""Synthetic descent images with known motion, for the estimator's tests and benchmark.
+"""Synthetic descent images with known motion, for the tests of the estimators (test helper).
 
-Not used by the estimator. A textured ground plane (a band-limited random reflectance field) is
+Not the simulator's descent path (:func:`simulator.descent_image.render_descent_image`): exact truth
+for the estimator tests. A textured ground plane (a band-limited random reflectance field) is
 seen through the camera's CAHVOR model (per-pixel rays from :attr:`Camera.pixel_rays`, ray-plane
 intersection, bilinear resampling with ``cv2.remap``) from known poses, and the resulting radiance
 is turned into DN by the simulator's public camera chain :func:`simulator.detector.camera_chain.render_image`.
