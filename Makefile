@@ -1,7 +1,7 @@
 PYTHON ?= python3
 PIP ?= $(PYTHON) -m pip
 
-.PHONY: install install-test run test bench
+.PHONY: install install-test run test bench docs-numbers
 
 install:
 	$(PIP) install -q -e .
@@ -19,3 +19,8 @@ test: install-test
 
 bench: install
 	$(PYTHON) -m benchmarks
+
+# measured numbers of the README and docs/ rewritten from docs/measured/ (benchmarks/doc_numbers.py), then checked
+docs-numbers:
+	$(PYTHON) -m benchmarks.doc_numbers write
+	$(PYTHON) -m benchmarks.doc_numbers check

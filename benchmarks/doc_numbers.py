@@ -6,7 +6,9 @@ Every measured figure the pages quote lives once, with its date and source, in `
   ``source`` (the command, run or commit that measured it), ``conditions`` (machine, load) and
   ``superseded`` (older figures of the same fact, ``;``-separated, that no page may quote any more);
 - ``site_tables.csv``: the per-class table of finished campaign stores (``campaign-table``);
-- ``paper_tables.csv``: the paper's Tables 1 and 2 (quoted, not measured), printed beside them.
+- ``paper_tables.csv``: the paper's Tables 1 and 2 (quoted, not measured), printed beside them;
+- ``tables.csv`` and ``tables/NAME.csv``: measured tables kept as printed (a sweep's or an experiment's
+  results, not produced by a command of this module), each with its date, source and conditions.
 
 A page quotes a figure through a generated block, inline or around a table::
 
@@ -17,8 +19,9 @@ A page quotes a figure through a generated block, inline or around a table::
     <!-- measured:end -->
 
 A block's name is a fact key followed by an optional form (``value``: value and unit, the default;
-``number``: the value alone; ``date``: its date), ``table NAME`` (:data:`TABLES`: a caption with the
-date, then the table) or ``table NAME date`` (that date alone). ``check`` fails when
+``number``: the value alone; ``date``: its date), ``table NAME`` (a generated table of :data:`TABLES` or a
+recorded one of ``tables.csv``: a caption with the date, then the table) or ``table NAME date`` (that
+date alone). A page adopts the record by putting a block around a figure or table and running ``write``. ``check`` fails when
 a block differs from what the record generates (e.g. edited by hand), names an unknown fact or table,
 when the record holds a fact twice, or when a page with blocks (or ``pyproject.toml``) still quotes a
 superseded figure. ``tests/test_documented_numbers.py`` runs it.
@@ -56,6 +59,9 @@ MEASURED_DIR = Path("docs") / "measured"
 FACTS_FILE = MEASURED_DIR / "facts.csv"
 SITE_TABLES_FILE = MEASURED_DIR / "site_tables.csv"
 PAPER_TABLES_FILE = MEASURED_DIR / "paper_tables.csv"
+RECORDED_TABLES_FILE = MEASURED_DIR / "tables.csv"
+RECORDED_TABLES_DIR = MEASURED_DIR / "tables"
+RECORDED_TABLE_COLUMNS = ("name", "date", "source", "conditions")
 FACT_COLUMNS = ("fact", "value", "unit", "date", "source", "conditions", "superseded")
 SITE_TABLE_COLUMNS = ("site", "row", "estimator", "cases", "valid", "failed", "pct_valid", "false_valid",
                       "error_mean_3sigma_mps", "date", "store", "seed", "cases_scale", "fidelity", "flat_field",
@@ -182,12 +188,57 @@ def _write_csv(path: Path, columns: Iterable[str], rows: list[dict]) -> None:
 # ---------------------------------------------------------------------------------------------- tables
 
 @dataclass(frozen=True)
+class RecordedTable:
+    """A measured table kept as printed: ``tables/NAME.csv`` (header row, then the rows) and its
+    ``tables.csv`` row (date, source, conditions)."""
+
+    name: str
+    date: str
+    source: str
+    conditions: str
+    header: list[str]
+    rows: list[list[str]]
+
+    def render(self) -> str:
+        """Caption with the date, source and conditions, a blank line, then the Markdown table."""
+        notes = "; ".join(note for note in (self.source, self.conditions) if note)
+        return f"Measured {self.date} ({notes}):\n\n" + _markdown_table(self.header, self.rows)
+
+
+def read_recorded_tables(root: Path) -> dict[str, RecordedTable]:
+    """The recorded tables under ``root``, by name (none when ``tables.csv`` is absent)."""
+    index = root / RECORDED_TABLES_FILE
+    if not index.exists():
+        return {}
+    tables: dict[str, RecordedTable] = {}
+    for line, row in enumerate(_read_csv(index, RECORDED_TABLE_COLUMNS), start=2):
+        name = row["name"].strip()
+        where = f"{RECORDED_TABLES_FILE}:{line}: table {name!r}"
+        if name in tables or name in TABLES:
+            raise RecordError(f"{where} is recorded twice (or is a generated table); keep one")
+        if not DATE.match(row["date"].strip()) or not row["source"].strip():
+            raise RecordError(f"{where}: date must be YYYY-MM-DD and source not empty")
+        path = root / RECORDED_TABLES_DIR / f"{name}.csv"
+        try:
+            with path.open(newline="", encoding="utf-8") as handle:
+                cells = list(csv.reader(handle))
+        except OSError as error:
+            raise RecordError(f"{where}: {path}: {error.strerror or error}") from error
+        if len(cells) < 2 or any(len(cell_row) != len(cells[0]) for cell_row in cells):
+            raise RecordError(f"{path}: needs a header row and rows of as many cells as the header")
+        tables[name] = RecordedTable(name, row["date"].strip(), row["source"].strip(), row["conditions"].strip(),
+                                     cells[0], cells[1:])
+    return tables
+
+
+@dataclass(frozen=True)
 class Sources:
-    """What the blocks are generated from: the facts and the site and paper tables."""
+    """What the blocks are generated from: the facts, the site and paper tables and the recorded tables."""
 
     facts: dict[str, Fact]
     site_rows: list[dict[str, str]]
     paper_rows: list[dict[str, str]]
+    recorded: dict[str, RecordedTable]
 
     def fact(self, key: str) -> Fact:
         """The fact ``key``; :class:`RecordError` when the record has none."""
@@ -199,13 +250,15 @@ class Sources:
 def read_sources(root: Path) -> Sources:
     """The record, the site tables and the paper's tables under ``root``."""
     return Sources(read_facts(root), _read_csv(root / SITE_TABLES_FILE, SITE_TABLE_COLUMNS),
-                   _read_csv(root / PAPER_TABLES_FILE, ("site", "row", "pct_valid", "error_mean_3sigma_mps")))
+                   _read_csv(root / PAPER_TABLES_FILE, ("site", "row", "pct_valid", "error_mean_3sigma_mps")),
+                   read_recorded_tables(root))
 
 
 def _markdown_table(header: list[str], body: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(cells) + " |" for cells in body]
-    return "\n".join(lines)
+    def line(cells: list[str]) -> str:
+        return "|" + "|".join(f" {cell} " if cell else " " for cell in cells) + "|"
+
+    return "\n".join([line(header), "|" + "---|" * len(header)] + [line(cells) for cells in body])
 
 
 def _one_date(facts: list[Fact], table: str) -> str:
@@ -367,9 +420,10 @@ def render_block(name: str, sources: Sources) -> str:
     """
     words = name.split()
     if words[:1] == ["table"] and (len(words) == 2 or words[2:] == ["date"]):
-        if len(words) < 2 or words[1] not in TABLES:
-            raise RecordError(f"no table {' '.join(words[1:2])!r} (known: {', '.join(TABLES)})")
-        text = TABLES[words[1]](sources)
+        if len(words) < 2 or (words[1] not in TABLES and words[1] not in sources.recorded):
+            known = ", ".join([*TABLES, *sources.recorded])
+            raise RecordError(f"no table {' '.join(words[1:2])!r} (known: {known})")
+        text = TABLES[words[1]](sources) if words[1] in TABLES else sources.recorded[words[1]].render()
         if len(words) == 3:
             return _caption_date(text)
         return "\n" + text + "\n"

@@ -241,3 +241,27 @@ def test_campaign_table_refuses_a_directory_that_is_no_store(copy: Path, tmp_pat
     assert done.returncode == 2 and "not a campaign store" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
     assert (copy / "docs" / "measured" / "site_tables.csv").read_text(encoding="utf-8") == before
+
+
+def test_a_recorded_table_is_printed_from_its_csv_and_a_hand_edit_fails(copy: Path):
+    """Measured tables kept as printed (tables.csv + tables/NAME.csv): the block holds the CSV's cells under a
+    caption with the recorded date; editing a cell on the page fails, editing the CSV and writing moves it."""
+    readme = copy / "README.md"
+    table = blocks(readme.read_text(encoding="utf-8"))["table moving_shadows"][0]
+    with (copy / "docs" / "measured" / "tables" / "moving_shadows.csv").open(newline="", encoding="utf-8") as handle:
+        cells = list(csv.reader(handle))
+    with (copy / "docs" / "measured" / "tables.csv").open(newline="", encoding="utf-8") as handle:
+        date = next(row["date"] for row in csv.DictReader(handle) if row["name"] == "moving_shadows")
+    assert table.strip().split("\n")[0].startswith(f"Measured {date} (")
+    assert "| " + " | ".join(cells[1]) + " |" in table
+    text = readme.read_text(encoding="utf-8")
+    readme.write_text(text.replace("| 76 % (29/38) |", "| 77 % (29/38) |", 1), encoding="utf-8")
+    done = doc_numbers("check", root=copy)
+    assert done.returncode == 1 and "table moving_shadows" in done.stderr
+    readme.write_text(text, encoding="utf-8")
+    # a row with a missing cell is refused
+    path = copy / "docs" / "measured" / "tables" / "moving_shadows.csv"
+    original = path.read_text(encoding="utf-8")
+    path.write_text(original + "5,10\n", encoding="utf-8")
+    done = doc_numbers("check", root=copy)
+    assert done.returncode == 1 and "as many cells as the header" in done.stderr
