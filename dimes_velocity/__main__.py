@@ -43,6 +43,13 @@ SUMMARY_KEYS = ("velocity_east_mps", "velocity_north_mps", "valid", "reason", "v
 
 
 def build_parser() -> OneLineParser:
+    """The command line of ``python -m dimes_velocity``.
+
+    Returns
+    -------
+    OneLineParser
+        The parser (usage errors: one line, exit status 2).
+    """
     parser = OneLineParser(prog=PROG, description="Reference DIMES horizontal velocity estimator.")
     parser.add_argument("files", nargs="+", metavar="FILE", help="images in time order, then the measurements JSON")
     parser.add_argument("--camera", required=True, help="camera TOML (e.g. sitedata/cameras/mer_a.toml)")
@@ -64,6 +71,19 @@ def build_parser() -> OneLineParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Estimate the velocity of one descent from image files and print it as JSON.
+
+    Parameters
+    ----------
+    argv : list of str or None, optional
+        The arguments (``--help`` lists them); None: ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        Exit status: 0 when a result (valid or not) was printed, 2 for a usage or input error (one line
+        on stderr).
+    """
     args = build_parser().parse_args(argv)
     if len(args.files) < 3:
         print(f"{PROG}: error: give at least two images and the measurements JSON", file=sys.stderr)

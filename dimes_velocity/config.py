@@ -147,28 +147,46 @@ class EstimatorConfig(ConfigModel):
 
     @property
     def zero_phase_half_angle_rad(self) -> float:
+        """``zero_phase_half_angle_deg`` (rad)."""
         return math.radians(self.zero_phase_half_angle_deg)
 
     @property
     def heat_shield_margin_rad(self) -> float:
+        """``heat_shield_margin_deg`` (rad)."""
         return math.radians(self.heat_shield_margin_deg)
 
     @property
     def max_off_nadir_rad(self) -> float:
+        """``max_off_nadir_deg`` (rad)."""
         return math.radians(self.max_off_nadir_deg)
 
     @property
     def attitude_uncertainty_rad(self) -> float:
+        """``attitude_uncertainty_deg`` (rad)."""
         return math.radians(self.attitude_uncertainty_deg)
 
     @property
     def relative_attitude_uncertainty_rad(self) -> float:
+        """``relative_attitude_uncertainty_deg`` (rad)."""
         return math.radians(self.relative_attitude_uncertainty_deg)
 
 
 def estimator_config_from_data(data, source: str, path: str = "estimator") -> EstimatorConfig:
-    """Validate an ``[estimator]`` table of reference-estimator parameters (parsed TOML; every field
-    optional) into an :class:`EstimatorConfig`.
+    """Validate an ``[estimator]`` table of reference-estimator parameters into an :class:`EstimatorConfig`.
+
+    Parameters
+    ----------
+    data : Any
+        The parsed table (every field optional).
+    source : str
+        The file (or other source) named in errors.
+    path : str, optional
+        Dotted path of the table in its file, prefixed to field names in errors.
+
+    Returns
+    -------
+    EstimatorConfig
+        The validated parameters.
 
     Raises
     ------

@@ -1,6 +1,6 @@
 """The reference DIMES velocity estimator: three descent images + measurements -> horizontal velocity.
 
-Steps (paper section 5 and DESIGN.md "The reference estimator"):
+Steps (paper section 5):
 
 1. pre-process each image (:mod:`.preprocess`): bin to 256 x 256, remove dark, fast-flush and
    frame-transfer smear, and divide by the flat field (a calibration product; the design falloff
@@ -55,7 +55,22 @@ _KERNEL_3X3 = np.ones((3, 3), np.uint8)
 
 
 class RectifiedImage:
-    """One image on the ground grid, with its pyramid, masks and unusable-ground diagnosis."""
+    """One image on the ground grid, with its pyramid, masks and unusable-ground diagnosis.
+
+    Parameters
+    ----------
+    flat : FlatImage
+        The binned, flattened image.
+    rectification : Rectification
+        Its map onto the ground grid.
+    pose : CameraPose
+        The image's camera as measured.
+    config : EstimatorConfig
+        ``min_signal_dn`` and ``min_ground_coverage``.
+    blur_px : float, optional
+        Standard deviation of a Gaussian blur of the binned image before rectification (binned px):
+        brings a lower image to the common ground resolution.
+    """
 
     def __init__(self, flat: FlatImage, rectification: geometry.Rectification, pose: geometry.CameraPose,
                  config: EstimatorConfig, blur_px: float = 0.0):
@@ -91,7 +106,18 @@ class RectifiedImage:
         self.coarse = cv2.pyrDown(self.image)
 
     def noise_at(self, column: int, row: int) -> float:
-        """Expected pixel noise (DN) of the source pixel seen at a rectified position."""
+        """Expected pixel noise of the source pixel seen at a rectified position.
+
+        Parameters
+        ----------
+        column, row : int
+            Rectified pixel position (px).
+
+        Returns
+        -------
+        float
+            Noise standard deviation (flattened DN).
+        """
         rows, columns = self.flat.signal_dn.shape
         source_column = min(max(int(round(float(self.rectification.map_x[row, column]))), 0), columns - 1)
         source_row = min(max(int(round(float(self.rectification.map_y[row, column]))), 0), rows - 1)
@@ -201,6 +227,13 @@ class DimesEstimator:
             Raw images as the camera returns them, shape ``(height / binning, width)`` (256 x 1024),
             integer or float DN; one per measurement, in time order (three for DIMES).
         measurements : DescentMeasurements
+            Measured attitude, radar altitude, IMU velocity per image; the sun direction.
+
+        Returns
+        -------
+        VelocityEstimate
+            The velocity (m/s, world east and north), validity and reason, stated uncertainty, IMU bias,
+            per-pair and per-feature results and stage timings.
 
         Raises
         ------
@@ -208,6 +241,8 @@ class DimesEstimator:
             Illegal inputs only (wrong shapes, non-finite values, non-increasing times); any legal
             input returns a result, invalid with a reason when no trustworthy velocity is found.
 
+        Notes
+        -----
         OpenCV runs on one thread inside (restored after): on 256 x 256 images its thread hand-off
         costs more than it saves, and on a loaded machine (one campaign worker per core) a parallel
         call waits for a second thread's time slice. The results do not depend on it.
@@ -298,7 +333,20 @@ class DimesEstimator:
 
     # ----------------------------------------------------------------------------------------------
     def search_radius_px(self, a: RectifiedImage, b: RectifiedImage, dt_s: float) -> float:
-        """Search radius (fine pixels) from the velocity-bias, attitude and altitude uncertainties."""
+        """Search radius from the velocity-bias, attitude and altitude uncertainties.
+
+        Parameters
+        ----------
+        a, b : RectifiedImage
+            The pair's first and second image.
+        dt_s : float
+            Time between them (s).
+
+        Returns
+        -------
+        float
+            Radius (fine rectified px), plus ``search_margin_px``, at most ``max_search_radius_px``.
+        """
         config = self.config
         h_a, h_b = a.pose.centre_m[2], b.pose.centre_m[2]
         tilt = np.tan(min(max(a.pose.off_nadir_rad, b.pose.off_nadir_rad), config.max_off_nadir_rad))
@@ -434,8 +482,26 @@ _CACHE: dict[tuple[int, int], tuple[Camera, EstimatorConfig, object, DimesEstima
 def estimate_velocity(images: Sequence[np.ndarray], measurements: DescentMeasurements, camera: Camera,
                       config: EstimatorConfig = EstimatorConfig(),
                       flat_field: np.ndarray | None = None) -> VelocityEstimate:
-    """Convenience wrapper: :meth:`DimesEstimator.estimate` with the estimator cached per camera, config
-    and flat field (the same array object)."""
+    """:meth:`DimesEstimator.estimate` with the estimator cached per camera, config and flat field.
+
+    Parameters
+    ----------
+    images : sequence of ndarray
+        Raw images in time order (DN), shape ``camera.binned_shape``.
+    measurements : DescentMeasurements
+        Their measurements.
+    camera : Camera
+        The camera as designed.
+    config : EstimatorConfig, optional
+        The estimator's parameters.
+    flat_field : ndarray or None, optional
+        Measured flat field, shape ``camera.binned_shape``; cached by identity (the same array object).
+
+    Returns
+    -------
+    VelocityEstimate
+        As :meth:`DimesEstimator.estimate`.
+    """
     key = (id(camera), id(flat_field))
     cached = _CACHE.get(key)
     if cached is None or cached[0] is not camera or cached[1] != config or cached[2] is not flat_field:

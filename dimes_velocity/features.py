@@ -51,7 +51,14 @@ class Candidate:
 class Selection:
     """Selected templates, and why there are not more (for reason codes).
 
-    ``offered`` counts grid cells with an allowed centre; ``low_contrast`` those rejected for contrast.
+    Attributes
+    ----------
+    features : tuple of Candidate
+        The selected templates, in the order drawn.
+    offered : int
+        Grid cells with an allowed centre.
+    low_contrast : int
+        Offers rejected for contrast.
     """
 
     features: tuple[Candidate, ...]
@@ -60,7 +67,20 @@ class Selection:
 
 
 def interest_map(image: np.ndarray, config: EstimatorConfig) -> np.ndarray:
-    """Minimum eigenvalue of the gradient structure tensor over a template-sized block, float32."""
+    """Minimum eigenvalue of the gradient structure tensor over a template-sized block.
+
+    Parameters
+    ----------
+    image : ndarray, shape (N, M), float32
+        Rectified, flattened image (DN).
+    config : EstimatorConfig
+        The estimator's parameters (``template_size_px``).
+
+    Returns
+    -------
+    ndarray, shape (N, M), float32
+        The interest (DN^2 per pixel^2, summed over the block).
+    """
     return cv2.cornerMinEigenVal(image, blockSize=config.template_size_px, ksize=3)
 
 
@@ -72,7 +92,24 @@ def interest_window(image: np.ndarray, config: EstimatorConfig, top: int, bottom
     1 of the 3 x 3 Sobel), clipped to the image: inside the window every value has the same support
     as in the whole-image map, and where the grown window meets the image edge it has the same border
     (OpenCV's filters sum in float64, exactly for these float32 products: the values are the same,
-    tested against the whole-image map)."""
+    tested against the whole-image map).
+
+    Parameters
+    ----------
+    image : ndarray, shape (N, M), float32
+        Rectified, flattened image (DN).
+    config : EstimatorConfig
+        The estimator's parameters (``template_size_px``).
+    top, bottom : int
+        Rows of the window, ``top:bottom``.
+    left, right : int
+        Columns of the window, ``left:right``.
+
+    Returns
+    -------
+    ndarray, shape (bottom - top, right - left), float32
+        The interest in the window.
+    """
     reach = config.template_size_px // 2 + 1
     rows, columns = image.shape
     top_r, left_r = max(top - reach, 0), max(left - reach, 0)
@@ -90,12 +127,27 @@ def _plane_offsets(half: int) -> tuple[np.ndarray, float]:
 
 
 def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> tuple[float, float, float]:
-    """Mean, standard deviation and detrended standard deviation of the (2 half + 1)^2 template at
-    (column, row). The detrended value removes the best-fit plane: a smooth brightness ramp (the
-    photometric function, the opposition halo's flank) has contrast but nothing to correlate on.
+    """Mean, standard deviation and detrended standard deviation of a template.
 
-    The same float64 reductions as ``patch.mean()`` and ``patch.std()`` (numpy's pairwise sums), with
-    the template's deviations from its mean shared by the standard deviation and the plane fit."""
+    The detrended value removes the best-fit plane: a smooth brightness ramp (the photometric
+    function, the opposition halo's flank) has contrast but nothing to correlate on. The same float64
+    reductions as ``patch.mean()`` and ``patch.std()`` (numpy's pairwise sums), with the template's
+    deviations from its mean shared by the standard deviation and the plane fit.
+
+    Parameters
+    ----------
+    image : ndarray, shape (N, M)
+        Rectified, flattened image (DN).
+    column, row : int
+        Template centre (px); the template lies inside the image.
+    half : int
+        Half size: the template is (2 half + 1) x (2 half + 1) pixels.
+
+    Returns
+    -------
+    mean_dn, std_dn, detrended_std_dn : float
+        The three statistics (DN).
+    """
     patch = image[row - half: row + half + 1, column - half: column + half + 1].astype(np.float64)
     offsets, norm = _plane_offsets(half)
     count = patch.size
@@ -129,6 +181,8 @@ class FeatureSelector:
         Where a template centre is allowed (template inside valid ground, search window inside B...).
     noise_dn_at : callable (column, row) -> float
         Expected pixel noise (DN) at a rectified position.
+    config : EstimatorConfig
+        The estimator's parameters (template size, grid, spacing, contrast).
     interest : ndarray, optional
         Precomputed :func:`interest_map` of ``image``.
 
@@ -172,8 +226,13 @@ class FeatureSelector:
         self._position = 0
 
     def next(self) -> Candidate | None:
-        """The next template with enough contrast, at least ``min_feature_spacing_px`` from those drawn
-        before; None when the offers are exhausted."""
+        """The next template with enough contrast, at least ``min_feature_spacing_px`` from those drawn before.
+
+        Returns
+        -------
+        Candidate or None
+            The template; None when the offers are exhausted.
+        """
         config = self.config
         half = config.template_size_px // 2
         spacing2 = config.min_feature_spacing_px ** 2
@@ -195,7 +254,26 @@ class FeatureSelector:
 
 def select_features(image: np.ndarray, candidates: np.ndarray, noise_dn_at, config: EstimatorConfig,
                     interest: np.ndarray | None = None) -> Selection:
-    """Pick up to ``config.features_per_pair`` templates at once (parameters as :class:`FeatureSelector`)."""
+    """Pick up to ``config.features_per_pair`` templates at once.
+
+    Parameters
+    ----------
+    image : ndarray, shape (N, N), float32
+        Rectified, flattened image.
+    candidates : ndarray of bool, shape (N, N)
+        Where a template centre is allowed.
+    noise_dn_at : callable
+        ``(column, row) -> float``: expected pixel noise (DN) at a rectified position.
+    config : EstimatorConfig
+        The estimator's parameters.
+    interest : ndarray, optional
+        Precomputed :func:`interest_map` of ``image``.
+
+    Returns
+    -------
+    Selection
+        The templates and the counts behind the reason codes.
+    """
     selector = FeatureSelector(image, candidates, noise_dn_at, config, interest)
     while len(selector.chosen) < config.features_per_pair and selector.next() is not None:
         pass

@@ -37,8 +37,21 @@ from flight_interface.measurements import DescentMeasurements
 
 
 def predicted_positions_m(measurements: DescentMeasurements) -> np.ndarray:
-    """IMU-predicted horizontal lander positions (K, 2), m, relative to image 0: from the IMU positions
-    when every image has one, else by trapezoidal integration of the IMU velocities."""
+    """IMU-predicted horizontal lander positions relative to image 0.
+
+    From the IMU positions when every image has one, else by trapezoidal integration of the IMU
+    velocities.
+
+    Parameters
+    ----------
+    measurements : DescentMeasurements
+        The K images' measurements.
+
+    Returns
+    -------
+    ndarray, shape (K, 2)
+        East and north positions (m); row 0 is zero.
+    """
     if all(image.imu_position_m is not None for image in measurements.images):
         positions = np.array([np.asarray(image.imu_position_m, dtype=float)[:2] for image in measurements.images])
         return positions - positions[0]
@@ -88,7 +101,24 @@ def _camera_to_lander(camera: Camera) -> np.ndarray:
 
 def camera_pose(camera: Camera, attitude_quat: np.ndarray, altitude_m: float,
                 horizontal_position_m: np.ndarray) -> CameraPose:
-    """World-frame camera model for a lander at ``horizontal_position_m`` and ``altitude_m``."""
+    """World-frame camera model for a lander at ``horizontal_position_m`` and ``altitude_m``.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (model in the camera frame, mounting on the lander).
+    attitude_quat : ndarray, shape (4,)
+        Lander body-to-world unit quaternion (w, x, y, z).
+    altitude_m : float
+        Lander height above the ground (m).
+    horizontal_position_m : ndarray, shape (2,)
+        Lander east and north position (m).
+
+    Returns
+    -------
+    CameraPose
+        The camera model, centre, boresight and off-nadir angle in the world frame.
+    """
     body_to_world = quat_to_matrix(attitude_quat)
     camera_to_world = body_to_world @ _camera_to_lander(camera)
     lander = np.array([horizontal_position_m[0], horizontal_position_m[1], altitude_m], dtype=float)
@@ -100,7 +130,18 @@ def camera_pose(camera: Camera, attitude_quat: np.ndarray, altitude_m: float,
 
 
 def binned_focal_px(camera: Camera) -> float:
-    """Focal length in binned pixels (geometric mean of the CAHVOR hs and vs over the binning)."""
+    """Focal length in binned pixels.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    float
+        Geometric mean of the CAHVOR hs and vs over the row binning (binned px).
+    """
     return float(np.sqrt(camera.model.hs * camera.model.vs)) / camera.binning_rows
 
 
@@ -108,10 +149,26 @@ def binned_focal_px(camera: Camera) -> float:
 def knot_operator(size: int, knots: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Catmull-Rom interpolation from knots to every integer position of ``0 .. size - 1``.
 
-    The knots are ``linspace(0, size - 1, knots)`` plus one more spacing beyond each end. Returns
-    ``(positions (knots + 2,), first (size,), weights (size, 4))``: position ``p`` in interval ``j``
-    (between inner knots ``j`` and ``j + 1``) is ``sum_k weights[p, k] * value[first[p] + k]`` over
-    extended knots ``j .. j + 3`` (``first = j``), so an unusable knot spoils only the cells around it.
+    The knots are ``linspace(0, size - 1, knots)`` plus one more spacing beyond each end. Position
+    ``p`` in interval ``j`` (between inner knots ``j`` and ``j + 1``) is
+    ``sum_k weights[p, k] * value[first[p] + k]`` over extended knots ``j .. j + 3`` (``first = j``),
+    so an unusable knot spoils only the cells around it.
+
+    Parameters
+    ----------
+    size : int
+        Number of integer positions (px).
+    knots : int
+        Number of inner knots, >= 2.
+
+    Returns
+    -------
+    positions : ndarray, shape (knots + 2,)
+        Knot positions (px), the extended ones included.
+    first : ndarray of int, shape (size,)
+        First extended knot of each position's interval.
+    weights : ndarray, shape (size, 4)
+        Catmull-Rom weights of the four extended knots.
     """
     spacing = (size - 1.0) / (knots - 1)
     positions = np.concatenate([[-spacing], np.linspace(0.0, size - 1.0, knots), [size - 1.0 + spacing]])
@@ -124,7 +181,20 @@ def knot_operator(size: int, knots: int) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def cell_of_pixel(size: int, knots: int) -> np.ndarray:
-    """Interval index (0 .. knots - 2) of every integer position (see :func:`knot_operator`)."""
+    """Interval index of every integer position (see :func:`knot_operator`).
+
+    Parameters
+    ----------
+    size : int
+        Number of integer positions (px).
+    knots : int
+        Number of inner knots, >= 2.
+
+    Returns
+    -------
+    ndarray of int, shape (size,)
+        Interval of each position, 0 .. knots - 2.
+    """
     spacing = (size - 1.0) / (knots - 1)
     return np.minimum(np.floor(np.arange(size) / spacing).astype(int), knots - 2)
 
@@ -155,11 +225,33 @@ class Rectification:
     excluded_zone: np.ndarray
 
     def ground_of(self, column: float, row: float) -> np.ndarray:
-        """Ground (east, north), m, of a rectified pixel position."""
+        """Ground point of a rectified pixel position.
+
+        Parameters
+        ----------
+        column, row : float
+            Rectified pixel position (px).
+
+        Returns
+        -------
+        ndarray, shape (2,)
+            Ground east and north (m).
+        """
         return self.origin_m + self.sample_m * np.array([column, -row])
 
     def pixel_of(self, ground_m: np.ndarray) -> np.ndarray:
-        """Rectified (column, row) of a ground point (east, north)."""
+        """Rectified pixel position of a ground point.
+
+        Parameters
+        ----------
+        ground_m : ndarray, shape (2,)
+            Ground east and north (m).
+
+        Returns
+        -------
+        ndarray, shape (2,)
+            Rectified (column, row) (px).
+        """
         offset = (np.asarray(ground_m, dtype=float) - self.origin_m) / self.sample_m
         return np.array([offset[0], -offset[1]])
 
@@ -243,7 +335,18 @@ _FIELD_RADIUS: dict[int, tuple[Camera, float]] = {}
 
 
 def field_radius_rad(camera: Camera) -> float:
-    """Largest angle between the boresight and the rays of the frame's corners (cached per camera)."""
+    """Largest angle between the boresight and the rays of the frame's corners (cached per camera).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    float
+        The angle (rad).
+    """
     cached = _FIELD_RADIUS.get(id(camera))
     if cached is not None and cached[0] is camera:
         return cached[1]
@@ -259,7 +362,20 @@ def field_radius_rad(camera: Camera) -> float:
 
 
 def ground_centre_m(pose: CameraPose, max_off_nadir_rad: float) -> np.ndarray:
-    """Where the rectified grid is centred: the boresight's ground point (tilt capped)."""
+    """Where the rectified grid is centred: the boresight's ground point (tilt capped).
+
+    Parameters
+    ----------
+    pose : CameraPose
+        The image's camera.
+    max_off_nadir_rad : float
+        Largest tilt used (rad).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        Ground east and north (m).
+    """
     horizontal = pose.boresight[:2]
     norm = float(np.linalg.norm(horizontal))
     tilt = min(pose.off_nadir_rad, max_off_nadir_rad)
@@ -275,12 +391,33 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
 
     Parameters
     ----------
+    pose : CameraPose
+        The image's camera in the world frame.
+    camera : Camera
+        The camera (binning, frame size, field radius).
+    size : int
+        Rectified grid size N (px).
+    sample_m : float
+        Ground sampling (m per rectified pixel).
+    centre_m : ndarray, shape (2,)
+        Ground east and north of the grid's centre (m).
+    knots : int
+        Knots per axis of the Catmull-Rom map (:func:`knot_operator`).
     anti_sun : ndarray (3,) or None
         Unit vector from the sun's direction reversed (-sun); the zero-phase zone is the set of rays
         within ``zero_phase_half_angle_rad`` of it (None: no zone).
+    zero_phase_half_angle_rad : float
+        Half angle of the zero-phase zone (rad).
     heat_shield_m : ndarray (3,) or None
         Predicted heat shield centre (world, m); rays within ``heat_shield_half_angle_rad`` of it
         are excluded.
+    heat_shield_half_angle_rad : float, optional
+        Half angle of the heat shield's cone (rad).
+
+    Returns
+    -------
+    Rectification
+        The map of the grid into the binned image, and where it is visible or excluded.
     """
     b = camera.binning_rows
     n_cols, n_rows = camera.width_px // b, camera.height_px // b
@@ -333,6 +470,21 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
 
 
 def warp(image: np.ndarray, rectification: Rectification, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
-    """Resample a binned image (float32 or uint8) onto the rectified grid (0 outside the image)."""
+    """Resample a binned image onto the rectified grid.
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, columns), float32 or uint8
+        The binned image.
+    rectification : Rectification
+        The grid's map into the image.
+    interpolation : int, optional
+        OpenCV interpolation flag (``cv2.INTER_LINEAR``; ``cv2.INTER_NEAREST`` for masks).
+
+    Returns
+    -------
+    ndarray, shape (N, N), the dtype of ``image``
+        The resampled image, 0 outside the image.
+    """
     return cv2.remap(image, rectification.map_x, rectification.map_y, interpolation,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)

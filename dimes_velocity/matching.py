@@ -88,9 +88,25 @@ def _crop(image: np.ndarray, column: int, row: int, half: int) -> np.ndarray | N
 
 
 def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -> float:
-    """Highest local maximum (3 x 3 neighbourhood) of ``surface`` further than ``exclusion_px`` from the
-    best peak at ``best`` (column, row) in either direction; -1 when there is none. Points on the
-    flanks of a broad main peak are not local maxima, so they do not count as a second peak."""
+    """Highest local maximum (3 x 3 neighbourhood) of ``surface`` away from the best peak.
+
+    Points on the flanks of a broad main peak are not local maxima, so they do not count as a second
+    peak.
+
+    Parameters
+    ----------
+    surface : ndarray, shape (rows, columns), float32
+        Correlation surface.
+    best : tuple of int
+        (column, row) of the best peak.
+    exclusion_px : int
+        Maxima within this many pixels of ``best`` in both directions are ignored.
+
+    Returns
+    -------
+    float
+        The second peak's value; -1 when there is none.
+    """
     local = cv2.compare(surface, cv2.dilate(surface, _KERNEL_3X3), cv2.CMP_GE)      # 255 at local maxima
     column, row = best
     local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = 0
@@ -100,6 +116,11 @@ def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -
 
 def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Biquadratic fit to a 3 x 3 correlation patch centred on its maximum.
+
+    Parameters
+    ----------
+    patch : ndarray, shape (3, 3)
+        Correlation values around the maximum.
 
     Returns
     -------
@@ -139,9 +160,22 @@ def _keys_weights(fraction: float) -> tuple[float, float, float, float]:
 def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.ndarray:
     """Sample a square ``window`` at ``(x + offset_x, y + offset_y)`` by Keys cubic convolution.
 
-    Returns the central ``out_size`` square (float64), exact in sub-pixel position (no fixed-point
-    quantisation of the coordinates, unlike ``cv2.warpAffine``, which rounds to 1/32 pixel). The
-    window must extend ``|offset| + 2`` pixels beyond the output on every side.
+    Exact in sub-pixel position (no fixed-point quantisation of the coordinates, unlike
+    ``cv2.warpAffine``, which rounds to 1/32 pixel).
+
+    Parameters
+    ----------
+    window : ndarray, shape (M, M)
+        The image window; it must extend ``|offset| + 2`` pixels beyond the output on every side.
+    offset : ndarray, shape (2,)
+        (x, y) shift (px).
+    out_size : int
+        Side of the output square (px).
+
+    Returns
+    -------
+    ndarray, shape (out_size, out_size), float64
+        The central square, shifted.
     """
     return _shifted_window(np.asarray(window, dtype=np.float64), float(offset[0]), float(offset[1]), out_size)
 
@@ -232,7 +266,28 @@ def _clip(value: float, bound: float) -> float:
 def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray, b_coarse: np.ndarray,
                    centre_a: tuple[int, int], predicted_b: np.ndarray, search_radius_px: float,
                    config: EstimatorConfig) -> Match:
-    """Find the template of A centred at ``centre_a`` in B near ``predicted_b`` (module docstring)."""
+    """Find the template of A centred at ``centre_a`` in B near ``predicted_b`` (module docstring).
+
+    Parameters
+    ----------
+    a_fine, b_fine : ndarray, shape (N, N), float32
+        The pair's rectified, flattened images.
+    a_coarse, b_coarse : ndarray, shape (N / 2, N / 2), float32
+        The same at half resolution (``cv2.pyrDown``).
+    centre_a : tuple of int
+        (column, row) of the template in A (fine px).
+    predicted_b : ndarray, shape (2,)
+        IMU-predicted (column, row) of the template in B (fine px).
+    search_radius_px : float
+        Radius of the search around the prediction (fine px).
+    config : EstimatorConfig
+        Template sizes and the acceptance thresholds.
+
+    Returns
+    -------
+    Match
+        The match's position in B, correlation and peak shape, and its status (``"ok"`` or why not).
+    """
     predicted_b = np.asarray(predicted_b, dtype=float)
     u, v = int(centre_a[0]), int(centre_a[1])
     half_c = config.coarse_template_size_px // 2

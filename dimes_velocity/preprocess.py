@@ -56,7 +56,9 @@ class Flattening:
     alpha_s, beta_s, gamma_s : float
         Smear model coefficients (s); beta = gamma = 0 when smear removal is off.
     toward_last_row : bool
+        Frame transfer moves charge toward the last row.
     adc_offset_dn, gain_e_per_dn, read_noise_e, exposure_s : float
+        ADC offset (DN), gain (e-/DN), read noise (e- rms) and exposure (s).
     saturation_dn : float
         Raw DN at or above which a pixel is treated as saturated.
     """
@@ -80,10 +82,12 @@ class Flattening:
 
     @property
     def inverse_response(self) -> np.ndarray:
+        """``1 / response``, float32, (n, n)."""
         return self._inverse_response
 
     @property
     def noise_scale(self) -> np.ndarray:
+        """Charge noise (e-) of a block -> flattened DN, float32, (n, n)."""
         return self._noise_scale
 
     def __post_init__(self):
@@ -99,11 +103,25 @@ def make_flattening(camera: Camera, config: EstimatorConfig, flat_field: np.ndar
     Parameters
     ----------
     camera : Camera
+        The camera as designed (binning, timing, electronics, falloff).
     config : EstimatorConfig
+        Which corrections to make (falloff, dark, smear) and the saturation margin.
     flat_field : ndarray, optional
         Measured relative response of each read-out pixel, shape ``camera.binned_shape`` (or full
         frame), about 1 on axis (:mod:`flight_interface.calibration`). None: divide by the design
         cos^4 falloff only (``camera.falloff_map``, ~0.5 s on first use).
+
+    Returns
+    -------
+    Flattening
+        The per-camera constants.
+
+    Raises
+    ------
+    ValueError
+        The width is not a multiple of the row binning.
+    CalibrationError
+        An unusable flat field.
     """
     binning = camera.binning_rows
     rows, columns = camera.height_px, camera.width_px
@@ -174,7 +192,18 @@ class FlatImage:
         return np.sqrt(np.maximum(self.charge_e, 0.0) + np.float32(self.variance_floor_e2)) * self.noise_scale
 
     def noise_dn_at(self, row: int, column: int) -> float:
-        """:attr:`noise_dn` of one block."""
+        """:attr:`noise_dn` of one block.
+
+        Parameters
+        ----------
+        row, column : int
+            The block (binned pixels).
+
+        Returns
+        -------
+        float
+            Expected noise standard deviation of its ``signal_dn`` (DN).
+        """
         charge = max(float(self.charge_e[row, column]), 0.0)
         return float(np.sqrt(charge + self.variance_floor_e2) * self.noise_scale[row, column])
 
@@ -185,7 +214,22 @@ def bin_columns(raw_dn: np.ndarray, binning: int, highest: float | None = None) 
     The sum runs left to right in float32 (exact for integer DN: sums below 2^24). Unsigned integer
     images whose sums cannot overflow their own type (``highest``: the image's maximum, when known)
     are summed in that type and converted once; other integer images of up to 16 bits are added into
-    the float32 result directly, without a float32 copy of the raw image."""
+    the float32 result directly, without a float32 copy of the raw image.
+
+    Parameters
+    ----------
+    raw_dn : ndarray, shape (rows, cols)
+        Raw image (DN), any integer or float dtype.
+    binning : int
+        Columns summed; divides ``cols``.
+    highest : float or None, optional
+        The image's maximum (DN), when known.
+
+    Returns
+    -------
+    ndarray, shape (rows, cols / binning), float32
+        The column sums (DN).
+    """
     raw = np.asarray(raw_dn)
     if raw.dtype.kind == "u" and raw.dtype.itemsize <= 2:
         if highest is None:
@@ -208,7 +252,20 @@ def bin_columns(raw_dn: np.ndarray, binning: int, highest: float | None = None) 
 
 
 def unsmear(charge_e: np.ndarray, flattening: Flattening) -> np.ndarray:
-    """Invert the fast-flush / frame-transfer smear (module docstring); returns block rates (e-/s)."""
+    """Invert the fast-flush / frame-transfer smear (module docstring).
+
+    Parameters
+    ----------
+    charge_e : ndarray, shape (n, n), float32
+        Collected charge of each binned block (e-), offset and storage dark removed.
+    flattening : Flattening
+        The smear coefficients and transfer direction.
+
+    Returns
+    -------
+    ndarray, shape (n, n), float32
+        Charge generation rate of each block during the exposure (e-/s).
+    """
     alpha, beta, gamma = flattening.alpha_s, flattening.beta_s, flattening.gamma_s
     if beta == 0.0 and gamma == 0.0:
         return charge_e / np.float32(alpha)
@@ -240,7 +297,22 @@ def unsmear(charge_e: np.ndarray, flattening: Flattening) -> np.ndarray:
 
 
 def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig) -> FlatImage:
-    """Bin and flatten one raw image (shape ``flattening.raw_shape``, any integer or float dtype)."""
+    """Bin and flatten one raw image.
+
+    Parameters
+    ----------
+    raw_dn : ndarray, shape ``flattening.raw_shape``
+        The read-out image (DN), any integer or float dtype.
+    flattening : Flattening
+        The camera's constants (:func:`make_flattening`).
+    config : EstimatorConfig
+        ``min_signal_dn``: blocks below it are excluded.
+
+    Returns
+    -------
+    FlatImage
+        The flattened signal, excluded blocks and noise model.
+    """
     b = flattening.binning
     gain = np.float32(flattening.gain_e_per_dn)
     raw = np.asarray(raw_dn)

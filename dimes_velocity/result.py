@@ -61,9 +61,22 @@ PRIOR_FAILURES = ("search_border", "outside_prior")
 
 
 def failed_pair_reason(statuses: list[str], otherwise: str | None = None) -> str:
-    """A failed pair's reason from its templates' statuses: ``no_match_within_prior`` when the prior's
-    failures (:data:`PRIOR_FAILURES`, counted together) are the most common failure, else the most common
-    failure (``otherwise``, when given, instead of it)."""
+    """A failed pair's reason from its templates' statuses.
+
+    Parameters
+    ----------
+    statuses : list of str
+        Each template's status (``"ok"`` or a rejection reason).
+    otherwise : str or None, optional
+        The reason to give instead of the most common failure, unless that is the prior's.
+
+    Returns
+    -------
+    str
+        ``no_match_within_prior`` when the prior's failures (:data:`PRIOR_FAILURES`, counted together)
+        are the most common failure, else the most common failure (``otherwise``, when given, instead);
+        ``otherwise`` or ``too_few_features`` when no template failed.
+    """
     failures = [status for status in statuses if status != "ok"]
     if not failures:
         return otherwise or "too_few_features"
@@ -140,6 +153,27 @@ class PairResult:
     (mean of the agreeing group), ``bias_*_mps`` = displacement / time between the images, the
     pair's estimate of the IMU horizontal velocity bias, ``displacement_sigma_m`` the standard error
     of that mean (per axis, m). Zero when the pair is not valid.
+
+    Attributes
+    ----------
+    first_image, second_image : int
+        Indices of the pair's images.
+    valid : bool
+        The pair gave a bias estimate.
+    reason : str
+        ``"ok"`` or one of :data:`REASONS`.
+    displacement_east_m, displacement_north_m : float
+        Ground offset of the matches from their IMU-predicted positions (m).
+    bias_east_mps, bias_north_mps : float
+        The pair's IMU horizontal velocity bias estimate (m/s).
+    displacement_sigma_m : float
+        Standard error of the mean displacement, per axis (m).
+    search_radius_px : float
+        Radius of the template search (rectified fine pixels).
+    features_matched : int
+        Templates whose match passed every check.
+    features_used : int
+        Matches in the agreeing group.
     """
 
     first_image: int
@@ -158,7 +192,15 @@ class PairResult:
 
 @dataclass(frozen=True)
 class StageTimings:
-    """Wall time of each stage, ms."""
+    """Wall time of each stage, ms.
+
+    Attributes
+    ----------
+    preprocess_ms, rectify_ms, select_ms, match_ms, solve_ms : float
+        Binning and flattening; rectification; template selection; matching; the solution (ms).
+    total_ms : float
+        The whole estimate (ms).
+    """
 
     preprocess_ms: float
     rectify_ms: float
@@ -204,7 +246,13 @@ class VelocityEstimate:
     timings: StageTimings
 
     def to_dict(self) -> dict:
-        """Plain JSON-ready dictionary (floats finite, nested lists for pairs and features)."""
+        """Plain JSON-ready dictionary.
+
+        Returns
+        -------
+        dict
+            The fields (floats finite, nested lists for pairs and features).
+        """
         return _finite(asdict(self))
 
 

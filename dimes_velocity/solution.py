@@ -27,6 +27,11 @@ def consensus(displacements_m: np.ndarray, correlations: np.ndarray, tolerance_m
         Smallest acceptable group.
     require_majority : bool
         The group must hold more than half of the matches.
+
+    Returns
+    -------
+    ndarray of int, shape (m,)
+        Indices into ``displacements_m`` of the group; shape (0,) when there is none.
     """
     displacements_m = np.asarray(displacements_m, dtype=float).reshape(-1, 2)
     count = len(displacements_m)
@@ -42,14 +47,40 @@ def consensus(displacements_m: np.ndarray, correlations: np.ndarray, tolerance_m
 
 
 def weighted_displacement(displacements_m: np.ndarray, correlations: np.ndarray) -> np.ndarray:
-    """Correlation-weighted mean displacement (2,) of an agreeing group."""
+    """Correlation-weighted mean displacement of an agreeing group.
+
+    Parameters
+    ----------
+    displacements_m : ndarray, shape (n, 2)
+        Ground displacement of each match (m, east and north).
+    correlations : ndarray, shape (n,)
+        Their correlation peaks (weights, at least 1e-3).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        The weighted mean displacement (m).
+    """
     weights = np.maximum(np.asarray(correlations, dtype=float), 1e-3)
     return (weights[:, None] * np.asarray(displacements_m, dtype=float)).sum(axis=0) / weights.sum()
 
 
 def displacement_standard_error(displacements_m: np.ndarray, floor_m: float) -> float:
-    """Standard error (m, per axis) of the mean of an agreeing group's displacements: the RMS per-axis
-    sample standard deviation over sqrt(n), at least ``floor_m`` (a single match: ``floor_m``)."""
+    """Standard error (per axis) of the mean of an agreeing group's displacements.
+
+    Parameters
+    ----------
+    displacements_m : ndarray, shape (n, 2)
+        Ground displacement of each match (m).
+    floor_m : float
+        Smallest standard error returned (m).
+
+    Returns
+    -------
+    float
+        The RMS per-axis sample standard deviation over sqrt(n), at least ``floor_m`` (m); ``floor_m``
+        for a single match.
+    """
     displacements_m = np.asarray(displacements_m, dtype=float).reshape(-1, 2)
     count = len(displacements_m)
     if count < 2:
@@ -62,10 +93,27 @@ def combine_pairs(biases_mps: np.ndarray, valid: np.ndarray, reasons: list[str],
                   require_all: bool) -> tuple[bool, str, np.ndarray]:
     """Combine the pairs' bias estimates.
 
-    Returns ``(valid, reason, bias (2,))``: the mean bias of the valid pairs when they are enough
-    (all of them with ``require_all``, else at least one) and agree within ``tolerance_mps``
-    (largest pairwise difference); otherwise invalid with the first failed pair's reason or
-    "pairs_disagree", and a zero bias.
+    Parameters
+    ----------
+    biases_mps : ndarray, shape (P, 2)
+        Each pair's IMU bias estimate (m/s, east and north).
+    valid : ndarray of bool, shape (P,)
+        Which pairs gave an estimate.
+    reasons : list of str
+        Each pair's reason (``"ok"`` when valid).
+    tolerance_mps : float
+        Largest allowed pairwise difference of the valid pairs' biases (m/s).
+    require_all : bool
+        Every pair must be valid (else at least one).
+
+    Returns
+    -------
+    valid : bool
+        The pairs are enough and agree.
+    reason : str
+        ``"ok"``; else the first failed pair's reason or ``"pairs_disagree"``.
+    bias_mps : ndarray, shape (2,)
+        Mean bias of the valid pairs (m/s); zero when not valid.
     """
     biases_mps = np.asarray(biases_mps, dtype=float).reshape(-1, 2)
     valid = np.asarray(valid, dtype=bool)
@@ -101,14 +149,29 @@ def velocity_uncertainty(heights_m: np.ndarray, intervals_s: np.ndarray, used_pa
 
     Parameters
     ----------
-    heights_m, ground_reach_m : ndarray (K,)
-        Camera height and ground reach per image (m).
-    intervals_s : ndarray (K - 1,)
-        Time between consecutive images.
-    used_pairs : ndarray bool (K - 1,)
+    heights_m : ndarray, shape (K,)
+        Camera height per image (m).
+    intervals_s : ndarray, shape (K - 1,)
+        Time between consecutive images (s).
+    used_pairs : ndarray of bool, shape (K - 1,)
         Pairs that enter the estimate.
-    pair_sigmas_m : ndarray (K - 1,)
+    pair_sigmas_m : ndarray, shape (K - 1,)
         Standard error of each pair's displacement (m).
+    pair_spread_mps : float
+        Largest difference of the used pairs' biases (m/s).
+    attitude_sigma_rad : float
+        Common attitude error, 1 sigma (rad).
+    relative_attitude_sigma_rad : float
+        Image-to-image attitude noise, 1 sigma (rad).
+    altitude_sigma_fraction : float
+        Radar altitude error, 1 sigma, as a fraction of the altitude.
+    ground_reach_m : ndarray, shape (K,)
+        Distance of the tracked ground from the nadir point per image (m).
+
+    Returns
+    -------
+    float
+        The uncertainty (m/s); 0 when no pair is used.
     """
     heights_m = np.asarray(heights_m, dtype=float)
     intervals_s = np.asarray(intervals_s, dtype=float)
