@@ -1,8 +1,9 @@
 """The Gusev and Meridiani campaigns end to end on the embedded 2-worker cluster, and the parallel efficiency.
 
 ``campaign/gusev+meridiani``: both full campaigns (630 cases) planned and run together on one embedded
-LocalCluster of 2 single-threaded workers, as ``campaign submit`` runs a campaign
-(:func:`campaign.run.orchestrate.run_store_points`' steps): wall time from planning to the compacted stores,
+LocalCluster of 2 single-threaded workers, by the run path of ``campaign submit``
+(:func:`campaign.run.orchestrate.run_store_points`, with a client hook that registers the CPU clock and asks
+the workers' usage before the cluster closes): wall time from planning to the compacted stores,
 cluster start included (target <= 30 s), and each worker process's peak RSS (``ru_maxrss``, asked of
 the workers before the cluster closes; target <= 1 GiB).
 
@@ -24,7 +25,8 @@ import resource
 import shutil
 import tempfile
 import time
-from contextlib import ExitStack
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pandas as pd
@@ -76,16 +78,17 @@ def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
     """Plan and run both campaigns on one embedded cluster: (wall s, cases run, peak RSS MiB per worker,
     thread CPU ms per case by (site, case_id))."""
     from campaign.configuration.campaign_file import load_campaign_config
-    from campaign.run.cluster import connected_client
-    from campaign.run.orchestrate import (
-        StorePoint,
-        lock_stores,
-        manifest_for,
-        plan_campaign,
-        run_locked_points,
-        ship_estimators,
-    )
-    from campaign.store.campaign_store import CampaignStore
+    from campaign.run.orchestrate import StorePoint, manifest_for, run_store_points
+    from campaign.run.planning import plan_campaign
+
+    usage: list[dict] = []
+
+    @contextmanager
+    def measured(client) -> Iterator[None]:
+        """The workers' task CPU clock from the start, their usage read before the cluster closes."""
+        client.register_plugin(TaskCpuClock())
+        yield
+        usage.extend(client.run(_worker_usage).values())
 
     start = time.perf_counter()
     points = []
@@ -94,14 +97,8 @@ def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
                                      cases_scale=CASES_SCALE)
         points.append(StorePoint(config, manifest_for(config), plan_campaign(config)[1]))
     execution = points[0].config.execution.with_overrides(None, WORKERS)
-    stores = [CampaignStore(point.store_dir) for point in points]
-    with ExitStack() as locks:
-        lock_stores(points, stores, locks)
-        with connected_client(execution, quiet=True) as client:
-            client.register_plugin(TaskCpuClock())
-            ship_estimators(client, [spec for point in points for spec in point.config.estimators])
-            run = run_locked_points(client, points, stores, execution, progress=False, on_note=lambda line: None)
-            usage = list(client.run(_worker_usage).values())
+    run = run_store_points(points, execution, progress=False, on_note=lambda line: None, client_hook=measured,
+                           quiet=True)
     keys = {point.config.config_hash[:12]: site for point, site in zip(points, SITES)}
     task_cpu_ms = {(keys[key.split("-")[1]], int(key.split("-")[2])): 1e3 * cpu_s      # keys case-<hash>-<case id>
                    for worker in usage for key, cpu_s in worker["task_cpu_s"].items() if str(key).startswith("case-")}
@@ -111,9 +108,11 @@ def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
 def _one_thread(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
     """Run the ``sample`` cases ((site, plan record)) in this process as a worker runs them, into scratch stores
     under ``root``: t_case_ms (as recorded) and thread CPU ms per case, indexed by (site, case_id)."""
+    from campaign.case.compute import compute_case
+    from campaign.case.inputs import campaign_inputs
+    from campaign.case.plan_row import PlanRow
     from campaign.configuration.campaign_file import load_campaign_config
-    from campaign.run.case import PlanRow, compute_case
-    from campaign.run.worker import CampaignContext, execute_case, load_resources, set_up_estimators
+    from campaign.run.worker import CampaignContext, execute_case, set_up_estimators
     from campaign.store.case_files import read_case_table
 
     rows = []
@@ -121,7 +120,7 @@ def _one_thread(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
         config = load_campaign_config(REPO / "sitedata" / f"{site}.toml", output_dir=root / site,
                                      cases_scale=CASES_SCALE)
         (root / site / "cases").mkdir(parents=True, exist_ok=True)
-        resources = load_resources(config)                     # per-process inputs, as a worker's first case
+        resources = campaign_inputs(config)                    # per-process inputs, as a worker's first case
         set_up_estimators(resources)
         records = [record for name, record in sample if name == site]
         compute_case(resources, PlanRow.from_record(records[0]))  # warm: terrain strip and caches
@@ -140,7 +139,7 @@ def _one_thread(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
 
 def run() -> list[dict]:
     from campaign.configuration.campaign_file import load_campaign_config
-    from campaign.run.orchestrate import plan_campaign
+    from campaign.run.planning import plan_campaign
 
     root = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
     try:

@@ -1,7 +1,7 @@
 """Several estimators per case: rendering happens once, each extra estimator costs only its own time.
 
 A fixed set of Gusev cases (one or two per class, the campaign's seeds and fidelity) is run the way a
-campaign worker runs it (:func:`campaign.run.case.compute_case`), once with the reference estimator alone
+campaign worker runs it (:func:`campaign.case.compute.compute_case`), once with the reference estimator alone
 (``sitedata/gusev.toml``) and once with the reference plus the phase-correlation example
 (``sitedata/examples/compare_estimators.toml``), and, on the same case inputs, the rendering alone and
 each estimator alone. Times are process CPU ms (one thread; less sensitive to other load on the
@@ -22,11 +22,13 @@ REPEATS = 3
 
 
 def _resources(path: Path):
+    from campaign.case.inputs import campaign_inputs
     from campaign.configuration.campaign_file import load_campaign_config
-    from campaign.run.orchestrate import plan_campaign
+    from campaign.run.planning import plan_campaign
 
     config = load_campaign_config(path, cases_scale=0.011)          # gcp 2, gdcp 1, gkep 1
-    resources, plan = plan_campaign(config)
+    _, plan = plan_campaign(config)
+    resources = campaign_inputs(config)
     resources.calibration()                                         # made once per worker, as in a campaign
     resources.estimators()
     return resources, plan
@@ -40,7 +42,8 @@ def _timed(function, *args):
 
 
 def run() -> list[dict]:
-    from campaign.run.case import PlanRow, compute_case, simulate_case_inputs
+    from campaign.case.compute import compute_case, simulate_case_inputs
+    from campaign.case.plan_row import PlanRow
     from estimators.contract import EstimatorInputs
 
     single, plan = _resources(REPO / "sitedata" / "gusev.toml")

@@ -26,11 +26,13 @@ TIMING_REPEATS = 3
 
 
 def _cases():
+    from campaign.case.inputs import campaign_inputs
     from campaign.configuration.campaign_file import load_campaign_config
-    from campaign.run.orchestrate import plan_campaign
+    from campaign.run.planning import plan_campaign
 
     config = load_campaign_config(REPO / "sitedata" / "gusev.toml")
-    resources, plan = plan_campaign(config)
+    _, plan = plan_campaign(config)
+    resources = campaign_inputs(config)
     chosen = plan[plan["case_in_class"] < CASES_PER_CLASS]
     return config, resources, chosen.to_dict("records")
 
@@ -38,7 +40,8 @@ def _cases():
 def _render_case(resources, row, scene_config):
     """The case's three images (the campaign's seeds, with ``scene_config``) and its estimate:
     (images, velocity or None, render + sensors seconds, estimator seconds)."""
-    from campaign.run.case import PlanRow, simulate_case_inputs
+    from campaign.case.compute import simulate_case_inputs
+    from campaign.case.plan_row import PlanRow
     from dimes_velocity.estimator import estimate_velocity
 
     started = time.perf_counter()

@@ -1,7 +1,7 @@
 """Off-nominal scenes at nominal cost: case time with each off-nominal effect / the nominal case time.
 
 A fixed set of Gusev cases (the campaign's plan, seeds and default fidelity; ``CASES`` of them) is run
-as a campaign worker runs it (:func:`campaign.run.case.compute_case`: three images, sensors, reference
+as a campaign worker runs it (:func:`campaign.case.compute.compute_case`: three images, sensors, reference
 estimator), once nominal and once per off-nominal point, interleaved case by case so that load on the
 machine hits every point alike. ``ratio_vs_nominal`` = median case time of the point / median nominal
 case time (process CPU time, one thread). Targets (issue "twice as fast per case"): <= 2.0 for the x60
@@ -52,15 +52,18 @@ def _resources(updates: dict, camera_effects: dict | None = None):
     ``[scene.camera_effects]`` ``camera_effects``, planned, its per-worker products built."""
     import tomllib
 
+    from campaign.case.inputs import campaign_inputs
     from campaign.configuration.campaign_file import campaign_config_from_data
-    from campaign.run.orchestrate import plan_campaign
+    from campaign.run.planning import plan_campaign
 
     path = REPO / "sitedata" / "gusev.toml"
     data = tomllib.loads(path.read_text())
     scene = data.setdefault("scene", {})
     scene.setdefault("off_nominal", {}).update(updates)
     scene.setdefault("camera_effects", {}).update(camera_effects or {})
-    resources, plan = plan_campaign(campaign_config_from_data(data, path, cases_scale=0.05))
+    config = campaign_config_from_data(data, path, cases_scale=0.05)
+    _, plan = plan_campaign(config)
+    resources = campaign_inputs(config)
     resources.calibration()
     resources.estimators()
     return resources, plan
@@ -75,7 +78,8 @@ def _cpu_ms(function) -> tuple[float, object]:
 def run() -> list[dict]:
     import cv2
 
-    from campaign.run.case import PlanRow, compute_case
+    from campaign.case.compute import compute_case
+    from campaign.case.plan_row import PlanRow
 
     cv2.setNumThreads(1)
     configs = {"nominal": _resources({})}

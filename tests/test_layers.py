@@ -8,6 +8,14 @@ the detector stage.
     simulator       dimes_velocity
     file_formats                  (every file format)
     flight_interface              (bottom: what flight and simulator legitimately share)
+
+Inside ``campaign`` the subpackages are layered too (:data:`CAMPAIGN_ALLOWED`, no circle between them):
+
+    cli, commands                 (top: the command line; each command imports its stack when it runs)
+    run             report        (running cases on dask | reading stores for people; never each other)
+    case            realism       (one case: inputs, computation, result rows | flight realism)
+    plan            store         (placing cases | the campaign store)
+    configuration                 (bottom: the campaign, sweep and estimator files)
 """
 from __future__ import annotations
 
@@ -89,9 +97,79 @@ def test_the_scene_stage_imports_nothing_from_the_detector_stage():
     assert not offenders, offenders
 
 
+#: campaign subpackage -> the campaign subpackages it may import (besides itself); the modules directly in
+#: ``campaign/`` (the command line) may import every subpackage.
+CAMPAIGN_ALLOWED = {
+    "configuration": set(),
+    "plan": {"configuration"},
+    "store": {"configuration"},
+    "case": {"configuration", "plan", "store"},
+    "realism": {"configuration"},
+    "run": {"configuration", "plan", "store", "case"},
+    "report": {"configuration", "plan", "store", "case", "realism"},
+}
+
+
+def _campaign_part(module: str) -> str | None:
+    """The campaign subpackage of a campaign module (None for a module directly in ``campaign/``)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 or (len(parts) == 2 and f"campaign.{parts[1]}" in MODULES
+                                          and MODULES[f"campaign.{parts[1]}"].name == "__init__.py") else None
+
+
+def _campaign_arrows() -> list[tuple[str, str, str, int]]:
+    """(importing subpackage, imported subpackage, importing module, line) of every campaign-internal import
+    between two subpackages."""
+    arrows = []
+    for module, imports in GRAPH.items():
+        if module.split(".")[0] != "campaign" or (source := _campaign_part(module)) is None:
+            continue
+        for target, _, line in imports:
+            resolved = _resolve(target)
+            if resolved and resolved.split(".")[0] == "campaign":
+                part = _campaign_part(resolved)
+                if part is not None and part != source:
+                    arrows.append((source, part, module, line))
+    return arrows
+
+
+def test_every_campaign_subpackage_is_declared():
+    parts = {_campaign_part(module) for module in MODULES if module.startswith("campaign.")} - {None}
+    assert parts == set(CAMPAIGN_ALLOWED), parts ^ set(CAMPAIGN_ALLOWED)
+
+
+def test_campaign_subpackages_import_only_the_layers_below():
+    offenders = [f"{module}:{line} imports campaign.{target}" for source, target, module, line in _campaign_arrows()
+                 if target not in CAMPAIGN_ALLOWED[source]]
+    assert not offenders, offenders
+
+
+def test_run_and_report_never_import_each_other():
+    """Running cases and reading stores for people meet only below (campaign.case, campaign.store) and in the
+    command line: neither direction is allowed, at top level or inside a function."""
+    offenders = [f"{module}:{line} imports campaign.{target}" for source, target, module, line in _campaign_arrows()
+                 if {source, target} == {"run", "report"}]
+    assert not offenders, offenders
+    assert "report" not in CAMPAIGN_ALLOWED["run"] and "run" not in CAMPAIGN_ALLOWED["report"]
+
+
+def test_no_circle_between_campaign_subpackages():
+    edges = defaultdict(set)
+    for source, target, _, _ in _campaign_arrows():
+        edges[source].add(target)
+    for start in sorted(edges):
+        reached, pending = set(), list(edges[start])
+        while pending:
+            part = pending.pop()
+            if part not in reached:
+                reached.add(part)
+                pending += edges[part]
+        assert start not in reached, f"campaign.{start} reaches itself through {sorted(reached)}"
+
+
 #: Modules allowed function-local project imports, and why.
 LAZY_BY_DESIGN = {
-    "campaign.cli": "each command loads its own stack when it runs (start-up 0.8 s instead of 3 s)",
+    "campaign.commands": "each command loads its own stack when it runs: a read-only command only what it reads",
 }
 
 
@@ -101,16 +179,21 @@ def test_no_function_local_import_of_a_project_module():
     assert not offenders, offenders
 
 
+def _type_checking_lines(path: Path) -> set[int]:
+    """Lines of the imports under ``if TYPE_CHECKING:`` (read by the type checker only, never run)."""
+    return {child.lineno for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.If)
+            and getattr(node.test, "id", getattr(node.test, "attr", None)) == "TYPE_CHECKING"
+            for statement in node.body for child in ast.walk(statement) if isinstance(child, (ast.Import, ast.ImportFrom))}
+
+
 def test_the_command_line_imports_only_light_modules_at_start():
-    """`campaign` imports each command's stack in its handler: at start-up only these light modules."""
-    top = {target.split(".")[0] + "." + target.split(".")[1] for target, local, _ in GRAPH["campaign.cli"]
-           if not local and target.startswith("campaign.")}
-    assert top <= {"campaign.configuration", "campaign.run", "campaign.store"}, top
-    light = {_resolve(target) for target, local, _ in GRAPH["campaign.cli"] if not local}
-    assert light <= {"campaign.configuration.paths", "campaign.configuration.schemas", "campaign.run.faults",
-                     "campaign.store.errors",
-                     "campaign.store.lock", "flight_interface.camera", "flight_interface.command_line",
-                     "flight_interface.tomlfields"}, light
+    """`campaign` imports each command's stack in its function: at start-up only these light modules."""
+    light = {_resolve(target) for module in ("campaign.cli", "campaign.commands")
+             for target, local, line in GRAPH[module]
+             if not local and line not in _type_checking_lines(MODULES[module])}
+    assert light <= {"campaign.commands", "campaign.configuration.paths", "campaign.configuration.schemas",
+                     "campaign.run.faults", "campaign.store.errors", "campaign.store.lock",
+                     "flight_interface.command_line", "flight_interface.tomlfields"}, light
 
 
 def _resolve(target: str) -> str | None:

@@ -36,9 +36,8 @@ from pathlib import Path
 #: the top-level packages whose modules are followed (everything else is a dependency, not project code)
 PROJECT_PACKAGES = ("flight_interface", "file_formats", "simulator", "dimes_velocity", "estimators", "sitedata",
                     "campaign")
-#: where a case's result is computed (a module that does not exist is skipped: the worker setup may live
-#: in ``campaign.run.case`` itself)
-CASE_MODULES = ("campaign.run.case", "campaign.run.worker")
+#: where a case's result is computed (a module that does not exist is skipped)
+CASE_MODULES = ("campaign.case.compute", "campaign.run.worker")
 #: packages that only present results (the closure stops at them)
 PRESENTATION_PACKAGES = ("campaign.report",)
 #: the source root holding the project packages

@@ -169,6 +169,6 @@ def format_number(value, pattern: str) -> str:
     three significant digits for a magnitude of 1e7 or more (a stored 1e30 m/s stays one short cell)."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"
-    if isinstance(value, (float, np.floating)) and (math.isinf(value) or abs(value) >= 1e7):
+    if isinstance(value, (float, np.floating)) and (math.isinf(value) or abs(float(value)) >= 1e7):
         return f"{float(value):.3g}" + ("%" if pattern.endswith("%") else "")
     return pattern.format(value)

@@ -4,14 +4,14 @@ Which cases (:func:`gallery_cases`): for every estimator, each false-valid case 
 above the false-valid threshold; at most :data:`MAX_FALSE_VALID` per estimator, the worst first) and up
 to :data:`INVALID_PER_REASON` invalid cases (ran, answered not valid) of each reason, lowest case id first.
 
-How (:func:`draw_gallery`): each case is simulated again from the store with the functions
-`campaign export` uses (:func:`campaign.run.export.stored_config`, :func:`campaign.run.worker.load_resources`,
-:func:`campaign.run.case.simulate_case_inputs`, :func:`~campaign.run.case.estimator_inputs`,
-:func:`~campaign.run.case.case_truth`): a case is deterministic per (campaign seed, case id), so these are
+How (:func:`draw_gallery`): each case is simulated again from the store with the functions `campaign export`
+uses (:func:`campaign.store.stored_config.stored_config`, :func:`campaign.case.inputs.campaign_inputs`,
+:func:`campaign.case.compute.simulate_case_inputs`, :func:`~campaign.case.compute.estimator_inputs`,
+:func:`~campaign.case.compute.case_truth`): a case is deterministic per (campaign seed, case id), so these are
 the images its estimators got. Its PNG (``gallery/case-<id>-<estimator>.png``, :data:`FIGURE_INCHES` at
 :data:`FIGURE_DPI`) shows the three read-out images (binned rows stretched 4x to the sensor's aspect) and,
-under them, the stored reason, velocity error, stated uncertainty, attitude bias and attitude-knowledge
-floor (``campaign/run/error_budget.py``).
+under them, the stored reason, velocity error, stated uncertainty, attitude bias and attitude-knowledge floor
+(``campaign/case/error_budget.py``).
 
 Templates and matches: only the reference estimator (:mod:`dimes_velocity`) exposes where its templates
 are (``FeatureMetrics``: the template's ground position in its frame and the match's offset from the IMU
@@ -36,10 +36,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from campaign.run.case import PlanRow, case_truth, estimator_inputs, simulate_case_inputs  # noqa: E402
-from campaign.run.export import stored_config  # noqa: E402
-from campaign.run.worker import load_resources  # noqa: E402
+from campaign.case.compute import case_truth, estimator_inputs, simulate_case_inputs  # noqa: E402
+from campaign.case.inputs import campaign_inputs  # noqa: E402
+from campaign.case.plan_row import PlanRow  # noqa: E402
 from campaign.store.campaign_store import CampaignStore  # noqa: E402
+from campaign.store.stored_config import stored_config  # noqa: E402
 from dimes_velocity import geometry  # noqa: E402
 from dimes_velocity.estimator import estimate_velocity  # noqa: E402
 from flight_interface import cahvor  # noqa: E402
@@ -202,7 +203,7 @@ def draw_gallery(store: CampaignStore, results: pd.DataFrame, out: Path, false_v
         return lines + ["No false-valid or invalid case: nothing to show.", ""]
     manifest = store.manifest() or {}
     config = stored_config(store, manifest)
-    resources = load_resources(config)
+    resources = campaign_inputs(config)
     plan = store.plan()
     reference, reference_estimator = next(((spec, built) for spec, built in resources.estimators()
                                            if spec.kind == "reference"), (None, None))

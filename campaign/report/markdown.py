@@ -19,7 +19,7 @@ from campaign.report.compare import (
     with_estimator_column,
 )
 from campaign.report.gallery import INVALID_PER_REASON, draw_gallery
-from campaign.run.orchestrate import false_valid_threshold
+from campaign.report.table import false_valid_threshold
 from campaign.store.campaign_store import CampaignStore, StoreError
 
 
@@ -117,7 +117,7 @@ def _estimator_section(name: str, rows, fractions: dict, site: str, out: Path, s
 
 
 def _false_valid_section(rows, level: str, false_valid_mps: float) -> list[str]:
-    """Every false-valid case beside its attitude-knowledge floor (:mod:`campaign.run.error_budget`): an error
+    """Every false-valid case beside its attitude-knowledge floor (:mod:`campaign.case.error_budget`): an error
     near the floor comes from the attitude bias common to the images, one far above it from the images."""
     valid = rows[rows["valid"].astype(bool)]
     wrong = valid[valid["velocity_error_mps"] > false_valid_mps]
@@ -125,7 +125,7 @@ def _false_valid_section(rows, level: str, false_valid_mps: float) -> list[str]:
         return []
     lines = [f"{level} False-valid cases and the attitude-knowledge floor", "",
              "floor = abs(tan(tilt bias)) x altitude drop / time between images 1 and 3: the error an attitude "
-             "bias common to the images causes whatever the matching (campaign/run/error_budget.py).", "",
+             "bias common to the images causes whatever the matching (campaign/case/error_budget.py).", "",
              "| case | class | error m/s | stated uncertainty m/s | attitude bias deg | floor m/s | error - floor m/s |",
              "|---|---|---|---|---|---|---|"]
     for row in wrong.sort_values("velocity_error_mps", ascending=False).itertuples():

@@ -72,14 +72,14 @@ def require_submit_command(kind: str) -> None:
                          f"{command} works (a login node), or choose another [execution] cluster; {NOTHING_RUN}")
 
 
-def recording_job_class(base: type, record: JobRecord) -> type:
+def recording_job_class(base: type[ProcessInterface], record: JobRecord) -> type:
     """A subclass of dask-jobqueue's job class ``base`` whose submissions are recorded in ``record``; a
     rejected one becomes a job slot without a job (its error is ours to report, in one line)."""
 
     async def start(self) -> None:
         try:
             await base.start(self)
-        except Exception as exc:   # noqa: BLE001 - any submission error is reported by wait_for_first_worker
+        except Exception as exc:   # any submission error is reported by wait_for_first_worker
             record.rejected.append(submission_error(self.submit_command, exc))
             await ProcessInterface.start(self)      # marks the slot running: no retry, no traceback
         else:

@@ -30,13 +30,14 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from campaign.case.compute import estimator_inputs, simulate_case_inputs
+from campaign.case.inputs import campaign_inputs
+from campaign.case.plan_row import PlanRow
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
-from campaign.run.case import PlanRow, estimator_inputs, simulate_case_inputs
 from campaign.run.cluster import connected_client
-from campaign.run.orchestrate import plan_campaign
+from campaign.run.planning import plan_campaign
 from campaign.run.plugin_setup import PluginSetupError, ship_plugin_code, worker_address
-from campaign.run.worker import load_resources
 from estimators.contract import EstimatorInputs, EstimatorOutput
 from estimators.entries import EstimatorSpec
 from estimators.plugins import EstimatorRun, EstimatorSetupError, build_estimator, run_estimator
@@ -89,7 +90,7 @@ def input_digests(inputs: EstimatorInputs) -> dict[str, str]:
 def run_checks(config: CampaignConfig, records: list[dict], where: str = "") -> ProcessOutcome:
     """Build every estimator of ``config`` in this process and run it on the cases of ``records`` (a set-up
     error is recorded, not raised); the same function runs on the driver and, as a task, on the worker."""
-    resources = load_resources(config)
+    resources = campaign_inputs(config)
     built: list[tuple[EstimatorSpec, object]] = []
     setup_errors: dict[str, str] = {}
     for spec in config.estimators:
@@ -229,12 +230,12 @@ def check_estimators(config: CampaignConfig, cases: int = DEFAULT_CASES, schedul
         driver = run_checks(config, records, where="driver")            # meanwhile, in this process
         try:
             worker = on_worker.result()
-        except Exception as exc:  # noqa: BLE001 -- the worker could not run the cases at all: every estimator's violation
+        except Exception as exc:  # the worker could not run the cases at all: every estimator's violation
             text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
             worker = ProcessOutcome("worker", {spec.name: f"the worker could not run the cases: {text}"
                                                for spec in config.estimators}, {})
         worker.setup_errors.update({name: line for name, line in shipping_errors.items() if name not in worker.setup_errors})
-    resources = load_resources(config)
+    resources = campaign_inputs(config)
     sample = estimator_inputs(resources, simulate_case_inputs(resources, PlanRow.from_record(records[0])))
     out(f"{config.source}: {len(config.estimators)} estimators on {len(records)} planned cases "
         f"({', '.join(map(str, case_ids))}), on the driver and on the {worker.where}")

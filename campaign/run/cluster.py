@@ -8,7 +8,7 @@
                 KubeCluster; ``[execution.kubernetes]``; extra ``moc2dimes[kubernetes]``)
 
 Every worker runs one thread (a case is one CPU-bound task; BLAS and OpenCV threads are pinned to 1, the
-environment before the worker process starts and :class:`~campaign.run.process_tuning.CaseWorkerSetup` when it has
+environment before the worker process starts and :class:`~campaign.run.worker_startup.CaseWorkerSetup` when it has
 started), without dask's statistical profiler (:data:`WORKER_DASK_CONFIG`).
 Batch jobs are submitted and watched until their first worker connects by :mod:`campaign.run.batch_jobs`
 (a batch-system failure is one line naming the command and its error); :func:`cluster_description` is
@@ -31,6 +31,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any, Protocol, cast
 
 import dask
 from dask.distributed import Client, LocalCluster
@@ -44,7 +45,7 @@ from campaign.run.batch_jobs import (
     wait_for_first_worker,
 )
 from campaign.run.faults import RunStopped
-from campaign.run.process_tuning import CaseWorkerSetup
+from campaign.run.worker_startup import CaseWorkerSetup
 from flight_interface.tomlfields import ConfigError
 
 #: backend -> (module it needs, pip distribution, extra of moc2dimes)
@@ -125,7 +126,9 @@ def jobqueue_cluster(execution: ExecutionConfig, record: JobRecord | None = None
 
     Cluster = SLURMCluster if execution.cluster == "slurm" else PBSCluster
     job_class = _job_class(execution.cluster)
-    return Cluster(**_job_options(execution), job_cls=recording_job_class(job_class, record or JobRecord()),
+    # dask-jobqueue annotates ``job_cls`` as a Job instance; it takes the class (its own default is one)
+    job_cls = cast(Any, recording_job_class(job_class, record or JobRecord()))
+    return Cluster(**_job_options(execution), job_cls=job_cls,
                    scheduler_options={"dashboard_address": ":0"}, silence_logs="error")
 
 
@@ -184,7 +187,13 @@ def cluster_description(execution: ExecutionConfig) -> tuple[str, str]:
             f"processes, memory_limit {execution.memory_limit} each"), "no job script: the workers run here"
 
 
-def _batch_cluster(execution: ExecutionConfig, quiet: bool) -> tuple[Client, object]:
+class Closable(Protocol):
+    """A cluster this process started (LocalCluster, a dask-jobqueue or Kubernetes cluster): closed after the run."""
+
+    def close(self) -> Any: ...
+
+
+def _batch_cluster(execution: ExecutionConfig, quiet: bool) -> tuple[Client, Closable]:
     """Submit the jobs and wait for their first worker (campaign.run.batch_jobs: a dead batch job stops
     the run in one line); the jobs are cancelled when anything fails."""
     require_submit_command(execution.cluster)
@@ -223,20 +232,20 @@ def _kubernetes_cluster(execution: ExecutionConfig):
         kr8s.api()      # credentials first: a KubeCluster that fails later leaves an exit-time traceback
         return KubeCluster(custom_cluster_spec=kubernetes_cluster_spec(execution),
                            namespace=execution.kubernetes.namespace, shutdown_on_close=True, quiet=True)
-    except Exception as exc:   # noqa: BLE001 - kr8s and the operator raise ValueError, kr8s.ServerError, OSError ...
+    except Exception as exc:   # kr8s and the operator raise ValueError, kr8s.ServerError, OSError ...
         raise RunStopped(f"cannot start the Kubernetes cluster ({_first_line(exc)}); check the credentials "
                          "(KUBECONFIG, ~/.kube/config or the pod's service account), the namespace "
                          f"{execution.kubernetes.namespace!r} and the dask-kubernetes operator; "
                          "nothing was run or changed") from None
 
 
-def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Client, object | None]:
+def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Client, Closable | None]:
     """Connect to the cluster of ``execution``; return the client and the cluster object this process
     started (None for an existing scheduler). Prints the dashboard link unless ``quiet``."""
     require_backend(execution)
     for variable, value in SINGLE_THREAD_ENVIRONMENT.items():
         os.environ.setdefault(variable, value)   # one thread per worker process: idle BLAS threads stall on 2 cores
-    cluster = None
+    cluster: Closable | None = None
     if execution.cluster == "scheduler":
         try:
             client = Client(execution.scheduler, timeout=f"{execution.connect_timeout_s}s")
@@ -303,5 +312,5 @@ def _quietly(close) -> None:
     """Close a client or cluster whose scheduler may be gone: what matters then is the run's own message."""
     try:
         close()
-    except Exception:   # noqa: BLE001 - a closing error after a stopped run must not replace its one line
+    except Exception:   # a closing error after a stopped run must not replace its one line
         pass

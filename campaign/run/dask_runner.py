@@ -1,7 +1,7 @@
 """Run a planned campaign on dask.distributed and watch it (backends: :mod:`campaign.run.cluster`).
 
 Tasks are pure functions of small, picklable inputs (the :class:`~campaign.run.worker.CampaignContext` and
-one plan row); each worker loads terrain, camera and trajectories once (see :mod:`campaign.run.worker`)
+one plan row); each worker loads terrain, camera and trajectories once (see :mod:`campaign.case.inputs`)
 and writes every result row durably itself, so the driver can die at any time without losing one.
 
 The driver never asks a worker for a result: a finished task's status (``ok`` / ``failed``) is read
@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass
 
 from dask.distributed import Client
+from distributed import Future
 from distributed.comm.core import CommClosedError
 
 from campaign.configuration.execution import ExecutionConfig
@@ -50,7 +51,7 @@ class RunSummary:
 class CaseTask:
     """One submitted case: its future, the store its file goes to, and its id."""
 
-    future: object
+    future: Future
     store: CampaignStore
     case_id: int
 
@@ -100,7 +101,7 @@ def wait_for_cases(client: Client, tasks: list[CaseTask], watch: Watch = Watch()
     monitor = _Monitor(client, watch, len(tasks))
     bar = ProgressBar(len(tasks), enabled=progress, stream=stream)
     pending = list(tasks)
-    unread: list[tuple[CaseTask, str]] = []       # ended tasks whose case files were not read yet
+    unread: list[tuple[CaseTask, str | None]] = []       # ended tasks whose case files were not read yet
     next_read = 0.0
     done = failed = 0
     try:

@@ -56,6 +56,6 @@ def describe(exc: BaseException, case_id: int, what: str, worker: str, store: st
     if isinstance(exc, OSError):
         place = exc.filename or store
         text = exc.strerror or type(exc).__name__
-        fix = _STORAGE_FIX.get(exc.errno, "check the store's file system, or submit with another --output")
+        fix = _STORAGE_FIX.get(exc.errno or 0, "check the store's file system, or submit with another --output")
         return f"case {case_id}: {text} while {what} on worker {worker} ({place}); {fix}"
     return f"case {case_id}: {type(exc).__name__} while {what} on worker {worker}: {exc}"

@@ -1,11 +1,9 @@
-"""Running cases on a worker process: the per-process cache, retries, and writing a case's
+"""Running cases on a worker process: the task's context, estimator set-up, retries, and writing a case's
 rows (ok or failed) and example PNGs to the store.
 
-Big read-only inputs (camera, trajectory set, terrain strips, calibration, estimators) are loaded once per
-worker process and kept in :data:`WORKER_CACHE` (one :class:`WorkerCache`: the campaigns' inputs by
-configuration hash, and the inputs they share by source); tasks themselves only carry the small
-:class:`CampaignContext` and one plan row. The case itself is computed by
-:func:`campaign.run.case.compute_case`.
+Tasks carry only the small :class:`CampaignContext` and one plan row; the big read-only inputs are loaded
+once per worker process (:func:`campaign.case.inputs.campaign_inputs`). The case itself is computed by
+:func:`campaign.case.compute.compute_case` and turned into rows by :func:`campaign.case.result_rows.case_rows`.
 """
 from __future__ import annotations
 
@@ -16,41 +14,23 @@ import socket
 import time
 import traceback
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from campaign.case.compute import EstimatorResult, compute_case
+from campaign.case.inputs import CampaignInputs, campaign_inputs
+from campaign.case.plan_row import PlanRow
+from campaign.case.result_rows import CaseRun, case_rows
 from campaign.configuration.campaign_file import CampaignConfig
-from campaign.run.case import CampaignInputs, CaseRun, EstimatorResult, PlanRow, SharedInputs, case_rows, compute_case
 from campaign.run.faults import InfrastructureError, describe, is_infrastructure
 from campaign.run.plugin_setup import PluginSetupError, worker_address
-from campaign.run.process_tuning import tune_once
 from campaign.store.case_files import write_case_rows
 from campaign.store.case_identity import StoreIdentity
 from estimators.plugins import EstimatorSetupError, build_estimator
 from file_formats.descent_images import write_preview_png
-
-
-@dataclass
-class WorkerCache:
-    """Everything a worker process keeps between tasks.
-
-    Attributes
-    ----------
-    campaigns : dict
-        Configuration hash -> the campaign's :class:`~campaign.run.case.CampaignInputs`.
-    shared : SharedInputs
-        Inputs shared by the campaigns (or sweep points) the process serves, by source.
-    """
-
-    campaigns: dict[str, CampaignInputs] = field(default_factory=dict)
-    shared: SharedInputs = field(default_factory=SharedInputs)
-
-
-WORKER_CACHE = WorkerCache()
-"""The cache of this process (the only one)."""
 
 
 def set_up_estimators(resources: CampaignInputs) -> None:
@@ -77,14 +57,6 @@ def _on_worker(line: str) -> str:
     """A set-up error's line with this worker's address after the estimator's name."""
     head, _, rest = line.partition(": cannot be set up: ")
     return f"{head} cannot be set up on worker {worker_address()}: {rest}" if rest else f"{line} (worker {worker_address()})"
-
-
-def load_resources(config: CampaignConfig, cache: WorkerCache = WORKER_CACHE) -> CampaignInputs:
-    """The campaign's inputs in this process (created on first use; the process is tuned once)."""
-    tune_once()
-    if config.config_hash not in cache.campaigns:
-        cache.campaigns[config.config_hash] = CampaignInputs(config, cache.shared)
-    return cache.campaigns[config.config_hash]
 
 
 @dataclass(frozen=True)
@@ -147,7 +119,7 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
     is recorded for the case (the driver stops the run; the next submit runs the case again), as when a
     command's program cannot be started during the case.
 
-    Only an exception of the case's own computation (:func:`~campaign.run.case.compute_case`) is retried
+    Only an exception of the case's own computation (:func:`~campaign.case.compute.compute_case`) is retried
     and then recorded ``failed``. A storage error (``OSError`` such as ENOSPC, EDQUOT, EROFS, EIO) or
     ``MemoryError``, in the computation or while writing the case file, is the machine's fault: nothing
     is recorded, the writes remove their own temporary files and
@@ -162,7 +134,7 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
     computation = None
     for attempt in range(1, attempts + 1):
         try:
-            resources = load_resources(config)
+            resources = campaign_inputs(config)
             set_up_estimators(resources)
             computation = compute_case(resources, plan)
             if plan.case_in_class == 0:

@@ -110,7 +110,7 @@ def declared_columns(image_count: int = IMAGE_COUNT) -> tuple[ResultColumn, ...]
         column("altitude_image1_m", f64, "m", "lander altitude at image 1"),
         column("altitude_image3_m", f64, "m", "lander altitude at the last image"),
         column("attitude_floor_mps", f64, "m/s", "velocity error the attitude bias alone causes "
-                                                 "(campaign.run.error_budget)"),
+                                                 "(campaign.case.error_budget)"),
         column("heat_shield_in_view", pa.list_(flag), "", "the heat shield is visible, per image"),
         column("outside_terrain_fraction", pa.list_(f64), "", "fraction of pixels on ground outside the "
                                                               "terrain, per image"),

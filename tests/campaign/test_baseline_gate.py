@@ -22,8 +22,9 @@ from campaign.report.baseline_gate import (
     judge_point,
     valid_drop_p_value,
 )
-from campaign.run.sweep_baseline import Baseline, compare_to_baseline, read_baseline, sweep_status_lines
+from campaign.report.sweep_baseline import Baseline, compare_to_baseline, read_baseline
 from campaign.store.campaign_store import StoreError
+from campaign.store.sweep_directory import sweep_status_lines
 
 REPO = Path(__file__).resolve().parents[2]
 GUSEV = REPO / "sitedata" / "gusev.toml"

@@ -43,7 +43,7 @@ def source_copy(tmp_path_factory):
 def test_closure_is_the_case_computation_and_what_it_imports():
     closure = import_closure()
     assert SOURCE_ROOT == REPO
-    for module in ("campaign.run.case", "campaign.plan.coverage", "campaign.store.case_files",
+    for module in ("campaign.case.compute", "campaign.plan.coverage", "campaign.store.case_files",
                    "simulator.descent_image", "simulator.scene.radiance", "dimes_velocity.estimator",
                    "estimators.plugins", "estimators.run_python",       # started as ``python -m`` by a string
                    "file_formats.measurements_json", "file_formats.flat_field_files", "file_formats.planetary.pds3",
@@ -58,7 +58,7 @@ def test_closure_is_the_case_computation_and_what_it_imports():
 
 
 @pytest.mark.parametrize("relative", [
-    "campaign/run/case.py", "campaign/plan/coverage.py", "campaign/store/case_files.py",
+    "campaign/case/compute.py", "campaign/plan/coverage.py", "campaign/store/case_files.py",
     "file_formats/measurements_json.py", "file_formats/planetary/pds3.py", "simulator/descent_image.py",
     "simulator/scene/__init__.py", "dimes_velocity/estimator.py", "estimators/run_python.py",
     "sitedata/terrain/synthetic_terrain.py", "flight_interface/camera.py",
@@ -105,7 +105,8 @@ def test_every_import_form_is_followed_and_the_worker_joins_when_it_exists(tmp_p
     files = {
         "campaign/__init__.py": "",
         "campaign/run/__init__.py": "",
-        "campaign/run/case.py": ("import numpy\nfrom typing import TYPE_CHECKING\nfrom . import faults\n"
+        "campaign/case/__init__.py": "",
+        "campaign/case/compute.py": ("import numpy\nfrom typing import TYPE_CHECKING\nfrom ..run import faults\n"
                                  "if TYPE_CHECKING:\n    import campaign.run.unused\n\n"
                                  "def run():\n    from campaign.plan import coverage\n"),
         "campaign/run/faults.py": "from ..store.case_files import write\n",
@@ -123,7 +124,7 @@ def test_every_import_form_is_followed_and_the_worker_joins_when_it_exists(tmp_p
     for relative, text in files.items():
         (tmp_path / relative).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / relative).write_text(text)
-    expected = {"campaign", "campaign.run", "campaign.run.case", "campaign.run.faults", "campaign.store",
+    expected = {"campaign", "campaign.case", "campaign.case.compute", "campaign.run", "campaign.run.faults", "campaign.store",
                 "campaign.store.case_files", "campaign.plan", "campaign.plan.coverage", "simulator", "simulator.scene",
                 "simulator.scene.terrain"}
     assert set(import_closure(root=tmp_path)) == expected

@@ -11,13 +11,14 @@ import cv2
 import numpy as np
 import pytest
 
+from campaign.case.compute import compute_case
+from campaign.case.inputs import campaign_inputs
+from campaign.case.plan_row import PlanRow
 from campaign.cli import main as campaign_main
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.plan.coverage import _mirror_pad
 from campaign.plan.placement import footprint_points_m
-from campaign.run.case import PlanRow, compute_case
-from campaign.run.orchestrate import plan_campaign
-from campaign.run.worker import load_resources
+from campaign.run.planning import plan_campaign
 
 REPO = Path(__file__).resolve().parents[2]
 SIDECAR = "metres_per_pixel = {mpp}\nincidence_deg = 40.0\nemission_deg = 0.0\nphase_deg = 40.0\ndn_to_if_scale = 0.0015\n"
@@ -127,16 +128,16 @@ def test_case_seeing_outside_the_terrain_is_recorded_invalid(tmp_path):
     _, plan = plan_campaign(strict)
     row = plan.iloc[0].to_dict()
     row["offset_east_m"] += 1300.0                 # the 3 km strip's edge now crosses the images
-    shifted_case = compute_case(load_resources(strict), PlanRow.from_record(row))
+    shifted_case = compute_case(campaign_inputs(strict), PlanRow.from_record(row))
     (shifted,) = shifted_case.estimates                                              # one estimator: one row
     assert max(shifted_case.truth.outside_terrain_fraction) > 0.1
     assert shifted.valid is False and shifted.reason == "outside_terrain"
     assert shifted.velocity_error_mps is None
-    lenient_case = compute_case(load_resources(lenient), PlanRow.from_record(row))
+    lenient_case = compute_case(campaign_inputs(lenient), PlanRow.from_record(row))
     (judged_by_estimator,) = lenient_case.estimates
     assert judged_by_estimator.reason != "outside_terrain"
     assert lenient_case.truth.outside_terrain_fraction == shifted_case.truth.outside_terrain_fraction
-    inside_case = compute_case(load_resources(strict), PlanRow.from_record(plan.iloc[0].to_dict()))
+    inside_case = compute_case(campaign_inputs(strict), PlanRow.from_record(plan.iloc[0].to_dict()))
     assert max(inside_case.truth.outside_terrain_fraction) == 0.0 and inside_case.estimates[0].reason != "outside_terrain"
 
 

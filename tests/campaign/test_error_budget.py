@@ -7,11 +7,12 @@ import math
 import numpy as np
 import pytest
 
+from campaign.case.compute import compute_case
+from campaign.case.error_budget import attitude_floor_mps
+from campaign.case.inputs import campaign_inputs
+from campaign.case.plan_row import PlanRow
 from campaign.configuration.campaign_file import load_campaign_config
-from campaign.run.case import PlanRow, compute_case
-from campaign.run.error_budget import attitude_floor_mps
-from campaign.run.orchestrate import plan_campaign
-from campaign.run.worker import load_resources
+from campaign.run.planning import plan_campaign
 from service_campaigns import campaign_file
 
 
@@ -36,7 +37,7 @@ def test_estimator_error_follows_the_floor_when_the_attitude_bias_dominates(tmp_
                "heat_shield_prediction_sigma_m = 0.0\n")
     config = load_campaign_config(campaign_file(tmp_path, cases={"gcp": 0, "gdcp": 5, "gkep": 0}, extra=sensors))
     _, plan = plan_campaign(config)
-    resources = load_resources(config)
+    resources = campaign_inputs(config)
     cases = [compute_case(resources, PlanRow.from_record(record)) for record in plan.to_dict("records")]
     valid = [(case.truth, estimate) for case in cases for estimate in case.estimates if estimate.valid]
     assert len(valid) >= 3, [estimate.reason for case in cases for estimate in case.estimates]

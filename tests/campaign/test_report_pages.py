@@ -105,14 +105,15 @@ def test_template_marks_agree_with_the_estimators_own_image_motion(reported):
     """The gallery places templates and matches by projecting the estimator's ground positions through
     the camera model; the estimator measures the same motion through its rectification maps: two
     independent routes to the same pixels (within a pixel of the square binned frame)."""
-    from campaign.run.case import PlanRow, estimator_inputs, simulate_case_inputs
-    from campaign.run.export import stored_config
-    from campaign.run.worker import load_resources
+    from campaign.case.compute import estimator_inputs, simulate_case_inputs
+    from campaign.case.inputs import campaign_inputs
+    from campaign.case.plan_row import PlanRow
     from campaign.store.campaign_store import CampaignStore
+    from campaign.store.stored_config import stored_config
     from dimes_velocity.estimator import estimate_velocity
 
     store = CampaignStore(reported)
-    resources = load_resources(stored_config(store, store.manifest()))
+    resources = campaign_inputs(stored_config(store, store.manifest()))
     plan = store.plan()
     row = PlanRow.from_record(plan.iloc[0].to_dict())
     shared = estimator_inputs(resources, simulate_case_inputs(resources, row))

@@ -59,14 +59,15 @@ def test_memory_error_in_a_case_is_infrastructure_not_a_failure(tmp_path):
     path = campaign_file(tmp_path, {"gcp": 1, "gdcp": 0, "gkep": 0}, "retries = 2")
     script = f"""
 import resource, sys
-from campaign.run.orchestrate import plan_campaign
-from campaign.run.worker import CampaignContext, execute_case, load_resources
+from campaign.case.inputs import campaign_inputs
+from campaign.run.planning import plan_campaign
+from campaign.run.worker import CampaignContext, execute_case
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.run.faults import InfrastructureError
 config = load_campaign_config({str(path)!r}, output_dir={str(tmp_path / 'out')!r})
 (config.output_dir / "cases").mkdir(parents=True)
 row = plan_campaign(config)[1].to_dict("records")[0]
-load_resources(config)
+campaign_inputs(config)
 used = int(open("/proc/self/statm").read().split()[0]) * resource.getpagesize()
 resource.setrlimit(resource.RLIMIT_AS, (used + 150 * 2**20, resource.RLIM_INFINITY))
 try:

@@ -1,5 +1,4 @@
-"""A sweep against its baseline (``campaign sweep FILE --baseline DIR``) and the state of a sweep output
-directory (``campaign status DIR``).
+"""A sweep against its baseline (``campaign sweep FILE --baseline DIR``).
 
 The baseline is a previous sweep's output directory: its ``sweep.json`` (axes, site, points with their
 values and store) and, per point, the case rows of the point's campaign store (``points/<hash>/``,
@@ -24,8 +23,7 @@ from campaign.report.aggregate import COLUMNS_READ
 from campaign.report.baseline_gate import Finding, GateRules, judge_point
 from campaign.report.compare import with_estimator_column
 from campaign.store.campaign_store import CampaignStore, StoreError
-
-ALLOWED = "allowed: the output directory of an earlier `campaign sweep` of the same sweep file"
+from campaign.store.sweep_directory import ALLOWED, point_label, read_description
 
 
 @dataclass(frozen=True)
@@ -36,26 +34,6 @@ class Baseline:
     directory: Path
     description: dict
     rows: dict[str, pd.DataFrame]
-
-
-def read_description(directory: str | Path) -> dict:
-    """A sweep output directory's sweep.json, checked for the fields the baseline and status read."""
-    path = Path(directory) / "sweep.json"
-    if not path.is_file():
-        raise StoreError(f"{directory}: no sweep.json: not a sweep output directory ({ALLOWED})")
-    try:
-        description = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StoreError(f"{path}: cannot be read ({exc}); {ALLOWED}") from None
-    except ValueError as exc:
-        raise StoreError(f"{path}: not valid JSON ({exc}); {ALLOWED}") from None
-    points = description.get("points") if isinstance(description, dict) else None
-    if not isinstance(points, list) or not isinstance(description.get("axes"), dict) or not all(
-            isinstance(p, dict) and isinstance(p.get("point_id"), str) and isinstance(p.get("values"), dict)
-            and isinstance(p.get("store"), str) for p in points):
-        raise StoreError(f"{path}: not a sweep description (needs axes and points with point_id, values and "
-                         f"store); {ALLOWED}")
-    return description
 
 
 def read_baseline(directory: str | Path, spec: SweepSpec) -> Baseline:
@@ -130,7 +108,7 @@ def compare_to_baseline(spec: SweepSpec, results: pd.DataFrame, baseline: Baseli
     for point in spec.points:
         key = match_key(point.values)
         base_id = base_ids.get(key)
-        where = _point_label(point.point_id, point.values)
+        where = point_label(point.point_id, point.values)
         if base_id is None or base_id not in baseline.rows:
             notes.append(f"{where}: no baseline point with these axis values: not compared")
             continue
@@ -145,52 +123,7 @@ def compare_to_baseline(spec: SweepSpec, results: pd.DataFrame, baseline: Baseli
     return GateResult(findings, compared, notes)
 
 
-def sweep_status_lines(directory: str | Path) -> list[str]:
-    """Per point of a sweep output directory: planned, done, failed and missing cases of its store, then the
-    totals. The points are sweep.json's; without one (a first sweep still running) the point stores'
-    under ``points/``, named by their store and axis values (from their manifests)."""
-    directory = Path(directory)
-    if (directory / "sweep.json").is_file():
-        description = read_description(directory)
-        planned_each = sum(int(count) for count in description.get("cases_per_class", {}).values())
-        points = [(_point_label(point["point_id"], point["values"]), directory / point["store"])
-                  for point in description["points"]]
-    else:
-        planned_each = 0
-        points = []
-        for manifest_path in sorted((directory / "points").glob("*/manifest.json")):
-            values = (CampaignStore(manifest_path.parent).manifest() or {}).get("sweep_point") or {}
-            points.append((_point_label(f"points/{manifest_path.parent.name}", values), manifest_path.parent))
-    lines, totals = [], [0, 0, 0, 0]
-    for label, store in points:
-        if not (store / "manifest.json").is_file():
-            lines.append(f"{label}: no store yet ({store}): {planned_each} cases missing")
-            totals[0] += planned_each
-            totals[3] += planned_each
-            continue
-        try:
-            status = CampaignStore(store).status()
-        except StoreError as exc:
-            lines.append(f"{label}: {exc}")
-            continue
-        lines.append(f"{label}: {status.planned} planned, {status.done} done, {status.failed} failed, "
-                     f"{status.missing} missing" + (f" ({status.bad} bad case files)" if status.bad else ""))
-        for index, count in enumerate((status.planned, status.done, status.failed, status.missing)):
-            totals[index] += count
-    lines.append(f"{directory}: sweep of {len(points)} points: {totals[0]} planned, {totals[1]} done, "
-                 f"{totals[2]} failed, {totals[3]} missing")
-    return lines
-
-
-def _point_label(name: str, values: dict) -> str:
-    return f"{name} ({', '.join(f'{k}={value_text(v)}' for k, v in values.items())})"
-
-
 def match_key(values: dict) -> tuple:
     """Axis values as a comparable key (numbers as floats: 1 and 1.0 are the same point)."""
     return tuple(sorted((field, json.dumps(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v))
                         for field, v in values.items()))
-
-
-def value_text(value) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)

@@ -1,9 +1,9 @@
 """``campaign export DIR CASE_ID OUT``: a campaign case's exact estimator inputs as files, to replay it.
 
 The case is simulated again from the store's manifest (its configuration as resolved) and its plan row,
-with the functions a worker uses (:func:`campaign.run.worker.load_resources`,
-:func:`campaign.run.case.simulate_case_inputs`, :func:`~campaign.run.case.estimator_inputs`,
-:func:`~campaign.run.case.case_truth`): a case is deterministic per (campaign seed, case id), so these
+with the functions a worker uses (:func:`campaign.case.inputs.campaign_inputs`,
+:func:`campaign.case.compute.simulate_case_inputs`, :func:`~campaign.case.compute.estimator_inputs`,
+:func:`~campaign.case.compute.case_truth`): a case is deterministic per (campaign seed, case id), so these
 are the inputs its estimators got. ``OUT`` receives::
 
     image_1.png ... image_3.png   16-bit grey PNG of the binned DN as read out (256 x 1024 for MER); read
@@ -40,15 +40,15 @@ from pathlib import Path
 import pandas as pd
 import tomli_w
 
-from campaign.configuration.campaign_file import CampaignConfig, campaign_config_from_data, load_campaign_config
-from campaign.run.case import PlanRow, case_truth, estimator_inputs, simulate_case_inputs
-from campaign.run.worker import load_resources
+from campaign.case.compute import case_truth, estimator_inputs, simulate_case_inputs
+from campaign.case.inputs import campaign_inputs
+from campaign.case.plan_row import PlanRow
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.errors import StoreError
+from campaign.store.stored_config import stored_config
 from file_formats.descent_images import write_descent_image
 from file_formats.flat_field_files import save_flat_field
 from file_formats.measurements_json import json_ready, measurements_to_dict
-from flight_interface.tomlfields import ConfigError
 
 IMAGE_NAMES = ("image_1.png", "image_2.png", "image_3.png")
 FLAT_FIELD_NAME = "flat_field.npy"
@@ -73,23 +73,6 @@ def check_output_directory(out: Path) -> None:
         raise StoreError(f"{out}: cannot be created ({ancestor} is not a writable directory)")
 
 
-def stored_config(store: CampaignStore, manifest: dict) -> CampaignConfig:
-    """The store's campaign: its campaign file when that still has the store's configuration hash, else
-    rebuilt from the manifest's resolved tables (a sweep point's store, or a changed or moved file; the
-    manifest's ``[scene]`` is the scene as the cases used it, sun distance included)."""
-    config_file = Path(manifest.get("config_file", ""))
-    if config_file.is_file():
-        try:
-            config = load_campaign_config(config_file, output_dir=store.root)
-            if config.config_hash == manifest["config_hash"]:
-                return config
-        except ConfigError:
-            pass
-    tables = json.loads(json.dumps(manifest["config"]))
-    return campaign_config_from_data(tables, config_file, source=f"{store.manifest_path}: config",
-                                     output_dir=store.root)
-
-
 def export_case(store_dir: str | Path, case_id: int, out: str | Path) -> list[Path]:
     """Write case ``case_id`` of the campaign store ``store_dir`` into ``out`` (module docstring); return
     the files written. StoreError (one line, nothing written) for a bad store, case id or ``out``."""
@@ -104,7 +87,7 @@ def export_case(store_dir: str | Path, case_id: int, out: str | Path) -> list[Pa
     check_output_directory(out)
     config = stored_config(store, manifest)
     row = PlanRow.from_record(rows.iloc[0].to_dict())
-    resources = load_resources(config)
+    resources = campaign_inputs(config)
     inputs = simulate_case_inputs(resources, row)
     truth = case_truth(resources, inputs)
     shared = estimator_inputs(resources, inputs)

@@ -1,15 +1,15 @@
-"""Tuning a campaign worker process for cases, and the worker plug-in that does it as a worker starts.
+"""Tuning a process for cases (glibc's malloc thresholds, one OpenCV thread), once per process.
 
-Kept apart from :mod:`campaign.run.worker` on purpose: a worker imports this module to run the plug-in
-when it starts, and it needs only ctypes and OpenCV (0.2 s), not the simulator, the estimators and the
-report (5 s), which a worker loads with its first case anyway; the cluster's start waits for the plug-in.
+Light on purpose (ctypes and OpenCV, 0.2 s): a dask worker runs :func:`tune_once` as it starts
+(:class:`campaign.run.worker_startup.CaseWorkerSetup`), before it loads the simulator and the estimators
+with its first case; :func:`campaign.case.inputs.campaign_inputs` tunes any other process that computes
+cases (``campaign export``, the report's gallery, benchmarks).
 """
 from __future__ import annotations
 
 import ctypes
 
 import cv2
-from distributed import WorkerPlugin
 
 _tuned = False
 
@@ -46,13 +46,3 @@ def tune_once() -> None:
     if not _tuned:
         tune_process()
         _tuned = True
-
-
-class CaseWorkerSetup(WorkerPlugin):
-    """Tunes each worker process as it starts (:func:`tune_process`), before any task runs on it: plug-in
-    checks and estimator set-up run single-threaded too, not only the cases (which tune on first use)."""
-
-    name = "moc2dimes-case-worker"
-
-    def setup(self, worker) -> None:
-        tune_once()
