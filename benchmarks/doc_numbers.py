@@ -35,7 +35,8 @@ Commands (from the repository root)::
     python -m benchmarks.doc_numbers list                   # the record: fact, value, unit, date
 
 ``import-bench`` updates the ``bench/<row name>/<column>`` facts found in a ``make bench`` CSV (date from
-the file's stamp), ``--add`` also records its other numeric columns; ``campaign-table`` replaces
+the file's stamp), and the range facts ``bench/<name>|<name>|<pattern*>/<column>`` (``min-max`` over the
+rows named); ``--add`` also records its other numeric columns; ``campaign-table`` replaces
 ``site_tables.csv`` with the table of each store (``table.csv``, written by ``campaign submit`` and
 ``campaign table``; manifest for the date, seed and settings). Both then rewrite the blocks.
 
@@ -45,6 +46,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import fnmatch
 import json
 import math
 import re
@@ -596,30 +598,48 @@ def import_bench(root: Path, bench_csv: Path, date: str | None = None, condition
     if not DATE.match(date):
         raise RecordError(f"--date {date!r} is not YYYY-MM-DD")
     facts = read_facts(root)
+    source = f"make bench ({bench_csv.name})"
     changed = []
-    for row in _read_csv(bench_csv, ("benchmark",)):
-        name = row.get("name", "")
-        if not name:
-            continue            # per-case rows of a benchmark, not figures
+
+    def record(key: str, value: str, unit: str) -> None:
+        old = facts.get(key)
+        fact = Fact(key, value, old.unit if old else unit, date, source,
+                    conditions or (old.conditions if old else ""), old.superseded if old else ())
+        if fact != old:
+            facts[key] = fact
+            changed.append(key)
+
+    named = [row for row in _read_csv(bench_csv, ("benchmark",)) if row.get("name")]   # not per-case rows
+    for row in named:
         for column, text in row.items():
             if column in ("benchmark", "name", "unit", "bound", "meets", "ratio", "target") or not text:
                 continue
-            try:
-                number = float(text)
-            except ValueError:
-                continue
-            key = f"bench/{name}/{column}"
-            old = facts.get(key)
-            if old is None and not add:
-                continue
-            fact = Fact(key, printed_number(number), old.unit if old else _unit_of(column, row), date,
-                        f"make bench ({bench_csv.name})", conditions or (old.conditions if old else ""),
-                        old.superseded if old else ())
-            if fact != old:
-                facts[key] = fact
-                changed.append(key)
+            number = _number_or_none(text)
+            key = f"bench/{row['name']}/{column}"
+            if number is not None and (key in facts or add):
+                record(key, printed_number(number), _unit_of(column, row))
+    for key in [key for key in facts if key.startswith("bench/") and RANGE_KEY.search(key)]:
+        patterns, column = key.removeprefix("bench/").rsplit("/", 1)
+        numbers = [number for row in named for number in [_number_or_none(row.get(column, ""))]
+                   if number is not None and any(fnmatch.fnmatchcase(row["name"], pattern)
+                                                 for pattern in patterns.split("|"))]
+        if numbers:
+            low, high = printed_number(min(numbers)), printed_number(max(numbers))
+            record(key, low if low == high else f"{low}-{high}", "")
     write_facts(root, facts)
     return changed
+
+
+#: a ``bench/`` fact over several rows (``|``-separated names or fnmatch patterns): recorded as ``min-max``
+RANGE_KEY = re.compile(r"[|*?\[]")
+
+
+def _number_or_none(text: str) -> float | None:
+    try:
+        number = float(text)
+    except ValueError:
+        return None
+    return number if math.isfinite(number) else None
 
 
 def campaign_table_rows(store: Path) -> list[dict]:

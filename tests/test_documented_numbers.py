@@ -265,3 +265,26 @@ def test_a_recorded_table_is_printed_from_its_csv_and_a_hand_edit_fails(copy: Pa
     path.write_text(original + "5,10\n", encoding="utf-8")
     done = doc_numbers("check", root=copy)
     assert done.returncode == 1 and "as many cells as the header" in done.stderr
+
+
+def test_import_bench_records_a_range_over_the_rows_a_fact_names(copy: Path):
+    """``bench/<name>|<name>|<pattern*>/<column>`` facts hold min-max over the rows they name; rows of other
+    names (the x60 rate, the dust point) stay out of the 'every other effect' range."""
+    ratios = {"offnominal/angular_rate_x60": 1.9, "offnominal/dust_100": 1.25, "offnominal/hot_pixels_1pct": 0.951,
+              "offnominal/particle_hits_1e4": 1.1, "offnominal/heat_shield_glint": 1.02,
+              "offnominal/no_blooming": 0.99, "offnominal/dark_current_x100": 1.0,
+              "offnominal/nightly/dust=0,rate=1": 1.0, "offnominal/nightly/dust=100,rate=60": 2.05}
+    bench = copy / "bench-20261201T000000.csv"
+    with bench.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=["benchmark", "name", "case_ms", "ratio_vs_nominal"])
+        writer.writeheader()
+        for name, ratio in ratios.items():
+            writer.writerow({"benchmark": "offnominal", "name": name, "case_ms": 100 * ratio, "ratio_vs_nominal": ratio})
+    assert doc_numbers("import-bench", str(bench), root=copy).returncode == 0
+    after = facts(copy)
+    others = next(key for key in after if key.startswith("bench/offnominal/hot_pixels_1pct|"))
+    assert after[others]["value"] == "0.951-1.10" and after[others]["date"] == "2026-12-01"
+    assert after["bench/offnominal/nightly/*/ratio_vs_nominal"]["value"] == "1.00-2.05"
+    assert after["bench/offnominal/angular_rate_x60/ratio_vs_nominal"]["value"] == "1.90"
+    readme = (copy / "README.md").read_text(encoding="utf-8")
+    assert "-->1.00-2.05<!-- measured:end --> (all within" in readme
