@@ -1,6 +1,7 @@
-"""Estimator parameters: :class:`EstimatorConfig`, the one declaration of the reference estimator's
-``[estimator]`` parameters of a campaign TOML file (names, types, ranges, defaults; ``campaign schema
-estimator`` prints it).
+"""Estimator parameters: :class:`EstimatorConfig`.
+
+The one declaration of the reference estimator's ``[estimator]`` parameters of a campaign TOML file (names, types,
+ranges, defaults; ``campaign schema estimator`` prints it).
 
 Angles are degrees only here, at the configuration edge; the estimator converts them with the
 ``*_rad`` properties. Pixel sizes are in pixels of the 256 x 256 binned, rectified image.
@@ -28,9 +29,12 @@ from flight_interface.tomlfields import ConfigModel, FieldProblem, parse
 
 
 class EstimatorConfig(ConfigModel):
-    """``[estimator]``: parameters of the reference DIMES estimator (angles in degrees at this edge;
-    ``*_rad`` properties for the code). Groups: pre-processing, rectification, feature selection,
-    matching, quality checks (each failure has its reason code; :mod:`dimes_velocity.matching`), solution."""
+    """``[estimator]``: parameters of the reference DIMES estimator.
+
+    Angles in degrees at this edge; ``*_rad`` properties for the code. Groups: pre-processing, rectification,
+    feature selection, matching, quality checks (each failure has its reason code; :mod:`dimes_velocity.matching`),
+    solution.
+    """
 
     remove_dark: bool = True
     """Subtract the modelled dark charge (image area and storage readout ramp)."""

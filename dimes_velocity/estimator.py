@@ -131,8 +131,10 @@ def _span(centres_px) -> float:
 
 
 def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m: float, min_span_px: float) -> bool:
-    """At least ``count`` displacements, all within ``tolerance_m`` of each other, from templates
-    spanning at least ``min_span_px``: enough agreeing evidence to stop tracking."""
+    """At least ``count`` displacements, all within ``tolerance_m`` of each other.
+
+    The templates must span at least ``min_span_px``: then there is enough agreeing evidence to stop tracking.
+    """
     if len(displacements_m) < count:
         return False
     points = np.asarray(displacements_m, dtype=float)
@@ -171,9 +173,11 @@ def _variance(window: np.ndarray) -> float:
 
 
 class _MatchCheck:
-    """What a match is checked against besides its correlation surface: where template and match are
-    in the raw images (a mark on the optics or detector does not move), whether the match is on
-    usable ground, and how much decorrelation the pixel noise of template and match explains."""
+    """What a match is checked against besides its correlation surface.
+
+    Where template and match are in the raw images (a mark on the optics or detector does not move), whether the
+    match is on usable ground, and how much decorrelation the pixel noise of template and match explains.
+    """
 
     def __init__(self, a: RectifiedImage, b: RectifiedImage, feature, match, config: EstimatorConfig):
         self.column, self.row = round(float(match.position_px[0])), round(float(match.position_px[1]))   # = np.rint
@@ -359,8 +363,10 @@ class DimesEstimator:
 
     def _pair(self, index: int, a: RectifiedImage | None, b: RectifiedImage | None, dt_s: float,
               unusable_reason: str = "bad_attitude"):
-        """Select, match and combine the features of one image pair (``unusable_reason``: why an image
-        given as None cannot be used)."""
+        """Select, match and combine the features of one image pair.
+
+        ``unusable_reason``: why an image given as None cannot be used.
+        """
         config = self.config
         t0 = time.perf_counter()
 

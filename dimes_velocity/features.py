@@ -170,8 +170,10 @@ def _edges(start: int, stop: int, cells: int) -> list[int]:
 
 
 class FeatureSelector:
-    """Templates in decreasing interest, drawn one at a time (:meth:`next`): the contrast of an offer
-    is measured only when it is drawn, so a pair whose first matches agree pays for no more.
+    """Templates in decreasing interest, drawn one at a time (:meth:`next`).
+
+    The contrast of an offer is measured only when it is drawn, so a pair whose first matches agree pays for no
+    more.
 
     Parameters
     ----------

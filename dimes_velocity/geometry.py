@@ -1,5 +1,6 @@
-"""Geometry: camera poses from the measurements, and rectification of binned images to a level
-ground plane at a common ground sampling.
+"""Geometry: camera poses from the measurements, and rectification of binned images to a level ground plane.
+
+Every image of a pair is rectified at one common ground sampling.
 
 Frames follow :mod:`flight_interface.frames` (world x east, y north, z up, ground z = 0). The lander's
 horizontal position at image k is the IMU prediction ``P_k`` relative to image 0 (``P_0 = 0``): the
@@ -258,8 +259,11 @@ class Rectification:
 
 @lru_cache(maxsize=8)
 def _segments(size: int, knots: int) -> tuple[tuple[int, int, int, np.ndarray, np.ndarray], ...]:
-    """The knot intervals of :func:`knot_operator` as ``(lo, hi, first knot, weights (hi - lo, 4),
-    weights.T (4, hi - lo))``, contiguous (per rectified size and knot count, cached)."""
+    """The knot intervals of :func:`knot_operator`.
+
+    Returned as ``(lo, hi, first knot, weights (hi - lo, 4), weights.T (4, hi - lo))``, contiguous (per
+    rectified size and knot count, cached).
+    """
     _, first, weights = knot_operator(size, knots)
     starts = np.flatnonzero(np.diff(first, prepend=-1))
     ends = np.append(starts[1:], size)
@@ -320,8 +324,10 @@ _CONE_TEST_MARGIN = 1e-6       # covers float64 rounding and the float32 map val
 
 
 def _cone_cells(cosines: np.ndarray, threshold: float) -> tuple[int, int, int, int] | None:
-    """The block of knot cells (first row, end row, first column, end column) outside which no
-    interpolated cosine can exceed ``threshold`` (None: nowhere)."""
+    """The block of knot cells (first row, end row, first column, end column).
+
+    Outside the block no interpolated cosine can exceed ``threshold`` (None: nowhere).
+    """
     highest = _support_extreme(cosines, np.maximum)
     lowest = _support_extreme(cosines, np.minimum)
     possible = highest + _CATMULL_ROM_OVERSHOOT * (highest - lowest) > threshold - _CONE_TEST_MARGIN

@@ -181,8 +181,11 @@ def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.nd
 
 
 def _shifted_window(window: np.ndarray, offset_x: float, offset_y: float, out_size: int) -> np.ndarray:
-    """:func:`shift_window` of a float64 window: the horizontal 4-tap pass, then the vertical one, each
-    sum taken left to right (``((w0 s0 + w1 s1) + w2 s2) + w3 s3``) into one buffer."""
+    """:func:`shift_window` of a float64 window.
+
+    The horizontal 4-tap pass, then the vertical one, each sum taken left to right (``((w0 s0 + w1 s1) + w2 s2) +
+    w3 s3``) into one buffer.
+    """
     first_out = window.shape[0] // 2 - out_size // 2
     whole_x, whole_y = math.floor(offset_x), math.floor(offset_y)
     wx, wy = _keys_weights(offset_x - whole_x), _keys_weights(offset_y - whole_y)

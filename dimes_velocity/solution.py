@@ -131,8 +131,10 @@ def velocity_uncertainty(heights_m: np.ndarray, intervals_s: np.ndarray, used_pa
                          pair_sigmas_m: np.ndarray, pair_spread_mps: float, attitude_sigma_rad: float,
                          relative_attitude_sigma_rad: float, altitude_sigma_fraction: float,
                          ground_reach_m: np.ndarray) -> float:
-    """Stated uncertainty of the estimated horizontal velocity (m/s): the RMS of the horizontal error
-    magnitude, ``sqrt(2) sigma`` for a per-component standard deviation ``sigma``.
+    """Stated uncertainty of the estimated horizontal velocity (m/s).
+
+    It is the RMS of the horizontal error magnitude, ``sqrt(2) sigma`` for a per-component standard
+    deviation ``sigma``.
 
     The estimate is the mean bias of the used pairs, ``b = mean_k d_k / dt_k`` with ``d_k`` the
     displacement of pair ``k`` (images ``k``, ``k + 1``). Its error terms, added in quadrature:

@@ -93,8 +93,11 @@ class ContractViolation(Exception):
 
 
 class ImplausibleOutput(ContractViolation):
-    """A well-formed answer that cannot be right (:func:`check_plausible`): a valid velocity that is not
-    finite or faster than the bound, a negative or non-finite stated uncertainty; the message names the check."""
+    """A well-formed answer that cannot be right.
+
+    See :func:`check_plausible`: a valid velocity that is not finite or faster than the bound, a negative or
+    non-finite stated uncertainty; the message names the check.
+    """
 
 
 @dataclass(frozen=True)

@@ -119,8 +119,11 @@ class PythonEstimator:
 
 
 class EstimatorSetupError(Exception):
-    """An estimator cannot be loaded or started in this process (one line: estimator, error, fix); not a
-    case's failure: the campaign stops the run and records nothing for the cases it could not run."""
+    """An estimator cannot be loaded or started in this process.
+
+    One line: estimator, error, fix. Not a case's failure: the campaign stops the run and records nothing for the
+    cases it could not run.
+    """
 
 
 def setup_fix(spec: EstimatorSpec) -> str:

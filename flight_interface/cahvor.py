@@ -215,8 +215,11 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
 
 
 def _dot(components, vector) -> np.ndarray:
-    """Dot product of a vector field given as its three component arrays with ``vector`` (3 components:
-    a constant vector or another field), component by component."""
+    """Dot product, component by component, of a vector field with ``vector``.
+
+    The field is given as its three component arrays; ``vector`` has 3 components (a constant vector or
+    another field).
+    """
     return components[0] * vector[0] + components[1] * vector[1] + components[2] * vector[2]
 
 

@@ -99,8 +99,11 @@ class Camera:
                 value.setflags(write=False)
 
     def __getstate__(self) -> dict[str, object]:
-        """Pickle the camera as designed: the derived arrays of the cached properties below (tens of MiB)
-        are left out and recomputed, bit for bit, where they are next needed."""
+        """Pickle the camera as designed.
+
+        The derived arrays of the cached properties below (tens of MiB) are left out and recomputed, bit for bit,
+        where they are next needed.
+        """
         return {name: value for name, value in self.__dict__.items() if name not in _DERIVED_PROPERTIES}
 
     @cached_property
@@ -120,7 +123,8 @@ class Camera:
         A property of the optics as designed (an estimator may use it when it has no flat field); the
         pixel response non-uniformity is realised only by the simulator
         (:func:`simulator.detector.charge_generation.prnu_map`) and reaches an estimator only through a
-        measured flat field (:mod:`flight_interface.calibration`)."""
+        measured flat field (:mod:`flight_interface.calibration`).
+        """
         return _read_only((np.cos(self.field_angle_rad) ** 4).astype(np.float32))
 
     def fov_deg(self) -> tuple[float, float]:

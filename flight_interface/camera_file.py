@@ -134,8 +134,11 @@ class CahvorVectors(ConfigModel):
 
 
 class Geometry(ConfigModel):
-    """``[geometry]``: either intrinsics (focal length, principal point, radial distortion) or an
-    explicit ``[geometry.cahvor]`` model."""
+    """``[geometry]``: the camera model.
+
+    Either intrinsics (focal length, principal point, radial distortion) or an explicit ``[geometry.cahvor]``
+    model.
+    """
 
     focal_length_m: float | None = Field(None, gt=0.0, le=10.0)
     """Focal length (m); required unless [geometry.cahvor] is given."""
@@ -358,8 +361,10 @@ class Optics(ConfigModel):
 
 
 class Electronics(ConfigModel):
-    """``[electronics]``: dark current, charge capacity and analogue-to-digital conversion
-    (temperatures in Celsius at this edge; ``*_k`` properties in kelvin)."""
+    """``[electronics]``: dark current, charge capacity and analogue-to-digital conversion.
+
+    Temperatures in Celsius at this edge; ``*_k`` properties in kelvin.
+    """
 
     full_well_e: float = Field(gt=0.0, le=MAX_WELL_E)
     """Full well per pixel (e-)."""
@@ -467,8 +472,11 @@ class CameraFile(ConfigModel):
 
 
 def _check_distortion_increases_to_corners(model: cahvor.Cahvor, width: int, height: int) -> None:
-    """The radial distortion must keep increasing out to the frame corners (else rays fold back and
-    several field angles share one pixel), and the field of view must be sensible."""
+    """The radial distortion must keep increasing out to the frame corners.
+
+    Otherwise rays fold back and several field angles share one pixel. The field of view must also lie in
+    :data:`FOV_RANGE_DEG`.
+    """
     turning = cahvor.distortion_turning_point(model.r)
     if np.isfinite(turning):
         r0, r1, r2 = model.r

@@ -1,5 +1,8 @@
-"""Command-line contract shared by every CLI of the project: a usage or input error is ONE line on
-stderr naming the file (or flag), the field and what is allowed, exit status 2, and nothing written."""
+"""Command-line contract shared by every CLI of the project.
+
+A usage or input error is ONE line on stderr naming the file (or flag), the field and what is allowed, exit status
+2, and nothing written.
+"""
 from __future__ import annotations
 
 import argparse

@@ -1,6 +1,7 @@
-"""What the flight system measured when each descent image was taken (the estimator's inputs
-besides the images). Frames as in :mod:`flight_interface.frames`: world x east, y north, z up;
-attitude is the lander body-to-world quaternion ``(w, x, y, z)``.
+"""What the flight system measured when each descent image was taken.
+
+The estimator's inputs besides the images. Frames as in :mod:`flight_interface.frames`: world x east, y north, z
+up; attitude is the lander body-to-world quaternion ``(w, x, y, z)``.
 """
 from __future__ import annotations
 
@@ -89,8 +90,11 @@ IMU_CONSISTENCY_MPS = 5.0
 
 
 class MeasurementError(ValueError):
-    """Illegal or self-contradictory measurements (wrong shape, not finite, out of range, fields that
-    disagree with each other); the message names the field and the disagreement."""
+    """Illegal or self-contradictory measurements.
+
+    Wrong shape, not finite, out of range, fields that disagree with each other; the message names the field and
+    the disagreement.
+    """
 
 
 def _vector(value, length: int, name: str) -> np.ndarray:
@@ -103,8 +107,9 @@ def _vector(value, length: int, name: str) -> np.ndarray:
 
 
 def validate_measurements(measurements: DescentMeasurements, image_count: int | None = None) -> None:
-    """Raise :class:`MeasurementError` naming the field if the measurements cannot be used or contradict
-    each other.
+    """Raise :class:`MeasurementError` if the measurements cannot be used or contradict each other.
+
+    The message names the field.
 
     Checks: at least two images (``image_count`` of them if given), strictly increasing times, unit
     attitude quaternions (norm within :data:`QUATERNION_NORM_TOLERANCE` of 1), finite 3-vectors, radar

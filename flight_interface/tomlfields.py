@@ -49,8 +49,11 @@ class FieldProblem(ValueError):
 
 
 class ConfigModel(BaseModel):
-    """Base of every configuration table: unknown keys refused, no type coercion (TOML types are
-    exact: ``"1"`` is not a number, ``1`` is not a boolean), finite numbers only, immutable."""
+    """Base of every configuration table.
+
+    Unknown keys refused, no type coercion (TOML types are exact: ``"1"`` is not a number, ``1`` is not a
+    boolean), finite numbers only, immutable.
+    """
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False,
                               use_attribute_docstrings=True, validate_default=False)
@@ -270,8 +273,15 @@ def translate(exc: ValidationError, model: type[BaseModel], source: str, prefix:
 
 
 class _Where:
-    """What the walk along an error location found: the dotted path, the field's annotation
-    metadata, the innermost model and the annotation at the end."""
+    """What the walk along an error location found.
+
+    The dotted path, the field's annotation metadata, the innermost model and the annotation at the end.
+
+    Parameters
+    ----------
+    path : str
+        The dotted path so far.
+    """
 
     def __init__(self, path: str):
         self.path = path

@@ -1,5 +1,7 @@
-"""A minimal ``kind = "command"`` estimator: a stand-alone program that reads the case's files and writes
-its answer as JSON. Copy it (numpy and the standard library only), or write the same in any language.
+"""A minimal ``kind = "command"`` estimator.
+
+A stand-alone program that reads the case's files and writes its answer as JSON. Copy it (numpy and the standard
+library only), or write the same in any language.
 
     [[estimators]]
     name = "imu_only_command"

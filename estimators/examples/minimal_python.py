@@ -1,5 +1,7 @@
-"""A minimal ``kind = "python"`` estimator plug-in: copy this file, keep ``estimate``'s signature, replace
-its body. It imports only numpy, so the copy needs nothing from this project.
+"""A minimal ``kind = "python"`` estimator plug-in.
+
+Copy this file, keep ``estimate``'s signature, replace its body. It imports only numpy, so the copy needs nothing
+from this project.
 
     [[estimators]]
     name = "imu_only"
