@@ -44,7 +44,6 @@ class CalibrationConfig(ConfigModel):
     """Flat (and dark) exposures of the calibration."""
 
 
-FLAT_FIELD_MODES = CalibrationConfig.model_fields["flat_field"].annotation.__args__
 CALIBRATION_KEYS = tuple(CalibrationConfig.model_fields)
 
 

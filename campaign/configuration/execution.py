@@ -29,7 +29,8 @@ SCHEDULER_SCHEMES = ("tcp://", "tls://", "inproc://")
 SCHEDULER_ADDRESS = re.compile(r"^(?:(?:tcp|tls)://(?:[A-Za-z0-9_.-]+|\[[0-9A-Fa-f:.]+\]):"
                                r"(?:[1-9]\d{0,3}|[1-5]\d{4}|6[0-4]\d{3}|65[0-4]\d{2}|655[0-2]\d|6553[0-5])|inproc://.+)$")
 MIN_MEMORY_LIMIT_BYTES = 2**20
-CLUSTERS = ("local", "scheduler", "slurm", "pbs", "kubernetes")
+#: Backends a campaign runs on ([execution] cluster).
+Cluster = Literal["local", "scheduler", "slurm", "pbs", "kubernetes"]
 WALLTIME = re.compile(r"^(\d+-)?\d{1,3}:\d{2}(:\d{2})?$")
 KUBERNETES_QUANTITY = re.compile(r"^\d+(\.\d+)?(m|k|M|G|T|Ki|Mi|Gi|Ti)?$")
 KUBERNETES_NAME = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
@@ -156,7 +157,7 @@ class KubernetesPods(ConfigModel):
 class ExecutionConfig(ConfigModel):
     """``[execution]``: the dask cluster a campaign runs on (command-line flags override it)."""
 
-    cluster: Literal[CLUSTERS] = "local"
+    cluster: Cluster = "local"
     """Backend: "local" (embedded), "scheduler" (existing scheduler at `scheduler`), "slurm", "pbs",
     "kubernetes" (default "local"; "scheduler" when only `scheduler` is given)."""
     scheduler: str = ""

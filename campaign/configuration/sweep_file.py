@@ -63,7 +63,6 @@ from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, 
 
 AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed",)
-MODES = ("grid", "list")
 MAX_POINTS = 10_000
 EAGER_POINTS = 256      # points validated before a sweep runs (module docstring); the rest when first used
 

@@ -165,9 +165,11 @@ def fit_terrain(terrain: Terrain, mode: str, cover: Coverage) -> Terrain:
     pads = (pad_r // 2, pad_r - pad_r // 2), (pad_c // 2, pad_c - pad_c // 2)
     tiled = _mirror_pad(terrain.reflectance_if, *pads)
     origin = np.array([-(need_cols - 1) / 2 * mpp, (need_rows - 1) / 2 * mpp])
-    heights = {"height_m": _mirror_pad(terrain.height_m, *pads)} if isinstance(terrain, ReliefTerrain) else {}
-    return replace(terrain, reflectance_if=tiled, origin_m=origin, name=f"{terrain.name}-mosaic{need_cols}x{need_rows}",
-                   **heights)
+    name = f"{terrain.name}-mosaic{need_cols}x{need_rows}"
+    if isinstance(terrain, ReliefTerrain):
+        return replace(terrain, reflectance_if=tiled, origin_m=origin, name=name,
+                       height_m=_mirror_pad(terrain.height_m, *pads))
+    return replace(terrain, reflectance_if=tiled, origin_m=origin, name=name)
 
 
 def _mirror_pad(image: np.ndarray, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:

@@ -67,19 +67,13 @@ def footprint_outlines(camera: Camera, profile: DescentProfile, per_side: int = 
 def footprint_points_m(camera: Camera, profile: DescentProfile, per_side: int = 8) -> np.ndarray | None:
     """All images' outline points stacked, (K * 4 * per_side, 2); None when any image sees sky."""
     outlines = footprint_outlines(camera, profile, per_side)
-    return None if any(outline is None for outline in outlines) else np.concatenate(outlines)
+    seen = [outline for outline in outlines if outline is not None]
+    return np.concatenate(seen) if len(seen) == len(outlines) else None
 
 
 def _turn(points_en: np.ndarray, heading_rad: float) -> np.ndarray:
     cos_h, sin_h = math.cos(heading_rad), math.sin(heading_rad)
     return points_en @ np.array([[cos_h, sin_h], [-sin_h, cos_h]])
-
-
-def _feasible_offsets(points_en: np.ndarray, extent_m, margin_m: float):
-    west, east, south, north = extent_m
-    low = np.array([west + margin_m - points_en[:, 0].min(), south + margin_m - points_en[:, 1].min()])
-    high = np.array([east - margin_m - points_en[:, 0].max(), north - margin_m - points_en[:, 1].max()])
-    return low, high
 
 
 def even_points(count: int, seed_sequence: np.random.SeedSequence) -> np.ndarray:

@@ -49,15 +49,17 @@ import pandas as pd
 from campaign.realism.flight_file import FlightFile
 from campaign.realism.flight_plots import column_plot, scatter_plot, side_by_side
 from dimes_velocity import DescentMeasurements, DimesEstimator, ImageMeasurement
+from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.features import select_features, template_statistics
 from dimes_velocity.preprocess import flatten, make_flattening
 from file_formats.descent_images import InputFileError, load_image
-from flight_interface.camera import load_camera
+from flight_interface.camera import Camera, load_camera
 from flight_interface.frames import quat_from_rotation_vector, quat_multiply
 from flight_interface.tomlfields import ConfigError, load_toml, parse
 from simulator.descent_image import render_descent_image
 from simulator.scene.descent_profile import DescentProfile
-from sitedata.sites import load_class_terrain, load_site
+from simulator.scene_config import SceneConfig
+from sitedata.sites import Site, TerrainSpec, load_class_terrain, load_site
 
 POSE_SPAN_S = 0.05            # the rendered profile spans the image time +- this (constant velocity and rate)
 TEXTURE_SIGMA_BLOCKS = 16.0   # Gaussian background removed before the texture correlation
@@ -82,11 +84,11 @@ class FlightComparison:
     """A validated FLIGHT.toml: site, class terrain spec, camera, scene and estimator configuration."""
 
     source: Path
-    site: object
-    terrain_spec: object
-    camera: object
-    scene: object
-    estimator: object
+    site: Site
+    terrain_spec: TerrainSpec
+    camera: Camera
+    scene: SceneConfig
+    estimator: EstimatorConfig
     seed: int
     column: int
     output_dir: Path
@@ -96,8 +98,6 @@ class FlightComparison:
 def load_flight(path: str | Path, output_dir: str | Path | None = None, column: int | None = None) -> FlightComparison:
     """Read and validate FLIGHT.toml (:class:`campaign.realism.flight_file.FlightFile`) and its images (nothing is
     written). Raises ConfigError (one line)."""
-
-
     path = Path(path)
     flight = parse(FlightFile, load_toml(path), path, context={"base_dir": path.parent})
     site = load_site(flight.site)
@@ -236,8 +236,6 @@ def estimator_metrics(spec: FlightComparison, rendered: list) -> tuple[list[dict
 
 def compare(spec: FlightComparison) -> dict:
     """Render, measure and write every output to ``spec.output_dir``; return the summary (also comparison.json)."""
-
-
     terrain = load_class_terrain(spec.terrain_spec)
     rendered = render_simulated(spec, terrain)
     flattening = make_flattening(spec.camera, spec.estimator)
@@ -282,7 +280,7 @@ def _template_summary(features) -> dict:
     """Means of the Table-3 metrics per source (brightness, contrast, their ratio, correlation)."""
     if features.empty:
         return {}
-    result = {}
+    result: dict[str, dict[str, float] | float] = {}
     templates = features[features["source"] == "templates"]
     if len(templates):
         for who in ("flight", "simulated"):

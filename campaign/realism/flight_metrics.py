@@ -28,7 +28,7 @@ COLUMNS = ("feature_brightness", "feature_contrast", "feature_correlation", "fea
 
 
 def _flatten(members: pd.DataFrame, column: str, matched_only: bool = False) -> np.ndarray:
-    values = []
+    values: list[float] = []
     has_status = "feature_status" in members
     for _, row in members.iterrows():
         data = row[column]

@@ -41,6 +41,8 @@ from campaign.realism.terrain_stats import (
     tile_contrasts,
 )
 from file_formats.planetary import load_orbital_image, read_image
+from file_formats.planetary.image import fail
+from file_formats.planetary.sidecar import refuse_unknown
 from sitedata import SITEDATA_DIR
 
 SITEDATA = SITEDATA_DIR
@@ -91,10 +93,23 @@ def load_region(region: ReferenceRegion, realdata: Path = DEFAULT_REALDATA) -> t
 
     sidecar = SITEDATA / region.sidecar if region.sidecar else None
     image = load_orbital_image(Path(realdata) / region.path, sidecar)
+    hint = "the side-car of the region in REFERENCE_REGIONS"
+    if image.dn_to_if_scale is None:
+        refuse_unknown(image, "the DN-to-I/F calibration", "dn_to_if_scale", hint)
+    if image.metres_per_pixel is None:
+        refuse_unknown(image, "metres per pixel", "metres_per_pixel", hint)
     pixels = image.pixels * np.float32(image.dn_to_if_scale) + np.float32(image.dn_to_if_offset or 0.0)
     rows = slice(*region.rows) if region.rows else slice(None)
     cols = slice(*region.cols) if region.cols else slice(None)
     return pixels[rows, cols], float(image.metres_per_pixel)
+
+
+def _read_grey_image(path: Path) -> np.ndarray:
+    """An 8-bit greyscale image file as float32 (ReaderError if unreadable)."""
+    pixels = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if pixels is None:
+        raise fail(path, "cannot be read as an image")
+    return pixels.astype(np.float32)
 
 
 def window_crater_densities(image: np.ndarray, metres_per_pixel: float, window_m: float) -> np.ndarray:
@@ -124,11 +139,9 @@ def measure_reference_ranges(sampling: DescentSampling, realdata: Path = DEFAULT
 
 def measure_psd_slope_range(realdata: Path = DEFAULT_REALDATA) -> tuple[float, float]:
     """Min and max 4-64 px PSD slope over every real MOC NA image and CTX tile (raw pixels)."""
-
-
     realdata = Path(realdata)
     slopes = [psd_slope(read_image(realdata / "moc_na" / name).pixels)
               for name in ("E0201461.tiny.cub", "M0100115_decompressed.img", "M12.VIC")]
-    slopes += [psd_slope(cv2.imread(str(tile), cv2.IMREAD_GRAYSCALE).astype(np.float32))
+    slopes += [psd_slope(_read_grey_image(tile))
                for tile in sorted((realdata / "ctx_tiles").glob("MC11E-*.png"))]
     return float(min(slopes)), float(max(slopes))

@@ -199,8 +199,8 @@ def detrended_window_std(samples: np.ndarray, size: int) -> np.ndarray:
     rows, cols = (samples.shape[0] // size) * size, (samples.shape[1] // size) * size
     if rows == 0 or cols == 0:
         return np.zeros(0)
-    windows = samples[:rows, :cols].astype(np.float64).reshape(rows // size, size, cols // size, size)
-    windows = windows.transpose(0, 2, 1, 3).reshape(-1, size, size)
+    grid = samples[:rows, :cols].astype(np.float64).reshape(rows // size, size, cols // size, size)
+    windows = grid.transpose(0, 2, 1, 3).reshape(-1, size, size)
     offsets = np.arange(size, dtype=np.float64) - (size - 1) / 2.0
     norm = size * float(offsets @ offsets)
     mean = windows.mean(axis=(1, 2))

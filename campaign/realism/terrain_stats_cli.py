@@ -45,10 +45,10 @@ SHIPPED_SITES = (SITEDATA / "gusev.toml", SITEDATA / "meridiani.toml")
 DEFAULT_SITE = SHIPPED_SITES[0]
 
 
-def _estimator_config(site_path: Path):
-
+def _estimator_config(site_path: Path) -> EstimatorConfig:
+    """The site file's ``[estimator]`` table (defaults without one)."""
     data = load_toml(site_path)
-    return estimator_config_from_data(data["estimator"], site_path) if "estimator" in data else EstimatorConfig()
+    return estimator_config_from_data(data["estimator"], str(site_path)) if "estimator" in data else EstimatorConfig()
 
 
 def _sampling(site: Site, site_path: Path, terrain=None):
@@ -92,13 +92,14 @@ def measure_file(spec: str, site_path: Path) -> tuple[str, TerrainStatistics]:
         radiometry = f"uncalibrated {image.file_format}"
     site = load_site(site_path)
     ratio = 1.0
-    angles = (image.incidence_rad, image.emission_rad, image.phase_rad)
-    if None not in angles:
+    angles = (None if image.incidence_rad is None or image.emission_rad is None or image.phase_rad is None
+              else (image.incidence_rad, image.emission_rad, image.phase_rad))
+    if angles is not None:
         ratio = nadir_photometric_ratio(site.sun_elevation_rad, *angles)
     sampling = descent_sampling(load_camera(site.camera_path), site.heliocentric_distance_au,
                                 _estimator_config(site_path), photometric_ratio=ratio)
     stats = terrain_statistics(pixels, image.metres_per_pixel, sampling, radiometry)
-    if radiometry == "I/F" and None in angles:
+    if radiometry == "I/F" and angles is None:
         stats = dataclasses.replace(stats, notes="; ".join(filter(None, [
             stats.notes, "orbital photometric angles unknown: descent/orbital I/F ratio taken as 1 for the noise"])))
     name = Path(path).name + (f" + {Path(sidecar).name}" if sidecar else "")
