@@ -53,7 +53,22 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def crater_field(seed: int, size: int = 1400, mpp: float = 3.0) -> Terrain:
-    """A simple synthetic I/F strip: smooth albedo texture plus craters with dark floors and bright rims."""
+    """A simple synthetic I/F strip: smooth albedo texture plus craters with dark floors and bright rims.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the texture and crater draws.
+    size : int, optional
+        Side of the square strip (pixels).
+    mpp : float, optional
+        Pixel size (m).
+
+    Returns
+    -------
+    Terrain
+        The strip, centred on the world origin.
+    """
     rng = np.random.default_rng(seed)
     texture = np.zeros((size, size), np.float32)
     for sigma, weight in ((40.0, 0.5), (8.0, 0.3), (1.5, 0.2)):
@@ -78,7 +93,13 @@ def crater_field(seed: int, size: int = 1400, mpp: float = 3.0) -> Terrain:
 
 
 def example_profile() -> DescentProfile:
-    """Descent at 72 m/s with 13 m/s drift, 15 +- 5 deg off nadir toward the anti-sun side, heat shield below."""
+    """The example descent: 72 m/s with 13 m/s drift, 15 +- 5 deg off nadir toward the anti-sun side, heat shield below.
+
+    Returns
+    -------
+    DescentProfile
+        The profile with its three image times.
+    """
     time = np.linspace(0.0, 8.0, 33)
     velocity = np.array([12.0, -5.0, -72.0])
     position = np.array([0.0, 0.0, 2000.0]) + time[:, None] * velocity
@@ -94,6 +115,20 @@ def example_profile() -> DescentProfile:
 
 
 def stretch(values: np.ndarray, low_pct: float = 0.5, high_pct: float = 99.5) -> np.ndarray:
+    """Percentile stretch of an array to 8 bits, for pictures to look at.
+
+    Parameters
+    ----------
+    values : ndarray
+        Any real array.
+    low_pct, high_pct : float, optional
+        Percentiles mapped to 0 and 255.
+
+    Returns
+    -------
+    ndarray, uint8, shape of ``values``
+        The stretched picture.
+    """
     low, high = np.percentile(values, [low_pct, high_pct])
     return (np.clip((values - low) / max(high - low, 1e-12), 0, 1) * 255).astype(np.uint8)
 
@@ -103,13 +138,31 @@ FLAT_FIELD_NAME = "flat_field.npy"
 
 
 def example_sun() -> np.ndarray:
-    """Unit vector toward the sun (world x east, y north, z up): 25 deg from the zenith, azimuth 200 deg."""
+    """Unit vector toward the sun of the example: 25 deg from the zenith, azimuth 200 deg.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        World unit vector (x east, y north, z up).
+    """
     incidence, azimuth = np.radians(25.0), np.radians(200.0)
     return np.array([np.sin(incidence) * np.sin(azimuth), np.sin(incidence) * np.cos(azimuth), np.cos(incidence)])
 
 
 def write_display(out: Path, terrain: Terrain, camera: Camera, rendered: list[DescentImage]) -> None:
-    """The pictures to look at (``--display``): stretched images, radiance fields, footprint map."""
+    """Write the pictures to look at (``--display``): stretched images, radiance fields, footprint map.
+
+    Parameters
+    ----------
+    out : Path
+        Output directory.
+    terrain : Terrain
+        The example terrain.
+    camera : Camera
+        The camera.
+    rendered : list of DescentImage
+        The three rendered images.
+    """
     view = stretch(terrain.reflectance_if)
     scale = min(1.0, 1400.0 / max(terrain.shape))
     canvas = cv2.cvtColor(cv2.resize(view, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
@@ -131,7 +184,30 @@ def write_display(out: Path, terrain: Terrain, camera: Camera, rendered: list[De
 
 def truth_record(profile: DescentProfile, rendered: list[DescentImage], sensor_errors: dict, seed: int,
                  camera_path: Path, flat_field_source: str, replay: list[str]) -> dict:
-    """truth.json: the keys of ``campaign export``'s truth that exist outside a campaign."""
+    """truth.json: the keys of ``campaign export``'s truth that exist outside a campaign.
+
+    Parameters
+    ----------
+    profile : DescentProfile
+        The true descent.
+    rendered : list of DescentImage
+        The rendered images.
+    sensor_errors : dict
+        The sensor errors drawn (:func:`simulator.sensors.measure`'s truth), SI units.
+    seed : int
+        The seed of the example.
+    camera_path : Path
+        The camera file.
+    flat_field_source : str
+        ``"calibrated"`` or ``"none"``.
+    replay : list of str
+        The command line that replays the estimate.
+
+    Returns
+    -------
+    dict
+        The JSON record.
+    """
     last = float(profile.image_times_s[-1])
     velocity, wind = profile.pose(last).velocity_mps, profile.wind_at(last)
     return json_ready({
@@ -146,6 +222,18 @@ def truth_record(profile: DescentProfile, rendered: list[DescentImage], sensor_e
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Command line ``python -m simulator`` (module docstring).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit status: 0 written, 2 bad input.
+    """
     parser = OneLineParser(prog="python -m simulator", description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--seed", type=int, default=1)
@@ -168,7 +256,20 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def write_example(args: argparse.Namespace, camera: Camera) -> int:
-    """Render the example, write the files (module docstring), print what was written; 0."""
+    """Render the example, write the files (module docstring) and print what was written.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line.
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    int
+        Exit status 0.
+    """
     terrain = crater_field(args.seed)
     profile = example_profile()
     sun = example_sun()

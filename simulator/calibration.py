@@ -43,7 +43,18 @@ DEFAULT_FLAT_FRAMES = 16
 
 
 def flat_source_radiance(camera: Camera) -> float:
-    """Uniform source radiance (W m^-2 sr^-1 um^-1) giving :data:`FLAT_LEVEL_FRACTION` of full scale on axis."""
+    """Uniform source radiance giving :data:`FLAT_LEVEL_FRACTION` of full scale on axis.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera under calibration.
+
+    Returns
+    -------
+    float
+        Radiance (W m^-2 sr^-1 um^-1).
+    """
     electronics = camera.electronics
     capacity_e = min((electronics.max_dn - electronics.adc_offset_dn) * electronics.adc_gain_e_per_dn,
                      electronics.binned_full_well_e, camera.binning_rows * electronics.full_well_e)
@@ -86,14 +97,38 @@ def simulate_flat_field(camera: Camera, frames: int, rng: np.random.Generator,
 
 
 def true_flat_field(camera: Camera, effects: CameraEffects = CameraEffects()) -> np.ndarray:
-    """The simulated detector's true relative response per read-out pixel (falloff x PRNU as switched
-    by ``effects``), float32, ``camera.binned_shape``: simulator truth, about 1 on axis."""
+    """The simulated detector's true relative response per read-out pixel: simulator truth.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    effects : CameraEffects, optional
+        Which of falloff and PRNU are on (default: both).
+
+    Returns
+    -------
+    ndarray, shape ``camera.binned_shape``, float32
+        Falloff x PRNU per binned pixel, about 1 on axis.
+    """
     gain = pixel_gain(camera, effects.falloff, effects.prnu) / np.float32(camera.responsivity_e_per_s)
     return readout_flat_field(gain, camera.binned_shape, "true flat field")
 
 
 def main(argv: list[str] | None = None) -> int:
 
+    """Command line: simulate a ground flat-field calibration and write the flat field.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit status: 0 written, 2 bad input.
+    """
     parser = argparse.ArgumentParser(prog="python -m simulator.calibration",
                                      description="Simulate a ground flat-field calibration; write the flat field.")
     parser.add_argument("camera", help="camera TOML")

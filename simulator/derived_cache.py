@@ -19,7 +19,20 @@ class DerivedCache:
         self._by_owner: dict[int, dict[str, dict[Any, Any]]] = {}
 
     def of(self, owner: object, stage: str) -> dict[Any, Any]:
-        """The mutable cache dict of ``owner`` for ``stage`` (e.g. ``"render"``, ``"scene"``)."""
+        """The mutable cache dict of ``owner`` for ``stage``.
+
+        Parameters
+        ----------
+        owner : object
+            The camera, terrain or other object the values derive from (keyed by identity).
+        stage : str
+            Name of the stage that owns the entries (e.g. ``"render"``, ``"scene"``).
+
+        Returns
+        -------
+        dict
+            The cache, created empty on first use and dropped when ``owner`` is garbage-collected.
+        """
         entries = self._by_owner.get(id(owner))
         if entries is None:
             entries = self._by_owner[id(owner)] = {}
@@ -27,7 +40,13 @@ class DerivedCache:
         return entries.setdefault(stage, {})
 
     def owners(self) -> int:
-        """How many live objects hold cached values."""
+        """How many live objects hold cached values.
+
+        Returns
+        -------
+        int
+            Number of owners with a cache entry.
+        """
         return len(self._by_owner)
 
 

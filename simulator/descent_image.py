@@ -39,17 +39,30 @@ class SceneDiagnostics:
 
     Attributes
     ----------
-    exposure_start_s : float, start of the exposure (s)
-    pose : Pose, lander state at the start of the exposure
-    camera_pose : CameraPose at the exposure mid-time
-    substeps : dict period -> sub-pose count (0: the field is shared or unused)
-    shared_fields : bool, one field stood for all three periods
-    anti_sun_ground_m : (3,) where the sun line through the camera meets the ground
-    anti_sun_pixel : (2,) (column, row) of that point, or None when it is not in the image
-    shadow_centres_m : list of (3,) ground shadow centres of the casters
-    footprint_m : (n, 2) east/north ground polygon of the image border; footprint_hit (n,) bool
+    exposure_start_s : float
+        Start of the exposure (s).
+    pose : Pose
+        Lander state at the start of the exposure.
+    camera_pose : CameraPose
+        Camera pose at the exposure mid-time.
+    substeps : dict of str to int
+        Period -> sub-pose count (0: the field is shared or unused).
+    shared_fields : bool
+        One field stood for all three periods.
+    anti_sun_ground_m : ndarray, shape (3,)
+        Where the sun line through the camera meets the ground (m).
+    anti_sun_pixel : ndarray, shape (2,), or None
+        (column, row) of that point, or None when it is not in the image.
+    shadow_centres_m : list of ndarray, shape (3,)
+        Ground shadow centres of the casters (m).
+    footprint_m : ndarray, shape (n, 2)
+        East/north ground polygon of the image border (m).
+    footprint_hit : ndarray, shape (n,), bool
+        Whether each border ray meets the ground.
     heat_shield_visible : bool
-    scene_ms, camera_ms : float, wall time of the scene and camera stages (ms)
+        The heat shield is in the image.
+    scene_ms, camera_ms : float
+        Wall time of the scene and camera stages (ms).
     """
 
     exposure_start_s: float
@@ -69,8 +82,23 @@ class SceneDiagnostics:
 
 @dataclass(frozen=True)
 class DescentImage:
-    """A rendered descent image with its radiance fields, masks (full frame, (H, W) bool, exposure
-    period, union over sub-poses) and diagnostics."""
+    """A rendered descent image with its radiance fields, masks and diagnostics.
+
+    Attributes
+    ----------
+    image : RenderedImage
+        The read-out image (DN, expected DN and charge, binned).
+    radiance : RadianceFields
+        Radiance (W m^-2 sr^-1 um^-1) of the three periods, (H, W) or per binning block (H / b, W).
+    sky_mask : ndarray, shape (H, W), bool
+        Pixels whose ray misses the ground (exposure period, union over sub-poses).
+    outside_terrain_mask : ndarray, shape (H, W), bool
+        Pixels that see ground outside the terrain strip.
+    heat_shield_mask : ndarray, shape (H, W), bool
+        Pixels that see the heat shield.
+    diagnostics : SceneDiagnostics
+        What the scene did.
+    """
 
     image: RenderedImage
     radiance: RadianceFields
@@ -85,13 +113,46 @@ class DescentImage:
         return self.image.dn
 
     def binned_mask(self, mask: np.ndarray, binning_rows: int) -> np.ndarray:
-        """A full-frame mask reduced to the binned image: True where any of the binned rows is True."""
+        """A full-frame mask reduced to the binned image: True where any of the binned rows is True.
+
+        Parameters
+        ----------
+        mask : ndarray, shape (H, W), bool
+            Full-frame mask.
+        binning_rows : int
+            Rows per binning block ``b``.
+
+        Returns
+        -------
+        ndarray, shape (H / b, W), bool
+            The binned mask.
+        """
         height, width = mask.shape
         return np.asarray(mask.reshape(height // binning_rows, binning_rows, width).any(axis=1))
 
 
 def image_start_time(profile: DescentProfile, image: int | float) -> float:
-    """Start-of-exposure time: an integer is an index into ``profile.image_times_s``, a float a time (s)."""
+    """Start-of-exposure time of an image of a profile.
+
+    Parameters
+    ----------
+    profile : DescentProfile
+        The descent profile.
+    image : int or float
+        An index into ``profile.image_times_s`` (int) or a time (s, float).
+
+    Returns
+    -------
+    float
+        Start of the exposure (s).
+
+    Raises
+    ------
+    IndexError
+        An index out of range.
+    TypeError
+        A bool.
+    """
     if isinstance(image, (bool, np.bool_)):
         raise TypeError(f"image: expected an image index (int) or a time in s (float); got {image!r}")
     if isinstance(image, (int, np.integer)):

@@ -36,8 +36,19 @@ REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_s
 
 
 def preset_fields(name: str, max_substeps: int = 16) -> dict:
-    """The ``[scene]`` values preset ``name`` sets (nested tables ``effects``, ``camera_effects``), given
-    the configuration's ``max_substeps`` (the reference render raises it to at least 64).
+    """The ``[scene]`` values a fidelity preset sets (nested tables ``effects``, ``camera_effects``).
+
+    Parameters
+    ----------
+    name : str
+        Preset name (one of :data:`PRESETS`).
+    max_substeps : int, optional
+        The configuration's ``max_substeps`` (the reference render raises it to at least 64).
+
+    Returns
+    -------
+    dict
+        ``[scene]`` keys and values of the preset.
 
     Raises
     ------

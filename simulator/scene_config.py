@@ -92,6 +92,7 @@ class AtmosphereConfig(ConfigModel):
 
     @property
     def enabled(self) -> bool:
+        """True when the atmosphere model is on (a dust optical depth above zero)."""
         return self.orbital_optical_depth > 0.0
 
 
@@ -103,9 +104,13 @@ class SceneConfig(ConfigModel):
     fidelity: Literal["reference", "high", "default", "fast"] = DEFAULT_PRESET
     """Preset of shortcuts the other fields start from (simulator.fidelity)."""
     effects: SceneEffects = SceneEffects()
+    """Switches of the scene stage (``[scene.effects]``)."""
     camera_effects: CameraEffects = CameraEffects()
+    """Switches of the camera chain (``[scene.camera_effects]``, simulator.detector.camera_chain)."""
     off_nominal: OffNominalConfig = OffNominalConfig()
+    """Off-nominal camera and scenario effects (``[scene.off_nominal]``, simulator.off_nominal)."""
     atmosphere: AtmosphereConfig = AtmosphereConfig()
+    """Dust between orbiter, ground and descent camera (``[scene.atmosphere]``, simulator.scene.atmosphere)."""
     relief: ReliefConfig = ReliefConfig()
     """How a terrain's height field is rendered (simulator.scene.relief)."""
     sun_distance_au: float = Field(photometry.MARS_MEAN_SUN_DISTANCE_AU, gt=0.1, le=100.0)
@@ -167,21 +172,56 @@ class SceneConfig(ConfigModel):
 
     @property
     def heat_shield_cone_angle_rad(self) -> float:
+        """Full cone angle of the heat shield (rad)."""
         return math.radians(self.heat_shield_cone_angle_deg)
 
     def with_effects(self, **switches) -> SceneConfig:
-        """A copy with some scene effect switches changed, e.g. ``config.with_effects(shadows=False)``."""
+        """A copy with some scene effect switches changed, e.g. ``config.with_effects(shadows=False)``.
+
+        Parameters
+        ----------
+        **switches : bool
+            ``[scene.effects]`` switches by name.
+
+        Returns
+        -------
+        SceneConfig
+            The copy (validated).
+        """
         effects = SceneEffects.model_validate({**self.effects.model_dump(), **switches})
         return self.model_copy(update={"effects": effects})
 
     def with_fields(self, **values) -> SceneConfig:
-        """A copy with some fields changed (unvalidated, like ``dataclasses.replace``)."""
+        """A copy with some fields changed (unvalidated, like ``dataclasses.replace``).
+
+        Parameters
+        ----------
+        **values
+            Field values by name.
+
+        Returns
+        -------
+        SceneConfig
+            The copy.
+        """
         return self.model_copy(update=values)
 
 
 def apply_preset(config: SceneConfig, name: str) -> SceneConfig:
-    """``config`` with the shortcuts of preset ``name``
-    (its other fields kept)."""
+    """A configuration with the shortcuts of a fidelity preset, its other fields kept.
+
+    Parameters
+    ----------
+    config : SceneConfig
+        The configuration to change.
+    name : str
+        Preset name (:data:`simulator.fidelity.PRESETS`).
+
+    Returns
+    -------
+    SceneConfig
+        ``config`` with the preset's values.
+    """
     updates = preset_fields(name, config.max_substeps)
     effects = config.effects.model_copy(update=updates.pop("effects"))
     camera_effects = config.camera_effects.model_copy(update=updates.pop("camera_effects"))
@@ -189,6 +229,19 @@ def apply_preset(config: SceneConfig, name: str) -> SceneConfig:
 
 
 def preset_config(name: str, base: SceneConfig | None = None) -> SceneConfig:
-    """The :class:`SceneConfig` of preset ``name`` (from ``base`` or the defaults)."""
+    """The :class:`SceneConfig` of a fidelity preset.
+
+    Parameters
+    ----------
+    name : str
+        Preset name (:data:`simulator.fidelity.PRESETS`).
+    base : SceneConfig, optional
+        Configuration whose other fields are kept (default: the defaults).
+
+    Returns
+    -------
+    SceneConfig
+        The preset's configuration.
+    """
     preset_fields(name)                     # an unknown name: ValueError listing the allowed ones
     return SceneConfig(fidelity=cast(Preset, name)) if base is None else apply_preset(base, name)

@@ -100,27 +100,45 @@ class SensorConfig(ConfigModel):
 
     @classmethod
     def exact(cls, state_time: Literal["mid_exposure", "exposure_start"] = "mid_exposure", heat_shield_prediction: bool = True) -> SensorConfig:
-        """Every sensor exact."""
+        """A sensor configuration with every sensor exact.
+
+        Parameters
+        ----------
+        state_time : {"mid_exposure", "exposure_start"}, optional
+            When each image's state is given.
+        heat_shield_prediction : bool, optional
+            Whether the heat shield position is predicted for the estimator.
+
+        Returns
+        -------
+        SensorConfig
+            All error sigmas zero.
+        """
         return cls(perfect=True, state_time=state_time, heat_shield_prediction=heat_shield_prediction)
 
     @property
     def attitude_bias_sigma_rad(self) -> float:
+        """Absolute attitude-knowledge bias sigma per axis (rad)."""
         return math.radians(self.attitude_bias_sigma_deg)
 
     @property
     def attitude_random_sigma_rad(self) -> float:
+        """Between-image random attitude error sigma per axis (rad)."""
         return math.radians(self.attitude_random_sigma_deg)
 
     @property
     def alignment_sigma_rad(self) -> float:
+        """Camera-to-lander alignment error sigma per axis (rad)."""
         return math.radians(self.alignment_sigma_deg)
 
     @property
     def angular_rate_noise_sigma_radps(self) -> float:
+        """Angular-rate noise sigma per axis (rad/s)."""
         return math.radians(self.angular_rate_noise_sigma_dps)
 
     @property
     def radar_altitude_sigma_fraction(self) -> float:
+        """Radar altitude error sigma as a fraction of the altitude."""
         return self.radar_altitude_sigma_percent / 100.0
 
 
@@ -165,9 +183,19 @@ IMAGE_ERROR_FIELDS = (
 
 
 def error_fields(image_count: int) -> list[tuple[str, str]]:
-    """(name, meaning) of every error :func:`measure` returns for a descent of ``image_count`` images, in
-    the order of its ``truth`` dict (the case-level errors, then image 1, 2, ...). Names end with the SI
-    unit: ``_rad``, ``_radps`` (rad/s), ``_mps`` (m/s), ``_m``."""
+    """Names and meanings of every error :func:`measure` returns for a descent.
+
+    Parameters
+    ----------
+    image_count : int
+        Number of images of the descent.
+
+    Returns
+    -------
+    list of (str, str)
+        ``(name, meaning)`` in the order of the ``truth`` dict (the case-level errors, then image 1, 2,
+        ...). Names end with the SI unit: ``_rad``, ``_radps`` (rad/s), ``_mps`` (m/s), ``_m``.
+    """
     per_image = [(name.format(k=k), f"{meaning}, image {k}")
                  for k in range(1, image_count + 1) for name, meaning in IMAGE_ERROR_FIELDS]
     return [*CASE_ERROR_FIELDS, *per_image]

@@ -89,7 +89,18 @@ RadianceInput = RadianceFields | Sequence[np.ndarray] | Callable[[str], np.ndarr
 
 
 def as_radiance_fields(radiance: RadianceInput) -> RadianceFields:
-    """Accept fields, a (flush, exposure, transfer) sequence, or a callable ``period -> field``."""
+    """Radiance fields from any of the accepted forms.
+
+    Parameters
+    ----------
+    radiance : RadianceFields, sequence of 3 arrays, or callable
+        The fields, a (flush, exposure, transfer) sequence, or a callable ``period -> field``.
+
+    Returns
+    -------
+    RadianceFields
+        The three fields (the same arrays).
+    """
     if isinstance(radiance, RadianceFields):
         return radiance
     if callable(radiance):
@@ -101,8 +112,24 @@ def as_radiance_fields(radiance: RadianceInput) -> RadianceFields:
 
 
 def pixel_gain(camera: Camera, falloff: bool = True, prnu: bool = True, per_block: bool = False) -> np.ndarray:
-    """Photo-electron rate per unit radiance of every pixel, e-/s per W m^-2 sr^-1 um^-1, float32 (H, W)
-    (or its mean over each binning block, (H/b, W)): responsivity x cos^4 falloff x PRNU (cached per camera)."""
+    """Photo-electron rate per unit radiance of every pixel: responsivity x cos^4 falloff x PRNU.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (cached per camera).
+    falloff : bool, optional
+        Include the cos^4 falloff.
+    prnu : bool, optional
+        Include the pixel response non-uniformity.
+    per_block : bool, optional
+        Give the mean over each binning block instead.
+
+    Returns
+    -------
+    ndarray, shape (H, W) or (H / b, W), float32, read-only
+        Gain (e-/s per W m^-2 sr^-1 um^-1).
+    """
     cache = DERIVED.of(camera, "render")
     key = ("gain", bool(falloff), bool(prnu), bool(per_block))
     if key not in cache:
@@ -438,10 +465,27 @@ def expected_charge_e(camera: Camera, radiance: RadianceInput, effects: CameraEf
 
 def read_out(camera: Camera, charge_e: np.ndarray, rng: np.random.Generator,
              effects: CameraEffects = CameraEffects()) -> RenderedImage:
-    """Read out a binned image of mean charge ``charge_e`` (e-, (height / b, width), from
-    :func:`expected_charge_e`): shot and read noise from ``rng`` (in that order), full well, gain, offset,
-    rounding and the ADC's range. The same charge read out again with the stream's next draws is
-    another exposure of the same scene (what a calibration's repeated flat frames are)."""
+    """Read out a binned image of mean charge: shot and read noise, full well, gain, offset, rounding, ADC range.
+
+    The same charge read out again with the stream's next draws is another exposure of the same scene
+    (what a calibration's repeated flat frames are).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (its electronics).
+    charge_e : ndarray, shape (height / b, width)
+        Mean charge per binned pixel (e-), from :func:`expected_charge_e`.
+    rng : numpy.random.Generator
+        Noise stream: shot noise, then read noise.
+    effects : CameraEffects, optional
+        Noise switches (``shot_noise``, ``read_noise``, ``exact_poisson``).
+
+    Returns
+    -------
+    RenderedImage
+        DN (uint16), expected DN and the mean charge (float32), each (height / b, width).
+    """
     electronics = camera.electronics
     noisy = readout.noisy_charge_e(rng, charge_e, electronics.read_noise_e, effects.shot_noise,
                                    effects.read_noise, effects.exact_poisson)

@@ -12,11 +12,22 @@ from simulator.derived_cache import DERIVED
 
 
 def prnu_map(camera: Camera) -> np.ndarray:
-    """The simulated detector's relative pixel response (mean 1, rms ``radiometry.prnu_sigma``), float32,
-    shape (height, width); the realisation is fixed by ``radiometry.prnu_seed`` and cached per camera.
+    """The simulated detector's relative pixel response (mean 1, rms ``radiometry.prnu_sigma``).
 
-    This is simulator truth: an estimator never sees it, only a flat field measured from simulated
-    calibration exposures (:mod:`simulator.calibration`)."""
+    The realisation is fixed by ``radiometry.prnu_seed`` and cached per camera. This is simulator truth:
+    an estimator never sees it, only a flat field measured from simulated calibration exposures
+    (:mod:`simulator.calibration`).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    ndarray, shape (height, width), float32
+        Relative response per pixel.
+    """
     cache = DERIVED.of(camera, "render")
     if "prnu_map" not in cache:
         rng = np.random.default_rng(camera.radiometry.prnu_seed)
@@ -27,16 +38,40 @@ def prnu_map(camera: Camera) -> np.ndarray:
 
 
 def apply_prnu(rate_e_per_s: np.ndarray, prnu_map: np.ndarray) -> np.ndarray:
-    """Multiply a photo-electron rate by the relative pixel response (in place when float32)."""
+    """Multiply a photo-electron rate by the relative pixel response (in place when float32).
+
+    Parameters
+    ----------
+    rate_e_per_s : ndarray, shape (H, W)
+        Photo-electron rate (e-/s).
+    prnu_map : ndarray, shape (H, W), float32
+        Relative pixel response (:func:`prnu_map`).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        The rate times the response (e-/s).
+    """
     rate_e_per_s *= prnu_map
     return rate_e_per_s
 
 
 def dark_rate_e_per_s(camera: Camera, scale: float = 1.0) -> float:
-    """Uniform dark generation rate per pixel at the camera's CCD temperature (e-/s).
+    """Uniform dark generation rate per pixel at the camera's CCD temperature.
 
-    Uses the documented doubling rule of :meth:`Electronics.dark_current_e_per_s`; ``scale``
-    multiplies it (off-nominal "excessive dark current").
+    Uses the documented doubling rule of :meth:`Electronics.dark_current_e_per_s`.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (its electronics).
+    scale : float, optional
+        Multiplies the rate (off-nominal "excessive dark current").
+
+    Returns
+    -------
+    float
+        Dark rate (e-/s per pixel).
     """
     return scale * camera.electronics.dark_current_e_per_s()
 
@@ -49,9 +84,17 @@ def storage_dark_e(camera: Camera, dark_rate: float) -> np.ndarray:
     ``readout_s * (n - k) / n`` (reversed for the other direction). Binning sums ``binning_rows``
     pixels, each holding its own dark charge.
 
+    Parameters
+    ----------
+    camera : Camera
+        The camera (timing, binning, transfer direction).
+    dark_rate : float
+        Dark rate per pixel (e-/s).
+
     Returns
     -------
-    ndarray, shape (binned_rows, 1), float32, electrons per binned pixel
+    ndarray, shape (binned_rows, 1), float32
+        Electrons per binned pixel.
     """
     rows, _ = camera.binned_shape
     order = np.arange(rows, dtype=np.float64)

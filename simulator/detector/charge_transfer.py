@@ -33,8 +33,20 @@ from simulator.fields import bin_rows
 
 
 def cumsum_rows(values: np.ndarray) -> np.ndarray:
-    """Cumulative sum down axis 0 (float32), as row-vector adds: numpy's axis-0 cumsum walks each
-    column separately and is ~10x slower on C-ordered images."""
+    """Cumulative sum down axis 0, as row-vector adds.
+
+    numpy's axis-0 cumsum walks each column separately and is ~10x slower on C-ordered images.
+
+    Parameters
+    ----------
+    values : ndarray, shape (N, W)
+        Values to sum.
+
+    Returns
+    -------
+    ndarray, shape (N, W), float32
+        Cumulative sums.
+    """
     out = np.empty(values.shape, dtype=np.float32)
     out[0] = values[0]
     for row in range(1, values.shape[0]):
@@ -48,8 +60,23 @@ def _flip(rate: np.ndarray, toward_last_row: bool) -> np.ndarray:
 
 def pixel_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
                    timing: Timing) -> np.ndarray:
-    """Full-resolution charge per pixel (e-) at the end of frame transfer, shape (N, width), float32.
-    Block-mean smear rates are spread evenly over their blocks' rows."""
+    """Full-resolution charge per pixel at the end of frame transfer.
+
+    Block-mean smear rates are spread evenly over their blocks' rows.
+
+    Parameters
+    ----------
+    rate_flush, rate_exposure, rate_transfer : ndarray, shape (N, W) or (N / b, W)
+        Generation rates (e-/s) of the fast flush, exposure and frame transfer; the smear rates may be
+        block means.
+    timing : Timing
+        The CCD timing (flush, exposure, transfer durations, transfer direction).
+
+    Returns
+    -------
+    ndarray, shape (N, W), float32
+        Charge per pixel (e-).
+    """
     rows = rate_exposure.shape[0]
     rate_flush, rate_transfer = full_rows(rate_flush, rows), full_rows(rate_transfer, rows)
     toward_last = timing.transfer_toward_last_row
@@ -61,8 +88,25 @@ def pixel_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_trans
 
 def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
                     timing: Timing, binning_rows: int, rows: int | None = None) -> np.ndarray:
-    """Binned charge (e-) of ``binning_rows``-row blocks, exact, shape (N / b, width), float32.
-    ``rows`` (N) is needed only when the exposure rate too is given per block (its mean)."""
+    """Binned charge of ``binning_rows``-row blocks, exact, from block cumulative sums (module doc).
+
+    Parameters
+    ----------
+    rate_flush, rate_exposure, rate_transfer : ndarray, shape (N, W) or (N / b, W)
+        Generation rates (e-/s) of the fast flush, exposure and frame transfer; the smear rates may be
+        block means.
+    timing : Timing
+        The CCD timing (flush, exposure, transfer durations, transfer direction).
+    binning_rows : int
+        Rows per block ``b``.
+    rows : int, optional
+        Full-frame rows N; needed only when the exposure rate too is given per block (its mean).
+
+    Returns
+    -------
+    ndarray, shape (N / b, W), float32
+        Charge per binned pixel (e-).
+    """
     rows = rate_exposure.shape[0] if rows is None else rows
     toward_last = timing.transfer_toward_last_row
     flush_blocks, flush_ramp = _block_sums(_flip(rate_flush, toward_last), binning_rows, rows)
@@ -88,13 +132,42 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
 
 
 def is_block_mean(rate: np.ndarray, rows: int, binning_rows: int) -> bool:
-    """True when a smear-period rate is given per ``binning_rows``-row block (shape (rows / b, W), the
-    block's mean) rather than per pixel row (see :func:`simulator.scene.periods.period_fields`)."""
+    """Whether a smear-period rate is given per binning block rather than per pixel row.
+
+    See :func:`simulator.scene.periods.period_fields`.
+
+    Parameters
+    ----------
+    rate : ndarray, shape (rows, W) or (rows / b, W)
+        A generation rate (e-/s).
+    rows : int
+        Full-frame rows.
+    binning_rows : int
+        Rows per block ``b``.
+
+    Returns
+    -------
+    bool
+        True for a (rows / b, W) block-mean rate.
+    """
     return rate.shape[0] * binning_rows == rows and binning_rows > 1
 
 
 def full_rows(rate: np.ndarray, rows: int) -> np.ndarray:
-    """A per-row rate (rows, W): block-mean rates are repeated over their block's rows."""
+    """A per-row rate: block-mean rates are repeated over their block's rows.
+
+    Parameters
+    ----------
+    rate : ndarray, shape (rows, W) or (rows / b, W)
+        A generation rate (e-/s).
+    rows : int
+        Full-frame rows.
+
+    Returns
+    -------
+    ndarray, shape (rows, W)
+        The rate per pixel row (e-/s).
+    """
     return rate if rate.shape[0] == rows else np.repeat(rate, rows // rate.shape[0], axis=0)
 
 
@@ -120,7 +193,21 @@ def _block_sums(rate: np.ndarray, binning_rows: int, rows: int | None = None) ->
 
 def max_pixel_charge_bound_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_transfer: np.ndarray,
                              timing: Timing) -> float:
-    """An upper bound on any pixel's charge, cheap: used to skip the full-resolution path."""
+    """An upper bound on any pixel's charge, cheap: used to skip the full-resolution path.
+
+    Parameters
+    ----------
+    rate_flush, rate_exposure, rate_transfer : ndarray, shape (N, W) or (N / b, W)
+        Generation rates (e-/s) of the fast flush, exposure and frame transfer; the smear rates may be
+        block means.
+    timing : Timing
+        The CCD timing (flush, exposure, transfer durations, transfer direction).
+
+    Returns
+    -------
+    float
+        Bound (e-).
+    """
     rows = rate_exposure.shape[0]
     flush_column = float(rate_flush.sum(axis=0).max()) * rows / rate_flush.shape[0]
     transfer_column = float(rate_transfer.sum(axis=0).max()) * rows / rate_transfer.shape[0]

@@ -64,18 +64,55 @@ RADIAL_SAMPLES = 8192
 
 
 def diffraction_mtf(normalized_frequency: np.ndarray) -> np.ndarray:
-    """Diffraction MTF of a circular aperture at ``v = f lambda N`` (any shape): 0 for ``v >= 1``."""
+    """Diffraction MTF of a circular aperture.
+
+    Parameters
+    ----------
+    normalized_frequency : ndarray
+        ``v = f lambda N``, any shape.
+
+    Returns
+    -------
+    ndarray, shape of ``normalized_frequency``
+        ``D(v)`` (module doc); 0 for ``v >= 1``.
+    """
     v = np.clip(np.abs(np.asarray(normalized_frequency, dtype=float)), 0.0, 1.0)
     return 2.0 / np.pi * (np.arccos(v) - v * np.sqrt(1.0 - v * v))
 
 
 def pixel_mtf(frequency_cyc_per_m: np.ndarray, pitch_m: float) -> np.ndarray:
-    """MTF of a pixel aperture of width ``pitch_m`` along one axis, ``|sinc(f p)|`` (any shape)."""
+    """MTF of a pixel aperture along one axis, ``|sinc(f p)|``.
+
+    Parameters
+    ----------
+    frequency_cyc_per_m : ndarray
+        Focal-plane frequency (cycles/m), any shape.
+    pitch_m : float
+        Pixel width ``p`` (m).
+
+    Returns
+    -------
+    ndarray, shape of ``frequency_cyc_per_m``
+        The MTF.
+    """
     return np.abs(np.sinc(np.asarray(frequency_cyc_per_m, dtype=float) * pitch_m))
 
 
 def optics_mtf(frequency_cyc_per_m: np.ndarray, camera: Camera) -> np.ndarray:
-    """The optics' OTF (module doc) at radial focal-plane frequencies (cycles/m, any shape), float64."""
+    """The optics' OTF (module doc) at radial focal-plane frequencies.
+
+    Parameters
+    ----------
+    frequency_cyc_per_m : ndarray
+        Radial focal-plane frequency (cycles/m), any shape.
+    camera : Camera
+        The camera (its ``[optics]``, band and focal ratio).
+
+    Returns
+    -------
+    ndarray, float64, shape of ``frequency_cyc_per_m``
+        The OTF (real, 1 at f = 0).
+    """
     optics, radiometry = camera.optics, camera.radiometry
     wavelengths_m, weights = optics.band_weights(radiometry.band_min_um, radiometry.band_max_um)
     frequency = np.abs(np.asarray(frequency_cyc_per_m, dtype=float))
@@ -97,12 +134,36 @@ def optics_mtf(frequency_cyc_per_m: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def system_mtf(frequency_cyc_per_m: np.ndarray, camera: Camera) -> np.ndarray:
-    """Optics x pixel aperture MTF along a row (cycles/m, any shape)."""
+    """Optics x pixel aperture MTF along a row.
+
+    Parameters
+    ----------
+    frequency_cyc_per_m : ndarray
+        Radial focal-plane frequency (cycles/m), any shape.
+    camera : Camera
+        The camera (its ``[optics]``, band and focal ratio).
+
+    Returns
+    -------
+    ndarray, shape of ``frequency_cyc_per_m``
+        The MTF.
+    """
     return optics_mtf(frequency_cyc_per_m, camera) * pixel_mtf(frequency_cyc_per_m, camera.pixel_pitch_m)
 
 
 def cutoff_frequency_cyc_per_m(camera: Camera) -> float:
-    """Highest frequency the optics pass, ``1 / (lambda_min N)`` (cycles/m)."""
+    """Highest frequency the optics pass, ``1 / (lambda_min N)``.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (band, focal ratio).
+
+    Returns
+    -------
+    float
+        Cut-off (cycles/m).
+    """
     return 1.0 / (camera.radiometry.band_min_um * 1e-6 * camera.radiometry.f_number)
 
 
@@ -116,8 +177,22 @@ def _radial_otf(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
 
 
 def encircled_energy(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
-    """Fraction of a point's energy inside ``radius_m`` (any shape) for the optics PSF (no pixel):
-    ``EE(r) = 2 pi r int_0^fc OTF(rho) J1(2 pi r rho) d rho`` (a circularly symmetric OTF)."""
+    """Fraction of a point's energy inside a radius, for the optics PSF (no pixel).
+
+    ``EE(r) = 2 pi r int_0^fc OTF(rho) J1(2 pi r rho) d rho`` (a circularly symmetric OTF).
+
+    Parameters
+    ----------
+    radius_m : ndarray
+        Radius in the focal plane (m), any shape.
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    ndarray, shape of ``radius_m``
+        Encircled energy fraction, 0 .. 1.
+    """
     rho, otf = _radial_otf(camera)
     radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
     integrand = otf[None, :] * scipy.special.j1(2.0 * np.pi * radius[:, None] * rho[None, :])
@@ -126,8 +201,20 @@ def encircled_energy(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def psf_radial(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
-    """Optics PSF (fraction of a point's energy per m^2) at ``radius_m`` (any shape):
-    ``PSF(r) = 2 pi int_0^fc OTF(rho) J0(2 pi r rho) rho d rho``."""
+    """Optics PSF at a radius: ``PSF(r) = 2 pi int_0^fc OTF(rho) J0(2 pi r rho) rho d rho``.
+
+    Parameters
+    ----------
+    radius_m : ndarray
+        Radius in the focal plane (m), any shape.
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    ndarray, shape of ``radius_m``
+        Fraction of a point's energy per m^2.
+    """
     rho, otf = _radial_otf(camera)
     radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
     integrand = otf[None, :] * scipy.special.j0(2.0 * np.pi * radius[:, None] * rho[None, :]) * rho[None, :]
@@ -135,7 +222,20 @@ def psf_radial(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def encircled_energy_radius_m(camera: Camera, fraction: float = 0.8) -> float:
-    """Radius (m) holding ``fraction`` of a point's energy (optics PSF, no pixel)."""
+    """Radius holding a fraction of a point's energy (optics PSF, no pixel).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    fraction : float, optional
+        Energy fraction, 0 < fraction < 1.
+
+    Returns
+    -------
+    float
+        Radius in the focal plane (m).
+    """
     scale = camera.radiometry.band_max_um * 1e-6 * camera.radiometry.f_number + 4.0 * camera.optics.blur_sigma_um * 1e-6
     radii = np.linspace(0.0, 8.0 * scale, 401)[1:]
     energy = encircled_energy(radii, camera)
@@ -270,9 +370,28 @@ def blur_field(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def blur_field_along_rows(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.ndarray:
-    """A smear-period radiance field through the optics' line-spread function across columns only
-    (``OTF(f_x, 0)`` along each row; the module doc's "Smear fields" says why this is the PSF's whole
-    effect on smear). Same parameters, returns and errors as :func:`blur_field`."""
+    """A smear-period radiance field through the optics' line-spread function across columns only.
+
+    ``OTF(f_x, 0)`` along each row; the module doc's "Smear fields" says why this is the PSF's whole
+    effect on smear.
+
+    Parameters
+    ----------
+    field_w_m2_sr_um : ndarray, shape (height, width) or (height / b, width)
+        Radiance (W m^-2 sr^-1 um^-1), as :func:`blur_field`.
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    ndarray, float32, same shape
+        The blurred field, as :func:`blur_field`.
+
+    Raises
+    ------
+    ValueError
+        A finite value of the field is negative.
+    """
     field, work, bad = _checked(field_w_m2_sr_um)
     cols = field.shape[1]
     padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX)
@@ -284,10 +403,24 @@ def blur_field_along_rows(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.nd
 
 
 def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:
-    """The three period fields seen through the optics: the exposure field through the PSF; a flush or
-    transfer field that is the exposure field's own object shares its blurred copy, any other one goes
-    through the line-spread function across columns (module doc, "Smear fields"). Fields that are one
-    object stay one object."""
+    """The three period fields seen through the optics.
+
+    The exposure field goes through the PSF; a flush or transfer field that is the exposure field's own
+    object shares its blurred copy, any other one goes through the line-spread function across columns
+    (module doc, "Smear fields"). Fields that are one object stay one object.
+
+    Parameters
+    ----------
+    fields : RadianceFields
+        Radiance (W m^-2 sr^-1 um^-1) of the three periods, (H, W) or per binning block (H / b, W).
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    RadianceFields
+        The blurred fields, float32, same shapes.
+    """
     exposure = blur_field(fields.exposure, camera)
     flush = exposure if fields.flush is fields.exposure else blur_field_along_rows(fields.flush, camera)
     if fields.transfer is fields.exposure:

@@ -107,10 +107,25 @@ class OffNominalArtefacts:
 
 
 def draw_case_artefacts(camera: Camera, config: OffNominalConfig, rng: np.random.Generator) -> OffNominalArtefacts:
-    """The case-fixed artefacts (dust, then hot pixels, from ``rng``); no particle hits yet.
+    """The case-fixed artefacts: dust, then hot pixels, then the moving shadows' draws, from ``rng``.
 
-    Effects at their defaults draw nothing, so adding an effect never changes another's draws
-    except by its own position in the stream (dust first, hot pixels second, moving shadows third).
+    Effects at their defaults draw nothing, so adding an effect never changes another's draws except
+    by its own position in the stream (dust first, hot pixels second, moving shadows third). No
+    particle hits yet (:func:`with_particle_hits`).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    config : OffNominalConfig
+        ``[scene.off_nominal]``.
+    rng : numpy.random.Generator
+        The case's artefact stream.
+
+    Returns
+    -------
+    OffNominalArtefacts
+        Dust transmission, hot pixels and moving-shadow draws (each None when off).
     """
     transmission = particles = hot = None
     if config.dust_particle_count > 0:
@@ -126,8 +141,24 @@ def draw_case_artefacts(camera: Camera, config: OffNominalConfig, rng: np.random
 
 def with_particle_hits(artefacts: OffNominalArtefacts | None, camera: Camera, config: OffNominalConfig,
                        rng: np.random.Generator) -> OffNominalArtefacts:
-    """The case artefacts plus one image's particle hits drawn from that image's own ``rng``
-    (nothing is drawn when the hit rate is 0)."""
+    """The case artefacts plus one image's particle hits (nothing is drawn when the hit rate is 0).
+
+    Parameters
+    ----------
+    artefacts : OffNominalArtefacts or None
+        The case artefacts (:func:`draw_case_artefacts`).
+    camera : Camera
+        The camera.
+    config : OffNominalConfig
+        ``[scene.off_nominal]``.
+    rng : numpy.random.Generator
+        The image's own stream.
+
+    Returns
+    -------
+    OffNominalArtefacts
+        A copy with ``particle_hits`` set.
+    """
     artefacts = OffNominalArtefacts(blooming=config.blooming) if artefacts is None else artefacts
     if config.particle_hit_rate_per_cm2_s <= 0:
         return artefacts

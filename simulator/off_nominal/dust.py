@@ -58,20 +58,49 @@ NODE_STEP_PX = 4
 
 @dataclass(frozen=True)
 class DustParticles:
-    """Particles on the front element: positions (n, 2) m across the axis (along the image columns
-    and rows), diameters (n,) m."""
+    """Dust particles on the front lens element.
+
+    Attributes
+    ----------
+    positions_m : ndarray, shape (n, 2)
+        Positions across the optical axis (along the image columns and rows), m.
+    diameters_m : ndarray, shape (n,)
+        Diameters (m).
+    """
 
     positions_m: np.ndarray
     diameters_m: np.ndarray
 
 
 def focal_length_m(camera: Camera) -> float:
-    """Effective focal length of the CAHVOR model (m)."""
+    """Effective focal length of the CAHVOR model.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    float
+        Focal length (m).
+    """
     return float(np.sqrt(camera.model.hs * camera.model.vs)) * camera.pixel_pitch_m
 
 
 def entrance_pupil_radius_m(camera: Camera) -> float:
-    """Radius of the entrance pupil, ``f / (2 N)`` (m)."""
+    """Radius of the entrance pupil, ``f / (2 N)``.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (focal length, focal ratio N).
+
+    Returns
+    -------
+    float
+        Radius (m).
+    """
     return 0.5 * focal_length_m(camera) / camera.radiometry.f_number
 
 
@@ -85,7 +114,22 @@ def _axis_basis(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def beam_centres_m(camera: Camera, distance_m: float, rows: slice = slice(None),
                    cols: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
-    """Where each pixel's chief ray crosses the front-element plane, (x, y) each (h, w) m."""
+    """Where each pixel's chief ray crosses the front-element plane.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    distance_m : float
+        Distance of the front element from the entrance pupil (m).
+    rows, cols : slice, optional
+        Pixel window (default: the whole frame).
+
+    Returns
+    -------
+    x, y : ndarray, shape (h, w)
+        Crossing point of each pixel of the window (m).
+    """
     e1, e2, axis = _axis_basis(camera)
     rays = camera.pixel_rays[rows, cols]
     along = rays @ axis
@@ -93,15 +137,40 @@ def beam_centres_m(camera: Camera, distance_m: float, rows: slice = slice(None),
 
 
 def clear_aperture_radius_m(camera: Camera, distance_m: float) -> float:
-    """Radius of the front-element region crossed by any pixel's beam (m)."""
+    """Radius of the front-element region crossed by any pixel's beam.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    distance_m : float
+        Distance of the front element from the entrance pupil (m).
+
+    Returns
+    -------
+    float
+        Radius (m).
+    """
     corners = (slice(0, None, camera.height_px - 1), slice(0, None, camera.width_px - 1))
     x, y = beam_centres_m(camera, distance_m, *corners)
     return float(np.hypot(x, y).max()) + entrance_pupil_radius_m(camera)
 
 
 def overlap_area(radius_a: float | np.ndarray, radius_b: float | np.ndarray, separation) -> np.ndarray:
-    """Intersection area of two discs of radii ``radius_a``, ``radius_b`` whose centres are
-    ``separation`` apart (same length unit, area in its square)."""
+    """Intersection area of two discs.
+
+    Parameters
+    ----------
+    radius_a, radius_b : float or ndarray
+        Radii of the discs (any one length unit).
+    separation : float or ndarray
+        Distance between their centres (same unit); arrays broadcast.
+
+    Returns
+    -------
+    ndarray
+        Area (the unit squared).
+    """
     ra, rb = np.asarray(radius_a, dtype=float), np.asarray(radius_b, dtype=float)
     s = np.asarray(separation, dtype=float)
     small, large = np.minimum(ra, rb), np.maximum(ra, rb)
@@ -117,8 +186,30 @@ def overlap_area(radius_a: float | np.ndarray, radius_b: float | np.ndarray, sep
 
 def draw_particles(camera: Camera, rng: np.random.Generator, mean_count: float, diameter_scale_m: float,
                    diameter_max_m: float, distance_m: float) -> DustParticles:
-    """A random dust population on the front element (module doc: Poisson count, uniform positions
-    over the clear aperture, truncated exponential diameters)."""
+    """A random dust population on the front element.
+
+    Poisson count, uniform positions over the clear aperture, truncated exponential diameters (module doc).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    rng : numpy.random.Generator
+        The case's dust stream.
+    mean_count : float
+        Mean number of particles.
+    diameter_scale_m : float
+        Mean of the exponential diameter distribution (m).
+    diameter_max_m : float
+        Largest diameter (m).
+    distance_m : float
+        Distance of the front element from the entrance pupil (m).
+
+    Returns
+    -------
+    DustParticles
+        The particles.
+    """
     count = int(rng.poisson(mean_count))
     radius = clear_aperture_radius_m(camera, distance_m)
     uniform = rng.random((count, 3))
@@ -146,8 +237,22 @@ def _node_beam_centres_m(camera: Camera, distance_m: float) -> tuple[np.ndarray,
 
 
 def transmission_map(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
-    """Relative transmission of every pixel (H, W) float32, 1 where no particle shadows it: evaluated
-    on the node grid and interpolated (module doc)."""
+    """Relative transmission of every pixel, evaluated on the node grid and interpolated (module doc).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    particles : DustParticles
+        The dust on the front element.
+    distance_m : float
+        Distance of the front element from the entrance pupil (m).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Transmission, 1 where no particle shadows the pixel's beam.
+    """
     x, y, first = _node_beam_centres_m(camera, distance_m)
     pupil = entrance_pupil_radius_m(camera)
     e1, e2, axis = _axis_basis(camera)
@@ -185,8 +290,22 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
 
 
 def transmission_map_exact(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
-    """Relative transmission of every pixel (H, W) float32 evaluated pixel by pixel (the reference of
-    :func:`transmission_map`)."""
+    """Relative transmission of every pixel evaluated pixel by pixel (the reference of :func:`transmission_map`).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    particles : DustParticles
+        The dust on the front element.
+    distance_m : float
+        Distance of the front element from the entrance pupil (m).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Transmission, 1 where no particle shadows the pixel's beam.
+    """
     transmission = np.ones((camera.height_px, camera.width_px), dtype=np.float32)
     pupil = entrance_pupil_radius_m(camera)
     e1, e2, axis = _axis_basis(camera)

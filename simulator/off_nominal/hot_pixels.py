@@ -30,15 +30,33 @@ from flight_interface.camera import Camera
 
 @dataclass(frozen=True)
 class HotPixels:
-    """Hot pixels: ``flat_index`` (n,) int64 into the (H, W) image area (row-major, sorted) and their
-    extra dark rate ``rate_e_per_s`` (n,) float32 at the camera's CCD temperature."""
+    """The hot pixels of a case.
+
+    Attributes
+    ----------
+    flat_index : ndarray, shape (n,), int64
+        Index into the (H, W) image area (row-major, sorted).
+    rate_e_per_s : ndarray, shape (n,), float32
+        Extra dark rate at the camera's CCD temperature (e-/s).
+    """
 
     flat_index: np.ndarray
     rate_e_per_s: np.ndarray
 
 
 def temperature_factor(camera: Camera) -> float:
-    """Dark-rate multiplier from the reference temperature to the CCD temperature (doubling rule)."""
+    """Dark-rate multiplier from the reference temperature to the CCD temperature (doubling rule).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (its electronics).
+
+    Returns
+    -------
+    float
+        The multiplier.
+    """
     electronics = camera.electronics
     return float(2.0 ** ((electronics.ccd_temperature_k - electronics.dark_reference_temperature_k)
                          / electronics.dark_doubling_temperature_k))
@@ -46,7 +64,24 @@ def temperature_factor(camera: Camera) -> float:
 
 def draw_hot_pixels(camera: Camera, rng: np.random.Generator, fraction: float,
                     amplitude_mean_e_per_s: float) -> HotPixels:
-    """Draw the hot pixels of one case (module doc)."""
+    """Draw the hot pixels of one case (module doc).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    rng : numpy.random.Generator
+        The case's hot-pixel stream.
+    fraction : float
+        Probability of a pixel being hot.
+    amplitude_mean_e_per_s : float
+        Mean extra dark rate at the reference temperature (e-/s).
+
+    Returns
+    -------
+    HotPixels
+        The hot pixels.
+    """
     pixels = camera.height_px * camera.width_px
     count = int(rng.binomial(pixels, fraction))
     flat_index = np.sort(rng.choice(pixels, size=count, replace=False)).astype(np.int64)
@@ -55,7 +90,20 @@ def draw_hot_pixels(camera: Camera, rng: np.random.Generator, fraction: float,
 
 
 def add_to_rate(rate_e_per_s: np.ndarray, hot: HotPixels) -> np.ndarray:
-    """Add the hot pixels' dark rate to a (H, W) generation-rate map in place; returns it."""
+    """Add the hot pixels' dark rate to a generation-rate map in place.
+
+    Parameters
+    ----------
+    rate_e_per_s : ndarray, shape (H, W), float32
+        Generation rate (e-/s); changed in place.
+    hot : HotPixels
+        The hot pixels.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        ``rate_e_per_s``.
+    """
     flat = rate_e_per_s.reshape(-1)
     if not np.shares_memory(flat, rate_e_per_s):   # not contiguous: index in 2-D instead
         rows, cols = np.divmod(hot.flat_index, rate_e_per_s.shape[1])
@@ -66,8 +114,24 @@ def add_to_rate(rate_e_per_s: np.ndarray, hot: HotPixels) -> np.ndarray:
 
 
 def add_to_block_rate(block_rate_e_per_s: np.ndarray, hot: HotPixels, binning_rows: int) -> np.ndarray:
-    """Add the hot pixels' dark rate to a rate given per ``binning_rows``-row block (the block's mean,
-    (H / b, W)) in place: each hot pixel adds ``rate / b`` to its block; returns it."""
+    """Add the hot pixels' dark rate to a rate given per binning block in place.
+
+    Each hot pixel adds ``rate / b`` to its block's mean.
+
+    Parameters
+    ----------
+    block_rate_e_per_s : ndarray, shape (H / b, W), float32
+        Mean generation rate of each block (e-/s); changed in place.
+    hot : HotPixels
+        The hot pixels.
+    binning_rows : int
+        Rows per block ``b``.
+
+    Returns
+    -------
+    ndarray, shape (H / b, W)
+        ``block_rate_e_per_s``.
+    """
     rows, cols = np.divmod(hot.flat_index, block_rate_e_per_s.shape[1])
     np.add.at(block_rate_e_per_s, (rows // binning_rows, cols), hot.rate_e_per_s / np.float32(binning_rows))
     return block_rate_e_per_s

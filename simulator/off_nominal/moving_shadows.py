@@ -83,6 +83,7 @@ class MovingShadowsConfig(ConfigModel):
 
     @property
     def moving_shadow_count(self) -> int:
+        """Number of moving shadows: dust devils plus cloud shadows."""
         return self.dust_devil_count + self.cloud_shadow_count
 
 
@@ -103,7 +104,20 @@ class MovingShadowDraws:
 
 
 def draw_moving_shadows(config: MovingShadowsConfig, rng: np.random.Generator) -> MovingShadowDraws | None:
-    """The case's moving-shadow draws from ``rng`` (4 uniforms per shadow), or None when the count is 0."""
+    """The case's moving-shadow draws (4 uniforms per shadow).
+
+    Parameters
+    ----------
+    config : MovingShadowsConfig
+        Counts and speeds.
+    rng : numpy.random.Generator
+        The case's artefact stream.
+
+    Returns
+    -------
+    MovingShadowDraws or None
+        The draws, None when the count is 0.
+    """
     count = config.moving_shadow_count
     if count == 0:
         return None
@@ -121,18 +135,29 @@ def draw_moving_shadows(config: MovingShadowsConfig, rng: np.random.Generator) -
 
 @dataclass(frozen=True)
 class MovingShadows:
-    """Shadows placed on the ground; each is a segment from ``start`` to ``start + length a`` (a disc
-    when the length is 0) thickened by ``radius``, moving with ``velocity``.
+    """Shadows placed on the ground.
+
+    Each is a segment from ``start`` to ``start + length a`` (a disc when the length is 0) thickened by
+    ``radius``, moving with ``velocity``.
 
     Attributes
     ----------
-    start_m : (n, 2) east, north start of each shadow's axis at ``reference_time_s`` (m)
-    caster_m : (n, 2) the caster's ground point (column base, point under the cloud) at that time (m)
-    length_m, radius_m, edge_m : (n,) axis length, half width, edge width (m)
-    velocity_mps : (n, 2)
-    core_factor : (n,) direct-beam transmission in the shadow's core, ``exp(-tau / cos(theta))``
-    anti_sun : (2,) horizontal unit vector away from the sun
-    diffuse_fraction : float, fraction of the irradiance that is sky light
+    start_m : ndarray, shape (n, 2)
+        East, north start of each shadow's axis at ``reference_time_s`` (m).
+    caster_m : ndarray, shape (n, 2)
+        The caster's ground point (column base, point under the cloud) at that time (m).
+    length_m, radius_m, edge_m : ndarray, shape (n,)
+        Axis length, half width, edge width (m).
+    velocity_mps : ndarray, shape (n, 2)
+        East, north velocity (m/s).
+    core_factor : ndarray, shape (n,)
+        Direct-beam transmission in the shadow's core, ``exp(-tau / cos(theta))``.
+    anti_sun : ndarray, shape (2,)
+        Horizontal unit vector away from the sun.
+    diffuse_fraction : float
+        Fraction of the irradiance that is sky light.
+    reference_time_s : float
+        Time of the positions (s).
     """
 
     start_m: np.ndarray
@@ -147,26 +172,69 @@ class MovingShadows:
     reference_time_s: float
 
     def centres_m(self, time_s: float) -> np.ndarray:
-        """World shadow centres (n, 3) at ``time_s`` (z = 0)."""
+        """World shadow centres at a time.
+
+        Parameters
+        ----------
+        time_s : float
+            Time (s).
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Centres (m), z = 0.
+        """
         centre = self.start_m + 0.5 * self.length_m[:, None] * self.anti_sun + self.velocity_mps * (
             time_s - self.reference_time_s)
         return np.column_stack([centre, np.zeros(len(centre))])
 
     def points_m(self, time_s: float) -> list:
-        """The shadow centres at ``time_s`` as a list of (3,) world points (they move on their own)."""
+        """The shadow centres at a time as world points (they move on their own).
+
+        Parameters
+        ----------
+        time_s : float
+            Time (s).
+
+        Returns
+        -------
+        list of ndarray, shape (3,)
+            Centres (m).
+        """
         return list(self.centres_m(time_s))
 
     def ratio_in_core(self) -> np.ndarray:
-        """Radiance ratio (shadowed / lit) in each shadow's core on flat ground, (n,)."""
+        """Radiance ratio (shadowed / lit) in each shadow's core on flat ground.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            The ratio.
+        """
         return self.diffuse_fraction + (1.0 - self.diffuse_fraction) * self.core_factor
 
     def darken(self, radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                pose: ground_mapping.CameraPose, time_s: float, grid_origin_m, metres_per_pixel: float) -> None:
-        """Multiply ``radiance`` (H, W) in place by the shadows' darkening at ``time_s`` (module doc).
+        """Multiply a radiance field in place by the shadows' darkening at a time (module doc).
 
-        The ground point of every pixel is read from ``ground_map`` (grid coordinates of the north-up
-        grid with origin ``grid_origin_m`` (east, north) and ``metres_per_pixel``); only the image
-        windows that can hold a shadow are computed.
+        Only the image windows that can hold a shadow are computed.
+
+        Parameters
+        ----------
+        radiance : ndarray, shape (H, W), float32
+            Radiance (W m^-2 sr^-1 um^-1); changed in place.
+        ground_map : GroundMap
+            Ground point of every pixel, as coordinates of the north-up grid.
+        camera : Camera
+            The camera.
+        pose : CameraPose
+            The camera's world pose.
+        time_s : float
+            Time (s).
+        grid_origin_m : (float, float)
+            East, north of the grid's (row 0, col 0) pixel centre (m).
+        metres_per_pixel : float
+            Grid spacing (m).
         """
         height, width = radiance.shape
         shift = self.velocity_mps * (time_s - self.reference_time_s)
@@ -236,9 +304,25 @@ def place_moving_shadows(draws: MovingShadowDraws, config: MovingShadowsConfig, 
 
     Parameters
     ----------
-    profile : the case's trajectory (unscaled); its middle image's exposure mid-time is ``t_ref``
-    sun_world : (3,) world unit vector toward the sun, z > 0
-    sun_radius_rad : angular radius of the solar disc (rad)
+    draws : MovingShadowDraws
+        The case's draws.
+    config : MovingShadowsConfig
+        Sizes, optical depths.
+    camera : Camera
+        The camera.
+    profile : DescentProfile
+        The case's trajectory (unscaled); its middle image's exposure mid-time is ``t_ref``.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun, z > 0.
+    sun_radius_rad : float
+        Angular radius of the solar disc (rad).
+    diffuse_fraction : float
+        Fraction of the irradiance that is sky light.
+
+    Returns
+    -------
+    MovingShadows
+        The placed shadows.
     """
     reference_s = camera.timing.exposure_mid_time_s(float(profile.image_times_s[len(profile.image_times_s) // 2]))
     pose = profile.pose(float(np.clip(reference_s, profile.time_s[0], profile.time_s[-1])))

@@ -47,8 +47,17 @@ PIECES_PER_PIXEL = 4
 
 @dataclass(frozen=True)
 class ParticleHits:
-    """One image's particle charge: ``rows``, ``cols`` (m,) int64 full-resolution pixels (unique),
-    ``charge_e`` (m,) float64 electrons, and ``count`` the number of particles."""
+    """One image's particle charge.
+
+    Attributes
+    ----------
+    rows, cols : ndarray, shape (m,), int64
+        Full-resolution pixels that got charge (unique).
+    charge_e : ndarray, shape (m,), float64
+        Charge of each pixel (e-).
+    count : int
+        Number of particles.
+    """
 
     rows: np.ndarray
     cols: np.ndarray
@@ -57,24 +66,63 @@ class ParticleHits:
 
     @property
     def max_pixel_charge_e(self) -> float:
+        """Largest charge any pixel got (e-), 0 without hits."""
         return float(self.charge_e.max()) if self.charge_e.size else 0.0
 
 
 def effective_window_s(camera: Camera) -> tuple[float, float, float]:
-    """Window weights (s) of the three row distributions: (flush-like ~ j, uniform, read-out-like ~ N - j),
-    for charge moving toward the last row. Their sum is ``T_eff`` of the module doc."""
+    """Window weights of the three row distributions, for charge moving toward the last row.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (timing).
+
+    Returns
+    -------
+    tuple of float
+        (flush-like ~ j, uniform, read-out-like ~ N - j) weights (s); their sum is ``T_eff`` of the module doc.
+    """
     timing = camera.timing
     return 0.5 * timing.fast_flush_s, timing.exposure_s + timing.frame_transfer_s, 0.5 * timing.readout_s
 
 
 def expected_count(camera: Camera, rate_per_cm2_s: float) -> float:
-    """Mean number of particles per image, ``rate * A * T_eff``."""
+    """Mean number of particles per image, ``rate * A * T_eff``.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (array area, timing).
+    rate_per_cm2_s : float
+        Particle flux (cm^-2 s^-1).
+
+    Returns
+    -------
+    float
+        Mean count.
+    """
     area_cm2 = (camera.width_px * camera.pixel_pitch_m * 1e2) * (camera.height_px * camera.pixel_pitch_m * 1e2)
     return rate_per_cm2_s * area_cm2 * sum(effective_window_s(camera))
 
 
 def draw_rows(camera: Camera, rng: np.random.Generator, count: int) -> np.ndarray:
-    """Final row coordinate (float, 0 .. N) of ``count`` hits from the window mixture (module doc)."""
+    """Final row coordinates of hits drawn from the window mixture (module doc).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    rng : numpy.random.Generator
+        The image's stream.
+    count : int
+        Number of hits.
+
+    Returns
+    -------
+    ndarray, shape (count,), float64
+        Row coordinate, 0 .. N.
+    """
     rows = camera.height_px
     weights = np.array(effective_window_s(camera))
     kind = rng.choice(3, size=count, p=weights / weights.sum()) if weights.sum() > 0 else np.ones(count, int)
@@ -120,7 +168,28 @@ def deposit_tracks(shape: tuple[int, int], start_px: np.ndarray, delta_px: np.nd
 
 def draw_particle_hits(camera: Camera, rng: np.random.Generator, rate_per_cm2_s: float, charge_e_per_m: float,
                        depth_m: float, max_track_length_m: float) -> ParticleHits:
-    """Draw one image's particle hits (module doc)."""
+    """Draw one image's particle hits (module doc).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    rng : numpy.random.Generator
+        The image's stream.
+    rate_per_cm2_s : float
+        Particle flux (cm^-2 s^-1).
+    charge_e_per_m : float
+        Charge deposited per metre of track (e-/m).
+    depth_m : float
+        Depth of the charge-collecting layer (m).
+    max_track_length_m : float
+        Longest track projected on the array (m).
+
+    Returns
+    -------
+    ParticleHits
+        The charge of the hit pixels.
+    """
     count = int(rng.poisson(expected_count(camera, rate_per_cm2_s)))
     rows = draw_rows(camera, rng, count)
     draws = rng.random((count, 3))
@@ -138,12 +207,40 @@ def draw_particle_hits(camera: Camera, rng: np.random.Generator, rate_per_cm2_s:
 
 
 def add_to_pixels(pixel_e: np.ndarray, hits: ParticleHits) -> np.ndarray:
-    """Add the hits to a full-resolution (H, W) charge map in place (pixels are unique); returns it."""
+    """Add the hits to a full-resolution charge map in place (pixels are unique).
+
+    Parameters
+    ----------
+    pixel_e : ndarray, shape (H, W)
+        Charge per pixel (e-); changed in place.
+    hits : ParticleHits
+        The hits.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        ``pixel_e``.
+    """
     pixel_e[hits.rows, hits.cols] += hits.charge_e.astype(pixel_e.dtype)
     return pixel_e
 
 
 def add_to_binned(binned_e: np.ndarray, hits: ParticleHits, binning_rows: int) -> np.ndarray:
-    """Add the hits to a binned (H / b, W) charge map in place; returns it."""
+    """Add the hits to a binned charge map in place.
+
+    Parameters
+    ----------
+    binned_e : ndarray, shape (H / b, W)
+        Charge per binned pixel (e-); changed in place.
+    hits : ParticleHits
+        The hits.
+    binning_rows : int
+        Rows per block ``b``.
+
+    Returns
+    -------
+    ndarray, shape (H / b, W)
+        ``binned_e``.
+    """
     np.add.at(binned_e, (hits.rows // binning_rows, hits.cols), hits.charge_e.astype(binned_e.dtype))
     return binned_e

@@ -90,23 +90,61 @@ _AZIMUTH_NODES = 128                # trapezoid nodes over the azimuth differenc
 
 
 def henyey_greenstein(cos_theta: np.ndarray, asymmetry: float) -> np.ndarray:
-    """Henyey-Greenstein phase function (A2) of the cosine of the scattering angle, normalised to 1 over
-    4 pi (mean 1 over the sphere); float64, shape of ``cos_theta``."""
+    """Henyey-Greenstein phase function (A2), normalised to 1 over 4 pi (mean 1 over the sphere).
+
+    Parameters
+    ----------
+    cos_theta : ndarray
+        Cosine of the scattering angle, any shape.
+    asymmetry : float
+        Asymmetry parameter g, -1 < g < 1.
+
+    Returns
+    -------
+    ndarray, float64, shape of ``cos_theta``
+        Phase function value.
+    """
     g = float(asymmetry)
     return (1.0 - g * g) / (1.0 + g * g - 2.0 * g * np.asarray(cos_theta, dtype=float)) ** 1.5
 
 
 def phase_function(cos_theta: np.ndarray, config) -> np.ndarray:
-    """Double Henyey-Greenstein phase function (A2) of ``config`` (an
-    :class:`~simulator.scene_config.AtmosphereConfig`), float64."""
+    """Double Henyey-Greenstein phase function (A2) of the atmosphere's dust.
+
+    Parameters
+    ----------
+    cos_theta : ndarray
+        Cosine of the scattering angle, any shape.
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
+
+    Returns
+    -------
+    ndarray, float64, shape of ``cos_theta``
+        Phase function value (mean 1 over the sphere).
+    """
     f = config.forward_fraction
     return (f * henyey_greenstein(cos_theta, config.forward_asymmetry)
             + (1.0 - f) * henyey_greenstein(cos_theta, config.backward_asymmetry))
 
 
 def optical_depths(altitude_m: float, config) -> tuple[float, float]:
-    """(dust above, dust below) a camera at ``altitude_m`` above the ground, (A1); the layer below is
-    empty when ``config.descent_path`` is off (the descent camera then sees the ground clear)."""
+    """Dust optical depths above and below a camera, (A1).
+
+    The layer below is empty when ``config.descent_path`` is off (the descent camera then sees the ground clear).
+
+    Parameters
+    ----------
+    altitude_m : float
+        Camera height above the ground (m).
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
+
+    Returns
+    -------
+    tau_above, tau_below : float
+        Optical depths.
+    """
     tau = config.orbital_optical_depth
     if not config.descent_path:
         return tau, 0.0
@@ -115,8 +153,28 @@ def optical_depths(altitude_m: float, config) -> tuple[float, float]:
 
 
 def path_reflectance(tau_above: float, tau_layer: float, mu0, mu, cos_scatter, config) -> np.ndarray:
-    """Single-scattered path I/F (A3) of a dust layer of optical depth ``tau_layer`` lying under
-    ``tau_above``, seen from above along cosines ``mu`` (any shape) with the sun at ``mu0``."""
+    """Single-scattered path I/F (A3) of a dust layer lying under more dust, seen from above.
+
+    Parameters
+    ----------
+    tau_above : float
+        Optical depth above the layer.
+    tau_layer : float
+        Optical depth of the layer.
+    mu0 : float or ndarray
+        Cosine of the solar incidence.
+    mu : float or ndarray
+        Cosine of the view direction against the vertical, any shape.
+    cos_scatter : float or ndarray
+        Cosine of the scattering angle.
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
+
+    Returns
+    -------
+    ndarray
+        Path I/F, the broadcast shape.
+    """
     mu0 = np.maximum(np.asarray(mu0, dtype=float), MIN_COSINE)
     mu = np.maximum(np.asarray(mu, dtype=float), MIN_COSINE)
     layer = -np.expm1(-tau_layer * (1.0 / mu + 1.0 / mu0))
@@ -157,9 +215,25 @@ def _diffuse_table(optical_depth: float, config) -> tuple[np.ndarray, np.ndarray
 
 
 def diffuse_transmission(optical_depth: float, mu, config) -> np.ndarray:
-    """Diffuse transmission (A4) of an isotropic upwelling field into cosine ``mu`` (any shape),
-    equally the diffuse fraction of a solar beam at ``mu`` reaching the ground; 0 when
-    ``config.diffuse_transmission`` is off. Tabulated in mu and interpolated linearly."""
+    """Diffuse transmission (A4) of an isotropic upwelling field into a direction.
+
+    Equally the diffuse fraction of a solar beam at ``mu`` reaching the ground. Tabulated in mu and
+    interpolated linearly.
+
+    Parameters
+    ----------
+    optical_depth : float
+        Optical depth of the dust.
+    mu : float or ndarray
+        Cosine of the direction against the vertical, any shape.
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
+
+    Returns
+    -------
+    ndarray, shape of ``mu``
+        Diffuse transmission; 0 when ``config.diffuse_transmission`` is off.
+    """
     mu = np.asarray(mu, dtype=float)
     if not config.diffuse_transmission or optical_depth <= 0.0:
         return np.zeros_like(mu)
@@ -168,7 +242,22 @@ def diffuse_transmission(optical_depth: float, mu, config) -> np.ndarray:
 
 
 def illumination(optical_depth: float, mu0: float, config) -> float:
-    """Ground irradiance from a sun at ``mu0`` relative to no atmosphere: ``exp(-tau/mu0) + t_d(tau, mu0)``."""
+    """Ground irradiance from the sun relative to no atmosphere: ``exp(-tau/mu0) + t_d(tau, mu0)``.
+
+    Parameters
+    ----------
+    optical_depth : float
+        Optical depth of the dust.
+    mu0 : float
+        Cosine of the solar incidence.
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
+
+    Returns
+    -------
+    float
+        Relative irradiance.
+    """
     mu0 = max(float(mu0), MIN_COSINE)
     return float(np.exp(-optical_depth / mu0) + diffuse_transmission(optical_depth, mu0, config))
 
@@ -179,12 +268,18 @@ class OrbitalHaze:
 
     Attributes
     ----------
-    offset_if : float, ``C_o`` = adjacency light + path I/F, removed from the orbital I/F
-    surface_mean_if : float, ``S`` = mean surface I/F under the atmosphere's illumination at MOC's sun
-    path_if : float, ``P_o``
-    transmission : float, ``exp(-tau / mu_o)``
-    illumination : float, ``E(mu0_o)``
-    terrain_mean_if : float, the terrain image's mean I/F ``Rbar``
+    offset_if : float
+        ``C_o`` = adjacency light + path I/F, removed from the orbital I/F.
+    surface_mean_if : float
+        ``S`` = mean surface I/F under the atmosphere's illumination at MOC's sun.
+    path_if : float
+        ``P_o``, the orbital path I/F.
+    transmission : float
+        ``exp(-tau / mu_o)``.
+    illumination : float
+        ``E(mu0_o)``.
+    terrain_mean_if : float
+        The terrain image's mean I/F ``Rbar``.
     """
 
     offset_if: float
@@ -196,8 +291,19 @@ class OrbitalHaze:
 
 
 def orbital_haze(terrain, config) -> OrbitalHaze:
-    """The orbital haze of ``terrain`` (a :class:`~simulator.scene.terrain.Terrain`) for the atmosphere
-    ``config``; cached on the terrain per configuration.
+    """The orbital haze of a terrain for an atmosphere; cached on the terrain per configuration.
+
+    Parameters
+    ----------
+    terrain : simulator.scene.terrain.Terrain
+        The orbital image with its MOC geometry.
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
+
+    Returns
+    -------
+    OrbitalHaze
+        The orbital atmosphere's terms.
 
     Raises
     ------
@@ -229,7 +335,20 @@ def orbital_haze(terrain, config) -> OrbitalHaze:
 
 
 def remove_orbital_haze(orbital_if: np.ndarray, haze: OrbitalHaze) -> np.ndarray:
-    """``max(R_orb - C_o, 0)`` in place (float32 (H, W)); the caller's sky pixels (0) stay 0."""
+    """``max(R_orb - C_o, 0)`` in place; the caller's sky pixels (0) stay 0.
+
+    Parameters
+    ----------
+    orbital_if : ndarray, shape (H, W), float32
+        Orbital I/F resampled to the image; changed in place.
+    haze : OrbitalHaze
+        The orbital atmosphere.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        ``orbital_if``.
+    """
     cv2.subtract(orbital_if, float(haze.offset_if), dst=orbital_if)  # type: ignore[call-overload]  # cv2 stubs: no scalar
     cv2.threshold(orbital_if, 0.0, 0.0, cv2.THRESH_TOZERO, dst=orbital_if)   # one pass each (numpy: 2x slower)
     return orbital_if
@@ -237,12 +356,31 @@ def remove_orbital_haze(orbital_if: np.ndarray, haze: OrbitalHaze) -> np.ndarray
 
 def descent_factors(view_to_camera: np.ndarray, sun_world: np.ndarray, altitude_m: float, haze: OrbitalHaze,
                     config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The descent terms of (A7) along unit ground-to-camera directions (..., 3).
+    """The descent terms of (A7) along unit ground-to-camera directions.
+
+    ``R_desc = rho (max(R_orb - C_o, 0) gain + adjacency_if) + path_if``.
+
+    Parameters
+    ----------
+    view_to_camera : ndarray, shape (..., 3)
+        Unit ground-to-camera directions.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    altitude_m : float
+        Camera height above the ground (m).
+    haze : OrbitalHaze
+        The orbital atmosphere.
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
 
     Returns
     -------
-    gain, adjacency_if, path_if : float32 arrays of shape (...): ``kappa A``, ``kappa S t_d(tau_b, mu_d)``
-    and ``P_d``, so that ``R_desc = rho (max(R_orb - C_o, 0) gain + adjacency_if) + path_if``.
+    gain : ndarray, shape (...), float32
+        ``kappa A``.
+    adjacency_if : ndarray, shape (...), float32
+        ``kappa S t_d(tau_b, mu_d)``.
+    path_if : ndarray, shape (...), float32
+        ``P_d``.
     """
     view = np.asarray(view_to_camera, dtype=float)
     sun = np.asarray(sun_world, dtype=float)
@@ -260,11 +398,39 @@ def descent_factors(view_to_camera: np.ndarray, sun_world: np.ndarray, altitude_
 def descent_fields(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
                       sun: np.ndarray, moc_value: float | None, scale: float, haze: OrbitalHaze,
                       config, grid_step_px: int) -> tuple[np.ndarray, np.ndarray]:
-    """The descent side of the atmosphere, (A7), as two (H, W) float32
-    fields: ``gain = scale rho kappa A`` multiplies the haze-free orbital I/F, ``added = scale (rho kappa S
-    t_d + P_d)`` is the adjacency and path radiance (W m^-2 sr^-1 um^-1) added after shadows. ``rho``
-    is the photometric ratio (1 when ``moc_value`` is None: no photometric correction). On the node grid
-    when ``grid_step_px > 0`` (the terms vary slowly), else per pixel."""
+    """The descent side of the atmosphere, (A7), as two fields.
+
+    ``rho`` is the photometric ratio (1 when ``moc_value`` is None: no photometric correction). On the
+    node grid when ``grid_step_px > 0`` (the terms vary slowly), else per pixel.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    ground_map : GroundMap
+        The pose's ground map.
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+    moc_value : float or None
+        The MOC geometry's reflectance model value, None without photometric correction.
+    scale : float
+        Radiometric scale: I/F -> radiance (W m^-2 sr^-1 um^-1).
+    haze : OrbitalHaze
+        The orbital atmosphere.
+    config : simulator.scene_config.AtmosphereConfig
+        The atmosphere.
+    grid_step_px : int
+        Node spacing (px), 0 for per pixel.
+
+    Returns
+    -------
+    gain : ndarray, shape (H, W), float32
+        ``scale rho kappa A``: multiplies the haze-free orbital I/F.
+    added : ndarray, shape (H, W), float32
+        ``scale (rho kappa S t_d + P_d)``: adjacency and path radiance (W m^-2 sr^-1 um^-1) added after shadows.
+    """
     view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
     gain, adjacency, path = descent_factors(view, sun, pose.altitude_m, haze, config)
     ratio = np.float32(1.0) if moc_value is None else photometry.photometric_ratio(view, sun, moc_value)

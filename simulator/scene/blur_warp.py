@@ -70,7 +70,29 @@ CHECKED_LEAVES = 5
 
 @dataclass(frozen=True)
 class WarpedPeriods:
-    """The three period fields (block means, (H / b, W)) plus exposure masks and diagnostics."""
+    """The three period fields by warp-and-accumulate, plus exposure masks and diagnostics.
+
+    Attributes
+    ----------
+    fields : RadianceFields
+        Flush, exposure and transfer radiance as block means, (H / b, W) (W m^-2 sr^-1 um^-1).
+    sky : ndarray, shape (H, W), bool
+        Sky pixels (none: the warp needs ground everywhere).
+    outside : ndarray, shape (H, W), bool
+        Ground outside the terrain strip (exposure union).
+    heat_shield : ndarray, shape (H, W), bool
+        Heat-shield pixels (exposure union).
+    substeps : dict of str to int
+        Sub-poses averaged per period (a power of two).
+    centre_radiance : ndarray, shape (H, W), float32
+        The exposure-centre field.
+    centre_heat_shield : ndarray, shape (H, W), bool, or None
+        The heat shield in the centre field.
+    shadow_centres_m : list of ndarray, shape (3,)
+        Ground shadow centres at the centre pose (m).
+    margins_px : tuple of int
+        (left, right, top, bottom) margins of the enlarged rendered field (px).
+    """
 
     fields: RadianceFields
     sky: np.ndarray
@@ -84,8 +106,22 @@ class WarpedPeriods:
 
 
 def expanded_camera(camera: Camera, margins_px: tuple[int, int, int, int]) -> Camera:
-    """``camera`` enlarged by (left, right, top, bottom) margins: its pixel (c + left, r + top) sees what
-    ``camera``'s pixel (c, r) sees (cached per camera and margins)."""
+    """A camera enlarged by margins: its pixel (c + left, r + top) sees what ``camera``'s pixel (c, r) sees.
+
+    Cached per camera and margins.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    margins_px : tuple of int
+        (left, right, top, bottom) margins (px).
+
+    Returns
+    -------
+    Camera
+        The enlarged camera.
+    """
     cache = ground_mapping.camera_cache(camera).setdefault("expanded", {})
     left, right, top, bottom = (int(m) for m in margins_px)
     key = (left, right, top, bottom)
@@ -197,16 +233,31 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
                          cam_at: Callable[[float], ground_mapping.CameraPose], windows: dict, centre_s: float,
                          count: int, render: Callable[[Camera, Pose], Any],
                          moving_points: Callable[[float], list]) -> WarpedPeriods | None:
-    """The flush, exposure and transfer fields of one image by warp-and-accumulate (module doc), or None
-    when the scene does not allow it (then render each sub-pose).
+    """The flush, exposure and transfer fields of one image by warp-and-accumulate (module doc).
 
     Parameters
     ----------
-    windows : dict period -> (start_s, end_s)
-    centre_s : float, exposure mid-time (s), where the one field is rendered
-    count : int, sub-poses the blur needs (rounded up to a power of two)
-    render : (camera, pose) -> PoseField, the scene at one pose
-    moving_points : time_s -> list of world points (m) that move on their own (shadow centres, heat shield)
+    camera : Camera
+        The camera.
+    pose_at : callable
+        ``time_s -> Pose``.
+    cam_at : callable
+        ``time_s -> CameraPose``.
+    windows : dict of str to (float, float)
+        ``period -> (start_s, end_s)`` (s).
+    centre_s : float
+        Exposure mid-time (s), where the one field is rendered.
+    count : int
+        Sub-poses the blur needs (rounded up to a power of two).
+    render : callable
+        ``(camera, pose) -> PoseField``: the scene at one pose.
+    moving_points : callable
+        ``time_s -> list`` of world points (m) that move on their own (shadow centres, heat shield).
+
+    Returns
+    -------
+    WarpedPeriods or None
+        The fields, or None when the scene does not allow the warp (then render each sub-pose).
     """
     plan = _Plan(camera, cam_at, centre_s, windows, count)
     if not plan.ok:
@@ -328,8 +379,22 @@ def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan:
 
 
 def moving_world_points(pose: Pose, casters: list, sun: np.ndarray) -> list:
-    """World points that move on their own at a pose: each caster's ground shadow centre and the heat
-    shield's position."""
+    """World points that move on their own at a pose: each caster's ground shadow centre and the heat shield.
+
+    Parameters
+    ----------
+    pose : Pose
+        Lander pose.
+    casters : list of shadow.Caster
+        The shadow casters at the pose.
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+
+    Returns
+    -------
+    list of ndarray, shape (3,)
+        World points (m).
+    """
     points = [shadow.shadow_centre_m(np.asarray(caster.centre_m, dtype=float), sun) for caster in casters]
     if pose.heat_shield_position_m is not None:
         points.append(np.asarray(pose.heat_shield_position_m, dtype=float))

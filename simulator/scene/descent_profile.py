@@ -27,7 +27,23 @@ from flight_interface.frames import (
 
 @dataclass(frozen=True)
 class Pose:
-    """Lander state at one instant."""
+    """Lander state at one instant.
+
+    Attributes
+    ----------
+    time_s : float
+        Time (s).
+    position_m : ndarray, shape (3,)
+        World position of the lander body origin (m).
+    velocity_mps : ndarray, shape (3,)
+        World velocity (m/s).
+    attitude_quat : ndarray, shape (4,)
+        Body-to-world unit quaternion (w, x, y, z).
+    angular_rate_radps : ndarray, shape (3,)
+        Body-frame angular rate (rad/s).
+    heat_shield_position_m : ndarray, shape (3,), or None
+        World position of the heat shield centre (m), None when not tracked.
+    """
 
     time_s: float
     position_m: np.ndarray          # (3,) world
@@ -87,10 +103,20 @@ class DescentProfile:
         return index, float(fraction)
 
     def pose(self, time_s: float) -> Pose:
-        """Lander state at ``time_s``: linear interpolation of vectors, slerp of attitude.
+        """Lander state at a time: linear interpolation of vectors, slerp of attitude.
 
         Position uses cubic Hermite interpolation with the sampled velocities, so a profile sampled
         coarsely still moves consistently with its own velocity.
+
+        Parameters
+        ----------
+        time_s : float
+            Time (s), within the profile's span.
+
+        Returns
+        -------
+        Pose
+            The interpolated state.
         """
         index, fraction = self._locate(time_s)
         step = self.time_s[index + 1] - self.time_s[index]
@@ -113,12 +139,36 @@ class DescentProfile:
         )
 
     def wind_at(self, time_s: float) -> np.ndarray:
-        """Steady-state wind (world, m/s) at ``time_s``."""
+        """Steady-state wind at a time.
+
+        Parameters
+        ----------
+        time_s : float
+            Time (s).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            World wind (m/s).
+        """
         index, fraction = self._locate(time_s)
         return (1.0 - fraction) * self.wind_mps[index] + fraction * self.wind_mps[index + 1]
 
     def translated(self, offset_m: np.ndarray, name: str | None = None) -> DescentProfile:
-        """The same profile moved horizontally by ``offset_m`` (east, north) — a placement on a terrain."""
+        """The same profile moved horizontally: a placement on a terrain.
+
+        Parameters
+        ----------
+        offset_m : ndarray, shape (2,)
+            East, north offset (m).
+        name : str, optional
+            Name of the new profile (default: the same).
+
+        Returns
+        -------
+        DescentProfile
+            The moved profile.
+        """
         shift = np.array([offset_m[0], offset_m[1], 0.0])
         return DescentProfile(
             time_s=self.time_s, position_m=self.position_m + shift, velocity_mps=self.velocity_mps,
@@ -129,10 +179,24 @@ class DescentProfile:
 
 
     def placed(self, heading_rad: float, offset_m: np.ndarray, name: str | None = None) -> DescentProfile:
-        """The profile turned by ``heading_rad`` about the world vertical through the origin
-        (right-handed about +z: counter-clockwise seen from above), then moved by ``offset_m``
-        (east, north). Positions, velocities, winds, attitudes and the heat shield turn together,
-        so the trajectory is the same flight in another direction; the sun does not turn.
+        """The profile turned about the world vertical through the origin, then moved horizontally.
+
+        Positions, velocities, winds, attitudes and the heat shield turn together, so the trajectory is the
+        same flight in another direction; the sun does not turn.
+
+        Parameters
+        ----------
+        heading_rad : float
+            Turn (rad), right-handed about +z: counter-clockwise seen from above.
+        offset_m : ndarray, shape (2,)
+            East, north offset after the turn (m).
+        name : str, optional
+            Name of the new profile (default: the same).
+
+        Returns
+        -------
+        DescentProfile
+            The placed profile.
         """
         turn = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), heading_rad)
         cos_h, sin_h = np.cos(heading_rad), np.sin(heading_rad)
@@ -152,7 +216,32 @@ class DescentProfile:
 def constant_velocity_profile(start_position_m, velocity_mps, attitude_quat, duration_s: float,
                               image_times_s, wind_mps=(0.0, 0.0, 0.0),
                               samples: int = 2, name: str = "constant") -> DescentProfile:
-    """A straight-line profile with fixed attitude (for tests and examples)."""
+    """A straight-line profile with fixed attitude (for tests and examples).
+
+    Parameters
+    ----------
+    start_position_m : array_like, shape (3,)
+        World position at time 0 (m).
+    velocity_mps : array_like, shape (3,)
+        World velocity (m/s).
+    attitude_quat : array_like, shape (4,)
+        Body-to-world quaternion.
+    duration_s : float
+        Length of the profile (s).
+    image_times_s : array_like, shape (K,)
+        Start-of-exposure times of the images (s).
+    wind_mps : array_like, shape (3,), optional
+        Steady wind (m/s).
+    samples : int, optional
+        Number of time samples.
+    name : str, optional
+        Profile name.
+
+    Returns
+    -------
+    DescentProfile
+        The profile.
+    """
     time = np.linspace(0.0, duration_s, samples)
     velocity = np.asarray(velocity_mps, dtype=float)
     position = np.asarray(start_position_m, dtype=float) + time[:, None] * velocity
@@ -167,15 +256,22 @@ def constant_velocity_profile(start_position_m, velocity_mps, attitude_quat, dur
 
 @dataclass(frozen=True)
 class RateScaledProfile(DescentProfile):
-    """A profile whose rotation about ``rate_centre_s`` runs ``rate_multiplier`` times faster
-    (off-nominal "high motion blur"); positions, velocities and the heat shield are unchanged.
+    """A profile whose rotation about ``rate_centre_s`` runs ``rate_multiplier`` times faster.
 
+    Off-nominal "high motion blur"; positions, velocities and the heat shield are unchanged.
     Attitude: ``q'(t) = q(tc) * exp(k * log(q(tc)^-1 q(t)))`` with ``tc = rate_centre_s`` and
     ``k = rate_multiplier``, so the attitude at ``tc`` is unchanged and the rotation relative to it is
     scaled by ``k`` (exactly ``k`` times the angle for rotation about a fixed body axis). The body
     angular rate reported is ``k`` times the profile's. Valid near ``tc`` (one image's flush, exposure
     and transfer): far from it the scaled relative rotation can exceed half a turn and wrap.
     Use :func:`scale_angular_rates` to build one; ``translated``/``placed`` return an unscaled profile.
+
+    Attributes
+    ----------
+    rate_multiplier : float
+        ``k``.
+    rate_centre_s : float
+        ``tc`` (s).
     """
 
     rate_multiplier: float = 1.0
@@ -187,6 +283,18 @@ class RateScaledProfile(DescentProfile):
         return DescentProfile.pose(self, float(np.clip(self.rate_centre_s, self.time_s[0], self.time_s[-1]))).attitude_quat
 
     def pose(self, time_s: float) -> Pose:
+        """Lander state at a time, with the rotation about ``rate_centre_s`` scaled.
+
+        Parameters
+        ----------
+        time_s : float
+            Time (s).
+
+        Returns
+        -------
+        Pose
+            The state (angular rate times ``rate_multiplier``).
+        """
         base = super().pose(time_s)
         centre = self._centre_attitude
         relative = quat_to_rotation_vector(quat_multiply(quat_conjugate(centre), base.attitude_quat))
@@ -195,8 +303,22 @@ class RateScaledProfile(DescentProfile):
 
 
 def scale_angular_rates(profile: DescentProfile, multiplier: float, centre_time_s: float) -> DescentProfile:
-    """The profile with its angular rates scaled by ``multiplier`` about ``centre_time_s`` (see
-    :class:`RateScaledProfile`); the profile itself when ``multiplier == 1``."""
+    """The profile with its angular rates scaled about a time (see :class:`RateScaledProfile`).
+
+    Parameters
+    ----------
+    profile : DescentProfile
+        The profile.
+    multiplier : float
+        Rate multiplier ``k``.
+    centre_time_s : float
+        Time whose attitude is kept (s).
+
+    Returns
+    -------
+    DescentProfile
+        A :class:`RateScaledProfile`, or ``profile`` itself when ``multiplier == 1``.
+    """
     if multiplier == 1.0:
         return profile
     if not (np.isfinite(multiplier) and multiplier >= 0):

@@ -57,15 +57,30 @@ class CameraPose:
 
     @property
     def altitude_m(self) -> float:
+        """Height of the CAHVOR centre above the ground plane z = 0 (m)."""
         return float(self.ray_origin_m[2])
 
     @property
     def boresight_world(self) -> np.ndarray:
+        """World direction of the camera frame's z axis, shape (3,)."""
         return self.camera_to_world[:, 2]
 
 
 def camera_pose(camera: Camera, pose: Pose) -> CameraPose:
-    """The camera's world pose from the lander pose (attitude is body-to-world) and the mounting."""
+    """The camera's world pose from the lander pose and the camera mounting.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (mounting in the lander frame, CAHVOR centre).
+    pose : Pose
+        Lander pose (attitude body-to-world).
+
+    Returns
+    -------
+    CameraPose
+        Frame origin, ray origin (m) and camera-to-world rotation.
+    """
     lander_to_world = quat_to_matrix(pose.attitude_quat)
     camera_to_world = lander_to_world @ camera.camera_to_lander_matrix
     frame_origin = np.asarray(pose.position_m, dtype=float) + lander_to_world @ camera.camera_position_in_lander_m
@@ -73,13 +88,44 @@ def camera_pose(camera: Camera, pose: Pose) -> CameraPose:
 
 
 def camera_cache(camera: Camera) -> dict:
-    """A per-camera cache dict (cameras are frozen dataclasses holding arrays, hence unhashable)."""
+    """A per-camera cache dict (cameras are frozen dataclasses holding arrays, hence unhashable).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    dict
+        The scene stage's cache of ``camera`` (:data:`simulator.derived_cache.DERIVED`).
+    """
     return DERIVED.of(camera, "scene")
 
 
 def node_positions(size_px: int, step_px: int) -> np.ndarray:
-    """Pixel coordinates of the coarse grid nodes along one axis: ``(k + 0.5) step - 0.5`` for
-    k = -1 .. size/step (one node beyond each edge, the layout that ``cv2.resize`` upsamples)."""
+    """Pixel coordinates of the coarse grid nodes along one axis.
+
+    ``(k + 0.5) step - 0.5`` for k = -1 .. size/step: one node beyond each edge, the layout that
+    ``cv2.resize`` upsamples.
+
+    Parameters
+    ----------
+    size_px : int
+        Image size along the axis (px).
+    step_px : int
+        Node spacing (px), >= 1, divides ``size_px``.
+
+    Returns
+    -------
+    ndarray, shape (size / step + 2,)
+        Node coordinates (px).
+
+    Raises
+    ------
+    ValueError
+        A step that is < 1 or does not divide the size.
+    """
     if step_px < 1 or size_px % step_px:
         raise ValueError(f"grid step {step_px} px must be >= 1 and divide the image size {size_px} px")
     return (np.arange(-1, size_px // step_px + 1) + 0.5) * step_px - 0.5
@@ -89,11 +135,25 @@ def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_
                    row_step_px: int | None = None, scratch_name: str | None = None) -> np.ndarray:
     """Bilinear interpolation of values on the :func:`node_positions` grid to every pixel.
 
-    ``node_values`` has shape (ny, nx) or (ny, nx, channels) with ny = height/row_step + 2,
-    nx = width/step + 2 (``row_step_px`` defaults to ``step_px``; a different one serves a grid of
-    coarser rows, e.g. binned rows, with the same node layout in its own units).
-    Returns float32 of shape (height, width[, channels]); with ``scratch_name`` it is a view of that
-    :func:`~simulator.scratch.scratch` array (the caller must be done with it before the name is used again).
+    Parameters
+    ----------
+    node_values : ndarray, shape (ny, nx) or (ny, nx, channels)
+        Values at the nodes, ny = height / row_step + 2, nx = width / step + 2.
+    step_px : int
+        Column node spacing (px).
+    height_px, width_px : int
+        Size of the output (px).
+    row_step_px : int, optional
+        Row node spacing (default ``step_px``; a different one serves a grid of coarser rows, e.g. binned
+        rows, with the same node layout in its own units).
+    scratch_name : str, optional
+        Write into that :func:`~simulator.scratch.scratch` array (the caller must be done with it
+        before the name is used again).
+
+    Returns
+    -------
+    ndarray, shape (height, width[, channels]), float32
+        Interpolated values (a view of the scratch array with ``scratch_name``).
     """
     row_step_px = step_px if row_step_px is None else row_step_px
     ny, nx = node_values.shape[:2]
@@ -108,8 +168,20 @@ def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_
 
 
 def node_rays(camera: Camera, step_px: int) -> np.ndarray:
-    """Camera-frame rays at the coarse grid nodes, scaled to unit component along the pointing axis A
-    (cached per camera). Shape (ny, nx, 3), float64."""
+    """Camera-frame rays at the coarse grid nodes, scaled to unit component along the pointing axis A (cached per camera).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    step_px : int
+        Node spacing (px).
+
+    Returns
+    -------
+    ndarray, shape (ny, nx, 3), float64
+        Rays.
+    """
     cache = camera_cache(camera)
     key = ("node_rays", step_px)
     if key not in cache:
@@ -122,7 +194,18 @@ def node_rays(camera: Camera, step_px: int) -> np.ndarray:
 
 
 def pixel_rays_f32(camera: Camera) -> np.ndarray:
-    """The camera's unit pixel rays as float32 (cached), shape (height, width, 3)."""
+    """The camera's unit pixel rays as float32 (cached).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    ndarray, shape (height, width, 3), float32
+        Camera-frame unit rays.
+    """
     cache = camera_cache(camera)
     if "pixel_rays_f32" not in cache:
         cache["pixel_rays_f32"] = np.ascontiguousarray(camera.pixel_rays, dtype=np.float32)
@@ -132,18 +215,30 @@ def pixel_rays_f32(camera: Camera) -> np.ndarray:
 class GroundMap:
     """Ground points seen by every pixel, as fractional coordinates of a north-up ground grid.
 
-    Attributes
+    :meth:`rays` gives the world ray directions of any window (interpolated from the nodes, so not unit
+    length, when the map was built on the coarse grid; exact unit rays otherwise).
+
+    Parameters
     ----------
-    col, row : (height, width) float32
+    col, row : ndarray, shape (height, width), float32
         Grid coordinates ``col = (east - east0)/mpp``, ``row = (north0 - north)/mpp``; sky pixels hold
         ``-MAX_MAP_COORDINATE``.
-    sky : (height, width) bool
+    sky : ndarray, shape (height, width), bool
         True where the ray does not meet the ground.
     any_sky : bool
         False when no pixel sees the sky (decided on the node grid or the exact rays).
-
-    :meth:`rays` gives the world ray directions of any window (interpolated from the nodes, so not unit
-    length, when the map was built on the coarse grid; exact unit rays otherwise).
+    step_px : int
+        Node spacing of a coarse map (px), 0 for an exact map.
+    node_rays_world : ndarray, shape (ny, nx, 3), optional
+        Coarse map: the world rays at the nodes.
+    full_rays : ndarray, shape (height, width, 3), optional
+        World rays of every pixel, when already known.
+    camera_rays : ndarray, shape (height, width, 3), float32, optional
+        Exact map: the camera's unit pixel rays.
+    camera_to_world : ndarray, shape (3, 3), optional
+        Exact map: rotation of those rays.
+    ray_dz : ndarray, shape (height, width), float32, optional
+        Exact map: world d_z of every unit pixel ray.
     """
 
     def __init__(self, col, row, sky, any_sky, step_px, node_rays_world=None, full_rays=None,
@@ -157,7 +252,18 @@ class GroundMap:
         self.ray_dz = ray_dz                    # exact map: world d_z of every unit pixel ray (H, W) float32
 
     def rays(self, row0: int = 0, row1: int | None = None, col0: int = 0, col1: int | None = None) -> np.ndarray:
-        """World ray directions of pixels ``[row0:row1, col0:col1]``, (rows, cols, 3) float32."""
+        """World ray directions of the pixels ``[row0:row1, col0:col1]``.
+
+        Parameters
+        ----------
+        row0, row1, col0, col1 : int, optional
+            Window (default: the whole frame).
+
+        Returns
+        -------
+        ndarray, shape (rows, cols, 3), float32
+            Ray directions (unit on an exact map).
+        """
         height, width = self.col.shape
         row1 = height if row1 is None else row1
         col1 = width if col1 is None else col1
@@ -178,7 +284,22 @@ class GroundMap:
 
 def interpolate_nodes_window(node_values: np.ndarray, step_px: int, row0: int, row1: int, col0: int,
                              col1: int) -> np.ndarray:
-    """Bilinear node-grid interpolation (as :func:`upsample_nodes`) of a pixel window only, float32."""
+    """Bilinear node-grid interpolation (as :func:`upsample_nodes`) of a pixel window only.
+
+    Parameters
+    ----------
+    node_values : ndarray, shape (ny, nx) or (ny, nx, channels)
+        Values at the nodes.
+    step_px : int
+        Node spacing (px).
+    row0, row1, col0, col1 : int
+        The window (px).
+
+    Returns
+    -------
+    ndarray, shape (row1 - row0, col1 - col0[, channels]), float32
+        Interpolated values.
+    """
     def weights(start, stop, count):
         position = (np.arange(start, stop) + 0.5) / step_px + 0.5    # fractional node index
         index = np.clip(np.floor(position).astype(int), 0, count - 2)
@@ -200,16 +321,25 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
 
     Parameters
     ----------
-    grid_origin_m : (east0, north0)
-        World coordinates (m) of the grid's (row 0, col 0) pixel centre.
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    grid_origin_m : (float, float)
+        World coordinates (east0, north0) of the grid's (row 0, col 0) pixel centre (m).
     metres_per_pixel : float
         Grid spacing (m).
     grid_step_px : int
         Coarse interpolation step (0: exact per-pixel rays).
-    scratch_maps : bool
-        Write ``col``, ``row`` (and the exact map's ``d_z``) into this thread's :func:`~simulator.scratch.scratch` arrays:
-        the map is then valid only until the next such call for a frame of the same size (a render
-        that is done with its map before it renders again).
+    scratch_maps : bool, optional
+        Write ``col``, ``row`` (and the exact map's ``d_z``) into this thread's
+        :func:`~simulator.scratch.scratch` arrays: the map is then valid only until the next such call
+        for a frame of the same size (a render that is done with its map before it renders again).
+
+    Returns
+    -------
+    GroundMap
+        Grid coordinates and sky mask of every pixel.
 
     Notes
     -----
@@ -270,8 +400,24 @@ CACHED_RAY_SET_MAX_PIXELS = 20_000
 
 def view_directions(camera: Camera, pose: CameraPose, ground_map: GroundMap,
                     grid_step_px: int) -> np.ndarray:
-    """Unit ground-to-camera directions (minus the pixel rays): on the coarse node grid
-    ((H / s + 2, W / s + 2, 3) float64) when ``grid_step_px = s > 0``, else per pixel ((H, W, 3) float32)."""
+    """Unit ground-to-camera directions (minus the pixel rays).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    ground_map : GroundMap
+        The pose's ground map (its rays, per pixel).
+    grid_step_px : int
+        Node spacing ``s`` (px), 0 for every pixel.
+
+    Returns
+    -------
+    ndarray
+        (H / s + 2, W / s + 2, 3) float64 on the node grid when ``s > 0``, else (H, W, 3) float32.
+    """
     if grid_step_px > 0:
         nodes = node_rays(camera, grid_step_px) @ pose.camera_to_world.T
         return -nodes / np.linalg.norm(nodes, axis=-1, keepdims=True)
@@ -282,13 +428,29 @@ def view_directions(camera: Camera, pose: CameraPose, ground_map: GroundMap,
 
 def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
                  sun_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel cosines of the emission angle (ground-to-camera direction against the vertical) and
-    of the phase angle (against the sun), ((H, W), (H, W)) float32: this thread's :func:`~simulator.scratch.scratch`
-    arrays ``cos_emission``, ``cos_phase`` on an exact map (use them before the next call).
+    """Per-pixel cosines of the emission angle and of the phase angle.
 
-    On an exact map (``grid_step_px = 0``) the pixel rays are unit vectors, so ``cos e = -d_z`` and
+    Emission: ground-to-camera direction against the vertical; phase: against the sun. On an exact map
+    (``grid_step_px = 0``) the pixel rays are unit vectors, so ``cos e = -d_z`` and
     ``cos phase = -(R^T s) . r`` (one transform of the cached camera-frame rays); otherwise from
     :func:`view_directions`.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    ground_map : GroundMap
+        The pose's ground map.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+
+    Returns
+    -------
+    cos_emission, cos_phase : ndarray, shape (H, W), float32
+        On an exact map this thread's :func:`~simulator.scratch.scratch` arrays ``cos_emission``,
+        ``cos_phase`` (use them before the next call).
     """
     if ground_map.ray_dz is not None:
         rotation = ground_map.camera_to_world
@@ -302,18 +464,46 @@ def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
 
 def field_at_pixels(values: np.ndarray, camera: Camera, grid_step_px: int,
                     scratch_name: str | None = None) -> np.ndarray:
-    """A field computed by :func:`view_directions`' layout, at every pixel (H, W) float32 (upsampled
-    into that :func:`~simulator.scratch.scratch` array when ``scratch_name`` is given)."""
+    """A field computed in :func:`view_directions`' layout, at every pixel.
+
+    Parameters
+    ----------
+    values : ndarray
+        Values on the node grid (``grid_step_px > 0``) or per pixel (H, W).
+    camera : Camera
+        The camera.
+    grid_step_px : int
+        Node spacing (px), 0 for per-pixel values.
+    scratch_name : str, optional
+        Upsample into that :func:`~simulator.scratch.scratch` array.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        The field at every pixel.
+    """
     if grid_step_px > 0:
         return upsample_nodes(values, grid_step_px, camera.height_px, camera.width_px, scratch_name=scratch_name)
     return np.asarray(values, dtype=np.float32)
 
 
 def camera_frame_rays(camera: Camera, pixels: np.ndarray) -> np.ndarray:
-    """Camera-frame unit rays of pixels ``(..., 2)`` (column, row), float64, shape ``(..., 3)``.
+    """Camera-frame unit rays of pixels.
 
     Rays do not depend on the pose, so the rays of small pixel sets used at every pose (motion-blur
     sample grid, footprint border, flow nodes) are cached per camera, keyed by the exact coordinates.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pixels : ndarray, shape (..., 2)
+        (column, row) coordinates (px).
+
+    Returns
+    -------
+    ndarray, shape (..., 3), float64
+        Unit rays (read-only when cached).
     """
     pixels = np.asarray(pixels, dtype=float)
     if pixels.size > 2 * CACHED_RAY_SET_MAX_PIXELS:
@@ -334,11 +524,19 @@ def ground_points(camera: Camera, pose: CameraPose, pixels: np.ndarray) -> tuple
 
     Parameters
     ----------
-    pixels : (..., 2) ``(column, row)``
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    pixels : ndarray, shape (..., 2)
+        (column, row) coordinates (px).
 
     Returns
     -------
-    points_m : (..., 3) world points (0 where sky); hit : (...) bool, False for sky.
+    points_m : ndarray, shape (..., 3)
+        World points (m), 0 where the ray sees the sky.
+    hit : ndarray, shape (...), bool
+        False for sky.
     """
     rays = camera_frame_rays(camera, pixels) @ pose.camera_to_world.T
     hit = (rays[..., 2] < -HORIZON_EPSILON) & (pose.ray_origin_m[2] > 0)
@@ -349,15 +547,45 @@ def ground_points(camera: Camera, pose: CameraPose, pixels: np.ndarray) -> tuple
 
 
 def world_to_pixels(camera: Camera, pose: CameraPose, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Project world points into the image: ``(pixels (..., 2) (column, row), in_front (...))``."""
+    """Project world points into the image.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    points_m : ndarray, shape (..., 3)
+        World points (m).
+
+    Returns
+    -------
+    pixels : ndarray, shape (..., 2)
+        (column, row) coordinates (px).
+    in_front : ndarray, shape (...), bool
+        True for points in front of the camera.
+    """
     in_camera = (np.asarray(points_m, dtype=float) - pose.frame_origin_m) @ pose.camera_to_world
     return cahvor.project(camera.model, in_camera)
 
 
 def pixel_window(pixels: np.ndarray, width_px: int, height_px: int) -> tuple[int, int, int, int]:
-    """Rows and columns ``(row0, row1, col0, col1)`` of the frame that hold projected points ``pixels``
-    (N, 2) (column, row) with a 2-pixel margin (bilinear footprint and rounding), clipped to the frame;
-    empty when ``row1 <= row0`` or ``col1 <= col0``."""
+    """Rows and columns of the frame that hold projected points, with a 2-pixel margin, clipped to the frame.
+
+    The margin covers the bilinear footprint and rounding.
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (N, 2)
+        (column, row) coordinates (px).
+    width_px, height_px : int
+        Frame size (px).
+
+    Returns
+    -------
+    tuple of int
+        ``(row0, row1, col0, col1)``; empty when ``row1 <= row0`` or ``col1 <= col0``.
+    """
     col0 = max(int(np.floor(pixels[:, 0].min())) - 2, 0)
     col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width_px)
     row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
@@ -366,7 +594,20 @@ def pixel_window(pixels: np.ndarray, width_px: int, height_px: int) -> tuple[int
 
 
 def border_pixels(camera: Camera, per_side: int = 16) -> np.ndarray:
-    """Pixel coordinates around the image border (outer pixel edges), closed polygon order, (4*per_side, 2)."""
+    """Pixel coordinates around the image border (outer pixel edges), in closed polygon order.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    per_side : int, optional
+        Points per side.
+
+    Returns
+    -------
+    ndarray, shape (4 * per_side, 2)
+        (column, row) coordinates (px).
+    """
     w, h = camera.width_px - 0.5, camera.height_px - 0.5
     t = np.linspace(0.0, 1.0, per_side, endpoint=False)
     top = np.stack([-0.5 + t * (w + 0.5), np.full_like(t, -0.5)], axis=-1)
@@ -377,6 +618,23 @@ def border_pixels(camera: Camera, per_side: int = 16) -> np.ndarray:
 
 
 def footprint_m(camera: Camera, pose: CameraPose, per_side: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """Ground footprint polygon of the image border: ``(points (n, 2) east/north m, hit (n,) bool)``."""
+    """Ground footprint polygon of the image border.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    per_side : int, optional
+        Points per side of the border.
+
+    Returns
+    -------
+    points : ndarray, shape (n, 2)
+        East, north of each border point on the ground (m).
+    hit : ndarray, shape (n,), bool
+        False where the border ray sees the sky.
+    """
     points, hit = ground_points(camera, pose, border_pixels(camera, per_side))
     return points[:, :2], hit

@@ -45,12 +45,42 @@ from simulator.scene.descent_profile import Pose
 
 
 def cone_depth_m(diameter_m: float, cone_angle_rad: float) -> float:
-    """Apex-to-rim depth of the cone (m)."""
+    """Apex-to-rim depth of the cone.
+
+    Parameters
+    ----------
+    diameter_m : float
+        Rim diameter (m).
+    cone_angle_rad : float
+        Full cone angle (rad).
+
+    Returns
+    -------
+    float
+        Depth (m).
+    """
     return 0.5 * diameter_m / np.tan(0.5 * cone_angle_rad)
 
 
 def cone_outline_m(centre_m: np.ndarray, diameter_m: float, cone_angle_rad: float, count: int = 32) -> np.ndarray:
-    """World points of the rim circle and the apex, (count + 1, 3)."""
+    """World points of the rim circle and the apex.
+
+    Parameters
+    ----------
+    centre_m : ndarray, shape (3,)
+        Centre of the cone's bounding cylinder (m).
+    diameter_m : float
+        Rim diameter (m).
+    cone_angle_rad : float
+        Full cone angle (rad).
+    count : int, optional
+        Points on the rim.
+
+    Returns
+    -------
+    ndarray, shape (count + 1, 3)
+        Rim points then the apex (m).
+    """
     depth = cone_depth_m(diameter_m, cone_angle_rad)
     angles = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
     rim = np.stack([0.5 * diameter_m * np.cos(angles), 0.5 * diameter_m * np.sin(angles),
@@ -65,13 +95,25 @@ def intersect_cone(origin_m: np.ndarray, rays: np.ndarray, apex_m: np.ndarray, a
 
     Parameters
     ----------
-    rays : (..., 3) directions (any length)
-    apex_m, axis : cone apex and unit axis (from the apex toward the opening)
-    cos_half_angle : cosine of the half-angle; depth_m : apex-to-rim distance along the axis
+    origin_m : ndarray, shape (3,)
+        Ray origin (m).
+    rays : ndarray, shape (..., 3)
+        Directions (any length).
+    apex_m : ndarray, shape (3,)
+        Cone apex (m).
+    axis : ndarray, shape (3,)
+        Unit axis, from the apex toward the opening.
+    cos_half_angle : float
+        Cosine of the half-angle.
+    depth_m : float
+        Apex-to-rim distance along the axis (m).
 
     Returns
     -------
-    t : (...) ray parameter of the hit (inf where none); hit : (...) bool
+    t : ndarray, shape (...)
+        Ray parameter of the hit (inf where none).
+    hit : ndarray, shape (...), bool
+        Whether the ray hits.
     """
     w = np.asarray(origin_m, dtype=float) - apex_m
     c2 = cos_half_angle**2
@@ -136,14 +178,42 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
                      pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
                      irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
                      reflectance: float, edge_samples: int = 1) -> np.ndarray | None:
-    """Paint the heat shield into ``radiance`` (H, W) in place where it hides the ground or sky.
+    """Paint the heat shield into a radiance field in place where it hides the ground or sky.
 
-    ``edge_samples = s > 1`` antialiases the silhouette: pixels on its edge (centre sample differs
-    from one of its 8 neighbours) are re-sampled with ``s x s`` sub-pixel rays and read
+    ``edge_samples = s > 1`` antialiases the silhouette: pixels on its edge (centre sample differs from
+    one of its 8 neighbours) are re-sampled with ``s x s`` sub-pixel rays and read
     ``coverage * shield + (1 - coverage) * background``, the pixel-area mean of a sharp edge.
 
-    Returns the (H, W) bool mask of heat-shield pixels (centre samples), or None when its footprint
-    misses the image (nothing computed beyond the projection of its outline).
+    Parameters
+    ----------
+    radiance : ndarray, shape (H, W), float32
+        Radiance (W m^-2 sr^-1 um^-1); changed in place.
+    ground_map : GroundMap
+        The pose's ground map (sky mask).
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    centre_m : ndarray, shape (3,)
+        Centre of the cone's bounding cylinder (m).
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    irradiance_w_m2_um : float
+        Solar band irradiance normal to the sun (W m^-2 um^-1).
+    diameter_m : float
+        Rim diameter (m).
+    cone_angle_rad : float
+        Full cone angle (rad).
+    reflectance : float
+        Hemispherical reflectance of the lining.
+    edge_samples : int, optional
+        Sub-pixel rays per axis on the silhouette.
+
+    Returns
+    -------
+    ndarray, shape (H, W), bool, or None
+        Heat-shield pixels (centre samples), or None when its footprint misses the image (nothing
+        computed beyond the projection of its outline).
     """
     height, width = radiance.shape
     box = _bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
@@ -173,7 +243,22 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
 
 
 def lambert_radiance(normal: np.ndarray, sun_world: np.ndarray, scale_w_m2_sr_um: float) -> np.ndarray:
-    """Radiance of the Lambertian Kapton surface: ``scale * max(n . s, 0)`` with ``scale = rho E / pi``."""
+    """Radiance of the Lambertian Kapton surface: ``scale * max(n . s, 0)`` with ``scale = rho E / pi``.
+
+    Parameters
+    ----------
+    normal : ndarray, shape (..., 3)
+        Unit surface normals.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    scale_w_m2_sr_um : float
+        ``rho E / pi`` (W m^-2 sr^-1 um^-1).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Radiance (W m^-2 sr^-1 um^-1).
+    """
     return scale_w_m2_sr_um * np.maximum(normal @ sun_world, 0.0)
 
 
@@ -210,10 +295,27 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
 
 def specular_radiance(normal: np.ndarray, to_sun: np.ndarray, to_camera: np.ndarray, irradiance_w_m2_um: float,
                       reflectance: float, roughness_rad: float) -> np.ndarray:
-    """Radiance (W m^-2 sr^-1 um^-1) of the specular lobe (module doc), shape (...).
+    """Radiance of the specular lobe (module doc).
 
-    ``normal``, ``to_camera`` (..., 3) and ``to_sun`` (3,) are unit vectors; ``irradiance_w_m2_um`` is
-    the solar band irradiance normal to the sun; ``roughness_rad`` the rms facet slope angle.
+    Parameters
+    ----------
+    normal : ndarray, shape (..., 3)
+        Unit surface normals.
+    to_sun : ndarray, shape (3,)
+        Unit vector toward the sun.
+    to_camera : ndarray, shape (..., 3)
+        Unit vectors toward the camera.
+    irradiance_w_m2_um : float
+        Solar band irradiance normal to the sun (W m^-2 um^-1).
+    reflectance : float
+        Fresnel factor ``rho_s``.
+    roughness_rad : float
+        RMS facet slope angle (rad).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Radiance (W m^-2 sr^-1 um^-1).
     """
     half = to_sun + to_camera
     half /= np.linalg.norm(half, axis=-1, keepdims=True)
@@ -232,8 +334,32 @@ def glint_window(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.n
                  roughness_rad: float) -> tuple[int, int, np.ndarray] | None:
     """The specular glint of the heat-shield lining at one camera pose.
 
-    Returns ``(row0, col0, radiance)`` with ``radiance`` a float32 (h, w) window of the image (0 off the
-    shield; exact per-pixel rays), or None when the shield is not in view.
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    centre_m : ndarray, shape (3,)
+        Centre of the cone's bounding cylinder (m).
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    irradiance_w_m2_um : float
+        Solar band irradiance normal to the sun (W m^-2 um^-1).
+    diameter_m : float
+        Rim diameter (m).
+    cone_angle_rad : float
+        Full cone angle (rad).
+    reflectance : float
+        Specular Fresnel factor ``rho_s``.
+    roughness_rad : float
+        RMS facet slope angle (rad).
+
+    Returns
+    -------
+    tuple of (int, int, ndarray) or None
+        ``(row0, col0, radiance)`` with ``radiance`` a float32 (h, w) window of the image (W m^-2 sr^-1
+        um^-1, 0 off the shield; exact per-pixel rays), or None when the shield is not in view.
     """
     box = _bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
     if box is None:

@@ -37,7 +37,20 @@ from simulator.scene import ground_mapping
 
 
 def sample_pixels(camera: Camera, per_axis: int = 9) -> np.ndarray:
-    """A per_axis x per_axis grid of pixel coordinates spanning the frame, (per_axis**2, 2)."""
+    """A grid of pixel coordinates spanning the frame.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    per_axis : int, optional
+        Points per axis.
+
+    Returns
+    -------
+    ndarray, shape (per_axis**2, 2)
+        (column, row) coordinates (px).
+    """
     cols = np.linspace(0.0, camera.width_px - 1.0, per_axis)
     rows = np.linspace(0.0, camera.height_px - 1.0, per_axis)
     return np.stack(np.meshgrid(cols, rows), axis=-1).reshape(-1, 2)
@@ -45,7 +58,24 @@ def sample_pixels(camera: Camera, per_axis: int = 9) -> np.ndarray:
 
 def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_mapping.CameraPose,
                 terrain_mpp: float, pixels: np.ndarray | None = None) -> float:
-    """Largest shift of the sample pixels between two camera poses, in terrain pixels (see module doc)."""
+    """Largest shift of the sample pixels between two camera poses, in terrain pixels (see module doc).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    start, end : CameraPose
+        The two world poses.
+    terrain_mpp : float
+        Terrain pixel size (m).
+    pixels : ndarray, shape (n, 2), optional
+        Sample pixels (default :func:`sample_pixels`).
+
+    Returns
+    -------
+    float
+        Shift (terrain pixels); 0 when no sample sees the ground at both poses.
+    """
     pixels = sample_pixels(camera) if pixels is None else pixels
     ground_start, hit_start = ground_mapping.ground_points(camera, start, pixels)
     ground_end, hit_end = ground_mapping.ground_points(camera, end, pixels)
@@ -60,17 +90,54 @@ def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_ma
 
 
 def substep_count(shift_terrain_px: float, max_substeps: int) -> int:
-    """One sub-pose per terrain pixel of shift, at least 1, at most ``max_substeps``."""
+    """One sub-pose per terrain pixel of shift, at least 1, at most ``max_substeps``.
+
+    Parameters
+    ----------
+    shift_terrain_px : float
+        Shift over the period (terrain pixels, times the configured sub-poses per pixel).
+    max_substeps : int
+        Cap.
+
+    Returns
+    -------
+    int
+        Number of sub-poses.
+    """
     return int(min(max(1, int(np.ceil(shift_terrain_px - 1e-9))), max_substeps))
 
 
 def substep_times(start_s: float, end_s: float, count: int) -> np.ndarray:
-    """Midpoints of ``count`` equal sub-intervals of [start_s, end_s]."""
+    """Midpoints of equal sub-intervals of a period.
+
+    Parameters
+    ----------
+    start_s, end_s : float
+        The period (s).
+    count : int
+        Number of sub-intervals.
+
+    Returns
+    -------
+    ndarray, shape (count,)
+        Times (s).
+    """
     return start_s + (np.arange(count) + 0.5) * (end_s - start_s) / count
 
 
 def average_fields(fields: list[np.ndarray]) -> np.ndarray:
-    """Pixel-by-pixel mean of radiance fields (float32); the single field itself when only one."""
+    """Pixel-by-pixel mean of radiance fields.
+
+    Parameters
+    ----------
+    fields : list of ndarray, shape (H, W), float32
+        Fields (W m^-2 sr^-1 um^-1), summed in order.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        The mean; the single field itself when only one.
+    """
     if len(fields) == 1:
         return fields[0]
     total = fields[0].copy()

@@ -89,8 +89,18 @@ def phase_function(phase_rad: np.ndarray) -> np.ndarray:
 
 
 def lommel_seeliger(cos_incidence: np.ndarray, cos_emission: np.ndarray) -> np.ndarray:
-    """``mu0 / (mu + mu0)`` with both cosines clipped at 0 (0 where the sun or the viewer is below
-    the local horizon); never divides by zero."""
+    """``mu0 / (mu + mu0)`` with both cosines clipped at 0; never divides by zero.
+
+    Parameters
+    ----------
+    cos_incidence, cos_emission : ndarray
+        Cosines ``mu0`` and ``mu`` of the incidence and emission angles, broadcastable.
+
+    Returns
+    -------
+    ndarray
+        The Lommel-Seeliger factor, 0 where the sun or the viewer is below the local horizon.
+    """
     mu0 = np.maximum(cos_incidence, 0.0)
     mu = np.maximum(cos_emission, 0.0)
     total = mu + mu0
@@ -98,13 +108,35 @@ def lommel_seeliger(cos_incidence: np.ndarray, cos_emission: np.ndarray) -> np.n
 
 
 def reflectance_model(cos_incidence, cos_emission, cos_phase) -> np.ndarray:
-    """Equation (1) without the albedo: ``mu0/(mu+mu0) f(alpha)``."""
+    """Equation (1) without the albedo: ``mu0/(mu+mu0) f(alpha)``.
+
+    Parameters
+    ----------
+    cos_incidence, cos_emission, cos_phase : float or ndarray
+        Cosines of the incidence, emission and phase angles, broadcastable.
+
+    Returns
+    -------
+    ndarray
+        The model value.
+    """
     phase = np.arccos(np.clip(cos_phase, -1.0, 1.0))
     return lommel_seeliger(cos_incidence, cos_emission) * phase_function(phase)
 
 
 def moc_reflectance_model(incidence_rad: float, emission_rad: float, phase_rad: float) -> float:
-    """Equation (1) at the orbital image's own geometry (scalar)."""
+    """Equation (1) at the orbital image's own geometry.
+
+    Parameters
+    ----------
+    incidence_rad, emission_rad, phase_rad : float
+        MOC incidence, emission and phase angles (rad).
+
+    Returns
+    -------
+    float
+        The model value.
+    """
     value = float(reflectance_model(np.cos(incidence_rad), np.cos(emission_rad), np.cos(np.float64(phase_rad))))
     if not value > 0:
         raise ValueError(f"terrain photometry: MOC incidence {np.degrees(incidence_rad):.1f} deg, emission "
@@ -141,15 +173,24 @@ def photometric_ratio_from_cosines(cos_emission: np.ndarray, cos_phase: np.ndarr
     """:func:`photometric_ratio` from the cosines of the emission and phase angles of every pixel.
 
     The same float32 operations in the same order (so the same bits for the same cosines), done in
-    place on the two given (H, W) float32 arrays (both are overwritten; the result is one of them),
-    with the low-phase polynomial of equation (2) evaluated only where the phase angle is below
-    10 deg, the degree conversion as np.degrees' own float32 product, and without the floor (phase
-    angles from arccos lie in [0, 180] deg, where f >= f(180 deg) = 0.069 > ``PHASE_FUNCTION_FLOOR``).
-    ``sun_z`` is the cosine of the solar incidence on level ground (> 0: sun up).
+    place on the two given arrays (both are overwritten; the result is one of them), with the low-phase
+    polynomial of equation (2) evaluated only where the phase angle is below 10 deg, the degree
+    conversion as np.degrees' own float32 product, and without the floor (phase angles from arccos lie
+    in [0, 180] deg, where f >= f(180 deg) = 0.069 > ``PHASE_FUNCTION_FLOOR``).
+
+    Parameters
+    ----------
+    cos_emission, cos_phase : ndarray, shape (H, W), float32
+        Cosines of the emission and phase angles; overwritten.
+    sun_z : float
+        Cosine of the solar incidence on level ground (> 0: sun up).
+    moc_model_value : float
+        The MOC geometry's model value (:func:`moc_reflectance_model`), the ratio's denominator.
 
     Returns
     -------
-    ndarray, float32, shape (H, W): the DIMES / MOC ratio.
+    ndarray, shape (H, W), float32
+        The DIMES / MOC ratio.
     """
     ratio = np.maximum(cos_emission, np.float32(0.0), out=cos_emission)       # mu
     mu0 = np.float32(max(sun_z, 0.0))
@@ -184,26 +225,72 @@ def _low_phase_polynomial(alpha_deg: np.ndarray) -> np.ndarray:
 
 
 def solar_band_irradiance_w_m2_um(sun_distance_au: float) -> float:
-    """Band-mean (0.4-1.1 um) solar spectral irradiance at ``sun_distance_au``, W m^-2 um^-1."""
+    """Band-mean (0.4-1.1 um) solar spectral irradiance at a distance from the sun.
+
+    Parameters
+    ----------
+    sun_distance_au : float
+        Distance from the sun (AU).
+
+    Returns
+    -------
+    float
+        Irradiance (W m^-2 um^-1).
+    """
     if not sun_distance_au > 0:
         raise ValueError(f"sun_distance_au = {sun_distance_au} must be > 0")
     return SOLAR_BAND_IRRADIANCE_1AU_W_M2_UM / sun_distance_au**2
 
 
 def solar_angular_radius_rad(sun_distance_au: float) -> float:
-    """Angular radius of the solar disc seen from ``sun_distance_au`` (rad); 3.05e-3 at 1.524 AU."""
+    """Angular radius of the solar disc; 3.05e-3 rad at 1.524 AU.
+
+    Parameters
+    ----------
+    sun_distance_au : float
+        Distance from the sun (AU).
+
+    Returns
+    -------
+    float
+        Radius (rad).
+    """
     return float(np.arcsin(SOLAR_RADIUS_M / (sun_distance_au * ASTRONOMICAL_UNIT_M)))
 
 
 def planck_band_fraction(band_um: tuple[float, float], temperature_k: float = SOLAR_TEMPERATURE_K) -> float:
-    """Fraction of a blackbody's total exitance between two wavelengths (numerical integral)."""
+    """Fraction of a blackbody's total exitance between two wavelengths (numerical integral).
+
+    Parameters
+    ----------
+    band_um : (float, float)
+        Band edges (um).
+    temperature_k : float, optional
+        Blackbody temperature (K), default the Sun's.
+
+    Returns
+    -------
+    float
+        Fraction, 0 .. 1.
+    """
     wavelength_m = np.linspace(band_um[0], band_um[1], 4001) * 1e-6
     return float(np.trapezoid(_planck(wavelength_m, temperature_k), wavelength_m)
                  / (5.670374419e-8 * temperature_k**4 / np.pi))
 
 
 def mars_soil_spectral_ratio(dimes_band_um=DIMES_BAND_UM, moc_band_um=MOC_BAND_UM) -> float:
-    """Band-mean Mars soil reflectance in the DIMES band over that in the MOC band (solar-weighted)."""
+    """Band-mean Mars soil reflectance in the DIMES band over that in the MOC band (solar-weighted).
+
+    Parameters
+    ----------
+    dimes_band_um, moc_band_um : (float, float), optional
+        Band edges (um).
+
+    Returns
+    -------
+    float
+        The ratio (0.906 for the default bands).
+    """
     def band_mean(band):
         wavelength_um = np.linspace(band[0], band[1], 701)
         weight = _planck(wavelength_um * 1e-6, SOLAR_TEMPERATURE_K)

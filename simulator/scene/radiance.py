@@ -46,7 +46,23 @@ from simulator.scratch import scratch
 
 @dataclass(frozen=True)
 class PoseField:
-    """Radiance at one pose, with its masks (all (H, W))."""
+    """Radiance at one pose, with its masks.
+
+    Attributes
+    ----------
+    radiance : ndarray, shape (H, W), float32
+        Radiance (W m^-2 sr^-1 um^-1).
+    sky : ndarray, shape (H, W), bool
+        Pixels whose ray misses the ground.
+    outside : ndarray, shape (H, W), bool
+        Ground outside the terrain strip.
+    heat_shield : ndarray, shape (H, W), bool, or None
+        Pixels that see the heat shield; None when it is not in view.
+    camera_pose : CameraPose
+        The camera's world pose.
+    shadow_centres_m : list of ndarray, shape (3,)
+        Ground shadow centres of the casters (m).
+    """
 
     radiance: np.ndarray               # float32, W m^-2 sr^-1 um^-1
     sky: np.ndarray                    # bool
@@ -57,7 +73,23 @@ class PoseField:
 
 
 def sun_unit_vector(sun_world) -> np.ndarray:
-    """Validate a world unit vector toward the sun (above the horizon)."""
+    """Validate a world unit vector toward the sun (above the horizon).
+
+    Parameters
+    ----------
+    sun_world : array_like, shape (3,)
+        World vector toward the sun (x east, y north, z up).
+
+    Returns
+    -------
+    ndarray, shape (3,), float64
+        The vector.
+
+    Raises
+    ------
+    ValueError
+        Not a finite unit 3-vector with z > 0.
+    """
     sun = np.asarray(sun_world, dtype=float)
     if sun.shape != (3,) or not np.all(np.isfinite(sun)) or abs(np.linalg.norm(sun) - 1.0) > 1e-6 or sun[2] <= 0:
         raise ValueError(f"sun: must be a world unit 3-vector toward the sun with z > 0 (sun above the horizon); "
@@ -66,7 +98,20 @@ def sun_unit_vector(sun_world) -> np.ndarray:
 
 
 def casters(pose: Pose, config) -> list[shadow.Caster]:
-    """Shadow casters at a pose: lander, backshell and parachute along the lander's +z axis, heat shield."""
+    """Shadow casters at a pose: lander, backshell and parachute along the lander's +z axis, heat shield.
+
+    Parameters
+    ----------
+    pose : Pose
+        Lander pose (with the heat shield's position).
+    config : simulator.scene_config.SceneConfig
+        Sizes and distances of the casters; the heat shield switch.
+
+    Returns
+    -------
+    list of shadow.Caster
+        The casters (world centres, radii in m).
+    """
     up = quat_to_matrix(pose.attitude_quat)[:, 2]
     position = np.asarray(pose.position_m, dtype=float)
     result = [shadow.Caster("lander", position, 0.5 * config.lander_diameter_m)]
@@ -84,10 +129,32 @@ def casters(pose: Pose, config) -> list[shadow.Caster]:
 
 def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
-    """DIMES/MOC photometric ratio of every pixel (H, W) float32; on the coarse node grid and
-    interpolated when ``grid_step_px > 0``, else per pixel from the ground map's rays (emission and
-    phase cosines, :func:`~simulator.scene.photometry.photometric_ratio_from_cosines`). The result is a
-    :func:`~simulator.scratch.scratch` array: multiply it in before the next call."""
+    """DIMES/MOC photometric ratio of every pixel.
+
+    On the coarse node grid and interpolated when ``grid_step_px > 0``, else per pixel from the ground
+    map's rays (emission and phase cosines,
+    :func:`~simulator.scene.photometry.photometric_ratio_from_cosines`).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    ground_map : GroundMap
+        The pose's ground map.
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+    moc_value : float
+        The MOC geometry's reflectance model value (the ratio's denominator; may fold in a scale).
+    grid_step_px : int
+        Node spacing (px), 0 for per pixel.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        The ratio: a :func:`~simulator.scratch.scratch` array, to multiply in before the next call.
+    """
     if grid_step_px == 0:
         cos_emission, cos_phase = ground_mapping.view_cosines(camera, pose, ground_map, sun)
         return photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, float(sun[2]), moc_value)
@@ -103,20 +170,44 @@ PIXEL_AREA_KERNEL = np.array([1.0 / 24.0, 11.0 / 12.0, 1.0 / 24.0], dtype=np.flo
 
 
 def pixel_area_average(point_samples: np.ndarray) -> np.ndarray:
-    """Pixel-area averages of a field known at pixel centres (H, W) float32, to second order.
+    """Pixel-area averages of a field known at pixel centres, to second order.
 
     A pixel integrates the scene over its area; for a field smooth at the pixel scale the mean over a
     unit box is ``f + (f_xx + f_yy) / 24 + O(h^4)`` (midpoint rule with its error term), and the
     separable kernel ``[1, 22, 1] / 24`` applies exactly that correction with second differences. It
     stands in for supersampling the terrain (measured against the 3 x 3 reference by ``make bench``);
     edges are replicated.
+
+    Parameters
+    ----------
+    point_samples : ndarray, shape (H, W), float32
+        The field at the pixel centres.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Pixel-area means.
     """
     return cv2.sepFilter2D(point_samples, -1, PIXEL_AREA_KERNEL, PIXEL_AREA_KERNEL, borderType=cv2.BORDER_REPLICATE)
 
 
 def subpixel_camera(camera: Camera, column_offset_px: float, row_offset_px: float) -> Camera:
-    """The camera whose pixel (c, r) sees what ``camera``'s point (c + column_offset, r + row_offset)
-    sees: CAHVOR ``H' = H - dc A``, ``V' = V - dr A`` (cached per camera)."""
+    """The camera whose pixel (c, r) sees what ``camera``'s point (c + column_offset, r + row_offset) sees.
+
+    CAHVOR ``H' = H - dc A``, ``V' = V - dr A`` (cached per camera).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    column_offset_px, row_offset_px : float
+        Offsets ``dc``, ``dr`` (px).
+
+    Returns
+    -------
+    Camera
+        The shifted camera.
+    """
     cache = ground_mapping.camera_cache(camera)
     key = ("subpixel", float(column_offset_px), float(row_offset_px))
     if key not in cache:
@@ -128,15 +219,35 @@ def subpixel_camera(camera: Camera, column_offset_px: float, row_offset_px: floa
 
 def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config,
                      _sub_sample: bool = False, moving_shadows=None) -> PoseField:
-    """The radiance field (H, W) the camera sees at one instantaneous pose (see module doc).
-
-    ``moving_shadows`` (:class:`simulator.off_nominal.moving_shadows.MovingShadows` or None) darkens
-    the ground where the dust-devil and cloud shadows are at ``pose.time_s``, after the casters' shadows.
+    """The radiance field the camera sees at one instantaneous pose (see module doc).
 
     With ``config.supersample = s > 1`` each pixel is the mean of ``s x s`` sub-pixel point samples on
     a regular grid (offsets ``(k + 0.5)/s - 0.5`` px; the samples themselves use no area shortcut);
-    masks are the union over the samples. (``_sub_sample``: one such sample, whose radiance is a
-    scratch array the caller adds up before rendering the next.)
+    masks are the union over the samples.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        Orbital I/F image with its photometric geometry.
+    camera : Camera
+        The camera.
+    pose : Pose
+        Lander pose.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun, z > 0.
+    config : simulator.scene_config.SceneConfig
+        Scene parameters and switches.
+    _sub_sample : bool, optional
+        Internal: render one supersampling sample, whose radiance is a scratch array the caller adds up
+        before rendering the next.
+    moving_shadows : simulator.off_nominal.moving_shadows.MovingShadows, optional
+        Darkens the ground where the dust-devil and cloud shadows are at ``pose.time_s``, after the
+        casters' shadows.
+
+    Returns
+    -------
+    PoseField
+        Radiance (H, W) float32 (W m^-2 sr^-1 um^-1) with its masks.
     """
     samples = config.supersample
     if samples > 1:

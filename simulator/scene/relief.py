@@ -96,7 +96,20 @@ class ReliefTerrain(Terrain):
 
 
 def has_relief(terrain: Terrain, config) -> TypeGuard[ReliefTerrain]:
-    """True when ``terrain`` carries a height field and ``config.relief`` renders it."""
+    """Whether a terrain carries a height field and the configuration renders it.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The terrain.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table.
+
+    Returns
+    -------
+    bool
+        True for a :class:`ReliefTerrain` rendered with relief.
+    """
     return isinstance(terrain, ReliefTerrain) and config.relief.enabled
 
 
@@ -108,9 +121,24 @@ def _extremes(terrain: ReliefTerrain) -> tuple[float, float]:
 
 
 def bilinear(grid: np.ndarray, col: np.ndarray, row: np.ndarray, gradient: bool = False):
-    """Bilinear interpolation of ``grid`` (rows, cols) at fractional (col, row) of equal shape, edges
-    replicated; float64. With ``gradient`` also the exact derivatives ``(d/dcol, d/drow)`` of the
-    bilinear surface."""
+    """Bilinear interpolation of a grid at fractional coordinates, edges replicated.
+
+    Parameters
+    ----------
+    grid : ndarray, shape (rows, cols)
+        Values.
+    col, row : ndarray
+        Fractional grid coordinates, equal shapes.
+    gradient : bool, optional
+        Also return the exact derivatives of the bilinear surface.
+
+    Returns
+    -------
+    value : ndarray, float64, shape of ``col``
+        Interpolated values.
+    d_dcol, d_drow : ndarray, float64, shape of ``col``
+        Only with ``gradient``: the derivatives along columns and rows (per grid pixel).
+    """
     rows, cols = grid.shape
     flat = grid.ravel() if grid.flags.c_contiguous else np.ascontiguousarray(grid).ravel()
     col = np.clip(col, 0.0, cols - 1.0)
@@ -139,11 +167,16 @@ class ReliefHits:
 
     Attributes
     ----------
-    points_m : (H, W, 3) float64 world hit points (0 for sky)
-    sky : (H, W) bool
-    crop : resample.Crop holding every hit point
-    view_world : (H, W, 3) float64 unit vectors from the hit point to the camera
-    terrain : the terrain they are on
+    terrain : ReliefTerrain
+        The terrain they are on.
+    points_m : ndarray, shape (H, W, 3), float64
+        World hit points (m), 0 for sky.
+    sky : ndarray, shape (H, W), bool
+        Rays that miss the terrain.
+    crop : resample.Crop
+        Window holding every hit point.
+    view_world : ndarray, shape (H, W, 3), float64
+        Unit vectors from the hit point to the camera.
     """
 
     terrain: ReliefTerrain
@@ -154,8 +187,25 @@ class ReliefHits:
 
 
 def march_window(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose) -> resample.Crop:
-    """Terrain window holding every first hit: the footprint between the planes of the global extremes
-    (the whole terrain when a border ray misses one of them)."""
+    """Terrain window holding every first hit of the pixel rays.
+
+    The footprint between the planes of the global extremes (the whole terrain when a border ray misses
+    one of them).
+
+    Parameters
+    ----------
+    terrain : ReliefTerrain
+        The terrain with heights.
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+
+    Returns
+    -------
+    resample.Crop
+        The window of the terrain grid.
+    """
     low, high = _extremes(terrain)
     rays = ground_mapping.camera_frame_rays(camera, ground_mapping.border_pixels(camera)) @ pose.camera_to_world.T
     origin = pose.ray_origin_m
@@ -175,16 +225,30 @@ def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.
 
     Parameters
     ----------
-    heights : (rows, cols) height grid (m); to_grid : callable (east, north) -> (col, row) into it
-    origin_m : (3,) ray origin; rays : (N, 3) directions with d_z < 0 (any length)
-    z_top, z_bottom : bounds of the heights the rays can meet (m); step_m : horizontal march step (m)
-    tolerance_m : |z - H| at the returned points
-    skip_px, metres_per_pixel : before the march, rays skip ``skip_px`` grid pixels at a time while they
-        stay above the maximum of the heights within ``skip_px + 2`` pixels (a safe bound; 0: no skip)
+    heights : ndarray, shape (rows, cols)
+        Height grid (m).
+    to_grid : callable
+        ``(east, north) -> (col, row)`` into the grid.
+    origin_m : ndarray, shape (3,)
+        Ray origin (m).
+    rays : ndarray, shape (N, 3)
+        Directions with d_z < 0 (any length).
+    z_top, z_bottom : float
+        Bounds of the heights the rays can meet (m).
+    step_m : float
+        Horizontal march step (m).
+    tolerance_m : float
+        ``|z - H|`` at the returned points (m).
+    skip_px : int, optional
+        Before the march, rays skip ``skip_px`` grid pixels at a time while they stay above the maximum
+        of the heights within ``skip_px + 2`` pixels (a safe bound; 0: no skip).
+    metres_per_pixel : float, optional
+        Grid spacing (m), needed for the skip.
 
     Returns
     -------
-    (N,) float64 heights z of the hit points (the point is ``origin + (z - O_z) / d_z d``).
+    ndarray, shape (N,), float64
+        Heights z of the hit points (m); the point is ``origin + (z - O_z) / d_z d``.
     """
     rays = np.asarray(rays, dtype=np.float64)
     count = len(rays)
@@ -263,7 +327,28 @@ def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.
 
 def find_hits(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose, rays: np.ndarray,
               sky: np.ndarray, config) -> ReliefHits:
-    """Hit points of every pixel ray ``rays`` (H, W, 3) on the terrain's height field."""
+    """Hit points of every pixel ray on the terrain's height field.
+
+    Parameters
+    ----------
+    terrain : ReliefTerrain
+        The terrain with heights.
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    rays : ndarray, shape (H, W, 3)
+        World ray directions.
+    sky : ndarray, shape (H, W), bool
+        Rays that miss the level ground.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table (march step, tolerance).
+
+    Returns
+    -------
+    ReliefHits
+        The hits.
+    """
     crop = march_window(terrain, camera, pose)
     heights = np.ascontiguousarray(terrain.height_m[crop.row0:crop.row1, crop.col0:crop.col1])
     mpp = terrain.metres_per_pixel
@@ -290,7 +375,28 @@ def find_hits(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.Camer
 
 def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose,
                       level_map: ground_mapping.GroundMap, config) -> tuple[ground_mapping.GroundMap, ReliefHits]:
-    """The ground map of the height field (hit points as terrain grid coordinates) and the hits."""
+    """The ground map of the height field and the hits.
+
+    Parameters
+    ----------
+    terrain : ReliefTerrain
+        The terrain with heights.
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    level_map : GroundMap
+        The level-ground map of the pose (its rays).
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table.
+
+    Returns
+    -------
+    ground_map : GroundMap
+        Hit points as terrain grid coordinates.
+    hits : ReliefHits
+        The hits.
+    """
     rays = level_map.rays()
     hits = find_hits(terrain, camera, pose, rays, level_map.sky, config)
     row, col = terrain.world_to_pixel(hits.points_m[..., 0], hits.points_m[..., 1])
@@ -303,10 +409,26 @@ def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mappi
 
 
 def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_px: float) -> np.ndarray:
-    """``S`` (rows, cols) float32: the height of the lowest sun ray that clears the terrain towards the
-    sun from each pixel centre, ``max_k H(p + k s) - k s tan(elevation)`` over steps ``s`` of
-    ``step_terrain_px`` towards the sun's azimuth (k >= 1, until the height range is climbed); a point
-    at height z is in the sun when ``z >= S``. Cached per terrain, sun and step."""
+    """Height of the lowest sun ray that clears the terrain towards the sun, from each pixel centre.
+
+    ``S = max_k H(p + k s) - k s tan(elevation)`` over steps ``s`` of ``step_terrain_px`` towards the
+    sun's azimuth (k >= 1, until the height range is climbed); a point at height z is in the sun when
+    ``z >= S``. Cached per terrain, sun and step.
+
+    Parameters
+    ----------
+    terrain : ReliefTerrain
+        The terrain with heights.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    step_terrain_px : float
+        March step (terrain pixels).
+
+    Returns
+    -------
+    ndarray, shape (rows, cols), float32
+        ``S`` (m).
+    """
     sun = np.asarray(sun_world, dtype=float)
     cache = DERIVED.of(terrain, "relief")
     key = ("horizon", tuple(np.round(sun, 12)), float(step_terrain_px))
@@ -340,8 +462,22 @@ def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_p
 
 
 def shading_factor(hits: ReliefHits, sun_world: np.ndarray, config) -> np.ndarray:
-    """Radiance factor (H, W) float32 of slope photometry and cast shadows over level-ground radiance
-    (module doc); 1 for sky pixels."""
+    """Radiance factor of slope photometry and cast shadows over level-ground radiance (module doc).
+
+    Parameters
+    ----------
+    hits : ReliefHits
+        The hits of the pose.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        The factor; 1 for sky pixels.
+    """
     terrain = hits.terrain
     relief = config.relief
     shape = hits.sky.shape

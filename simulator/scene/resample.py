@@ -27,7 +27,15 @@ REMAP_MAX_SOURCE_PX = 32767      # cv2.remap reads sources below this size in bo
 
 @dataclass(frozen=True)
 class Crop:
-    """Rows ``row0:row1`` and columns ``col0:col1`` of the terrain; empty when ``row1 <= row0``."""
+    """Rows ``row0:row1`` and columns ``col0:col1`` of the terrain; empty when ``row1 <= row0``.
+
+    Attributes
+    ----------
+    row0, row1 : int
+        Row range (terrain pixels).
+    col0, col1 : int
+        Column range (terrain pixels).
+    """
 
     row0: int
     row1: int
@@ -36,6 +44,7 @@ class Crop:
 
     @property
     def empty(self) -> bool:
+        """True when the window holds no pixel."""
         return self.row1 <= self.row0 or self.col1 <= self.col0
 
 
@@ -45,10 +54,20 @@ def footprint_crop(terrain: Terrain, footprint_cols: np.ndarray, footprint_rows:
 
     Parameters
     ----------
-    footprint_cols, footprint_rows : (n,) fractional terrain coordinates of the footprint polygon
+    terrain : Terrain
+        The terrain.
+    footprint_cols, footprint_rows : ndarray, shape (n,)
+        Fractional terrain coordinates of the footprint polygon.
     bounded : bool
         False when part of the image border sees the sky (the footprint is unbounded): the whole
         terrain is used.
+    margin_px : int, optional
+        Margin around the footprint (terrain pixels).
+
+    Returns
+    -------
+    Crop
+        The window.
     """
     rows, cols = terrain.shape
     if not bounded or len(footprint_cols) == 0:
@@ -61,7 +80,20 @@ def footprint_crop(terrain: Terrain, footprint_cols: np.ndarray, footprint_rows:
 
 
 def outside_mask(terrain: Terrain, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """True where a grid coordinate falls outside the terrain's pixel edges."""
+    """Where grid coordinates fall outside the terrain's pixel edges.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The terrain.
+    col, row : ndarray
+        Fractional grid coordinates, equal shapes.
+
+    Returns
+    -------
+    ndarray, bool, shape of ``col``
+        True outside.
+    """
     rows, cols = terrain.shape
     return (col < -0.5) | (col > cols - 0.5) | (row < -0.5) | (row > rows - 0.5)
 
@@ -73,19 +105,26 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
 
     Parameters
     ----------
-    col, row : (H, W) float32 terrain grid coordinates (full terrain frame)
-    invalid : (H, W) bool or None, pixels that see no ground (sky); they get 0 and are not flagged
-        outside. None: every pixel sees the ground.
-    crop : Crop holding every in-strip ground point (see :func:`footprint_crop`)
-    may_leave_terrain : bool
+    terrain : Terrain
+        The terrain.
+    col, row : ndarray, shape (H, W), float32
+        Terrain grid coordinates (full terrain frame).
+    invalid : ndarray, shape (H, W), bool, or None
+        Pixels that see no ground (sky); they get 0 and are not flagged outside. None: every pixel sees
+        the ground.
+    crop : Crop
+        Window holding every in-strip ground point (see :func:`footprint_crop`).
+    may_leave_terrain : bool, optional
         False when the caller knows every ground point is inside the strip (skips the mask pass).
-    out : (H, W) float32, optional
+    out : ndarray, shape (H, W), float32, optional
         Array to write the samples into (e.g. a scratch array the caller filters at once).
 
     Returns
     -------
-    reflectance_if : (H, W) float32, MOC I/F (fill value outside the strip, 0 for sky)
-    outside : (H, W) bool, ground points outside the strip
+    reflectance_if : ndarray, shape (H, W), float32
+        MOC I/F (fill value outside the strip, 0 for sky).
+    outside : ndarray, shape (H, W), bool
+        Ground points outside the strip.
     """
     any_invalid = invalid is not None and bool(invalid.any())
     if crop.empty:
@@ -126,8 +165,22 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
 
 
 def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """Resample a radiance field (H, W) at the (column, row) coordinates of ``flow`` (H, W, 2), bilinear;
-    pixels whose source lies beyond the frame take the nearest edge value."""
+    """Resample a radiance field at the coordinates of a flow map, bilinear.
+
+    Pixels whose source lies beyond the frame take the nearest edge value.
+
+    Parameters
+    ----------
+    field_w_m2_sr_um : ndarray, shape (H, W), float32
+        Radiance (W m^-2 sr^-1 um^-1).
+    flow : ndarray, shape (H', W', 2), float32
+        (column, row) source coordinates of every output pixel.
+
+    Returns
+    -------
+    ndarray, shape (H', W'), float32
+        The warped field.
+    """
     # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
     return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=cv2.INTER_LINEAR,  # type: ignore[call-overload]
                      borderMode=cv2.BORDER_REPLICATE)

@@ -32,7 +32,17 @@ from simulator.scene import ground_mapping
 
 @dataclass(frozen=True)
 class Caster:
-    """A shadow-casting disc: world centre (m) and radius (m)."""
+    """A shadow-casting disc.
+
+    Attributes
+    ----------
+    name : str
+        What casts the shadow (``"lander"``, ``"backshell"``, ``"parachute"``, ``"heat_shield"``).
+    centre_m : ndarray, shape (3,)
+        World centre (m).
+    radius_m : float
+        Radius (m).
+    """
 
     name: str
     centre_m: np.ndarray
@@ -40,13 +50,40 @@ class Caster:
 
 
 def shadow_centre_m(centre_m: np.ndarray, sun_world: np.ndarray) -> np.ndarray:
-    """Where the sun line through ``centre_m`` meets the ground (z = 0), (3,)."""
+    """Where the sun line through a point meets the ground (z = 0).
+
+    Parameters
+    ----------
+    centre_m : ndarray, shape (3,)
+        World point (m).
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Ground point (m).
+    """
     return centre_m - (centre_m[2] / sun_world[2]) * sun_world
 
 
 def circle_overlap_fraction(sun_radius: float | np.ndarray, caster_radius: np.ndarray, separation: np.ndarray) -> np.ndarray:
-    """Fraction of a circle of radius ``sun_radius`` covered by a circle of radius ``caster_radius``
-    whose centre is ``separation`` away (same angular units); broadcasting, float, in [0, 1]."""
+    """Fraction of a circle covered by another circle (broadcasting).
+
+    Parameters
+    ----------
+    sun_radius : float or ndarray
+        Radius of the covered circle.
+    caster_radius : ndarray
+        Radius of the covering circle (same angular unit).
+    separation : ndarray
+        Distance between their centres (same unit).
+
+    Returns
+    -------
+    ndarray, float
+        Covered fraction, in [0, 1].
+    """
     a = np.asarray(sun_radius, dtype=np.float64)
     b = np.asarray(caster_radius, dtype=np.float64)
     d = np.asarray(separation, dtype=np.float64)
@@ -63,7 +100,24 @@ def circle_overlap_fraction(sun_radius: float | np.ndarray, caster_radius: np.nd
 
 def occluded_fraction(points_m: np.ndarray, caster: Caster, sun_world: np.ndarray,
                       sun_radius_rad: float) -> np.ndarray:
-    """Fraction of the solar disc hidden by ``caster`` seen from ground points (..., 3); float32."""
+    """Fraction of the solar disc hidden by a caster, seen from ground points.
+
+    Parameters
+    ----------
+    points_m : ndarray, shape (..., 3)
+        World ground points (m).
+    caster : Caster
+        The caster.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    sun_radius_rad : float
+        Angular radius of the solar disc (rad).
+
+    Returns
+    -------
+    ndarray, shape (...), float32
+        Hidden fraction, 0 .. 1.
+    """
     to_caster = np.asarray(caster.centre_m, dtype=np.float64) - points_m
     distance = np.sqrt(np.einsum("...i,...i->...", to_caster, to_caster))
     along = to_caster @ sun_world
@@ -77,14 +131,36 @@ def occluded_fraction(points_m: np.ndarray, caster: Caster, sun_world: np.ndarra
 def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                   pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
                   sun_radius_rad: float, diffuse_fraction: float) -> list[np.ndarray]:
-    """Darken ``radiance`` (H, W) in place inside each caster's shadow.
+    """Darken a radiance field in place inside each caster's shadow.
 
     Only the image window that can hold the penumbra is computed: the ground circle of radius
     ``(r + D tan(R_s)) / cos(i)`` (D the caster's distance to the ground along the sun line, i the
-    sun's incidence angle) around the shadow
-    centre is projected into the image and its bounding box, padded by 2 pixels, is evaluated exactly.
+    sun's incidence angle) around the shadow centre is projected into the image and its bounding box,
+    padded by 2 pixels, is evaluated exactly.
 
-    Returns the shadow centres (world, m) of the casters above the ground.
+    Parameters
+    ----------
+    radiance : ndarray, shape (H, W), float32
+        Radiance (W m^-2 sr^-1 um^-1); changed in place.
+    ground_map : GroundMap
+        The pose's ground map.
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    casters : list of Caster
+        The casters.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    sun_radius_rad : float
+        Angular radius of the solar disc (rad).
+    diffuse_fraction : float
+        Fraction of the irradiance that is sky light (not shadowed).
+
+    Returns
+    -------
+    list of ndarray, shape (3,)
+        Shadow centres (world, m) of the casters above the ground.
     """
     height, width = radiance.shape
     centres = []

@@ -45,6 +45,7 @@ class Terrain:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(rows, cols) of the I/F image."""
         return self.reflectance_if.shape
 
     @property
@@ -57,13 +58,35 @@ class Terrain:
         return west, west + cols * self.metres_per_pixel, north - rows * self.metres_per_pixel, north
 
     def world_to_pixel(self, east_m: np.ndarray, north_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Fractional (row, col) image coordinates of world points."""
+        """Fractional image coordinates of world points.
+
+        Parameters
+        ----------
+        east_m, north_m : ndarray
+            World coordinates (m), equal shapes.
+
+        Returns
+        -------
+        row, col : ndarray
+            Fractional image coordinates.
+        """
         col = (np.asarray(east_m) - self.origin_m[0]) / self.metres_per_pixel
         row = (self.origin_m[1] - np.asarray(north_m)) / self.metres_per_pixel
         return row, col
 
     def pixel_to_world(self, row: np.ndarray, col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World (east, north) of fractional image coordinates."""
+        """World coordinates of fractional image coordinates.
+
+        Parameters
+        ----------
+        row, col : ndarray
+            Fractional image coordinates, equal shapes.
+
+        Returns
+        -------
+        east, north : ndarray
+            World coordinates (m).
+        """
         east = self.origin_m[0] + np.asarray(col) * self.metres_per_pixel
         north = self.origin_m[1] - np.asarray(row) * self.metres_per_pixel
         return east, north
