@@ -33,10 +33,11 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from campaign.configuration.paths import special_kind
 from campaign.store.case_files import (
@@ -53,6 +54,12 @@ from campaign.store.case_identity import FOREIGN, StoreIdentity
 from campaign.store.errors import StoreError
 from campaign.store.lock import StoreLock, lock_path_for
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULTS_SCHEMA, TIMINGS_SCHEMA
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+# pandas is imported by the methods that make a DataFrame, when they run: `campaign status` and `verify` read a
+# store with pyarrow alone (pandas is half of their start-up time).
 
 FRESH_HINT = "`campaign submit --fresh` moves this store aside (DIR.previous-<UTC time>) and starts afresh"
 
@@ -178,6 +185,12 @@ class CampaignStore:
 
     def plan(self) -> pd.DataFrame:
         """The verified plan (StoreError, one line, when there is no campaign here or the plan is corrupt)."""
+        import pandas as pd
+
+        return pd.read_parquet(self._verified_plan_path())
+
+    def _verified_plan_path(self) -> Path:
+        """plan.parquet, checked against the manifest's record (StoreError, one line, as :meth:`plan`)."""
         manifest = self.manifest()
         if manifest is None:
             if self.cases_dir.is_dir():
@@ -188,7 +201,7 @@ class CampaignStore:
         if problem is not None:
             raise StoreError(f"{self.plan_path}: {problem}; the next `campaign submit` of this configuration "
                              "writes it again")
-        return pd.read_parquet(self.plan_path)
+        return self.plan_path
 
     def _has_case_files(self) -> bool:
         return self.cases_dir.is_dir() and any(not entry.name.startswith(".tmp-") for entry in os.scandir(self.cases_dir))
@@ -199,6 +212,8 @@ class CampaignStore:
         Refused without ``fresh``: a corrupt manifest, another configuration hash, case files without a
         manifest (they cannot be attributed to a configuration: never reused), or a plan that places a
         case of the same configuration differently."""
+        import pandas as pd
+
         if fresh:
             return
         existing, problem = self._manifest_state()
@@ -228,6 +243,8 @@ class CampaignStore:
         outside it are kept but not counted. A missing or corrupt plan of the same configuration is
         written again (the bad one goes to ``rejected/``). Bad case files are moved to ``rejected/``.
         """
+        import pandas as pd
+
         notes = []
         if fresh and self.root.exists():
             notes.append(f"moved the previous store aside to {self.move_aside()}")
@@ -312,7 +329,8 @@ class CampaignStore:
 
     def planned_case_ids(self) -> set[int]:
         """The case ids of the verified plan."""
-        return set(self.plan()["case_id"].astype(int))
+        plan = pq.ParquetFile(self._verified_plan_path()).read(columns=["case_id"])   # no pandas, no dataset
+        return {int(case_id) for case_id in plan.column("case_id").to_pylist()}
 
     def status(self) -> CaseStatus:
         planned = self.planned_case_ids()
@@ -345,6 +363,8 @@ class CampaignStore:
     def read_case_rows(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
                        planned: set[int] | None = None) -> pd.DataFrame:
         """:meth:`read_case_table` as a DataFrame (empty, without columns, when no case is finished)."""
+        import pandas as pd
+
         table = self.read_case_table(case_ids, scan, planned)
         return table.to_pandas() if table.num_rows else pd.DataFrame()
 
@@ -352,6 +372,8 @@ class CampaignStore:
     def compact(self) -> pd.DataFrame:
         """Write results.parquet (deterministic columns, sorted by case_id), timings.parquet and their record
         results.json, from the verified case files of the planned cases."""
+        import pandas as pd
+
         scan, planned = self.scan(), self.planned_case_ids()
         rows = self.read_case_table(scan=scan, planned=planned)
         if rows.num_rows == 0:
@@ -383,6 +405,8 @@ class CampaignStore:
 
     def results(self) -> pd.DataFrame:
         """The compacted results if they match the verified case files, else the rows read from those files."""
+        import pandas as pd
+
         scan, planned = self.scan(), self.planned_case_ids()
         if self.results_problem(scan, planned) is None:
             return pd.read_parquet(self.results_path)

@@ -138,6 +138,8 @@ TIMINGS_SCHEMA = pa.schema([CASE_FILE_SCHEMA.field("case_id"), CASE_FILE_SCHEMA.
 def schema_problem(found: pa.Schema, expected: pa.Schema = CASE_FILE_SCHEMA) -> str | None:
     """Why a table's schema does not fit ``expected`` (the first missing, unexpected, mistyped or misplaced
     column, in one line), or None when it fits exactly."""
+    if found.equals(expected, check_metadata=False):     # the common case, checked at once (status reads every file)
+        return None
     names = set(found.names)
     for name in expected.names:
         if name not in names:
