@@ -116,7 +116,6 @@ def true_flat_field(camera: Camera, effects: CameraEffects = CameraEffects()) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-
     """Command line: simulate a ground flat-field calibration and write the flat field.
 
     Parameters

@@ -1,5 +1,6 @@
-"""One visible cache of arrays derived from a camera or a terrain (pixel gain, PRNU map, camera-frame rays,
-terrain mean I/F, orbital haze), shared by the scene and detector stages.
+"""One visible cache of arrays derived from a camera or a terrain, shared by the scene and detector stages.
+
+The arrays: pixel gain, PRNU map, camera-frame rays, terrain mean I/F, orbital haze.
 
 Cameras and terrains are frozen dataclasses holding arrays, hence unhashable: they cannot key a dict or
 a ``functools`` cache. :data:`DERIVED` keys each owner by identity and drops its entries when the owner is

@@ -65,10 +65,12 @@ class SceneEffects(ConfigModel):
 
 
 class AtmosphereConfig(ConfigModel):
-    """``[scene.atmosphere]``: dust between the ground, the orbiter and the descent camera
+    """``[scene.atmosphere]``: dust between the ground, the orbiter and the descent camera.
+
     (:mod:`simulator.scene.atmosphere`, equations A1-A7). Off (the default) while
     ``orbital_optical_depth`` is 0: the renderer then skips the stage and the images are those of a scene
-    without atmosphere, bit for bit."""
+    without atmosphere, bit for bit.
+    """
 
     orbital_optical_depth: float = Field(0.0, ge=0.0, le=10.0)
     """Zenith dust optical depth of the whole column when the orbital terrain image was taken (also the
@@ -97,9 +99,11 @@ class AtmosphereConfig(ConfigModel):
 
 
 class SceneConfig(ConfigModel):
-    """``[scene]``: scene parameters (SI units, angles in degrees) and effect switches. Physics of the
-    defaults: :mod:`simulator.scene.photometry` (sun distance, spectral ratio), :mod:`simulator.scene.shadow`
-    (casters), :mod:`simulator.scene.heat_shield`, :mod:`simulator.scene.motion_blur`."""
+    """``[scene]``: scene parameters (SI units, angles in degrees) and effect switches.
+
+    Physics of the defaults: :mod:`simulator.scene.photometry` (sun distance, spectral ratio), :mod:`simulator.scene.shadow`
+    (casters), :mod:`simulator.scene.heat_shield`, :mod:`simulator.scene.motion_blur`.
+    """
 
     fidelity: Literal["reference", "high", "default", "fast"] = DEFAULT_PRESET
     """Preset of shortcuts the other fields start from (simulator.fidelity)."""

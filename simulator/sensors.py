@@ -61,8 +61,11 @@ SIGMA_FIELDS = ("attitude_bias_sigma_deg", "attitude_random_sigma_deg", "alignme
 
 
 class SensorConfig(ConfigModel):
-    """``[sensors]``: sensor error sigmas (degrees and percent at this edge; the ``*_rad``, ``*_radps``
-    and ``*_fraction`` properties are SI). Defaults: the paper's numbers where it gives them."""
+    """``[sensors]``: sensor error sigmas.
+
+    Degrees and percent at this edge; the ``*_rad``, ``*_radps`` and ``*_fraction`` properties are SI.
+    Defaults: the paper's numbers where it gives them.
+    """
 
     perfect: bool = False
     """Every sensor exact: all sigmas 0 (whatever else is given)."""

@@ -255,9 +255,11 @@ def optics_blur(state: ChainState) -> None:
 
 
 def _gains(state: ChainState) -> dict[str, np.ndarray]:
-    """Photo-electron rate per unit radiance, e-/s per W m^-2 sr^-1 um^-1: ``"pixel"`` (H, W) and
-    ``"block"`` (its block means, (H / b, W), made when first asked for), responsivity x falloff x PRNU
-    x dust transmission. With dust they are cached on the dust map (the same in a case's three images)."""
+    """Photo-electron rate per unit radiance, e-/s per W m^-2 sr^-1 um^-1.
+
+    ``"pixel"`` (H, W) and ``"block"`` (its block means, (H / b, W), made when first asked for), responsivity x falloff x PRNU
+    x dust transmission. With dust they are cached on the dust map (the same in a case's three images).
+    """
     camera, effects = state.camera, state.effects
     dust = state.artefacts.dust_transmission if state.artefacts is not None else None
     if dust is None:

@@ -248,8 +248,10 @@ def encircled_energy_radius_m(camera: Camera, fraction: float = 0.8) -> float:
 
 
 def _padded_shape(rows: int, cols: int, pad_rows: int) -> tuple[int, int]:
-    """The DFT size of a field with its mirrored margins: the next 11-smooth length (1056 for 1024 + 2 x 16:
-    OpenCV transforms it faster than the 5-smooth 1080, measured 13 vs 15.5 ms for the pair)."""
+    """The DFT size of a field with its mirrored margins: the next 11-smooth length.
+
+    1056 for 1024 + 2 x 16: OpenCV transforms it faster than the 5-smooth 1080, measured 13 vs 15.5 ms for the pair).
+    """
     return scipy.fft.next_fast_len(rows + 2 * pad_rows), scipy.fft.next_fast_len(cols + 2 * PAD_PX)
 
 
@@ -278,7 +280,8 @@ def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> n
     an even width, last column) gets its frequency's OTF, and the product is one elementwise multiply.
     The values are taken from the forward DFT of the OTF's own periodic kernel (the inverse real DFT of
     :func:`_otf_grid`), so OpenCV's packing is its own whatever the parity of the sizes; there the
-    imaginary entries are ~0 and take the real entry of their frequency."""
+    imaginary entries are ~0 and take the real entry of their frequency.
+    """
     cache = DERIVED.of(camera, "psf")
     key = ("ccs", shape, row_pitch_m)
     if key not in cache:
@@ -297,9 +300,11 @@ def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> n
 
 
 def _row_otf_packed(camera: Camera, cols: int) -> np.ndarray:
-    """The OTF along a row, ``OTF(f_x, 0)``, laid out as OpenCV's packed spectrum of one real row of
+    """The OTF along a row, ``OTF(f_x, 0)``, as OpenCV's packed spectrum of one real row.
+
     ``cols`` samples (Re0, Re1, Im1, Re2, Im2, ..., and Re of the Nyquist term for even ``cols``):
-    real and symmetric, it multiplies a frequency's real and imaginary parts alike. float32 (cols,), cached."""
+    real and symmetric, it multiplies a frequency's real and imaginary parts alike. float32 (cols,), cached.
+    """
     cache = DERIVED.of(camera, "psf")
     key = ("row", cols)
     if key not in cache:
@@ -317,8 +322,10 @@ def _row_otf_packed(camera: Camera, cols: int) -> np.ndarray:
 
 
 def _checked(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(field as float32, the field with non-finite pixels set to 0, mask of those pixels or None);
-    raises ValueError on a negative finite value."""
+    """A field checked for the blur: raises ValueError on a negative finite value.
+
+    Returns (field as float32, the field with non-finite pixels set to 0, mask of those pixels or None).
+    """
     field = np.asarray(field_w_m2_sr_um, dtype=np.float32)
     finite = bool(np.isfinite(field.sum()))
     bad = None if finite else ~np.isfinite(field)

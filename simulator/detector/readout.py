@@ -83,9 +83,12 @@ def noisy_charge_e(rng: np.random.Generator, mean_e: np.ndarray, read_noise_sigm
 
 
 def _gaussian_shot_and_read_noise_e(rng: np.random.Generator, mean_e: np.ndarray, read_sigma_e: float) -> np.ndarray:
-    """One normal draw of variance ``mean + sigma_read^2`` where the mean is at least
+    """Shot and read noise: Gaussian where the mean is high, exact Poisson below.
+
+    One normal draw of variance ``mean + sigma_read^2`` where the mean is at least
     :data:`GAUSSIAN_MIN_MEAN_E`; exact Poisson plus read noise for the dimmer pixels (drawn after the
-    bulk, so the stream is fixed)."""
+    bulk, so the stream is fixed).
+    """
     mean32 = mean_e.astype(np.float32)
     low = mean32 < np.float32(GAUSSIAN_MIN_MEAN_E)
     sigma = np.sqrt(mean32 + np.float32(read_sigma_e ** 2))

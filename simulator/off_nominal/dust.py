@@ -221,8 +221,10 @@ def draw_particles(camera: Camera, rng: np.random.Generator, mean_count: float, 
 
 
 def _node_beam_centres_m(camera: Camera, distance_m: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Beam centres (x, y) on the front element at the nodes (cached per camera and distance): node k
-    along an axis sits at pixel ``(k + 0.5) step - 0.5``, k = -1 .. size / step; and the first node's pixel."""
+    """Beam centres (x, y) on the front element at the nodes (cached per camera and distance).
+
+    Node k along an axis sits at pixel ``(k + 0.5) step - 0.5``, k = -1 .. size / step; and the first node's pixel.
+    """
     cache = DERIVED.of(camera, "dust")
     key = ("nodes", NODE_STEP_PX, float(distance_m))
     if key not in cache:

@@ -288,8 +288,11 @@ class MovingShadows:
 
 
 def _may_overlap_footprint(camera: Camera, pose: ground_mapping.CameraPose, outline_m: np.ndarray) -> bool:
-    """False only when the bounding box of a shadow's outline (k, 2) and that of the image's ground
-    footprint (from its border pixels) are disjoint; True when a border ray misses the ground."""
+    """Whether a shadow's outline may overlap the image's ground footprint.
+
+    False only when the bounding box of a shadow's outline (k, 2) and that of the image's ground
+    footprint (from its border pixels) are disjoint; True when a border ray misses the ground.
+    """
     footprint, hit = ground_mapping.footprint_m(camera, pose, per_side=4)
     if not hit.all():
         return True

@@ -184,8 +184,10 @@ def path_reflectance(tau_above: float, tau_layer: float, mu0, mu, cos_scatter, c
 
 @lru_cache(maxsize=16)
 def _azimuthal_phase_table(forward_asymmetry: float, backward_asymmetry: float, forward_fraction: float):
-    """``pbar(mu_i, mu'_j)``: the phase function averaged over the azimuth difference, for the table's
-    ``mu_i`` (linear in (0, 1]) and Gauss-Legendre ``mu'_j`` on (0, 1) with weights ``w_j``."""
+    """``pbar(mu_i, mu'_j)``: the phase function averaged over the azimuth difference.
+
+    For the table's ``mu_i`` (linear in (0, 1]) and Gauss-Legendre ``mu'_j`` on (0, 1) with weights ``w_j``.
+    """
     mu = np.linspace(MIN_COSINE, 1.0, _MU_TABLE_SIZE)
     nodes, weights = np.polynomial.legendre.leggauss(_MU_PRIME_NODES)
     mu_prime, weights = 0.5 * (nodes + 1.0), 0.5 * weights
@@ -200,8 +202,11 @@ def _azimuthal_phase_table(forward_asymmetry: float, backward_asymmetry: float, 
 
 
 def _diffuse_table(optical_depth: float, config) -> tuple[np.ndarray, np.ndarray]:
-    """(mu nodes, t_d(optical_depth, mu nodes)) of (A4), the divided difference written stably:
-    ``mu' (e^{-t/mu'} - e^{-t/mu}) / (mu' - mu) = (t / mu) e^{-t/mu} expm1(x) / x``, ``x = t (mu' - mu) / (mu mu')``."""
+    """(mu nodes, t_d(optical_depth, mu nodes)) of (A4).
+
+    The divided difference is written stably:
+    ``mu' (e^{-t/mu'} - e^{-t/mu}) / (mu' - mu) = (t / mu) e^{-t/mu} expm1(x) / x``, ``x = t (mu' - mu) / (mu mu')``.
+    """
     mu, mu_prime, weights, pbar = _azimuthal_phase_table(config.forward_asymmetry, config.backward_asymmetry,
                                                          config.forward_fraction)
     t = float(optical_depth)

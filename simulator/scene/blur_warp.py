@@ -140,8 +140,10 @@ def expanded_camera(camera: Camera, margins_px: tuple[int, int, int, int]) -> Ca
 
 def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
                  pixels: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray | None:
-    """Exact source pixels (..., 2) of the ground points that ``pixels`` see at ``target`` (camera-frame
-    ``rays`` of the pixels when known); None when any of them sees the sky or lands behind the camera."""
+    """Exact source pixels (..., 2) of the ground points that ``pixels`` see at ``target``.
+
+    Camera-frame ``rays`` of the pixels when known); None when any of them sees the sky or lands behind the camera.
+    """
     rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) if rays is None else rays
     rays = rays @ target.camera_to_world.T
     if not (target.ray_origin_m[2] > 0 and np.all(rays[..., 2] < -ground_mapping.HORIZON_EPSILON)):
@@ -153,9 +155,11 @@ def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: grou
 
 def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
                 source_offset_px: tuple[float, float], block_rows: int) -> np.ndarray | None:
-    """Flow map over ``camera``'s frame at ``block_rows``-row resolution: (H / b, W, 2) float32 (column,
-    block row) of the source pixels, shifted by ``source_offset_px`` (column, row; the source is an
-    enlarged frame)."""
+    """Flow map over ``camera``'s frame at ``block_rows``-row resolution.
+
+    (H / b, W, 2) float32 (column, block row) of the source pixels, shifted by ``source_offset_px`` (column, row; the source is an
+    enlarged frame).
+    """
     b = block_rows
     rows = ground_mapping.node_positions(camera.height_px, FLOW_STEP_PX)
     cols = ground_mapping.node_positions(camera.width_px, FLOW_STEP_PX)
@@ -195,15 +199,20 @@ class _Plan:
         return motion_blur.substep_times(start, end, self.count)
 
     def checked_leaves(self) -> np.ndarray:
-        """The leaves whose composed maps are checked: both ends and at most CHECKED_LEAVES in all, evenly
-        spread (the composition error varies smoothly along the path; measured on the nightly cases)."""
+        """The leaves whose composed maps are checked.
+
+        Both ends and at most CHECKED_LEAVES in all, evenly spread (the composition error varies smoothly
+        along the path; measured on the nightly cases).
+        """
         return np.unique(np.linspace(0, self.count - 1, min(self.count, CHECKED_LEAVES)).round().astype(int))
 
     def composed(self, period: str, pixels: np.ndarray, leaves: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
-        """Where the doubling scheme reads the centre field for the given leaves: (L, P, 2) from pixels
-        (P, 2) (the same for every leaf) or (L, P, 2) (leaf by leaf), and how far any intermediate
+        """Where the doubling scheme reads the centre field for the given leaves.
+
+        (L, P, 2) from pixels (P, 2) (the same for every leaf) or (L, P, 2) (leaf by leaf), and how far any intermediate
         position lies from its pixel as (column, row) lows and highs, (2, 2) px (the end leaves, always
-        checked, reach furthest on a path that does not turn back); None when a ray misses the ground."""
+        checked, reach furthest on a path that does not turn back); None when a ray misses the ground.
+        """
         start, end = self.windows[period]
         pixels = np.broadcast_to(pixels, (len(leaves), *pixels.shape[-2:]))
         first = _flow_points(self.camera, self.cam_at(0.5 * (start + end)), self.cam_at(self.average_centre_s), pixels)
@@ -326,9 +335,12 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
 
 
 def _moving_features_follow(plan: _Plan, period: str, moving_points: Callable[[float], list]) -> bool:
-    """True when every self-moving point (shadow centres, heat shield) in or near the frame lands, at
+    """Whether the self-moving points follow the warp.
+
+    True when every self-moving point (shadow centres, heat shield) in or near the frame lands, at
     every sub-pose, within :data:`MOVING_TOLERANCE_PX` of where the composed warp reads it in the
-    centre field (where the point is at the rendered pose)."""
+    centre field (where the point is at the rendered pose).
+    """
     camera = plan.camera
     reference = moving_points(plan.centre_s)
     if not reference:
@@ -353,9 +365,11 @@ def _moving_features_follow(plan: _Plan, period: str, moving_points: Callable[[f
 
 def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan: _Plan,
                 cam_at: Callable[[float], ground_mapping.CameraPose]) -> np.ndarray:
-    """Exposure-period union of a mask of the enlarged centre field: the mask at the centre, first and last
-    exposure sub-poses, each moved rigidly by the flow at the centre of the mask's bounding box (the
-    masks are compact: the heat shield, terrain beyond the strip's edge), nearest pixel."""
+    """Exposure-period union of a mask of the enlarged centre field.
+
+    The mask at the centre, first and last exposure sub-poses, each moved rigidly by the flow at the centre of the mask's bounding box (the
+    masks are compact: the heat shield, terrain beyond the strip's edge), nearest pixel.
+    """
     height, width = camera.height_px, camera.width_px
     union = mask[offset[1]:offset[1] + height, offset[0]:offset[0] + width].copy()
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))

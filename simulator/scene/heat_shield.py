@@ -153,8 +153,10 @@ def _bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.
 
 def _visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.ndarray, centre_m: np.ndarray,
                      diameter_m: float, cone_angle_rad: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Where rays (h, w, 3) see the cone nearer than the ground: (hit (h, w) bool, facing unit normal
-    (h, w, 3) on the camera's side of the surface), or None when no ray does."""
+    """Where rays (h, w, 3) see the cone nearer than the ground.
+
+    (hit (h, w) bool, facing unit normal (h, w, 3) on the camera's side of the surface), or None when no ray does.
+    """
     depth = cone_depth_m(diameter_m, cone_angle_rad)
     axis = np.array([0.0, 0.0, 1.0])
     apex = np.asarray(centre_m, dtype=float) - 0.5 * depth * axis
@@ -265,8 +267,10 @@ def lambert_radiance(normal: np.ndarray, sun_world: np.ndarray, scale_w_m2_sr_um
 def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray, background: np.ndarray,
                 sky: np.ndarray, row0: int, col0: int, centre_m: np.ndarray, diameter_m: float,
                 cone_angle_rad: float, sun_world: np.ndarray, lambert_scale: float, samples: int):
-    """Pixel-area radiance of the silhouette's edge pixels (see :func:`draw_heat_shield`):
-    ``(rows, cols, radiance float32)`` in window coordinates, or None when there is no edge."""
+    """Pixel-area radiance of the silhouette's edge pixels (see :func:`draw_heat_shield`).
+
+    ``(rows, cols, radiance float32)`` in window coordinates, or None when there is no edge.
+    """
     padded = np.pad(hit, 1, mode="edge")   # 8-neighbourhood: corner-covered pixels count too
     edge = np.zeros_like(hit)
     for shift_row in (0, 1, 2):
@@ -436,8 +440,10 @@ def add_glint(fields: RadianceFields, shared: bool, substeps: dict[str, int], ca
 
 
 def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[int, np.ndarray]:
-    """A full-resolution window starting at ``row0`` as means of whole ``block_rows``-row blocks:
-    (first block index, (blocks, w) float32)."""
+    """A full-resolution window starting at ``row0`` as means of whole ``block_rows``-row blocks.
+
+    (first block index, (blocks, w) float32).
+    """
     first = row0 // block_rows
     end = -(-(row0 + window.shape[0]) // block_rows)
     padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)

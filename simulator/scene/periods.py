@@ -194,8 +194,10 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
 
 def _warped_periods(terrain, camera, pose_at, cam_at, windows, centre_s, choice, sun_world, config, render,
                     moving_shadows) -> PeriodScene | None:
-    """The periods by warp-and-accumulate (:func:`simulator.scene.blur_warp.warped_period_fields`), or
-    None when the scene does not allow it."""
+    """The periods by warp-and-accumulate, or None when the scene does not allow it.
+
+    :func:`simulator.scene.blur_warp.warped_period_fields`.
+    """
     effects = config.effects
     warped = blur_warp.warped_period_fields(
         camera, pose_at, cam_at, windows, centre_s, max(choice.substeps.values()),
@@ -212,8 +214,10 @@ def _warped_periods(terrain, camera, pose_at, cam_at, windows, centre_s, choice,
 
 def _sub_pose_periods(terrain, camera, pose_at, windows, centre_s, choice, sun_world, config, render,
                       moving_shadows) -> PeriodScene:
-    """Each period as the mean of the fields at its sub-poses (rendered, or for the smear periods warped
-    from the exposure-centre field when ``choice.warp_smear_fields``)."""
+    """Each period as the mean of the fields at its sub-poses.
+
+    Rendered, or for the smear periods warped from the exposure-centre field when ``choice.warp_smear_fields``).
+    """
     counts = choice.substeps
     centre = render(terrain, camera, pose_at(centre_s), sun_world, config)
     averaged, exposure_fields, centre_blocks = {}, [centre], None

@@ -1,5 +1,6 @@
-"""Terrain relief: a height field under the orbital image, seen with parallax, occlusion, slope shading
-and cast shadows (issue 23).
+"""Terrain relief: a height field under the orbital image.
+
+Seen with parallax, occlusion, slope shading and cast shadows (issue 23).
 
 A :class:`ReliefTerrain` is a :class:`~simulator.scene.terrain.Terrain` with a height field ``height_m``
 on the same grid (m above the datum z = 0 of the level frame; bilinear between pixel centres). Its
@@ -58,8 +59,10 @@ SKIP_PX = 8                      # coarse skip of the ray march (grid pixels), b
 
 
 class ReliefConfig(ConfigModel):
-    """``[scene.relief]``: how a terrain's height field is rendered (terrains without one are unaffected;
-    a class gets one with ``relief = true`` in its terrain table)."""
+    """``[scene.relief]``: how a terrain's height field is rendered.
+
+    Terrains without one are unaffected; a class gets one with ``relief = true`` in its terrain table).
+    """
 
     enabled: bool = True
     """Render the height field of terrains that have one (off: level ground, as a plain terrain)."""

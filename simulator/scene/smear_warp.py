@@ -1,5 +1,7 @@
-"""Smear fields by warping (fidelity shortcut ``warp_smear_fields``): the fast-flush and frame-transfer
-radiance of a sub-pose, read from the exposure-centre field along the ground-plane flow.
+"""Smear fields by warping (fidelity shortcut ``warp_smear_fields``).
+
+The fast-flush and frame-transfer radiance of a sub-pose, read from the exposure-centre field along the
+ground-plane flow.
 
 The fast-flush and frame-transfer fields only enter the image through block sums of columns (smear,
 then 4-row binning), and their poses differ from the exposure's by a pixel or so. Instead of rendering

@@ -1,5 +1,6 @@
-"""Terrain: an orbital reflectance image (I/F) on a level ground grid, with the photometric geometry
-under which the orbiter observed it.
+"""Terrain: an orbital reflectance image (I/F) on a level ground grid.
+
+With the photometric geometry under which the orbiter observed it.
 
 Grid convention: the image is north-up. Pixel ``(row, col)`` has its centre at world coordinates
 ``x = origin_x_m + col * metres_per_pixel`` (east) and ``y = origin_y_m - row * metres_per_pixel``
