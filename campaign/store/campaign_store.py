@@ -360,14 +360,6 @@ class CampaignStore:
         tables = [read_case_table(scan.cases[case_id].path) for case_id in sorted(wanted)]
         return pa.concat_tables(tables) if tables else CASE_FILE_SCHEMA.empty_table()
 
-    def read_case_rows(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
-                       planned: set[int] | None = None) -> pd.DataFrame:
-        """:meth:`read_case_table` as a DataFrame (empty, without columns, when no case is finished)."""
-        import pandas as pd
-
-        table = self.read_case_table(case_ids, scan, planned)
-        return table.to_pandas() if table.num_rows else pd.DataFrame()
-
     # --- compaction ----------------------------------------------------------------------------
     def compact(self) -> pd.DataFrame:
         """Write results.parquet (deterministic columns, sorted by case_id), timings.parquet and their record
