@@ -6,7 +6,7 @@ saturating it changes nothing and costs nothing). The physics of each effect liv
 * dust on the front lens element  -> :mod:`simulator.off_nominal.dust` (transmission map, fixed for the case)
 * hot pixels (dark spikes)        -> :mod:`simulator.off_nominal.hot_pixels` (extra dark rate, fixed for the case)
 * energetic particle hits         -> :mod:`simulator.off_nominal.particle_hits` (charge tracks, new for every image)
-* heat-shield specular glint      -> :mod:`simulator.scene.heat_shield` (drawn into the radiance)
+* heat-shield specular glint      -> :mod:`simulator.scene.glint` (added to the radiance by the scene stage)
 * blooming                        -> :mod:`simulator.detector.blooming` (charge above full well spills along columns)
 * high motion blur                -> :mod:`simulator.scene.descent_profile` (angular rate multiplier)
 * dust-devil and cloud shadows    -> :mod:`simulator.off_nominal.moving_shadows` (drawn per case, moving)

@@ -54,7 +54,7 @@ import numpy as np
 from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.fields import RadianceFields, block_means
-from simulator.scene import ground_mapping, motion_blur, resample, shadow
+from simulator.scene import ground_mapping, motion_blur, node_grid, resample, shadow
 from simulator.scene.descent_profile import Pose
 
 MARGIN_STEP_PX = 32            # margins are multiples of the flow node step (and of the binning rows)
@@ -161,15 +161,15 @@ def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: groun
     enlarged frame).
     """
     b = block_rows
-    rows = ground_mapping.node_positions(camera.height_px, FLOW_STEP_PX)
-    cols = ground_mapping.node_positions(camera.width_px, FLOW_STEP_PX)
+    rows = node_grid.node_positions(camera.height_px, FLOW_STEP_PX)
+    cols = node_grid.node_positions(camera.width_px, FLOW_STEP_PX)
     grid = np.stack(np.meshgrid(cols, rows), axis=-1)
     source_pixels = _flow_points(camera, target, source, grid, ground_mapping.camera_frame_rays(camera, grid))
     if source_pixels is None:
         return None
     source_pixels = source_pixels + np.asarray(source_offset_px, dtype=float)
     source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (b - 1)) / b
-    return ground_mapping.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
+    return node_grid.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
                                          row_step_px=FLOW_STEP_PX // b)
 
 

@@ -34,6 +34,7 @@ from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
 from simulator.derived_cache import DERIVED
 from simulator.scene.descent_profile import Pose
+from simulator.scene.node_grid import interpolate_nodes_window, node_positions, upsample_nodes
 from simulator.scratch import scratch
 
 HORIZON_EPSILON = 1e-6      # |d_z| below this (unit ray) counts as sky
@@ -101,70 +102,6 @@ def camera_cache(camera: Camera) -> dict:
         The scene stage's cache of ``camera`` (:data:`simulator.derived_cache.DERIVED`).
     """
     return DERIVED.of(camera, "scene")
-
-
-def node_positions(size_px: int, step_px: int) -> np.ndarray:
-    """Pixel coordinates of the coarse grid nodes along one axis.
-
-    ``(k + 0.5) step - 0.5`` for k = -1 .. size/step: one node beyond each edge, the layout that
-    ``cv2.resize`` upsamples.
-
-    Parameters
-    ----------
-    size_px : int
-        Image size along the axis (px).
-    step_px : int
-        Node spacing (px), >= 1, divides ``size_px``.
-
-    Returns
-    -------
-    ndarray, shape (size / step + 2,)
-        Node coordinates (px).
-
-    Raises
-    ------
-    ValueError
-        A step that is < 1 or does not divide the size.
-    """
-    if step_px < 1 or size_px % step_px:
-        raise ValueError(f"grid step {step_px} px must be >= 1 and divide the image size {size_px} px")
-    return (np.arange(-1, size_px // step_px + 1) + 0.5) * step_px - 0.5
-
-
-def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_px: int,
-                   row_step_px: int | None = None, scratch_name: str | None = None) -> np.ndarray:
-    """Bilinear interpolation of values on the :func:`node_positions` grid to every pixel.
-
-    Parameters
-    ----------
-    node_values : ndarray, shape (ny, nx) or (ny, nx, channels)
-        Values at the nodes, ny = height / row_step + 2, nx = width / step + 2.
-    step_px : int
-        Column node spacing (px).
-    height_px, width_px : int
-        Size of the output (px).
-    row_step_px : int, optional
-        Row node spacing (default ``step_px``; a different one serves a grid of coarser rows, e.g. binned
-        rows, with the same node layout in its own units).
-    scratch_name : str, optional
-        Write into that :func:`~simulator.scratch.scratch` array (the caller must be done with it
-        before the name is used again).
-
-    Returns
-    -------
-    ndarray, shape (height, width[, channels]), float32
-        Interpolated values (a view of the scratch array with ``scratch_name``).
-    """
-    row_step_px = step_px if row_step_px is None else row_step_px
-    ny, nx = node_values.shape[:2]
-    size = (nx * step_px, ny * row_step_px)
-    nodes = np.ascontiguousarray(node_values, dtype=np.float32)
-    if scratch_name is None:
-        big = cv2.resize(nodes, size, interpolation=cv2.INTER_LINEAR)
-    else:
-        big = scratch(scratch_name, (size[1], size[0]) + node_values.shape[2:])
-        cv2.resize(nodes, size, dst=big, interpolation=cv2.INTER_LINEAR)
-    return big[row_step_px:row_step_px + height_px, step_px:step_px + width_px]
 
 
 def node_rays(camera: Camera, step_px: int) -> np.ndarray:
@@ -280,39 +217,6 @@ class GroundMap:
             self._full = upsample_nodes(self._nodes, self._step, height, width)
             return self._full
         return interpolate_nodes_window(self._nodes, self._step, row0, row1, col0, col1)
-
-
-def interpolate_nodes_window(node_values: np.ndarray, step_px: int, row0: int, row1: int, col0: int,
-                             col1: int) -> np.ndarray:
-    """Bilinear node-grid interpolation (as :func:`upsample_nodes`) of a pixel window only.
-
-    Parameters
-    ----------
-    node_values : ndarray, shape (ny, nx) or (ny, nx, channels)
-        Values at the nodes.
-    step_px : int
-        Node spacing (px).
-    row0, row1, col0, col1 : int
-        The window (px).
-
-    Returns
-    -------
-    ndarray, shape (row1 - row0, col1 - col0[, channels]), float32
-        Interpolated values.
-    """
-    def weights(start, stop, count):
-        position = (np.arange(start, stop) + 0.5) / step_px + 0.5    # fractional node index
-        index = np.clip(np.floor(position).astype(int), 0, count - 2)
-        return index, (position - index)[:, None]
-    ny, nx = node_values.shape[:2]
-    r, fr = weights(row0, row1, ny)
-    c, fc = weights(col0, col1, nx)
-    values = np.asarray(node_values, dtype=np.float64)
-    fr = fr[..., None] if values.ndim == 3 else fr
-    fc = fc[None, ...] if values.ndim == 3 else fc.T
-    top = values[r][:, c] * (1 - fc) + values[r][:, c + 1] * fc
-    bottom = values[r + 1][:, c] * (1 - fc) + values[r + 1][:, c + 1] * fc
-    return (top * (1 - fr) + bottom * fr).astype(np.float32)
 
 
 def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[float, float],

@@ -12,36 +12,18 @@ Kapton, solar absorptance ~0.93), ``L = reflectance * E_band / pi * max(0, n.s)`
 normal on the side the camera sees; the rim's cast shadow on the interior (only for sun elevations
 below the 20 deg wall slope) is not modelled.
 
-Specular glint (off-nominal, :func:`glint_window`, added to the period fields by :func:`add_glint`, which
-:func:`simulator.scene.periods.period_fields` calls when ``heat_shield_glint`` is on): the Kapton
-film is glossy; its quilted, wrinkled blanket is a surface of mirror facets whose slopes are
-Gaussian (Beckmann distribution, rms slope ``tan(sigma)``). Torrance-Sparrow reflection of the sun
-(a point source: its 0.17 deg radius at Mars is small against sigma >= 0.5 deg), with constant
-Fresnel factor ``rho_s`` (``heat_shield_specular_reflectance``) and no facet shadowing::
-
-    L = rho_s E_band D(theta_h) / (4 cos theta_v),  D = exp(-tan^2 theta_h / m^2) / (pi m^2 cos^4 theta_h)
-
-with ``m = tan(sigma)``, ``theta_h`` the angle between the normal and the half vector of sun and
-camera directions and ``theta_v`` the view angle; ``D`` is normalised (``int D cos theta_h dw = 1``),
-so a narrow lobe reflects ``rho_s E cos theta_i`` in total. Its peak ``rho_s E / (4 pi m^2 cos
-theta_v)`` is ~1.4 E (about 600 W m^-2 sr^-1 um^-1, 15 times the terrain) for rho_s = 0.05 and
-sigma = 3 deg: well above full well in the 5.1 ms exposure, hence blooming. A glint appears when
-the half vector lies within a few sigma of the lining's normals (20 deg from the cone axis).
+The lining's specular glint (off-nominal) is :mod:`simulator.scene.glint`.
 
 Cost: the cone is projected into the image first; only when that footprint meets the field of view are
 the rays of its bounding box intersected with the cone (:func:`draw_heat_shield`).
 """
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
-from simulator.fields import RadianceFields, block_means
-from simulator.scene import ground_mapping, motion_blur, photometry
-from simulator.scene.descent_profile import Pose
+from simulator.scene import ground_mapping
 
 
 def cone_depth_m(diameter_m: float, cone_angle_rad: float) -> float:
@@ -134,9 +116,28 @@ def intersect_cone(origin_m: np.ndarray, rays: np.ndarray, apex_m: np.ndarray, a
     return best, np.isfinite(best)
 
 
-def _bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, diameter_m: float,
+def bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, diameter_m: float,
                   cone_angle_rad: float) -> tuple[int, int, int, int] | None:
-    """Pixel window (row0, row1, col0, col1) that can show the cone, or None when it misses the image."""
+    """Pixel window that can show the heat-shield cone.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    centre_m : ndarray, shape (3,)
+        Centre of the cone's bounding cylinder (m).
+    diameter_m : float
+        Rim diameter (m).
+    cone_angle_rad : float
+        Full cone angle (rad).
+
+    Returns
+    -------
+    tuple of int or None
+        ``(row0, row1, col0, col1)``, or None when the cone misses the image.
+    """
     height, width = camera.height_px, camera.width_px
     outline = cone_outline_m(centre_m, diameter_m, cone_angle_rad)
     pixels, in_front = ground_mapping.world_to_pixels(camera, pose, outline)
@@ -151,11 +152,30 @@ def _bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.
     return row0, row1, col0, col1
 
 
-def _visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.ndarray, centre_m: np.ndarray,
+def visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.ndarray, centre_m: np.ndarray,
                      diameter_m: float, cone_angle_rad: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Where rays (h, w, 3) see the cone nearer than the ground.
+    """Where rays see the heat-shield cone nearer than the ground.
 
-    (hit (h, w) bool, facing unit normal (h, w, 3) on the camera's side of the surface), or None when no ray does.
+    Parameters
+    ----------
+    rays : ndarray, shape (h, w, 3)
+        World ray directions from the camera (any length).
+    pose : CameraPose
+        The camera's world pose (ray origin).
+    sky : ndarray, shape (h, w), bool
+        Rays that see no ground.
+    centre_m : ndarray, shape (3,)
+        Centre of the cone's bounding cylinder (m).
+    diameter_m : float
+        Rim diameter (m).
+    cone_angle_rad : float
+        Full cone angle (rad).
+
+    Returns
+    -------
+    tuple of (ndarray, ndarray) or None
+        ``hit`` (h, w) bool and the facing unit normal (h, w, 3) on the camera's side of the surface,
+        or None when no ray sees the cone.
     """
     depth = cone_depth_m(diameter_m, cone_angle_rad)
     axis = np.array([0.0, 0.0, 1.0])
@@ -218,12 +238,12 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
         computed beyond the projection of its outline).
     """
     height, width = radiance.shape
-    box = _bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
+    box = bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
     if box is None:
         return None
     row0, row1, col0, col1 = box
     rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
-    surface = _visible_surface(rays, pose, ground_map.sky[row0:row1, col0:col1], centre_m, diameter_m,
+    surface = visible_surface(rays, pose, ground_map.sky[row0:row1, col0:col1], centre_m, diameter_m,
                                cone_angle_rad)
     if surface is None:
         return None
@@ -283,7 +303,7 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
     d_col, d_row = (axis.ravel() for axis in np.meshgrid(offsets, offsets))
     pixels = np.stack([(col0 + cols)[:, None] + d_col, (row0 + rows)[:, None] + d_row], axis=-1)
     rays = cahvor.unproject(camera.model, pixels.reshape(-1, 2)) @ pose.camera_to_world.T
-    surface = _visible_surface(rays[:, None, :], pose, np.repeat(sky[rows, cols], samples * samples)[:, None],
+    surface = visible_surface(rays[:, None, :], pose, np.repeat(sky[rows, cols], samples * samples)[:, None],
                                centre_m, diameter_m, cone_angle_rad)
     if surface is None:
         sub_hit = np.zeros((rows.size, samples * samples), dtype=bool)
@@ -295,157 +315,3 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
     shield_mean = np.where(sub_hit, shield, 0.0).sum(axis=1) / np.maximum(sub_hit.sum(axis=1), 1)
     blended = coverage * shield_mean + (1.0 - coverage) * background[rows, cols]
     return rows, cols, blended.astype(np.float32)
-
-
-def specular_radiance(normal: np.ndarray, to_sun: np.ndarray, to_camera: np.ndarray, irradiance_w_m2_um: float,
-                      reflectance: float, roughness_rad: float) -> np.ndarray:
-    """Radiance of the specular lobe (module doc).
-
-    Parameters
-    ----------
-    normal : ndarray, shape (..., 3)
-        Unit surface normals.
-    to_sun : ndarray, shape (3,)
-        Unit vector toward the sun.
-    to_camera : ndarray, shape (..., 3)
-        Unit vectors toward the camera.
-    irradiance_w_m2_um : float
-        Solar band irradiance normal to the sun (W m^-2 um^-1).
-    reflectance : float
-        Fresnel factor ``rho_s``.
-    roughness_rad : float
-        RMS facet slope angle (rad).
-
-    Returns
-    -------
-    ndarray, shape (...)
-        Radiance (W m^-2 sr^-1 um^-1).
-    """
-    half = to_sun + to_camera
-    half /= np.linalg.norm(half, axis=-1, keepdims=True)
-    cos_h = np.clip(np.einsum("...i,...i->...", normal, half), 1e-6, 1.0)
-    cos_view = np.einsum("...i,...i->...", normal, to_camera)
-    cos_sun = normal @ to_sun
-    slope2 = np.tan(roughness_rad) ** 2
-    tan2_h = (1.0 - cos_h**2) / cos_h**2
-    facets = np.exp(-tan2_h / slope2) / (np.pi * slope2 * cos_h**4)
-    lit = (cos_view > 0) & (cos_sun > 0)
-    return np.where(lit, reflectance * irradiance_w_m2_um * facets / (4.0 * np.where(lit, cos_view, 1.0)), 0.0)
-
-
-def glint_window(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
-                 irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float, reflectance: float,
-                 roughness_rad: float) -> tuple[int, int, np.ndarray] | None:
-    """The specular glint of the heat-shield lining at one camera pose.
-
-    Parameters
-    ----------
-    camera : Camera
-        The camera.
-    pose : CameraPose
-        The camera's world pose.
-    centre_m : ndarray, shape (3,)
-        Centre of the cone's bounding cylinder (m).
-    sun_world : ndarray, shape (3,)
-        World unit vector toward the sun.
-    irradiance_w_m2_um : float
-        Solar band irradiance normal to the sun (W m^-2 um^-1).
-    diameter_m : float
-        Rim diameter (m).
-    cone_angle_rad : float
-        Full cone angle (rad).
-    reflectance : float
-        Specular Fresnel factor ``rho_s``.
-    roughness_rad : float
-        RMS facet slope angle (rad).
-
-    Returns
-    -------
-    tuple of (int, int, ndarray) or None
-        ``(row0, col0, radiance)`` with ``radiance`` a float32 (h, w) window of the image (W m^-2 sr^-1
-        um^-1, 0 off the shield; exact per-pixel rays), or None when the shield is not in view.
-    """
-    box = _bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
-    if box is None:
-        return None
-    row0, row1, col0, col1 = box
-    rays = camera.pixel_rays[row0:row1, col0:col1] @ pose.camera_to_world.T
-    surface = _visible_surface(rays, pose, np.zeros(rays.shape[:2], dtype=bool), centre_m, diameter_m,
-                               cone_angle_rad)
-    if surface is None:
-        return None
-    hit, facing = surface
-    value = specular_radiance(facing, np.asarray(sun_world, dtype=float), -rays, irradiance_w_m2_um,
-                              reflectance, roughness_rad)
-    return row0, col0, np.where(hit, value, 0.0).astype(np.float32)
-
-
-def add_glint(fields: RadianceFields, shared: bool, substeps: dict[str, int], camera: Camera,
-              pose_at: Callable[[float], Pose], windows: dict[str, tuple[float, float]], centre_s: float,
-              sun_world: np.ndarray, config) -> None:
-    """Add the heat-shield specular glint to the period fields in place.
-
-    Each field gets the glint averaged over the same sub-poses as the scene
-    (:mod:`simulator.scene.motion_blur`); a field standing for several periods gets the glint of the
-    exposure (or of the first period it stands for).
-
-    Parameters
-    ----------
-    fields : RadianceFields
-        The flush, exposure and transfer fields (W m^-2 sr^-1 um^-1), (H, W) or per binning block
-        (H / b, W) float32; changed in place.
-    shared : bool
-        One field stands for all three periods (its glint is the one at the exposure mid-time).
-    substeps : dict of str to int
-        Sub-poses of each period.
-    camera : Camera
-        The descent camera.
-    pose_at : callable
-        ``time_s -> Pose``: the lander pose (with the heat shield position) at a time (s).
-    windows : dict of str to (float, float)
-        ``period -> (start_s, end_s)`` (s).
-    centre_s : float
-        Exposure mid-time (s).
-    sun_world : ndarray, shape (3,)
-        World unit vector toward the sun.
-    config : simulator.scene_config.SceneConfig
-        Heat shield geometry, ``sun_distance_au`` and the off-nominal specular reflectance and roughness.
-
-    Returns
-    -------
-    None
-    """
-    first_periods: list[str] = []        # the first period of each distinct field object
-    for period in ("exposure", "flush", "transfer"):
-        if not any(getattr(fields, other) is getattr(fields, period) for other in first_periods):
-            first_periods.append(period)
-    irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
-    off_nominal = config.off_nominal
-    for period in first_periods:
-        field_array = getattr(fields, period)
-        count = 1 if shared else max(int(substeps.get(period, 1)), 1)
-        times = [centre_s] if shared else motion_blur.substep_times(*windows[period], count)
-        for time_s in times:
-            pose = pose_at(float(time_s))
-            glint = glint_window(
-                camera, ground_mapping.camera_pose(camera, pose), np.asarray(pose.heat_shield_position_m, dtype=float),
-                sun_world, irradiance, config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad,
-                off_nominal.heat_shield_specular_reflectance, off_nominal.heat_shield_specular_roughness_rad)
-            if glint is not None:
-                row0, col0, window = glint
-                window = window * np.float32(1.0 / len(times))
-                if field_array.shape[0] != camera.height_px:   # a smear field given as binning-block means
-                    row0, window = _block_mean_window(row0, window, camera.height_px // field_array.shape[0])
-                field_array[row0:row0 + window.shape[0], col0:col0 + window.shape[1]] += window
-
-
-def _block_mean_window(row0: int, window: np.ndarray, block_rows: int) -> tuple[int, np.ndarray]:
-    """A full-resolution window starting at ``row0`` as means of whole ``block_rows``-row blocks.
-
-    (first block index, (blocks, w) float32).
-    """
-    first = row0 // block_rows
-    end = -(-(row0 + window.shape[0]) // block_rows)
-    padded = np.zeros(((end - first) * block_rows, window.shape[1]), dtype=np.float32)
-    padded[row0 - first * block_rows:row0 - first * block_rows + window.shape[0]] = window
-    return first, block_means(padded, block_rows)

@@ -16,7 +16,7 @@ terrain pixel of image shift. How the motion is integrated is chosen in one plac
 Times outside the profile are clamped to its ends (the pose is held). An odd exposure sub-pose count
 has its middle sub-pose at the exposure mid-time; when that instant is bit-equal to the mid-time the
 centre field already rendered stands for it. The heat-shield glint (off-nominal) is added to the
-finished fields (:func:`simulator.scene.heat_shield.add_glint`).
+finished fields (:func:`simulator.scene.glint.add_glint`).
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ import numpy as np
 
 from flight_interface.camera import Camera
 from simulator.fields import RadianceFields, block_means
-from simulator.scene import blur_warp, ground_mapping, heat_shield, motion_blur
+from simulator.scene import blur_warp, glint, ground_mapping, motion_blur
 from simulator.scene.descent_profile import DescentProfile, Pose
 from simulator.scene.radiance import PoseField, casters, radiance_at_pose, sun_unit_vector
 from simulator.scene.smear_warp import smear_field
@@ -187,7 +187,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
     off_nominal = config.off_nominal
     if (off_nominal.heat_shield_glint and config.effects.heat_shield and profile.heat_shield_position_m is not None
             and off_nominal.heat_shield_specular_reflectance > 0):
-        heat_shield.add_glint(scene.fields, scene.shared, scene.substeps, camera, pose_at, windows, centre_s,
+        glint.add_glint(scene.fields, scene.shared, scene.substeps, camera, pose_at, windows, centre_s,
                               sun_world, config)
     return scene
 

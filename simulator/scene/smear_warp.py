@@ -19,7 +19,7 @@ import numpy as np
 
 from flight_interface.camera import Camera
 from simulator.fields import block_means
-from simulator.scene import ground_mapping, resample
+from simulator.scene import ground_mapping, node_grid, resample
 from simulator.scene.descent_profile import Pose
 from simulator.scene.radiance import PoseField, radiance_at_pose
 from simulator.scene.terrain import Terrain
@@ -53,8 +53,8 @@ def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_m
         the ground or its point is behind or more than one node step outside the source frame (the
         flow is then not a small smooth warp).
     """
-    rows = ground_mapping.node_positions(camera.height_px, step_px)
-    cols = ground_mapping.node_positions(camera.width_px, step_px)
+    rows = node_grid.node_positions(camera.height_px, step_px)
+    cols = node_grid.node_positions(camera.width_px, step_px)
     grid = np.stack(np.meshgrid(cols, rows), axis=-1)
     points, hit = ground_mapping.ground_points(camera, target, grid)
     if not hit.all():
@@ -66,11 +66,11 @@ def flow_map(camera: Camera, source: ground_mapping.CameraPose, target: ground_m
             or source_pixels[..., 1].max() > camera.height_px + margin):
         return None
     if block_rows == 1:
-        return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px, camera.width_px,
+        return node_grid.upsample_nodes(source_pixels, step_px, camera.height_px, camera.width_px,
                                              scratch_name=scratch_name)
     # node rows (k + 1/2) s - 1/2 in pixels are (k + 1/2) (s / b) - 1/2 in blocks: the same layout
     source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (block_rows - 1)) / block_rows
-    return ground_mapping.upsample_nodes(source_pixels, step_px, camera.height_px // block_rows, camera.width_px,
+    return node_grid.upsample_nodes(source_pixels, step_px, camera.height_px // block_rows, camera.width_px,
                                          row_step_px=step_px // block_rows, scratch_name=scratch_name)
 
 

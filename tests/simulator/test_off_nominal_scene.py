@@ -13,8 +13,9 @@ from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_m
 from flight_interface.tomlfields import ConfigError, parse
 from simulator.descent_image import render_descent_image
 from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig, draw_case_artefacts, with_particle_hits
-from simulator.scene import ground_mapping, heat_shield, motion_blur, photometry
+from simulator.scene import ground_mapping, motion_blur, photometry
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile, scale_angular_rates
+from simulator.scene.glint import specular_radiance
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import SceneConfig
 
@@ -53,13 +54,13 @@ def test_specular_lobe_reflects_rho_times_the_incident_flux():
     solid_angle = np.sin(grid_t) * (theta[1] - theta[0]) * (phi[1] - phi[0])
     for incidence in (0.0, 30.0):
         sun = np.array([np.sin(np.radians(incidence)), 0.0, np.cos(np.radians(incidence))])
-        radiance = heat_shield.specular_radiance(np.broadcast_to(normal, view.shape), sun, view, 500.0, 0.05,
+        radiance = specular_radiance(np.broadcast_to(normal, view.shape), sun, view, 500.0, 0.05,
                                                  np.radians(3.0))
         reflected = np.sum(radiance * np.cos(grid_t) * solid_angle)
         assert reflected == pytest.approx(0.05 * 500.0 * np.cos(np.radians(incidence)), rel=0.01)
         # the peak is in the mirror direction: rho E / (4 pi m^2 cos theta_v)
         mirror = np.array([-sun[0], 0.0, sun[2]])
-        peak = heat_shield.specular_radiance(normal, sun, mirror, 500.0, 0.05, np.radians(3.0))
+        peak = specular_radiance(normal, sun, mirror, 500.0, 0.05, np.radians(3.0))
         m2 = np.tan(np.radians(3.0)) ** 2
         assert float(peak) == pytest.approx(0.05 * 500.0 / (4 * np.pi * m2 * np.cos(np.radians(incidence))), rel=1e-9)
 
