@@ -22,7 +22,7 @@ import importlib
 import inspect
 import pkgutil
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 
 import numpydoc.validate as numpydoc_validate
 import pytest
@@ -45,7 +45,7 @@ def _modules(package: str) -> Iterator[str]:
             yield info.name
 
 
-def _public(namespace: dict, module: str) -> Iterator[tuple[str, object]]:
+def _public(namespace: Mapping[str, object], module: str) -> Iterator[tuple[str, object]]:
     for name, value in namespace.items():
         if name.startswith("_"):
             continue
