@@ -234,3 +234,41 @@ def test_the_checker_sees_a_forbidden_arrow(tmp_path):
     found = _imports("dimes_velocity.probe", path)
     assert ("simulator.scene.terrain", False, 1) in found and ("campaign.cli", True, 4) in found
     assert not {target.split(".")[0] for target, _, _ in found} <= ALLOWED["dimes_velocity"]
+
+
+#: what a read-only command never loads: running cases (dask, the case computation, planning) and the simulator,
+#: estimators and reference estimator behind them
+RUN_STACK = ("campaign.run", "campaign.case", "campaign.plan", "simulator.descent_image", "simulator.scene.radiance",
+             "estimators", "dimes_velocity")
+
+
+def _closure(starts: set[str]) -> set[str]:
+    """The project modules ``starts`` import when they load (top-level imports, followed, except the type
+    checker's; the packages on the way)."""
+    seen: set[str] = set()
+    pending = list(starts)
+    while pending:
+        module = pending.pop()
+        if module in seen or module not in MODULES:
+            continue
+        seen.add(module)
+        parts = module.split(".")
+        pending += [".".join(parts[:end]) for end in range(1, len(parts))]
+        checker_only = _type_checking_lines(MODULES[module])
+        pending += [resolved for target, local, line in GRAPH[module]
+                    if not local and line not in checker_only and (resolved := _resolve(target))]
+    return seen
+
+
+@pytest.mark.parametrize("command", ["status", "verify", "table"])
+def test_a_read_only_command_loads_only_what_it_reads(command):
+    """`campaign status|verify|table DIR` import the store (and the table's report modules) when they run, never
+    the run stack: the function's own imports and everything they load."""
+    tree = ast.parse(MODULES["campaign.commands"].read_text())
+    function = next(node for node in tree.body if isinstance(node, ast.FunctionDef) and node.name == command)
+    lines = {node.lineno for node in ast.walk(function) if isinstance(node, (ast.Import, ast.ImportFrom))}
+    starts = {_resolve(target) for target, _, line in GRAPH["campaign.commands"] if line in lines} - {None}
+    starts |= _closure({"campaign.cli"})          # what the command line itself loads at start
+    loaded = _closure({module for module in starts if module})
+    light = {"campaign.run", "campaign.run.faults"}    # the command line maps RunStopped to its exit code
+    assert loaded and not [module for module in loaded - light if module.startswith(RUN_STACK)], sorted(loaded)
