@@ -109,8 +109,7 @@ def _one_thread(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
     """Run the ``sample`` cases ((site, plan record)) in this process as a worker runs them, into scratch stores
     under ``root``: t_case_ms (as recorded) and thread CPU ms per case, indexed by (site, case_id)."""
     from campaign.case.compute import compute_case
-    from campaign.case.inputs import campaign_inputs
-    from campaign.case.plan_row import PlanRow
+    from campaign.case.inputs import PlanRow, campaign_inputs
     from campaign.configuration.campaign_file import load_campaign_config
     from campaign.run.worker import CampaignContext, execute_case, set_up_estimators
     from campaign.store.case_files import read_case_table

@@ -43,7 +43,7 @@ def _timed(function, *args):
 
 def run() -> list[dict]:
     from campaign.case.compute import compute_case, simulate_case_inputs
-    from campaign.case.plan_row import PlanRow
+    from campaign.case.inputs import PlanRow
     from estimators.contract import EstimatorInputs
 
     single, plan = _resources(REPO / "sitedata" / "gusev.toml")

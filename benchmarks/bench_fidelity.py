@@ -41,7 +41,7 @@ def _render_case(resources, row, scene_config):
     """The case's three images (the campaign's seeds, with ``scene_config``) and its estimate:
     (images, velocity or None, render + sensors seconds, estimator seconds)."""
     from campaign.case.compute import simulate_case_inputs
-    from campaign.case.plan_row import PlanRow
+    from campaign.case.inputs import PlanRow
     from dimes_velocity.estimator import estimate_velocity
 
     started = time.perf_counter()

@@ -79,7 +79,7 @@ def run() -> list[dict]:
     import cv2
 
     from campaign.case.compute import compute_case
-    from campaign.case.plan_row import PlanRow
+    from campaign.case.inputs import PlanRow
 
     cv2.setNumThreads(1)
     configs = {"nominal": _resources({})}

@@ -1,7 +1,7 @@
 """The case computation: simulate a case's three descent images and sensor measurements once, run every
 estimator of the campaign on them, and know the case's truth.
 
-A case's inputs are a :class:`~campaign.case.plan_row.PlanRow` (one row of the plan) and the campaign's
+A case's inputs are a :class:`~campaign.case.inputs.PlanRow` (one row of the plan) and the campaign's
 :class:`~campaign.case.inputs.CampaignInputs` (camera, trajectory set, terrain, calibration products,
 estimators); :func:`compute_case` turns them into a :class:`CaseComputation` (the case's truth and one
 :class:`EstimatorResult` per estimator), which :mod:`campaign.case.result_rows` turns into result rows.
@@ -30,8 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from campaign.case.error_budget import attitude_floor_mps
-from campaign.case.inputs import CampaignInputs
-from campaign.case.plan_row import PlanRow
+from campaign.case.inputs import CampaignInputs, PlanRow
 from campaign.store.result_schema import IMAGE_COUNT
 from estimators.contract import EstimatorInputs
 from estimators.plugins import EstimatorRun, run_estimator

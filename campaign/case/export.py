@@ -41,8 +41,7 @@ import pandas as pd
 import tomli_w
 
 from campaign.case.compute import case_truth, estimator_inputs, simulate_case_inputs
-from campaign.case.inputs import campaign_inputs
-from campaign.case.plan_row import PlanRow
+from campaign.case.inputs import PlanRow, campaign_inputs
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.errors import StoreError
 from campaign.store.stored_config import stored_config

@@ -1,11 +1,14 @@
-"""Everything a case needs besides its plan row, loaded once per process: :class:`CampaignInputs` (the
-site's :class:`~campaign.case.site.SiteInputs` plus calibration products, estimators and the plausibility
-bound) and :func:`campaign_inputs`, the one way a process gets them (workers, ``campaign export``, the
-report's gallery, benchmarks).
+"""A case's inputs: its plan row (:class:`PlanRow`) and what the campaign gives every case, loaded once per
+process.
 
-Big read-only inputs (camera, trajectory set, terrain strips, calibration, estimators) are kept in
-:data:`PROCESS_INPUTS` (campaigns by configuration hash; the files they share by source, in
-:data:`campaign.case.site.PROCESS_SHARED`); dask tasks carry only a small context and one plan row.
+:class:`SiteInputs` is what planning needs (the camera, the trajectory set and each class's terrain, fitted
+to the trajectory set's footprints when its spec asks): all that ``campaign plan`` and the planning step of
+``submit`` and ``sweep`` load (:func:`campaign.run.planning.plan_campaign`). :class:`CampaignInputs` adds
+what a case needs besides (calibration products, estimators, the plausibility bound); :func:`campaign_inputs`
+is the one way a process gets them (workers, ``campaign export``, the report's gallery, benchmarks). Both
+take their files through one :class:`SharedInputs` per process (:data:`PROCESS_SHARED`), so what planning
+loaded is not loaded again for the cases; campaigns are kept by configuration hash in :data:`PROCESS_INPUTS`.
+Dask tasks carry only a small context and one plan row.
 
 The flat-field calibration is drawn once per campaign from ``SeedSequence(seed, spawn_key=(FLAT_FIELD_STREAM,))``
 (a stream no case uses) and cached per process, read-only at its source; each ``[[estimators]]`` entry is
@@ -13,6 +16,7 @@ built once per process.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,18 +24,143 @@ from typing import Any
 import numpy as np
 
 from campaign.case.process_tuning import tune_once
-from campaign.case.site import PROCESS_SHARED, SharedInputs, SiteInputs
 from campaign.configuration.campaign_file import CampaignConfig
+from campaign.plan.coverage import Coverage, coverage, fit_terrain, trajectory_boxes
 from estimators.entries import EstimatorSpec
 from estimators.plugins import build_estimator
 from flight_interface.calibration import CalibrationProducts
+from flight_interface.camera import Camera, load_camera
 from simulator.calibration import simulate_flat_field, true_flat_field
+from simulator.scene.descent_profile import DescentProfile
+from simulator.scene.terrain import Terrain
+from sitedata.edl.trajectory_io import read_profiles
+from sitedata.sites import load_class_terrain
 
 FLAT_FIELD_STREAM = 0xF1A7   # spawn key of the flat-field calibration's noise stream
 #: Margin (m/s) above the trajectory set's fastest horizontal speed: a valid answer at or above the sum is
 #: ``implausible`` (no estimator can be that far off on a real descent; the reference stays within ~30 m/s
 #: of the truth by its 25 m/s bias search range).
 PLAUSIBLE_SPEED_MARGIN_MPS = 100.0
+
+
+
+@dataclass(frozen=True)
+class PlanRow:
+    """One planned case (a row of ``plan.parquet``, :mod:`campaign.plan.placement`) as the case uses it.
+
+    Attributes
+    ----------
+    case_id : int
+        ``class_index * 1_000_000 + case_in_class``.
+    class_name, terrain_name : str
+        The case's class and the terrain it is placed on.
+    case_in_class : int
+        Index of the case within its class (0: the class's example images are saved).
+    profile_index : int
+        Index of the trajectory in the campaign's trajectory set.
+    profile_name : str
+        That trajectory's name.
+    heading_rad : float
+        Rotation of the trajectory about the vertical (rad).
+    offset_east_m, offset_north_m : float
+        Offset of the trajectory on the terrain (m).
+    footprint_inside : bool
+        Every image footprint lies inside the terrain (the planner's check).
+    """
+
+    case_id: int
+    class_name: str
+    terrain_name: str
+    case_in_class: int
+    profile_index: int
+    profile_name: str
+    heading_rad: float
+    offset_east_m: float
+    offset_north_m: float
+    footprint_inside: bool
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, Any]) -> PlanRow:
+        """The typed row of a plan record (a dict of ``plan.parquet`` columns; extra columns are ignored)."""
+        return cls(case_id=int(record["case_id"]), class_name=str(record["class_name"]),
+                   terrain_name=str(record["terrain_name"]), case_in_class=int(record["case_in_class"]),
+                   profile_index=int(record["profile_index"]), profile_name=str(record["profile_name"]),
+                   heading_rad=float(record["heading_rad"]), offset_east_m=float(record["offset_east_m"]),
+                   offset_north_m=float(record["offset_north_m"]), footprint_inside=bool(record["footprint_inside"]))
+
+
+class SharedInputs:
+    """Inputs shared by every campaign (or sweep point) a process serves, loaded once per source: the
+    sweep's points differ in scene/sensor/estimator parameters, not in camera, trajectories or terrain.
+
+    Attributes
+    ----------
+    loaded : dict
+        (kind, repr(source)[, file size in bytes, mtime in ns]) -> the loaded input.
+    """
+
+    def __init__(self) -> None:
+        self.loaded: dict[tuple, Any] = {}
+
+    def get(self, kind: str, source: Any, loader: Callable[[Any], Any]) -> Any:
+        """``loader(source)``, loaded once per process per source (a path, keyed with its size and mtime so
+        a changed file is read again, or a terrain spec)."""
+        key: tuple = (kind, repr(source))
+        path = Path(source) if isinstance(source, (str, Path)) else getattr(source, "path", None)
+        if path is not None and Path(path).exists():
+            stat = Path(path).stat()
+            key += (stat.st_size, stat.st_mtime_ns)
+        if key not in self.loaded:
+            self.loaded[key] = loader(source)
+        return self.loaded[key]
+
+
+PROCESS_SHARED = SharedInputs()
+"""The inputs this process has loaded (the only instance outside tests)."""
+
+
+class SiteInputs:
+    """Camera, trajectory set and class terrains of one campaign (through the process's :class:`SharedInputs`).
+
+    Attributes
+    ----------
+    config : CampaignConfig
+        The campaign.
+    shared : SharedInputs
+        Where the files are loaded once.
+    camera : Camera
+        The site's camera.
+    profiles : list of DescentProfile
+        The site's trajectory set.
+    """
+
+    def __init__(self, config: CampaignConfig, shared: SharedInputs = PROCESS_SHARED):
+        self.config = config
+        self.shared = shared
+        self.camera: Camera = shared.get("camera", config.site.camera_path, load_camera)
+        self.profiles: list[DescentProfile] = shared.get("profiles", config.site.trajectory_path, read_profiles)
+
+    def terrain(self, class_name: str) -> Terrain:
+        """The class's terrain, fitted to the trajectory set's footprints when its spec asks (``resample``)."""
+        entry = next(entry for entry in self.config.site.classes if entry.name == class_name)
+        terrain = self.shared.get("terrain", entry.terrain, load_class_terrain)
+        if entry.terrain.resample == "none":
+            return terrain
+        source = (entry.terrain, id(terrain), str(self.config.site.camera_path), str(self.config.site.trajectory_path))
+        return self.shared.get("fitted-terrain", source,
+                               lambda _: fit_terrain(terrain, entry.terrain.resample, self.coverage(terrain)))
+
+    def coverage(self, terrain: Terrain) -> Coverage:
+        """How ``terrain`` holds this campaign's trajectory set (:func:`campaign.plan.coverage.coverage`)."""
+        key = (str(self.config.site.camera_path), str(self.config.site.trajectory_path))
+        boxes = self.shared.get("footprint-boxes", key, lambda _: trajectory_boxes(self.camera, self.profiles))
+        return coverage(terrain, self.camera, self.profiles, boxes)
+
+    def placed_profile(self, plan: PlanRow) -> DescentProfile:
+        """The case's trajectory, turned by its heading and moved by its offset (m) on the terrain."""
+        profile = self.profiles[plan.profile_index]
+        return profile.placed(plan.heading_rad, np.array([plan.offset_east_m, plan.offset_north_m]),
+                              name=f"{profile.name}@case{plan.case_id}")
 
 
 def read_only_array(array: np.ndarray) -> np.ndarray:
@@ -42,7 +171,7 @@ def read_only_array(array: np.ndarray) -> np.ndarray:
 
 class CampaignInputs(SiteInputs):
     """Camera, trajectory set, terrain, calibration products and estimators of one campaign, loaded once per
-    process (through the process's :class:`~campaign.case.site.SharedInputs`).
+    process (through the process's :class:`SharedInputs`).
 
     Attributes
     ----------
@@ -107,8 +236,8 @@ PROCESS_INPUTS = ProcessInputs()
 
 
 def campaign_inputs(config: CampaignConfig, cache: ProcessInputs = PROCESS_INPUTS) -> CampaignInputs:
-    """The campaign's inputs in this process (created on first use; the process is tuned for cases once)."""
-    tune_once()
+    """The campaign's inputs in this process (created on first use, in a process tuned for cases first)."""
     if config.config_hash not in cache.campaigns:
+        tune_once()
         cache.campaigns[config.config_hash] = CampaignInputs(config, cache.shared)
     return cache.campaigns[config.config_hash]

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from campaign.case.compute import CaseTruth, EstimatorResult
-from campaign.case.plan_row import PlanRow
+from campaign.case.inputs import PlanRow
 from campaign.store.result_schema import CASE_FILE_SCHEMA, SENSOR_PREFIX
 
 
@@ -78,7 +78,9 @@ def _listed(value: Any) -> Any:
     return list(value) if isinstance(value, tuple) else value
 
 
-def case_rows(plan: PlanRow, campaign_seed: int, run: CaseRun, estimates: Sequence[EstimatorResult],
-              truth: CaseTruth | None) -> list[ResultRow]:
-    """The result rows of one case, one per estimator (in ``estimates`` order)."""
-    return [ResultRow(plan, campaign_seed, run, estimate, truth) for estimate in estimates]
+def case_rows(plan: PlanRow, campaign_seed: int, estimates: Sequence[EstimatorResult], truth: CaseTruth | None, *,
+              attempts: int, worker: str, t_case_ms: float) -> list[dict[str, Any]]:
+    """The result rows of one case as their columns (:meth:`ResultRow.columns`), one per estimator (in
+    ``estimates`` order); ``attempts``, ``worker`` and ``t_case_ms`` say how it ran (:class:`CaseRun`)."""
+    run = CaseRun(attempts=attempts, worker=worker, t_case_ms=t_case_ms)
+    return [ResultRow(plan, campaign_seed, run, estimate, truth).columns() for estimate in estimates]

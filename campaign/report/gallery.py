@@ -37,8 +37,10 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from campaign.case.compute import case_truth, estimator_inputs, simulate_case_inputs  # noqa: E402
-from campaign.case.inputs import campaign_inputs  # noqa: E402
-from campaign.case.plan_row import PlanRow  # noqa: E402
+from campaign.case.inputs import (
+    PlanRow,  # noqa: E402
+    campaign_inputs,  # noqa: E402
+)
 from campaign.store.campaign_store import CampaignStore  # noqa: E402
 from campaign.store.stored_config import stored_config  # noqa: E402
 from dimes_velocity import geometry  # noqa: E402

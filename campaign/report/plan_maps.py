@@ -5,8 +5,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from campaign.case.plan_row import PlanRow
-from campaign.case.site import SiteInputs
+from campaign.case.inputs import PlanRow, SiteInputs
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.plan.density import footprint_density
 from campaign.report.plots import footprint_map

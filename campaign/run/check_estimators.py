@@ -31,8 +31,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from campaign.case.compute import estimator_inputs, simulate_case_inputs
-from campaign.case.inputs import campaign_inputs
-from campaign.case.plan_row import PlanRow
+from campaign.case.inputs import PlanRow, campaign_inputs
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.cluster import connected_client

@@ -1,11 +1,11 @@
 """Planning a campaign: every class's cases placed on its terrain (``campaign plan``, and the first step of
-``submit`` and ``sweep``), loading only what planning needs (:class:`campaign.case.site.SiteInputs`: the
+``submit`` and ``sweep``), loading only what planning needs (:class:`campaign.case.inputs.SiteInputs`: the
 camera, the trajectory set and the class terrains; no estimators, calibration or worker set-up)."""
 from __future__ import annotations
 
 import pandas as pd
 
-from campaign.case.site import SiteInputs
+from campaign.case.inputs import SiteInputs
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.plan.coverage import refusal, relief_margin_m
 from campaign.plan.placement import ClassPlanInput, plan_class

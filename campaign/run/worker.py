@@ -21,9 +21,8 @@ from typing import Any
 import numpy as np
 
 from campaign.case.compute import EstimatorResult, compute_case
-from campaign.case.inputs import CampaignInputs, campaign_inputs
-from campaign.case.plan_row import PlanRow
-from campaign.case.result_rows import CaseRun, case_rows
+from campaign.case.inputs import CampaignInputs, PlanRow, campaign_inputs
+from campaign.case.result_rows import case_rows
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.run.faults import InfrastructureError, describe, is_infrastructure
 from campaign.run.plugin_setup import PluginSetupError, worker_address
@@ -151,16 +150,16 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
             where = [line.strip() for line in traceback.format_exc().splitlines() if line.strip().startswith("File ")]
             error = f"{type(exc).__name__}: {exc} | {where[-1] if where else ''}"
             attempts_used = attempt
-    run = CaseRun(attempts=attempts_used, worker=worker, t_case_ms=1e3 * (time.perf_counter() - started))
+    t_case_ms = 1e3 * (time.perf_counter() - started)
     if computation is None:
-        rows = case_rows(plan, config.seed, run, [EstimatorResult.of_failed_case(name, error)
-                                                  for name in config.estimator_names], truth=None)
+        estimates, truth = tuple(EstimatorResult.of_failed_case(name, error) for name in config.estimator_names), None
     else:
-        rows = case_rows(plan, config.seed, run, computation.estimates, computation.truth)
+        estimates, truth = computation.estimates, computation.truth
+    rows = case_rows(plan, config.seed, estimates, truth, attempts=attempts_used, worker=worker, t_case_ms=t_case_ms)
     try:
         identity = StoreIdentity(context.config_hash, config.seed, tuple(config.estimator_names))
-        write_case_rows(Path(context.store_root) / "cases", plan.case_id, [row.columns() for row in rows],
-                        ok=computation is not None, identity=identity)
+        write_case_rows(Path(context.store_root) / "cases", plan.case_id, rows, ok=computation is not None,
+                        identity=identity)
     except (OSError, MemoryError) as exc:       # the failed write removed its own temporary file
         raise InfrastructureError(describe(exc, plan.case_id, "writing its result", worker, context.store_root)) from None
     return "ok" if computation is not None else "failed"

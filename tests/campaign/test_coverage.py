@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from campaign.case.compute import compute_case
-from campaign.case.inputs import campaign_inputs
-from campaign.case.plan_row import PlanRow
+from campaign.case.inputs import PlanRow, campaign_inputs
 from campaign.cli import main as campaign_main
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.plan.coverage import _mirror_pad

@@ -9,8 +9,7 @@ import pytest
 
 from campaign.case.compute import compute_case
 from campaign.case.error_budget import attitude_floor_mps
-from campaign.case.inputs import campaign_inputs
-from campaign.case.plan_row import PlanRow
+from campaign.case.inputs import PlanRow, campaign_inputs
 from campaign.configuration.campaign_file import load_campaign_config
 from campaign.run.planning import plan_campaign
 from service_campaigns import campaign_file

@@ -106,8 +106,7 @@ def test_template_marks_agree_with_the_estimators_own_image_motion(reported):
     the camera model; the estimator measures the same motion through its rectification maps: two
     independent routes to the same pixels (within a pixel of the square binned frame)."""
     from campaign.case.compute import estimator_inputs, simulate_case_inputs
-    from campaign.case.inputs import campaign_inputs
-    from campaign.case.plan_row import PlanRow
+    from campaign.case.inputs import PlanRow, campaign_inputs
     from campaign.store.campaign_store import CampaignStore
     from campaign.store.stored_config import stored_config
     from dimes_velocity.estimator import estimate_velocity
