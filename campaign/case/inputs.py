@@ -132,6 +132,8 @@ class SiteInputs:
         The site's camera.
     profiles : list of DescentProfile
         The site's trajectory set.
+    terrains : dict of Terrain
+        Class name -> the class's terrain, once :meth:`terrain` made it.
     """
 
     def __init__(self, config: CampaignConfig, shared: SharedInputs = PROCESS_SHARED):
@@ -139,9 +141,15 @@ class SiteInputs:
         self.shared = shared
         self.camera: Camera = shared.get("camera", config.site.camera_path, load_camera)
         self.profiles: list[DescentProfile] = shared.get("profiles", config.site.trajectory_path, read_profiles)
+        self.terrains: dict[str, Terrain] = {}      # by class name, as :meth:`terrain` made them
 
     def terrain(self, class_name: str) -> Terrain:
         """The class's terrain, fitted to the trajectory set's footprints when its spec asks (``resample``)."""
+        if class_name not in self.terrains:
+            self.terrains[class_name] = self._class_terrain(class_name)
+        return self.terrains[class_name]
+
+    def _class_terrain(self, class_name: str) -> Terrain:
         entry = next(entry for entry in self.config.site.classes if entry.name == class_name)
         terrain = self.shared.get("terrain", entry.terrain, load_class_terrain)
         if entry.terrain.resample == "none":
@@ -177,6 +185,8 @@ class CampaignInputs(SiteInputs):
     ----------
     built_estimators : list of (EstimatorSpec, estimator) or None
         The campaign's estimators once built in this process (:meth:`estimators`).
+    calibration_products : CalibrationProducts or None
+        The calibration products once made in this process (:meth:`calibration`).
     max_horizontal_speed_mps : float
         The plausibility bound of a valid answer (m/s): the fastest horizontal speed of any profile of the
         trajectory set, at any time, plus :data:`PLAUSIBLE_SPEED_MARGIN_MPS`.
@@ -185,12 +195,18 @@ class CampaignInputs(SiteInputs):
     def __init__(self, config: CampaignConfig, shared: SharedInputs = PROCESS_SHARED):
         super().__init__(config, shared)
         self.built_estimators: list[tuple[EstimatorSpec, Any]] | None = None   # built on first use
+        self.calibration_products: CalibrationProducts | None = None         # made on first use
         fastest = max((float(np.hypot(p.velocity_mps[:, 0], p.velocity_mps[:, 1]).max()) for p in self.profiles),
                       default=0.0)
         self.max_horizontal_speed_mps = fastest + PLAUSIBLE_SPEED_MARGIN_MPS
 
     def calibration(self) -> CalibrationProducts:
         """The campaign's calibration products (``[estimator] flat_field``), made once per process."""
+        if self.calibration_products is None:
+            self.calibration_products = self._make_calibration()
+        return self.calibration_products
+
+    def _make_calibration(self) -> CalibrationProducts:
         calibration = self.config.calibration
         if calibration.flat_field == "none":
             return CalibrationProducts(None, "none")

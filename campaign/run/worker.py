@@ -155,9 +155,10 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
         estimates, truth = tuple(EstimatorResult.of_failed_case(name, error) for name in config.estimator_names), None
     else:
         estimates, truth = computation.estimates, computation.truth
-    rows = case_rows(plan, config.seed, estimates, truth, attempts=attempts_used, worker=worker, t_case_ms=t_case_ms)
+    seed = config.seed
+    rows = case_rows(plan, seed, estimates, truth, attempts=attempts_used, worker=worker, t_case_ms=t_case_ms)
     try:
-        identity = StoreIdentity(context.config_hash, config.seed, tuple(config.estimator_names))
+        identity = StoreIdentity(context.config_hash, seed, tuple(config.estimator_names))
         write_case_rows(Path(context.store_root) / "cases", plan.case_id, rows, ok=computation is not None,
                         identity=identity)
     except (OSError, MemoryError) as exc:       # the failed write removed its own temporary file
