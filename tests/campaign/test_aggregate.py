@@ -72,7 +72,10 @@ def test_flight_metrics_table_summarises_templates_per_class():
     line = next(row for row in text.splitlines() if row.startswith("| a "))
     assert "| 10 |" in line and "1004 [1001-1008]" in line and "14.5 [10.9-18.1]" in line
     assert "0.900 [0.900-0.900]" in line                      # the failed match's 0.1 is not a correlation
-    assert "| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 0.88, 0.91, 1.00 |" in text
+    # per-template ratio (10 + k) / (1000 + k): median of 14/1004 and 15/1005, percentiles interpolated
+    assert "| 1.44 [1.09-1.80] |" in line
+    assert ("| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 1.01, 1.07, 1.18 | 0.88, 0.91, 1.00 |"
+            in text)
 
 
 def _site_row_cells(text: str, site: str) -> list[str]:
