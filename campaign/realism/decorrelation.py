@@ -1,0 +1,306 @@
+"""What decorrelates a template from its match: an ablation study on rendered descent cases (issue 30).
+
+The paper's Table 3 gives the normalised correlation of three templates tracked by the DIMES flight
+software between the first two MER-A flight images: 0.88, 0.91, 1.00 (its own MOC2DIMES simulation
+0.84-0.94, on templates of contrast/brightness ~0.3 %). This module measures, on cases rendered by the
+simulator and run through the reference estimator (its feature selection and matching, default
+parameters), the distribution of that correlation and how much each mechanism of the image chain
+moves it, one mechanism at a time.
+
+Protocol
+--------
+1. Cases: the first ``cases_per_class`` cases of every class of a site's plan (the same plan, cases
+   and seeds for every variant), rendered with the campaign's scene, sensors and calibration.
+2. Terrain: the site's synthetic classes with every contrast parameter (albedo spread, RMS slope,
+   crater rim, dust devil track, knob and ejecta albedo contrasts) multiplied by ``contrast_scale``
+   (:func:`contrast_overrides`; 1 is the site file's terrain). The MOC grain of the terrain strip
+   is left as it is (an imaging effect of the orbital source, not ground contrast).
+3. Variants (:data:`MECHANISMS`): the reference variant ("all on") is the campaign's nominal image
+   chain; each ablation switches one mechanism off (or, for relief and atmosphere, which are off in
+   the nominal Gusev campaign, on) through the campaign file's own tables (``[scene]``,
+   ``[scene.effects]``, ``[scene.camera_effects]``, ``[sensors]``, ``[scene.atmosphere]``, the class's
+   ``relief``), or holds the lander's attitude at its first-image value (no rotation between frames).
+4. Metric: the correlation the estimator reports for each tracked template (normalised correlation
+   at the refined sub-pixel peak, :mod:`dimes_velocity.matching`), summarised as median [10-90 %]
+   (a) over every tracked template ("all": what the flight software reports for each template it
+   tracked, whatever its checks said) and (b) over those whose match passed every check ("ok"),
+   for the first pair (the images of Table 3) and both pairs.
+5. Closed form: with template signal variance ``S`` and pixel noise variances ``n_A^2``, ``n_B^2``,
+   two noisy copies of one template correlate at ``rho = S / sqrt((S + n_A^2) (S + n_B^2))``
+   (:func:`noise_correlation`); the estimator's per-match noise decorrelation
+   ``e = (n_A^2 / S_A + n_B^2 / S_B) / 2`` gives ``rho ~ 1 / (1 + e)``, reported beside the measured value.
+
+Run ``python -m campaign.realism.decorrelation --help``.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+#: Table 3 of the paper, correlation of the three templates (features 00, 01, 10) of the first pair.
+FLIGHT_CORRELATION = (0.88, 0.91, 1.00)
+PAPER_SIMULATION_CORRELATION = (0.87, 0.84, 0.94)
+
+#: Contrast fields of :class:`sitedata.terrain.synthetic_classes.ClassTerrainParams` scaled by ``contrast_scale``.
+CONTRAST_FIELDS = ("albedo_relative_spread", "rms_slope_deg", "crater_rim_albedo_contrast", "track_albedo_contrast",
+                   "knob_albedo_contrast", "ejecta_ray_albedo_contrast", "ejecta_blanket_albedo_contrast")
+
+
+def noise_correlation(signal_variance, noise_variance_a, noise_variance_b=None):
+    """Correlation coefficient of two copies of one signal with independent additive noise.
+
+    ``rho = S / sqrt((S + n_A^2) (S + n_B^2))``; with equal noise ``S / (S + n^2)``.
+
+    Parameters
+    ----------
+    signal_variance : float or ndarray
+        Variance ``S`` of the noise-free template (DN^2).
+    noise_variance_a, noise_variance_b : float or ndarray
+        Pixel noise variances of the two images (DN^2); ``b`` defaults to ``a``.
+    """
+    signal = np.asarray(signal_variance, dtype=float)
+    noise_a = np.asarray(noise_variance_a, dtype=float)
+    noise_b = noise_a if noise_variance_b is None else np.asarray(noise_variance_b, dtype=float)
+    return signal / np.sqrt((signal + noise_a) * (signal + noise_b))
+
+
+@dataclass(frozen=True)
+class Mechanism:
+    """One variant of the image chain.
+
+    Attributes
+    ----------
+    name : str
+        Short label of the table.
+    change : str
+        What the variant changes against the reference ("all on").
+    patch : dict
+        Deep-merged into the campaign file's parsed TOML (e.g. ``{"scene": {"effects": {...}}}``).
+    class_terrain : dict
+        Merged into every class's ``terrain`` table (e.g. ``{"relief": True}``).
+    steady_attitude : bool
+        Hold every trajectory's attitude at its first-image value, angular rates zero (no rotation
+        between or during the frames).
+    """
+
+    name: str
+    change: str
+    patch: dict = field(default_factory=dict)
+    class_terrain: dict = field(default_factory=dict)
+    steady_attitude: bool = False
+
+
+REFERENCE = Mechanism("all on", "the nominal image chain of the campaign file")
+NOISE_OFF = Mechanism("photon + read noise off", "camera shot (photon, dark) and read noise off",
+                      {"scene": {"camera_effects": {"shot_noise": False, "read_noise": False}}})
+SENSORS_EXACT = Mechanism("attitude/altitude exact", "every sensor exact: rectification with the true attitude "
+                          "and altitude ([sensors] perfect)", {"sensors": {"perfect": True}})
+NO_ROTATION = Mechanism("no rotation", "attitude held at image 1's, no angular rate (no rotation between "
+                        "or during frames)", steady_attitude=True)
+BLUR_OFF = Mechanism("motion blur off", "one pose per CCD period ([scene.effects] motion_blur)",
+                     {"scene": {"effects": {"motion_blur": False}}})
+PSF_OFF = Mechanism("optics PSF off", "no optics point-spread function", {"scene": {"camera_effects": {"optics_psf": False}}})
+PHOTOMETRY_OFF = Mechanism("photometry off", "no DIMES/MOC photometric ratio (phase-angle change, opposition "
+                           "halo)", {"scene": {"effects": {"photometric_correction": False}}})
+RELIEF_ON = Mechanism("relief on", "terrain height field rendered: parallax, occlusion, slope shading at each "
+                      "view, cast shadows", class_terrain={"relief": True})
+ATMOSPHERE_ON = Mechanism("atmosphere on (tau 0.5)", "dust column tau = 0.5: MOC haze removed, descent path "
+                          "light and attenuation added", {"scene": {"atmosphere": {"orbital_optical_depth": 0.5}}})
+ALL_OFF = Mechanism("resampling only", "noise off, sensors exact, no rotation, no blur, no PSF: what remains is "
+                    "the scale change and resampling between altitudes",
+                    {"scene": {"camera_effects": {"shot_noise": False, "read_noise": False, "optics_psf": False},
+                               "effects": {"motion_blur": False}},
+                     "sensors": {"perfect": True}}, steady_attitude=True)
+
+MECHANISMS: dict[str, Mechanism] = {m.name: m for m in (
+    REFERENCE, NOISE_OFF, SENSORS_EXACT, NO_ROTATION, BLUR_OFF, PSF_OFF, PHOTOMETRY_OFF, RELIEF_ON, ATMOSPHERE_ON,
+    ALL_OFF)}
+
+
+def contrast_overrides(preset: str, scale: float) -> dict[str, float]:
+    """The ``overrides`` of a synthetic class that multiply its contrast fields (:data:`CONTRAST_FIELDS`)
+    by ``scale`` (fields that are 0 in the preset stay 0)."""
+    from sitedata.terrain.synthetic_classes import CLASS_PRESETS
+
+    params = CLASS_PRESETS[preset]
+    return {name: float(getattr(params, name)) * scale for name in CONTRAST_FIELDS if getattr(params, name) != 0.0}
+
+
+def _merge(base: dict, patch: dict) -> dict:
+    """``base`` deep-merged with ``patch`` (a new dict; tables merged, values replaced)."""
+    merged = copy.deepcopy(base)
+    for key, value in patch.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def variant_data(data: dict, mechanism: Mechanism, contrast_scale: float) -> dict:
+    """The campaign file's parsed TOML ``data`` changed for ``mechanism`` on terrain at ``contrast_scale``."""
+    changed = _merge(data, mechanism.patch)
+    for entry in changed.get("site", {}).get("classes", []):
+        terrain = entry.get("terrain", {})
+        if terrain.get("kind") == "synthetic":
+            if contrast_scale != 1.0:
+                overrides = dict(terrain.get("overrides", {}))
+                overrides.update(contrast_overrides(terrain["preset"], contrast_scale))
+                terrain["overrides"] = overrides
+            terrain.update(mechanism.class_terrain)
+    return changed
+
+
+def steady_profile(profile):
+    """``profile`` with its attitude held at the first image's and no angular rate."""
+    from simulator.scene.descent_profile import DescentProfile
+
+    attitude = np.asarray(profile.pose(float(profile.image_times_s[0])).attitude_quat, dtype=float)
+    values = {f.name: getattr(profile, f.name) for f in dataclasses.fields(DescentProfile)}
+    values["attitude_quat"] = np.repeat(attitude[None, :], len(profile.time_s), axis=0)
+    values["angular_rate_radps"] = np.zeros_like(np.asarray(profile.angular_rate_radps, dtype=float))
+    return DescentProfile(**values)
+
+
+def case_features(resources, plan_row, estimator) -> list[dict[str, Any]]:
+    """Render one case and run the reference estimator on it: one record per tracked template."""
+    from campaign.run.case import simulate_case_inputs
+
+    inputs = simulate_case_inputs(resources, plan_row)
+    estimate = estimator.estimate([image.dn for image in inputs.images], inputs.measurements)
+    return [dict(case_id=plan_row.case_id, class_name=plan_row.class_name, pair=f.pair, status=f.status,
+                 correlation=f.correlation, brightness_dn=f.brightness_dn, contrast_dn=f.contrast_dn,
+                 contrast_to_noise=f.contrast_to_noise, noise_decorrelation=f.noise_decorrelation,
+                 valid=estimate.valid, reason=estimate.reason)
+            for f in estimate.features]
+
+
+def run_mechanism(site_file: Path, mechanism: Mechanism, contrast_scale: float, plan: pd.DataFrame,
+                  output_dir: Path) -> pd.DataFrame:
+    """Every tracked template of the cases of ``plan`` under ``mechanism`` (one row each)."""
+    from campaign.configuration.campaign_file import campaign_config_from_data
+    from campaign.run.case import CampaignInputs, PlanRow, SharedInputs
+    from dimes_velocity.estimator import DimesEstimator
+    from flight_interface.tomlfields import load_toml
+
+    data = variant_data(load_toml(site_file), mechanism, contrast_scale)
+    config = campaign_config_from_data(data, site_file, output_dir=output_dir)
+    resources = CampaignInputs(config, SharedInputs())
+    if mechanism.steady_attitude:
+        resources.profiles = [steady_profile(profile) for profile in resources.profiles]
+    estimator = DimesEstimator(resources.camera, config.estimator, resources.calibration().flat_field)
+    rows: list[dict[str, Any]] = []
+    for record in plan.to_dict("records"):
+        rows.extend(case_features(resources, PlanRow.from_record(record), estimator))
+    frame = pd.DataFrame(rows)
+    frame.insert(0, "mechanism", mechanism.name)
+    return frame
+
+
+def first_cases(site_file: Path, cases_per_class: int, contrast_scale: float, output_dir: Path) -> pd.DataFrame:
+    """The first ``cases_per_class`` cases of every class of the site's plan (terrain at ``contrast_scale``)."""
+    from campaign.configuration.campaign_file import campaign_config_from_data
+    from campaign.run.orchestrate import plan_campaign
+    from flight_interface.tomlfields import load_toml
+
+    config = campaign_config_from_data(variant_data(load_toml(site_file), REFERENCE, contrast_scale), site_file,
+                                       output_dir=output_dir)
+    _, plan = plan_campaign(config)
+    return plan[plan["case_in_class"] < cases_per_class].reset_index(drop=True)
+
+
+def _percentiles(values: np.ndarray) -> tuple[float, float, float]:
+    if values.size == 0:
+        return (float("nan"),) * 3
+    p10, p50, p90 = np.percentile(values, [10, 50, 90])
+    return float(p50), float(p10), float(p90)
+
+
+def summarise(features: pd.DataFrame, reference: str = REFERENCE.name) -> pd.DataFrame:
+    """Per mechanism: median and 10-90 % of the correlation (every tracked template, and matches that
+    passed every check), of the first pair alone, the closed-form noise correlation ``1 / (1 + e)`` of
+    the "ok" matches, contrast/brightness, and the change of the median against ``reference``."""
+    rows = []
+    for name, group in features.groupby("mechanism", sort=False):
+        ok = group[group["status"] == "ok"]
+        first = group[group["pair"] == 0]
+        every = _percentiles(group["correlation"].to_numpy(float))
+        passed = _percentiles(ok["correlation"].to_numpy(float))
+        noise = 1.0 / (1.0 + ok["noise_decorrelation"].to_numpy(float))
+        rows.append(dict(
+            mechanism=name, templates=len(group), ok=len(ok),
+            median_all=every[0], p10_all=every[1], p90_all=every[2],
+            median_ok=passed[0], p10_ok=passed[1], p90_ok=passed[2],
+            median_first_pair=_percentiles(first["correlation"].to_numpy(float))[0],
+            median_noise_closed_form=_percentiles(noise)[0],
+            contrast_percent=100.0 * float(np.median(group["contrast_dn"] / group["brightness_dn"])),
+            valid_percent=100.0 * float(group.drop_duplicates("case_id")["valid"].mean())))
+    table = pd.DataFrame(rows)
+    if reference in set(table["mechanism"]):
+        base = table.loc[table["mechanism"] == reference].iloc[0]
+        table["change_all"] = table["median_all"] - base["median_all"]
+        table["change_ok"] = table["median_ok"] - base["median_ok"]
+    return table
+
+
+def markdown(table: pd.DataFrame, changes: dict[str, str]) -> str:
+    """The ablation table as markdown (median [10-90 %], change of the median against "all on")."""
+    lines = ["| mechanism | change | templates (ok) | contrast/brightness | correlation, every tracked template "
+             "| change | correlation, ok matches | pair 1 median | noise closed form (ok) | % valid |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in table.itertuples():
+        lines.append(
+            f"| {row.mechanism} | {changes.get(row.mechanism, '')} | {row.templates} ({row.ok}) | "
+            f"{row.contrast_percent:.2f} % | {row.median_all:.3f} [{row.p10_all:.3f}-{row.p90_all:.3f}] | "
+            f"{getattr(row, 'change_all', float('nan')):+.3f} | {row.median_ok:.3f} [{row.p10_ok:.3f}-{row.p90_ok:.3f}] | "
+            f"{row.median_first_pair:.3f} | {row.median_noise_closed_form:.3f} | {row.valid_percent:.0f} % |")
+    lines.append(f"| MER-A flight (paper Table 3, pair 1) | | 3 | 1.01-1.18 % | "
+                 f"{', '.join(f'{v:.2f}' for v in FLIGHT_CORRELATION)} | | | | | |")
+    lines.append(f"| MOC2DIMES (paper Table 3, pair 1) | | 3 | 0.26-0.42 % | "
+                 f"{', '.join(f'{v:.2f}' for v in PAPER_SIMULATION_CORRELATION)} | | | | | |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m campaign.realism.decorrelation", description=__doc__.split("\n")[0])
+    parser.add_argument("site_file", nargs="?", default="sitedata/gusev.toml", type=Path,
+                        help="campaign/site file (default sitedata/gusev.toml)")
+    parser.add_argument("--cases-per-class", type=int, default=8, help="first N cases of each class (default 8)")
+    parser.add_argument("--contrast-scale", type=float, default=1.0,
+                        help="multiply every contrast parameter of the synthetic classes (default 1: the file's terrain)")
+    parser.add_argument("--mechanisms", default=",".join(MECHANISMS),
+                        help=f"comma-separated variants (default all: {', '.join(MECHANISMS)})")
+    parser.add_argument("--features", type=Path, help="write every tracked template's row to this parquet file")
+    parser.add_argument("--scratch", type=Path, default=Path("/tmp/decorrelation"),
+                        help="output directory given to the campaign configuration (nothing is written there)")
+    args = parser.parse_args(argv)
+    names = [name.strip() for name in args.mechanisms.split(",") if name.strip()]
+    unknown = [name for name in names if name not in MECHANISMS]
+    if unknown:
+        parser.error(f"unknown mechanism(s) {unknown}; allowed: {', '.join(MECHANISMS)}")
+    plan = first_cases(args.site_file, args.cases_per_class, args.contrast_scale, args.scratch)
+    print(f"{args.site_file}: {len(plan)} cases ({args.cases_per_class} per class), contrast scale "
+          f"{args.contrast_scale:g}", file=sys.stderr)
+    frames = []
+    for name in names:
+        started = time.perf_counter()
+        frames.append(run_mechanism(args.site_file, MECHANISMS[name], args.contrast_scale, plan, args.scratch))
+        print(f"  {name}: {len(frames[-1])} templates, {time.perf_counter() - started:.0f} s", file=sys.stderr)
+    features = pd.concat(frames, ignore_index=True)
+    if args.features is not None:
+        features.to_parquet(args.features)
+    print(markdown(summarise(features), {name: MECHANISMS[name].change for name in names}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
