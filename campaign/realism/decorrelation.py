@@ -11,10 +11,10 @@ Protocol
 --------
 1. Cases: the first ``cases_per_class`` cases of every class of a site's plan (the same plan, cases
    and seeds for every variant), rendered with the campaign's scene, sensors and calibration.
-2. Terrain: the site's synthetic classes with every contrast parameter (albedo spread, RMS slope,
-   crater rim, dust devil track, knob and ejecta albedo contrasts) multiplied by ``contrast_scale``
-   (:func:`contrast_overrides`; 1 is the site file's terrain). The MOC grain of the terrain strip
-   is left as it is (an imaging effect of the orbital source, not ground contrast).
+2. Terrain: the site file's classes (``sitedata/gusev.toml``: anchored to MER-A flight's template
+   contrast/brightness, ~1.1 %; ``sitedata/examples/gusev_rough_moc.toml``: the rough MOC ground, ~3 %),
+   optionally every synthetic class's contrast multiplied by ``--contrast-scale`` (``[site]
+   terrain_contrast_scale``).
 3. Variants (:data:`MECHANISMS`): the reference variant ("all on") is the campaign's nominal image
    chain; each ablation switches one mechanism off (or, for relief and atmosphere, which are off in
    the nominal Gusev campaign, on) through the campaign file's own tables (``[scene]``,
@@ -49,11 +49,6 @@ import pandas as pd
 #: Table 3 of the paper, correlation of the three templates (features 00, 01, 10) of the first pair.
 FLIGHT_CORRELATION = (0.88, 0.91, 1.00)
 PAPER_SIMULATION_CORRELATION = (0.87, 0.84, 0.94)
-
-#: Contrast fields of :class:`sitedata.terrain.synthetic_classes.ClassTerrainParams` scaled by ``contrast_scale``.
-CONTRAST_FIELDS = ("albedo_relative_spread", "rms_slope_deg", "crater_rim_albedo_contrast", "track_albedo_contrast",
-                   "knob_albedo_contrast", "ejecta_ray_albedo_contrast", "ejecta_blanket_albedo_contrast")
-
 
 def noise_correlation(signal_variance, noise_variance_a, noise_variance_b=None):
     """Correlation coefficient of two copies of one signal with independent additive noise.
@@ -121,18 +116,16 @@ ALL_OFF = Mechanism("resampling only", "noise off, sensors exact, no rotation, n
                                "effects": {"motion_blur": False}},
                      "sensors": {"perfect": True}}, steady_attitude=True)
 
+NO_EQUALISATION = Mechanism("estimator: no resolution equalisation", "the estimator does not blur the lower "
+                            "images to the highest one's resolution before rectifying (metric protocol, not physics)",
+                            {"estimator": {"equalize_resolution": False}})
+NO_REFINEMENT = Mechanism("estimator: biquadratic peak", "correlation read from the biquadratic fit of the 3 x 3 "
+                          "correlation values, no Lucas-Kanade refinement (metric protocol, not physics)",
+                          {"estimator": {"subpixel_iterations": 0}})
+
 MECHANISMS: dict[str, Mechanism] = {m.name: m for m in (
     REFERENCE, NOISE_OFF, SENSORS_EXACT, NO_ROTATION, BLUR_OFF, PSF_OFF, PHOTOMETRY_OFF, RELIEF_ON, ATMOSPHERE_ON,
-    ALL_OFF)}
-
-
-def contrast_overrides(preset: str, scale: float) -> dict[str, float]:
-    """The ``overrides`` of a synthetic class that multiply its contrast fields (:data:`CONTRAST_FIELDS`)
-    by ``scale`` (fields that are 0 in the preset stay 0)."""
-    from sitedata.terrain.synthetic_classes import CLASS_PRESETS
-
-    params = CLASS_PRESETS[preset]
-    return {name: float(getattr(params, name)) * scale for name in CONTRAST_FIELDS if getattr(params, name) != 0.0}
+    ALL_OFF, NO_EQUALISATION, NO_REFINEMENT)}
 
 
 def _merge(base: dict, patch: dict) -> dict:
@@ -146,16 +139,16 @@ def _merge(base: dict, patch: dict) -> dict:
     return merged
 
 
-def variant_data(data: dict, mechanism: Mechanism, contrast_scale: float) -> dict:
-    """The campaign file's parsed TOML ``data`` changed for ``mechanism`` on terrain at ``contrast_scale``."""
+def variant_data(data: dict, mechanism: Mechanism, contrast_scale: float = 1.0) -> dict:
+    """The campaign file's parsed TOML ``data`` changed for ``mechanism``, its synthetic terrain's contrast
+    multiplied by ``contrast_scale`` (``[site] terrain_contrast_scale``, times any the file gives)."""
     changed = _merge(data, mechanism.patch)
-    for entry in changed.get("site", {}).get("classes", []):
+    site = changed.setdefault("site", {})
+    if contrast_scale != 1.0:
+        site["terrain_contrast_scale"] = float(site.get("terrain_contrast_scale", 1.0)) * contrast_scale
+    for entry in site.get("classes", []):
         terrain = entry.get("terrain", {})
         if terrain.get("kind") == "synthetic":
-            if contrast_scale != 1.0:
-                overrides = dict(terrain.get("overrides", {}))
-                overrides.update(contrast_overrides(terrain["preset"], contrast_scale))
-                terrain["overrides"] = overrides
             terrain.update(mechanism.class_terrain)
     return changed
 
@@ -171,17 +164,81 @@ def steady_profile(profile):
     return DescentProfile(**values)
 
 
+def _recording_estimator(camera, config, flat_field):
+    """A :class:`~dimes_velocity.estimator.DimesEstimator` that keeps each pair's rectified images
+    (``pairs_seen[k] = (A, B)``) for the noise measurement of :func:`case_features`."""
+    from dimes_velocity.estimator import DimesEstimator
+
+    class RecordingEstimator(DimesEstimator):
+        def __init__(self, *args):
+            super().__init__(*args)
+            self.pairs_seen: dict[int, tuple] = {}
+
+        def _pair(self, index, a, b, dt_s, unusable_reason="bad_attitude"):
+            self.pairs_seen[index] = (a, b)
+            return super()._pair(index, a, b, dt_s, unusable_reason)
+
+    return RecordingEstimator(camera, config, flat_field)
+
+
+def _clean_rectified(estimator, rectified, clean_dn: np.ndarray):
+    """The noise-free image ``clean_dn`` (expected DN) flattened and rectified exactly as ``rectified``
+    (same map, same resolution-equalising blur)."""
+    from dimes_velocity.estimator import MAX_BLUR_PX, RectifiedImage
+    from dimes_velocity.preprocess import flatten
+
+    config = estimator.config
+    ratio = rectified.rectification.sample_m * estimator.focal_px / rectified.pose.centre_m[2]
+    blur = config.resolution_blur * np.sqrt(max(ratio * ratio - 1.0, 0.0)) if config.equalize_resolution else 0.0
+    flat = flatten(clean_dn, estimator.flattening, config)
+    return RectifiedImage(flat, rectified.rectification, rectified.pose, config, min(blur, MAX_BLUR_PX))
+
+
+def _template_noise(noisy: np.ndarray, clean: np.ndarray, column: int, row: int, half: int) -> tuple[float, float]:
+    """(signal variance, noise variance) of the template at (column, row): variance of the noise-free
+    rectified template and of noisy minus noise-free (DN^2); NaN when the template leaves the image."""
+    if row - half < 0 or column - half < 0 or row + half >= noisy.shape[0] or column + half >= noisy.shape[1]:
+        return float("nan"), float("nan")
+    window = (slice(row - half, row + half + 1), slice(column - half, column + half + 1))
+    signal = clean[window].astype(np.float64)
+    return float(signal.var()), float((noisy[window].astype(np.float64) - signal).var())
+
+
 def case_features(resources, plan_row, estimator) -> list[dict[str, Any]]:
-    """Render one case and run the reference estimator on it: one record per tracked template."""
+    """Render one case and run the reference estimator on it: one record per tracked template.
+
+    For every match that passed every check, the template and its match are also cut from the noise-free
+    images (the camera's expected DN, flattened and rectified the same way), giving the signal variance
+    ``S`` and the noise variance ``n^2`` each really has after rectification, hence the closed-form noise
+    correlation ``S_A^(1/2) S_B^(1/2) / ((S_A + n_A^2)(S_B + n_B^2))^(1/2)`` (``noise_factor``; NaN otherwise).
+    ``noise_decorrelation`` is the estimator's own prediction of ``1 - correlation`` from its pixel noise
+    model (raw binned pixels, before rectification)."""
     from campaign.run.case import simulate_case_inputs
 
     inputs = simulate_case_inputs(resources, plan_row)
+    estimator.pairs_seen = {}
     estimate = estimator.estimate([image.dn for image in inputs.images], inputs.measurements)
-    return [dict(case_id=plan_row.case_id, class_name=plan_row.class_name, pair=f.pair, status=f.status,
-                 correlation=f.correlation, brightness_dn=f.brightness_dn, contrast_dn=f.contrast_dn,
-                 contrast_to_noise=f.contrast_to_noise, noise_decorrelation=f.noise_decorrelation,
-                 valid=estimate.valid, reason=estimate.reason)
-            for f in estimate.features]
+    half = estimator.config.template_size_px // 2
+    clean: dict[tuple[int, int], Any] = {}
+    records = []
+    for f in estimate.features:
+        factor = float("nan")
+        if f.status == "ok" and f.pair in estimator.pairs_seen:
+            a, b = estimator.pairs_seen[f.pair]
+            for k, image in ((f.pair, a), (f.pair + 1, b)):
+                if (f.pair, k) not in clean:
+                    clean[(f.pair, k)] = _clean_rectified(estimator, image, inputs.images[k].image.expected_dn)
+            match = b.rectification.pixel_of(np.array([f.east_m + f.displacement_east_m,
+                                                       f.north_m + f.displacement_north_m]))
+            signal_a, noise_a = _template_noise(a.image, clean[(f.pair, f.pair)].image, f.column_px, f.row_px, half)
+            signal_b, noise_b = _template_noise(b.image, clean[(f.pair, f.pair + 1)].image,
+                                                int(round(float(match[0]))), int(round(float(match[1]))), half)
+            factor = float(np.sqrt(signal_a / (signal_a + noise_a) * signal_b / (signal_b + noise_b)))
+        records.append(dict(case_id=plan_row.case_id, class_name=plan_row.class_name, pair=f.pair, status=f.status,
+                            correlation=f.correlation, brightness_dn=f.brightness_dn, contrast_dn=f.contrast_dn,
+                            contrast_to_noise=f.contrast_to_noise, noise_decorrelation=f.noise_decorrelation,
+                            noise_factor=factor, valid=estimate.valid, reason=estimate.reason))
+    return records
 
 
 def run_mechanism(site_file: Path, mechanism: Mechanism, contrast_scale: float, plan: pd.DataFrame,
@@ -189,7 +246,6 @@ def run_mechanism(site_file: Path, mechanism: Mechanism, contrast_scale: float, 
     """Every tracked template of the cases of ``plan`` under ``mechanism`` (one row each)."""
     from campaign.configuration.campaign_file import campaign_config_from_data
     from campaign.run.case import CampaignInputs, PlanRow, SharedInputs
-    from dimes_velocity.estimator import DimesEstimator
     from flight_interface.tomlfields import load_toml
 
     data = variant_data(load_toml(site_file), mechanism, contrast_scale)
@@ -197,7 +253,7 @@ def run_mechanism(site_file: Path, mechanism: Mechanism, contrast_scale: float, 
     resources = CampaignInputs(config, SharedInputs())
     if mechanism.steady_attitude:
         resources.profiles = [steady_profile(profile) for profile in resources.profiles]
-    estimator = DimesEstimator(resources.camera, config.estimator, resources.calibration().flat_field)
+    estimator = _recording_estimator(resources.camera, config.estimator, resources.calibration().flat_field)
     rows: list[dict[str, Any]] = []
     for record in plan.to_dict("records"):
         rows.extend(case_features(resources, PlanRow.from_record(record), estimator))
@@ -206,8 +262,10 @@ def run_mechanism(site_file: Path, mechanism: Mechanism, contrast_scale: float, 
     return frame
 
 
-def first_cases(site_file: Path, cases_per_class: int, contrast_scale: float, output_dir: Path) -> pd.DataFrame:
-    """The first ``cases_per_class`` cases of every class of the site's plan (terrain at ``contrast_scale``)."""
+def first_cases(site_file: Path, cases_per_class: int, contrast_scale: float, output_dir: Path,
+                classes: list[str] | None = None) -> pd.DataFrame:
+    """The first ``cases_per_class`` cases of every class (or of ``classes``) of the site's plan (terrain at
+    ``contrast_scale``)."""
     from campaign.configuration.campaign_file import campaign_config_from_data
     from campaign.run.orchestrate import plan_campaign
     from flight_interface.tomlfields import load_toml
@@ -215,7 +273,10 @@ def first_cases(site_file: Path, cases_per_class: int, contrast_scale: float, ou
     config = campaign_config_from_data(variant_data(load_toml(site_file), REFERENCE, contrast_scale), site_file,
                                        output_dir=output_dir)
     _, plan = plan_campaign(config)
-    return plan[plan["case_in_class"] < cases_per_class].reset_index(drop=True)
+    chosen = plan["case_in_class"] < cases_per_class
+    if classes:
+        chosen &= plan["class_name"].isin(classes)
+    return plan[chosen].reset_index(drop=True)
 
 
 def _percentiles(values: np.ndarray) -> tuple[float, float, float]:
@@ -236,12 +297,14 @@ def summarise(features: pd.DataFrame, reference: str = REFERENCE.name) -> pd.Dat
         every = _percentiles(group["correlation"].to_numpy(float))
         passed = _percentiles(ok["correlation"].to_numpy(float))
         noise = 1.0 / (1.0 + ok["noise_decorrelation"].to_numpy(float))
+        factor = ok["noise_factor"].to_numpy(float)
         rows.append(dict(
             mechanism=name, templates=len(group), ok=len(ok),
             median_all=every[0], p10_all=every[1], p90_all=every[2],
             median_ok=passed[0], p10_ok=passed[1], p90_ok=passed[2],
             median_first_pair=_percentiles(first["correlation"].to_numpy(float))[0],
-            median_noise_closed_form=_percentiles(noise)[0],
+            median_noise_closed_form=_percentiles(factor[np.isfinite(factor)])[0],
+            median_noise_pixel_model=_percentiles(noise)[0],
             contrast_percent=100.0 * float(np.median(group["contrast_dn"] / group["brightness_dn"])),
             valid_percent=100.0 * float(group.drop_duplicates("case_id")["valid"].mean())))
     table = pd.DataFrame(rows)
@@ -255,14 +318,15 @@ def summarise(features: pd.DataFrame, reference: str = REFERENCE.name) -> pd.Dat
 def markdown(table: pd.DataFrame, changes: dict[str, str]) -> str:
     """The ablation table as markdown (median [10-90 %], change of the median against "all on")."""
     lines = ["| mechanism | change | templates (ok) | contrast/brightness | correlation, every tracked template "
-             "| change | correlation, ok matches | pair 1 median | noise closed form (ok) | % valid |",
+             "| change | correlation, ok matches | pair 1 median | noise closed form, rectified (raw pixels) | % valid |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for row in table.itertuples():
         lines.append(
             f"| {row.mechanism} | {changes.get(row.mechanism, '')} | {row.templates} ({row.ok}) | "
             f"{row.contrast_percent:.2f} % | {row.median_all:.3f} [{row.p10_all:.3f}-{row.p90_all:.3f}] | "
             f"{getattr(row, 'change_all', float('nan')):+.3f} | {row.median_ok:.3f} [{row.p10_ok:.3f}-{row.p90_ok:.3f}] | "
-            f"{row.median_first_pair:.3f} | {row.median_noise_closed_form:.3f} | {row.valid_percent:.0f} % |")
+            f"{row.median_first_pair:.3f} | {row.median_noise_closed_form:.3f} ({row.median_noise_pixel_model:.3f}) | "
+            f"{row.valid_percent:.0f} % |")
     lines.append(f"| MER-A flight (paper Table 3, pair 1) | | 3 | 1.01-1.18 % | "
                  f"{', '.join(f'{v:.2f}' for v in FLIGHT_CORRELATION)} | | | | | |")
     lines.append(f"| MOC2DIMES (paper Table 3, pair 1) | | 3 | 0.26-0.42 % | "
@@ -276,9 +340,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="campaign/site file (default sitedata/gusev.toml)")
     parser.add_argument("--cases-per-class", type=int, default=8, help="first N cases of each class (default 8)")
     parser.add_argument("--contrast-scale", type=float, default=1.0,
-                        help="multiply every contrast parameter of the synthetic classes (default 1: the file's terrain)")
+                        help="[site] terrain_contrast_scale: multiplies every synthetic class's contrast (default 1: the file's terrain)")
     parser.add_argument("--mechanisms", default=",".join(MECHANISMS),
                         help=f"comma-separated variants (default all: {', '.join(MECHANISMS)})")
+    parser.add_argument("--classes", help="comma-separated classes (default every class of the site)")
     parser.add_argument("--features", type=Path, help="write every tracked template's row to this parquet file")
     parser.add_argument("--scratch", type=Path, default=Path("/tmp/decorrelation"),
                         help="output directory given to the campaign configuration (nothing is written there)")
@@ -287,7 +352,8 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [name for name in names if name not in MECHANISMS]
     if unknown:
         parser.error(f"unknown mechanism(s) {unknown}; allowed: {', '.join(MECHANISMS)}")
-    plan = first_cases(args.site_file, args.cases_per_class, args.contrast_scale, args.scratch)
+    classes = [name.strip() for name in args.classes.split(",")] if args.classes else None
+    plan = first_cases(args.site_file, args.cases_per_class, args.contrast_scale, args.scratch, classes)
     print(f"{args.site_file}: {len(plan)} cases ({args.cases_per_class} per class), contrast scale "
           f"{args.contrast_scale:g}", file=sys.stderr)
     frames = []

@@ -12,7 +12,6 @@ from campaign.realism.decorrelation import (
     MECHANISMS,
     NO_ROTATION,
     RELIEF_ON,
-    contrast_overrides,
     noise_correlation,
     steady_profile,
     variant_data,
@@ -20,7 +19,6 @@ from campaign.realism.decorrelation import (
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.matching import match_template
 from flight_interface.tomlfields import load_toml
-from sitedata.terrain.synthetic_classes import CLASS_PRESETS
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIFT = (7, -5)                 # (column, row) of B against A, whole pixels: no resampling
@@ -75,25 +73,16 @@ def test_closed_form_values():
     assert noise_correlation(1.0, 0.0, 3.0) == pytest.approx(0.5)
 
 
-def test_contrast_overrides_scale_every_nonzero_contrast_field():
-    overrides = contrast_overrides("gdcp", 0.25)
-    gdcp = CLASS_PRESETS["gdcp"]
-    assert overrides["albedo_relative_spread"] == pytest.approx(0.25 * gdcp.albedo_relative_spread)
-    assert overrides["track_albedo_contrast"] == pytest.approx(0.25 * gdcp.track_albedo_contrast)
-    assert "ejecta_ray_albedo_contrast" not in overrides          # 0 in the preset: left alone
-
-
 def test_variants_change_only_their_mechanism():
     data = load_toml(ROOT / "sitedata" / "gusev.toml")
     noise_off = variant_data(data, MECHANISMS["photon + read noise off"], 1.0)
     assert noise_off["scene"]["camera_effects"] == {"shot_noise": False, "read_noise": False}
     assert noise_off["site"] == data["site"] and "scene" not in data          # the input is not changed
     relief = variant_data(data, RELIEF_ON, 0.5)
+    assert relief["site"]["terrain_contrast_scale"] == pytest.approx(0.5)
     for entry, original in zip(relief["site"]["classes"], data["site"]["classes"]):
         assert entry["terrain"]["relief"] is True
-        assert entry["terrain"]["overrides"]["rms_slope_deg"] == pytest.approx(
-            0.5 * CLASS_PRESETS[original["terrain"]["preset"]].rms_slope_deg)
-        assert "overrides" not in original["terrain"]
+        assert "relief" not in original["terrain"]
     assert NO_ROTATION.steady_attitude
 
 
