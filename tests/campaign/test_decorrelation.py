@@ -97,3 +97,27 @@ def test_steady_profile_holds_the_first_attitude():
         assert np.allclose(pose.attitude_quat, first)
         assert np.allclose(pose.angular_rate_radps, 0.0)
         assert np.allclose(pose.position_m, profile.pose(float(time_s)).position_m)
+
+
+def test_whole_pixel_peak_loses_the_texture_autocorrelation_at_the_offset():
+    """A Gaussian-smoothed white-noise texture (sigma s px) has autocorrelation exp(-d^2 / (4 s^2)): sampled
+    half a pixel apart, the best whole-pixel shift is 0.5 px off, so the grid peak reads ~exp(-1 / (16 s^2));
+    whole-pixel shifts read 1."""
+    from campaign.realism.decorrelation import grid_peak_correlation
+
+    rng = np.random.default_rng(7)
+    fine, sigma_px = 4, 1.5
+    texture = cv2.GaussianBlur(rng.standard_normal((4 * 200, 4 * 200)), (0, 0), sigma_px * fine)
+    image_a = texture[::fine, ::fine].astype(np.float32)
+    image_b = texture[::fine, fine // 2::fine].astype(np.float32)       # +0.5 px along x
+    moved = np.roll(image_a, (3, -4), axis=(0, 1))                       # whole pixels: rows +3, columns -4
+    half = TEMPLATE_SIDE // 2
+    halves, wholes = [], []
+    for row in range(30, 160, 13):
+        for column in range(30, 160, 13):
+            halves.append(grid_peak_correlation(image_a, image_b, (column, row), (column - 0.5, row), half)[0])
+            wholes.append(grid_peak_correlation(image_a, moved, (column, row), (column - 4, row + 3), half)[0])
+    assert np.allclose(wholes, 1.0, atol=1e-5)
+    expected = np.exp(-1.0 / (16.0 * sigma_px**2))                      # 0.973
+    assert np.median(halves) == pytest.approx(expected, abs=0.01)
+    assert np.median(halves) < 0.985
