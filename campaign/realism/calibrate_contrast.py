@@ -23,6 +23,16 @@ contrast/brightness their ratio per template (median of the ratios); correlation
 at the sub-pixel peak of matches that passed every check.
 
 Nothing is written (terrains go to the terrain cache as in a campaign).
+
+::
+
+    python -m campaign.realism.calibrate_contrast --sweep runs/sweeps/terrain_contrast_gusev
+
+reads a finished sweep (``results.parquet``, ``sweep.json``; e.g. ``sitedata/sweeps/terrain_contrast_*.toml``)
+and gives, per point and class, % valid and false-valid against the median template contrast/brightness of
+that point's cases (every selected template, as above): printed, written as ``DIR/template_contrast.md``,
+and plotted in ``DIR/plots/template_contrast.png`` (% valid and false-valid against contrast/brightness, one
+line per class, the flight band shaded).
 """
 from __future__ import annotations
 
@@ -163,6 +173,89 @@ def fit_scale(scales: list[float], ratios: list[float], target_pct: float = FLIG
     return math.nan
 
 
+def sweep_template_table(sweep_dir: Path) -> tuple[list[dict], str]:
+    """Per point and class of a finished sweep: axis values, cases, % valid, false-valid and the template
+    medians (every selected template of the first estimator's rows). Returns (rows, markdown)."""
+    import json
+
+    import pandas as pd
+
+    description = json.loads((sweep_dir / "sweep.json").read_text())
+    results = pd.read_parquet(sweep_dir / "results.parquet")
+    if "estimator" in results:
+        results = results[results["estimator"] == results["estimator"].iloc[0]]
+    axes = list(description["axes"])
+    false_valid_mps = float(description["false_valid_mps"])
+    rows = []
+    for point in description["points"]:
+        members = results[results["point_id"] == point["point_id"]]
+        for class_name in dict.fromkeys(members["class_name"]):
+            cases = members[members["class_name"] == class_name]
+            ran = cases[cases["status"] == "ok"]
+            brightness = np.concatenate([np.asarray(v, float) for v in ran["feature_brightness"] if v is not None]
+                                        or [np.zeros(0)])
+            contrast = np.concatenate([np.asarray(v, float) for v in ran["feature_contrast"] if v is not None]
+                                      or [np.zeros(0)])
+            valid = ran["valid"].astype(bool)
+            errors = ran["velocity_error_mps"].astype(float)
+            ratio = 100.0 * contrast / np.maximum(brightness, 1e-9)
+            rows.append({"point_id": point["point_id"], **point["values"], "class_name": class_name,
+                         "cases": len(ran), "pct_valid": 100.0 * float(valid.mean()) if len(ran) else math.nan,
+                         "false_valid": int((valid & (errors > false_valid_mps)).sum()),
+                         "templates": int(ratio.size),
+                         "ratio_pct": float(np.median(ratio)) if ratio.size else math.nan,
+                         "ratio_p10_pct": float(np.percentile(ratio, 10)) if ratio.size else math.nan,
+                         "ratio_p90_pct": float(np.percentile(ratio, 90)) if ratio.size else math.nan,
+                         "brightness_dn": float(np.median(brightness)) if brightness.size else math.nan,
+                         "contrast_dn": float(np.median(contrast)) if contrast.size else math.nan})
+    lines = ["| point | " + " | ".join(axes) + " | class | cases | % valid | false-valid (> "
+             f"{false_valid_mps:g} m/s) | templates | brightness DN | contrast DN | contrast / brightness % [p10-p90] |",
+             "|---" * (len(axes) + 9) + "|"]
+    for row in sorted(rows, key=lambda r: (r["class_name"], *(r[a] for a in axes))):
+        lines.append(f"| {row['point_id']} | " + " | ".join(f"{row[a]:g}" if isinstance(row[a], float) else str(row[a])
+                                                           for a in axes)
+                     + f" | {row['class_name']} | {row['cases']} | {row['pct_valid']:.0f} | {row['false_valid']} | "
+                     f"{row['templates']} | {row['brightness_dn']:.0f} | {row['contrast_dn']:.1f} | "
+                     f"{row['ratio_pct']:.2f} [{row['ratio_p10_pct']:.2f}-{row['ratio_p90_pct']:.2f}] |")
+    lines.append(f"| flight | | MER-A (paper Table 3) | | | | 3 | {' / '.join(f'{v:.0f}' for v in FLIGHT_BRIGHTNESS_DN)} | "
+                 f"{' / '.join(f'{v:.1f}' for v in FLIGHT_CONTRAST_DN)} | {' / '.join(f'{v:.2f}' for v in FLIGHT_RATIO_PCT)} |"
+                 .replace("| flight | |", "| flight | " + " | ".join("" for _ in axes) + " |"))
+    return rows, "\n".join(lines)
+
+
+def plot_sweep_templates(rows: list[dict], path: Path, title: str) -> None:
+    """% valid and false-valid against the median template contrast/brightness, one line per class."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    figure, (top, bottom) = plt.subplots(2, 1, figsize=(6.5, 6.0), sharex=True)
+    for colour, name in enumerate(dict.fromkeys(r["class_name"] for r in rows)):
+        members = sorted((r for r in rows if r["class_name"] == name), key=lambda r: r["ratio_pct"])
+        xs = [r["ratio_pct"] for r in members]
+        top.plot(xs, [r["pct_valid"] for r in members], marker="o", color=f"C{colour}", label=name)
+        bottom.plot(xs, [r["false_valid"] for r in members], marker="o", color=f"C{colour}", label=name)
+    for axes in (top, bottom):
+        axes.axvspan(*FLIGHT_RATIO_BAND_PCT, color="grey", alpha=0.2, label="MER-A flight band")
+        axes.set_xscale("log")
+        axes.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        axes.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        axes.set_xticks([0.5, 0.7, 1.0, 1.4, 2.0, 3.0, 5.0, 7.0, 10.0])
+        axes.grid(alpha=0.3)
+    top.set_ylim(-2, 102)
+    top.set_ylabel("% valid")
+    bottom.set_ylabel("false-valid cases")
+    bottom.set_xlabel("median template contrast / brightness (%)")
+    top.set_title(title, fontsize=8)
+    top.legend(fontsize=7)
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
 HEADER = ["| scale | class | cases | valid | templates | brightness DN | contrast DN | contrast / brightness % | correlation |",
           "|---|---|---|---|---|---|---|---|---|"]
 
@@ -170,7 +263,8 @@ HEADER = ["| scale | class | cases | valid | templates | brightness DN | contras
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m campaign.realism.calibrate_contrast",
                                      description=__doc__.split("\n\n")[0])
-    parser.add_argument("campaign", type=Path, help="campaign or site TOML (e.g. sitedata/gusev.toml)")
+    parser.add_argument("campaign", type=Path, nargs="?", help="campaign or site TOML (e.g. sitedata/gusev.toml)")
+    parser.add_argument("--sweep", type=Path, help="a finished sweep's output directory: its table against template contrast")
     parser.add_argument("--cases", type=int, default=8, help="cases per class (the first planned; default 8)")
     parser.add_argument("--contrast-scale", type=float, nargs="+", default=[1.0],
                         help="site terrain contrast scale(s) on top of the presets' (default 1)")
@@ -178,6 +272,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="comma-separated classes to fit to the flight median, or 'site' for the ellipse-weighted "
                              "pool of the classes with a non-zero ellipse fraction")
     args = parser.parse_args(argv)
+    if args.sweep is not None:
+        if not (args.sweep / "sweep.json").is_file() or not (args.sweep / "results.parquet").is_file():
+            print(f"--sweep {args.sweep}: no sweep.json and results.parquet (run the sweep first)", file=sys.stderr)
+            return 2
+        rows, text = sweep_template_table(args.sweep)
+        (args.sweep / "template_contrast.md").write_text(text + "\n")
+        plot_sweep_templates(rows, args.sweep / "plots" / "template_contrast.png", str(args.sweep))
+        print(text)
+        print(f"wrote {args.sweep / 'template_contrast.md'} and {args.sweep / 'plots' / 'template_contrast.png'}")
+        return 0
+    if args.campaign is None:
+        print("a campaign file or --sweep DIR is required", file=sys.stderr)
+        return 2
     if args.cases < 1:
         print("--cases must be >= 1", file=sys.stderr)
         return 2

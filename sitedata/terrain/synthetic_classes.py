@@ -175,7 +175,8 @@ class ClassTerrainParams:
 _GUSEV_MOC = dict(moc_incidence_deg=45.0, moc_sun_azimuth_deg=255.0, haze_optical_depth=0.5, haze_path_if=0.045)
 _MERIDIANI_MOC = dict(moc_incidence_deg=40.0, moc_sun_azimuth_deg=260.0, haze_optical_depth=0.5, haze_path_if=0.04)
 
-# The rough MOC ground (presets "<class>_rough_moc"). Calibrated (issue 15) so that each class's footprint-tile contrast at the descent camera's sample (1 and
+# The rough MOC ground (presets "<class>_rough_moc").
+# Calibrated (issue 15) so that each class's footprint-tile contrast at the descent camera's sample (1 and
 # 2 km) and its dark-feature density fall inside the real MOC NA range of its kind of ground
 # (campaign/realism/terrain_reference.py: RECORDED_RANGES, KIND_OF_CLASS); the previous presets were 1.6-5x blander
 # than real MOC I/F and had almost no >= 5 % dark features. Albedo spectra at beta = 2.2-2.4 (was 2.6:

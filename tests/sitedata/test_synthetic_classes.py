@@ -8,7 +8,6 @@ import pytest
 
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS, ClassTerrainParams
 
-
 CLASSES = ("gcp", "gdcp", "gkep", "hbsp", "hdcp", "heb")
 
 
