@@ -21,14 +21,20 @@ Protocol
    ``[scene.effects]``, ``[scene.camera_effects]``, ``[sensors]``, ``[scene.atmosphere]``, the class's
    ``relief``), or holds the lander's attitude at its first-image value (no rotation between frames).
 4. Metric: the correlation the estimator reports for each tracked template (normalised correlation
-   at the refined sub-pixel peak, :mod:`dimes_velocity.matching`), summarised as median [10-90 %]
-   (a) over every tracked template ("all": what the flight software reports for each template it
-   tracked, whatever its checks said) and (b) over those whose match passed every check ("ok"),
-   for the first pair (the images of Table 3) and both pairs.
-5. Closed form: with template signal variance ``S`` and pixel noise variances ``n_A^2``, ``n_B^2``,
-   two noisy copies of one template correlate at ``rho = S / sqrt((S + n_A^2) (S + n_B^2))``
-   (:func:`noise_correlation`); the estimator's per-match noise decorrelation
-   ``e = (n_A^2 / S_A + n_B^2 / S_B) / 2`` gives ``rho ~ 1 / (1 + e)``, reported beside the measured value.
+   at the refined sub-pixel peak, :mod:`dimes_velocity.matching`; for a match refused at the coarse
+   level, the coarse level's best value), summarised as median [10-90 %] (a) over every tracked template
+   ("all": whatever its checks said, as the flight software reported every template it tracked) and
+   (b) over those whose match passed every check ("ok"), for both pairs and for the first pair alone
+   (the images of Table 3).
+5. Closed form: with template signal variance ``S`` and noise variances ``n_A^2``, ``n_B^2``, two noisy
+   copies of one template correlate at ``rho = S / sqrt((S + n_A^2) (S + n_B^2))``
+   (:func:`noise_correlation`). For every "ok" match ``S`` and ``n^2`` are measured after rectification
+   (noisy minus noise-free expected DN through the same flattening, blur and map: :func:`case_features`);
+   the estimator's own raw-pixel prediction ``rho ~ 1 / (1 + e)``, ``e = (n_A^2 / S_A + n_B^2 / S_B) / 2``,
+   is reported beside it.
+6. The same "ok" matches' correlation read on the whole-pixel grid (:func:`grid_peak_correlation`).
+7. ``--unresolved-texture``: what ground texture finer than the terrain strip's pixels would add
+   (:func:`unresolved_texture_experiment`).
 
 Run ``python -m campaign.realism.decorrelation --help``.
 """
@@ -49,6 +55,7 @@ import pandas as pd
 #: Table 3 of the paper, correlation of the three templates (features 00, 01, 10) of the first pair.
 FLIGHT_CORRELATION = (0.88, 0.91, 1.00)
 PAPER_SIMULATION_CORRELATION = (0.87, 0.84, 0.94)
+
 
 def noise_correlation(signal_variance, noise_variance_a, noise_variance_b=None):
     """Correlation coefficient of two copies of one signal with independent additive noise.
