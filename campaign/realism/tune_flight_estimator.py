@@ -14,11 +14,13 @@ the decrease in the valid velocity percentage at Meridiani Planum". So:
   every case rendered once, each point's estimator run on the same images and sensor draws), prints each
   point's per-class % valid, false-valid and error, and chooses the most conservative point that reproduces
   Table 1: no false-valid case and an ellipse-weighted % valid of at least :data:`TABLE_1_WEIGHTED_PCT`
-  (Table 1: 99 %; when no point reaches it, the grid's highest such % valid); most conservative = the highest contrast gate, then the lowest second-peak ratio,
-  then the tightest pair agreement. The choice is printed as the lines to freeze in the file; nothing is
+  (Table 1: 99 %; when no point reaches it, the grid's highest such % valid); most conservative = the
+  highest contrast gate, then the lowest second-peak ratio, then the tightest pair agreement. The choice
+  is printed as the lines to freeze in the file; nothing is
   written into ``sitedata/``;
 * on any other site it refuses to tune (never tune on Meridiani) and runs the frozen file as a prediction,
-  printed beside the paper's Table 2 (or Table 1 for a Gusev file with ``--predict``).
+  printed beside the paper's Table 2 (or Table 1 for a Gusev file with ``--predict``), with the default
+  reference estimator (``dimes``) on the same cases beside it.
 
 Stores go to ``--output`` (default ``runs/flight_estimator/<site>-tune`` or ``-predict``); a rerun resumes
 them (case identity and configuration hash as for ``campaign submit``).
@@ -142,11 +144,10 @@ def beside_paper(rows: pd.DataFrame, site: str, classes: list[str]) -> str:
     return "\n".join(lines)
 
 
-def run(site_file: Path, parameters: dict, entries: dict[str, dict], output: Path, cases_scale: float | None,
-        workers: int | None):
+def run(site_file: Path, entries: dict[str, dict], output: Path, cases_scale: float | None, workers: int | None):
+    """One campaign of the site file whose estimators are ``entries`` (name -> reference parameters over the
+    site file's own ``[estimator]`` table); returns its configuration."""
     data = load_toml(site_file)
-    data.pop("estimators", None)
-    data["estimator"] = {**data.get("estimator", {}), **{k: v for k, v in parameters.items() if k not in TUNED_FIELDS}}
     data["estimators"] = [{"name": name, "kind": "reference", "parameters": values} for name, values in entries.items()]
     config = campaign_config_from_data(data, site_file, output_dir=output, cases_scale=cases_scale)
     submit(config, workers=workers, progress=False)
@@ -179,8 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         frozen = {key: parameters[key] for key in TUNED_FIELDS}
         points = {"flight": frozen}
-        entries = {"flight": dict(parameters)}
-    config = run(args.site_file, parameters, entries, output, args.cases_scale, args.workers)
+        entries = {"flight": dict(parameters), "dimes": {}}    # the default reference beside it, same cases
+    config = run(args.site_file, entries, output, args.cases_scale, args.workers)
     fractions = {c.name: c.ellipse_fraction for c in config.tables.site.classes}
     classes = list(fractions)
     rows = tabulate(Path(config.output_dir), fractions, site, points)
@@ -200,6 +201,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"prediction of {args.parameters} on {site} ({output}), frozen thresholds: "
               + ", ".join(f"{k} = {v:g}" for k, v in points["flight"].items()))
         print(beside_paper(rows, site, classes))
+        reference = tabulate(Path(config.output_dir), fractions, site, {"dimes": {}})
+        print("the default reference estimator (dimes) on the same cases:")
+        print(beside_paper(reference, site, classes))
     return 0
 
 
