@@ -106,8 +106,16 @@ def test_rms_contrast_follows_the_documented_class_ordering(site_strips):
 
 @pytest.mark.slow
 def test_feature_density_follows_the_documented_class_ordering(site_strips):
-    # dark features (craters, pits, track segments, knob shadows) as campaign.realism.terrain_stats counts them
-    density = {name: crater_density_per_km2(t.reflectance_if, t.metres_per_pixel)
+    # dark features (craters, pits, track segments, knob shadows) as campaign.realism.terrain_stats counts them,
+    # on the strip's departures from its mean divided by the class's contrast scale (the default classes are
+    # the rough-MOC-ground populations with every contrast x scale: a feature 5 % dark there is 5 % x scale here)
+    from sitedata.terrain.synthetic_classes import CLASS_PRESETS
+
+    def unscaled(image, name):
+        mean = float(image.mean())
+        return (mean + (image - mean) / CLASS_PRESETS[name].contrast_scale).astype(np.float32)
+
+    density = {name: crater_density_per_km2(unscaled(t.reflectance_if, name), t.metres_per_pixel)
                for name, (_, _, t) in site_strips.items()}
     assert density["hbsp"] < density["gcp"], density
     assert max(density["gcp"], density["hbsp"]) < 0.8 * min(density[n] for n in ("gdcp", "hdcp", "heb", "gkep")), density
