@@ -95,3 +95,21 @@ def test_default_gusev_plains_templates_lie_in_the_mer_a_flight_band():
         assert min(cc.FLIGHT_BRIGHTNESS_DN) / 1.15 <= brightness <= max(cc.FLIGHT_BRIGHTNESS_DN) * 1.15, (name, brightness)
     # the classes keep their order: the dust-devil-tracked plains above the bright plains
     assert templates["gcp"].median_ratio_pct() < templates["gdcp"].median_ratio_pct()
+
+
+@pytest.mark.parametrize("site", ["gusev", "meridiani"])
+def test_terrain_contrast_sweep_scales_every_class_and_its_unit_point_is_the_default_campaign(site, tmp_path):
+    from campaign.configuration.campaign_file import load_campaign_config
+    from campaign.configuration.sweep_file import load_sweep
+    from sitedata.sites import class_terrain_params
+    from sitedata.terrain.synthetic_classes import CLASS_PRESETS
+
+    spec = load_sweep(REPO / "sitedata" / "sweeps" / f"terrain_contrast_{site}.toml", output_dir=tmp_path)
+    scales = [point.values["site.terrain_contrast_scale"] for point in spec.points]
+    assert min(scales) == 0.25 and max(scales) == 2.0 and 1.0 in scales
+    for point, scale in zip(spec.points, scales):
+        for entry in point.config.site.classes:
+            expected = CLASS_PRESETS[entry.name].contrast_scale * scale
+            assert class_terrain_params(entry.terrain).contrast_scale == pytest.approx(expected, rel=1e-12)
+    unit = spec.points[scales.index(1.0)]
+    assert unit.config_hash == load_campaign_config(REPO / "sitedata" / f"{site}.toml").config_hash
