@@ -106,12 +106,16 @@ def readings_table(results: pd.DataFrame, fractions: dict[str, float], site: str
 
 
 def load_store(root: Path) -> tuple[pd.DataFrame, dict, str, float]:
+    """A store's results (its first estimator), ellipse fractions, site name and per-axis bias sigma (deg)."""
     manifest = json.loads((root / "manifest.json").read_text())
     results = pd.read_parquet(root / "results.parquet")
     if "estimator" in results.columns:
         results = results[results["estimator"] == results["estimator"].iloc[0]]
     sensors = manifest["config"].get("sensors", {})
-    return results, manifest["ellipse_fractions"], manifest["site"].capitalize(), float(sensors.get("attitude_bias_sigma_deg", 1.0))
+    # per-axis sigma of the drawn bias; a store from before attitude_bias_sigma_is drew it per axis
+    axes = {"per_axis": 1.0, "total_tilt": 2.0, "total_angle": 3.0}[sensors.get("attitude_bias_sigma_is", "per_axis")]
+    sigma_deg = float(sensors.get("attitude_bias_sigma_deg", 1.0)) / math.sqrt(axes)
+    return results, manifest["ellipse_fractions"], manifest["site"].capitalize(), sigma_deg
 
 
 def main(argv: list[str] | None = None) -> int:
