@@ -117,6 +117,11 @@ RELIEF_ON = Mechanism("relief on", "terrain height field rendered: parallax, occ
                       "view, cast shadows", class_terrain={"relief": True})
 ATMOSPHERE_ON = Mechanism("atmosphere on (tau 0.5)", "dust column tau = 0.5: MOC haze removed, descent path "
                           "light and attenuation added", {"scene": {"atmosphere": {"orbital_optical_depth": 0.5}}})
+HIGH_FIDELITY = Mechanism("fidelity high", "the high fidelity preset: exact rays and photometry per pixel, smear and "
+                          "blur fields rendered, exact Poisson noise (simulator.fidelity)", {"scene": {"fidelity": "high"}})
+REFERENCE_FIDELITY = Mechanism("fidelity reference", "the reference preset: every shortcut off, 3 x 3 rays per pixel, "
+                               ">= 4 motion sub-poses per terrain pixel (simulator.fidelity)",
+                               {"scene": {"fidelity": "reference"}})
 GRAIN_OFF = Mechanism("MOC grain off", "the terrain strip without the MOC's shot-noise grain (grain_snr 1e6 instead "
                       "of 60): static texture of the orbital source, not of the ground", class_terrain={"overrides": {"grain_snr": 1e6}})
 ALL_OFF = Mechanism("resampling only", "noise off, sensors exact, no rotation, no blur, no PSF: what remains is "
@@ -134,7 +139,7 @@ NO_REFINEMENT = Mechanism("estimator: biquadratic peak", "correlation read from 
 
 MECHANISMS: dict[str, Mechanism] = {m.name: m for m in (
     REFERENCE, NOISE_OFF, SENSORS_EXACT, NO_ROTATION, BLUR_OFF, PSF_OFF, PHOTOMETRY_OFF, RELIEF_ON, ATMOSPHERE_ON,
-    GRAIN_OFF, ALL_OFF, NO_EQUALISATION, NO_REFINEMENT)}
+    HIGH_FIDELITY, REFERENCE_FIDELITY, GRAIN_OFF, ALL_OFF, NO_EQUALISATION, NO_REFINEMENT)}
 
 
 def _merge(base: dict, patch: dict) -> dict:
