@@ -151,11 +151,12 @@ def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
 
     A class row gives the class's own % valid with its denominator, ``valid/ran`` (ran = cases - failed);
     the last (site) row gives the ellipse-weighted % valid and error (:func:`weighted_mean`) and the
-    summed counts. False-valid stands next to every % valid."""
+    summed counts. False-valid stands next to every % valid. A second grid gives both error statistics
+    and the attitude floor's (:func:`axis_statistics`) per class."""
     threshold = table.attrs.get("false_valid_mps", FALSE_VALID_MPS)
     headers = ["Class", "Cases", "Valid", "Failed", "% valid (valid/ran)", f"False-valid (>{threshold:g} m/s)",
-               "Error m/s mean+3s", "Per axis", "Floor |v| / axis", "Worst valid m/s", "% ellipse"]
-    body = []
+               "Error m/s mean+3s", "Worst valid m/s", "% ellipse"]
+    body, statistics = [], []
     last = len(table) - 1
     for position, (_, row) in enumerate(table.iterrows()):
         site = position == last
@@ -166,14 +167,19 @@ def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
             ran = int(row["cases"]) - int(row["failed"])
             pct = format_number(row["pct_valid"], "{:.1f}%") + f" ({int(row['valid'])}/{ran})"
             error = format_number(row["error_mean_3sigma_mps"], "{:.2f}")
-        floor = format_number(row["floor_mean_3sigma_mps"], "{:.2f}") + " / " + format_number(row["floor_axis_mean_3sigma_mps"], "{:.2f}")
+        magnitude = row["weighted_error_mps"] if site else row["error_mean_3sigma_mps"]
+        statistics.append([format_number(value, "{:.2f}") for value in (magnitude, *row[AXIS_STATISTIC_COLUMNS])])
         body.append([
             str(row["class"]), str(int(row["cases"])), str(int(row["valid"])), str(int(row["failed"])), pct,
-            f"{int(row['false_valid'])}/{int(row['valid'])}", error, format_number(row["error_axis_mean_3sigma_mps"], "{:.2f}"),
-            floor, format_number(row["worst_valid_error_mps"], "{:.2f}"),
+            f"{int(row['false_valid'])}/{int(row['valid'])}", error, format_number(row["worst_valid_error_mps"], "{:.2f}"),
             format_number(100 * row["ellipse_fraction"], "{:.0f}%"),
         ])
-    return render_grid(headers, body, markdown)
+    # both statistics and the floor's, one row each (classes as columns: no row starts with a class name)
+    statistics_rows = [[label] + [cells[index] for cells in statistics] for index, label in
+                       enumerate(("error |v|", "error per axis", "floor |v|", "floor per axis"))]
+    statistics_headers = ["m/s mean+3s"] + [str(name) for name in table["class"]]
+    return (render_grid(headers, body, markdown) + "\n" + ("\n" if markdown else "")
+            + render_grid(statistics_headers, statistics_rows, markdown))
 
 
 NOTE_WIDTH = 118

@@ -147,8 +147,12 @@ def test_magnitude_per_axis_and_floor_statistics_against_the_closed_form():
     assert row["floor_axis_mean_3sigma_mps"] == pytest.approx(3.0 * scale, rel=0.015)
     site = site_table(results, {"gcp": 1.0}, "Gusev").iloc[-1]
     assert site["error_axis_mean_3sigma_mps"] == pytest.approx(row["error_axis_mean_3sigma_mps"])
-    text = format_table(site_table(results.iloc[:100], {"gcp": 1.0}, "Gusev"))
-    assert "Per axis" in text and "Floor |v| / axis" in text
+    text = format_table(site_table(results, {"gcp": 1.0}, "Gusev"))
+    rows = {line.split("  ")[0]: line.split() for line in text.splitlines()}
+    assert rows["error per axis"][-2:] == [f"{row['error_axis_mean_3sigma_mps']:.2f}"] * 2      # gcp, site
+    assert rows["floor |v|"][-1] == f"{site['floor_mean_3sigma_mps']:.2f}"
+    assert rows["error |v|"][-2:] == [f"{row['error_mean_3sigma_mps']:.2f}"] * 2          # site: the weighted one
+    assert max(len(line) for line in text.splitlines()) <= 120
 
 
 def test_tables_without_the_per_axis_columns_leave_those_statistics_unknown():
