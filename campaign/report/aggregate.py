@@ -185,8 +185,8 @@ def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
 NOTE_WIDTH = 118
 """Footers are wrapped to this many characters (every printed line within 120 columns)."""
 SIGMA_NOTE = ("error = mean + 3 sigma of the horizontal velocity error over the valid cases with a finite error "
-              "(its magnitude; per axis: of their signed east and north errors pooled; floor: the same two statistics "
-              "of the error the attitude-knowledge bias alone causes, |v| / per axis), "
+              "(its magnitude; in the grid below the table also per axis, of the signed east and north errors pooled, "
+              "and the floor: both statistics of the error the attitude-knowledge bias alone causes), "
               "sigma the sample standard deviation (ddof=1, n-1 in the denominator; 0 for a single case), not "
               "the population one (ddof=0)")
 TABLE_NOTE = textwrap.fill("denominators: % valid = valid / (cases - failed) (shown as valid/ran); false-valid = valid cases with an error "
