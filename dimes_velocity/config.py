@@ -81,6 +81,9 @@ class EstimatorConfig(ConfigModel):
     """Templates keep this far from the rectified image's valid border."""
     min_contrast_to_noise: float = Field(2.5, ge=0.0, le=1e3)
     """Standard deviation of the template minus its best-fit plane / expected pixel noise (shot + read)."""
+    min_template_contrast_dn: float = Field(0.0, ge=0.0, le=1e5)
+    """A template whose standard deviation (flattened DN of the binned block, the flight software's Table 3
+    "contrast") is below this is refused for contrast, like the flight DIMES's contrast gate (0 = off)."""
     zero_phase_half_angle_deg: float = Field(4.3, ge=0.0, le=45.0)
     """Half angle of the excluded zone around the zero-phase (anti-sun) direction (paper section 3)."""
     heat_shield_radius_m: float = Field(2.65, ge=0.0, le=100.0)

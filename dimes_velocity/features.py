@@ -6,7 +6,8 @@ tensor summed over the template (Shi-Tomasi "good features to track", ``cv2.corn
 which is what a 2-D correlation needs. The allowed centres (``candidates``) are split into a
 ``feature_grid x feature_grid`` grid over their bounding box; each cell offers its most interesting
 centre, and the best offers with enough contrast (standard deviation of the template minus its
-best-fit plane, over the expected pixel noise), at least ``min_feature_spacing_px`` apart, are
+best-fit plane, over the expected pixel noise; and, when ``min_template_contrast_dn`` is set, a standard
+deviation of at least that many DN), at least ``min_feature_spacing_px`` apart, are
 selected. The interest is computed only over the candidates' bounding box grown by the operator's
 reach (:func:`interest_window`): the same values as the whole-image map there.
 """
@@ -245,7 +246,7 @@ class FeatureSelector:
                 continue
             mean, std, detrended = template_statistics(self.image, column, row, half)
             noise = max(float(self.noise_dn_at(column, row)), 1e-6)
-            if detrended / noise < config.min_contrast_to_noise:
+            if detrended / noise < config.min_contrast_to_noise or std < config.min_template_contrast_dn:
                 self.low_contrast += 1
                 continue
             candidate = Candidate(column, row, score, mean, std, detrended / noise)

@@ -24,8 +24,11 @@ the campaign does with a terrain too small for the descent images' footprints (r
 same image at the coarser scale that holds them, or mirror-tile it; :mod:`campaign.plan.coverage`).
 
 Optional in a synthetic terrain table: ``overrides = { haze_optical_depth = 0.3, ... }`` (numeric
-fields of :class:`sitedata.terrain.synthetic_classes.ClassTerrainParams`) and ``relief = true`` (the class's
-height field with the I/F of level ground, :mod:`sitedata.terrain.relief`). The ``[site]`` table is declared
+fields of :class:`sitedata.terrain.synthetic_classes.ClassTerrainParams`), ``contrast_scale = 0.5`` (the
+preset's relief and albedo contrasts times this, on top of the preset's own calibrated scale) and
+``relief = true`` (the class's height field with the I/F of level ground, :mod:`sitedata.terrain.relief`).
+Optional in ``[site]``: ``terrain_contrast_scale`` multiplies every synthetic class's ``contrast_scale``
+(the axis of the terrain-contrast sweeps, ``sitedata/sweeps/terrain_contrast_*.toml``). The ``[site]`` table is declared
 once, by :class:`Site` and its parts (:class:`Sun`, :class:`SiteClass`, :class:`SyntheticTerrain`,
 :class:`FileTerrain`); ``campaign schema site`` prints it. Other top-level tables (``[campaign]``,
 ``[sensors]``, ...) belong to other readers and are ignored here; unknown keys inside ``[site]`` are
@@ -57,7 +60,7 @@ from simulator.scene.relief import ReliefTerrain
 from simulator.scene.terrain import Terrain
 from sitedata.terrain.real_terrain import load_terrain
 from sitedata.terrain.relief import relief_terrain
-from sitedata.terrain.synthetic_classes import CLASS_PRESETS, ClassTerrainParams
+from sitedata.terrain.synthetic_classes import CLASS_PRESETS, CONTRAST_SCALE_MAX, ClassTerrainParams
 from sitedata.terrain.synthetic_terrain import synthetic_terrain
 
 ASTRONOMICAL_UNIT_M = 1.495978707e11
@@ -91,7 +94,7 @@ def _overrides_model() -> type[ConfigModel]:
     ``ClassTerrainParams.validate``), optional."""
     fields: dict[str, Any] = {}
     for field in dataclasses.fields(ClassTerrainParams):
-        if field.name in ("name", "description"):
+        if field.name in ("name", "description", "contrast_scale"):     # contrast_scale: the terrain's own key
             continue
         default = field.default
         if isinstance(default, tuple):
@@ -137,6 +140,9 @@ class SyntheticTerrain(_TerrainSpec):
     """Seed of the terrain generator."""
     overrides: TerrainOverrides | None = None
     """Preset parameters changed for this class."""
+    contrast_scale: float = Field(1.0, gt=0.0, le=CONTRAST_SCALE_MAX)
+    """Multiplies the preset's relief and albedo contrasts (its own contrast_scale; sitedata.terrain.synthetic_terrain):
+    1 = the preset; a site's terrain_contrast_scale multiplies it too."""
     relief: bool = False
     """Give the class its height field (craters, knobs, slopes of the preset), rendered with parallax,
     occlusion, slope shading and cast shadows (sitedata.terrain.relief, simulator.scene.relief)."""
@@ -152,7 +158,10 @@ class SyntheticTerrain(_TerrainSpec):
     def params(self) -> ClassTerrainParams:
         """The preset's parameters with the overrides applied."""
         changes: dict[str, Any] = self.overrides.model_dump(exclude_none=True) if self.overrides is not None else {}
-        return dataclasses.replace(CLASS_PRESETS[self.preset], **changes)
+        params = CLASS_PRESETS[self.preset]
+        if self.contrast_scale != 1.0:
+            changes["contrast_scale"] = params.contrast_scale * self.contrast_scale
+        return dataclasses.replace(params, **changes)
 
 
 class FileTerrain(_TerrainSpec):
@@ -194,7 +203,29 @@ class Site(ConfigModel):
     sun: Sun
     classes: list[SiteClass] = Field(min_length=1)
     """Appearance classes ([[site.classes]])."""
+    terrain_contrast_scale: float = Field(1.0, gt=0.0, le=CONTRAST_SCALE_MAX)
+    """Multiplies the contrast_scale of every synthetic class terrain (a sweep axis: site.terrain_contrast_scale)."""
     _source: Path = PrivateAttr(Path("."))
+
+    @model_validator(mode="before")
+    @classmethod
+    def _site_contrast_scale_reaches_each_class(cls, data: Any) -> Any:
+        # the scale is carried into each synthetic terrain table (its contrast_scale times this), so a
+        # class's terrain spec alone names its terrain (caches, hashes); non-numbers are left to the
+        # field checks
+        scale = data.get("terrain_contrast_scale", 1.0) if isinstance(data, dict) else 1.0
+        if (isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= CONTRAST_SCALE_MAX
+                or scale == 1.0 or not isinstance(data.get("classes"), list)):
+            return data
+        classes = []
+        for entry in data["classes"]:
+            terrain = entry.get("terrain") if isinstance(entry, dict) else None
+            if isinstance(terrain, dict) and terrain.get("kind") == "synthetic":
+                own = terrain.get("contrast_scale", 1.0)
+                if isinstance(own, (int, float)) and not isinstance(own, bool):
+                    entry = {**entry, "terrain": {**terrain, "contrast_scale": float(own) * float(scale)}}
+            classes.append(entry)
+        return {**data, "classes": classes}
 
     @model_validator(mode="after")
     def _classes_are_consistent(self, info: ValidationInfo):

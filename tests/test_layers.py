@@ -11,7 +11,8 @@ the detector stage.
 
 Inside ``campaign`` the subpackages are layered too (:data:`CAMPAIGN_ALLOWED`, no circle between them):
 
-    cli, commands                 (top: the command line; each command imports its stack when it runs)
+    cli, commands   studies       (top: the command line, each command importing its stack when it runs |
+                                   studies that run cases and read them back: calibration, ablation, tuning)
     run             report        (running cases on dask | reading stores for people; never each other)
     case            realism       (one case: inputs, computation, result rows | flight realism)
     plan            store         (placing cases | the campaign store)
@@ -107,6 +108,7 @@ CAMPAIGN_ALLOWED = {
     "realism": {"configuration"},
     "run": {"configuration", "plan", "store", "case"},
     "report": {"configuration", "plan", "store", "case", "realism"},
+    "studies": {"configuration", "plan", "store", "case", "realism", "run", "report"},
 }
 
 

@@ -62,7 +62,7 @@ from campaign.configuration.campaign_file import (
 from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, load_toml, parse, parse_field
 
 AXIS_ROOTS = ("sensors", "estimator", "scene")
-AXIS_FIELDS = ("campaign.seed",)
+AXIS_FIELDS = ("campaign.seed", "site.terrain_contrast_scale")
 MAX_POINTS = 10_000
 EAGER_POINTS = 256      # points validated before a sweep runs (module docstring); the rest when first used
 
@@ -102,7 +102,8 @@ class SweepFile(ConfigModel):
 
     sweep: SweepTable
     axes: dict[str, Any] = Field(min_length=1)
-    """Dotted config field -> non-empty list of values (TOML units): sensors.*, estimator.*, scene.*, campaign.seed."""
+    """Dotted config field -> non-empty list of values (TOML units): sensors.*, estimator.*, scene.*, campaign.seed,
+    site.terrain_contrast_scale."""
     tolerances: Tolerances = Tolerances()
 
 

@@ -7,10 +7,14 @@ software's values without formulas; its brightness has the scale of this one, i.
 * brightness: mean of the 15 x 15 template in the binned (256 x 256), flattened image, DN of a whole
   4 x 4 block (exposure only: dark, smear and falloff removed);
 * contrast: standard deviation of the same template, same DN;
+* contrast / brightness: their ratio per template (%), the measure the terrain is anchored to (the MER-A
+  flight templates: 1.01, 1.07, 1.18 %; :mod:`campaign.studies.calibrate_contrast`);
 * correlation: normalised correlation coefficient of the template with its match at the sub-pixel
   peak, over templates whose match passed every check (status "ok").
 
-Brightness and contrast are taken over every tracked template (selected and searched for).
+Brightness and contrast are taken over every template the estimator selected and searched for, whatever
+its match's status and in valid and invalid cases alike (the flight software reported the metrics of the
+templates it selected, before knowing whether their matches would pass).
 """
 from __future__ import annotations
 
@@ -52,7 +56,8 @@ def metrics_table(results: pd.DataFrame, class_order: list[str]) -> str:
     """Markdown: per class the median [10th-90th percentile] of brightness, contrast and correlation
     of the selected templates, then the paper's three features for MOC2DIMES and MER-A flight."""
     ok = results[results["status"] == "ok"] if "status" in results else results
-    lines = ["| source | templates | brightness DN | contrast DN | correlation |", "|---|---|---|---|---|"]
+    lines = ["| source | templates | brightness DN | contrast DN | contrast / brightness % | correlation |",
+             "|---|---|---|---|---|---|"]
     for class_name in class_order:
         members = ok[ok["class_name"] == class_name]
         if members.empty or "feature_brightness" not in members:
@@ -60,10 +65,13 @@ def metrics_table(results: pd.DataFrame, class_order: list[str]) -> str:
         brightness = _flatten(members, "feature_brightness")
         contrast = _flatten(members, "feature_contrast")
         correlation = _flatten(members, "feature_correlation", matched_only=True)
+        ratio = 100.0 * contrast / np.maximum(brightness, 1e-9) if contrast.size == brightness.size else np.zeros(0)
         lines.append(f"| {class_name} (this campaign) | {brightness.size} | {_summary(brightness, '{:.0f}')} | "
-                     f"{_summary(contrast, '{:.1f}')} | {_summary(correlation, '{:.3f}')} |")
+                     f"{_summary(contrast, '{:.1f}')} | {_summary(ratio, '{:.2f}')} | {_summary(correlation, '{:.3f}')} |")
     for source, values in PAPER_TABLE3.items():
+        ratios = [100.0 * c / b for c, b in zip(values["contrast"], values["brightness"])]
         lines.append(f"| {source} | 3 | {', '.join(f'{v:.0f}' for v in values['brightness'])} | "
                      f"{', '.join(f'{v:.1f}' for v in values['contrast'])} | "
+                     f"{', '.join(f'{v:.2f}' for v in ratios)} | "
                      f"{', '.join(f'{v:.2f}' for v in values['correlation'])} |")
     return "\n".join(lines)

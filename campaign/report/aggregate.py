@@ -7,6 +7,12 @@ Weighted figures follow the paper: the site's ellipse-weighted % valid and error
 are its contribution ``fraction * value``; the printed table never shows a contribution as a class's %
 valid: a class row shows the class's own % valid (valid/ran), the site row the weighted figures.
 
+Two error statistics (docs/estimators.md, "The error statistic"): the mean + 3 sigma of the horizontal
+error magnitude (``error_mean_3sigma_mps``, the weighted figure's) and of the signed per-axis errors, east
+and north pooled (``error_axis_mean_3sigma_mps``); beside them the attitude-knowledge floor, the same two
+statistics of the error the attitude bias alone causes (``floor_mean_3sigma_mps``,
+``floor_axis_mean_3sigma_mps``; :mod:`campaign.case.error_budget`).
+
 Beside every % valid the table counts the false-valid cases (valid, horizontal error above
 ``[campaign] false_valid_mps``, default 5 m/s, the DIMES requirement) and gives the worst error
 of a valid case: a velocity flagged valid but wrong is what the lander must never get.
@@ -22,11 +28,17 @@ import pandas as pd
 from campaign.store.result_schema import RESULTS_SCHEMA, ResultSchemaError
 
 TABLE_COLUMNS = ["class", "cases", "valid", "failed", "pct_valid", "error_mean_3sigma_mps", "false_valid",
-                 "worst_valid_error_mps", "ellipse_fraction", "weighted_pct_valid", "weighted_error_mps"]
+                 "worst_valid_error_mps", "ellipse_fraction", "weighted_pct_valid", "weighted_error_mps",
+                 "error_axis_mean_3sigma_mps", "floor_mean_3sigma_mps", "floor_axis_mean_3sigma_mps"]
+AXIS_STATISTIC_COLUMNS = TABLE_COLUMNS[-3:]
 FALSE_VALID_MPS = 5.0
 COLUMNS_READ = ("class_name", "status", "valid", "velocity_error_mps")
 """The result columns the tables are computed from (declared in :mod:`campaign.store.result_schema`)."""
-assert set(COLUMNS_READ) <= set(RESULTS_SCHEMA.names), "aggregate.py reads an undeclared result column"
+AXIS_COLUMNS_READ = ("estimate_velocity_east_mps", "estimate_velocity_north_mps", "truth_velocity_east_mps",
+                     "truth_velocity_north_mps", "attitude_floor_mps", "sensor_attitude_bias_east_rad",
+                     "sensor_attitude_bias_north_rad")
+"""Read when present (a table without them has NaN per-axis and floor statistics)."""
+assert set(COLUMNS_READ + AXIS_COLUMNS_READ) <= set(RESULTS_SCHEMA.names), "aggregate.py reads an undeclared result column"
 
 
 def mean_plus_3_sigma(errors_mps: np.ndarray) -> float:
@@ -77,6 +89,7 @@ def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: st
             "worst_valid_error_mps": float(np.nanmax(valid_errors)) if np.isfinite(valid_errors).any() else math.nan,
             "ellipse_fraction": fraction,
             "weighted_pct_valid": _weighted(fraction, pct_valid), "weighted_error_mps": _weighted(fraction, error),
+            **axis_statistics(ok.loc[valid_mask] if valid else ok.iloc[0:0]),
         })
     table = pd.DataFrame(rows, columns=TABLE_COLUMNS)
     total = {
@@ -87,10 +100,32 @@ def site_table(results: pd.DataFrame, fractions: dict[str, float], site_name: st
         "ellipse_fraction": float(table["ellipse_fraction"].sum()),
         "weighted_pct_valid": weighted_mean(table["ellipse_fraction"], table["pct_valid"]),
         "weighted_error_mps": weighted_mean(table["ellipse_fraction"], table["error_mean_3sigma_mps"]),
+        **{name: weighted_mean(table["ellipse_fraction"], table[name]) for name in AXIS_STATISTIC_COLUMNS},
     }
     table = pd.concat([table, pd.DataFrame([total])], ignore_index=True)
     table.attrs["false_valid_mps"] = float(false_valid_mps)
     return table
+
+
+def axis_statistics(valid: pd.DataFrame) -> dict[str, float]:
+    """Mean + 3 sigma of the valid cases' signed east and north errors pooled, and of the attitude floor
+    (its magnitude ``attitude_floor_mps``; per axis, its components ``floor * (-b_north, b_east) / tilt``,
+    the directions of ``V (-tan b_north, tan b_east)``); NaN where the columns are missing."""
+    answer = dict.fromkeys(AXIS_STATISTIC_COLUMNS, math.nan)
+    if valid.empty or any(name not in valid.columns for name in AXIS_COLUMNS_READ):
+        return answer
+    def column(name: str) -> np.ndarray:
+        return valid[name].to_numpy(dtype=float)
+    east = column("estimate_velocity_east_mps") - column("truth_velocity_east_mps")
+    north = column("estimate_velocity_north_mps") - column("truth_velocity_north_mps")
+    floor, bias_east, bias_north = column("attitude_floor_mps"), column("sensor_attitude_bias_east_rad"), column("sensor_attitude_bias_north_rad")
+    tilt = np.hypot(bias_east, bias_north)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        floor_east, floor_north = np.where(tilt > 0, -floor * bias_north / tilt, 0.0), np.where(tilt > 0, floor * bias_east / tilt, 0.0)
+    answer.update(error_axis_mean_3sigma_mps=mean_plus_3_sigma(np.concatenate([east, north])),
+                  floor_mean_3sigma_mps=mean_plus_3_sigma(floor),
+                  floor_axis_mean_3sigma_mps=mean_plus_3_sigma(np.concatenate([floor_east, floor_north])))
+    return answer
 
 
 def weighted_mean(fractions: pd.Series, values: pd.Series) -> float:
@@ -116,11 +151,12 @@ def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
 
     A class row gives the class's own % valid with its denominator, ``valid/ran`` (ran = cases - failed);
     the last (site) row gives the ellipse-weighted % valid and error (:func:`weighted_mean`) and the
-    summed counts. False-valid stands next to every % valid."""
+    summed counts. False-valid stands next to every % valid. A second grid gives both error statistics
+    and the attitude floor's (:func:`axis_statistics`) per class."""
     threshold = table.attrs.get("false_valid_mps", FALSE_VALID_MPS)
     headers = ["Class", "Cases", "Valid", "Failed", "% valid (valid/ran)", f"False-valid (>{threshold:g} m/s)",
                "Error m/s mean+3s", "Worst valid m/s", "% ellipse"]
-    body = []
+    body, statistics = [], []
     last = len(table) - 1
     for position, (_, row) in enumerate(table.iterrows()):
         site = position == last
@@ -131,17 +167,26 @@ def format_table(table: pd.DataFrame, markdown: bool = False) -> str:
             ran = int(row["cases"]) - int(row["failed"])
             pct = format_number(row["pct_valid"], "{:.1f}%") + f" ({int(row['valid'])}/{ran})"
             error = format_number(row["error_mean_3sigma_mps"], "{:.2f}")
+        magnitude = row["weighted_error_mps"] if site else row["error_mean_3sigma_mps"]
+        statistics.append([format_number(value, "{:.2f}") for value in (magnitude, *row[AXIS_STATISTIC_COLUMNS])])
         body.append([
             str(row["class"]), str(int(row["cases"])), str(int(row["valid"])), str(int(row["failed"])), pct,
             f"{int(row['false_valid'])}/{int(row['valid'])}", error, format_number(row["worst_valid_error_mps"], "{:.2f}"),
             format_number(100 * row["ellipse_fraction"], "{:.0f}%"),
         ])
-    return render_grid(headers, body, markdown)
+    # both statistics and the floor's, one row each (classes as columns: no row starts with a class name)
+    statistics_rows = [[label] + [cells[index] for cells in statistics] for index, label in
+                       enumerate(("error |v|", "error per axis", "floor |v|", "floor per axis"))]
+    statistics_headers = ["m/s mean+3s"] + [str(name) for name in table["class"]]
+    return (render_grid(headers, body, markdown) + "\n" + ("\n" if markdown else "")
+            + render_grid(statistics_headers, statistics_rows, markdown))
 
 
 NOTE_WIDTH = 118
 """Footers are wrapped to this many characters (every printed line within 120 columns)."""
-SIGMA_NOTE = ("error = mean + 3 sigma of the horizontal velocity error over the valid cases with a finite error, "
+SIGMA_NOTE = ("error = mean + 3 sigma of the horizontal velocity error over the valid cases with a finite error "
+              "(its magnitude; in the grid below the table also per axis, of the signed east and north errors pooled, "
+              "and the floor: both statistics of the error the attitude-knowledge bias alone causes), "
               "sigma the sample standard deviation (ddof=1, n-1 in the denominator; 0 for a single case), not "
               "the population one (ddof=0)")
 TABLE_NOTE = textwrap.fill("denominators: % valid = valid / (cases - failed) (shown as valid/ran); false-valid = valid cases with an error "

@@ -12,6 +12,11 @@ physical quantities, in this order:
    craters (heb).
 2. Normal albedo: mean times ``(1 + spread * fractal)`` (power-law spectrum, outer scale 1 km),
    bright crater rims, dark dust devil tracks (gdcp), knob and ejecta albedo.
+
+   ``contrast_scale`` s (1 unless a preset or site file sets it) multiplies the whole height field of
+   step 1 (every slope: background relief, crater depths and rims, knob heights, ejecta) and every
+   albedo modulation of step 2 (spread, rim, track, knob, ejecta contrasts); the mean albedo, the
+   crater and track populations, the MOC geometry, haze and grain are unchanged.
 3. Surface I/F at the MOC geometry: ``A * 2 mu0 / (mu + mu0) * f(alpha) / f(0)`` per facet (paper
    equations 1-3 normalised so that A is the I/F at normal incidence, emission and zero phase),
    with the direct sun beam (fraction ``exp(-tau / mu0)`` of the ground irradiance) blocked in cast
@@ -224,7 +229,11 @@ def surface_fields(params: ClassTerrainParams, seed: int) -> tuple[np.ndarray, n
     if params.knob_density_per_km2 > 0:
         _add_knobs(params, rng["knobs"], relief, height, albedo_mod)
 
-    rim_brightening = 1.0 + params.crater_rim_albedo_contrast * np.minimum(rim_albedo, 1.5)
+    scale = params.contrast_scale
+    if scale != 1.0:            # every slope and every albedo contrast x scale (module docstring)
+        height *= np.float32(scale)
+        albedo_mod *= np.float32(scale)
+    rim_brightening = 1.0 + scale * params.crater_rim_albedo_contrast * np.minimum(rim_albedo, 1.5)
     albedo = params.normal_albedo_mean * (1.0 + albedo_mod) * rim_brightening
     if params.track_length_per_km2 > 0:
         narrowest_m, widest_m = params.track_width_m
@@ -232,7 +241,7 @@ def surface_fields(params: ClassTerrainParams, seed: int) -> tuple[np.ndarray, n
                                   (narrowest_m / mpp, widest_m / mpp), np.radians(params.track_azimuth_deg),
                                   np.radians(params.track_azimuth_spread_deg), params.track_mean_length_m / mpp,
                                   rng["tracks"])
-        albedo *= 1.0 - params.track_albedo_contrast * tracks
+        albedo *= 1.0 - scale * params.track_albedo_contrast * tracks
     return height.astype(np.float32), np.clip(albedo, 0.02, 0.8).astype(np.float32)
 
 

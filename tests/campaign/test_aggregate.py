@@ -72,7 +72,10 @@ def test_flight_metrics_table_summarises_templates_per_class():
     line = next(row for row in text.splitlines() if row.startswith("| a "))
     assert "| 10 |" in line and "1004 [1001-1008]" in line and "14.5 [10.9-18.1]" in line
     assert "0.900 [0.900-0.900]" in line                      # the failed match's 0.1 is not a correlation
-    assert "| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 0.88, 0.91, 1.00 |" in text
+    # per-template ratio (10 + k) / (1000 + k): median of 14/1004 and 15/1005, percentiles interpolated
+    assert "| 1.44 [1.09-1.80] |" in line
+    assert ("| MER-A flight (paper) | 3 | 4710, 3898, 4693 | 47.5, 41.7, 55.6 | 1.01, 1.07, 1.18 | 0.88, 0.91, 1.00 |"
+            in text)
 
 
 def _site_row_cells(text: str, site: str) -> list[str]:
@@ -117,3 +120,42 @@ def test_table_footer_states_the_sigma_convention_and_denominators():
     assert max(len(line) for line in TABLE_NOTE.splitlines()) <= 120
     # the convention is the one computed: [1, 3] has sample sigma sqrt(2), population sigma 1
     assert mean_plus_3_sigma(np.array([1.0, 3.0])) == pytest.approx(2.0 + 3.0 * math.sqrt(2.0))
+
+
+def test_magnitude_per_axis_and_floor_statistics_against_the_closed_form():
+    """A synthetic class whose only error is a tilt bias b (per-axis sigma s) seen from a lander dropping at
+    V: errors V (-tan b_north, tan b_east). Over many cases the magnitude is Rayleigh(V s), whose mean + 3
+    sigma is (sqrt(pi/2) + 3 sqrt(2 - pi/2)) V s, and each axis normal(0, V s): 3 V s. The floor equals
+    the error here, so it has the same two statistics."""
+    rng = np.random.default_rng(5)
+    count, drop_rate_mps, sigma_rad = 40000, 72.0, math.radians(1.0) / math.sqrt(2.0)
+    bias_east, bias_north = rng.normal(0.0, sigma_rad, count), rng.normal(0.0, sigma_rad, count)
+    error_east, error_north = -drop_rate_mps * np.tan(bias_north), drop_rate_mps * np.tan(bias_east)
+    truth_east, truth_north = rng.normal(0.0, 10.0, count), rng.normal(0.0, 10.0, count)
+    results = pd.DataFrame({
+        "class_name": "gcp", "status": "ok", "valid": True, "velocity_error_mps": np.hypot(error_east, error_north),
+        "estimate_velocity_east_mps": truth_east + error_east, "estimate_velocity_north_mps": truth_north + error_north,
+        "truth_velocity_east_mps": truth_east, "truth_velocity_north_mps": truth_north,
+        "attitude_floor_mps": drop_rate_mps * np.tan(np.hypot(bias_east, bias_north)),
+        "sensor_attitude_bias_east_rad": bias_east, "sensor_attitude_bias_north_rad": bias_north})
+    row = site_table(results, {"gcp": 1.0}, "Gusev").set_index("class").loc["gcp"]
+    scale = drop_rate_mps * sigma_rad                    # 0.888 m/s: total tilt 1 deg RMS
+    magnitude = (math.sqrt(math.pi / 2.0) + 3.0 * math.sqrt(2.0 - math.pi / 2.0)) * scale
+    assert row["error_mean_3sigma_mps"] == pytest.approx(magnitude, rel=0.015)
+    assert row["error_axis_mean_3sigma_mps"] == pytest.approx(3.0 * scale, rel=0.015)
+    assert row["floor_mean_3sigma_mps"] == pytest.approx(magnitude, rel=0.015)
+    assert row["floor_axis_mean_3sigma_mps"] == pytest.approx(3.0 * scale, rel=0.015)
+    site = site_table(results, {"gcp": 1.0}, "Gusev").iloc[-1]
+    assert site["error_axis_mean_3sigma_mps"] == pytest.approx(row["error_axis_mean_3sigma_mps"])
+    text = format_table(site_table(results, {"gcp": 1.0}, "Gusev"))
+    rows = {line.split("  ")[0]: line.split() for line in text.splitlines()}
+    assert rows["error per axis"][-2:] == [f"{row['error_axis_mean_3sigma_mps']:.2f}"] * 2      # gcp, site
+    assert rows["floor |v|"][-1] == f"{site['floor_mean_3sigma_mps']:.2f}"
+    assert rows["error |v|"][-2:] == [f"{row['error_mean_3sigma_mps']:.2f}"] * 2          # site: the weighted one
+    assert max(len(line) for line in text.splitlines()) <= 120
+
+
+def test_tables_without_the_per_axis_columns_leave_those_statistics_unknown():
+    table = site_table(pd.DataFrame(_rows("a", [1.0, 2.0])), {"a": 1.0}, "site").set_index("class")
+    assert math.isnan(table.loc["a", "error_axis_mean_3sigma_mps"]) and math.isnan(table.loc["site", "floor_mean_3sigma_mps"])
+    assert table.loc["a", "error_mean_3sigma_mps"] == pytest.approx(1.5 + 3 * math.sqrt(0.5))

@@ -68,3 +68,22 @@ def test_estimate_to_dict_is_json_with_non_finite_numbers_as_zero():
     assert data["imu_bias_east_mps"] == 0.0 and data["velocity_north_mps"] == -4.0
     assert data["features"][0]["contrast_to_noise"] == 0.0 and data["pairs"][0]["features_used"] == 4
     assert REASONS[0] == "ok" and len(set(REASONS)) == len(REASONS)
+
+
+def test_template_contrast_gate_in_dn_refuses_the_blander_templates_only():
+    """Left half: checkerboard of +-10 DN about 1000 (template standard deviation ~10 DN); right half: +-30 DN
+    (~30 DN). A 20 DN gate keeps only right-half templates; the default (0, off) keeps both halves."""
+    size = 128
+    checker = np.where((np.add.outer(np.arange(size), np.arange(size)) % 2) == 0, 1.0, -1.0)
+    image = (1000.0 + checker * np.where(np.arange(size)[None, :] < size // 2, 10.0, 30.0)).astype(np.float32)
+    image += np.random.default_rng(1).normal(0.0, 0.5, image.shape).astype(np.float32)
+    half = EstimatorConfig().template_size_px // 2
+    candidates = np.zeros(image.shape, bool)
+    candidates[half + 1:size - half - 1, half + 1:size - half - 1] = True
+    candidates[:, size // 2 - half - 1:size // 2 + half + 1] = False      # no template straddles the two halves
+    ungated = select_features(image, candidates, lambda column, row: 1.0, EstimatorConfig(feature_grid=4, features_per_pair=16))
+    assert {f.column < size // 2 for f in ungated.features} == {True, False} and ungated.low_contrast == 0
+    gated = select_features(image, candidates, lambda column, row: 1.0,
+                            EstimatorConfig(feature_grid=4, features_per_pair=16, min_template_contrast_dn=20.0))
+    assert gated.features and all(f.column > size // 2 and f.contrast_dn >= 20.0 for f in gated.features)
+    assert gated.low_contrast >= 1 and all(f.contrast_dn == pytest.approx(30.0, rel=0.05) for f in gated.features)

@@ -60,11 +60,23 @@ ONLY = {name: SensorConfig(**{**ZERO, field: value}) for name, field, value in [
     ("imu_velocity_bias_sigma_mps", "imu_velocity_bias_sigma_mps", 2.0)]}
 
 
-def test_attitude_bias_is_constant_over_the_images_with_sigma_one_degree():
+def test_attitude_bias_is_constant_over_the_images_with_a_total_tilt_of_one_degree_rms():
     errors = _world_errors(_draw(ONLY["attitude_bias_sigma_rad"]), ONLY["attitude_bias_sigma_rad"])
     np.testing.assert_allclose(errors[:, 1:], errors[:, :1].repeat(2, axis=1), atol=1e-12)
-    np.testing.assert_allclose(errors[:, 0].std(axis=0), np.radians(1.0), rtol=0.06)
+    # default reading: 1 deg is the RMS of the tilt angle, so each axis has 1/sqrt(2) deg
+    tilt = np.hypot(errors[:, 0, 0], errors[:, 0, 1])
+    assert np.sqrt(np.mean(tilt ** 2)) == pytest.approx(np.radians(1.0), rel=0.05)
+    np.testing.assert_allclose(errors[:, 0].std(axis=0), np.radians(1.0) / np.sqrt(2.0), rtol=0.06)
     np.testing.assert_allclose(errors[:, 0].mean(axis=0), 0.0, atol=4 * np.radians(1.0) / np.sqrt(DRAWS))
+
+
+@pytest.mark.parametrize("reading, axis_sigma_deg", [("per_axis", 1.0), ("total_angle", 1.0 / np.sqrt(3.0))])
+def test_attitude_bias_other_readings_of_its_sigma(reading, axis_sigma_deg):
+    config = SensorConfig(**{**ZERO, "attitude_bias_sigma_deg": 1.0, "attitude_bias_sigma_is": reading})
+    errors = _world_errors(_draw(config, count=1000), config)[:, 0]
+    np.testing.assert_allclose(errors.std(axis=0), np.radians(axis_sigma_deg), rtol=0.08)
+    if reading == "total_angle":
+        assert np.sqrt(np.mean(np.sum(errors ** 2, axis=1))) == pytest.approx(np.radians(1.0), rel=0.05)
 
 
 def test_between_image_random_error_is_independent_per_image_with_sigma_005_degree():

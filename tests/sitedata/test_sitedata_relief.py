@@ -46,13 +46,15 @@ def test_background_relief_has_the_class_slope_distribution():
         terrain = ReliefTerrain(np.ones_like(height), params.metres_per_pixel, np.zeros(2), 0.5, 0.0, 0.5,
                                 height_m=height)
         stats = relief.relief_statistics(terrain)
-        # RMS bidirectional slope at the pixel baseline: the preset's, in both directions (isotropic field)
-        assert stats["rms_slope_deg"] == pytest.approx(params.rms_slope_deg, rel=0.1)
+        # RMS bidirectional slope at the pixel baseline: the preset's, in both directions (isotropic field),
+        # its tangent times the class's contrast scale (the whole height field is scaled)
+        expected = np.degrees(np.arctan(params.contrast_scale * np.tan(np.radians(params.rms_slope_deg))))
+        assert stats["rms_slope_deg"] == pytest.approx(expected, rel=0.1)
 
 
 def test_fresh_craters_reach_depth_over_diameter_of_the_literature():
-    params = small("hdcp", rms_slope_deg=0.0, crater_density_per_km2=400.0, crater_depth_to_diameter=(0.2, 0.2),
-                   crater_min_diameter_m=60.0, crater_max_diameter_m=61.0)
+    params = small("hdcp_rough_moc", rms_slope_deg=0.0, crater_density_per_km2=400.0, crater_depth_to_diameter=(0.2, 0.2),
+                   crater_min_diameter_m=60.0, crater_max_diameter_m=61.0)      # contrast scale 1: the literature's depths
     _, height = relief.generate_relief(params, 2)
     height = height - np.median(height)                     # the plains level
     # fresh simple craters (Pike 1977): floor 0.2 D = 12 m below the rim crest at 0.04 D = 2.4 m

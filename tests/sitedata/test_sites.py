@@ -12,6 +12,7 @@ import pytest
 from flight_interface.tomlfields import ConfigError
 from sitedata.sites import ASTRONOMICAL_UNIT_M, class_terrain_params, load_class_terrain, load_site, sun_direction
 from sitedata.terrain import mosaic as terrain_mosaic
+from sitedata.terrain.synthetic_classes import CLASS_PRESETS
 
 REPO = Path(__file__).resolve().parents[2]
 SITEDATA = REPO / "sitedata"
@@ -98,6 +99,23 @@ def test_good_site_loads_with_relative_paths_and_overrides(tmp_path):
         site.class_named("zz")
 
 
+def test_contrast_scales_multiply_the_presets_own(tmp_path):
+    # gcp's calibrated preset already has a contrast scale; the terrain's and the site's multiply it
+    text = GOOD.replace('name = "Test"', 'name = "Test"\nterrain_contrast_scale = 0.5').replace(
+        "seed = 1,", "seed = 1, contrast_scale = 0.4,")
+    site = load_site(write_site(tmp_path, text))
+    preset_scale = CLASS_PRESETS["gcp"].contrast_scale
+    assert class_terrain_params(site.class_named("a").terrain).contrast_scale == pytest.approx(preset_scale * 0.4 * 0.5)
+    assert class_terrain_params(site.class_named("b").terrain).contrast_scale == pytest.approx(
+        CLASS_PRESETS["heb"].contrast_scale * 0.5)
+    plain = load_site(write_site(tmp_path, GOOD))
+    assert class_terrain_params(plain.class_named("a").terrain) == CLASS_PRESETS["gcp"].__class__(
+        **{**CLASS_PRESETS["gcp"].__dict__, "rows": 128, "cols": 96})
+    # the rough-MOC variant is the calibrated class before its scale
+    rough = CLASS_PRESETS["gcp_rough_moc"]
+    assert rough.contrast_scale == 1.0 and rough.albedo_relative_spread == CLASS_PRESETS["gcp"].albedo_relative_spread
+
+
 def test_class_terrain_is_built_once_per_process(tmp_path, monkeypatch):
     monkeypatch.setenv("MOC2DIMES_CACHE", str(tmp_path / "cache"))
     spec = load_site(write_site(tmp_path, GOOD)).class_named("b").terrain
@@ -113,7 +131,14 @@ BROKEN = [
     (lambda t: t.replace("ellipse_fraction = 0.75", "ellipse_fraction = 1.75"),
      r"site.toml: site.classes\[1\].ellipse_fraction = 1.75 is out of range; allowed: >= 0 and <= 1"),
     (lambda t: t.replace('name = "Test"', 'name = "Test"\ncolour = "red"'),
-     r"site.toml: site.colour is not a known field; allowed: name, camera, trajectory_set, sun, classes"),
+     r"site.toml: site.colour is not a known field; allowed: name, camera, trajectory_set, sun, classes, "
+     r"terrain_contrast_scale"),
+    (lambda t: t.replace("seed = 1,", "seed = 1, contrast_scale = 0.0,"),
+     r"site.classes\[0\].terrain.contrast_scale = 0 is out of range; allowed: > 0 and <= 4"),
+    (lambda t: t.replace('name = "Test"', 'name = "Test"\nterrain_contrast_scale = 5.0'),
+     r"site.terrain_contrast_scale = 5 is out of range; allowed: > 0 and <= 4"),
+    (lambda t: t.replace("rows = 128", "contrast_scale = 0.5, rows = 128"),     # the terrain's own key, not an override
+     r"site.classes\[0\].terrain.overrides.contrast_scale is not a known field"),
     (lambda t: t.replace('preset = "gcp"', 'preset = "gxx"'),
      r"site.classes\[0\].terrain.preset = 'gxx' is not allowed; allowed: gcp, gdcp, gkep, hbsp, hdcp, heb"),
     (lambda t: t.replace('kind = "synthetic", preset = "gcp"', 'kind = "moc", preset = "gcp"'),

@@ -8,16 +8,23 @@ import pytest
 
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS, ClassTerrainParams
 
+CLASSES = ("gcp", "gdcp", "gkep", "hbsp", "hdcp", "heb")
 
-def test_presets_are_the_six_classes_and_valid():
-    assert set(CLASS_PRESETS) == {"gcp", "gdcp", "gkep", "hbsp", "hdcp", "heb"}
+
+def test_presets_are_the_six_classes_and_their_rough_moc_variants_and_valid():
+    assert set(CLASS_PRESETS) == {*CLASSES, *(f"{name}_rough_moc" for name in CLASSES)}
     for name, params in CLASS_PRESETS.items():
         assert params.name == name
         params.validate()
+    # a default class is its rough-MOC-ground variant with a contrast scale below 1 and nothing else changed
+    for name in CLASSES:
+        rough, default = CLASS_PRESETS[f"{name}_rough_moc"], CLASS_PRESETS[name]
+        assert rough.contrast_scale == 1.0 and 0.0 < default.contrast_scale < 1.0
+        assert dataclasses.replace(default, name=rough.name, contrast_scale=1.0) == rough
 
 
 def test_presets_follow_the_described_physics():
-    p = CLASS_PRESETS
+    p = {name: CLASS_PRESETS[name] for name in CLASSES}
     # Meridiani hematite plains are darker and smoother than the Gusev plains
     assert max(p[c].normal_albedo_mean for c in ("hbsp", "hdcp", "heb")) < min(
         p[c].normal_albedo_mean for c in ("gcp", "gdcp", "gkep"))

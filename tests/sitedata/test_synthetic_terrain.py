@@ -106,8 +106,16 @@ def test_rms_contrast_follows_the_documented_class_ordering(site_strips):
 
 @pytest.mark.slow
 def test_feature_density_follows_the_documented_class_ordering(site_strips):
-    # dark features (craters, pits, track segments, knob shadows) as campaign.realism.terrain_stats counts them
-    density = {name: crater_density_per_km2(t.reflectance_if, t.metres_per_pixel)
+    # dark features (craters, pits, track segments, knob shadows) as campaign.realism.terrain_stats counts them,
+    # on the strip's departures from its mean divided by the class's contrast scale (the default classes are
+    # the rough-MOC-ground populations with every contrast x scale: a feature 5 % dark there is 5 % x scale here)
+    from sitedata.terrain.synthetic_classes import CLASS_PRESETS
+
+    def unscaled(image, name):
+        mean = float(image.mean())
+        return (mean + (image - mean) / CLASS_PRESETS[name].contrast_scale).astype(np.float32)
+
+    density = {name: crater_density_per_km2(unscaled(t.reflectance_if, name), t.metres_per_pixel)
                for name, (_, _, t) in site_strips.items()}
     assert density["hbsp"] < density["gcp"], density
     assert max(density["gcp"], density["hbsp"]) < 0.8 * min(density[n] for n in ("gdcp", "hdcp", "heb", "gkep")), density
@@ -273,3 +281,28 @@ def test_bad_parameters_are_refused_with_a_clear_message():
         st.preset("gcp", haze_optical_depth=-1.0)
     with pytest.raises(ValueError, match=r"unknown synthetic terrain preset 'xyz'; allowed: gcp, gdcp, gkep, hbsp, hdcp, heb"):
         st.preset("xyz")
+
+
+def test_contrast_scale_multiplies_every_slope_and_albedo_modulation():
+    # hdcp (craters, fractal albedo, relief) with the rim brightening off: the height field scales exactly and
+    # the albedo's departure from its mean scales with it; the rough preset is the default class unscaled
+    import dataclasses
+
+    params = st.preset("hdcp_rough_moc", rows=256, cols=256, crater_rim_albedo_contrast=0.0)
+    height, albedo = st.surface_fields(params, 11)
+    scaled_height, scaled_albedo = st.surface_fields(dataclasses.replace(params, contrast_scale=0.3), 11)
+    assert np.abs(height).max() > 1.0
+    np.testing.assert_allclose(scaled_height, 0.3 * height, rtol=1e-5, atol=1e-5)
+    unclipped = (albedo > 0.02) & (albedo < 0.8)
+    mean = params.normal_albedo_mean
+    np.testing.assert_allclose(scaled_albedo[unclipped] - mean, 0.3 * (albedo[unclipped] - mean), rtol=1e-4, atol=1e-6)
+    # dust devil tracks darken by scale x their contrast: the darkest track pixel of gdcp, no other modulation
+    bare_tracks = dict(rows=256, cols=256, albedo_relative_spread=0.0, crater_density_per_km2=0.0,
+                       crater_rim_albedo_contrast=0.0, track_length_per_km2=40.0)
+    _, tracked = st.surface_fields(st.preset("gdcp_rough_moc", **bare_tracks), 3)
+    _, faint = st.surface_fields(st.preset("gdcp_rough_moc", contrast_scale=0.5, **bare_tracks), 3)
+    mean = st.preset("gdcp_rough_moc").normal_albedo_mean
+    np.testing.assert_allclose(mean - faint, 0.5 * (mean - tracked), rtol=1e-4, atol=1e-6)
+    assert st.preset("gdcp").contrast_scale < 1.0 == st.preset("gdcp_rough_moc").contrast_scale
+    with pytest.raises(ValueError, match=r"preset 'gcp': contrast_scale = 0\.0 is out of range; allowed: 0 < scale <= 4"):
+        st.preset("gcp", contrast_scale=0.0)
