@@ -1,7 +1,7 @@
 """The velocity error a campaign case cannot avoid: the attitude-knowledge floor (truth side, for reports).
 
 A bias in the measured attitude common to the three images (the paper's absolute attitude bias,
-sigma 1 deg per axis) is invisible in the images: every image is projected onto the ground with the
+by default 1 deg RMS of the total tilt: simulator/sensors.py) is invisible in the images: every image is projected onto the ground with the
 same tilt error ``b``, which moves a ground point seen from altitude ``h`` by ``h tan b``. The
 displacement error therefore changes by ``(h_1 - h_3) tan b`` between the first and the last image,
 and the horizontal velocity derived from them is off by about
