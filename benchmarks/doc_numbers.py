@@ -65,9 +65,11 @@ RECORDED_TABLES_FILE = MEASURED_DIR / "tables.csv"
 RECORDED_TABLES_DIR = MEASURED_DIR / "tables"
 RECORDED_TABLE_COLUMNS = ("name", "date", "source", "conditions")
 FACT_COLUMNS = ("fact", "value", "unit", "date", "source", "conditions", "superseded")
+#: the per-axis error statistic and the attitude-knowledge floor's two statistics (``campaign table``'s table.csv)
+AXIS_STATISTICS = ("error_axis_mean_3sigma_mps", "floor_mean_3sigma_mps", "floor_axis_mean_3sigma_mps")
 SITE_TABLE_COLUMNS = ("site", "row", "estimator", "cases", "valid", "failed", "pct_valid", "false_valid",
-                      "error_mean_3sigma_mps", "date", "store", "seed", "cases_scale", "fidelity", "flat_field",
-                      "false_valid_mps")
+                      "error_mean_3sigma_mps", *AXIS_STATISTICS, "date", "store", "seed", "cases_scale", "fidelity",
+                      "flat_field", "false_valid_mps")
 #: files scanned for superseded figures even without blocks (comments there may quote a figure)
 ALWAYS_SCANNED = ("pyproject.toml",)
 #: units printed without a space before them
@@ -294,7 +296,7 @@ def sites_table(sources: Sources) -> str:
                f"field, estimator `{estimator}`), next to the paper's Tables 1 and 2; false-valid = valid with a "
                f"velocity error above {_trim(float(false_valid_mps))} m/s; measured {' and '.join(dates)}:")
     header = ["class", "cases", "paper % valid", "paper error (m/s, mean+3σ)", "% valid (valid/ran)",
-              "false-valid", "error (m/s, mean+3σ)"]
+              "false-valid", "error |v| (m/s, mean+3σ)", "error per axis", "attitude floor |v| / per axis"]
     body = []
     for row in rows:
         quoted = paper.get((row["site"], row["row"]), {})
@@ -304,7 +306,9 @@ def sites_table(sources: Sources) -> str:
                      f"{quoted['pct_valid']} %" if quoted else "",
                      quoted.get("error_mean_3sigma_mps", ""),
                      f"{float(row['pct_valid']):.1f}% ({row['valid']}/{ran})",
-                     row["false_valid"], f"{float(row['error_mean_3sigma_mps']):.2f}"])
+                     row["false_valid"], f"{float(row['error_mean_3sigma_mps']):.2f}",
+                     _two_decimals(row["error_axis_mean_3sigma_mps"]),
+                     f"{_two_decimals(row['floor_mean_3sigma_mps'])} / {_two_decimals(row['floor_axis_mean_3sigma_mps'])}"])
     return caption + "\n\n" + _markdown_table(header, body)
 
 
@@ -688,7 +692,9 @@ def campaign_table_rows(store: Path) -> list[dict]:
                      "pct_valid": _rounded(entry["weighted_pct_valid" if is_site else "pct_valid"]),
                      "false_valid": entry["false_valid"],
                      "error_mean_3sigma_mps": _rounded(entry["weighted_error_mps" if is_site
-                                                             else "error_mean_3sigma_mps"])})
+                                                             else "error_mean_3sigma_mps"]),
+                     # a store tabulated before these statistics existed has none: blank, printed n/a
+                     **{column: _rounded(entry.get(column) or "") for column in AXIS_STATISTICS}})
     if not any(row["row"] == "site" for row in rows):
         raise RecordError(f"{table_path}: no site row for {site} and estimator {estimator}")
     return rows
@@ -701,8 +707,13 @@ def campaign_table(root: Path, stores: list[Path]) -> int:
     return len(rows)
 
 
+def _two_decimals(text: str) -> str:
+    """A recorded statistic as printed in the site table (blank when the store had none)."""
+    return f"{float(text):.2f}" if text else "n/a"
+
+
 def _rounded(text: str) -> str:
-    return f"{float(text):.4f}"
+    return f"{float(text):.4f}" if text not in ("", "nan") else ""
 
 
 def _trim(value: float) -> str:

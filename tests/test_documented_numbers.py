@@ -189,8 +189,9 @@ def test_import_bench_updates_the_facts_and_their_blocks(copy: Path):
     assert not any(key.startswith("bench//") for key in added)
 
 
-def _store(root: Path, site: str, created: str, rows: list[tuple]) -> Path:
-    """A finished store as campaign-table reads it: manifest.json and table.csv (as campaign table writes)."""
+def _store(root: Path, site: str, created: str, rows: list[tuple], statistics: bool = False) -> Path:
+    """A finished store as campaign-table reads it: manifest.json and table.csv (as campaign table writes; with
+    ``statistics`` the per-axis error and attitude-floor columns too, else as a store tabulated before them)."""
     store = root / site.lower()
     store.mkdir()
     manifest = {"site": site, "created": created, "seed": 3, "estimators": ["dimes", "other"],
@@ -201,19 +202,20 @@ def _store(root: Path, site: str, created: str, rows: list[tuple]) -> Path:
         writer = csv.writer(handle)
         writer.writerow(["estimator", "class", "cases", "valid", "failed", "pct_valid", "false_valid",
                          "worst_valid_error_mps", "error_mean_3sigma_mps", "ellipse_fraction", "weighted_pct_valid",
-                         "weighted_error_mps"])
+                         "weighted_error_mps"] + (["error_axis_mean_3sigma_mps", "floor_mean_3sigma_mps",
+                                                   "floor_axis_mean_3sigma_mps"] if statistics else []))
         for row in rows:
             writer.writerow(row)
     return store
 
 
 def test_campaign_table_regenerates_the_site_table_from_stores(copy: Path):
-    gusev = _store(copy, "Gusev", "2026-12-01T10:00:00+0000", [
-        ("dimes", "gcp", 10, 9, 0, 90.0, 1, 6.0, 2.5, 0.6, 54.0, 1.5),
-        ("other", "gcp", 10, 2, 0, 20.0, 0, 1.0, 1.0, 0.6, 12.0, 0.6),
-        ("dimes", "gdcp", 8, 6, 1, 85.71428571, 0, 3.0, 3.25, 0.4, 34.28571, 1.3),
-        ("dimes", "Gusev", 18, 15, 1, "", 1, 6.0, "", 1.0, 88.285714, 2.8),
-    ])
+    gusev = _store(copy, "Gusev", "2026-12-01T10:00:00+0000", [     # with the per-axis and floor statistics
+        ("dimes", "gcp", 10, 9, 0, 90.0, 1, 6.0, 2.5, 0.6, 54.0, 1.5, 2.25, 2.125, 1.875),
+        ("other", "gcp", 10, 2, 0, 20.0, 0, 1.0, 1.0, 0.6, 12.0, 0.6, 1.0, 1.0, 1.0),
+        ("dimes", "gdcp", 8, 6, 1, 85.71428571, 0, 3.0, 3.25, 0.4, 34.28571, 1.3, 3.0, 2.5, 2.0),
+        ("dimes", "Gusev", 18, 15, 1, "", 1, 6.0, "", 1.0, 88.285714, 2.8, 2.55, 2.275, 1.925),
+    ], statistics=True)
     meridiani = _store(copy, "Meridiani", "2026-12-02T01:00:00+0000", [
         ("dimes", "heb", 4, 4, 0, 100.0, 0, 2.0, 1.999, 1.0, 100.0, 1.999),
         ("dimes", "Meridiani", 4, 4, 0, "", 0, 2.0, "", 1.0, 100.0, 1.999),
@@ -223,11 +225,12 @@ def test_campaign_table_regenerates_the_site_table_from_stores(copy: Path):
     readme = (copy / "README.md").read_text(encoding="utf-8")
     table = blocks(readme)["table sites"][0]
     # the first estimator of each store; % valid of the ran cases; the site rows ellipse-weighted; the paper beside
-    assert "| gcp | 10 | 98 % | 3.90 | 90.0% (9/10) | 1 | 2.50 |" in table
-    assert "| gdcp | 8 | 100 % | 3.48 | 85.7% (6/7) | 0 | 3.25 |" in table
-    assert "| Gusev (weighted) | 18 | 99 % | 3.73 | 88.3% (15/17) | 1 | 2.80 |" in table
-    assert "| heb | 4 | 100 % | 3.03 | 100.0% (4/4) | 0 | 2.00 |" in table
-    assert "| Meridiani (weighted) | 4 | 71 % | 3.74 | 100.0% (4/4) | 0 | 2.00 |" in table
+    # beside |v|: the per-axis statistic and the attitude floor's two (n/a for a store tabulated without them)
+    assert "| gcp | 10 | 98 % | 3.90 | 90.0% (9/10) | 1 | 2.50 | 2.25 | 2.12 / 1.88 |" in table
+    assert "| gdcp | 8 | 100 % | 3.48 | 85.7% (6/7) | 0 | 3.25 | 3.00 | 2.50 / 2.00 |" in table
+    assert "| Gusev (weighted) | 18 | 99 % | 3.73 | 88.3% (15/17) | 1 | 2.80 | 2.55 | 2.27 / 1.93 |" in table
+    assert "| heb | 4 | 100 % | 3.03 | 100.0% (4/4) | 0 | 2.00 | n/a | n/a / n/a |" in table
+    assert "| Meridiani (weighted) | 4 | 71 % | 3.74 | 100.0% (4/4) | 0 | 2.00 | n/a | n/a / n/a |" in table
     assert "20.0%" not in table and "| gkep |" not in table
     assert "seed 3, cases_scale 0.5, fast fidelity, calibrated flat field" in table
     assert "measured 2026-12-01 and 2026-12-02" in table

@@ -17,7 +17,10 @@ from campaign.report.aggregate import FALSE_VALID_MPS, NOTE_WIDTH, TABLE_NOTE, f
 
 DEFAULT_ESTIMATOR = "dimes"
 COMPARISON_COLUMNS = ["estimator", "class", "cases", "valid", "failed", "pct_valid", "false_valid",
-                      "worst_valid_error_mps", "error_mean_3sigma_mps", "ellipse_fraction", "weighted_pct_valid", "weighted_error_mps"]
+                      "worst_valid_error_mps", "error_mean_3sigma_mps", "ellipse_fraction", "weighted_pct_valid", "weighted_error_mps",
+                      "error_axis_mean_3sigma_mps", "floor_mean_3sigma_mps", "floor_axis_mean_3sigma_mps"]
+"""The columns of ``table.csv``: the paper's table of each estimator, then the per-axis error statistic and the
+attitude-knowledge floor's two statistics (:mod:`campaign.report.aggregate`; the site row's are weighted)."""
 
 
 def with_estimator_column(results: pd.DataFrame) -> pd.DataFrame:
