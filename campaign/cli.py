@@ -39,9 +39,9 @@ from campaign.configuration.schemas import SCHEMA_TABLES
 from campaign.run.faults import RunStopped
 from campaign.store.errors import StoreError
 from campaign.store.lock import StoreBusy
-from flight_interface.command_line import USAGE_ERROR
-from flight_interface.command_line import OneLineParser as _Parser
-from flight_interface.tomlfields import ConfigError
+from config_tables.command_line import USAGE_ERROR
+from config_tables.command_line import OneLineParser as _Parser
+from config_tables.errors import ConfigError
 
 # The commands themselves are campaign.commands (each imports its own stack when it runs); this module holds
 # the parser and the mapping of what a command raises to one stderr line and an exit code.

@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from campaign.run.faults import RunStopped
-from flight_interface.tomlfields import ConfigError, parse_field
+from config_tables.errors import ConfigError
+from config_tables.models import parse_field
 
 if TYPE_CHECKING:
     import pandas as pd

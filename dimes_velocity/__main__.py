@@ -25,6 +25,9 @@ from __future__ import annotations
 import json
 import sys
 
+from config_tables.command_line import USAGE_ERROR, OneLineParser
+from config_tables.errors import ConfigError
+from config_tables.toml_file import load_toml
 from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
 from dimes_velocity.estimator import DimesEstimator
 from file_formats.descent_images import ImageDeclaration, InputFileError, read_descent_image
@@ -32,9 +35,7 @@ from file_formats.flat_field_files import flat_field_next_to, load_flat_field
 from file_formats.measurements_json import load_measurements
 from flight_interface.calibration import CalibrationError
 from flight_interface.camera import load_camera
-from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.measurements import MeasurementError
-from flight_interface.tomlfields import ConfigError, load_toml
 
 PROG = "python -m dimes_velocity"
 #: what ``--summary`` prints (nothing else: no pairs, features, timings or inputs list)

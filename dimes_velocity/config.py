@@ -25,7 +25,8 @@ import math
 
 from pydantic import Field, field_validator
 
-from flight_interface.tomlfields import ConfigModel, FieldProblem, parse
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel, parse
 
 
 class EstimatorConfig(ConfigModel):

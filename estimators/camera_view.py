@@ -20,9 +20,10 @@ from pathlib import Path
 
 import tomli_w
 
+from config_tables.models import parse
+from config_tables.toml_file import load_toml
 from flight_interface.camera import Camera, camera_from_file
 from flight_interface.camera_file import CameraFile, Radiometry
-from flight_interface.tomlfields import load_toml, parse
 
 #: table -> fields of a camera TOML that an estimator never receives (simulator truth).
 TRUTH_FIELDS: dict[str, tuple[str, ...]] = {"radiometry": ("prnu_seed",)}

@@ -43,9 +43,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel
 from dimes_velocity.config import estimator_config_from_data
 from estimators.command import check_template
-from flight_interface.tomlfields import ConfigModel, FieldProblem
 
 DEFAULT_NAME = "dimes"
 DEFAULT_TIMEOUT_S = 60.0

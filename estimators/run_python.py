@@ -18,13 +18,13 @@ import sys
 
 import numpy as np
 
+from config_tables.errors import ConfigError
 from estimators.camera_view import load_design_camera
 from estimators.contract import ContractViolation, EstimatorInputs, output_to_dict, read_only_inputs, validate_output
 from file_formats.descent_images import InputFileError, load_image
 from file_formats.flat_field_files import load_flat_field
 from file_formats.measurements_json import load_measurements
 from flight_interface.calibration import CalibrationError, CalibrationProducts
-from flight_interface.tomlfields import ConfigError
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,6 +10,7 @@ which must never see the simulator's truth) import from here:
                                        (geometry, timing, radiometry and electronics as designed);
 * :mod:`flight_interface.frames`       world / body / camera frames and (w, x, y, z) quaternions;
 * :mod:`flight_interface.measurements` the measurement record an estimator receives (measured attitude,
-                                       radar altitude, IMU velocity per image);
-* :mod:`flight_interface.tomlfields`   TOML reading and the one-line :class:`ConfigError`.
+                                       radar altitude, IMU velocity per image).
+
+Its tables are validated with :mod:`config_tables` (the bottom package: TOML reading, one-line errors).
 """

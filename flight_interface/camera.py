@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from config_tables.models import load
 from flight_interface import cahvor
 from flight_interface.camera_file import CameraFile, Detector, Electronics, Optics, Radiometry, Timing
 from flight_interface.frames import quat_normalize, quat_to_matrix
-from flight_interface.tomlfields import load
 
 
 @dataclass(frozen=True)

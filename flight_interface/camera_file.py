@@ -34,9 +34,10 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel, FloatList, fixed_vector
 from flight_interface import cahvor
 from flight_interface.cahvor import Cahvor, field_of_view_deg
-from flight_interface.tomlfields import ConfigModel, FieldProblem, FloatList, fixed_vector
 
 PLANCK_J_S = 6.62607015e-34
 SPEED_OF_LIGHT_M_S = 2.99792458e8

@@ -35,13 +35,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from config_tables.command_line import USAGE_ERROR, OneLineParser
+from config_tables.errors import ConfigError
 from file_formats.descent_images import write_descent_image
 from file_formats.flat_field_files import save_flat_field
 from file_formats.measurements_json import json_ready, measurements_to_dict
 from flight_interface.camera import Camera, load_camera
-from flight_interface.command_line import USAGE_ERROR, OneLineParser
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
-from flight_interface.tomlfields import ConfigError
 from simulator.calibration import DEFAULT_FLAT_FRAMES, simulate_flat_field
 from simulator.descent_image import DescentImage, render_descent_image
 from simulator.scene.descent_profile import DescentProfile

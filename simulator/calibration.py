@@ -30,10 +30,10 @@ import sys
 
 import numpy as np
 
+from config_tables.errors import ConfigError
 from file_formats.flat_field_files import save_flat_field
 from flight_interface.calibration import CalibrationError, normalise_flat_field, readout_flat_field
 from flight_interface.camera import Camera, load_camera
-from flight_interface.tomlfields import ConfigError
 from simulator.detector.camera_chain import CameraEffects, expected_charge_e, pixel_gain, read_out
 from simulator.fields import RadianceFields
 

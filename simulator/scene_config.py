@@ -16,7 +16,8 @@ from typing import Any, Literal, cast
 
 from pydantic import Field, field_validator, model_validator
 
-from flight_interface.tomlfields import ConfigModel, FieldProblem
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel
 from simulator.detector.camera_chain import CameraEffects
 from simulator.fidelity import DEFAULT_PRESET, PRESETS, REFERENCE_EFFECTS, Preset, preset_fields
 from simulator.off_nominal import OffNominalConfig

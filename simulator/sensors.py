@@ -47,6 +47,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, ModelWrapValidatorHandler, model_validator
 
+from config_tables.models import ConfigModel
 from flight_interface.frames import (
     quat_conjugate,
     quat_from_rotation_vector,
@@ -55,7 +56,6 @@ from flight_interface.frames import (
     quat_to_rotation_vector,
 )
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement
-from flight_interface.tomlfields import ConfigModel
 from simulator.scene.descent_profile import DescentProfile
 
 SIGMA_FIELDS = ("attitude_bias_sigma_deg", "attitude_random_sigma_deg", "alignment_sigma_deg",

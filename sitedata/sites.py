@@ -46,16 +46,9 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeAlias
 import numpy as np
 from pydantic import Field, PrivateAttr, ValidationInfo, create_model, model_validator
 
-from flight_interface.tomlfields import (
-    ConfigError,
-    ConfigModel,
-    ExistingFile,
-    FieldProblem,
-    InputPath,
-    fixed_vector,
-    load_toml,
-    parse,
-)
+from config_tables.errors import ConfigError, FieldProblem
+from config_tables.models import ConfigModel, ExistingFile, InputPath, fixed_vector, parse
+from config_tables.toml_file import load_toml
 from simulator.scene.relief import ReliefTerrain
 from simulator.scene.terrain import Terrain
 from sitedata.terrain.real_terrain import load_terrain

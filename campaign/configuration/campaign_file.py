@@ -52,9 +52,11 @@ from campaign.configuration.estimators import (
 )
 from campaign.configuration.execution import ExecutionConfig
 from campaign.configuration.paths import check_input_file
+from config_tables.errors import ConfigError, FieldProblem
+from config_tables.models import ConfigModel, parse, parse_field
+from config_tables.toml_file import load_toml
 from dimes_velocity.config import EstimatorConfig
 from estimators.entries import EstimatorEntry, EstimatorSpec, unique_names
-from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load_toml, parse, parse_field
 from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig
 from sitedata.sites import MAX_CASES, Site

@@ -27,9 +27,9 @@ from typing import Literal
 
 from pydantic import Field
 
+from config_tables.models import ConfigModel
 from dimes_velocity.config import EstimatorConfig
 from estimators.entries import default_specs, estimator_specs
-from flight_interface.tomlfields import ConfigModel
 
 DEFAULT_FLAT_FIELD_FRAMES = 16
 

@@ -22,7 +22,8 @@ from typing import Literal
 from dask.utils import parse_bytes
 from pydantic import Field, field_validator, model_validator
 
-from flight_interface.tomlfields import ConfigModel, FieldProblem, StringList
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel, StringList
 
 SCHEDULER_SCHEMES = ("tcp://", "tls://", "inproc://")
 #: host:port for tcp/tls (port 1-65535; host a name, IPv4 or [IPv6]), anything non-empty after inproc://

@@ -1,6 +1,6 @@
 """Paths given on the command line or in a campaign file, checked before anything is opened or written.
 
-Every check answers with a one-line :class:`~flight_interface.tomlfields.ConfigError` naming the flag (or
+Every check answers with a one-line :class:`~config_tables.errors.ConfigError` naming the flag (or
 file and field), the path and what is allowed:
 
 * an empty path (``--output ""`` would otherwise mean the working directory);
@@ -19,7 +19,7 @@ import os
 import stat
 from pathlib import Path
 
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 
 NAME_MAX_BYTES = 255     # one name (Linux, most file systems)
 PATH_MAX_BYTES = 4095    # a whole path

@@ -59,7 +59,9 @@ from campaign.configuration.campaign_file import (
     campaign_config_from_data,
     load_campaign_config,
 )
-from flight_interface.tomlfields import ConfigError, ConfigModel, ExistingFile, load_toml, parse, parse_field
+from config_tables.errors import ConfigError
+from config_tables.models import ConfigModel, ExistingFile, parse, parse_field
+from config_tables.toml_file import load_toml
 
 AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed", "site.terrain_contrast_scale")

@@ -48,6 +48,9 @@ import pandas as pd
 
 from campaign.realism.flight_file import FlightFile
 from campaign.realism.flight_plots import column_plot, scatter_plot, side_by_side
+from config_tables.errors import ConfigError
+from config_tables.models import parse
+from config_tables.toml_file import load_toml
 from dimes_velocity import DescentMeasurements, DimesEstimator, ImageMeasurement
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.features import select_features, template_statistics
@@ -55,7 +58,6 @@ from dimes_velocity.preprocess import flatten, make_flattening
 from file_formats.descent_images import InputFileError, load_image
 from flight_interface.camera import Camera, load_camera
 from flight_interface.frames import quat_from_rotation_vector, quat_multiply
-from flight_interface.tomlfields import ConfigError, load_toml, parse
 from simulator.descent_image import render_descent_image
 from simulator.scene.descent_profile import DescentProfile
 from simulator.scene_config import SceneConfig

@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING, Annotated
 import numpy as np
 from pydantic import AfterValidator, Field, model_validator
 
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel, ExistingFile, InputPath, fixed_vector
 from dimes_velocity.config import EstimatorConfig
-from flight_interface.tomlfields import ConfigModel, ExistingFile, FieldProblem, InputPath, fixed_vector
 from simulator.scene_config import SceneConfig
 
 MAX_IMAGES = 3

@@ -31,11 +31,12 @@ from campaign.realism.terrain_stats import (
     nadir_photometric_ratio,
     terrain_statistics,
 )
+from config_tables.command_line import USAGE_ERROR, OneLineParser
+from config_tables.errors import ConfigError
+from config_tables.toml_file import load_toml
 from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
 from file_formats.planetary import load_orbital_image
 from flight_interface.camera import load_camera
-from flight_interface.command_line import USAGE_ERROR, OneLineParser
-from flight_interface.tomlfields import ConfigError, load_toml
 from sitedata import SITEDATA_DIR
 from sitedata.sites import Site, load_class_terrain, load_site
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS

@@ -17,7 +17,7 @@ Kubernetes worker's dask memory limit keeps a headroom below its pod's limit
 (:func:`~campaign.configuration.execution.kubernetes_headroom_bytes`).
 
 The optional packages are imported only for their backend; a missing one is a one-line
-:class:`~flight_interface.tomlfields.ConfigError` naming the pip extra, raised by
+:class:`~config_tables.errors.ConfigError` naming the pip extra, raised by
 :func:`require_backend` before anything is written.
 """
 from __future__ import annotations
@@ -46,7 +46,7 @@ from campaign.run.batch_jobs import (
 )
 from campaign.run.faults import RunStopped
 from campaign.run.worker_startup import CaseWorkerSetup
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 
 #: backend -> (module it needs, pip distribution, extra of moc2dimes)
 OPTIONAL_BACKENDS = {"slurm": ("dask_jobqueue", "dask-jobqueue", "slurm"),

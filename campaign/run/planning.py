@@ -9,7 +9,7 @@ from campaign.case.inputs import SiteInputs
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.plan.coverage import refusal, relief_margin_m
 from campaign.plan.placement import ClassPlanInput, plan_class
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 
 
 def plan_campaign(config: CampaignConfig) -> tuple[SiteInputs, pd.DataFrame]:

@@ -48,7 +48,8 @@ from campaign.case.compute import compute_case
 from campaign.case.inputs import CampaignInputs, PlanRow
 from campaign.configuration.campaign_file import campaign_config_from_data
 from campaign.run.planning import plan_campaign
-from flight_interface.tomlfields import ConfigError, load_toml
+from config_tables.errors import ConfigError
+from config_tables.toml_file import load_toml
 
 #: MER-A flight (paper Table 3, features 00, 01, 10): brightness and contrast (DN), correlation.
 FLIGHT_BRIGHTNESS_DN = (4710.0, 3898.0, 4693.0)

@@ -56,10 +56,10 @@ from campaign.case.compute import simulate_case_inputs
 from campaign.case.inputs import CampaignInputs, PlanRow, SharedInputs
 from campaign.configuration.campaign_file import campaign_config_from_data
 from campaign.run.planning import plan_campaign
+from config_tables.toml_file import load_toml
 from dimes_velocity.estimator import MAX_BLUR_PX, DimesEstimator, RectifiedImage
 from dimes_velocity.matching import fit_peak
 from dimes_velocity.preprocess import flatten
-from flight_interface.tomlfields import load_toml
 from simulator.scene.descent_profile import DescentProfile
 
 #: Table 3 of the paper, correlation of the three templates (features 00, 01, 10) of the first pair.

@@ -39,7 +39,8 @@ from campaign.configuration.campaign_file import campaign_config_from_data
 from campaign.report.aggregate import format_number, site_table
 from campaign.run.orchestrate import submit
 from campaign.store.campaign_store import CampaignStore
-from flight_interface.tomlfields import ConfigError, load_toml
+from config_tables.errors import ConfigError
+from config_tables.toml_file import load_toml
 
 FLIGHT_FILE = Path(__file__).resolve().parents[2] / "sitedata" / "estimators" / "dimes_flight.toml"
 TUNED_FIELDS = ("min_template_contrast_dn", "max_second_peak_ratio", "pair_agreement_mps")

@@ -10,9 +10,9 @@ from __future__ import annotations
 import math
 import sys
 
+from config_tables.command_line import USAGE_ERROR, OneLineParser
+from config_tables.errors import ConfigError
 from file_formats.planetary.orbital_file import load_orbital_image
-from flight_interface.command_line import USAGE_ERROR, OneLineParser
-from flight_interface.tomlfields import ConfigError
 
 
 def describe(path: str, sidecar: str | None) -> str:

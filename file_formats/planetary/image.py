@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from config_tables.errors import ConfigError
 from file_formats.planetary.pvl import LabelSyntaxError, ParsedLabel, parse_label
-from flight_interface.tomlfields import ConfigError
 
 
 class ReaderError(ConfigError):

@@ -30,8 +30,9 @@ from typing import NoReturn
 
 from pydantic import Field, PrivateAttr, model_validator
 
+from config_tables.errors import ConfigError, FieldProblem
+from config_tables.models import ConfigModel, load
 from file_formats.planetary.image import OrbitalImage, fail
-from flight_interface.tomlfields import ConfigError, ConfigModel, FieldProblem, load
 
 _TRIANGLE_TOLERANCE_DEG = 0.01
 

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import Field
 
+from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
 from flight_interface.camera_file import Timing
-from flight_interface.tomlfields import ConfigModel
 from simulator.derived_cache import DERIVED
 from simulator.detector import blooming, charge_generation, charge_transfer, optics, psf, readout
 from simulator.fields import RadianceFields, bin_rows, block_means

@@ -26,8 +26,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from pydantic import Field
 
+from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
-from flight_interface.tomlfields import ConfigModel
 from simulator.off_nominal.dust import DustParticles, draw_particles, transmission_map
 from simulator.off_nominal.hot_pixels import HotPixels, draw_hot_pixels
 from simulator.off_nominal.moving_shadows import MovingShadowDraws, MovingShadowsConfig, draw_moving_shadows

@@ -42,8 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import Field
 
+from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
-from flight_interface.tomlfields import ConfigModel
 from simulator.scene import ground_mapping
 from simulator.scene.descent_profile import DescentProfile
 

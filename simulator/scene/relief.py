@@ -47,8 +47,8 @@ import cv2
 import numpy as np
 from pydantic import Field
 
+from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
-from flight_interface.tomlfields import ConfigModel
 from simulator.derived_cache import DERIVED
 from simulator.scene import ground_mapping, photometry, resample
 from simulator.scene.terrain import Terrain

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 from simulator.scene.descent_profile import DescentProfile
 from sitedata.edl.dynamics import (
     G_MARS_MPS2,

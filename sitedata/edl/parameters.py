@@ -11,7 +11,8 @@ from typing import TYPE_CHECKING, Annotated
 
 from pydantic import AfterValidator, Field, PrivateAttr, ValidationInfo, model_validator
 
-from flight_interface.tomlfields import ConfigModel, FieldProblem, InputPath, fixed_vector, load
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel, InputPath, fixed_vector, load
 
 Positive = Annotated[float, Field(gt=0.0)]
 

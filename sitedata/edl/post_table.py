@@ -35,8 +35,10 @@ import numpy as np
 import pandas as pd
 from pydantic import Discriminator, Field, Tag, create_model, model_validator
 
+from config_tables.errors import FieldProblem
+from config_tables.models import ConfigModel, FloatList, parse
+from config_tables.toml_file import load_toml
 from flight_interface.frames import quat_from_axis_angle, quat_multiply
-from flight_interface.tomlfields import ConfigModel, FieldProblem, FloatList, load_toml, parse
 from simulator.scene.descent_profile import DescentProfile
 from sitedata.edl.trajectory_io import (
     DIMES_IMAGE_COUNT,

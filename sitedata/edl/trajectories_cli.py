@@ -25,8 +25,8 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
-from flight_interface.command_line import USAGE_ERROR, OneLineParser
-from flight_interface.tomlfields import ConfigError
+from config_tables.command_line import USAGE_ERROR, OneLineParser
+from config_tables.errors import ConfigError
 from sitedata import SITEDATA_DIR
 from sitedata.edl.generator import generate_profiles, load_edl_parameters, profile_statistics
 from sitedata.edl.trajectory_io import compact_frame, profiles_to_frame, read_profiles, write_profiles

@@ -50,7 +50,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 from simulator.scene.descent_profile import DescentProfile
 
 QUATERNION_NORM_TOLERANCE = 1e-6

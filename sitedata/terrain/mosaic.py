@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 from sitedata.sites import load_class_terrain, load_site
 
 OVERVIEW_REDUCTION = 4
