@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING
 
 from campaign.run.faults import RunStopped
 from config_tables.errors import ConfigError
-from config_tables.models import parse_field
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -34,6 +33,7 @@ RUN_INCOMPLETE = 1      # exit code: cases failed, a run stopped, or a regressio
 def _check_cluster_flags(args: argparse.Namespace) -> None:
     """--workers and --scheduler against the [execution] declarations (before anything is loaded or written)."""
     from campaign.configuration.execution import ExecutionConfig
+    from config_tables.models import parse_field
 
     for flag, field in (("--workers", "workers"), ("--scheduler", "scheduler")):
         value = getattr(args, field, None)

@@ -19,7 +19,6 @@ from __future__ import annotations
 import re
 from typing import Literal
 
-from dask.utils import parse_bytes
 from pydantic import Field, field_validator, model_validator
 
 from config_tables.errors import FieldProblem
@@ -59,6 +58,8 @@ def kubernetes_headroom_bytes(pod_bytes: int) -> int:
 
 
 def _memory_size(value: str) -> str:
+    from dask.utils import parse_bytes
+
     try:
         size = parse_bytes(value) if value.strip() else 0
     except (ValueError, TypeError, OverflowError):
@@ -110,6 +111,8 @@ class BatchJobs(ConfigModel):
 
     @property
     def memory_per_worker_bytes(self) -> int:
+        from dask.utils import parse_bytes
+
         return parse_bytes(self.memory) // self.cores
 
 
@@ -220,6 +223,8 @@ class ExecutionConfig(ConfigModel):
 
     @property
     def memory_limit_bytes(self) -> int:
+        from dask.utils import parse_bytes
+
         return parse_bytes(self.memory_limit)
 
     def with_overrides(self, scheduler: str | None = None, workers: int | None = None) -> ExecutionConfig:

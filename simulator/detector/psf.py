@@ -48,9 +48,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import scipy.fft
-import scipy.optimize
-import scipy.special
 
 from flight_interface.camera import Camera
 from flight_interface.camera_file import MAX_WAVEFRONT_ERROR_WAVES
@@ -193,6 +190,8 @@ def encircled_energy(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
     ndarray, shape of ``radius_m``
         Encircled energy fraction, 0 .. 1.
     """
+    import scipy.special
+
     rho, otf = _radial_otf(camera)
     radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
     integrand = otf[None, :] * scipy.special.j1(2.0 * np.pi * radius[:, None] * rho[None, :])
@@ -215,6 +214,8 @@ def psf_radial(radius_m: np.ndarray, camera: Camera) -> np.ndarray:
     ndarray, shape of ``radius_m``
         Fraction of a point's energy per m^2.
     """
+    import scipy.special
+
     rho, otf = _radial_otf(camera)
     radius = np.atleast_1d(np.asarray(radius_m, dtype=float))
     integrand = otf[None, :] * scipy.special.j0(2.0 * np.pi * radius[:, None] * rho[None, :]) * rho[None, :]
@@ -236,6 +237,8 @@ def encircled_energy_radius_m(camera: Camera, fraction: float = 0.8) -> float:
     float
         Radius in the focal plane (m).
     """
+    import scipy.optimize
+
     scale = camera.radiometry.band_max_um * 1e-6 * camera.radiometry.f_number + 4.0 * camera.optics.blur_sigma_um * 1e-6
     radii = np.linspace(0.0, 8.0 * scale, 401)[1:]
     energy = encircled_energy(radii, camera)
@@ -252,11 +255,15 @@ def _padded_shape(rows: int, cols: int, pad_rows: int) -> tuple[int, int]:
 
     1056 for 1024 + 2 x 16: OpenCV transforms it faster than the 5-smooth 1080, measured 13 vs 15.5 ms for the pair).
     """
+    import scipy.fft
+
     return scipy.fft.next_fast_len(rows + 2 * pad_rows), scipy.fft.next_fast_len(cols + 2 * PAD_PX)
 
 
 def _otf_grid(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.ndarray:
     """The OTF on the rfft2 grid of a padded field of ``shape``, float64 (rows, cols // 2 + 1), cached."""
+    import scipy.fft
+
     cache = DERIVED.of(camera, "psf")
     key = ("rfft2", shape, row_pitch_m)
     if key not in cache:
@@ -282,6 +289,8 @@ def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> n
     :func:`_otf_grid`), so OpenCV's packing is its own whatever the parity of the sizes; there the
     imaginary entries are ~0 and take the real entry of their frequency.
     """
+    import scipy.fft
+
     cache = DERIVED.of(camera, "psf")
     key = ("ccs", shape, row_pitch_m)
     if key not in cache:
@@ -305,6 +314,8 @@ def _row_otf_packed(camera: Camera, cols: int) -> np.ndarray:
     ``cols`` samples (Re0, Re1, Im1, Re2, Im2, ..., and Re of the Nyquist term for even ``cols``):
     real and symmetric, it multiplies a frequency's real and imaginary parts alike. float32 (cols,), cached.
     """
+    import scipy.fft
+
     cache = DERIVED.of(camera, "psf")
     key = ("row", cols)
     if key not in cache:
@@ -399,6 +410,8 @@ def blur_field_along_rows(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.nd
     ValueError
         A finite value of the field is negative.
     """
+    import scipy.fft
+
     field, work, bad = _checked(field_w_m2_sr_um)
     cols = field.shape[1]
     padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX)

@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeAlias
 
 import numpy as np
-import pandas as pd
 from pydantic import Discriminator, Field, Tag, create_model, model_validator
 
 from config_tables.errors import FieldProblem
@@ -48,6 +47,9 @@ from sitedata.edl.trajectory_io import (
     frame_to_profiles,
     image_column,
 )
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 UNITS = {  # unit: (kind, scale to SI)
     "m": ("length", 1.0), "km": ("length", 1e3), "ft": ("length", 0.3048), "kft": ("length", 304.8),
@@ -185,6 +187,8 @@ class PostMapping(ConfigModel):
 
 def parse_whitespace_table(path: str | Path) -> pd.DataFrame:
     """Header + whitespace-separated numbers -> DataFrame of float64 (errors name file and line)."""
+    import pandas as pd
+
     path = Path(path)
     try:
         lines = path.read_text().splitlines()
@@ -249,6 +253,8 @@ def read_post_table(path: str | Path, mapping: PostMapping | dict | str | Path, 
     ``mapping`` is a :class:`PostMapping`, a dict, or the path of a TOML file holding ``[columns]``,
     ``[attitude]`` and ``[images]``. Errors name the table file (line) or the mapping field, and what is allowed.
     """
+    import pandas as pd
+
     path = Path(path)
     where = "<mapping>"
     if isinstance(mapping, (str, Path)):

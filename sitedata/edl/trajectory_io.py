@@ -44,20 +44,22 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from config_tables.errors import ConfigError
 from simulator.scene.descent_profile import DescentProfile
 
+if TYPE_CHECKING:
+    import pandas as pd
+
+# pandas and pyarrow are imported by the functions that read and write tables: a site or parameter file that
+# names a trajectory file (and `campaign schema`) does not load them.
+
 QUATERNION_NORM_TOLERANCE = 1e-6
 #: Images per profile of a DIMES trajectory (three descent images).
 DIMES_IMAGE_COUNT = 3
-# pandas >= 3 parses CSV floats round-trip exactly by default (and deprecates the option)
-_CSV_OPTIONS = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
 VECTOR_COLUMNS = {
     "position_m": ("x_m", "y_m", "z_m"),
     "velocity_mps": ("vx_mps", "vy_mps", "vz_mps"),
@@ -86,6 +88,8 @@ def image_column(k: int) -> str:
 # ---------------------------------------------------------------------------------------------- write
 def profiles_to_frame(profiles: Sequence[DescentProfile], profile_ids: Sequence[int] | None = None) -> pd.DataFrame:
     """The schema table of ``profiles`` (ids default to 0..n-1)."""
+    import pandas as pd
+
     if not profiles:
         raise ValueError("profiles_to_frame: no profiles")
     ids = list(range(len(profiles))) if profile_ids is None else [int(i) for i in profile_ids]
@@ -129,6 +133,9 @@ def write_profiles(path: str | Path, profiles: Sequence[DescentProfile],
     """Write profiles to ``path`` (``.parquet``: zstd, byte-stream-split floats; ``.csv``: shortest
     round-trip decimal text). ``compact``: see :func:`compact_frame`. Same profiles -> same bytes
     (for a given pyarrow / pandas version)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     path = Path(path)
     frame = profiles_to_frame(profiles, profile_ids)
     if compact:
@@ -149,6 +156,9 @@ def write_profiles(path: str | Path, profiles: Sequence[DescentProfile],
 def read_profiles(path: str | Path, image_count: int | None = DIMES_IMAGE_COUNT) -> list[DescentProfile]:
     """Read and validate a trajectory file; profiles named ``<file stem>-<profile_id:04d>``, in file order.
     ``image_count``: the number of image time columns required (None: any K >= 1)."""
+    import pandas as pd
+    import pyarrow.parquet as pq
+
     path = Path(path)
     if not path.is_file():
         raise TrajectoryFileError(f"{path}: file not found")
@@ -156,7 +166,9 @@ def read_profiles(path: str | Path, image_count: int | None = DIMES_IMAGE_COUNT)
         if path.suffix == ".parquet":
             frame = pq.read_table(path).to_pandas()
         elif path.suffix == ".csv":
-            frame = pd.read_csv(path, **_CSV_OPTIONS)
+            # pandas >= 3 parses CSV floats round-trip exactly by default (and deprecates the option)
+            options = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+            frame = pd.read_csv(path, **options)
         else:
             raise TrajectoryFileError(f"{path}: unknown trajectory file type {path.suffix!r}; allowed: .parquet, .csv")
     except TrajectoryFileError:
@@ -201,6 +213,8 @@ def frame_to_profiles(frame: pd.DataFrame, source: str, name_prefix: str = "prof
                       image_count: int | None = DIMES_IMAGE_COUNT) -> list[DescentProfile]:
     """Validate a schema table and split it into profiles (errors name ``source``, row and column);
     ``image_count`` image time columns are required (None: any K >= 1)."""
+    import pandas as pd
+
     missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
     if missing:
         raise TrajectoryFileError(f"{source}: column {missing[0]!r} is missing"

@@ -8,7 +8,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from file_formats.planetary.image import fail
 from file_formats.planetary.orbital_file import load_orbital_image, resolve_sidecar
@@ -46,6 +45,8 @@ def load_terrain(path: str | Path, sidecar: str | Path | Sidecar | None = None, 
     ConfigError
         Bad side-car field.
     """
+    from scipy import ndimage
+
     resolved = resolve_sidecar(path, sidecar)
     image = load_orbital_image(path, resolved)
     hint = f"{default_sidecar_path(path).name} beside the image, or sidecar=..."

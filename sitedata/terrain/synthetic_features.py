@@ -10,7 +10,6 @@ from collections.abc import Callable, Sequence
 
 import cv2
 import numpy as np
-import scipy.fft
 
 #: Photometric function f(alpha) of Mars, paper equations (2)-(3) (alpha in degrees), normalised by
 #: f(0) = 2.05 so that ``2 mu0 / (mu + mu0) * f(alpha) / f(0)`` is 1 at normal incidence and emission.
@@ -46,6 +45,8 @@ def gaussian_random_field(shape: tuple[int, int], spectral_exponent: float, oute
     -------
     ndarray float32 (rows, cols), periodic along the rows.
     """
+    import scipy.fft
+
     rows, cols = shape
     # A strip only ~3 outer scales wide would put a sizeable share of the large-scale power into
     # modes constant across it (horizontal bands): generate on a wider periodic grid and crop.
