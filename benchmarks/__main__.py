@@ -20,11 +20,11 @@ import benchmarks
 from benchmarks.targets import summary_lines
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str] | None = None) -> int:
     import cv2
 
     cv2.setNumThreads(1)
-    selected = set(argv)
+    selected = set(sys.argv[1:] if argv is None else argv)
     output_dir = Path("bench-results")
     output_dir.mkdir(exist_ok=True)
     stamp = time.strftime("%Y%m%dT%H%M%S")
@@ -61,4 +61,4 @@ def _fmt(value) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(main())

@@ -13,8 +13,8 @@ import numpy as np
 from benchmarks.timing import median_ms
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
-from simulator.__main__ import crater_field, example_profile
 from simulator.descent_image import render_descent_image
+from simulator.render_example import crater_field, example_profile
 from simulator.scene import radiance
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from simulator.scene_config import REFERENCE_EFFECTS, AtmosphereConfig, SceneConfig

@@ -44,7 +44,6 @@ This module uses the standard library only, so checking the pages imports nothin
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import fnmatch
 import json
@@ -55,6 +54,8 @@ import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+from config_tables.command_line import USAGE_ERROR, OneLineParser
 
 REPO = Path(__file__).resolve().parents[1]
 MEASURED_DIR = Path("docs") / "measured"
@@ -727,7 +728,7 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns 0 on success, 1 when ``check`` finds a problem, 2 for unreadable input (one line on stderr).
     """
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.doc_numbers", description=__doc__.split("\n")[0])
+    parser = OneLineParser(prog="python -m benchmarks.doc_numbers", description=__doc__.split("\n")[0])
     parser.add_argument("--root", type=Path, default=REPO, help="repository root (default: this checkout)")
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("check", help="exit 1 when a block differs from the record")
@@ -765,7 +766,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except RecordError as error:
         print(f"doc_numbers: {error}", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
 
 
 if __name__ == "__main__":

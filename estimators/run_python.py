@@ -11,13 +11,13 @@ breaks the contract (one line on stderr); an exception in the callable prints it
 """
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
 import sys
 
 import numpy as np
 
+from config_tables.command_line import USAGE_ERROR, OneLineParser
 from config_tables.errors import ConfigError
 from estimators.camera_view import load_design_camera
 from estimators.contract import ContractViolation, EstimatorInputs, output_to_dict, read_only_inputs, validate_output
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
         1 for an answer that breaks the contract (message on stderr); the callable's own exception
         propagates.
     """
-    parser = argparse.ArgumentParser(prog="python -m estimators.run_python")
+    parser = OneLineParser(prog="python -m estimators.run_python")
     parser.add_argument("callable", help="package.module:function")
     parser.add_argument("images", nargs="+")
     parser.add_argument("--measurements", required=True)
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         parameters = json.loads(open(args.parameters).read()) if args.parameters else {}
     except (ConfigError, InputFileError, CalibrationError, OSError, json.JSONDecodeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     module_name, function_name = args.callable.split(":")
     function = getattr(importlib.import_module(module_name), function_name)
     inputs = EstimatorInputs(images=images, image_times_s=np.array([m.time_s for m in measurements.images]),

@@ -15,5 +15,5 @@ The listing reads from terrain to DN:
                                  :mod:`simulator.derived_cache` arrays derived from a camera or terrain.
 
 The camera model itself (CAHVOR, camera file, frames) is shared with the estimator and lives in
-:mod:`flight_interface`. ``python -m simulator --out DIR`` renders an example descent.
+:mod:`flight_interface`. ``python -m simulator.render_example --out DIR`` renders an example descent.
 """

@@ -19,21 +19,14 @@ relative noise is then about ``1 / sqrt(frames * charge)``: 0.05 % for MER with 
 
 The truth, for comparison only (``[estimator] flat_field = "truth"``), is :func:`true_flat_field`.
 
-Command line (writes a file ``python -m dimes_velocity --flat-field`` reads)::
-
-    python -m simulator.calibration CAMERA.toml --out mer_a.flat.fits [--frames 16] [--seed 1]
+Command line (writes a file ``python -m dimes_velocity --flat-field`` reads): :mod:`simulator.calibrate_flat_field`.
 """
 from __future__ import annotations
 
-import argparse
-import sys
-
 import numpy as np
 
-from config_tables.errors import ConfigError
-from file_formats.flat_field_files import save_flat_field
-from flight_interface.calibration import CalibrationError, normalise_flat_field, readout_flat_field
-from flight_interface.camera import Camera, load_camera
+from flight_interface.calibration import normalise_flat_field, readout_flat_field
+from flight_interface.camera import Camera
 from simulator.detector.camera_chain import CameraEffects, expected_charge_e, pixel_gain, read_out
 from simulator.fields import RadianceFields
 
@@ -115,39 +108,7 @@ def true_flat_field(camera: Camera, effects: CameraEffects = CameraEffects()) ->
     return readout_flat_field(gain, camera.binned_shape, "true flat field")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command line: simulate a ground flat-field calibration and write the flat field.
+if __name__ == "__main__":          # the old path of `python -m simulator.calibrate_flat_field`
+    import runpy
 
-    Parameters
-    ----------
-    argv : list of str, optional
-        Arguments (default: ``sys.argv[1:]``).
-
-    Returns
-    -------
-    int
-        Exit status: 0 written, 2 bad input.
-    """
-    parser = argparse.ArgumentParser(prog="python -m simulator.calibration",
-                                     description="Simulate a ground flat-field calibration; write the flat field.")
-    parser.add_argument("camera", help="camera TOML")
-    parser.add_argument("--out", required=True, help="output file: .npy, .tif or .fits")
-    parser.add_argument("--frames", type=int, default=DEFAULT_FLAT_FRAMES, help="flat (and dark) exposures")
-    parser.add_argument("--seed", type=int, default=1, help="noise seed")
-    args = parser.parse_args(argv)
-    if args.frames < 1:
-        parser.error(f"--frames {args.frames}: allowed: >= 1")
-    try:
-        camera = load_camera(args.camera)
-        flat = simulate_flat_field(camera, args.frames, np.random.default_rng(args.seed))
-        path = save_flat_field(args.out, flat)
-    except (ConfigError, CalibrationError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {path}: flat field {flat.shape[0]} x {flat.shape[1]} from {args.frames} flat and "
-          f"{args.frames} dark exposures; response {float(flat.min()):.3f} .. {float(flat.max()):.3f}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    runpy.run_module("simulator.calibrate_flat_field", run_name="__main__", alter_sys=True)

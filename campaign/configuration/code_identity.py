@@ -34,7 +34,7 @@ import hashlib
 from pathlib import Path
 
 #: the top-level packages whose modules are followed (everything else is a dependency, not project code)
-PROJECT_PACKAGES = ("flight_interface", "file_formats", "simulator", "dimes_velocity", "estimators", "sitedata",
+PROJECT_PACKAGES = ("config_tables", "flight_interface", "file_formats", "simulator", "dimes_velocity", "estimators", "sitedata",
                     "campaign")
 #: where a case's result is computed (a module that does not exist is skipped)
 CASE_MODULES = ("campaign.case.compute", "campaign.run.worker")

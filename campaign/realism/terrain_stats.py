@@ -1,10 +1,10 @@
 """What a terrain looks like to the descent camera and its estimator: one function, :func:`terrain_statistics`.
 
-    python -m campaign.realism.terrain_stats_cli SOURCE... [--csv FILE]
+    python -m campaign.realism.measure_terrains SOURCE... [--csv FILE]
 
 Every SOURCE is a real image file (``FILE`` or ``FILE:SIDECAR.toml``), a synthetic class preset name
 (``gcp``; its seed and site are taken from the shipped site file that uses it) or a whole site TOML
-(every class). The table is printed and written as CSV (:mod:`campaign.realism.terrain_stats_cli`).
+(every class). The table is printed and written as CSV (:mod:`campaign.realism.measure_terrains`).
 
 Statistics (:class:`TerrainStatistics`), all measured on the I/F image as the orbiter recorded it:
 

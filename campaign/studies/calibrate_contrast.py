@@ -36,7 +36,6 @@ line per class, the flight band shaded).
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from dataclasses import dataclass
@@ -48,6 +47,7 @@ from campaign.case.compute import compute_case
 from campaign.case.inputs import CampaignInputs, PlanRow
 from campaign.configuration.campaign_file import campaign_config_from_data
 from campaign.run.planning import plan_campaign
+from config_tables.command_line import USAGE_ERROR, OneLineParser
 from config_tables.errors import ConfigError
 from config_tables.toml_file import load_toml
 
@@ -264,7 +264,7 @@ HEADER = ["| scale | class | cases | valid | templates | brightness DN | contras
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m campaign.studies.calibrate_contrast",
+    parser = OneLineParser(prog="python -m campaign.studies.calibrate_contrast",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("campaign", type=Path, nargs="?", help="campaign or site TOML (e.g. sitedata/gusev.toml)")
     parser.add_argument("--sweep", type=Path, help="a finished sweep's output directory: its table against template contrast")
@@ -278,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.sweep is not None:
         if not (args.sweep / "sweep.json").is_file() or not (args.sweep / "results.parquet").is_file():
             print(f"--sweep {args.sweep}: no sweep.json and results.parquet (run the sweep first)", file=sys.stderr)
-            return 2
+            return USAGE_ERROR
         rows, text = sweep_template_table(args.sweep)
         (args.sweep / "template_contrast.md").write_text(text + "\n")
         plot_sweep_templates(rows, args.sweep / "plots" / "template_contrast.png", str(args.sweep))
@@ -287,10 +287,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.campaign is None:
         print("a campaign file or --sweep DIR is required", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     if args.cases < 1:
         print("--cases must be >= 1", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     try:
         results = {}
         print("\n".join(HEADER))
@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
         print(flight_row())
     except ConfigError as exc:
         print(str(exc), file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     low, high = FLIGHT_RATIO_BAND_PCT
     print(f"\nflight band of contrast/brightness: {low}-{high} %; target (median of the flight features) "
           f"{FLIGHT_RATIO_TARGET_PCT:.2f} %")
@@ -318,4 +318,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

@@ -40,7 +40,6 @@ Run ``python -m campaign.studies.decorrelation --help``.
 """
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import sys
@@ -56,6 +55,7 @@ from campaign.case.compute import simulate_case_inputs
 from campaign.case.inputs import CampaignInputs, PlanRow, SharedInputs
 from campaign.configuration.campaign_file import campaign_config_from_data
 from campaign.run.planning import plan_campaign
+from config_tables.command_line import OneLineParser
 from config_tables.toml_file import load_toml
 from dimes_velocity.estimator import MAX_BLUR_PX, DimesEstimator, RectifiedImage
 from dimes_velocity.matching import fit_peak
@@ -439,7 +439,7 @@ def unresolved_texture_experiment(spectral_exponent: float = 2.2, seed: int = 1,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m campaign.studies.decorrelation", description=__doc__.split("\n")[0])
+    parser = OneLineParser(prog="python -m campaign.studies.decorrelation", description=__doc__.split("\n")[0])
     parser.add_argument("site_file", nargs="?", default="sitedata/gusev.toml", type=Path,
                         help="campaign/site file (default sitedata/gusev.toml)")
     parser.add_argument("--cases-per-class", type=int, default=8, help="first N cases of each class (default 8)")

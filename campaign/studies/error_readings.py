@@ -27,15 +27,16 @@ exceed (a class can sit below its floor only by sampling luck).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from campaign.report.aggregate import mean_plus_3_sigma, weighted_mean
+from config_tables.command_line import OneLineParser
 
 PAPER_ERRORS_MPS = {
     "Gusev": {"gcp": 3.90, "gdcp": 3.48, "gkep": 3.29, "site": 3.73},
@@ -119,7 +120,7 @@ def load_store(root: Path) -> tuple[pd.DataFrame, dict, str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m campaign.studies.error_readings", description=__doc__.split("\n")[0])
+    parser = OneLineParser(prog="python -m campaign.studies.error_readings", description=__doc__.split("\n")[0])
     parser.add_argument("stores", nargs="+", type=Path, help="campaign store directories (per-axis bias draws)")
     parser.add_argument("--csv", type=Path, help="also write every row here")
     args = parser.parse_args(argv)
@@ -142,4 +143,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

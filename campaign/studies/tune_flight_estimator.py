@@ -27,7 +27,6 @@ them (case identity and configuration hash as for ``campaign submit``).
 """
 from __future__ import annotations
 
-import argparse
 import itertools
 import math
 import sys
@@ -39,6 +38,7 @@ from campaign.configuration.campaign_file import campaign_config_from_data
 from campaign.report.aggregate import format_number, site_table
 from campaign.run.orchestrate import submit
 from campaign.store.campaign_store import CampaignStore
+from config_tables.command_line import USAGE_ERROR, OneLineParser
 from config_tables.errors import ConfigError
 from config_tables.toml_file import load_toml
 
@@ -156,7 +156,7 @@ def run(site_file: Path, entries: dict[str, dict], output: Path, cases_scale: fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m campaign.studies.tune_flight_estimator",
+    parser = OneLineParser(prog="python -m campaign.studies.tune_flight_estimator",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("site_file", type=Path, help="campaign/site TOML (Gusev: tune; any other: predict)")
     parser.add_argument("--parameters", type=Path, default=FLIGHT_FILE, help="the flight-like parameter file")
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         site_data = load_toml(args.site_file)
     except (ConfigError, KeyError, OSError) as exc:
         print(f"tune_flight_estimator: {exc}", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     site = site_data["site"]["name"].capitalize()
     tune = site == "Gusev" and not args.predict
     stem = f"{site.lower()}-{'tune' if tune else 'predict'}"
@@ -209,4 +209,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

@@ -1,22 +1,18 @@
-"""Write PNG views of every appearance-class terrain of a site, for people to look at.
+"""PNG views of every appearance-class terrain of a site, for people to look at.
 
-    python -m sitedata.terrain.mosaic --site sitedata/gusev.toml --out mosaics/
-
-writes, per class, ``<site>_<class>.png`` (left: the whole strip reduced 4x; right: a full-resolution
-detail; each stretched linearly between its 0.5 and 99.5 percentile I/F, with a 1 km scale bar) and
-``<site>_mosaic.png`` (all classes' strips side by side on one common I/F stretch, so that their
-brightness and contrast compare directly), and prints mean I/F and RMS contrast per class.
+:func:`write_site_mosaics` (command line: :mod:`sitedata.terrain.write_mosaics`) writes, per class,
+``<site>_<class>.png`` (left: the whole strip reduced 4x; right: a full-resolution detail; each stretched
+linearly between its 0.5 and 99.5 percentile I/F, with a 1 km scale bar) and ``<site>_mosaic.png`` (all
+classes' strips side by side on one common I/F stretch, so that their brightness and contrast compare
+directly), and returns mean I/F and RMS contrast per class.
 """
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from config_tables.errors import ConfigError
 from sitedata.sites import load_class_terrain, load_site
 
 OVERVIEW_REDUCTION = 4
@@ -100,22 +96,7 @@ def write_site_mosaics(site_path: str | Path, out_dir: str | Path, cache: bool =
     return rows
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sitedata.terrain.mosaic", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--site", required=True, action="append", help="site TOML (repeatable)")
-    parser.add_argument("--out", required=True, help="output directory for the PNGs")
-    parser.add_argument("--no-cache", action="store_true", help="regenerate synthetic terrain without the disk cache")
-    args = parser.parse_args(argv)
-    try:
-        for site_path in args.site:
-            for row in write_site_mosaics(site_path, args.out, cache=not args.no_cache):
-                print(f"{row['class']:>14s}  {row['cols']} x {row['rows']} px at {row['metres_per_pixel']:g} m  "
-                      f"mean I/F {row['mean_if']:.4f}  RMS contrast {row['rms_contrast']:.4f}  -> {row['png']}")
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+if __name__ == "__main__":          # the old path of `python -m sitedata.terrain.write_mosaics`
+    import runpy
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    runpy.run_module("sitedata.terrain.write_mosaics", run_name="__main__", alter_sys=True)
