@@ -109,8 +109,16 @@ class EstimatorConfig(ConfigModel):
     """Gauss-Newton (Lucas-Kanade) steps refining the sub-pixel peak."""
     min_correlation: float = Field(0.7, ge=-1.0, le=1.0)
     """Normalised correlation peak at full resolution."""
-    max_second_peak_ratio: float = Field(0.9, ge=0.0, le=1.0)
-    """Second-highest coarse-level local maximum / main peak."""
+    max_second_peak_ratio: float = Field(1.0, ge=0.0, le=1.0)
+    """A match is ambiguous when the second-highest coarse-level local maximum exceeds this fraction of the main
+    peak (1 = off, the default: the distinct-peak test of ``ambiguity_confidence_sigma`` decides; the flight-like
+    file ``sitedata/estimators/dimes_flight.toml`` sets 0.98)."""
+    ambiguity_confidence_sigma: float = Field(3.0, ge=0.0, le=10.0)
+    """Distinct-peak test at the coarse level, in standard deviations ``k`` of the correlation's noise (0 = off): a
+    match is ambiguous when the coarse correlation surface reaches ``best - k sigma`` outside the best peak's own
+    connected lobe, ``sigma`` the standard deviation of the difference of two correlations that the pixel noise
+    of template and window causes (:func:`dimes_velocity.matching.distinct_peak_level`). 3: a competitor is
+    refused unless it is 3 sigma below the best (one-sided 0.13 % chance that noise alone put it below)."""
     second_peak_exclusion_px: int = Field(2, ge=1, le=32)
     """Local maxima this close (coarse pixels) to the main peak are not a second peak."""
     min_coarse_peak_curvature: float = Field(0.02, ge=0.0, le=10.0)

@@ -405,8 +405,11 @@ class DimesEstimator:
         select_s = 0.0
         while feature is not None:
             predicted = np.array([feature.column, feature.row], dtype=float) + shift
+            rows, columns = b.image.shape
+            noise_b = b.noise_at(min(max(int(round(float(predicted[0]))), 0), columns - 1),
+                                 min(max(int(round(float(predicted[1]))), 0), rows - 1))
             match = match_template(a.image, b.image, a.coarse, b.coarse, (feature.column, feature.row),
-                                   predicted, radius, config)
+                                   predicted, radius, config, a.noise_at(feature.column, feature.row), noise_b)
             check = _MatchCheck(a, b, feature, match, config)
             status = match.status
             if status == "ok" and not check.on_usable_ground(match_valid_b):

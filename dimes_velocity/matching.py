@@ -5,10 +5,15 @@ A template from rectified image A is searched for in rectified image B around a 
 1. coarse level (``cv2.pyrDown`` of both images, half resolution): a ``coarse_template_size_px``
    template (twice the ground extent of the fine one) is correlated over the whole search window
    (``cv2.matchTemplate``, ``TM_CCOEFF_NORMED``); this is where the search is done, so this is where
-   the peak must be distinct: the highest other local maximum (further than
-   ``second_peak_exclusion_px`` from the best) must be below ``max_second_peak_ratio`` of the best,
-   and the best peak's smallest principal curvature (biquadratic fit, 1 / coarse px^2) at least
-   ``min_coarse_peak_curvature`` (a ridge, as along dune crests, has one curvature near zero);
+   the peak must be distinct: no displacement outside the best peak's own lobe may correlate within
+   ``k sigma`` of the best, ``sigma`` the noise of a difference of two correlations from the pixel
+   noise of the two images and ``k = ambiguity_confidence_sigma`` (:func:`distinct_peak_level`): the
+   part of the surface at or above ``best - k sigma`` must be one connected region (:func:`lobes_above`),
+   so the lobe is as wide as the template's autocorrelation and the noise make it; optionally (off by
+   default) the highest other local maximum (further than ``second_peak_exclusion_px`` from the best)
+   must also be below ``max_second_peak_ratio`` of the best. The best peak's smallest principal
+   curvature (biquadratic fit, 1 / coarse px^2) must be at least ``min_coarse_peak_curvature`` (a ridge,
+   as along dune crests, has one curvature near zero);
 2. fine level: the ``template_size_px`` template is correlated within ``fine_search_radius_px`` of
    twice the coarse peak;
 3. sub-pixel: a biquadratic ``z = a + b x + c y + d x^2 + e x y + f y^2`` is fitted (least squares)
@@ -50,7 +55,8 @@ class Match:
     status : str
         "ok", or why the match was rejected, in the order tested: "search_outside" (window leaves
         the image), "search_border" (best peak on the edge of the search window), "ambiguous_match"
-        (coarse level: second peak too close to the best), "flat_peak" (coarse or fine peak not
+        (coarse level: another displacement not significantly worse than the best, or a second peak above
+        ``max_second_peak_ratio`` of it), "flat_peak" (coarse or fine peak not
         sharp enough), "outside_prior" (the match lies further from the prediction than the prior's
         uncertainty radius), "low_correlation".
     position_px : ndarray (2,)
@@ -112,6 +118,116 @@ def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -
     local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = 0
     _, highest, _, where = cv2.minMaxLoc(surface, local)
     return float(highest) if where[0] >= 0 else -1.0
+
+
+def _variance(values: np.ndarray) -> float:
+    """Population variance of an array (float64)."""
+    return float(np.var(values, dtype=np.float64))
+
+
+def correlation_difference_sigma(best: float, other: float, template_variance: float, window_variance: float,
+                                 noise_a_dn: float, noise_b_dn: float, pixels: int) -> float:
+    """Standard deviation (upper bound) of ``best - other``, two coarse correlations of one template, from pixel noise.
+
+    ``sqrt((eps_A^2 + eps_B^2) / N) (sqrt(1 - best^2) + sqrt(1 - other^2))``, the derivation and the noise terms
+    ``eps`` in :func:`distinct_peak_level`.
+
+    Parameters
+    ----------
+    best, other : float
+        The two correlations (best peak ``rho0``, other displacement ``rho1``).
+    template_variance, window_variance : float
+        Variances of the coarse template and of the coarse window of B at the best peak (DN^2).
+    noise_a_dn, noise_b_dn : float
+        Fine-level pixel noise standard deviations of A and B (DN).
+    pixels : int
+        Pixels of the coarse template ``N``.
+
+    Returns
+    -------
+    float
+        The standard deviation (correlation units).
+    """
+    rho0 = min(max(float(best), -1.0), 1.0)
+    rho1 = min(max(float(other), -1.0), 1.0)
+    eps_a2 = 0.25 * noise_a_dn * noise_a_dn / max(template_variance, 1e-12)
+    eps_b2 = max(0.25 * noise_b_dn * noise_b_dn / max(window_variance, 1e-12), 2.0 * (1.0 - rho0) - eps_a2)
+    return math.sqrt((eps_a2 + eps_b2) / pixels) * (math.sqrt(max(1.0 - rho0 * rho0, 0.0))
+                                                     + math.sqrt(max(1.0 - rho1 * rho1, 0.0)))
+
+
+def distinct_peak_level(best: float, template_variance: float, window_variance: float, noise_a_dn: float,
+                        noise_b_dn: float, pixels: int, confidence_sigma: float) -> float:
+    """Correlation above which another displacement is not significantly worse than the best peak.
+
+    The coarse correlation ``rho(d)`` of template ``t`` (image A, ``N`` pixels) with the window ``b(d)`` of
+    image B changes with the pixel noise, to first order (delta method; ``^`` = normalised to zero mean and
+    unit variance, ``eps^2`` = noise variance / template variance)::
+
+        d rho = (1/N) sum_i [ eps_A n_Ai (b^_i - rho t^_i) + eps_B n_Bi (t^_i - rho b^_i) ],  n ~ N(0, 1)
+
+    and since ``mean((b^ - rho t^)^2) = mean((t^ - rho b^)^2) = 1 - rho^2``, the difference ``rho0 - rho1``
+    between the best peak and another displacement (their noise shared or not) has a standard deviation of at
+    most::
+
+        sigma(rho1) = sqrt((eps_A^2 + eps_B^2) / N) (sqrt(1 - rho0^2) + sqrt(1 - rho1^2))
+
+    Pixel noise: ``noise_a_dn`` and ``noise_b_dn`` (fine pixels, taken as white), seen at the coarse level as
+    white noise of variance ``noise^2 / 4`` per coarse pixel, an upper bound (``cv2.pyrDown``'s 5-tap binomial
+    passes at most 1/2 of the noise power per axis, all of it at zero frequency). Decorrelation at the best
+    peak beyond what the noise explains (resampling, rectification, rotation: ``1 - rho0 ~ (eps_A^2 +
+    eps_B^2) / 2``) is counted as noise of B: ``eps_B^2 = max(model, 2 (1 - rho0) - eps_A^2)``. The level is
+    ``L = rho0 - k sigma(L)`` (``k = confidence_sigma``, solved by fixed-point iteration).
+
+    Parameters
+    ----------
+    best : float
+        Best coarse correlation ``rho0``.
+    template_variance, window_variance : float
+        Variances of the coarse template and of the coarse window of B at the best peak (DN^2).
+    noise_a_dn, noise_b_dn : float
+        Fine-level pixel noise standard deviations of A and B (DN).
+    pixels : int
+        Pixels of the coarse template ``N``.
+    confidence_sigma : float
+        ``k``: how many standard deviations below the best a peak must lie to be distinct from it.
+
+    Returns
+    -------
+    float
+        The level ``L`` (-1 when nothing can be told apart).
+    """
+    rho0 = min(max(float(best), -1.0), 1.0)
+    level = rho0
+    for _ in range(8):
+        updated = rho0 - confidence_sigma * correlation_difference_sigma(
+            rho0, level, template_variance, window_variance, noise_a_dn, noise_b_dn, pixels)
+        if updated <= -1.0:
+            return -1.0
+        if abs(updated - level) < 1e-6:
+            return updated
+        level = updated
+    return level
+
+
+def lobes_above(surface: np.ndarray, level: float) -> int:
+    """Number of separate (8-connected) regions of ``surface >= level``.
+
+    Parameters
+    ----------
+    surface : ndarray, shape (rows, columns), float32
+        Correlation surface.
+    level : float
+        The level.
+
+    Returns
+    -------
+    int
+        Regions; 1 when only the best peak's own lobe reaches the level.
+    """
+    above = np.ascontiguousarray(surface >= level, dtype=np.uint8)
+    count, _ = cv2.connectedComponents(above, connectivity=8)
+    return int(count) - 1
 
 
 def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -268,7 +384,7 @@ def _clip(value: float, bound: float) -> float:
 
 def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray, b_coarse: np.ndarray,
                    centre_a: tuple[int, int], predicted_b: np.ndarray, search_radius_px: float,
-                   config: EstimatorConfig) -> Match:
+                   config: EstimatorConfig, noise_a_dn: float = 0.0, noise_b_dn: float = 0.0) -> Match:
     """Find the template of A centred at ``centre_a`` in B near ``predicted_b`` (module docstring).
 
     Parameters
@@ -285,6 +401,9 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
         Radius of the search around the prediction (fine px).
     config : EstimatorConfig
         Template sizes and the acceptance thresholds.
+    noise_a_dn, noise_b_dn : float, optional
+        Expected pixel noise standard deviation (DN) of the fine images around the template and around the
+        prediction, for the distinct-peak test (:func:`distinct_peak_level`); 0: noise-free.
 
     Returns
     -------
@@ -319,6 +438,12 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     _, _, coarse_curvature = fit_peak(surface[i_row - 1: i_row + 2, i_col - 1: i_col + 2])
     if ratio > config.max_second_peak_ratio:
         return failed("ambiguous_match", best, ratio, coarse_curvature)
+    if config.ambiguity_confidence_sigma > 0.0:
+        window_at_best = window_c[i_row: i_row + template_c.shape[0], i_col: i_col + template_c.shape[1]]
+        level = distinct_peak_level(best, _variance(template_c), _variance(window_at_best), noise_a_dn, noise_b_dn,
+                                    template_c.size, config.ambiguity_confidence_sigma)
+        if lobes_above(surface, level) > 1:
+            return failed("ambiguous_match", best, ratio, coarse_curvature)
     if coarse_curvature < config.min_coarse_peak_curvature:
         return failed("flat_peak", best, ratio, coarse_curvature)
 

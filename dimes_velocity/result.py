@@ -20,7 +20,8 @@ no_match_within_prior   no match within the prior: check attitude/IMU. Every tra
                         do not show the same ground
 search_outside          (every tracked template failed, most often for this reason:) the search
                         window left the image
-ambiguous_match         the second coarse-level correlation peak was too close to the best
+ambiguous_match         another coarse-level displacement, outside the best peak's lobe, correlated not
+                        significantly worse than the best (``ambiguity_confidence_sigma``)
 flat_peak               the coarse or fine correlation peak was not sharp enough
 low_correlation         the correlation peak was below ``min_correlation``
 match_in_excluded_area  the match fell on excluded ground (zone, saturated, no signal, off image)

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from dimes_velocity.config import EstimatorConfig
-from dimes_velocity.matching import fit_peak, match_template, second_peak, shift_window
+from dimes_velocity.matching import (
+    correlation_difference_sigma,
+    fit_peak,
+    lobes_above,
+    match_template,
+    second_peak,
+    shift_window,
+)
 from dimes_velocity.solution import combine_pairs, consensus
 
 SIZE = 256
@@ -99,6 +106,86 @@ def test_repetitive_texture_is_ambiguous():
     match = run_match(pattern, pattern, (128, 128), (129, 127), radius=20.0)
     assert match.status == "ambiguous_match"
     assert match.second_peak_ratio > 0.9
+
+
+def test_repetitive_texture_with_noise_is_ambiguous():
+    """A periodic pattern: its repeats correlate as well as the true position, within the noise."""
+    columns, rows = np.meshgrid(np.arange(SIZE), np.arange(SIZE))
+    pattern = 2000 + 50 * np.sin(2 * np.pi * columns / 9.0) * np.sin(2 * np.pi * rows / 9.0)
+    rng = np.random.default_rng(3)
+    a = (pattern + rng.normal(0, 4.0, (SIZE, SIZE))).astype(np.float32)
+    b = (pattern + rng.normal(0, 4.0, (SIZE, SIZE))).astype(np.float32)
+    match = match_template(a, b, cv2.pyrDown(a), cv2.pyrDown(b), (128, 128), np.array([129.0, 127.0]), 20.0,
+                           EstimatorConfig(), 4.0, 4.0)
+    assert match.status == "ambiguous_match"
+
+
+def test_broad_peak_of_red_texture_is_distinct_despite_a_high_second_peak():
+    """Smooth (red-spectrum) ground: the template's autocorrelation is broad, so another local maximum of
+    the surface reaches > 0.9 of the best, yet lies many noise standard deviations below it. The
+    noise-based test keeps the match (found within 0.1 px); a fixed ratio of 0.9 refuses it."""
+    texture = ShiftableTexture(0, slope=2.0)
+    rng = np.random.default_rng(0)
+    shift = np.array([5.3, -3.6])
+    a = texture.image() + rng.normal(0, 2.0, (SIZE, SIZE)).astype(np.float32)
+    b = texture.image(*shift) + rng.normal(0, 2.0, (SIZE, SIZE)).astype(np.float32)
+    centre, predicted = (100, 80), np.array([104.0, 78.0])
+    match = match_template(a, b, cv2.pyrDown(a), cv2.pyrDown(b), centre, predicted, 20.0, EstimatorConfig(), 2.0, 2.0)
+    assert match.status == "ok" and match.second_peak_ratio > 0.9
+    assert np.hypot(*(match.position_px - (np.array(centre) + shift))) < 0.1
+    ratio_gate = EstimatorConfig(max_second_peak_ratio=0.9, ambiguity_confidence_sigma=0.0)
+    refused = match_template(a, b, cv2.pyrDown(a), cv2.pyrDown(b), centre, predicted, 20.0, ratio_gate, 2.0, 2.0)
+    assert refused.status == "ambiguous_match"
+
+
+@pytest.mark.parametrize("slope, noise_dn, target", [(2.0, 2.0, 0.9), (2.0, 6.0, 0.9), (1.0, 4.0, 0.8)])
+def test_correlation_difference_sigma_bounds_the_monte_carlo_scatter(slope, noise_dn, target):
+    """The closed-form standard deviation of (best - other) coarse correlation, against the scatter of 300
+    noisy renderings of one shifted texture: an upper bound (pyrDown passes at most 1/4 of white noise power in
+    2-D), and not a loose one (within 2x)."""
+    texture = ShiftableTexture(3, slope=slope)
+    clean_a, clean_b = texture.image()[64:192, 64:192], texture.image(6.0, -4.0)[64:192, 64:192]
+    half, reach, centre = 5, 12, 32          # coarse template 11 x 11 at coarse (32, 32); true shift (3, -2)
+    window_at = (slice(centre - 2 - half - reach, centre - 2 + half + reach + 1),
+                 slice(centre + 3 - half - reach, centre + 3 + half + reach + 1))
+
+    def surface(image_a, image_b):
+        template = cv2.pyrDown(image_a)[centre - half:centre + half + 1, centre - half:centre + half + 1]
+        return cv2.matchTemplate(cv2.pyrDown(image_b)[window_at], template, cv2.TM_CCOEFF_NORMED), template
+
+    clean, _ = surface(clean_a, clean_b)
+    assert np.unravel_index(np.argmax(clean), clean.shape) == (reach, reach)
+    rows, columns = np.mgrid[:clean.shape[0], :clean.shape[1]]
+    away = np.hypot(rows - reach, columns - reach) >= 1
+    other = np.unravel_index(int(np.argmin(np.where(away, np.abs(clean - target), 9.0))), clean.shape)
+    rng = np.random.default_rng(1)
+    differences, bests, others, sigmas = [], [], [], []
+    for _ in range(300):
+        a = clean_a + rng.normal(0, noise_dn, clean_a.shape).astype(np.float32)
+        b = clean_b + rng.normal(0, noise_dn, clean_b.shape).astype(np.float32)
+        noisy, template = surface(a, b)
+        window = cv2.pyrDown(b)[window_at][reach:reach + 2 * half + 1, reach:reach + 2 * half + 1]
+        differences.append(noisy[reach, reach] - noisy[other])
+        bests.append(noisy[reach, reach])
+        others.append(noisy[other])
+        sigmas.append((float(template.var()), float(window.var())))
+    template_variance, window_variance = np.mean(sigmas, axis=0)
+    predicted = correlation_difference_sigma(float(np.mean(bests)), float(np.mean(others)), template_variance,
+                                             window_variance, noise_dn, noise_dn, (2 * half + 1) ** 2)
+    measured = float(np.std(differences))
+    assert measured <= predicted <= 2.0 * measured
+
+
+def test_lobes_above_counts_separate_regions():
+    columns, rows = np.meshgrid(np.arange(31.0), np.arange(31.0))
+    surface = np.exp(-((columns - 15) ** 2 + (rows - 15) ** 2) / 40.0).astype(np.float32)
+    assert lobes_above(surface, 0.9) == 1                  # one broad peak: one lobe, however wide
+    surface[4, 5] = 0.95                                   # a separate peak above the level
+    assert lobes_above(surface, 0.9) == 2
+    assert lobes_above(surface, 0.96) == 1                 # ... not above a higher one
+    surface[5:15, 5] = 0.95                                # joined to the main lobe by a ridge above the level
+    surface[15, 5:15] = 0.95
+    assert lobes_above(surface, 0.9) == 1
 
 
 def test_ridge_texture_has_a_flat_peak_at_the_search_level():
