@@ -1,3 +1,15 @@
+"""Fixtures and hooks shared by the whole suite.
+
+Layout: a test file sits in the directory that mirrors the (sub)package it tests: ``tests/campaign/run/`` tests
+``campaign/run/``, ``tests/simulator/scene/`` tests ``simulator/scene/``, ``tests/simulator/`` the modules at the
+top of ``simulator/``. Files that drive a command line end to end across subpackages (bad input, no traceback, the
+fuzz suite) sit at their package's level (``tests/campaign/``); tests of the whole tree at the top.
+
+Test directories are not packages (no ``__init__.py``): pytest's default ("prepend") import mode puts each test
+file's directory and this one on ``sys.path``, so test file names are unique across the tree, and the helper
+modules beside this file (``service_campaigns``, ``fuzz_inputs``, ``planetary_files``, ``synthetic_descent``,
+``adversarial_*``, ``plugins/``) are imported by bare name. No test imports another test file.
+"""
 from __future__ import annotations
 
 from pathlib import Path

@@ -60,8 +60,8 @@ densities and depths are calibrated to real MOC NA images (issue 15; :mod:`campa
 RMS contrast in descent-footprint tiles at the MER camera's sample at 1 and 2 km, and its density of
 >= 5 % dark features 30-120 m across, lie inside the range measured on real ground of its kind
 (smooth plains: gcp, hbsp; textured/cratered plains: gdcp, hdcp, heb; knobby: gkep), and the 4-64 px
-PSD slope inside that of the real MOC/CTX images (tests/campaign/test_terrain_calibration.py). The paper's
-ordering is kept (tests/sitedata/test_synthetic_terrain.py): RMS contrast hbsp < gcp < hdcp < {gdcp, heb} and
+PSD slope inside that of the real MOC/CTX images (tests/campaign/realism/test_terrain_calibration.py). The paper's
+ordering is kept (tests/sitedata/terrain/test_synthetic_terrain.py): RMS contrast hbsp < gcp < hdcp < {gdcp, heb} and
 gcp < gkep, Gusev (ellipse-weighted) above Meridiani ("tuned to Gusev where there is more scene
 contrast"), fewer dark features on gcp/hbsp than on the other classes.
 """

@@ -215,7 +215,7 @@ sys.exit(code)
 @pytest.mark.slow
 def test_estimator_reads_pds3_images_with_the_simulator_unimportable(case_files, mer_a_path, tmp_path):
     """The estimator is flight software: it and its file readers run with no simulator or campaign code."""
-    from test_readers_formats import write_pds3
+    from planetary_files import write_pds3
 
     paths, measurements, _, descent = case_files
     products = [write_pds3(tmp_path / f"descent{k}.img", 256, 1024, "MSB_UNSIGNED_INTEGER", 16,

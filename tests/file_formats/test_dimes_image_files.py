@@ -9,7 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from test_readers_formats import write_isis, write_pds3, write_vicar
+from planetary_files import write_isis, write_pds3, write_vicar
 
 from file_formats.descent_images import (
     ImageDeclaration,

@@ -1,0 +1,208 @@
+"""Terrain relief (simulator.scene.relief): ray-height intersection, parallax, occlusion, slope shading
+and cast shadows against closed-form geometry; relief off renders exactly as a plain terrain."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flight_interface.camera import load_camera
+from flight_interface.frames import quat_from_axis_angle
+from flight_interface.tomlfields import ConfigError, parse
+from simulator.derived_cache import DERIVED
+from simulator.scene import ground_mapping, photometry, radiance, relief
+from simulator.scene.descent_profile import constant_velocity_profile
+from simulator.scene.terrain import Terrain
+from simulator.scene_config import SceneConfig
+
+ROOT = Path(__file__).resolve().parents[3]
+CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])      # camera boresight down, image columns east, rows south
+# exact per-pixel rays and photometry, no pixel-area filter, no lander shadows: point samples of the scene
+EXACT = SceneConfig().with_effects(coarse_ray_grid=False, coarse_photometry=False, pixel_area_filter=False,
+                                   shadows=False)
+
+
+def relief_terrain(reflectance, height, mpp, name="relief") -> relief.ReliefTerrain:
+    rows, cols = reflectance.shape
+    origin = np.array([-0.5 * (cols - 1) * mpp, 0.5 * (rows - 1) * mpp])
+    return relief.ReliefTerrain(np.asarray(reflectance, np.float32), mpp, origin, np.radians(30.0), 0.0,
+                                np.radians(30.0), name, height_m=np.asarray(height, np.float32))
+
+
+def pose_at(altitude_m, attitude=LEVEL):
+    return constant_velocity_profile([0.0, 0.0, altitude_m], [0.0, 0.0, 0.0], attitude, 1.0, [0.1]).pose(0.0)
+
+
+def crossing_column(values: np.ndarray, level: float) -> float:
+    """First fractional column where ``values`` crosses ``level`` (linear between pixel centres)."""
+    above = values > level
+    k = int(np.nonzero(above[1:] != above[:-1])[0][0])
+    return k + (level - values[k]) / (values[k + 1] - values[k])
+
+
+def column_where_ray_passes(camera_pose, row: float, east_m: float, height_m: float) -> float:
+    """Fractional image column on ``row`` whose ray passes through east = ``east_m`` at z = ``height_m``."""
+    columns = np.linspace(0.0, 1023.0, 1023 * 200 + 1)
+    pixels = np.stack([columns, np.full_like(columns, row)], axis=-1)
+    rays = ground_mapping.camera_frame_rays(CAMERA, pixels) @ camera_pose.camera_to_world.T
+    origin = camera_pose.ray_origin_m
+    east = origin[0] + (height_m - origin[2]) / rays[:, 2] * rays[:, 0]
+    return float(np.interp(east_m, east, columns))
+
+
+# --- the intersection itself ----------------------------------------------------------------------------
+
+def grid_of(mpp):
+    """(east, north) -> (col, row) of a grid whose pixel (0, 0) is at the world origin."""
+    def to_grid(east, north):
+        return east / mpp, -north / mpp
+    return to_grid
+
+
+def test_a_ray_meets_a_raised_plateau_h_tan_theta_before_the_level_ground():
+    mpp, h = 0.5, 7.0
+    heights = np.zeros((80, 400))
+    heights[:, 100:] = h                                 # plateau from east = 50 m
+    origin = np.array([0.0, -20.0, 300.0])
+    angles = np.radians([5.0, 15.0, 25.0, 35.0])
+    rays = np.stack([np.sin(angles), np.zeros_like(angles), -np.cos(angles)], axis=-1)
+    z = relief.intersect_rays(heights, grid_of(mpp), origin, rays, h, 0.0, 0.5 * mpp, 1e-4, metres_per_pixel=mpp)
+    east = origin[0] + (z - origin[2]) / rays[:, 2] * rays[:, 0]
+    level_east = origin[2] * np.tan(angles)             # where the level ground would be met
+    on_plateau = level_east - h * np.tan(angles) > 50.0 + mpp
+    assert on_plateau.sum() >= 2
+    assert z[on_plateau] == pytest.approx(h, abs=1e-4)
+    # the ground offset of the hit is h tan(view angle)
+    assert level_east[on_plateau] - east[on_plateau] == pytest.approx(h * np.tan(angles[on_plateau]), abs=1e-3)
+    assert z[~on_plateau & (level_east < 50.0)] == pytest.approx(0.0, abs=1e-4)
+
+
+@pytest.mark.parametrize("skip_px", [0, 8])
+def test_a_mesa_hides_the_ground_behind_its_edge_for_h_tan_theta(skip_px):
+    mpp, h, edge = 0.25, 6.0, 40.0
+    heights = np.zeros((40, 400))
+    heights[:, : int(edge / mpp) + 1] = h               # mesa west of east = 40 m, level ground beyond
+    origin = np.array([0.0, -5.0, 200.0])
+    angles = np.linspace(np.radians(5.0), np.radians(20.0), 3001)
+    rays = np.stack([np.sin(angles), np.zeros_like(angles), -np.cos(angles)], axis=-1)
+    z = relief.intersect_rays(heights, grid_of(mpp), origin, rays, h, 0.0, 0.5 * mpp, 1e-4, skip_px=skip_px,
+                              metres_per_pixel=mpp)
+    east = origin[0] + (z - origin[2]) / rays[:, 2] * rays[:, 0]
+    ground = east[z < 1e-3]
+    theta_edge = np.arctan(edge / (origin[2] - h))      # the ray grazing the mesa's edge
+    hidden = h * np.tan(theta_edge)                     # closed form: ground hidden behind the edge
+    assert ground.min() > edge + mpp
+    first_seen = ground[ground > edge].min() - edge
+    assert first_seen == pytest.approx(hidden, abs=0.3 * mpp + 0.01)
+
+
+# --- rendered: parallax, occlusion and a cast shadow ----------------------------------------------------
+
+@pytest.mark.slow                 # 2-3 s on an idle core, 6 s on the shared machine
+def test_plateau_edge_and_its_shadow_seen_from_a_known_pose():
+    """A mesa (west of east = 40 m, 8 m high, bright) beside dark level ground, sun from the west at
+    zenith 40 deg, nadir camera at 200 m: the bright edge is where the ray passes (40 m, 8 m), the ground
+    behind is in shadow up to 40 + 8 tan(40 deg) m (a shadow of h tan(zenith))."""
+    mpp, h, edge = 0.25, 8.0, 40.0
+    size = 801                                          # grid nodes on multiples of 0.25 m: one at the edge
+    east = (np.arange(size) - 0.5 * (size - 1)) * mpp
+    top = east <= edge
+    height = np.tile(np.where(top, h, 0.0), (size, 1))
+    reflectance = np.tile(np.where(top, 0.4, 0.2), (size, 1))
+    terrain = relief_terrain(reflectance, height, mpp)
+    zenith = np.radians(40.0)
+    sun = np.array([-np.sin(zenith), 0.0, np.cos(zenith)])
+    diffuse = 0.3
+    config = EXACT.with_fields(shadow_diffuse_fraction=diffuse)
+    field = radiance.radiance_at_pose(terrain, CAMERA, pose_at(200.0), sun, config)
+    cam = ground_mapping.camera_pose(CAMERA, pose_at(200.0))
+    row = 511
+    profile = field.radiance[row].astype(float)
+    flat = radiance.radiance_at_pose(Terrain(np.full((size, size), 0.2, np.float32), mpp, terrain.origin_m,
+                                             terrain.moc_incidence_rad, 0.0, terrain.moc_phase_rad),
+                                     CAMERA, pose_at(200.0), sun, config).radiance[row].astype(float)
+    ratio = profile / flat                              # 2 on the mesa, 0.3 in its shadow, 1 in the sun
+    assert ratio[400] == pytest.approx(2.0, rel=1e-3) and ratio[1000] == pytest.approx(1.0, rel=1e-3)
+    predicted_edge = column_where_ray_passes(cam, row, edge, h)
+    level_edge = column_where_ray_passes(cam, row, edge, 0.0)
+    assert predicted_edge - level_edge > 8.0            # parallax of the 8 m mesa: h tan(theta) = 1.6 m, 9.8 px
+    assert crossing_column(ratio, 0.5 * (2.0 + diffuse)) == pytest.approx(predicted_edge, abs=0.6)
+    shadow_end = column_where_ray_passes(cam, row, edge + h * np.tan(zenith), 0.0)
+    in_shadow = ratio[int(predicted_edge) + 2:int(shadow_end) - 1]
+    assert in_shadow == pytest.approx(diffuse, rel=1e-3)
+    after = ratio[int(predicted_edge) + 2:]
+    assert int(predicted_edge) + 2 + crossing_column(after, 0.5 * (1.0 + diffuse)) == pytest.approx(shadow_end, abs=0.6)
+
+
+@pytest.mark.slow                 # 2-3 s on an idle core, 6 s on the shared machine
+def test_tilted_plane_shading_is_the_photometric_function_at_the_tilted_normal():
+    mpp, slope = 0.5, np.radians(20.0)
+    size = 400
+    east = (np.arange(size) - 0.5 * (size - 1)) * mpp
+    height = np.tile(np.tan(slope) * east, (size, 1))   # z = tan(slope) east: rises to the east
+    terrain = relief_terrain(np.full((size, size), 0.25), height, mpp)
+    sun = np.array([np.sin(np.radians(35.0)) * np.sin(np.radians(60.0)),
+                    np.sin(np.radians(35.0)) * np.cos(np.radians(60.0)), np.cos(np.radians(35.0))])
+    tilt = quat_from_axis_angle([0.0, 1.0, 0.0], np.radians(8.0))
+    config = EXACT.with_fields(shadow_diffuse_fraction=0.0)
+    field = radiance.radiance_at_pose(terrain, CAMERA, pose_at(100.0, tilt), sun, config)
+    cam = ground_mapping.camera_pose(CAMERA, pose_at(100.0, tilt))
+    normal = np.array([-np.sin(slope), 0.0, np.cos(slope)])
+    pixels = np.array([[100.0, 100.0], [511.0, 511.0], [900.0, 300.0], [300.0, 950.0], [1000.0, 1000.0]])
+    rays = ground_mapping.camera_frame_rays(CAMERA, pixels) @ cam.camera_to_world.T
+    origin = cam.ray_origin_m
+    t = (np.tan(slope) * origin[0] - origin[2]) / (rays[:, 2] - np.tan(slope) * rays[:, 0])   # ray meets the plane
+    view = -rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    expected_model = photometry.reflectance_model(normal @ sun, view @ normal, view @ sun)
+    moc_value = photometry.moc_reflectance_model(terrain.moc_incidence_rad, 0.0, terrain.moc_phase_rad)
+    scale = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au) / np.pi * config.spectral_ratio
+    expected = 0.25 * scale * expected_model / moc_value
+    got = field.radiance[pixels[:, 1].astype(int), pixels[:, 0].astype(int)]
+    assert np.all(t > 0)
+    assert got == pytest.approx(expected, rel=2e-4)
+    # and it is not the level-ground value (the tilt changes the shading by 2-17 %)
+    level_model = photometry.reflectance_model(sun[2], view[:, 2], view @ sun)
+    assert np.mean(np.abs(expected_model / level_model - 1.0)) > 0.05
+
+
+# --- relief off, level relief, configuration ------------------------------------------------------------
+
+def textured(size=1600, mpp=3.0, seed=3):
+    rng = np.random.default_rng(seed)
+    return (0.2 + 0.03 * rng.standard_normal((size, size))).astype(np.float32), mpp
+
+
+def test_relief_off_and_plain_terrain_give_the_same_bits_and_level_relief_the_same_image():
+    values, mpp = textured()
+    plain = Terrain(values, mpp, relief_terrain(values, values, mpp).origin_m, np.radians(30.0), 0.0, np.radians(30.0))
+    bumpy = relief_terrain(values, 30.0 * values, mpp)          # heights that would change everything
+    level = relief_terrain(values, np.zeros_like(values), mpp)
+    sun = np.array([0.5, 0.0, np.sqrt(0.75)])
+    pose = pose_at(2000.0, quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(10.0)))
+    config = SceneConfig()
+    reference = radiance.radiance_at_pose(plain, CAMERA, pose, sun, config).radiance
+    owners_before = DERIVED.owners()
+    off = radiance.radiance_at_pose(bumpy, CAMERA, pose, sun, config.with_fields(
+        relief=relief.ReliefConfig(enabled=False))).radiance
+    assert np.array_equal(reference, off)
+    assert DERIVED.owners() == owners_before          # relief off did no relief work (no bounds, no horizon)
+    on_level = radiance.radiance_at_pose(level, CAMERA, pose, sun, config).radiance
+    assert np.max(np.abs(on_level / reference - 1.0)) < 2e-3
+    on_bumpy = radiance.radiance_at_pose(bumpy, CAMERA, pose, sun, config).radiance
+    assert np.mean(np.abs(on_bumpy / reference - 1.0)) > 0.05
+
+
+def test_relief_keys_are_validated_in_one_line():
+    config = parse(SceneConfig, {"relief": {"march_step_terrain_px": 0.25, "cast_shadows": False}}, "scene.toml",
+                   "scene")
+    assert config.relief.march_step_terrain_px == 0.25 and not config.relief.cast_shadows
+    with pytest.raises(ConfigError) as error:
+        parse(SceneConfig, {"relief": {"height_tolerance_m": 5.0}}, "scene.toml", "scene")
+    assert "\n" not in str(error.value) and "height_tolerance_m" in str(error.value)
+
+
+def test_height_field_of_another_shape_is_refused():
+    with pytest.raises(ValueError, match="height_m"):
+        relief_terrain(np.zeros((10, 10)), np.zeros((10, 9)), 1.0)
