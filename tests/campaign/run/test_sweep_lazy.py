@@ -9,18 +9,64 @@ interrupted run are not computed again.
 """
 from __future__ import annotations
 
+import os
 import re
+import signal
+import subprocess
+import threading
 import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from benchmarks.bench_sweep_start import WIDE_AXES, first_batch_s, start_and_interrupt, sweep_file
 from campaign.cli import main
-from service_campaigns import embedded_scheduler
+from service_campaigns import GUSEV, REPO, campaign_command, embedded_scheduler, project_environment
 
-REPO = Path(__file__).resolve().parents[3]
+#: 40 x 50 = 2000 grid points (the grid of the benchmark sweep/2000_points_first_batch)
+WIDE_AXES = {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(40)],
+             "sensors.attitude_random_sigma_deg": [0.01 + 0.01 * i for i in range(50)]}
+
+
+def _sweep_file(path: Path, axes: dict[str, list[float]]) -> Path:
+    """A sweep of the Gusev site, one gcp case per point, over ``axes`` (field -> values)."""
+    fields = "\n".join(f'"{field}" = [{", ".join(map(repr, values))}]' for field, values in axes.items())
+    path.write_text(f'[sweep]\nbase = "{GUSEV}"\n[sweep.cases]\ngcp = 1\ngdcp = 0\ngkep = 0\n[axes]\n{fields}\n')
+    return path
+
+
+def _interrupt_at_first_case(sweep: Path, out: Path, limit_s: float = 180.0):
+    """`campaign sweep` in its own process until its first case file exists, then SIGINT to its process group (a
+    user's Ctrl-C). Returns its stderr lines with their times (s since launch), the time of the first case file
+    (None when none came within ``limit_s``), the point stores prepared by then, and the exit status."""
+    started = time.monotonic()
+    process = subprocess.Popen(campaign_command("sweep", sweep, "--output", out, "--workers", "1"),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO,
+                               env=project_environment(), start_new_session=True)
+    lines: list[tuple[float, str]] = []
+
+    def read() -> None:
+        for line in process.stderr:
+            lines.append((time.monotonic() - started, line.rstrip()))
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    first_case, stores = None, 0
+    while time.monotonic() - started < limit_s and process.poll() is None:
+        if any(out.glob("points/*/cases/case-*.parquet")):
+            first_case = time.monotonic() - started
+            stores = sum(1 for _ in out.glob("points/*/manifest.json"))
+            break
+        time.sleep(0.1)
+    if process.poll() is None:
+        os.killpg(process.pid, signal.SIGINT)
+    try:
+        code = process.wait(60)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        code = process.wait()
+    reader.join(10)
+    return lines, first_case, stores, code
 
 
 def _case_files(out: Path) -> dict:
@@ -33,12 +79,13 @@ def test_a_sweep_of_2000_points_starts_computing_at_its_first_batch_with_progres
     """Behaviour here; how soon (<= 10 s to the first batch) is the benchmark sweep/2000_points_first_batch."""
     from campaign.run.sweep import BATCH_POINTS, FIRST_BATCH_POINTS
 
-    lines, first_case, stores, code = start_and_interrupt(sweep_file(tmp_path / "wide.toml", WIDE_AXES), tmp_path / "out")
+    lines, first_case, stores, code = _interrupt_at_first_case(_sweep_file(tmp_path / "wide.toml", WIDE_AXES),
+                                                               tmp_path / "out")
     text = "\n".join(f"{at:6.1f} s  {line}" for at, line in lines)
     assert lines and lines[0][1].startswith("sweep: 2000 points of 1 cases"), text
-    batch = first_batch_s(lines)
-    assert re.search(rf"sweep: points p000-p{FIRST_BATCH_POINTS - 1:03d} \({FIRST_BATCH_POINTS} of 2000\): 0 cases done",
-                     text), text
+    first_batch = rf"sweep: points p000-p{FIRST_BATCH_POINTS - 1:03d} \({FIRST_BATCH_POINTS} of 2000\): 0 cases done"
+    batch = next((at for at, line in lines if re.match(first_batch, line)), None)
+    assert batch is not None, text
     assert first_case is not None and batch < first_case, text      # the first batch is announced, then computed
     assert 1 <= stores <= FIRST_BATCH_POINTS + BATCH_POINTS, f"{stores} point stores prepared before the first case"
     assert code == 130 and "Traceback" not in text, text
@@ -57,10 +104,10 @@ def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_c
                                                                                      capsys):
     import campaign.run.sweep as sweep_module
 
-    sweep = sweep_file(tmp_path / "small.toml", {"scene.camera_effects.dark_current_scale": [1.0, 2.0, 3.0],
+    sweep = _sweep_file(tmp_path / "small.toml", {"scene.camera_effects.dark_current_scale": [1.0, 2.0, 3.0],
                                                   "sensors.attitude_random_sigma_deg": [0.05, 0.1]})
     out = tmp_path / "out"
-    _, first_case, _, code = start_and_interrupt(sweep, out)
+    _, first_case, _, code = _interrupt_at_first_case(sweep, out)
     assert first_case is not None and code == 130
     kept = _case_files(out)
     assert len(kept) >= 1
@@ -81,7 +128,7 @@ def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_c
 def test_a_bad_value_anywhere_in_a_10000_point_grid_is_refused_before_anything_is_written(tmp_path, capsys):
     rates = [0.01 * (i + 1) for i in range(100)]
     rates[73] = -0.5                                          # one bad value, met first at point p073
-    sweep = sweep_file(tmp_path / "grid.toml", {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(100)],
+    sweep = _sweep_file(tmp_path / "grid.toml", {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(100)],
                                                  "sensors.attitude_random_sigma_deg": rates})
     out = tmp_path / "out"
     start = time.perf_counter()
