@@ -24,7 +24,7 @@ CASES = 4
 REPEATS = 2
 TARGETS = {"angular_rate_x60": 2.0}
 DEFAULT_TARGET = 1.3
-POINTS = {
+POINTS: dict[str, dict[str, object]] = {
     "angular_rate_x60": {"angular_rate_multiplier": 60.0},
     "dust_100": {"dust_particle_count": 100},
     "hot_pixels_1pct": {"hot_pixel_fraction": 0.01},
@@ -34,8 +34,9 @@ POINTS = {
     "dark_current_x100": {},                       # [scene.camera_effects] dark_current_scale
 }
 #: extra points of the cost curves (the nominal point and the x60 / dust_100 rows complete them)
-CURVE = {"angular_rate": [("angular_rate_multiplier", value) for value in (5.0, 15.0, 30.0)],
-         "dust": [("dust_particle_count", value) for value in (10, 30, 300)]}
+CURVE: dict[str, list[tuple[str, float]]] = {
+    "angular_rate": [("angular_rate_multiplier", value) for value in (5.0, 15.0, 30.0)],
+    "dust": [("dust_particle_count", value) for value in (10, 30, 300)]}
 #: the nightly sweep's grid (sitedata/sweeps/nightly.toml: dust count x angular-rate multiplier); each point's case
 #: time must stay within NIGHTLY_TARGET x the nominal point's. Points already measured above are aliased.
 NIGHTLY_DUST = (0, 30, 100)
@@ -149,7 +150,7 @@ def _exposure_blur_px(resources, plan_row, multiplier: float) -> list[float]:
     blur = []
     for start_s in profile.image_times_s:
         scaled = scale_angular_rates(profile, multiplier, camera.timing.exposure_mid_time_s(start_s))
-        poses = [ground_mapping.camera_pose(camera, scaled.pose(float(t)))
-                 for t in (start_s, start_s + camera.timing.exposure_s)]
-        blur.append(motion_blur.image_shift(camera, *poses, terrain_mpp=1e-12))   # image px (the smaller unit)
+        start, end = (ground_mapping.camera_pose(camera, scaled.pose(float(t)))
+                      for t in (start_s, start_s + camera.timing.exposure_s))
+        blur.append(motion_blur.image_shift(camera, start, end, terrain_mpp=1e-12))   # image px (the smaller unit)
     return blur

@@ -42,12 +42,14 @@ def start_and_interrupt(sweep: Path, out: Path, limit_s: float = 180.0) -> tuple
     start = time.perf_counter()
     process = subprocess.Popen([sys.executable, "-c", "import sys; from campaign.cli import main; sys.exit(main())",
                                 "sweep", str(sweep), "--output", str(out), "--workers", "1"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
                                start_new_session=True)
     lines: list[tuple[float, str]] = []
+    stderr = process.stderr
+    assert stderr is not None                   # stderr=PIPE
 
     def read() -> None:
-        for line in process.stderr:
+        for line in stderr:
             lines.append((time.perf_counter() - start, line.rstrip()))
 
     reader = threading.Thread(target=read, daemon=True)
