@@ -79,7 +79,3 @@ def run() -> list[dict]:
         })
     return rows
 
-
-if __name__ == "__main__":
-    for row in run():
-        print("  ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))

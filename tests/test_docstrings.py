@@ -29,8 +29,8 @@ import pytest
 from numpydoc.docscrape import NumpyDocString
 from pydantic import BaseModel
 
-#: The library packages held to the rule (campaign/, sitedata/, tests/ and benchmarks/ are not).
-PACKAGES = ("flight_interface", "estimators", "dimes_velocity", "simulator")
+#: The library packages held to the rule (campaign/, sitedata/, file_formats/, tests/ and benchmarks/ are not).
+PACKAGES = ("config_tables", "flight_interface", "estimators", "dimes_velocity", "simulator")
 #: numpydoc error codes that fail the test for a function or method.
 FUNCTION_CODES = frozenset({"GL08", "PR01", "PR02", "RT01", "YD01"})
 #: ... for a class with its own ``__init__``.

@@ -14,8 +14,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from campaign.cli import main as campaign_main
+from config_tables.errors import ConfigError
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError
 from fuzz_inputs import run_main
 from sitedata.edl.post_table import read_post_table
 from sitedata.edl.trajectory_io import TrajectoryFileError, read_profiles

@@ -8,7 +8,7 @@ exit status 2, nothing on stdout and nothing written (issue 16, "Done when").
   data files get schema violations (two images, below ground, NaN, text, missing/unknown columns...).
   Each file goes through every command that reads it.
 * Flags of ``campaign submit/plan/status/table/report/sweep/camera/schema``, ``python -m dimes_velocity``,
-  ``python -m sitedata.edl.trajectories_cli`` and ``python -m file_formats.planetary`` are drawn by hypothesis
+  ``python -m sitedata.edl.trajectory_sets`` and ``python -m file_formats.planetary.inspect_files`` are drawn by hypothesis
   (derandomized: the same inputs every run).
 
 Most runs are in-process through each CLI's ``main(argv)``; a sample goes through real subprocesses. The
@@ -40,17 +40,17 @@ from campaign.configuration.execution import ExecutionConfig
 from campaign.configuration.schemas import SCHEMA_TABLES, table_schema
 from campaign.configuration.sweep_file import load_sweep
 from campaign.realism.compare_flight import load_flight
-from campaign.realism.terrain_stats_cli import main as terrain_stats_main
+from campaign.realism.measure_terrains import main as terrain_stats_main
+from config_tables.errors import ConfigError
 from dimes_velocity.__main__ import main as dimes_main
-from file_formats.planetary.__main__ import main as readers_main
+from file_formats.planetary.inspect_files import main as readers_main
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError
 from fuzz_inputs import refusal_problems, run_main, schema_mutations, snapshot, toml_text, with_value
 from simulator.scene_config import SceneConfig
 from simulator.sensors import SensorConfig
 from sitedata.edl.parameters import load_edl_parameters
-from sitedata.edl.trajectories_cli import main as trajectories_main
 from sitedata.edl.trajectory_io import read_profiles
+from sitedata.edl.trajectory_sets import main as trajectories_main
 
 REPO = Path(__file__).resolve().parents[2]
 SITEDATA = REPO / "sitedata"
@@ -469,8 +469,8 @@ SUBPROCESS_SAMPLE = [
     ("campaign.cli", ["status", "absent-dir"]),
     ("campaign.cli", ["schema", "cameras"]),
     ("dimes_velocity", ["im0.npy", "im1.npy", "im2.npy", "meas.json", "--camera", "img.toml"]),
-    ("sitedata.edl.trajectories_cli", ["stats", "meas.json.csv"]),
-    ("file_formats.planetary", ["img.png", "--sidecar", "camera.toml"]),
+    ("sitedata.edl.trajectory_sets", ["stats", "meas.json.csv"]),
+    ("file_formats.planetary.inspect_files", ["img.png", "--sidecar", "camera.toml"]),
 ]
 
 

@@ -10,10 +10,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from synthetic_descent import constant_velocity_descent, random_ground
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
 from dimes_velocity import REASONS, DimesEstimator, EstimatorConfig, MeasurementError, estimate_velocity
 from dimes_velocity.geometry import predicted_positions_m
 from flight_interface.frames import quat_from_axis_angle
-from flight_interface.tomlfields import ConfigError, parse
 
 VELOCITY = np.array([12.0, -7.0, -72.0])
 

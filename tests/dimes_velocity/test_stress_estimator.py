@@ -12,9 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from synthetic_descent import constant_velocity_descent, random_ground
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
 from dimes_velocity import REASONS, DimesEstimator, MeasurementError
 from flight_interface.frames import quat_from_axis_angle
-from flight_interface.tomlfields import ConfigError, parse
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.sensors import SensorConfig, measure
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from campaign.configuration.campaign_file import campaign_config_from_data
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]
 GUSEV = REPO / "sitedata" / "gusev.toml"

@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 from synthetic_descent import constant_velocity_descent, random_ground
 
+from config_tables.errors import ConfigError
+from config_tables.toml_file import load_toml
 from estimators.camera_view import TRUTH_FIELDS, load_design_camera
 from estimators.contract import EstimatorInputs
 from estimators.entries import EstimatorSpec
 from estimators.plugins import build_estimator, run_estimator
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError, load_toml
 
 PROBE = '''
 import pickle

@@ -120,10 +120,10 @@ def test_normalised_flat_is_one_in_the_centre():
 
 
 def test_commands_make_and_use_a_flat_field_file(mer_a, mer_a_path, tmp_path, capsys):
-    """`python -m simulator.calibration` writes a flat field; `python -m dimes_velocity` finds
+    """`python -m simulator.calibrate_flat_field` writes a flat field; `python -m dimes_velocity` finds
     <camera stem>.flat.* beside the camera TOML, and refuses a broken --flat-field in one line, exit 2."""
     camera = Path(shutil.copy(mer_a_path, tmp_path / "mer_a.toml"))
-    made = subprocess.run([sys.executable, "-m", "simulator.calibration", str(camera), "--out",
+    made = subprocess.run([sys.executable, "-m", "simulator.calibrate_flat_field", str(camera), "--out",
                            str(tmp_path / "mer_a.flat.npy"), "--frames", "2"], capture_output=True, text=True,
                           cwd=REPO, timeout=300)
     assert made.returncode == 0, made.stderr

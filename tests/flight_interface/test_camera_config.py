@@ -5,8 +5,8 @@ import sys
 import numpy as np
 import pytest
 
+from config_tables.errors import ConfigError
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError
 
 
 def test_nominal_cameras_match_the_paper(mer_a_path):

@@ -209,7 +209,9 @@ def test_heat_shield_edges_read_their_pixel_area_mean():
 def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
     import pytest
 
-    from flight_interface.tomlfields import ConfigError, load_toml, parse
+    from config_tables.errors import ConfigError
+    from config_tables.models import parse
+    from config_tables.toml_file import load_toml
     from simulator.scene_config import SceneConfig
 
     path = tmp_path / "scene.toml"

@@ -1,4 +1,4 @@
-"""``python -m simulator --out DIR``: the estimator's exact inputs as files, replayable bit for bit."""
+"""``python -m simulator.render_example --out DIR``: the estimator's exact inputs as files, replayable bit for bit."""
 from __future__ import annotations
 
 import json
@@ -15,7 +15,7 @@ from file_formats.descent_images import read_descent_image
 from file_formats.flat_field_files import load_flat_field
 from file_formats.measurements_json import load_measurements, measurements_to_dict
 from flight_interface.camera import load_camera
-from simulator import __main__ as example
+from simulator import render_example as example
 from simulator.calibration import DEFAULT_FLAT_FRAMES, simulate_flat_field
 from simulator.descent_image import render_descent_image
 from simulator.scene_config import SceneConfig
@@ -101,6 +101,6 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, argum
         code = example.main(["--out", str(out), *arguments])
         raise SystemExit(code)
     err = capsys.readouterr().err
-    assert raised.value.code == 2 and err.count("\n") == 1 and err.startswith("python -m simulator: error: ")
+    assert raised.value.code == 2 and err.count("\n") == 1 and err.startswith("python -m simulator.render_example: error: ")
     assert message in err
     assert not out.is_dir() or not any(out.iterdir())

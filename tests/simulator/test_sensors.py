@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
 from flight_interface.camera_file import Timing
 from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector, rotate
-from flight_interface.tomlfields import ConfigError, parse
 from simulator.scene.descent_profile import DescentProfile
 from simulator.sensors import SIGMA_FIELDS, SensorConfig, measure
 

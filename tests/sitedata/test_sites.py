@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 from sitedata.sites import ASTRONOMICAL_UNIT_M, class_terrain_params, load_class_terrain, load_site, sun_direction
 from sitedata.terrain import mosaic as terrain_mosaic
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS

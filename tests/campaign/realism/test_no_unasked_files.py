@@ -1,4 +1,4 @@
-"""No command writes a file the user did not ask for: `python -m campaign.realism.terrain_stats_cli` prints
+"""No command writes a file the user did not ask for: `python -m campaign.realism.measure_terrains` prints
 its table and writes a CSV only with ``--csv FILE`` (a subprocess in an empty working directory, with the
 terrain cache elsewhere)."""
 from __future__ import annotations
@@ -27,7 +27,7 @@ def _tile(directory: Path) -> str:
 def _run(*args: str, cwd: Path, cache: Path) -> subprocess.CompletedProcess:
     env = {"PYTHONPATH": str(REPO), "PATH": os.environ.get("PATH", "/usr/bin:/bin"), "MOC2DIMES_CACHE": str(cache),
            "HOME": str(cache), "MPLCONFIGDIR": str(cache / "mpl")}
-    return subprocess.run([sys.executable, "-m", "campaign.realism.terrain_stats_cli", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "campaign.realism.measure_terrains", *args], cwd=cwd,
                           capture_output=True, text=True, env=env, timeout=300)
 
 

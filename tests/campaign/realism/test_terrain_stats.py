@@ -131,7 +131,7 @@ def test_statistics_of_a_too_small_or_uncalibrated_terrain_say_why(sampling):
 
 
 def _run_cli(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "campaign.realism.terrain_stats_cli", *args], cwd=cwd, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "campaign.realism.measure_terrains", *args], cwd=cwd, capture_output=True,
                           text=True, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin",
                                           "MOC2DIMES_CACHE": str(Path(cwd) / "cache")}, timeout=300)
 

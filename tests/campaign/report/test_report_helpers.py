@@ -13,8 +13,8 @@ from PIL import Image
 from campaign.realism.flight_file import FlightImageEntry
 from campaign.realism.flight_plots import _runs
 from campaign.report.sweep_plots import points_along
+from config_tables.errors import FieldProblem
 from file_formats.descent_images import write_preview_png
-from flight_interface.tomlfields import FieldProblem
 
 
 def test_descent_png_is_stretched_clipped_and_rows_repeated(tmp_path):

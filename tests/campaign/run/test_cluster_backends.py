@@ -16,7 +16,8 @@ from campaign.cli import main
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.cluster import connected_client
 from campaign.run.faults import RunStopped
-from flight_interface.tomlfields import ConfigError, parse
+from config_tables.errors import ConfigError
+from config_tables.models import parse
 from service_campaigns import REPO, DaskProcesses, campaign_file, campaign_in_process, run_campaign, stderr_line
 
 BATCH = {"queue": "debug", "account": "proj42", "walltime": "02:30:00", "cores": 4, "memory": "8GiB", "jobs": 3,

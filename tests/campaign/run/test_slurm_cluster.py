@@ -23,7 +23,7 @@ from campaign.cli import main
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.cluster import connected_client
 from campaign.run.faults import RunStopped
-from flight_interface.tomlfields import parse
+from config_tables.models import parse
 from service_campaigns import REPO, campaign_command, campaign_file, stderr_line
 
 STOP_WITHIN_S = 30.0

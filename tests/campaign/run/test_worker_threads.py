@@ -8,7 +8,7 @@ import pytest
 
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.cluster import WORKER_ENVIRONMENT, connected_client
-from flight_interface.tomlfields import parse
+from config_tables.models import parse
 
 
 def _thread_settings(dask_worker) -> dict:

@@ -16,9 +16,9 @@ from campaign.studies.decorrelation import (
     steady_profile,
     variant_data,
 )
+from config_tables.toml_file import load_toml
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.matching import match_template
-from flight_interface.tomlfields import load_toml
 
 ROOT = Path(__file__).resolve().parents[3]
 SHIFT = (7, -5)                 # (column, row) of B against A, whole pixels: no resampling

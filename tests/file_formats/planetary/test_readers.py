@@ -195,7 +195,7 @@ def test_real_moc_example_campaign_terrain():
 
 @pytest.mark.slow
 def test_inspect_command_reports_missing_terrain_facts(capsys):
-    from file_formats.planetary.__main__ import main
+    from file_formats.planetary.inspect_files import main
 
     good, compressed = real("moc_na/M0100115_decompressed.img"), real("moc_na/M0100115.imq")
     assert main([str(good)]) == 0

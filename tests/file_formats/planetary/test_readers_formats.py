@@ -12,8 +12,8 @@ import pytest
 from PIL import Image, TiffImagePlugin
 from planetary_files import write_isis, write_pds3, write_vicar
 
+from config_tables.errors import ConfigError
 from file_formats.planetary import ReaderError, read_image, read_isis3, read_pds3, read_sidecar, read_vicar
-from flight_interface.tomlfields import ConfigError
 from sitedata.terrain.real_terrain import load_terrain
 
 ISIS_NULL4, ISIS_HRS4 = 0xFF7FFFFB, 0xFF7FFFFF

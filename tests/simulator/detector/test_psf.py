@@ -12,9 +12,9 @@ import scipy.integrate
 import scipy.special
 
 from campaign.cli import main as campaign_main
+from config_tables.errors import ConfigError
 from flight_interface.camera import load_camera
 from flight_interface.camera_file import Optics
-from flight_interface.tomlfields import ConfigError
 from simulator.detector import psf
 from simulator.detector.camera_chain import CameraEffects, render_image
 from simulator.scene.radiance import pixel_area_average

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from config_tables.errors import ConfigError
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError
 from simulator.detector import readout
 from simulator.detector.camera_chain import CameraEffects, render_image
 

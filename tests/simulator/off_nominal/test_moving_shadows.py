@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError, parse
 from simulator.descent_image import render_descent_image
 from simulator.off_nominal import OffNominalConfig, draw_case_artefacts
 from simulator.off_nominal.moving_shadows import place_moving_shadows

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_to_rotation_vector
-from flight_interface.tomlfields import ConfigError, parse
 from simulator.descent_image import render_descent_image
 from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig, draw_case_artefacts, with_particle_hits
 from simulator.scene import ground_mapping, motion_blur, photometry

@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 from scipy import integrate
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
+from config_tables.toml_file import load_toml
 from flight_interface.camera import load_camera
-from flight_interface.tomlfields import ConfigError, load_toml, parse
 from simulator.descent_image import render_descent_image
 from simulator.scene import atmosphere, ground_mapping, photometry
 from simulator.scene.descent_profile import constant_velocity_profile

@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
-from flight_interface.tomlfields import ConfigError, parse
 from simulator.derived_cache import DERIVED
 from simulator.scene import ground_mapping, photometry, radiance, relief
 from simulator.scene.descent_profile import constant_velocity_profile

@@ -6,9 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from config_tables.errors import ConfigError
+from config_tables.models import parse
+from config_tables.toml_file import load_toml
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
-from flight_interface.tomlfields import ConfigError, load_toml, parse
 from simulator.descent_image import DescentImage, render_descent_image
 from simulator.scene import heat_shield, motion_blur, periods, photometry, radiance
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile

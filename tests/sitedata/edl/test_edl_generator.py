@@ -4,8 +4,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from config_tables.errors import ConfigError
 from flight_interface.frames import quat_conjugate, quat_multiply, quat_to_rotation_vector, rotate
-from flight_interface.tomlfields import ConfigError
 from sitedata.edl.dynamics import (
     G_MARS_MPS2,
     free_pendulum_swing,

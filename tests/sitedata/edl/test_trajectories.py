@@ -5,12 +5,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from config_tables.errors import ConfigError
 from flight_interface.frames import quat_from_axis_angle, rotate
-from flight_interface.tomlfields import ConfigError
 from simulator.scene.descent_profile import DescentProfile
 from sitedata.edl.post_table import read_post_table
-from sitedata.edl.trajectories_cli import check_set, compare_sites, main, set_statistics
 from sitedata.edl.trajectory_io import TrajectoryFileError, profiles_to_frame, read_profiles, write_profiles
+from sitedata.edl.trajectory_sets import check_set, compare_sites, main, set_statistics
 
 SETS = Path(__file__).resolve().parents[3] / "sitedata" / "trajectories"
 FIELDS = ("time_s", "position_m", "velocity_mps", "attitude_quat", "angular_rate_radps", "wind_mps",

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flight_interface.tomlfields import ConfigError
+from config_tables.errors import ConfigError
 from simulator.scene.relief import ReliefTerrain
 from sitedata.sites import load_class_terrain, load_site, site_from_data
 from sitedata.terrain import relief

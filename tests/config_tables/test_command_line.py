@@ -1,9 +1,9 @@
-"""flight_interface.command_line: a usage error is one line on stderr and exit status 2."""
+"""config_tables.command_line: a usage error is one line on stderr and exit status 2."""
 from __future__ import annotations
 
 import pytest
 
-from flight_interface.command_line import USAGE_ERROR, OneLineParser
+from config_tables.command_line import USAGE_ERROR, OneLineParser
 
 
 def test_usage_error_is_one_line_and_exit_2(capsys):
