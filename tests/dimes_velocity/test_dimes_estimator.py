@@ -135,7 +135,7 @@ def test_features_avoid_the_zero_phase_zone(mer_a, ground):
     sun = (np.cos(elevation) * np.sin(azimuth), np.cos(elevation) * np.cos(azimuth), np.sin(elevation))
     descent = constant_velocity_descent(mer_a, ground, np.random.default_rng(5), velocity_mps=VELOCITY,
                                         sun_direction=sun)
-    config = EstimatorConfig(features_per_pair=16, feature_grid=8)
+    config = EstimatorConfig(features_per_pair=16, feature_grid=8, agreeing_features_to_stop=16)   # track all 16
     result = DimesEstimator(mer_a, config).estimate(descent.images, descent.truth)
     positions = predicted_positions_m(descent.truth)
     anti_sun = -np.asarray(sun) / np.linalg.norm(sun)
