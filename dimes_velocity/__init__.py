@@ -35,7 +35,8 @@ image-based velocity estimation system for Mars landing"):
 Where this reference differs (documented rather than copied; the flight thresholds are not
 published): up to 8 templates per pair tracked until 4 agree, and two agreeing templates that share
 no pixel required per pair (flight: two per pair, checked across pairs); the distinct-peak tests
-(second-peak ratio, curvature) at the coarse level where the search is done; a match within the
+(no other peak within 3 sigma of the best, sigma from the pixel noise; curvature) at the
+coarse level where the search is done; a match within the
 prior's circle; a residual consistent with the templates' noise; matches that do not move in the raw
 image refused as marks on the optics; a stated uncertainty with every valid velocity.
 """
