@@ -11,7 +11,7 @@ import pytest
 
 from config_tables.errors import ConfigError
 from sitedata.sites import ASTRONOMICAL_UNIT_M, class_terrain_params, load_class_terrain, load_site, sun_direction
-from sitedata.terrain import mosaic as terrain_mosaic
+from sitedata.terrain import write_mosaics
 from sitedata.terrain.synthetic_classes import CLASS_PRESETS
 
 REPO = Path(__file__).resolve().parents[2]
@@ -212,7 +212,7 @@ def test_mosaic_command_writes_viewable_pngs(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("MOC2DIMES_CACHE", str(tmp_path / "cache"))
     site_path = write_site(tmp_path, GOOD)
     out = tmp_path / "png"
-    assert terrain_mosaic.main(["--site", str(site_path), "--out", str(out)]) == 0
+    assert write_mosaics.main(["--site", str(site_path), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "mean I/F" in printed and "RMS contrast" in printed
     for name in ("test_a.png", "test_b.png", "test_mosaic.png"):
@@ -222,5 +222,5 @@ def test_mosaic_command_writes_viewable_pngs(tmp_path, monkeypatch, capsys):
     mosaic = cv2.imread(str(out / "test_mosaic.png"), cv2.IMREAD_UNCHANGED)
     assert mosaic.shape[1] >= 96 // 4 + 120 // 4
     broken = write_site(tmp_path, GOOD.replace('preset = "gcp"', 'preset = "zzz"'))
-    assert terrain_mosaic.main(["--site", str(broken), "--out", str(out)]) == 2
+    assert write_mosaics.main(["--site", str(broken), "--out", str(out)]) == 2
     assert "preset = 'zzz' is not allowed" in capsys.readouterr().err
