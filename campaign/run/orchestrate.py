@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import importlib.metadata
+import os
 import platform
 import sys
 import time
@@ -60,7 +61,7 @@ def manifest_for(config: CampaignConfig) -> dict:
     """What a store records of ``config`` in its manifest.json (before sealing)."""
     versions = dict(package_versions())
     return {
-        "config_file": str(config.source), "config_hash": config.config_hash, "config": config.resolved,
+        "config_file": str(config.source), "working_directory": os.getcwd(), "config_hash": config.config_hash, "config": config.resolved,
         "seed": config.seed, "site": config.site.name, "cases_per_class": config.cases_per_class,
         "estimators": config.estimator_names,     # what every case file records (campaign.store.case_identity)
         "ellipse_fractions": {entry.name: entry.ellipse_fraction for entry in config.site.classes},
