@@ -297,7 +297,7 @@ def sites_table(sources: Sources) -> str:
                f"field, estimator `{estimator}`), next to the paper's Tables 1 and 2; false-valid = valid with a "
                f"velocity error above {_trim(float(false_valid_mps))} m/s; measured {' and '.join(dates)}:")
     header = ["class", "cases", "paper % valid", "paper error (m/s, mean+3σ)", "% valid (valid/ran)",
-              "false-valid", "error |v| (m/s, mean+3σ)", "error per axis", "attitude floor |v| / per axis"]
+              "false-valid", "error, magnitude (m/s, mean+3σ)", "error, per axis", "attitude floor, magnitude / per axis"]
     body = []
     for row in rows:
         quoted = paper.get((row["site"], row["row"]), {})
