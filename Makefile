@@ -20,7 +20,7 @@ test: install-test
 bench: install
 	$(PYTHON) -m benchmarks
 
-# measured numbers of the README and docs/ rewritten from docs/measured/ (benchmarks/doc_numbers.py), then checked
+# measured numbers of the README and docs/ rewritten from docs/measured/ (benchmarks/doc_numbers/), then checked
 docs-numbers:
 	$(PYTHON) -m benchmarks.doc_numbers write
 	$(PYTHON) -m benchmarks.doc_numbers check
