@@ -1,5 +1,6 @@
-"""The decorrelation study (campaign.studies.decorrelation): the closed-form noise correlation against a Monte
-Carlo measurement with the estimator's own matching, and the variants it builds from a campaign file."""
+"""The decorrelation study (campaign.studies.decorrelation and its measurement, campaign.studies.template_correlation):
+the closed-form noise correlation against a Monte Carlo measurement with the estimator's own matching, and the
+variants it builds from a campaign file."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,14 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from campaign.studies.decorrelation import (
-    MECHANISMS,
-    NO_ROTATION,
-    RELIEF_ON,
-    noise_correlation,
-    steady_profile,
-    variant_data,
-)
+from campaign.studies.decorrelation import MECHANISMS, NO_ROTATION, RELIEF_ON, steady_profile, variant_data
+from campaign.studies.template_correlation import noise_correlation
 from config_tables.toml_file import load_toml
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.matching import match_template
@@ -103,7 +98,7 @@ def test_whole_pixel_peak_loses_the_texture_autocorrelation_at_the_offset():
     """A Gaussian-smoothed white-noise texture (sigma s px) has autocorrelation exp(-d^2 / (4 s^2)): sampled
     half a pixel apart, the best whole-pixel shift is 0.5 px off, so the grid peak reads ~exp(-1 / (16 s^2));
     whole-pixel shifts read 1."""
-    from campaign.studies.decorrelation import grid_peak_correlation
+    from campaign.studies.template_correlation import grid_peak_correlation
 
     rng = np.random.default_rng(7)
     fine, sigma_px = 4, 1.5
