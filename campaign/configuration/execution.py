@@ -3,12 +3,16 @@
 ``cluster`` picks the backend (:mod:`campaign.run.cluster`):
 
 - ``"local"`` (default): an embedded LocalCluster of ``workers`` single-threaded processes;
-- ``"scheduler"``: an existing dask scheduler at ``scheduler = "tcp://host:port"`` (its workers are
-  started by whoever runs it);
+- ``"scheduler"``: an existing dask scheduler at ``scheduler = "tls://host:port"`` (certificate files in
+  ``tls_ca_file``, ``tls_cert_file``, ``tls_key_file``) or ``"tcp://host:port"`` (its workers are started
+  by whoever runs it);
 - ``"slurm"`` / ``"pbs"``: batch jobs through dask-jobqueue, settings in ``[execution.slurm]`` /
   ``[execution.pbs]`` (extra ``moc2dimes[slurm]`` / ``moc2dimes[pbs]``);
 - ``"kubernetes"``: worker pods through the dask-kubernetes operator, settings in
   ``[execution.kubernetes]`` (extra ``moc2dimes[kubernetes]``).
+
+The slurm, pbs and kubernetes backends talk TLS (a per-run certificate, or the user's CA in the
+``tls_*_file`` fields); every dashboard binds ``dashboard_address`` (default 127.0.0.1, this machine only).
 
 The watch fields (``stall_timeout_s``, ``no_workers_timeout_s``, ``paused_timeout_s``) decide when the
 driver stops a run that cannot progress (:mod:`campaign.run.dask_runner`): it then keeps every finished case,
@@ -17,17 +21,21 @@ prints one line naming the cause and exits 1; the next ``submit`` runs the unfin
 from __future__ import annotations
 
 import re
-from typing import Literal
+from pathlib import Path
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import BeforeValidator, Field, ValidationInfo, field_validator, model_validator
 
 from config_tables.errors import FieldProblem
-from config_tables.models import ConfigModel, StringList
+from config_tables.models import ConfigModel, StringList, _relative_to_file
 
 SCHEDULER_SCHEMES = ("tcp://", "tls://", "inproc://")
 #: host:port for tcp/tls (port 1-65535; host a name, IPv4 or [IPv6]), anything non-empty after inproc://
 SCHEDULER_ADDRESS = re.compile(r"^(?:(?:tcp|tls)://(?:[A-Za-z0-9_.-]+|\[[0-9A-Fa-f:.]+\]):"
                                r"(?:[1-9]\d{0,3}|[1-5]\d{4}|6[0-4]\d{3}|65[0-4]\d{2}|655[0-2]\d|6553[0-5])|inproc://.+)$")
+#: dashboard address: "host:port" or ":port" (every interface), port 0 = any free port
+DASHBOARD_ADDRESS = re.compile(r"^(?:[A-Za-z0-9_.-]+|\[[0-9A-Fa-f:.]+\])?:\d{1,5}$")
+LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "[::1]")
 MIN_MEMORY_LIMIT_BYTES = 2**20
 #: Backends a campaign runs on ([execution] cluster).
 Cluster = Literal["local", "scheduler", "slurm", "pbs", "kubernetes"]
@@ -55,6 +63,31 @@ def kubernetes_bytes(quantity: str) -> int:
 def kubernetes_headroom_bytes(pod_bytes: int) -> int:
     """Memory of a worker pod of ``pod_bytes`` kept above dask's ``--memory-limit`` (bytes)."""
     return max(int(KUBERNETES_HEADROOM_FRACTION * pod_bytes), KUBERNETES_HEADROOM_MIN_BYTES)
+
+
+def _readable_file(value: Any, info: ValidationInfo) -> Any:
+    """A certificate or key file (relative to the TOML file's directory) that exists and can be read."""
+    if value is None or value == "":
+        return None
+    path = _relative_to_file(value, info)
+    try:
+        with open(path, "rb") as handle:
+            handle.read(1)
+    except OSError as exc:
+        raise FieldProblem("", f"= {str(value)!r} cannot be read ({exc.strerror}: {path}); allowed: a PEM file "
+                           "you can read") from None
+    return path
+
+
+#: A PEM file of [execution] (certificate authority, certificate, private key): must be readable.
+ReadableFile = Annotated[Path | None, BeforeValidator(_readable_file)]
+
+
+def scheduler_host(address: str) -> str:
+    """The host part of a ``tcp://`` / ``tls://`` scheduler address ("" for others)."""
+    if not address.startswith(("tcp://", "tls://")):
+        return ""
+    return address.split("://", 1)[1].rsplit(":", 1)[0]
 
 
 def _memory_size(value: str) -> str:
@@ -96,6 +129,10 @@ class BatchJobs(ConfigModel):
     """Network interface the scheduler and workers talk on, e.g. "ib0"; "" = the host name's address."""
     python: str = ""
     """Python interpreter of the workers; "" = the driver's own (same path on the compute nodes)."""
+    certificate_directory: str = ""
+    """Directory on a file system the compute nodes share, where a run's own TLS certificate and key are
+    written for its workers (a private sub-directory, readable only by you, removed after the run);
+    "" = the working directory. Unused with [execution] tls_ca_file."""
 
     @field_validator("walltime")
     @classmethod
@@ -165,7 +202,17 @@ class ExecutionConfig(ConfigModel):
     """Backend: "local" (embedded), "scheduler" (existing scheduler at `scheduler`), "slurm", "pbs",
     "kubernetes" (default "local"; "scheduler" when only `scheduler` is given)."""
     scheduler: str = ""
-    """Address of an existing scheduler ("tcp://host:port"), for cluster = "scheduler"."""
+    """Address of an existing scheduler ("tls://host:port" or "tcp://host:port"), for cluster = "scheduler"."""
+    tls_ca_file: ReadableFile = None
+    """PEM certificate authority the scheduler and workers trust (with tls_cert_file and tls_key_file):
+    needed for a "tls://" scheduler; for slurm/pbs/kubernetes it replaces the per-run certificate."""
+    tls_cert_file: ReadableFile = None
+    """PEM certificate (signed by tls_ca_file) this run's client, scheduler and workers present."""
+    tls_key_file: ReadableFile = None
+    """PEM private key of tls_cert_file (never printed or logged)."""
+    dashboard_address: str = "127.0.0.1:0"
+    """Where the dashboard of a scheduler started here listens: "127.0.0.1:0" (default: this machine
+    only, any free port; reach it from elsewhere through an SSH tunnel), ":8787" opts in to every interface."""
     workers: int = Field(0, ge=0, le=1024)
     """Worker processes (0 = local: one per core; slurm/pbs: jobs x cores; kubernetes: its `workers`)."""
     retries: int = Field(1, ge=0, le=10)
@@ -200,8 +247,16 @@ class ExecutionConfig(ConfigModel):
     @classmethod
     def _address(cls, value: str) -> str:
         if value and not (value.startswith(SCHEDULER_SCHEMES) and SCHEDULER_ADDRESS.match(value)):
-            raise FieldProblem("", f"= {value!r} is not a scheduler address; allowed: \"\" (embedded) or "
-                               "tcp://host:port")
+            raise FieldProblem("", f"= {value!r} is not a scheduler address; allowed: \"\" (embedded), "
+                               "tls://host:port or tcp://host:port")
+        return value
+
+    @field_validator("dashboard_address")
+    @classmethod
+    def _dashboard(cls, value: str) -> str:
+        if not DASHBOARD_ADDRESS.match(value) or int(value.rsplit(":", 1)[1]) > 65535:
+            raise FieldProblem("", f"= {value!r} is not a dashboard address; allowed: \"127.0.0.1:0\" (default), "
+                               "\"host:port\" or \":port\" (every interface)")
         return value
 
     @field_validator("memory_limit")
@@ -216,10 +271,22 @@ class ExecutionConfig(ConfigModel):
         if self.cluster != "scheduler" and self.scheduler:
             raise FieldProblem("scheduler", f"= {self.scheduler!r} is only used with cluster = \"scheduler\"; "
                                f"allowed: \"\" with cluster = {self.cluster!r}")
+        files = {"tls_ca_file": self.tls_ca_file, "tls_cert_file": self.tls_cert_file, "tls_key_file": self.tls_key_file}
+        if any(files.values()) and not all(files.values()):
+            missing = next(name for name, path in files.items() if path is None)
+            raise FieldProblem(missing, "is missing; tls_ca_file, tls_cert_file and tls_key_file go together")
+        if self.scheduler.startswith("tls://") and not self.tls_ca_file:
+            raise FieldProblem("tls_ca_file", f"is missing; scheduler = {self.scheduler!r} needs tls_ca_file, "
+                               "tls_cert_file and tls_key_file (PEM files of the scheduler's certificate authority)")
         if self.cluster == "kubernetes" and not self.kubernetes.image:
             raise FieldProblem("kubernetes.image", "is missing; cluster = \"kubernetes\" needs the container image "
                                "that holds moc2dimes, e.g. \"registry.example.org/moc2dimes:0.1\"")
         return self
+
+    @property
+    def plain_tcp_to_another_host(self) -> bool:
+        """True when the scheduler is a ``tcp://`` address of a host other than this machine's loopback."""
+        return self.scheduler.startswith("tcp://") and scheduler_host(self.scheduler) not in LOOPBACK_HOSTS
 
     @property
     def memory_limit_bytes(self) -> int:

@@ -7,7 +7,8 @@ for workers that never come. Here instead:
 
 - the submit command (``sbatch`` / ``qsub``) missing from PATH stops the run before anything starts;
 - each job's submission is recorded by :func:`recording_job_class` (its id, or its one-line error;
-  nothing is logged);
+  nothing is logged); its job script is written readable only by its owner (mode 0600, in a private
+  directory) and removed after submission;
 - :func:`wait_for_first_worker` returns when the first dask worker connects and stops the run
   (:class:`~campaign.run.faults.RunStopped`) as soon as every job is known to be dead: rejected by the
   submit command, ended before its worker connected (SLURM: ``squeue`` state, last line of the job's
@@ -20,9 +21,13 @@ a few seconds; PBS jobs are watched through their submission and the timeout onl
 """
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
+import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,7 +90,20 @@ def recording_job_class(base: type[ProcessInterface], record: JobRecord) -> type
         else:
             record.submitted.append(str(self.job_id))
 
-    return type(f"Recording{base.__name__}", (base,), {"start": start})
+    @contextmanager
+    def job_file(self) -> Iterator[str]:
+        """The job script in a new private directory (0700), the file 0600 (dask-jobqueue's own is world-readable)."""
+        directory = tempfile.mkdtemp(prefix="moc2dimes-job-")
+        path = os.path.join(directory, "job.sh")
+        try:
+            descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(descriptor, "w") as handle:
+                handle.write(self.job_script())
+            yield path
+        finally:
+            shutil.rmtree(directory, ignore_errors=True)
+
+    return type(f"Recording{base.__name__}", (base,), {"start": start, "job_file": job_file})
 
 
 def submission_error(submit_command: str, exc: BaseException) -> str:

@@ -1,7 +1,8 @@
 """Cluster backends of ``[execution] cluster``: where a campaign's dask workers come from.
 
 ``local``       an embedded LocalCluster of single-threaded worker processes (``workers``, ``memory_limit``)
-``scheduler``   an existing scheduler (``scheduler = "tcp://host:port"`` or ``--scheduler``)
+``scheduler``   an existing scheduler (``scheduler = "tls://host:port"`` with the ``tls_*_file`` certificate
+                files, or ``"tcp://host:port"``; or ``--scheduler``)
 ``slurm``       SLURM batch jobs (dask-jobqueue's SLURMCluster; ``[execution.slurm]``; extra ``moc2dimes[slurm]``)
 ``pbs``         PBS batch jobs (dask-jobqueue's PBSCluster; ``[execution.pbs]``; extra ``moc2dimes[pbs]``)
 ``kubernetes``  scheduler and worker pods of a DaskCluster resource (dask-kubernetes' operator
@@ -16,6 +17,15 @@ what ``campaign cluster FILE`` prints (job script or DaskCluster resource, nothi
 Kubernetes worker's dask memory limit keeps a headroom below its pod's limit
 (:func:`~campaign.configuration.execution.kubernetes_headroom_bytes`).
 
+**Security.** The slurm, pbs and kubernetes schedulers listen only on ``tls://`` and accept only peers
+that present a certificate of the run's certificate authority (:func:`run_certificates`: a per-run
+self-signed certificate from ``distributed.security.Security.temporary()``, written for the batch jobs'
+workers to a private directory, or the user's CA of ``[execution] tls_*_file``); no plain-TCP listener is
+left open. Every dashboard binds ``[execution] dashboard_address`` (default ``127.0.0.1:0``). The job
+scripts given to ``sbatch`` / ``qsub`` are written readable only by their owner
+(:func:`~campaign.run.batch_jobs.recording_job_class`) and hold certificate paths, never key material;
+anything printed passes :func:`elide_key_material`.
+
 The optional packages are imported only for their backend; a missing one is a one-line
 :class:`~config_tables.errors.ConfigError` naming the pip extra, raised by
 :func:`require_backend` before anything is written.
@@ -26,15 +36,23 @@ import importlib
 import json
 import logging
 import os
+import re
+import shutil
 import signal
 import sys
+import tempfile
 import threading
-from collections.abc import Iterator
+import weakref
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
 from typing import Any, Protocol, cast
 
 import dask
 from dask.distributed import Client, LocalCluster
+from distributed.security import Security
 
 from campaign.configuration.execution import BatchJobs, ExecutionConfig, kubernetes_bytes, kubernetes_headroom_bytes
 from campaign.run.batch_jobs import (
@@ -61,7 +79,16 @@ WORKER_DASK_CONFIG = {"distributed.worker.profile.enabled": False}
 #: the environment of a worker process that dask starts elsewhere (batch job, pod): one thread, no profiler
 WORKER_ENVIRONMENT = {**SINGLE_THREAD_ENVIRONMENT, "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
 WORKER_JOB_NAME = "moc2dimes-worker"
-SCHEDULER_PLACEHOLDER = "tcp://SCHEDULER-ADDRESS:PORT"
+SCHEDULER_PLACEHOLDER = "tls://SCHEDULER-ADDRESS:PORT"
+#: where ``campaign cluster`` shows the run's certificate directory (created only when the run starts)
+CERTIFICATE_PLACEHOLDER = "RUN-CERTIFICATE-DIRECTORY"
+CERTIFICATE_NAME = "certificate.pem"
+KEY_NAME = "key.pem"
+#: a PEM block (certificate or key) in text about to be printed
+PEM_BLOCK = re.compile(r"-----BEGIN ([A-Z0-9 ]+)-----.*?-----END \1-----", re.DOTALL)
+#: the Kubernetes Secret (type kubernetes.io/tls plus ca.crt) the DaskCluster's pods mount, and where
+KUBERNETES_TLS_MOUNT = "/etc/moc2dimes/tls"
+KUBERNETES_COMM_PORT = 8786
 #: distributed's own log records on the driver during a run (the runner reports problems as one line;
 #: M2D_DASK_LOG_LEVEL=20 shows them, e.g. to debug a cluster)
 DRIVER_LOG_LEVEL = int(os.environ.get("M2D_DASK_LOG_LEVEL", logging.CRITICAL))
@@ -96,12 +123,82 @@ def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> 
                           f"installed; allowed: pip install 'moc2dimes[{extra}]', or another cluster") from None
 
 
+def elide_key_material(text: str) -> str:
+    """``text`` with every PEM block (certificate, private key) replaced by a marker naming its kind."""
+    return PEM_BLOCK.sub(lambda match: f"<{match.group(1).lower()} elided>", text)
+
+
+@dataclass
+class RunCertificates:
+    """The TLS credentials of one run: ``security`` names PEM files (scheduler, workers and this client all
+    present the certificate and trust the CA); ``remove`` deletes the per-run directory (no-op for the user's CA)."""
+
+    security: Security
+    directory: Path | None
+    remove: Callable[[], Any]
+
+
+def _file_security(ca_file: str, cert_file: str, key_file: str) -> Security:
+    return Security(require_encryption=True, tls_ca_file=ca_file,
+                    tls_client_cert=cert_file, tls_client_key=key_file,
+                    tls_scheduler_cert=cert_file, tls_scheduler_key=key_file,
+                    tls_worker_cert=cert_file, tls_worker_key=key_file)
+
+
+def user_security(execution: ExecutionConfig) -> Security | None:
+    """The Security of ``[execution] tls_ca_file / tls_cert_file / tls_key_file`` (None when not given)."""
+    if not (execution.tls_ca_file and execution.tls_cert_file and execution.tls_key_file):
+        return None
+    return _file_security(str(execution.tls_ca_file), str(execution.tls_cert_file), str(execution.tls_key_file))
+
+
+def _write_private(path: Path, text: str) -> None:
+    descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(descriptor, "w") as handle:
+        handle.write(text)
+
+
+def run_certificates(execution: ExecutionConfig, directory: str = "") -> RunCertificates:
+    """TLS credentials of a run: the user's CA when ``[execution]`` names one, else a new self-signed
+    certificate and key (``Security.temporary()``, RSA 2048, valid one year, the CA of nobody else) written to
+    a new private directory (mode 0700, files 0600) under ``directory`` ("" = the working directory), where
+    the batch jobs' workers read them; :attr:`RunCertificates.remove` deletes it."""
+    given = user_security(execution)
+    if given is not None:
+        return RunCertificates(given, None, lambda: None)
+    temporary = Security.temporary()
+    worker = temporary.get_tls_config_for_role("worker")
+    parent = Path(directory).expanduser() if directory else Path.cwd()
+    private = Path(tempfile.mkdtemp(prefix=".moc2dimes-tls-", dir=parent))        # mode 0700
+    remove = partial(shutil.rmtree, private, ignore_errors=True)
+    try:
+        _write_private(private / CERTIFICATE_NAME, worker["cert"])
+        _write_private(private / KEY_NAME, worker["key"])
+    except BaseException:
+        remove()
+        raise
+    certificate, key = str(private / CERTIFICATE_NAME), str(private / KEY_NAME)
+    certificates = RunCertificates(_file_security(certificate, certificate, key), private, remove)
+    certificates.remove = weakref.finalize(certificates, remove)      # once, at the latest when collected
+    return certificates
+
+
+def _placeholder_security(execution: ExecutionConfig) -> Security:
+    """The Security a batch job script shows before the run (per-run files under :data:`CERTIFICATE_PLACEHOLDER`)."""
+    given = user_security(execution)
+    if given is not None:
+        return given
+    certificate, key = f"{CERTIFICATE_PLACEHOLDER}/{CERTIFICATE_NAME}", f"{CERTIFICATE_PLACEHOLDER}/{KEY_NAME}"
+    return _file_security(certificate, certificate, key)
+
+
 def default_worker_count() -> int:
     return max(1, os.cpu_count() or 1)
 
 
 def _job_options(execution: ExecutionConfig) -> dict:
-    """Keyword arguments of dask-jobqueue's job (and cluster) for ``[execution.slurm]`` / ``[execution.pbs]``."""
+    """Keyword arguments of dask-jobqueue's job (and cluster) for ``[execution.slurm]`` / ``[execution.pbs]``
+    (the TLS options are the caller's)."""
     jobs: BatchJobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
     prologue = [f"export {name}={value}" for name, value in WORKER_ENVIRONMENT.items()] + list(jobs.prologue)
     return dict(cores=jobs.cores, processes=jobs.cores, memory=jobs.memory, walltime=jobs.walltime,
@@ -118,26 +215,41 @@ def _job_class(kind: str) -> type:
     return SLURMJob if kind == "slurm" else PBSJob
 
 
-def jobqueue_cluster(execution: ExecutionConfig, record: JobRecord | None = None):
-    """The SLURMCluster or PBSCluster of ``execution`` (its scheduler runs here; no job submitted yet:
-    :func:`start_cluster` scales it); its submissions go to ``record`` when given."""
+def _batch_jobs(execution: ExecutionConfig) -> BatchJobs:
+    return execution.slurm if execution.cluster == "slurm" else execution.pbs
+
+
+def jobqueue_cluster(execution: ExecutionConfig, record: JobRecord | None = None,
+                     certificates: RunCertificates | None = None):
+    """The SLURMCluster or PBSCluster of ``execution`` (its scheduler runs here, on ``tls://`` only, its
+    dashboard on ``[execution] dashboard_address``; no job submitted yet: :func:`start_cluster` scales it);
+    its submissions go to ``record`` when given. Without ``certificates`` a per-run certificate is made
+    (:func:`run_certificates`; its directory is removed when the cluster object is collected)."""
     # optional extra, as above
     from dask_jobqueue import PBSCluster, SLURMCluster
 
+    made_here = certificates is None
+    if certificates is None:
+        certificates = run_certificates(execution, _batch_jobs(execution).certificate_directory)
     Cluster = SLURMCluster if execution.cluster == "slurm" else PBSCluster
     job_class = _job_class(execution.cluster)
     # dask-jobqueue annotates ``job_cls`` as a Job instance; it takes the class (its own default is one)
     job_cls = cast(Any, recording_job_class(job_class, record or JobRecord()))
-    return Cluster(**_job_options(execution), job_cls=job_cls,
-                   scheduler_options={"dashboard_address": ":0"}, silence_logs="error")
+    cluster = Cluster(**_job_options(execution), job_cls=job_cls, security=certificates.security, protocol="tls://",
+                      scheduler_options={"dashboard_address": execution.dashboard_address}, silence_logs="error")
+    if made_here:
+        weakref.finalize(cluster, certificates.remove)
+    return cluster
 
 
 def batch_job_script(execution: ExecutionConfig, scheduler: str = SCHEDULER_PLACEHOLDER) -> str:
     """The job script ``campaign submit`` would give ``sbatch`` / ``qsub`` for ``execution`` (its first job;
-    the scheduler's address, known only when it runs, shown as ``scheduler``). Starts and submits nothing."""
+    the scheduler's address, known only when it runs, shown as ``scheduler``; the per-run certificate
+    directory as :data:`CERTIFICATE_PLACEHOLDER`; any key material elided). Starts and submits nothing."""
     first_worker = f"{'SLURMCluster' if execution.cluster == 'slurm' else 'PBSCluster'}-0"   # as the cluster names it
-    job = _job_class(execution.cluster)(scheduler=scheduler, name=first_worker, **_job_options(execution))
-    return job.job_script()
+    job = _job_class(execution.cluster)(scheduler=scheduler, name=first_worker, protocol="tls://",
+                                        security=_placeholder_security(execution), **_job_options(execution))
+    return elide_key_material(job.job_script())
 
 
 def kubernetes_worker_memory_limit(pod_memory: str) -> int:
@@ -193,14 +305,35 @@ class Closable(Protocol):
     def close(self) -> Any: ...
 
 
+class _BatchCluster:
+    """A dask-jobqueue cluster and the run's certificate directory: closing it cancels the jobs, then removes
+    the directory."""
+
+    def __init__(self, cluster, certificates: RunCertificates):
+        self.cluster = cluster
+        self.certificates = certificates
+
+    def close(self) -> None:
+        try:
+            self.cluster.close()
+        finally:
+            self.certificates.remove()
+
+
 def _batch_cluster(execution: ExecutionConfig, quiet: bool) -> tuple[Client, Closable]:
     """Submit the jobs and wait for their first worker (campaign.run.batch_jobs: a dead batch job stops
-    the run in one line); the jobs are cancelled when anything fails."""
+    the run in one line); the jobs are cancelled (and the run's certificate removed) when anything fails."""
     require_submit_command(execution.cluster)
     record = JobRecord()
-    cluster = jobqueue_cluster(execution, record)
+    jobs = _batch_jobs(execution)
+    certificates = run_certificates(execution, jobs.certificate_directory)
     try:
-        jobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
+        cluster = jobqueue_cluster(execution, record, certificates)
+    except BaseException:
+        certificates.remove()
+        raise
+    closable = _BatchCluster(cluster, certificates)
+    try:
         if execution.workers:
             cluster.scale(n=execution.workers)
         else:
@@ -212,14 +345,14 @@ def _batch_cluster(execution: ExecutionConfig, quiet: bool) -> tuple[Client, Clo
             _quietly(client.close)
             raise
     except BaseException:
-        _quietly(cluster.close)
+        _quietly(closable.close)
         raise
     if not quiet:
         print(f"{execution.cluster} jobs: {', '.join(record.submitted)}", flush=True)
     if record.rejected:      # the run goes on with the other jobs' workers, but says so
         print(f"campaign: note: {len(record.rejected)} of {len(cluster.worker_spec)} {execution.cluster} jobs were "
               f"not submitted; first: {record.rejected[0]}", file=sys.stderr, flush=True)
-    return client, cluster
+    return client, closable
 
 
 def _kubernetes_cluster(execution: ExecutionConfig):
@@ -247,8 +380,13 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
         os.environ.setdefault(variable, value)   # one thread per worker process: idle BLAS threads stall on 2 cores
     cluster: Closable | None = None
     if execution.cluster == "scheduler":
+        if execution.plain_tcp_to_another_host:
+            print(f"campaign: warning: {execution.scheduler} is plain TCP to another host: anyone who can reach that "
+                  "port can run code as the scheduler's workers and read or cancel this run; use tls:// with "
+                  "[execution] tls_ca_file, tls_cert_file, tls_key_file", file=sys.stderr, flush=True)
         try:
-            client = Client(execution.scheduler, timeout=f"{execution.connect_timeout_s}s")
+            client = Client(execution.scheduler, timeout=f"{execution.connect_timeout_s}s",
+                            security=user_security(execution))
         except (OSError, TimeoutError) as exc:
             raise RunStopped(f"cannot reach the dask scheduler {execution.scheduler} within "
                              f"{execution.connect_timeout_s:g} s ({_first_line(exc)}); start it, check the address, "
@@ -257,7 +395,7 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
         with workers_ignore_interrupts(), dask.config.set(WORKER_DASK_CONFIG):   # each nanny keeps the config
             cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                    processes=True, memory_limit=execution.memory_limit,
-                                   dashboard_address="127.0.0.1:0", host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
+                                   dashboard_address=execution.dashboard_address, host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
     elif execution.cluster in ("slurm", "pbs"):
         client, cluster = _batch_cluster(execution, quiet)
     else:

@@ -166,7 +166,12 @@ def test_campaign_cluster_prints_the_job_script_and_submits_nothing(tmp_path, ki
     assert lines[0] == "#!/usr/bin/env bash"
     assert ("#SBATCH -p debug" if kind == "slurm" else "#PBS -q debug") in lines
     [worker] = [line for line in lines if "distributed.cli.dask_worker" in line]
-    assert "tcp://SCHEDULER-ADDRESS:PORT" in worker and "--nworkers 4" in worker and "--memory-limit 2.00GiB" in worker
+    assert "tls://SCHEDULER-ADDRESS:PORT" in worker and "--nworkers 4" in worker and "--memory-limit 2.00GiB" in worker
+    # TLS: the run's certificate and key by path (created when the run starts), no key material
+    for part in ("--protocol tls://", "--tls-ca-file RUN-CERTIFICATE-DIRECTORY/certificate.pem",
+                 "--tls-cert RUN-CERTIFICATE-DIRECTORY/certificate.pem", "--tls-key RUN-CERTIFICATE-DIRECTORY/key.pem"):
+        assert part in worker, worker
+    assert "BEGIN" not in result.stdout and "PRIVATE KEY" not in result.stdout
     submit = "sbatch" if kind == "slurm" else "qsub"
     # 6 workers at 4 per job: ceil(6 / 4) = 2 jobs
     assert stderr_line(result) == (f"campaign: note: 2 such job(s) of 4 single-threaded worker(s), submitted with "
