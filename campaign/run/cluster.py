@@ -137,6 +137,9 @@ class RunCertificates:
     directory: Path | None
     remove: Callable[[], Any]
 
+    def close(self) -> None:
+        self.remove()
+
 
 def _file_security(ca_file: str, cert_file: str, key_file: str) -> Security:
     return Security(require_encryption=True, tls_ca_file=ca_file,
@@ -237,8 +240,8 @@ def jobqueue_cluster(execution: ExecutionConfig, record: JobRecord | None = None
     job_cls = cast(Any, recording_job_class(job_class, record or JobRecord()))
     cluster = Cluster(**_job_options(execution), job_cls=job_cls, security=certificates.security, protocol="tls://",
                       scheduler_options={"dashboard_address": execution.dashboard_address}, silence_logs="error")
-    if made_here:
-        weakref.finalize(cluster, certificates.remove)
+    if made_here:      # the certificates live as long as the cluster (the finalizer holds them)
+        weakref.finalize(cluster, partial(RunCertificates.close, certificates))
     return cluster
 
 
@@ -260,10 +263,55 @@ def kubernetes_worker_memory_limit(pod_memory: str) -> int:
     return pod_bytes - kubernetes_headroom_bytes(pod_bytes)
 
 
-def kubernetes_cluster_spec(execution: ExecutionConfig) -> dict:
+def kubernetes_tls_secret_name(execution: ExecutionConfig) -> str:
+    """Name of the Kubernetes Secret holding the DaskCluster's TLS files (``ca.crt``, ``tls.crt``, ``tls.key``)."""
+    return f"{execution.kubernetes.name}-tls"
+
+
+def _with_tls(spec: dict, execution: ExecutionConfig) -> None:
+    """Make the DaskCluster ``spec`` talk TLS only: both pods mount the Secret
+    :func:`kubernetes_tls_secret_name` read-only at :data:`KUBERNETES_TLS_MOUNT` and present its certificate;
+    the scheduler listens on ``tls://`` only; the workers' scheduler address is ``tls://``; dashboards bind
+    the pod's loopback (``kubectl port-forward`` reaches them), so the scheduler's probes open its comm port."""
+    pods = execution.kubernetes
+    files = [f"--tls-ca-file={KUBERNETES_TLS_MOUNT}/ca.crt", f"--tls-cert={KUBERNETES_TLS_MOUNT}/tls.crt",
+             f"--tls-key={KUBERNETES_TLS_MOUNT}/tls.key"]
+    volume = {"name": "tls", "secret": {"secretName": kubernetes_tls_secret_name(execution), "defaultMode": 0o400}}
+    mount = {"name": "tls", "mountPath": KUBERNETES_TLS_MOUNT, "readOnly": True}
+    dashboard_host = execution.dashboard_address.rsplit(":", 1)[0]
+    for role in ("scheduler", "worker"):
+        pod = spec["spec"][role]["spec"]
+        pod["volumes"] = [volume]
+        container = pod["containers"][0]
+        container["volumeMounts"] = [mount]
+        if role == "scheduler":
+            container["args"] = ["dask", "scheduler", "--host", "0.0.0.0", "--protocol", "tls",
+                                 "--port", str(KUBERNETES_COMM_PORT),
+                                 "--dashboard-address", f"{dashboard_host}:8787", *files]
+            for probe in ("readinessProbe", "livenessProbe"):
+                container[probe] = {key: value for key, value in container[probe].items() if key != "httpGet"}
+                container[probe]["tcpSocket"] = {"port": "tcp-comm"}
+            if dashboard_host in ("127.0.0.1", "localhost"):   # nothing outside the pod can reach it anyway
+                container["ports"] = [port for port in container["ports"] if port["name"] != "http-dashboard"]
+                service = spec["spec"]["scheduler"]["service"]
+                service["ports"] = [port for port in service["ports"] if port["name"] != "http-dashboard"]
+        else:
+            arguments = container["args"]
+            position = arguments.index("--dashboard")
+            arguments[position:position + 3] = ["--dashboard-address", f"{dashboard_host}:8788"]
+            arguments += files
+            if dashboard_host in ("127.0.0.1", "localhost"):
+                container["ports"] = [port for port in container["ports"] if port["name"] != "http-dashboard"]
+            address = f"tls://{pods.name}-scheduler.{pods.namespace}.svc.cluster.local:{KUBERNETES_COMM_PORT}"
+            container["env"] = [*container["env"], {"name": "DASK_SCHEDULER_ADDRESS", "value": address}]
+
+
+def kubernetes_cluster_spec(execution: ExecutionConfig, tls: bool = True) -> dict:
     """The DaskCluster resource (a dict, as applied to Kubernetes) of ``[execution.kubernetes]``:
     namespace, image, one single-threaded worker per pod with the pod's CPU and memory as requests and
-    limits, and the worker's memory limit below the pod's (:func:`kubernetes_worker_memory_limit`)."""
+    limits, and the worker's memory limit below the pod's (:func:`kubernetes_worker_memory_limit`); with
+    ``tls`` (default) scheduler and workers talk TLS only, with the files of the Secret
+    :func:`kubernetes_tls_secret_name` (a reference: no key material in the spec)."""
     # dask-kubernetes is an optional extra (moc2dimes[kubernetes]): imported only for that backend
     from dask_kubernetes.operator import make_cluster_spec
 
@@ -274,6 +322,8 @@ def kubernetes_cluster_spec(execution: ExecutionConfig) -> dict:
     spec["metadata"]["namespace"] = pods.namespace
     worker = spec["spec"]["worker"]["spec"]["containers"][0]
     worker["args"] += ["--nthreads", "1", "--memory-limit", str(kubernetes_worker_memory_limit(pods.memory))]
+    if tls:
+        _with_tls(spec, execution)
     return spec
 
 
@@ -291,8 +341,10 @@ def cluster_description(execution: ExecutionConfig) -> tuple[str, str]:
         spec = kubernetes_cluster_spec(execution)
         pods = execution.kubernetes
         limit = kubernetes_worker_memory_limit(pods.memory)
-        return json.dumps(spec, indent=2), (f"{spec['spec']['worker']['replicas']} worker pod(s) of {pods.memory}; "
-                                            f"dask --memory-limit {limit / 2**20:.0f} MiB (pauses at 80 %)")
+        return elide_key_material(json.dumps(spec, indent=2)), (
+            f"{spec['spec']['worker']['replicas']} worker pod(s) of {pods.memory}; dask --memory-limit "
+            f"{limit / 2**20:.0f} MiB (pauses at 80 %); TLS files from Secret {kubernetes_tls_secret_name(execution)!r} "
+            "(ca.crt, tls.crt, tls.key)")
     if execution.cluster == "scheduler":
         return f"an existing dask scheduler at {execution.scheduler}", "its workers are started by whoever runs it"
     return (f"an embedded LocalCluster of {execution.workers or default_worker_count()} single-threaded worker "
@@ -363,7 +415,13 @@ def _kubernetes_cluster(execution: ExecutionConfig):
 
     try:
         kr8s.api()      # credentials first: a KubeCluster that fails later leaves an exit-time traceback
-        return KubeCluster(custom_cluster_spec=kubernetes_cluster_spec(execution),
+        # dask-kubernetes' KubeCluster connects to its scheduler over tcp:// and takes no TLS settings: the
+        # cluster it starts talks plain TCP inside the Kubernetes network (docs/campaigns.md, Security)
+        print("campaign: warning: the kubernetes backend's scheduler talks plain TCP inside the Kubernetes network "
+              "(dask-kubernetes' KubeCluster takes no TLS settings): any pod that reaches its service can run code "
+              "as this run; for TLS apply the spec of campaign cluster FILE and use --scheduler tls://",
+              file=sys.stderr, flush=True)
+        return KubeCluster(custom_cluster_spec=kubernetes_cluster_spec(execution, tls=False),
                            namespace=execution.kubernetes.namespace, shutdown_on_close=True, quiet=True)
     except Exception as exc:   # kr8s and the operator raise ValueError, kr8s.ServerError, OSError ...
         raise RunStopped(f"cannot start the Kubernetes cluster ({_first_line(exc)}); check the credentials "

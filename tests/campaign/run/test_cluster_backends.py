@@ -212,3 +212,168 @@ def test_missing_submit_command_stops_before_any_cluster_starts(monkeypatch, kin
                                          "nothing was run or changed$"):
         with connected_client(_execution({"cluster": kind}), quiet=True):
             pass
+
+
+# --- security: TLS, certificate files, dashboards (issue 36) ---
+
+def _pem_files(directory: Path, security=None) -> dict[str, str]:
+    """A CA certificate (self-signed, also the leaf) and its key as [execution] tls_* files."""
+    from distributed.security import Security
+
+    security = security or Security.temporary()
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "ca.pem").write_text(security.tls_ca_file)
+    (directory / "key.pem").write_text(security.tls_client_key)
+    (directory / "key.pem").chmod(0o600)
+    return {"tls_ca_file": str(directory / "ca.pem"), "tls_cert_file": str(directory / "ca.pem"),
+            "tls_key_file": str(directory / "key.pem")}
+
+
+@pytest.mark.parametrize("lines, expected", [
+    ('scheduler = "tls://127.0.0.1:8786"', "execution.tls_ca_file is missing; scheduler = 'tls://127.0.0.1:8786' needs"),
+    ('tls_ca_file = "nosuch.pem"\ntls_cert_file = "nosuch.pem"\ntls_key_file = "nosuch.pem"',
+     "execution.tls_ca_file = 'nosuch.pem' cannot be read (No such file or directory: "),
+    ('tls_ca_file = "campaign.toml"', "execution.tls_cert_file is missing; tls_ca_file, tls_cert_file and tls_key_file go together"),
+    ('dashboard_address = "0.0.0.0"', "execution.dashboard_address = '0.0.0.0' is not a dashboard address"),
+    ('scheduler = "udp://127.0.0.1:8786"', "allowed: \"\" (embedded), tls://host:port or tcp://host:port"),
+])
+def test_bad_security_fields_are_one_line_exit_2(tmp_path, capsys, lines, expected):
+    path = campaign_file(tmp_path, execution=lines)
+    code = main(["submit", str(path), "--output", str(tmp_path / "out"), "--no-progress"])
+    stderr = capsys.readouterr().err
+    assert code == 2
+    [line] = stderr.strip().splitlines()
+    assert expected in line, line
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreadable_key_file_is_refused_at_the_config_edge(tmp_path):
+    files = _pem_files(tmp_path / "tls")
+    Path(files["tls_key_file"]).chmod(0)
+    try:
+        readable = open(files["tls_key_file"], "rb").close() is None      # root reads a file of mode 0 anyway
+    except OSError:
+        readable = False
+    if readable:
+        pytest.skip("this user reads files of mode 0 (root)")
+    with pytest.raises(ConfigError, match=r"execution.tls_key_file = .* cannot be read \(Permission denied"):
+        _execution({"cluster": "slurm", **files})
+
+
+@pytest.mark.parametrize("kind", ["slurm", "pbs"])
+def test_job_script_with_the_users_ca_names_the_files_and_holds_no_key(tmp_path, kind):
+    from campaign.run.cluster import batch_job_script
+
+    files = _pem_files(tmp_path / "tls")
+    script = batch_job_script(_execution({"cluster": kind, **files}))
+    [worker] = [line for line in script.splitlines() if "distributed.cli.dask_worker" in line]
+    assert worker.split()[3] == "tls://SCHEDULER-ADDRESS:PORT"
+    assert f"--tls-ca-file {files['tls_ca_file']}" in worker and f"--tls-key {files['tls_key_file']}" in worker
+    assert "BEGIN" not in script
+
+
+def test_printed_text_never_shows_key_material():
+    from distributed.security import Security
+
+    from campaign.run.cluster import elide_key_material
+
+    temporary = Security.temporary()
+    text = elide_key_material(f"--tls-key {temporary.tls_worker_key} --tls-cert {temporary.tls_worker_cert} end")
+    assert text == "--tls-key <private key elided>\n --tls-cert <certificate elided>\n end"     # PEM ends in \\n
+
+
+@pytest.mark.cluster
+def test_job_scripts_given_to_the_batch_system_are_readable_by_their_owner_only(tmp_path):
+    from dask_jobqueue.slurm import SLURMJob
+
+    from campaign.run.batch_jobs import JobRecord, recording_job_class
+
+    job = recording_job_class(SLURMJob, JobRecord())(scheduler="tls://127.0.0.1:1", name="x", cores=1, memory="1GiB")
+    with job.job_file() as path:
+        mode = Path(path).stat().st_mode & 0o777
+        directory_mode = Path(path).parent.stat().st_mode & 0o777
+        assert Path(path).read_text() == job.job_script()
+    assert (mode, directory_mode) == (0o600, 0o700)
+    assert not Path(path).exists()
+
+
+@pytest.mark.cluster
+def test_batch_scheduler_listens_on_tls_only_and_its_dashboard_on_loopback(tmp_path, monkeypatch):
+    from campaign.run.cluster import jobqueue_cluster
+
+    monkeypatch.chdir(tmp_path)
+    cluster = jobqueue_cluster(_execution({"cluster": "slurm", "slurm": {"interface": "lo"}}))
+    try:
+        scheduler = cluster.scheduler
+        assert [listener.contact_address.split("://")[0] for listener in scheduler.listeners] == ["tls"]
+        assert scheduler.http_server is not None
+        assert {socket.getsockname()[0] for socket in scheduler.http_server._sockets.values()} == {"127.0.0.1"}
+        [directory] = tmp_path.glob(".moc2dimes-tls-*")             # the run's certificate: private
+        assert directory.stat().st_mode & 0o777 == 0o700
+        assert {path.name: path.stat().st_mode & 0o777 for path in directory.iterdir()} == {
+            "certificate.pem": 0o600, "key.pem": 0o600}
+    finally:
+        cluster.close()
+    del cluster
+    import gc
+    gc.collect()
+    assert not list(tmp_path.glob(".moc2dimes-tls-*"))                # removed with the cluster
+
+
+def test_kubernetes_spec_carries_the_tls_secret_reference_and_local_dashboards():
+    from campaign.run.cluster import kubernetes_cluster_spec
+
+    execution = _execution({"cluster": "kubernetes", "kubernetes": {"image": "x", "name": "edl", "namespace": "ns"}})
+    spec = kubernetes_cluster_spec(execution)
+    text = json.dumps(spec)
+    assert "BEGIN" not in text                                        # a reference, no key material
+    for role in ("scheduler", "worker"):
+        pod = spec["spec"][role]["spec"]
+        assert pod["volumes"] == [{"name": "tls", "secret": {"secretName": "edl-tls", "defaultMode": 0o400}}]
+        [container] = pod["containers"]
+        assert container["volumeMounts"] == [{"name": "tls", "mountPath": "/etc/moc2dimes/tls", "readOnly": True}]
+        for part in ("--tls-ca-file=/etc/moc2dimes/tls/ca.crt", "--tls-cert=/etc/moc2dimes/tls/tls.crt",
+                     "--tls-key=/etc/moc2dimes/tls/tls.key"):
+            assert part in container["args"], container["args"]
+        dashboard = container["args"][container["args"].index("--dashboard-address") + 1]
+        assert dashboard.startswith("127.0.0.1:"), dashboard
+        assert all(port["name"] != "http-dashboard" for port in container["ports"])
+    [scheduler] = spec["spec"]["scheduler"]["spec"]["containers"]
+    assert scheduler["args"][scheduler["args"].index("--protocol") + 1] == "tls"
+    assert scheduler["readinessProbe"]["tcpSocket"] == {"port": "tcp-comm"} and "httpGet" not in scheduler["readinessProbe"]
+    assert [port["name"] for port in spec["spec"]["scheduler"]["service"]["ports"]] == ["tcp-comm"]
+    [worker] = spec["spec"]["worker"]["spec"]["containers"]
+    assert {"name": "DASK_SCHEDULER_ADDRESS", "value": "tls://edl-scheduler.ns.svc.cluster.local:8786"} in worker["env"]
+
+
+def test_plain_tcp_to_another_host_warns_in_one_line_naming_the_risk(capsys):
+    execution = _execution({"scheduler": "tcp://192.0.2.1:8786", "connect_timeout_s": 1})   # TEST-NET-1: nobody
+    with pytest.raises(RunStopped, match="cannot reach the dask scheduler tcp://192.0.2.1:8786"):
+        with connected_client(execution, quiet=True):
+            pass
+    [warning] = capsys.readouterr().err.strip().splitlines()
+    assert warning.startswith("campaign: warning: tcp://192.0.2.1:8786 is plain TCP to another host: anyone who "
+                              "can reach that port can run code"), warning
+    assert not _execution({"scheduler": "tcp://127.0.0.1:8786"}).plain_tcp_to_another_host
+
+
+@pytest.mark.cluster
+def test_tls_scheduler_is_reached_with_the_certificate_files_of_execution(tmp_path):
+    """An external scheduler started as cluster.py starts its own (tls://, Security of PEM files): the
+    campaign's client connects with [execution] tls_* and its worker computes; without them it cannot."""
+    from dask.distributed import LocalCluster
+
+    from campaign.run.cluster import user_security
+
+    files = _pem_files(tmp_path / "tls")
+    execution_files = _execution({"cluster": "slurm", **files})
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, protocol="tls://", host="127.0.0.1",
+                      security=user_security(execution_files), dashboard_address="127.0.0.1:0") as external:
+        address = external.scheduler_address
+        assert address.startswith("tls://127.0.0.1:")
+        with connected_client(_execution({"scheduler": address, **files}), quiet=True) as client:
+            assert client.submit(sum, [1, 2, 3]).result(timeout=60) == 6
+        with pytest.raises(RunStopped, match=r"cannot reach the dask scheduler tcp://127\.0\.0\.1:\d+ within 2 s"):
+            with connected_client(_execution({"scheduler": address.replace("tls://", "tcp://"),
+                                              "connect_timeout_s": 2}), quiet=True):
+                pass
