@@ -51,6 +51,9 @@ INTERRUPTED = 130       # exit code: Ctrl-C (128 + SIGINT)
 BROKEN_PIPE = 141       # exit code: stdout's reader closed the pipe (128 + SIGPIPE), silent
 
 
+SCHEDULER_HELP = "tls://host:port (certificate files: [execution] tls_*_file) or tcp://host:port of an existing dask scheduler"
+
+
 @functools.cache
 def build_parser() -> argparse.ArgumentParser:
     """The command line's parser (built once per process: parsing leaves it unchanged)."""
@@ -60,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     submit = subcommands.add_parser("submit", help="run a campaign (only its missing cases)")
     submit.add_argument("file")
     submit.add_argument("--output", help="output directory (default: [campaign] output_dir)")
-    submit.add_argument("--scheduler", help="tls://host:port (certificate files in [execution] tls_*_file) or tcp://host:port of an existing dask scheduler")
+    submit.add_argument("--scheduler", help=SCHEDULER_HELP)
     submit.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
     submit.add_argument("--cases-scale", type=float, help="multiply every class's case count (quick looks)")
     submit.add_argument("--fresh", action="store_true",
@@ -87,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("file")
     sweep.add_argument("--output", help="output directory (default: [sweep] output_dir)")
     sweep.add_argument("--baseline", help="a previous sweep's output directory; exit 1 on a regression")
-    sweep.add_argument("--scheduler", help="tls://host:port (certificate files in [execution] tls_*_file) or tcp://host:port of an existing dask scheduler")
+    sweep.add_argument("--scheduler", help=SCHEDULER_HELP)
     sweep.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
     sweep.add_argument("--cases-scale", type=float, help="multiply every class's case count ([sweep] cases_scale)")
     sweep.add_argument("--wait", action="store_true", help="wait for other writers' locks on point stores")
@@ -111,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     cluster = subcommands.add_parser("cluster", help="print the job script (slurm, pbs) or DaskCluster resource "
                                   "(kubernetes) that submit would use; submits nothing")
     cluster.add_argument("file")
-    cluster.add_argument("--scheduler", help="tls://host:port (certificate files in [execution] tls_*_file) or tcp://host:port of an existing dask scheduler")
+    cluster.add_argument("--scheduler", help=SCHEDULER_HELP)
     cluster.add_argument("--workers", type=int, help="worker count (overrides [execution] workers)")
     cluster.set_defaults(handler=commands.cluster)
 
