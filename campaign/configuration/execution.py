@@ -21,7 +21,6 @@ prints one line naming the cause and exits 1; the next ``submit`` runs the unfin
 from __future__ import annotations
 
 import re
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field, ValidationInfo, field_validator, model_validator
@@ -68,19 +67,19 @@ def kubernetes_headroom_bytes(pod_bytes: int) -> int:
 def _readable_file(value: Any, info: ValidationInfo) -> Any:
     """A certificate or key file (relative to the TOML file's directory) that exists and can be read."""
     if value is None or value == "":
-        return None
-    path = _relative_to_file(value, info)
+        return ""
+    path = _relative_to_file(str(value), info)
     try:
         with open(path, "rb") as handle:
             handle.read(1)
     except OSError as exc:
         raise FieldProblem("", f"= {str(value)!r} cannot be read ({exc.strerror}: {path}); allowed: a PEM file "
                            "you can read") from None
-    return path
+    return str(path)
 
 
-#: A PEM file of [execution] (certificate authority, certificate, private key): must be readable.
-ReadableFile = Annotated[Path | None, BeforeValidator(_readable_file)]
+#: A PEM file of [execution] (certificate authority, certificate, private key): must be readable; "" = none.
+ReadableFile = Annotated[str, BeforeValidator(_readable_file)]
 
 
 def scheduler_host(address: str) -> str:
@@ -203,12 +202,12 @@ class ExecutionConfig(ConfigModel):
     "kubernetes" (default "local"; "scheduler" when only `scheduler` is given)."""
     scheduler: str = ""
     """Address of an existing scheduler ("tls://host:port" or "tcp://host:port"), for cluster = "scheduler"."""
-    tls_ca_file: ReadableFile = None
+    tls_ca_file: ReadableFile = ""
     """PEM certificate authority the scheduler and workers trust (with tls_cert_file and tls_key_file):
     needed for a "tls://" scheduler; for slurm/pbs/kubernetes it replaces the per-run certificate."""
-    tls_cert_file: ReadableFile = None
+    tls_cert_file: ReadableFile = ""
     """PEM certificate (signed by tls_ca_file) this run's client, scheduler and workers present."""
-    tls_key_file: ReadableFile = None
+    tls_key_file: ReadableFile = ""
     """PEM private key of tls_cert_file (never printed or logged)."""
     dashboard_address: str = "127.0.0.1:0"
     """Where the dashboard of a scheduler started here listens: "127.0.0.1:0" (default: this machine
@@ -273,7 +272,7 @@ class ExecutionConfig(ConfigModel):
                                f"allowed: \"\" with cluster = {self.cluster!r}")
         files = {"tls_ca_file": self.tls_ca_file, "tls_cert_file": self.tls_cert_file, "tls_key_file": self.tls_key_file}
         if any(files.values()) and not all(files.values()):
-            missing = next(name for name, path in files.items() if path is None)
+            missing = next(name for name, path in files.items() if not path)
             raise FieldProblem(missing, "is missing; tls_ca_file, tls_cert_file and tls_key_file go together")
         if self.scheduler.startswith("tls://") and not self.tls_ca_file:
             raise FieldProblem("tls_ca_file", f"is missing; scheduler = {self.scheduler!r} needs tls_ca_file, "
