@@ -65,8 +65,10 @@ def test_scheduler_address_alone_selects_the_scheduler_backend():
              "#PBS -l select=1:ncpus=4:mem=8192MB", "#PBS -l place=scatter"]),
 ])
 @pytest.mark.cluster
-def test_batch_job_script_has_the_configured_resources_and_worker_command(kind, directives):
+def test_batch_job_script_has_the_configured_resources_and_worker_command(kind, directives, tmp_path, monkeypatch):
     from campaign.run.cluster import jobqueue_cluster
+
+    monkeypatch.chdir(tmp_path)               # the run's certificate directory goes here
 
     extra = ["--qos=low"] if kind == "slurm" else ["-l place=scatter"]
     execution = _execution({"cluster": kind, kind: {**BATCH, "job_extra": extra}})
