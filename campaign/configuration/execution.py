@@ -20,6 +20,7 @@ prints one line naming the cause and exits 1; the next ``submit`` runs the unfin
 """
 from __future__ import annotations
 
+import ipaddress
 import re
 from typing import Annotated, Any, Literal
 
@@ -284,8 +285,17 @@ class ExecutionConfig(ConfigModel):
 
     @property
     def plain_tcp_to_another_host(self) -> bool:
-        """True when the scheduler is a ``tcp://`` address of a host other than this machine's loopback."""
-        return self.scheduler.startswith("tcp://") and scheduler_host(self.scheduler) not in LOOPBACK_HOSTS
+        """True when the scheduler is a ``tcp://`` address of a host other than this machine's loopback
+        (``localhost``, 127.0.0.0/8, ::1)."""
+        if not self.scheduler.startswith("tcp://"):
+            return False
+        host = scheduler_host(self.scheduler)
+        if host in LOOPBACK_HOSTS:
+            return False
+        try:
+            return not ipaddress.ip_address(host.strip("[]")).is_loopback
+        except ValueError:          # a host name other than localhost
+            return True
 
     @property
     def memory_limit_bytes(self) -> int:

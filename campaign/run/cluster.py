@@ -56,6 +56,7 @@ from distributed.security import Security
 
 from campaign.configuration.execution import BatchJobs, ExecutionConfig, kubernetes_bytes, kubernetes_headroom_bytes
 from campaign.run.batch_jobs import (
+    NOTHING_RUN,
     SUBMIT_COMMANDS,
     JobRecord,
     recording_job_class,
@@ -172,7 +173,12 @@ def run_certificates(execution: ExecutionConfig, directory: str = "") -> RunCert
     temporary = Security.temporary()
     worker = temporary.get_tls_config_for_role("worker")
     parent = Path(directory).expanduser() if directory else Path.cwd()
-    private = Path(tempfile.mkdtemp(prefix=".moc2dimes-tls-", dir=parent))        # mode 0700
+    try:
+        private = Path(tempfile.mkdtemp(prefix=".moc2dimes-tls-", dir=parent))        # mode 0700
+    except OSError as exc:
+        raise RunStopped(f"cannot write the run's TLS certificate under {parent} ({exc.strerror}); set "
+                         f"[execution.{execution.cluster}] certificate_directory to a directory you can write "
+                         f"that the compute nodes share; {NOTHING_RUN}") from None
     remove = partial(shutil.rmtree, private, ignore_errors=True)
     try:
         _write_private(private / CERTIFICATE_NAME, worker["cert"])

@@ -5,6 +5,7 @@ for real against `dask scheduler` / `dask worker` processes, giving the same bit
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -356,7 +357,26 @@ def test_plain_tcp_to_another_host_warns_in_one_line_naming_the_risk(capsys):
     [warning] = capsys.readouterr().err.strip().splitlines()
     assert warning.startswith("campaign: warning: tcp://192.0.2.1:8786 is plain TCP to another host: anyone who "
                               "can reach that port can run code"), warning
-    assert not _execution({"scheduler": "tcp://127.0.0.1:8786"}).plain_tcp_to_another_host
+    for address in ("tcp://127.0.0.1:8786", "tcp://127.0.1.1:8786", "tcp://localhost:8786", "tcp://[::1]:8786",
+                    "tls://10.0.0.1:8786", "inproc://x"):
+        assert not _execution({"scheduler": address, **({"tls_ca_file": __file__, "tls_cert_file": __file__,
+                                                         "tls_key_file": __file__} if "tls" in address else {})}
+                              ).plain_tcp_to_another_host, address
+    for address in ("tcp://10.0.0.1:8786", "tcp://login01.cluster:8786", "tcp://[2001:db8::1]:8786"):
+        assert _execution({"scheduler": address}).plain_tcp_to_another_host, address
+
+
+@pytest.mark.cluster
+def test_unwritable_certificate_directory_stops_in_one_line(tmp_path, monkeypatch):
+    monkeypatch.setenv("PATH", f"{tmp_path}:{os.environ['PATH']}")
+    (tmp_path / "sbatch").write_text("#!/bin/sh\nexit 1\n")          # on PATH; never reached
+    (tmp_path / "sbatch").chmod(0o755)
+    execution = _execution({"cluster": "slurm", "slurm": {"certificate_directory": str(tmp_path / "absent")}})
+    with pytest.raises(RunStopped, match=r"^cannot write the run's TLS certificate under .*absent \(No such file or "
+                                         r"directory\); set \[execution\.slurm\] certificate_directory .*nothing was "
+                                         "run or changed$"):
+        with connected_client(execution, quiet=True):
+            pass
 
 
 @pytest.mark.cluster
