@@ -210,10 +210,13 @@ def _job_options(execution: ExecutionConfig) -> dict:
     (the TLS options are the caller's)."""
     jobs: BatchJobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
     prologue = [f"export {name}={value}" for name, value in WORKER_ENVIRONMENT.items()] + list(jobs.prologue)
+    # each worker's own dashboard on the same host as the scheduler's (default: the compute node's loopback)
+    worker_dashboard = f"{execution.dashboard_address.rsplit(':', 1)[0]}:0"
     return dict(cores=jobs.cores, processes=jobs.cores, memory=jobs.memory, walltime=jobs.walltime,
                 queue=jobs.queue or None, account=jobs.account or None, job_name=WORKER_JOB_NAME,
                 job_extra_directives=list(jobs.job_extra), job_script_prologue=prologue,
-                interface=jobs.interface or None, python=jobs.python or sys.executable)
+                interface=jobs.interface or None, python=jobs.python or sys.executable,
+                worker_extra_args=["--dashboard-address", worker_dashboard])
 
 
 def _job_class(kind: str) -> type:

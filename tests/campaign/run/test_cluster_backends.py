@@ -171,7 +171,7 @@ def test_campaign_cluster_prints_the_job_script_and_submits_nothing(tmp_path, ki
     [worker] = [line for line in lines if "distributed.cli.dask_worker" in line]
     assert "tls://SCHEDULER-ADDRESS:PORT" in worker and "--nworkers 4" in worker and "--memory-limit 2.00GiB" in worker
     # TLS: the run's certificate and key by path (created when the run starts), no key material
-    for part in ("--protocol tls://", "--tls-ca-file RUN-CERTIFICATE-DIRECTORY/certificate.pem",
+    for part in ("--dashboard-address 127.0.0.1:0", "--protocol tls://", "--tls-ca-file RUN-CERTIFICATE-DIRECTORY/certificate.pem",
                  "--tls-cert RUN-CERTIFICATE-DIRECTORY/certificate.pem", "--tls-key RUN-CERTIFICATE-DIRECTORY/key.pem"):
         assert part in worker, worker
     assert "BEGIN" not in result.stdout and "PRIVATE KEY" not in result.stdout
