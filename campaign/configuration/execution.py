@@ -170,6 +170,11 @@ class KubernetesPods(ConfigModel):
     memory: str = "2Gi"
     """Memory request and limit of one worker pod (Kubernetes quantity, e.g. "2Gi", at least 1Gi); dask's
     --memory-limit is 10 % (at least 256 MiB) lower, so dask pauses the worker before the pod is killed."""
+    allow_plain_tcp: bool = False
+    """Let ``campaign submit`` start the DaskCluster itself although its scheduler then speaks plain TCP inside
+    the Kubernetes network (dask-kubernetes' KubeCluster takes no TLS settings): only in a namespace no one
+    else can reach. Default false: submit refuses, and the TLS way is the spec ``campaign cluster FILE``
+    prints, applied with its Secret, then ``campaign submit --scheduler tls://...``."""
 
     @field_validator("cpu", "memory")
     @classmethod

@@ -194,9 +194,11 @@ def violations_of(spec: EstimatorSpec, driver: ProcessOutcome, worker: ProcessOu
     return found
 
 
-def _worker_execution(scheduler: str | None) -> ExecutionConfig:
+def _worker_execution(config: CampaignConfig, scheduler: str | None) -> ExecutionConfig:
+    """Where the worker side runs: the ``--scheduler`` given, with the campaign's ``[execution]`` certificate
+    files (a ``tls://`` scheduler needs them), else a one-worker LocalCluster."""
     if scheduler:
-        return ExecutionConfig.model_validate({"cluster": "scheduler", "scheduler": scheduler})
+        return config.execution.with_overrides(scheduler=scheduler)
     return ExecutionConfig.model_validate({"cluster": "local", "workers": 1})
 
 
@@ -212,13 +214,14 @@ def check_estimators(config: CampaignConfig, cases: int = DEFAULT_CASES, schedul
     cases : int
         Planned cases to run every estimator on (>= 1).
     scheduler : str, optional
-        ``tcp://host:port`` of a running dask scheduler whose worker runs the worker side (default: a
-        one-worker LocalCluster started and closed here).
+        ``tcp://host:port`` or ``tls://host:port`` (with the ``[execution]`` certificate files) of a running
+        dask scheduler whose worker runs the worker side (default: a one-worker LocalCluster started and
+        closed here).
     """
     _, plan = plan_campaign(config)
     records = checked_cases(plan, cases)
     case_ids = [int(record["case_id"]) for record in records]
-    with connected_client(_worker_execution(scheduler), quiet=True) as client:
+    with connected_client(_worker_execution(config, scheduler), quiet=True) as client:
         shipping_errors: dict[str, str] = {}
         try:
             ship_plugin_code(client, config.estimators)

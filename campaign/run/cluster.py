@@ -124,6 +124,18 @@ def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> 
                           f"installed; allowed: pip install 'moc2dimes[{extra}]', or another cluster") from None
 
 
+def require_secure_transport(execution: ExecutionConfig, source: str = "[execution]") -> None:
+    """Raise a one-line ConfigError when ``campaign submit`` would start a cluster whose scheduler speaks
+    plain TCP beyond this machine without the user having said so: the kubernetes backend (dask-kubernetes'
+    KubeCluster takes no TLS settings) unless ``[execution.kubernetes] allow_plain_tcp = true``."""
+    if execution.cluster == "kubernetes" and not execution.kubernetes.allow_plain_tcp:
+        raise ConfigError(f"{source}: execution.cluster = 'kubernetes' would run the scheduler over plain TCP "
+                          "(dask-kubernetes' KubeCluster takes no TLS settings): anyone reaching its service could "
+                          "run code as this run; allowed: apply the TLS spec of `campaign cluster FILE` with its "
+                          "Secret and submit with --scheduler tls://HOST:PORT, or set [execution.kubernetes] "
+                          "allow_plain_tcp = true in a namespace no one else can reach")
+
+
 def elide_key_material(text: str) -> str:
     """``text`` with every PEM block (certificate, private key) replaced by a marker naming its kind."""
     return PEM_BLOCK.sub(lambda match: f"<{match.group(1).lower()} elided>", text)

@@ -24,7 +24,7 @@ from distributed import Client
 
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
-from campaign.run.cluster import connected_client, require_backend
+from campaign.run.cluster import connected_client, require_backend, require_secure_transport
 from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
 from campaign.run.faults import RunStopped
 from campaign.run.planning import plan_campaign
@@ -233,6 +233,7 @@ def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | 
     start = time.perf_counter()
     execution = config.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(config.source))
+    require_secure_transport(execution, str(config.source))
     _, plan = plan_campaign(config)
     point = StorePoint(config, manifest_for(config), plan)
     run = run_store_points([point], execution, fresh=fresh, progress=progress, wait=wait)

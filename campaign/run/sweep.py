@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import pandas as pd
 
 from campaign.configuration.sweep_file import SweepPoint, SweepSpec
-from campaign.run.cluster import require_backend
+from campaign.run.cluster import require_backend, require_secure_transport
 from campaign.run.orchestrate import StorePoint, cluster_session, manifest_for, run_store_points
 from campaign.run.planning import plan_campaign
 
@@ -94,6 +94,7 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
     start = time.perf_counter()
     execution = spec.base.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(spec.source))
+    require_secure_transport(execution, str(spec.source))
     total = len(spec.points)
     planned_each = sum(spec.base.cases_per_class.values())
 

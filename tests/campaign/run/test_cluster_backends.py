@@ -198,7 +198,8 @@ def test_campaign_cluster_prints_the_kubernetes_resource_without_credentials(tmp
 @pytest.mark.cluster
 @pytest.mark.slow
 def test_kubernetes_without_credentials_is_one_line_and_writes_nothing(tmp_path):
-    path = campaign_file(tmp_path, execution='cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"')
+    path = campaign_file(tmp_path, execution='cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"\n'
+                                             'allow_plain_tcp = true')
     out = tmp_path / "out"
     result = run_campaign("submit", path, "--output", out, "--no-progress", timeout=120,
                           env={"HOME": str(tmp_path), "KUBECONFIG": str(tmp_path / "none")})
@@ -206,6 +207,23 @@ def test_kubernetes_without_credentials_is_one_line_and_writes_nothing(tmp_path)
     line = stderr_line(result)
     assert line.startswith("campaign: cannot start the Kubernetes cluster (") and "credentials" in line, line
     assert not out.exists()
+
+
+def test_kubernetes_submit_refuses_plain_tcp_unless_asked(tmp_path):
+    """KubeCluster's scheduler speaks plain TCP: submit refuses before anything is written (one line naming the
+    field and the TLS way), while ``campaign cluster`` still prints the TLS spec for the user to apply."""
+    path = campaign_file(tmp_path, execution='cluster = "kubernetes"\n[execution.kubernetes]\nimage = "x"')
+    out = tmp_path / "out"
+    result = run_campaign("submit", path, "--output", out, "--no-progress", timeout=120,
+                          env={"HOME": str(tmp_path), "KUBECONFIG": str(tmp_path / "none")})
+    assert result.returncode == 2
+    line = stderr_line(result)
+    assert str(path) in line and "plain TCP" in line and "allow_plain_tcp = true" in line, line
+    assert "--scheduler tls://" in line and "campaign cluster FILE" in line, line
+    assert not out.exists()
+    printed = run_campaign("cluster", path, timeout=120)
+    assert printed.returncode == 0, printed.stderr
+    assert "--protocol" in printed.stdout and "tls" in printed.stdout
 
 
 @pytest.mark.parametrize("kind, command", [("slurm", "sbatch"), ("pbs", "qsub")])
