@@ -88,6 +88,45 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 #: 0) is a contradiction the estimator must not answer from.
 IMU_CONSISTENCY_MPS = 5.0
 
+#: Largest horizontal acceleration of a lander under its parachute (m/s^2), as the mean over an image
+#: interval ``|v_h,k+1 - v_h,k| / dt`` of the IMU velocities (the constant IMU bias cancels in the
+#: difference). Source: the lander hangs on a 20 m bridle below a parachute at terminal descent (~72 m/s),
+#: so its horizontal acceleration is (a) the pendulum's, ``g_mars sin(swing)``, at most 3.71 sin 30 deg
+#: = 1.86 m/s^2 at the EDL trajectory sets' off-nadir envelope (30 deg), plus (b) the parachute drag's
+#: horizontal part in a gust, the weight times the relative horizontal wind over the descent speed,
+#: 3.71 x 10 / 72 = 0.52 m/s^2 for a 10 m/s relative gust (3 sigma of the sets' 3 m/s per-axis gusts):
+#: 2.4 m/s^2. Measured on the 700 profiles of ``sitedata/trajectories/{gusev,meridiani}.parquet``: at
+#: most 1.68 m/s^2 instantaneous (Gusev; Meridiani 1.18) and 1.42 m/s^2 as the mean over an image
+#: interval (Meridiani 1.00). 2.5 m/s^2 is 1.76x the largest interval mean.
+MAX_HORIZONTAL_ACCELERATION_MPS2 = 2.5
+
+#: Largest change of that interval-mean horizontal acceleration between consecutive image intervals
+#: (m/s^2): ``|a_k+1,k+2 - a_k,k+1|``. A swing reversing between the two intervals changes the mean
+#: acceleration by at most twice (a) above, 3.7 m/s^2; measured at most 2.13 m/s^2 (Gusev; Meridiani 1.28)
+#: on the trajectory sets. 3.5 m/s^2 is 1.64x the largest measured. A middle IMU velocity sample off by
+#: J m/s and back changes it by ~2 J / dt (~5.3 m/s^2 for J = 10 m/s over 3.75 s).
+MAX_HORIZONTAL_ACCELERATION_CHANGE_MPS2 = 3.5
+
+#: Allowance for IMU velocity noise between two samples in the acceleration checks (m/s): the IMU's
+#: bias is constant and cancels; what remains is the velocity random walk (the campaigns' default 0;
+#: 0.05 m/s/sqrt(s) over 4 s is 0.1 m/s, 2.5 sigma at 0.25 m/s) and stamp timing (10 ms at 2.5 m/s^2:
+#: 0.025 m/s).
+IMU_VELOCITY_DIFFERENCE_ALLOWANCE_MPS = 0.25
+
+#: Radar altitude noise (fraction of the altitude, 1 sigma): the radar's measured performance, 0.03 %
+#: (paper section 5; the sensor model's default).
+RADAR_ALTITUDE_SIGMA_FRACTION = 3e-4
+
+#: How many sigma of the radar noise the radar/IMU vertical check allows.
+RADAR_NOISE_SIGMAS = 5.0
+
+#: Fixed part of the allowed disagreement (m/s) between the radar's descent rate
+#: ``-(h_k+1 - h_k) / dt`` and the IMU's mean vertical speed ``-(vz_k + vz_k+1) / 2``: an IMU vertical
+#: velocity bias (the campaigns draw 0; 3 sigma of a bias as large as the horizontal one, 2 m/s, is
+#: 6 m/s) and the trapezoid's error for a changing descent rate (at most 0.49 m/s on the trajectory
+#: sets). A radar 25 % high at 72 m/s descent is 18 m/s off; a radar scale error above ~9 % is refused.
+RADAR_IMU_VERTICAL_ALLOWANCE_MPS = 6.0
+
 
 class MeasurementError(ValueError):
     """Illegal or self-contradictory measurements.
@@ -115,6 +154,10 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
     attitude quaternions (norm within :data:`QUATERNION_NORM_TOLERANCE` of 1), finite 3-vectors, radar
     altitude > 0, sun direction non-zero; ``imu_position_m`` given for every image or for none, and
     when given, consistent with ``imu_velocity_mps`` and ``time_s`` (:data:`IMU_CONSISTENCY_MPS`).
+    The record's physics: horizontal IMU velocity changes within what a lander under a parachute can do
+    (:data:`MAX_HORIZONTAL_ACCELERATION_MPS2` per interval, :data:`MAX_HORIZONTAL_ACCELERATION_CHANGE_MPS2`
+    between intervals), the radar's altitude differences against the IMU's vertical velocity
+    (:data:`RADAR_IMU_VERTICAL_ALLOWANCE_MPS` + :data:`RADAR_NOISE_SIGMAS` sigma of the radar noise).
     An attitude pointing the camera far from nadir (or at the sky) is not refused here: the campaign's
     sensor models at the largest allowed attitude-error sigmas produce such records, and the estimator
     answers them invalid (``bad_attitude``), never valid.
@@ -161,6 +204,8 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
         if image.imu_position_m is not None:
             _vector(image.imu_position_m, 3, prefix + "imu_position_m")
     _check_imu_positions(images)
+    _check_horizontal_acceleration(images)
+    _check_radar_against_imu(images)
     sun = _vector(measurements.sun_direction_world, 3, "sun_direction_world")
     if np.linalg.norm(sun) < 1e-9:
         raise MeasurementError("sun_direction_world must be a non-zero vector")
@@ -188,3 +233,58 @@ def _check_imu_positions(images: tuple[ImageMeasurement, ...]) -> None:
                 f"{np.linalg.norm(position_rate):.3g} m/s, {disagreement:.3g} m/s from the mean IMU velocity "
                 f"{np.linalg.norm(0.5 * (v0 + v1)):.3g} m/s over {dt:.3g} s; allowed {tolerance:.3g} m/s")
 
+
+
+def _horizontal_accelerations(images: tuple[ImageMeasurement, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Interval-mean horizontal accelerations (m/s^2, shape (n - 1, 2)) and interval lengths (s, n - 1)."""
+    times = np.array([float(image.time_s) for image in images])
+    velocities = np.array([np.asarray(image.imu_velocity_mps, dtype=float)[:2] for image in images])
+    intervals = np.diff(times)
+    return np.diff(velocities, axis=0) / intervals[:, None], intervals
+
+
+def _check_horizontal_acceleration(images: tuple[ImageMeasurement, ...]) -> None:
+    """Refuse IMU horizontal velocities changing faster than a lander under a parachute can.
+
+    Bounds: :data:`MAX_HORIZONTAL_ACCELERATION_MPS2`, :data:`MAX_HORIZONTAL_ACCELERATION_CHANGE_MPS2`.
+    """
+    accelerations, intervals = _horizontal_accelerations(images)
+    for k, (acceleration, dt) in enumerate(zip(accelerations, intervals)):
+        change = float(np.linalg.norm(acceleration)) * dt
+        allowed = MAX_HORIZONTAL_ACCELERATION_MPS2 * dt + IMU_VELOCITY_DIFFERENCE_ALLOWANCE_MPS
+        if not change <= allowed:
+            raise MeasurementError(
+                f"images[{k}..{k + 1}].imu_velocity_mps: the horizontal velocity changes by {change:.3g} m/s in "
+                f"{dt:.3g} s ({change / dt:.3g} m/s^2); a lander under a parachute allows {allowed:.3g} m/s "
+                f"({MAX_HORIZONTAL_ACCELERATION_MPS2:g} m/s^2)")
+    for k in range(len(accelerations) - 1):
+        mean_dt = 0.5 * (intervals[k] + intervals[k + 1])
+        jerk = float(np.linalg.norm(accelerations[k + 1] - accelerations[k]))
+        allowed = MAX_HORIZONTAL_ACCELERATION_CHANGE_MPS2 + 2.0 * IMU_VELOCITY_DIFFERENCE_ALLOWANCE_MPS / mean_dt
+        if not jerk <= allowed:
+            raise MeasurementError(
+                f"images[{k}..{k + 2}].imu_velocity_mps: the horizontal acceleration changes by {jerk:.3g} m/s^2 "
+                f"between the two intervals ({np.linalg.norm(accelerations[k]):.3g} then "
+                f"{np.linalg.norm(accelerations[k + 1]):.3g} m/s^2); a lander under a parachute allows "
+                f"{allowed:.3g} m/s^2")
+
+
+def _check_radar_against_imu(images: tuple[ImageMeasurement, ...]) -> None:
+    """Refuse a radar descent rate between two images far from the IMU's mean vertical velocity.
+
+    Allowed: :data:`RADAR_IMU_VERTICAL_ALLOWANCE_MPS` + :data:`RADAR_NOISE_SIGMAS` sigma of the radar noise.
+    """
+    for k in range(len(images) - 1):
+        first, second = images[k], images[k + 1]
+        dt = float(second.time_s) - float(first.time_s)
+        h0, h1 = float(first.radar_altitude_m), float(second.radar_altitude_m)
+        radar_rate = (h1 - h0) / dt
+        imu_rate = 0.5 * (float(np.asarray(first.imu_velocity_mps, dtype=float)[2])
+                          + float(np.asarray(second.imu_velocity_mps, dtype=float)[2]))
+        noise = RADAR_NOISE_SIGMAS * RADAR_ALTITUDE_SIGMA_FRACTION * float(np.hypot(h0, h1)) / dt
+        allowed = RADAR_IMU_VERTICAL_ALLOWANCE_MPS + noise
+        if not abs(radar_rate - imu_rate) <= allowed:
+            raise MeasurementError(
+                f"images[{k}..{k + 1}]: radar_altitude_m and imu_velocity_mps disagree: the radar altitude goes "
+                f"{h0:.6g} -> {h1:.6g} m in {dt:.3g} s ({radar_rate:.3g} m/s), the IMU's mean vertical velocity is "
+                f"{imu_rate:.3g} m/s; allowed {allowed:.3g} m/s")

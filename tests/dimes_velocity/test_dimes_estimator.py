@@ -168,8 +168,11 @@ def test_never_nan_never_raises_on_legal_input(noisy_descent, estimator, seed, t
     images = [np.clip(level + rng.integers(-spread, spread + 1, image.shape), 0, 4095).astype(np.uint16)
               for image in noisy_descent.images]
     attitude = quat_from_axis_angle(rng.normal(size=3), np.radians(tilt_deg))
+    # any constant IMU velocity whose vertical part descends as the radar altitudes do (a physical record)
+    times = [m.time_s for m in noisy_descent.truth.images]
+    imu = np.array([*rng.normal(0, 50, 2), -0.1 * altitude / (times[1] - times[0])])
     records = tuple(dataclasses.replace(m, attitude_quat=attitude, radar_altitude_m=altitude * (1 - 0.1 * k),
-                                        imu_velocity_mps=rng.normal(0, 50, 3))
+                                        imu_velocity_mps=imu)
                     for k, m in enumerate(noisy_descent.truth.images))
     measurements = dataclasses.replace(noisy_descent.truth, images=records, sun_direction_world=rng.normal(size=3))
     result = estimator.estimate(images, measurements)

@@ -8,7 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from synthetic_descent import constant_velocity_descent, random_ground
 
@@ -16,6 +16,7 @@ from config_tables.errors import ConfigError
 from config_tables.models import parse
 from dimes_velocity import REASONS, DimesEstimator, MeasurementError
 from flight_interface.frames import quat_from_axis_angle
+from flight_interface.measurements import MAX_SPEED_MPS
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.sensors import SensorConfig, measure
 
@@ -106,7 +107,10 @@ def test_any_legal_measurements_give_a_finite_answer(estimator, descent, tilt_de
     """Whatever the (legal) measurements claim about the real images (any tilt, altitude x 1e-4 .. 100,
     IMU speed to 9 km/s, image spacing x 1e-6 .. 1e3), the answer is finite with a known reason."""
     attitude = quat_from_axis_angle(np.array([np.cos(azimuth), np.sin(azimuth), 0.0]), np.radians(tilt_deg))
-    imu = np.array([imu_speed * np.cos(azimuth), imu_speed * np.sin(azimuth), -72.0])
+    # the IMU descends as fast as the scaled radar altitudes in the scaled time (a physical record)
+    descent_rate = 72.0 * altitude_scale / spacing_scale
+    assume(np.hypot(imu_speed, descent_rate) < MAX_SPEED_MPS)
+    imu = np.array([imu_speed * np.cos(azimuth), imu_speed * np.sin(azimuth), -descent_rate])
     images = tuple(dataclasses.replace(m, attitude_quat=attitude, radar_altitude_m=m.radar_altitude_m * altitude_scale,
                                        imu_velocity_mps=imu, time_s=m.time_s * spacing_scale)
                    for m in descent.truth.images)

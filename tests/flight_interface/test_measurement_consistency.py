@@ -59,8 +59,8 @@ def test_tolerance_edge_with_steady_velocity(excess_mps, accepted):
 def test_tolerance_grows_with_the_velocity_change(excess_mps, accepted):
     """Velocities 10 then 16 m/s east (|dv| = 6): allowed 5 + 6 = 11 m/s around the trapezoid's 13."""
     times = (0.0, 4.0)
-    velocities = [(10.0, 0.0, 0.0), (16.0, 0.0, 0.0)]
-    positions = [(0.0, 0.0, 0.0), ((13.0 + excess_mps) * 4.0, 0.0, 0.0)]
+    velocities = [(10.0, 0.0, -72.0), (16.0, 0.0, -72.0)]        # descending as the radar says
+    positions = [(0.0, 0.0, 0.0), ((13.0 + excess_mps) * 4.0, 0.0, -72.0 * 4.0)]
     measurements = record(velocities, positions, times=times)
     if accepted:
         validate_measurements(measurements)
@@ -127,18 +127,37 @@ def test_attitude_quaternions_must_have_unit_norm(attitude, accepted):
 
 
 def test_campaign_sensor_models_pass_at_the_site_sigmas_and_the_allowed_extremes():
-    """simulator.sensors.measure at the sites' sigmas (defaults) and at every SensorConfig upper bound:
-    normalized quaternions, increasing times, no IMU positions (so the IMU bias and random walk, up to
-    50 m/s and 10 m/s/sqrt(s), never meet the position check)."""
+    """simulator.sensors.measure at the sites' sigmas (defaults) and at every SensorConfig upper bound that
+    leaves the record physical: normalized quaternions, increasing times, no IMU positions (so the horizontal
+    IMU bias, up to 50 m/s, never meets the position check; a constant bias cancels in the acceleration
+    checks). The three sensor errors the plausibility checks bound are refused at their maxima, naming
+    the field: radar noise 10 % (200 m at 2000 m), a vertical IMU bias of 50 m/s sigma, a velocity random
+    walk of 10 m/s/sqrt(s) (~19 m/s between images, 5 m/s^2)."""
     from simulator.scene.descent_profile import constant_velocity_profile
     from simulator.sensors import SIGMA_FIELDS, SensorConfig, measure
 
     bounds = {name: SensorConfig.model_fields[name].metadata for name in SIGMA_FIELDS}
     extremes = {name: next(m.le for m in meta if getattr(m, "le", None) is not None) for name, meta in bounds.items()}
+    bounded = {"radar_altitude_sigma_percent": "radar_altitude_m and imu_velocity_mps disagree",
+               "imu_vertical_velocity_bias_sigma_mps": "radar_altitude_m and imu_velocity_mps disagree",
+               "imu_velocity_random_walk_mps_per_sqrt_s": "imu_velocity_mps"}
+    physical = {name: value for name, value in extremes.items() if name not in bounded}
+    assert len(physical) == len(SIGMA_FIELDS) - 3
     profile = constant_velocity_profile(np.array([0.0, 0.0, 2000.0]), np.array([12.0, -7.0, -72.0]), LEVEL,
                                         8.0, np.array(TIMES))
-    for config in (SensorConfig(state_time="exposure_start"), SensorConfig(state_time="exposure_start", **extremes)):
+    for config in (SensorConfig(state_time="exposure_start"), SensorConfig(state_time="exposure_start", **physical)):
         for seed in range(50):
             measurements, _ = measure(profile, None, np.array([0.0, -0.5, 0.8]), config, np.random.default_rng(seed))
             validate_measurements(measurements, image_count=3)
             assert all(m.imu_position_m is None for m in measurements.images)
+    for name, words in bounded.items():
+        config = SensorConfig(state_time="exposure_start", **{name: extremes[name]})
+        refused = 0
+        for seed in range(50):
+            measurements, _ = measure(profile, None, np.array([0.0, -0.5, 0.8]), config, np.random.default_rng(seed))
+            try:
+                validate_measurements(measurements, image_count=3)
+            except MeasurementError as exc:
+                assert words in str(exc), (name, exc)
+                refused += 1
+        assert refused >= 40, (name, refused)
