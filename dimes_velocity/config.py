@@ -153,6 +153,16 @@ class EstimatorConfig(ConfigModel):
     off by several pixels (>= 2 m/s per pixel of 6.5 m over 3.8 s)."""
     require_both_pairs: bool = True
     """Both pairs must be valid (else one valid pair is enough)."""
+    imu_velocity_bias_sigma_mps: float = Field(2.0, ge=0.0, le=50.0)
+    """The IMU's error model: its horizontal velocity bias, 1 sigma per axis (m/s; the campaigns' sensor
+    model draws 2 m/s). With the answer's stated uncertainty it bounds the IMU bias a valid answer may
+    imply (``implied_bias_confidence``)."""
+    implied_bias_confidence: float = Field(0.999, ge=0.5, le=1.0)
+    """Confidence at which the implied IMU bias must be one the IMU's error model allows (1 = no check). The
+    implied bias ``b = v_IMU - v`` of a right answer is normal with per-axis variance ``s_b^2 + s_v^2 / 2``
+    (``s_b`` = ``imu_velocity_bias_sigma_mps``, ``s_v`` the stated RMS horizontal uncertainty), so ``|b|^2``
+    over that variance is chi-square with 2 degrees of freedom: ``|b| > sqrt(-2 ln(1 - c))`` times its
+    per-axis sigma is refused, ``imu_bias_implausible`` (0.999: 3.72 sigma, 1 right answer in 1000 refused)."""
 
     @field_validator("template_size_px", "coarse_template_size_px")
     @classmethod

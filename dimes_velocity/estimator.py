@@ -43,6 +43,7 @@ from dimes_velocity.solution import (
     combine_pairs,
     consensus,
     displacement_standard_error,
+    implied_bias_limit_mps,
     velocity_uncertainty,
     weighted_displacement,
 )
@@ -323,6 +324,9 @@ class DimesEstimator:
 
         valid, reason, bias = self._solve(pairs)
         uncertainty = self._uncertainty(pairs, poses, times) if valid else 0.0
+        if valid and float(np.hypot(bias[0], bias[1])) > implied_bias_limit_mps(
+                uncertainty, config.imu_velocity_bias_sigma_mps, config.implied_bias_confidence):
+            valid, reason, bias, uncertainty = False, "imu_bias_implausible", np.zeros(2), 0.0
         imu_last = np.asarray(measurements.images[-1].imu_velocity_mps, dtype=float)[:2]
         velocity = imu_last - bias
         end = time.perf_counter()

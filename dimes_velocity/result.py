@@ -32,6 +32,9 @@ features_disagree       the matches of one pair do not agree (no majority within
 features_clustered      the agreeing matches are closer together than ``min_group_span_px`` (their
                         templates overlap: not independent evidence)
 pairs_disagree          the IMU velocity biases from the image pairs disagree beyond tolerance
+imu_bias_implausible    the answer implies an IMU velocity bias the IMU's error model does not allow at
+                        ``implied_bias_confidence`` (``imu_velocity_bias_sigma_mps``; e.g. a shadow
+                        moving with the wind tracked as ground)
 sun_below_horizon       the measured sun direction is at or below the horizon: there is no sunlit
                         ground to track, whatever the images show (the estimator answers invalid,
                         as flight software must, rather than refusing the input)
@@ -53,7 +56,7 @@ REASONS = (
     "ok", "bad_attitude", "sky", "no_signal", "saturated", "excluded_zone", "no_overlap", "low_contrast",
     "no_match_within_prior", "search_outside", "ambiguous_match", "flat_peak", "low_correlation",
     "match_in_excluded_area", "camera_fixed", "residual_exceeds_noise", "too_few_features", "features_disagree",
-    "features_clustered", "pairs_disagree", "sun_below_horizon",
+    "features_clustered", "pairs_disagree", "sun_below_horizon", "imu_bias_implausible",
 )
 
 #: Per-feature statuses saying the match was not found where the prior put it (on the search window's edge,

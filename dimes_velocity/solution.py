@@ -193,3 +193,32 @@ def velocity_uncertainty(heights_m: np.ndarray, intervals_s: np.ndarray, used_pa
     variance = ((common * attitude_sigma_rad) ** 2 + relative_attitude_sigma_rad ** 2 * float(coefficients @ coefficients)
                 + float(altitude @ altitude) + matching ** 2 + (0.5 * pair_spread_mps) ** 2)
     return float(np.sqrt(2.0 * variance))
+
+
+def implied_bias_limit_mps(uncertainty_mps: float, imu_bias_sigma_mps: float, confidence: float) -> float:
+    """Largest IMU horizontal velocity bias a valid answer may imply (m/s).
+
+    The answer ``v = v_IMU - b`` implies the bias ``b``. For a right answer ``b`` is the IMU's true bias
+    (normal, ``imu_bias_sigma_mps`` per axis) minus the answer's error (normal, ``uncertainty_mps /
+    sqrt(2)`` per axis, ``uncertainty_mps`` being the RMS of the horizontal error magnitude), so
+    ``|b|^2 / s^2`` with ``s^2 = imu_bias_sigma_mps^2 + uncertainty_mps^2 / 2`` is chi-square with two
+    degrees of freedom, ``P(|b| > r s) = exp(-r^2 / 2)``.
+
+    Parameters
+    ----------
+    uncertainty_mps : float
+        The answer's stated uncertainty (RMS horizontal error magnitude, m/s).
+    imu_bias_sigma_mps : float
+        The IMU's horizontal bias, 1 sigma per axis (m/s).
+    confidence : float
+        Probability that a right answer's implied bias is within the limit; 1: no limit (inf).
+
+    Returns
+    -------
+    float
+        ``sqrt(-2 ln(1 - confidence)) * s`` (m/s).
+    """
+    if confidence >= 1.0:
+        return float("inf")
+    radius = float(np.sqrt(-2.0 * np.log1p(-confidence)))
+    return radius * float(np.hypot(imu_bias_sigma_mps, uncertainty_mps / np.sqrt(2.0)))
