@@ -18,7 +18,9 @@ replaced by a shifted or rotated copy of another), ``image_fixed_spots`` / ``ran
 ``unmodelled_tilt`` (the camera turned between images but the measured attitude says not),
 ``offset_gain_jump`` (one image with another gain and ADC offset), ``saturated_blobs`` and
 ``heat_shield_occlusion`` (a dark disc of the heat shield's apparent size over the ground, in one
-image or moving across two, not predicted by the measurements).
+image or moving across two, not predicted by the measurements), ``implausible_record`` (the images
+untouched, the measurement record contradicting its own physics: the middle IMU velocity 10-27 m/s
+off and back, or all three radar altitudes 15-40 % high or low against the IMU's vertical velocity).
 """
 from __future__ import annotations
 
@@ -35,7 +37,7 @@ GROUND_M_PER_PX = 5.0
 GROUND_PX = 1024
 FAMILIES = ("ordinary", "dune_ripples", "crater_lattice", "uncorrelated", "shifted_copy", "rotated_copy",
             "image_fixed_spots", "random_spots", "unmodelled_yaw", "unmodelled_tilt", "offset_gain_jump",
-            "saturated_blobs", "heat_shield_occlusion")
+            "saturated_blobs", "heat_shield_occlusion", "implausible_record")
 
 
 @dataclass(frozen=True)

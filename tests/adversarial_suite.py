@@ -3,6 +3,8 @@ into cases of every family, with the image and measurement manipulations below. 
 seed gives the same cases (bit for bit) every run."""
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 
@@ -20,6 +22,7 @@ from adversarial_descents import (
     random_terrain,
     ripple_terrain,
 )
+from flight_interface.measurements import MeasurementError
 
 ADVERSARIES = ("uncorrelated", "shifted_copy", "rotated_copy", "image_fixed_spots", "random_spots", "unmodelled_yaw",
                "unmodelled_tilt", "offset_gain_jump", "saturated_blobs", "heat_shield_occlusion")
@@ -190,10 +193,12 @@ def build_suite(camera, seed: int = 2026, descents: int = 70, bland: int = 20, r
     :data:`BLAND_ADVERSARIES`), ``repetitive`` dune-ripple and as many crater-lattice descents (four
     per terrain, each with ``biases_per_repetitive`` IMU biases anywhere within the estimator's
     prior, so that an alias can be nearer the prediction than the truth). Defaults:
-    70 x 11 + 20 x 4 + 2 x 20 x 6 = 1090 cases."""
+    70 x 11 + 20 x 4 + 2 x 20 x 6 = 1090 cases, then ``descents`` ``implausible_record`` cases (the
+    textured descents' images with a self-contradicting record): 1160."""
     renderer = Renderer(camera)
     root = np.random.SeedSequence(seed)
-    ground_seeds, descent_seeds, repetitive_seeds, bland_seeds, draw_seed = root.spawn(5)
+    # spawned children do not depend on the count: the sixth (implausible records) changed no other case
+    ground_seeds, descent_seeds, repetitive_seeds, bland_seeds, draw_seed, record_seed = root.spawn(6)
     grounds = [random_terrain(np.random.default_rng(s), contrast)
                for s, contrast in zip(ground_seeds.spawn(8), np.linspace(0.04, 0.16, 8))]
     rendered = [random_descent(renderer, grounds[k % len(grounds)], np.random.default_rng(s))
@@ -223,11 +228,32 @@ def build_suite(camera, seed: int = 2026, descents: int = 70, bland: int = 20, r
         descent = random_descent(renderer, terrains[family][(k // 2) // per_terrain], local)
         for _ in range(biases_per_repetitive):
             cases.append(descent.case(family, bias_mps=random_bias(local, 25.0)))
+    record_rng = np.random.default_rng(record_seed)
+    for k, descent in enumerate(rendered):
+        cases.append(implausible_record(descent, record_rng, jump=k % 2 == 0))
     assert {case.family for case in cases} <= set(FAMILIES)
     return cases
 
 
+def implausible_record(descent: Descent, rng: np.random.Generator, jump: bool) -> AdversarialCase:
+    """The descent's own images with a record that contradicts itself (issue 31): the middle IMU velocity
+    10-27 m/s off in any direction (``jump``), or all three radar altitudes x 1.15-1.4 or x 0.6-0.85."""
+    case = descent.case("implausible_record", bias_mps=random_bias(rng, 10.0))
+    images = list(case.measurements.images)
+    if jump:
+        size, angle = rng.uniform(10.0, 27.0), rng.uniform(0.0, 2.0 * np.pi)
+        step = size * np.array([np.cos(angle), np.sin(angle), 0.0])
+        images[1] = dataclasses.replace(images[1], imu_velocity_mps=images[1].imu_velocity_mps + step)
+    else:
+        factor = rng.uniform(1.15, 1.4) if rng.random() < 0.5 else rng.uniform(0.6, 0.85)
+        images = [dataclasses.replace(m, radar_altitude_m=m.radar_altitude_m * factor) for m in images]
+    measurements = dataclasses.replace(case.measurements, images=tuple(images))
+    return AdversarialCase(case.family, case.images, measurements, case.truth_velocity_mps)
+
+
 FALSE_VALID_MPS = 5.0
+#: The outcome recorded when the estimator refuses the case's record (MeasurementError).
+INPUT_ERROR = "input_error"
 FALSE_VALID_SIGMAS = 3.0
 
 
@@ -241,7 +267,12 @@ def evaluate(cases: list[AdversarialCase], estimator) -> tuple[list[dict], list[
     worst valid error, most frequent reasons) and the records of every case."""
     records = []
     for index, case in enumerate(cases):
-        result = estimator.estimate(case.images, case.measurements)
+        try:
+            result = estimator.estimate(case.images, case.measurements)
+        except MeasurementError:      # refused as an input error (exit 2 in the CLI): never valid
+            records.append({"index": index, "family": case.family, "valid": False, "reason": INPUT_ERROR,
+                            "error_mps": float("nan"), "uncertainty_mps": 0.0, "false_valid": False})
+            continue
         error = float(np.hypot(result.velocity_east_mps - case.truth_velocity_mps[0],
                                result.velocity_north_mps - case.truth_velocity_mps[1]))
         records.append({"index": index, "family": case.family, "valid": result.valid, "reason": result.reason,

@@ -1,7 +1,7 @@
-"""Adversarial stress suite: 1090 generated image triples built to fool the estimator (repetitive
+"""Adversarial stress suite: 1160 generated image triples built to fool the estimator (repetitive
 texture, uncorrelated images, shifted/rotated copies, planted spots, unmodelled rotation, gain and
-offset jumps, saturated blobs, heat-shield occlusion; :mod:`adversarial_descents`), each with its
-known true velocity. The estimator may refuse any of them; it must never be valid and wrong:
+offset jumps, saturated blobs, heat-shield occlusion, self-contradicting measurement records;
+:mod:`adversarial_descents`), each with its known true velocity. The estimator may refuse any of them; it must never be valid and wrong:
 false-valid (valid with a horizontal error above 5 m/s or above 3 x its own stated uncertainty) = 0.
 
 The suite's IMU biases are drawn anywhere within the search window (up to 20-25 m/s), to test the
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from adversarial_suite import build_suite, evaluate, format_rows
+from adversarial_suite import INPUT_ERROR, build_suite, evaluate, format_rows
 from dimes_velocity import REASONS, DimesEstimator, EstimatorConfig
 
 pytestmark = [pytest.mark.slow]
@@ -39,7 +39,7 @@ def test_suite_has_over_1000_cases_of_every_family(suite):
     assert {row["family"] for row in rows} == {"ordinary", "dune_ripples", "crater_lattice", "uncorrelated",
                                                "shifted_copy", "rotated_copy", "image_fixed_spots", "random_spots",
                                                "unmodelled_yaw", "unmodelled_tilt", "offset_gain_jump",
-                                               "saturated_blobs", "heat_shield_occlusion"}
+                                               "saturated_blobs", "heat_shield_occlusion", "implausible_record"}
 
 
 def test_no_false_valid(suite):
@@ -59,7 +59,10 @@ def test_ordinary_cases_stay_valid_and_accurate(suite):
 
 def test_every_answer_has_a_reason_and_valid_ones_an_uncertainty(suite):
     _, _, records = suite
-    assert all(r["reason"] in REASONS and (r["reason"] == "ok") == r["valid"] for r in records)
+    assert all((r["reason"] in REASONS or r["reason"] == INPUT_ERROR) and (r["reason"] == "ok") == r["valid"]
+               for r in records)
+    # only the implausible records are refused as input errors, and every one of them is
+    assert all((r["reason"] == INPUT_ERROR) == (r["family"] == "implausible_record") for r in records)
     stated = np.array([r["uncertainty_mps"] for r in records if r["valid"]])
     assert np.all(np.isfinite(stated)) and np.all(stated > 0.0)
 
@@ -67,7 +70,7 @@ def test_every_answer_has_a_reason_and_valid_ones_an_uncertainty(suite):
 def test_generator_is_derandomized(mer_a):
     first = build_suite(mer_a, descents=2, bland=1, repetitive=1, biases_per_repetitive=1)
     second = build_suite(mer_a, descents=2, bland=1, repetitive=1, biases_per_repetitive=1)
-    assert len(first) == len(second) == 2 * 11 + 4 + 2
+    assert len(first) == len(second) == 2 * 11 + 4 + 2 + 2          # + one implausible record per descent
     for a, b in zip(first, second):
         assert a.family == b.family and all(np.array_equal(x, y) for x, y in zip(a.images, b.images))
         assert np.array_equal(a.truth_velocity_mps, b.truth_velocity_mps)
