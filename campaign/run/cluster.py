@@ -36,18 +36,13 @@ import importlib
 import json
 import logging
 import os
-import re
-import shutil
 import signal
 import sys
-import tempfile
 import threading
 import weakref
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
 from typing import Any, Protocol, cast
 
 import dask
@@ -56,7 +51,6 @@ from distributed.security import Security
 
 from campaign.configuration.execution import BatchJobs, ExecutionConfig, kubernetes_bytes, kubernetes_headroom_bytes
 from campaign.run.batch_jobs import (
-    NOTHING_RUN,
     SUBMIT_COMMANDS,
     JobRecord,
     recording_job_class,
@@ -64,6 +58,15 @@ from campaign.run.batch_jobs import (
     wait_for_first_worker,
 )
 from campaign.run.faults import RunStopped
+from campaign.run.security import (
+    CERTIFICATE_NAME,
+    KEY_NAME,
+    RunCertificates,
+    elide_key_material,
+    file_security,
+    run_certificates,
+    user_security,
+)
 from campaign.run.worker_startup import CaseWorkerSetup
 from config_tables.errors import ConfigError
 
@@ -83,10 +86,6 @@ WORKER_JOB_NAME = "moc2dimes-worker"
 SCHEDULER_PLACEHOLDER = "tls://SCHEDULER-ADDRESS:PORT"
 #: where ``campaign cluster`` shows the run's certificate directory (created only when the run starts)
 CERTIFICATE_PLACEHOLDER = "RUN-CERTIFICATE-DIRECTORY"
-CERTIFICATE_NAME = "certificate.pem"
-KEY_NAME = "key.pem"
-#: a PEM block (certificate or key) in text about to be printed
-PEM_BLOCK = re.compile(r"-----BEGIN ([A-Z0-9 ]+)-----.*?-----END \1-----", re.DOTALL)
 #: the Kubernetes Secret (type kubernetes.io/tls plus ca.crt) the DaskCluster's pods mount, and where
 KUBERNETES_TLS_MOUNT = "/etc/moc2dimes/tls"
 KUBERNETES_COMM_PORT = 8786
@@ -124,93 +123,13 @@ def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> 
                           f"installed; allowed: pip install 'moc2dimes[{extra}]', or another cluster") from None
 
 
-def require_secure_transport(execution: ExecutionConfig, source: str = "[execution]") -> None:
-    """Raise a one-line ConfigError when ``campaign submit`` would start a cluster whose scheduler speaks
-    plain TCP beyond this machine without the user having said so: the kubernetes backend (dask-kubernetes'
-    KubeCluster takes no TLS settings) unless ``[execution.kubernetes] allow_plain_tcp = true``."""
-    if execution.cluster == "kubernetes" and not execution.kubernetes.allow_plain_tcp:
-        raise ConfigError(f"{source}: execution.cluster = 'kubernetes' would run the scheduler over plain TCP "
-                          "(dask-kubernetes' KubeCluster takes no TLS settings): anyone reaching its service could "
-                          "run code as this run; allowed: apply the TLS spec of `campaign cluster FILE` with its "
-                          "Secret and submit with --scheduler tls://HOST:PORT, or set [execution.kubernetes] "
-                          "allow_plain_tcp = true in a namespace no one else can reach")
-
-
-def elide_key_material(text: str) -> str:
-    """``text`` with every PEM block (certificate, private key) replaced by a marker naming its kind."""
-    return PEM_BLOCK.sub(lambda match: f"<{match.group(1).lower()} elided>", text)
-
-
-@dataclass
-class RunCertificates:
-    """The TLS credentials of one run: ``security`` names PEM files (scheduler, workers and this client all
-    present the certificate and trust the CA); ``remove`` deletes the per-run directory (no-op for the user's CA)."""
-
-    security: Security
-    directory: Path | None
-    remove: Callable[[], Any]
-
-    def close(self) -> None:
-        self.remove()
-
-
-def _file_security(ca_file: str, cert_file: str, key_file: str) -> Security:
-    return Security(require_encryption=True, tls_ca_file=ca_file,
-                    tls_client_cert=cert_file, tls_client_key=key_file,
-                    tls_scheduler_cert=cert_file, tls_scheduler_key=key_file,
-                    tls_worker_cert=cert_file, tls_worker_key=key_file)
-
-
-def user_security(execution: ExecutionConfig) -> Security | None:
-    """The Security of ``[execution] tls_ca_file / tls_cert_file / tls_key_file`` (None when not given)."""
-    if not (execution.tls_ca_file and execution.tls_cert_file and execution.tls_key_file):
-        return None
-    return _file_security(str(execution.tls_ca_file), str(execution.tls_cert_file), str(execution.tls_key_file))
-
-
-def _write_private(path: Path, text: str) -> None:
-    descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(descriptor, "w") as handle:
-        handle.write(text)
-
-
-def run_certificates(execution: ExecutionConfig, directory: str = "") -> RunCertificates:
-    """TLS credentials of a run: the user's CA when ``[execution]`` names one, else a new self-signed
-    certificate and key (``Security.temporary()``, RSA 2048, valid one year, the CA of nobody else) written to
-    a new private directory (mode 0700, files 0600) under ``directory`` ("" = the working directory), where
-    the batch jobs' workers read them; :attr:`RunCertificates.remove` deletes it."""
-    given = user_security(execution)
-    if given is not None:
-        return RunCertificates(given, None, lambda: None)
-    temporary = Security.temporary()
-    worker = temporary.get_tls_config_for_role("worker")
-    parent = Path(directory).expanduser() if directory else Path.cwd()
-    try:
-        private = Path(tempfile.mkdtemp(prefix=".moc2dimes-tls-", dir=parent))        # mode 0700
-    except OSError as exc:
-        raise RunStopped(f"cannot write the run's TLS certificate under {parent} ({exc.strerror}); set "
-                         f"[execution.{execution.cluster}] certificate_directory to a directory you can write "
-                         f"that the compute nodes share; {NOTHING_RUN}") from None
-    remove = partial(shutil.rmtree, private, ignore_errors=True)
-    try:
-        _write_private(private / CERTIFICATE_NAME, worker["cert"])
-        _write_private(private / KEY_NAME, worker["key"])
-    except BaseException:
-        remove()
-        raise
-    certificate, key = str(private / CERTIFICATE_NAME), str(private / KEY_NAME)
-    certificates = RunCertificates(_file_security(certificate, certificate, key), private, remove)
-    certificates.remove = weakref.finalize(certificates, remove)      # once, at the latest when collected
-    return certificates
-
-
 def _placeholder_security(execution: ExecutionConfig) -> Security:
     """The Security a batch job script shows before the run (per-run files under :data:`CERTIFICATE_PLACEHOLDER`)."""
     given = user_security(execution)
     if given is not None:
         return given
     certificate, key = f"{CERTIFICATE_PLACEHOLDER}/{CERTIFICATE_NAME}", f"{CERTIFICATE_PLACEHOLDER}/{KEY_NAME}"
-    return _file_security(certificate, certificate, key)
+    return file_security(certificate, certificate, key)
 
 
 def default_worker_count() -> int:

@@ -24,11 +24,12 @@ from distributed import Client
 
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
-from campaign.run.cluster import connected_client, require_backend, require_secure_transport
+from campaign.run.cluster import connected_client, require_backend
 from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
 from campaign.run.faults import RunStopped
 from campaign.run.planning import plan_campaign
 from campaign.run.plugin_setup import PluginSetupError, ship_plugin_code
+from campaign.run.security import require_secure_transport
 from campaign.run.worker import CampaignContext
 from campaign.store.campaign_store import CampaignStore
 from estimators.entries import EstimatorSpec

@@ -25,9 +25,10 @@ from dataclasses import dataclass
 import pandas as pd
 
 from campaign.configuration.sweep_file import SweepPoint, SweepSpec
-from campaign.run.cluster import require_backend, require_secure_transport
+from campaign.run.cluster import require_backend
 from campaign.run.orchestrate import StorePoint, cluster_session, manifest_for, run_store_points
 from campaign.run.planning import plan_campaign
+from campaign.run.security import require_secure_transport
 
 BATCH_CASES = 64       # planned cases of the points run together: prepared, locked, waited for and compacted
 BATCH_POINTS = 64      # at most this many point stores locked at once (two descriptors each)

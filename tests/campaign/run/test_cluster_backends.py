@@ -296,7 +296,7 @@ def test_job_script_with_the_users_ca_names_the_files_and_holds_no_key(tmp_path,
 def test_printed_text_never_shows_key_material():
     from distributed.security import Security
 
-    from campaign.run.cluster import elide_key_material
+    from campaign.run.security import elide_key_material
 
     temporary = Security.temporary()
     text = elide_key_material(f"--tls-key {temporary.tls_worker_key} --tls-cert {temporary.tls_worker_cert} end")
@@ -403,7 +403,7 @@ def test_tls_scheduler_is_reached_with_the_certificate_files_of_execution(tmp_pa
     campaign's client connects with [execution] tls_* and its worker computes; without them it cannot."""
     from dask.distributed import LocalCluster
 
-    from campaign.run.cluster import user_security
+    from campaign.run.security import user_security
 
     files = _pem_files(tmp_path / "tls")
     execution_files = _execution({"cluster": "slurm", **files})
