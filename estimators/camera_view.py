@@ -123,7 +123,8 @@ def write_design_camera(path: Path, camera: Camera) -> Path:
 def load_design_camera(path: str | Path) -> Camera:
     """Load a camera TOML for an estimator, with or without the withheld fields.
 
-    A placeholder fills the withheld fields for validation only.
+    Withheld fields absent from the file get stand-in values so that the camera schema validates; the
+    returned camera is stripped of them again, so no stand-in reaches the estimator.
 
     Parameters
     ----------

@@ -123,8 +123,10 @@ def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> 
                           f"installed; allowed: pip install 'moc2dimes[{extra}]', or another cluster") from None
 
 
-def _placeholder_security(execution: ExecutionConfig) -> Security:
-    """The Security a batch job script shows before the run (per-run files under :data:`CERTIFICATE_PLACEHOLDER`)."""
+def _previewed_security(execution: ExecutionConfig) -> Security:
+    """The Security of the job script ``campaign cluster`` prints before any run: the user's CA files when
+    ``[execution]`` names them, else the per-run file names under :data:`CERTIFICATE_PLACEHOLDER` (the run's
+    directory does not exist yet; :func:`~campaign.run.security.run_certificates` creates it at submit)."""
     given = user_security(execution)
     if given is not None:
         return given
@@ -191,7 +193,7 @@ def batch_job_script(execution: ExecutionConfig, scheduler: str = SCHEDULER_PLAC
     directory as :data:`CERTIFICATE_PLACEHOLDER`; any key material elided). Starts and submits nothing."""
     first_worker = f"{'SLURMCluster' if execution.cluster == 'slurm' else 'PBSCluster'}-0"   # as the cluster names it
     job = _job_class(execution.cluster)(scheduler=scheduler, name=first_worker, protocol="tls://",
-                                        security=_placeholder_security(execution), **_job_options(execution))
+                                        security=_previewed_security(execution), **_job_options(execution))
     return elide_key_material(job.job_script())
 
 
