@@ -31,7 +31,9 @@ PAPER_TABLE3 = {
 COLUMNS = ("feature_brightness", "feature_contrast", "feature_correlation", "feature_status")
 
 
-def _flatten(members: pd.DataFrame, column: str, matched_only: bool = False) -> np.ndarray:
+def template_values(members: pd.DataFrame, column: str, matched_only: bool = False) -> np.ndarray:
+    """Every template's value of a per-template result column (``feature_*``) over the rows of ``members``,
+    one flat array; ``matched_only``: only templates whose match passed every check (status "ok")."""
     values: list[float] = []
     has_status = "feature_status" in members
     for _, row in members.iterrows():
@@ -45,7 +47,8 @@ def _flatten(members: pd.DataFrame, column: str, matched_only: bool = False) -> 
     return np.asarray(values, dtype=float)
 
 
-def _summary(values: np.ndarray, pattern: str) -> str:
+def percentile_summary(values: np.ndarray, pattern: str) -> str:
+    """``median [10th-90th percentile]`` of ``values``, each formatted with ``pattern`` ("n/a" when empty)."""
     if values.size == 0:
         return "n/a"
     p10, p50, p90 = np.percentile(values, [10, 50, 90])
@@ -62,12 +65,13 @@ def metrics_table(results: pd.DataFrame, class_order: list[str]) -> str:
         members = ok[ok["class_name"] == class_name]
         if members.empty or "feature_brightness" not in members:
             continue
-        brightness = _flatten(members, "feature_brightness")
-        contrast = _flatten(members, "feature_contrast")
-        correlation = _flatten(members, "feature_correlation", matched_only=True)
+        brightness = template_values(members, "feature_brightness")
+        contrast = template_values(members, "feature_contrast")
+        correlation = template_values(members, "feature_correlation", matched_only=True)
         ratio = 100.0 * contrast / np.maximum(brightness, 1e-9) if contrast.size == brightness.size else np.zeros(0)
-        lines.append(f"| {class_name} (this campaign) | {brightness.size} | {_summary(brightness, '{:.0f}')} | "
-                     f"{_summary(contrast, '{:.1f}')} | {_summary(ratio, '{:.2f}')} | {_summary(correlation, '{:.3f}')} |")
+        lines.append(f"| {class_name} (this campaign) | {brightness.size} | {percentile_summary(brightness, '{:.0f}')} | "
+                     f"{percentile_summary(contrast, '{:.1f}')} | {percentile_summary(ratio, '{:.2f}')} | "
+                     f"{percentile_summary(correlation, '{:.3f}')} |")
     for source, values in PAPER_TABLE3.items():
         ratios = [100.0 * c / b for c, b in zip(values["contrast"], values["brightness"])]
         lines.append(f"| {source} | 3 | {', '.join(f'{v:.0f}' for v in values['brightness'])} | "

@@ -46,6 +46,7 @@ import numpy as np
 from campaign.case.compute import compute_case
 from campaign.case.inputs import CampaignInputs, PlanRow
 from campaign.configuration.campaign_file import campaign_config_from_data
+from campaign.realism.flight_metrics import percentile_summary, template_values
 from campaign.run.planning import plan_campaign
 from config_tables.command_line import USAGE_ERROR, OneLineParser
 from config_tables.errors import ConfigError
@@ -138,21 +139,14 @@ def weighted_median_ratio_pct(templates: dict[str, ClassTemplates], fractions: d
     return float(v[order][np.searchsorted(cumulative, 0.5)])
 
 
-def _summary(values: np.ndarray, pattern: str) -> str:
-    if values.size == 0:
-        return "n/a"
-    p10, p50, p90 = np.percentile(values, [10, 50, 90])
-    return f"{pattern.format(p50)} [{pattern.format(p10)}-{pattern.format(p90)}]"
-
-
 def format_rows(scale: float, templates: dict[str, ClassTemplates]) -> list[str]:
     """One table row per class at one contrast scale."""
     rows = []
     for name, t in templates.items():
         reasons = ", ".join(f"{r} {n}" for r, n in sorted(t.reasons.items()))
         rows.append(f"| {scale:g} | {name} | {t.cases} | {t.valid}{f' ({reasons})' if reasons else ''} | "
-                    f"{t.brightness_dn.size} | {_summary(t.brightness_dn, '{:.0f}')} | {_summary(t.contrast_dn, '{:.1f}')} | "
-                    f"{_summary(t.ratio_pct, '{:.2f}')} | {_summary(t.correlation_ok, '{:.3f}')} |")
+                    f"{t.brightness_dn.size} | {percentile_summary(t.brightness_dn, '{:.0f}')} | {percentile_summary(t.contrast_dn, '{:.1f}')} | "
+                    f"{percentile_summary(t.ratio_pct, '{:.2f}')} | {percentile_summary(t.correlation_ok, '{:.3f}')} |")
     return rows
 
 
@@ -195,10 +189,8 @@ def sweep_template_table(sweep_dir: Path) -> tuple[list[dict], str]:
         for class_name in dict.fromkeys(members["class_name"]):
             cases = members[members["class_name"] == class_name]
             ran = cases[cases["status"] == "ok"]
-            brightness = np.concatenate([np.asarray(v, float) for v in ran["feature_brightness"] if v is not None]
-                                        or [np.zeros(0)])
-            contrast = np.concatenate([np.asarray(v, float) for v in ran["feature_contrast"] if v is not None]
-                                      or [np.zeros(0)])
+            brightness = template_values(ran, "feature_brightness")
+            contrast = template_values(ran, "feature_contrast")
             valid = ran["valid"].astype(bool)
             errors = ran["velocity_error_mps"].astype(float)
             ratio = 100.0 * contrast / np.maximum(brightness, 1e-9)
