@@ -35,8 +35,11 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import importlib
+import os
 import re
 import shutil
+import sys
+import sysconfig
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -44,7 +47,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationInfo, field_validator
 
 from config_tables.errors import FieldProblem
-from config_tables.models import ConfigModel
+from config_tables.models import ConfigModel, InputPath
 from dimes_velocity.config import estimator_config_from_data
 from estimators.command import check_template
 
@@ -85,6 +88,10 @@ class PythonEntry(_Entry):
 
     kind: Literal["python"]
     """``python``."""
+    path: InputPath | None = None
+    """Directory the callable's module is imported from, relative to the campaign file ("." = beside it),
+    searched before sys.path; default: sys.path alone (PYTHONPATH, the working directory under
+    ``python -m``, installed packages)."""
     callable: str
     """``package.module:function`` (must import and name a callable)."""
     isolate: bool = False
@@ -92,10 +99,18 @@ class PythonEntry(_Entry):
     timeout_s: Timeout = DEFAULT_TIMEOUT_S
     """Wall-time limit per case of an isolated callable (s)."""
 
+    @field_validator("path")
+    @classmethod
+    def _directory(cls, path: Path | None) -> Path | None:
+        if path is not None and not path.is_dir():
+            raise FieldProblem("", f"= {str(path)!r} is not a directory; allowed: the directory of the callable's "
+                               "module, relative to the campaign file (\".\" = beside it)")
+        return path
+
     @field_validator("callable")
     @classmethod
-    def _importable(cls, target: str) -> str:
-        check_callable(target)
+    def _importable(cls, target: str, info: ValidationInfo) -> str:
+        check_callable(target, info.data.get("path"))
         return target
 
 
@@ -271,23 +286,34 @@ def plugin_imports_deferred():
         IMPORT_PLUGINS.reset(token)
 
 
-def check_callable(target: str) -> None:
+def check_callable(target: str, directory: Path | None = None) -> None:
     """Check that ``package.module:function`` imports and names a callable.
 
-    Only the form is checked within :func:`plugin_imports_deferred`.
+    ``directory`` (a python entry's ``path``) is put first on ``sys.path`` (also within
+    :func:`plugin_imports_deferred`, which checks only the form of ``target``), so the module is imported
+    from there, here and by every later import in this process (the workers get the module shipped:
+    :mod:`campaign.run.plugin_setup`).
 
     Parameters
     ----------
     target : str
         ``package.module:function``.
+    directory : Path or None, optional
+        The directory the module is imported from (searched before ``sys.path``).
 
     Raises
     ------
     FieldProblem
-        A malformed target, a module that cannot be imported, or no such callable in it.
+        A malformed target, a module that cannot be imported (saying where it was looked for), a module
+        imported from elsewhere than ``directory``, or no such callable in it.
     """
     if not CALLABLE_PATTERN.match(target):
         raise FieldProblem("", f"= {target!r} is not allowed; allowed: 'package.module:function'")
+    if directory is not None:
+        searched = str(Path(directory).resolve())
+        if searched not in sys.path:
+            sys.path.insert(0, searched)
+            importlib.invalidate_caches()
     if not IMPORT_PLUGINS.get():
         return
     module_name, function_name = target.split(":")
@@ -295,9 +321,30 @@ def check_callable(target: str) -> None:
         module = importlib.import_module(module_name)
     except Exception as exc:  # an ImportError or the module's own error: one line either way
         raise FieldProblem("", f"= {target!r}: module {module_name!r} cannot be imported "
-                               f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
+                               f"({type(exc).__name__}: {' '.join(str(exc).split())}){_where_looked(exc, module_name, directory)}") from None
+    origin = getattr(module, "__file__", None)
+    if directory is not None and origin and not Path(origin).resolve().is_relative_to(Path(directory).resolve()):
+        raise FieldProblem("", f"= {target!r}: module {module_name!r} is imported from {origin}, not from path "
+                               f"{str(directory)!r} (a module of that name was imported first); allowed: a module "
+                               "name no other imported module has")
     if not callable(getattr(module, function_name, None)):
         raise FieldProblem("", f"= {target!r}: {module_name} has no callable {function_name!r}")
+
+
+def _where_looked(exc: Exception, module_name: str, directory: Path | None) -> str:
+    """How a plug-in module is found, for a module that was not found (empty for the module's own error)."""
+    missing = getattr(exc, "name", None)
+    if not isinstance(exc, ModuleNotFoundError) or not missing or not (
+            module_name == missing or module_name.startswith(f"{missing}.")):
+        return ""
+    installed = {sysconfig.get_paths()[key] for key in ("stdlib", "platstdlib", "purelib", "platlib")}
+    own = [entry or "." for entry in sys.path
+           if os.path.isdir(entry or ".") and not any(entry.startswith(root) for root in installed)]
+    first = f"in path {str(directory)!r} of this entry, then " if directory is not None else ""
+    return (f"; a plug-in module is looked for {first}in the directories of sys.path ({', '.join(own) or 'none'}: "
+            "PYTHONPATH, and the working directory under `python -m`) and the installed packages; allowed: "
+            "path = \"DIR\" in this [[estimators]] entry (DIR relative to the campaign file, \".\" = beside it), "
+            "the module's directory on PYTHONPATH, or the module pip-installed")
 
 
 def _plain(data: Any) -> Any:

@@ -43,6 +43,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, Field, SkipValidation, ValidationInfo, model_validator
 
+from campaign.configuration.base_files import layered_data, shipped_sites
 from campaign.configuration.code_identity import code_digest, plugin_modules
 from campaign.configuration.estimators import (
     CalibrationConfig,
@@ -91,6 +92,10 @@ class CampaignTable(ConfigModel):
 class CampaignFile(ConfigModel):
     """A campaign TOML file: a site file plus the campaign's optional tables."""
 
+    base: str | None = None
+    """The file this one builds on: a shipped site ("gusev", "meridiani") or a TOML file relative to this one;
+    tables merge key by key, arrays and values are replaced (campaign.configuration.base_files). Resolved by
+    the loader; not part of the results' configuration."""
     site: Site
     campaign: CampaignTable = CampaignTable()
     execution: ExecutionConfig = ExecutionConfig()
@@ -217,7 +222,8 @@ def resolved_tables(tables: CampaignFile, scene: SceneConfig) -> dict:
     """Every table of ``tables`` with its defaults filled in, as JSON values, and ``[scene]`` as the cases
     use it (``scene``: with the site's sun distance when the file leaves it out). So the hash and the
     manifest tell a sun distance left out from one written out at the scene default."""
-    chosen = {name: scene if name == "scene" else getattr(tables, name) for name in CampaignFile.model_fields}
+    chosen = {name: scene if name == "scene" else getattr(tables, name) for name in CampaignFile.model_fields
+              if name != "base"}
     return {name: json.loads(json.dumps(value, default=lambda item: item.model_dump(mode="json")))
             for name, value in chosen.items()}
 
@@ -271,15 +277,22 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
     """
     path = Path(path)
     label = source or str(path)
-    if not isinstance(data, dict) or "site" not in data:
+    if not isinstance(data, dict):
         raise ConfigError(f"{label}: site is missing (a [site] table with the site, camera, sun and classes)")
-    tables = parse(CampaignFile, data, label, context={"base_dir": path.parent, "source": label})
-    check_site_paths(tables.site, label)
-    campaign = tables.campaign
-    store = Path(output_dir) if output_dir is not None else Path(campaign.output_dir or f"runs/{tables.site.name.lower()}")
-    return parse(CampaignConfig, {"source": path, "tables": tables, "output_dir": store,
-                                  "cases_scale": campaign.cases_scale if cases_scale is None else float(cases_scale)},
-                 label, context={"source": label})
+    layered = layered_data(data, path, label)
+    if "site" not in layered.data:
+        raise ConfigError(f"{label}: site is missing (a [site] table with the site, camera, sun and classes, "
+                          f"or base = \"{shipped_sites()[0]}\" to build on a shipped site)")
+    try:
+        tables = parse(CampaignFile, layered.data, label, context={"base_dir": path.parent, "source": label})
+        check_site_paths(tables.site, label)
+        campaign = tables.campaign
+        store = Path(output_dir) if output_dir is not None else Path(campaign.output_dir or f"runs/{tables.site.name.lower()}")
+        return parse(CampaignConfig, {"source": path, "tables": tables, "output_dir": store,
+                                      "cases_scale": campaign.cases_scale if cases_scale is None else float(cases_scale)},
+                     label, context={"source": label})
+    except ConfigError as exc:
+        raise layered.attribute(exc) from None
 
 
 #: Largest synthetic terrain strip (rows x cols) a class may declare: 4x the presets' 5000 x 1000 pixels.
@@ -316,13 +329,16 @@ def hashed_content(resolved: dict, site: Site) -> dict:
     default out changes nothing) with input files replaced by the sha256 of their bytes (so the same
     campaign given by another path, or from another directory, has the same hash).
 
-    Left out: ``[execution]`` (where cases run), the output directory, the false-valid reporting
-    threshold, and the case counts (``cases``, ``cases_scale``, each class's ``cases``): case identity is
-    (class, index within class), so a scaled run is a prefix of the full one (see :mod:`campaign.plan.placement`).
+    Left out: ``[execution]`` (where cases run), the output directory, a python estimator's ``path`` (its
+    module's bytes are hashed instead), the false-valid reporting threshold, and the case counts (``cases``,
+    ``cases_scale``, each class's ``cases``): case identity is (class, index within class), so a scaled run is a
+    prefix of the full one (see :mod:`campaign.plan.placement`).
     """
     content = json.loads(json.dumps({name: value for name, value in resolved.items() if name != "execution"}))
     for key in HASH_EXCLUDED_CAMPAIGN_KEYS:
         content.get("campaign", {}).pop(key, None)
+    for entry in content.get("estimators") or []:
+        entry.pop("path", None)             # where a plug-in's module is: its bytes are hashed (estimator_code_digests)
     site_content = content["site"]
     site_content["camera"] = file_digest(site.camera_path)
     site_content["trajectory_set"] = file_digest(site.trajectory_path)

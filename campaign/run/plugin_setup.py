@@ -4,8 +4,9 @@ up there stopping the run instead of failing cases.
 What is shipped (:func:`shipped_code`): for every ``kind = "python"`` estimator, the *top-level* module or
 package of its ``callable`` as the driver imports it (``mine`` of ``mine:estimate``, the whole ``pkg/``
 directory of ``pkg.sub.mod:estimate``), zipped (``__pycache__`` and ``*.pyc`` left out), unless it is one
-of this project's packages or lives under the Python installation (standard library, ``site-packages``):
-installed packages are the workers' environment, never shipped. Neither is a namespace package (no
+of this project's packages or sits at the top of the Python installation's standard library or
+``site-packages``: installed packages are the workers' environment, never shipped (a module found through
+an ``[[estimators]]`` entry's ``path`` is shipped wherever it lives). Neither is a namespace package (no
 ``__init__.py``). A compiled extension module cannot be
 shipped (a zip cannot hold an importable ``.so``); install it on the workers.
 
@@ -90,10 +91,13 @@ def _installed_roots() -> tuple[Path, ...]:
     return tuple(sorted(roots))
 
 
-def _is_installed(path: Path) -> bool:
-    resolved = path.resolve()
-    return "site-packages" in resolved.parts or "dist-packages" in resolved.parts or any(
-        resolved.is_relative_to(root) for root in _installed_roots())
+def _is_installed(source: Path) -> bool:
+    """Whether the module or package at ``source`` is one of the Python installation's own: it sits at the top
+    of the standard library or of ``site-packages`` (every worker of the environment imports it). A module
+    deeper inside (e.g. a plug-in beside a campaign file in an installed package's data, imported through an
+    ``[[estimators]]`` entry's ``path``) is not on the workers' ``sys.path``: it is shipped."""
+    root = source.resolve().parent
+    return root.name in ("site-packages", "dist-packages") or root in _installed_roots()
 
 
 def _zip(source: Path, module: str) -> bytes:
@@ -131,9 +135,11 @@ def shipped_code(specs: list[EstimatorSpec] | tuple[EstimatorSpec, ...]) -> list
         except BaseException:  # noqa: B036 -- a plug-in's import may raise anything; its build reports it
             continue
         origin = getattr(sys.modules[module], "__file__", None)
-        if not origin or not origin.endswith(".py") or not Path(origin).is_file() or _is_installed(Path(origin)):
+        if not origin or not origin.endswith(".py") or not Path(origin).is_file():
             continue
         source = Path(origin).parent if Path(origin).name == "__init__.py" else Path(origin)
+        if _is_installed(source):
+            continue
         shipped.append(ShippedCode(module, tuple(names), str(source), _zip(source, module),
                                    tuple(sorted(modules[module]))))
     return shipped
