@@ -96,12 +96,13 @@ def submit(args: argparse.Namespace) -> int:
                            progress=not args.no_progress, wait=args.wait)
     print(write_table(config.output_dir, config.false_valid_mps))
     store = CampaignStore(config.output_dir)
-    counts = _estimator_counts(store.results())
+    results = store.results()
+    counts = _estimator_counts(results)
     print(f"results: {config.output_dir}  ({summary.done} done, {summary.failed} failed this run)"
           f"{_failed_rows_note(counts)}")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
     status = store.status()
-    failed_rows = _report_failed_rows(counts)
+    failed_rows = _report_failed_rows(results)
     return 0 if status.failed == 0 and status.missing == 0 and not failed_rows else RUN_INCOMPLETE
 
 
@@ -115,17 +116,19 @@ def _estimator_counts(results: pd.DataFrame) -> list[EstimatorCounts]:
 def _failed_rows_note(counts: list[EstimatorCounts]) -> str:
     """"; estimator rows failed: NAME N, ... (stderr)" after the results line, "" when none failed."""
     failed = [f"{count.name} {count.failed}" for count in counts if count.failed]
-    return f"; estimator rows failed: {', '.join(failed)} (reasons on stderr)" if failed else ""
+    return f"; estimator rows failed: {', '.join(failed)} (every kind on stderr)" if failed else ""
 
 
-def _report_failed_rows(counts: list[EstimatorCounts]) -> int:
-    """One stderr line per estimator with failed rows (count and first reason); the number of failed rows
-    (the store's, not only this run's: a failed row is kept and never retried)."""
-    from campaign.report.compare import failure_lines
+def _report_failed_rows(results: pd.DataFrame) -> int:
+    """The last lines on stderr: per estimator with failed rows every kind of failure with its count and one
+    example (campaign.report.failures); the number of failed rows (the store's, not only this run's: a failed
+    row is kept and never retried)."""
+    from campaign.report.failures import failure_report_lines, failure_summary
 
-    for line in failure_lines(counts):
+    summaries = failure_summary(results)
+    for line in failure_report_lines(summaries):
         print(f"campaign: {line}", file=sys.stderr, flush=True)
-    return sum(count.failed for count in counts)
+    return sum(summary.failed for summary in summaries)
 
 
 def plan(args: argparse.Namespace) -> int:
@@ -233,7 +236,7 @@ def sweep(args: argparse.Namespace) -> int:
     print(f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused; {run.done} cases done, "
           f"{run.failed} failed this run){_failed_rows_note(counts)}")
     print(f"wall time: {time.perf_counter() - start:.1f} s")
-    failed_rows = _report_failed_rows(counts)
+    failed_rows = _report_failed_rows(results)
     unfinished = run.unfinished or failed_rows
     if baseline is None:
         return RUN_INCOMPLETE if unfinished else 0
@@ -246,6 +249,25 @@ def sweep(args: argparse.Namespace) -> int:
         return RUN_INCOMPLETE
     print(f"no regression ({gate.compared} points compared against {args.baseline})")
     return RUN_INCOMPLETE if unfinished else 0
+
+
+def sensitivity(args: argparse.Namespace) -> int:
+    """``campaign sensitivity DIR``: the PAWN sensitivity of each estimator's outputs to every recorded input
+    (campaign.analysis.sensitivity), for a store or for every point of a sweep directory."""
+    from campaign.analysis.sensitivity import AnalysisSettings, analyse_store
+    from campaign.store.sweep_directory import read_description
+
+    if not 10 <= args.resamples <= 100_000:
+        raise ConfigError(f"--resamples = {args.resamples}; allowed: 10 to 100000")
+    settings = AnalysisSettings(resamples=args.resamples, seed=args.seed)
+    directory = Path(args.dir)
+    if (directory / "sweep.json").is_file() and not (directory / "manifest.json").is_file():
+        for point in read_description(directory)["points"]:
+            print(f"== point {point['point_id']} {point['values']}")
+            print(analyse_store(directory / point["store"], settings, args.estimator))
+        return 0
+    print(analyse_store(directory, settings, args.estimator), end="")
+    return 0
 
 
 def compare_flight(args: argparse.Namespace) -> int:

@@ -39,6 +39,10 @@ from estimators.contract import (
 )
 from estimators.entries import EstimatorSpec
 
+CRASH_MESSAGE_CHARS = 2000
+"""A plug-in's exception message is stored up to this many characters; the file and line where it raised,
+after it, always whole."""
+
 
 class ReferenceEstimator:
     """The reference DIMES estimator (:mod:`dimes_velocity`) behind the contract.
@@ -318,5 +322,7 @@ def run_estimator(name: str, estimator, inputs: EstimatorInputs,
         where = traceback.format_exc(limit=-1).splitlines()
         location = next((line.strip() for line in reversed(where) if line.strip().startswith("File ")), "")
         what = f"{type(exc).__name__}: {exc}" if isinstance(exc, Exception) else repr(exc)
-        output, error = None, f"estimator {name}: crashed: {what} | {location}"[:500]
+        if len(what) > CRASH_MESSAGE_CHARS:      # a huge message is shortened, never the file and line after it
+            what = f"{what[:CRASH_MESSAGE_CHARS]}... ({len(what) - CRASH_MESSAGE_CHARS} more characters)"
+        output, error = None, f"estimator {name}: crashed: {what} | {location}"
     return EstimatorRun(name, output, error, 1e3 * (time.perf_counter() - started), failure)

@@ -3,6 +3,8 @@
 Which cases (:func:`gallery_cases`): for every estimator, each false-valid case (valid, horizontal error
 above the false-valid threshold; at most :data:`MAX_FALSE_VALID` per estimator, the worst first) and up
 to :data:`INVALID_PER_REASON` invalid cases (ran, answered not valid) of each reason, lowest case id first.
+Failed rows (no answer) are not drawn: a "Failed rows" section counts them per estimator and kind
+(:func:`failed_rows_section`), so an estimator whose every row failed is still on the page.
 
 How (:func:`draw_gallery`): each case is simulated again from the store with the functions `campaign export`
 uses (:func:`campaign.store.stored_config.stored_config`, :func:`campaign.case.inputs.campaign_inputs`,
@@ -41,6 +43,7 @@ from campaign.case.inputs import (
     PlanRow,  # noqa: E402
     campaign_inputs,  # noqa: E402
 )
+from campaign.report.failures import failure_summary, markdown_cell  # noqa: E402
 from campaign.store.campaign_store import CampaignStore  # noqa: E402
 from campaign.store.stored_config import stored_config  # noqa: E402
 from dimes_velocity import geometry  # noqa: E402
@@ -83,6 +86,24 @@ def gallery_cases(results: pd.DataFrame, false_valid_mps: float, per_reason: int
             for row in members.sort_values("case_id").head(per_reason).to_dict("records"):
                 chosen.append(GalleryCase(str(name), int(row["case_id"]), "invalid", row))
     return chosen
+
+
+def failed_rows_section(results: pd.DataFrame) -> list[str]:
+    """The gallery's "Failed rows" section: per estimator with failed rows (no answer, so no images of its own to
+    judge) the count and every kind of failure with its count and first case (:mod:`campaign.report.failures`);
+    [] when no row failed."""
+    summaries = failure_summary(results)
+    if not summaries:
+        return []
+    lines = ["## Failed rows", "", "Rows with no answer (the case's simulation or the estimator failed): not drawn, "
+             "counted here; their full error texts are in the report's Failed cases tables.", "",
+             "| estimator | failed rows | kind | rows | first |", "|---|---|---|---|---|"]
+    for summary in summaries:
+        for number, kind in enumerate(summary.kinds):
+            total = f"{summary.failed} of {summary.rows}" if number == 0 else ""
+            lines.append(f"| {markdown_cell(summary.estimator) if number == 0 else ''} | {total} | "
+                         f"{markdown_cell(kind.kind)} | {kind.rows} | {markdown_cell(kind.example_where)} |")
+    return lines + [""]
 
 
 def _number(value) -> float:
@@ -201,8 +222,9 @@ def draw_gallery(store: CampaignStore, results: pd.DataFrame, out: Path, false_v
              "of each pair); x: where the IMU predicts them in the second image; +: the match found (green used, "
              "yellow matched but not used, red rejected). Plug-in estimators expose no template positions: their "
              "cases show the images and numbers only.", ""]
+    lines += failed_rows_section(results)
     if not cases:
-        return lines + ["No false-valid or invalid case: nothing to show.", ""]
+        return lines + ["No false-valid or invalid case to draw.", ""]
     manifest = store.manifest() or {}
     config = stored_config(store, manifest)
     resources = campaign_inputs(config)

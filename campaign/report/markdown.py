@@ -14,10 +14,10 @@ from campaign.report.compare import (
     counts_line,
     estimator_counts,
     estimator_names,
-    failure_lines,
     format_comparison,
     with_estimator_column,
 )
+from campaign.report.failures import abbreviate_error, failure_summary, markdown_cell
 from campaign.report.gallery import INVALID_PER_REASON, draw_gallery
 from campaign.report.table import false_valid_threshold
 from campaign.store.campaign_store import CampaignStore, StoreError
@@ -49,7 +49,7 @@ def write_report(root: Path) -> Path:
         f"{status.planned} cases planned, {status.done} done, {status.failed} failed, {status.missing} missing; "
         f"estimators: {', '.join(f'`{name}`' for name in names)} (each ran on the same images and sensor draws).", "",
         counts_line(estimator_counts(results)), "",
-        *(f"- **failed:** {line}" for line in failure_lines(estimator_counts(results))), "",
+        *_failure_bullets(results), "",
         "## Estimators side by side", "", format_comparison(comparison, markdown=True), "", COMPARISON_NOTE, "",
     ]
     compare_plots.error_cdf(results, list(fractions), site, names, out / "error_cdf.png", threshold)
@@ -108,11 +108,26 @@ def _estimator_section(name: str, rows, fractions: dict, site: str, out: Path, s
         reasons = ok[~ok["valid"].astype(bool)].groupby(["class_name", "reason"]).size()
         if len(reasons):
             lines += [f"{level} Why cases were invalid", "", "| class | reason | cases |", "|---|---|---|"]
-            lines += [f"| {c} | {r} | {n} |" for (c, r), n in reasons.items()] + [""]
+            lines += [f"| {markdown_cell(c)} | {markdown_cell(r)} | {n} |" for (c, r), n in reasons.items()] + [""]
     failed = rows[rows["status"] != "ok"]
     if not failed.empty:
-        lines += [f"{level} Failed cases", "", "| case | class | error |", "|---|---|---|"]
-        lines += [f"| {int(r.case_id)} | {r.class_name} | {str(r.error)[:160]} |" for r in failed.itertuples()] + [""]
+        lines += [f"{level} Failed cases", "", "Each failed row's full error text, as stored (a Python plug-in's "
+                  "ends with the file and line where it raised).", "", "| case | class | reason | error |",
+                  "|---|---|---|---|"]
+        lines += [f"| {int(r.case_id)} | {markdown_cell(r.class_name)} | {markdown_cell(getattr(r, 'reason', ''))} | "
+                  f"{markdown_cell(r.error)} |" for r in failed.itertuples()] + [""]
+    return lines
+
+
+def _failure_bullets(results) -> list[str]:
+    """One bullet per estimator with failed rows and one sub-bullet per kind of failure: its count and the
+    first row's error (:mod:`campaign.report.failures`; the full texts are in the Failed cases tables)."""
+    lines = []
+    for summary in failure_summary(results):
+        lines.append(f"- **failed:** estimator `{summary.estimator}`: {summary.failed} of {summary.rows} rows, "
+                     f"{len(summary.kinds)} kind{'s' if len(summary.kinds) > 1 else ''}:")
+        lines += [f"  - {kind.rows} x {markdown_cell(kind.kind)}, e.g. {kind.example_where}: "
+                  f"{markdown_cell(abbreviate_error(kind.example_error))}" for kind in summary.kinds]
     return lines
 
 

@@ -40,11 +40,12 @@ def test_failing_command_estimator_exits_1_with_one_stderr_line_and_counts_in_th
     assert submit.returncode == 1, submit.stdout + submit.stderr
     assert "Traceback" not in submit.stderr
     lines = [line for line in submit.stderr.splitlines() if "estimator" in line]
-    assert len(lines) == 1, submit.stderr
-    assert lines[0].startswith("campaign: estimator yes_man: 3 of 3 rows failed; first: case ")
-    assert "(estimator_failed)" in lines[0] and "'valid'" in lines[0] and "yes" in lines[0], lines[0]
+    assert len(lines) == 2, submit.stderr             # the estimator's count, then its one kind of failure
+    assert lines[0].startswith("campaign: estimator yes_man: 3 of 3 rows failed, 1 kind ")
+    assert lines[1].startswith("campaign:   3 x contract violation, e.g. case ")
+    assert "'valid'" in lines[1] and "yes" in lines[1], lines[1]
     assert "estimator rows: dimes " in submit.stdout and "yes_man 0 valid, 0 invalid, 3 failed" in submit.stdout
-    assert "failed this run); estimator rows failed: yes_man 3 (reasons on stderr)" in submit.stdout
+    assert "failed this run); estimator rows failed: yes_man 3 (every kind on stderr)" in submit.stdout
     results = pd.read_parquet(out / "results.parquet")
     assert set(results.loc[results["estimator"] == "dimes", "status"]) == {"ok"}
     table = campaign_in_process(capfd, "table", out)

@@ -91,7 +91,8 @@ callable = "python_estimators:imu_minus_bias"
     submit = _campaign("submit", config, "--output", tmp_path / "out", "--cases-scale", SCALE, "--workers", 1,
                        "--no-progress", env=env, check=False)
     assert submit.returncode == 1, submit.stdout + submit.stderr          # a failed estimator row is loud
-    assert "campaign: estimator broken_flight_code: 3 of 3 rows failed; first: case 0 (estimator_failed)" in submit.stderr
+    assert "campaign: estimator broken_flight_code: 3 of 3 rows failed, 1 kind " in submit.stderr
+    assert "campaign:   3 x exit status 3, e.g. case 0: estimator broken_flight_code: exit status 3" in submit.stderr
     results = pd.read_parquet(tmp_path / "out" / "results.parquet")
     assert results.groupby("case_id")["estimator"].apply(list).map(len).eq(4).all()
     broken = results[results["estimator"] == "broken_flight_code"]
