@@ -16,6 +16,7 @@ Inside ``campaign`` the subpackages are layered too (:data:`CAMPAIGN_ALLOWED`, n
                                    studies that run cases and read them back: calibration, ablation, tuning)
     run             report        (running cases on dask | reading stores for people; never each other)
     case            realism       (one case: inputs, computation, result rows | flight realism)
+                    analysis      (sensitivity of stored outcomes to their inputs; designed-sweep indices)
     plan            store         (placing cases | the campaign store)
     configuration                 (bottom: the campaign, sweep and estimator files)
 """
@@ -110,8 +111,9 @@ CAMPAIGN_ALLOWED = {
     "case": {"configuration", "plan", "store"},
     "realism": {"configuration"},
     "run": {"configuration", "plan", "store", "case"},
-    "report": {"configuration", "plan", "store", "case", "realism"},
-    "studies": {"configuration", "plan", "store", "case", "realism", "run", "report"},
+    "analysis": {"configuration", "store"},
+    "report": {"configuration", "plan", "store", "case", "realism", "analysis"},
+    "studies": {"configuration", "plan", "store", "case", "realism", "run", "report", "analysis"},
 }
 
 
