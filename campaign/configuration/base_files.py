@@ -120,7 +120,8 @@ def rebased(data: dict, directory: Path) -> dict:
         for key in ("camera", "trajectory_set"):
             if key in site:
                 site[key] = _absolute(site[key], directory)
-        for entry in site.get("classes") if isinstance(site.get("classes"), list) else []:
+        classes = site.get("classes")
+        for entry in classes if isinstance(classes, list) else []:
             terrain = entry.get("terrain") if isinstance(entry, dict) else None
             if isinstance(terrain, dict):
                 for key in ("path", "sidecar"):

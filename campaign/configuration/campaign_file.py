@@ -139,6 +139,10 @@ class CampaignConfig(ConfigModel):
     """The estimators of ``[[estimators]]`` in file order, default the reference alone (derived)."""
     config_hash: str = ""
     """sha256 identifying the campaign's results (derived; see :func:`hashed_content`)."""
+    hash_inputs: dict = {}
+    """What the hash covers besides the tables (derived; the manifest records it, so a refused change can
+    name a changed file or code): ``files`` (dotted field -> sha256 of the file's bytes), ``code_digest``,
+    ``estimator_code_digests``."""
 
     @model_validator(mode="before")
     @classmethod
@@ -156,7 +160,9 @@ class CampaignConfig(ConfigModel):
         hashed["code_digest"] = code_digest(plugin_modules(estimators))
         hashed["estimator_code_digests"] = estimator_code_digests(estimators)
         config_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
-        return {**data, "scene": scene, "estimators": estimators, "config_hash": config_hash}
+        inputs = {"files": input_file_digests(hashed["site"]), "code_digest": hashed["code_digest"],
+                  "estimator_code_digests": hashed["estimator_code_digests"]}
+        return {**data, "scene": scene, "estimators": estimators, "config_hash": config_hash, "hash_inputs": inputs}
 
     def with_output_dir(self, output_dir: str | Path) -> CampaignConfig:
         """This campaign with its store at ``output_dir`` (a copy of this validated campaign: the output
@@ -349,6 +355,17 @@ def hashed_content(resolved: dict, site: Site) -> dict:
             if value is not None:
                 class_content["terrain"][name] = file_digest(Path(value))
     return content
+
+
+def input_file_digests(hashed_site: dict) -> dict[str, str]:
+    """Dotted field (``site.camera``, ``site.classes[0].terrain.path``) -> sha256 of the file, read from the
+    ``[site]`` of :func:`hashed_content` (where the digests replace the paths)."""
+    digests = {f"site.{name}": hashed_site[name] for name in ("camera", "trajectory_set")}
+    for index, entry in enumerate(hashed_site["classes"]):
+        for name in ("path", "sidecar"):
+            if isinstance(entry["terrain"].get(name), str):
+                digests[f"site.classes[{index}].terrain.{name}"] = entry["terrain"][name]
+    return digests
 
 
 _DIGESTS: dict[tuple, str] = {}     # (path, device, inode, size, mtime) -> sha256: a sweep hashes its inputs once

@@ -39,6 +39,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from campaign.configuration.differences import describe_change
 from campaign.configuration.paths import special_kind
 from campaign.store.case_files import (
     CaseScan,
@@ -225,9 +226,8 @@ class CampaignStore:
                                  f"a configuration and are never reused; {FRESH_HINT}, or choose another output directory")
             return
         if existing["config_hash"] != manifest["config_hash"]:
-            raise StoreError(
-                f"{self.root}: holds a campaign with another configuration (hash {existing['config_hash'][:12]} != "
-                f"{manifest['config_hash'][:12]}); {FRESH_HINT}, or choose another output directory")
+            raise StoreError(f"{self.root}: holds a campaign with another configuration: {describe_change(existing, manifest)}; "
+                             f"{FRESH_HINT}, or choose another output directory (--output)")
         if self._plan_problem(existing) is None:
             difference = _first_difference(pd.read_parquet(self.plan_path), plan)
             if difference is not None:
