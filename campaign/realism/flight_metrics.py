@@ -47,10 +47,13 @@ def template_values(members: pd.DataFrame, column: str, matched_only: bool = Fal
     return np.asarray(values, dtype=float)
 
 
-def percentile_summary(values: np.ndarray, pattern: str) -> str:
-    """``median [10th-90th percentile]`` of ``values``, each formatted with ``pattern`` ("n/a" when empty)."""
+def percentile_summary(values: np.ndarray, pattern: str, empty: str = "n/a") -> str:
+    """``median [10th-90th percentile]`` of the finite ``values``, each formatted with ``pattern`` (``empty``
+    when none is finite: a plug-in that reports templates without this metric stores NaN)."""
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
     if values.size == 0:
-        return "n/a"
+        return empty
     p10, p50, p90 = np.percentile(values, [10, 50, 90])
     return f"{pattern.format(p50)} [{pattern.format(p10)}-{pattern.format(p90)}]"
 
@@ -69,9 +72,10 @@ def metrics_table(results: pd.DataFrame, class_order: list[str]) -> str:
         contrast = template_values(members, "feature_contrast")
         correlation = template_values(members, "feature_correlation", matched_only=True)
         ratio = 100.0 * contrast / np.maximum(brightness, 1e-9) if contrast.size == brightness.size else np.zeros(0)
-        lines.append(f"| {class_name} (this campaign) | {brightness.size} | {percentile_summary(brightness, '{:.0f}')} | "
-                     f"{percentile_summary(contrast, '{:.1f}')} | {percentile_summary(ratio, '{:.2f}')} | "
-                     f"{percentile_summary(correlation, '{:.3f}')} |")
+        none = "no valid templates"
+        lines.append(f"| {class_name} (this campaign) | {brightness.size} | {percentile_summary(brightness, '{:.0f}', none)} | "
+                     f"{percentile_summary(contrast, '{:.1f}', none)} | {percentile_summary(ratio, '{:.2f}', none)} | "
+                     f"{percentile_summary(correlation, '{:.3f}', none)} |")
     for source, values in PAPER_TABLE3.items():
         ratios = [100.0 * c / b for c, b in zip(values["contrast"], values["brightness"])]
         lines.append(f"| {source} | 3 | {', '.join(f'{v:.0f}' for v in values['brightness'])} | "

@@ -5,7 +5,9 @@ on the same x range (horizontal velocity error, m/s) and y range (fraction of th
 one step line per estimator, the false-valid threshold dashed. ``valid_false_valid.png``: two panels
 side by side on the same 0-100 % scale, grouped bars per class (and the site's ellipse-weighted %
 valid), one bar per estimator: left % valid (valid/ran), right false-valid (false-valid/valid);
-each bar carries its count text, so a 0 % bar or an empty class ("n/a") is still seen.
+each bar carries its count text, so a 0 % bar is still seen, and a class where rows failed says how
+many ("all 3 failed" where nothing ran); the CDF legend counts each estimator's valid and failed rows.
+Font sizes and axis rules: :mod:`campaign.report.plots`.
 
 The x range runs to 1.2 x the 95th percentile of the drawn errors (at least twice the false-valid
 threshold, at most :data:`~campaign.report.plots.PLOT_LIMIT_MPS`): larger errors leave the axis, and a
@@ -23,8 +25,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
-from campaign.report.plots import PLOT_LIMIT_MPS  # noqa: E402
+from campaign.report.plots import (  # noqa: E402
+    LABEL_POINTS,
+    NOTE_POINTS,
+    PLOT_LIMIT_MPS,
+    TITLE_POINTS,
+    bar_count_text,
+    readable_axes,
+    save,
+)
 
 FIGURE_DPI = 80
 CDF_PANEL_INCHES = (4.0, 4.0)
@@ -42,9 +53,20 @@ def _valid_errors(rows: pd.DataFrame) -> np.ndarray:
 
 def error_cdf(results: pd.DataFrame, classes: list[str], site: str, estimators: list[str], path: Path,
               false_valid_mps: float) -> Path:
-    """Write ``path``: the error CDF of each estimator's valid cases, per class and for the site, on
-    shared axes (module docstring). Figure size: ``(len(classes) + 1) * CDF_PANEL_INCHES`` at
-    :data:`FIGURE_DPI`."""
+    """Write :func:`error_cdf_figure` as a PNG at ``path`` (:data:`FIGURE_DPI`)."""
+    return save(error_cdf_figure(results, classes, site, estimators, false_valid_mps), path, FIGURE_DPI)
+
+
+def _failed_rows(rows: pd.DataFrame) -> int:
+    """Rows that failed (status not 'ok': no answer)."""
+    return int((rows["status"] != "ok").sum()) if not rows.empty else 0
+
+
+def error_cdf_figure(results: pd.DataFrame, classes: list[str], site: str, estimators: list[str],
+                     false_valid_mps: float) -> Figure:
+    """The error CDF of each estimator's valid cases, per class and for the site, on shared axes (module
+    docstring); an estimator's legend entry counts its valid and failed rows. Figure size:
+    ``(len(classes) + 1) * CDF_PANEL_INCHES``."""
     panels = [*classes, site]
     groups = {panel: (results if panel == site else results[results["class_name"] == panel]) for panel in panels}
     errors = {(panel, name): _valid_errors(rows[rows["estimator"] == name])
@@ -63,7 +85,8 @@ def error_cdf(results: pd.DataFrame, classes: list[str], site: str, estimators: 
             not_finite += values.size - finite.size
             beyond += int(np.count_nonzero(finite > high))
             style = {"linestyle": LINE_STYLES[number % len(LINE_STYLES)], "color": f"C{number}"}
-            label = f"{name} ({values.size} valid)"
+            failed = _failed_rows(groups[panel][groups[panel]["estimator"] == name]) if not groups[panel].empty else 0
+            label = f"{name} ({values.size} valid{f', {failed} failed' if failed else ''})"
             if finite.size:       # the fraction is of all valid cases: a non-finite error never reaches 1
                 fraction = np.arange(1, finite.size + 1) / values.size
                 ends = np.minimum(finite, 2.0 * PLOT_LIMIT_MPS)      # a 1e30 m/s step stays drawable
@@ -75,24 +98,29 @@ def error_cdf(results: pd.DataFrame, classes: list[str], site: str, estimators: 
                      label=f"false-valid > {false_valid_mps:g} m/s")
         notes = ([f"{beyond} beyond {high:.3g} m/s (off the axis)"] if beyond else []) + \
                 ([f"{not_finite} not finite (never counted)"] if not_finite else [])
-        title = f"{panel}{' (all classes)' if panel == site else ''}: error CDF of valid cases"
-        axes.set_title(title + ("\n" + "; ".join(notes) if notes else ""), fontsize=8)
-        axes.set_xlabel("horizontal velocity error (m/s)")
+        title = f"{panel}{' (all classes)' if panel == site else ''}:\nerror CDF of valid cases"
+        axes.set_title(title + ("\n" + "; ".join(notes) if notes else ""), fontsize=TITLE_POINTS)
+        axes.set_xlabel("horizontal velocity error (m/s)", fontsize=LABEL_POINTS)
+        axes.set_ylabel("fraction of valid cases, error <= x (0-1)", fontsize=LABEL_POINTS)
         axes.grid(alpha=0.3)
-        axes.legend(fontsize=7, loc="lower right")
-    axes_list[0][0].set_ylabel("fraction of valid cases with error <= x")
+        axes.legend(fontsize=NOTE_POINTS, loc="lower right")
+        readable_axes(axes)
     axes_list[0][0].set_xlim(0.0, high * 1.02)
     axes_list[0][0].set_ylim(0.0, 1.02)
-    figure.suptitle(f"{site}: velocity error of each estimator ({', '.join(estimators)})", fontsize=9)
+    figure.suptitle(f"{site}: velocity error of each estimator ({', '.join(estimators)})", fontsize=TITLE_POINTS + 1)
     figure.tight_layout()
-    figure.savefig(path, dpi=FIGURE_DPI)
-    plt.close(figure)
-    return path
+    return figure
 
 
 def valid_false_valid_bars(comparison: pd.DataFrame, path: Path) -> Path:
-    """Write ``path``: % valid and false-valid per class (and site) and estimator as grouped bars on two
-    panels with the same 0-100 % y range (module docstring). ``comparison``:
+    """Write :func:`valid_false_valid_bars_figure` as a PNG at ``path`` (:data:`FIGURE_DPI`)."""
+    return save(valid_false_valid_bars_figure(comparison), path, FIGURE_DPI)
+
+
+def valid_false_valid_bars_figure(comparison: pd.DataFrame) -> Figure:
+    """% valid and false-valid per class (and site) and estimator as grouped bars on two panels with the same
+    0-100 % y range, both with their tick labels (module docstring); a bar of a class where rows failed says
+    how many ("all 3 failed" where nothing ran). ``comparison``:
     :func:`campaign.report.compare.comparison_table` (its last class is the site)."""
     estimators = list(dict.fromkeys(comparison["estimator"]))
     groups = list(dict.fromkeys(comparison["class"]))
@@ -106,32 +134,39 @@ def valid_false_valid_bars(comparison: pd.DataFrame, path: Path) -> Path:
         pct, fv_pct, pct_text, fv_text = [], [], [], []
         for group in groups:
             row = rows.loc[group]
-            valid, ran = int(row["valid"]), int(row["cases"]) - int(row["failed"])
+            failed = int(row["failed"])
+            valid, ran = int(row["valid"]), int(row["cases"]) - failed
             value = float(row["weighted_pct_valid"] if group == site else row["pct_valid"])
             pct.append(value if math.isfinite(value) else 0.0)
-            pct_text.append((f"{value:.0f}%" if math.isfinite(value) else "n/a") + ("" if group == site else f"\n{valid}/{ran}"))
+            if group == site:
+                pct_text.append((f"{value:.0f}%" if math.isfinite(value) else "no %")
+                                + (f"\n{failed} failed" if failed else ""))
+            else:
+                pct_text.append(bar_count_text(value, valid, ran, failed))
             false_valid = int(row["false_valid"])
             fv_pct.append(100.0 * false_valid / valid if valid else 0.0)
-            fv_text.append(f"{false_valid}/{valid}" if valid else "n/a")
+            fv_text.append(f"{false_valid}/{valid}" if valid else
+                           (f"all {failed}\nfailed" if failed and not ran else "0 valid" if ran else "no cases"))
         for axes, heights, texts in ((axes_pair[0], pct, pct_text), (axes_pair[1], fv_pct, fv_text)):
             bars = axes.bar(offsets, heights, width=width * 0.95, color=f"C{number}", label=name)
             for bar, text in zip(bars, texts):
                 axes.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + 1.0, text, ha="center",
-                          va="bottom", fontsize=6)
+                          va="bottom", fontsize=NOTE_POINTS)
     threshold = comparison.attrs.get("false_valid_mps", 5.0)
     for axes, ylabel, title, site_label in (
             (axes_pair[0], "% valid (valid / ran)", "% valid per class", f"{site}\n(ellipse-weighted)"),
             (axes_pair[1], "false-valid (% of valid cases)", f"false-valid (error > {threshold:g} m/s) per class",
              f"{site}\n(all classes)")):
-        axes.set_xticks(positions, [group if group != site else site_label for group in groups], fontsize=8)
+        axes.set_xticks(positions, [group if group != site else site_label for group in groups])
         axes.set_xlim(-0.6, len(groups) - 0.4)
-        axes.set_ylabel(ylabel)
-        axes.set_title(f"{title}: {', '.join(estimators)}", fontsize=9)
-        axes.legend(fontsize=7, loc="upper center", ncol=min(len(estimators), 4))
+        axes.set_xlabel("appearance class", fontsize=LABEL_POINTS)
+        axes.set_ylabel(ylabel, fontsize=LABEL_POINTS)
+        axes.set_title(f"{title}: {', '.join(estimators)}", fontsize=TITLE_POINTS)
+        axes.legend(fontsize=NOTE_POINTS, loc="upper center", ncol=min(len(estimators), 4))
         axes.grid(axis="y", alpha=0.3)
-    axes_pair[0].set_ylim(0.0, 125.0)             # room above 100 % for the count texts
-    axes_pair[0].set_yticks(range(0, 101, 20))
+        readable_axes(axes)
+    axes_pair[0].set_ylim(0.0, 130.0)             # room above 100 % for the count texts
+    for axes in axes_pair:
+        axes.set_yticks(range(0, 101, 20))
     figure.tight_layout()
-    figure.savefig(path, dpi=FIGURE_DPI)
-    plt.close(figure)
-    return path
+    return figure

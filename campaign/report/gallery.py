@@ -44,6 +44,7 @@ from campaign.case.inputs import (
     campaign_inputs,  # noqa: E402
 )
 from campaign.report.failures import failure_summary, markdown_cell  # noqa: E402
+from campaign.report.plots import LABEL_POINTS, NOTE_POINTS, TICK_POINTS, TITLE_POINTS  # noqa: E402
 from campaign.store.campaign_store import CampaignStore  # noqa: E402
 from campaign.store.stored_config import stored_config  # noqa: E402
 from dimes_velocity import geometry  # noqa: E402
@@ -181,10 +182,10 @@ def draw_case(images_dn, marks: list[dict] | None, case: GalleryCase, floor_mps:
                     axes.plot(mc, mr, marker="+", markersize=10, color=colour, linestyle="none")
         axes.set_xlim(-0.5, width - 0.5)
         axes.set_ylim(height - 0.5, -0.5)
-        axes.set_title(f"image {index + 1} (binned DN, 1st-99th percentile)", fontsize=8)
-        axes.set_xlabel("column (px)", fontsize=7)
-        axes.set_ylabel("binned row (px)", fontsize=7)
-        axes.tick_params(labelsize=6)
+        axes.set_title(f"image {index + 1} (binned DN, 1st-99th percentile)", fontsize=TITLE_POINTS)
+        axes.set_xlabel("column (px)", fontsize=LABEL_POINTS)
+        axes.set_ylabel("binned row (px)", fontsize=LABEL_POINTS)
+        axes.tick_params(labelsize=TICK_POINTS)
     text_axes = figure.add_subplot(grid[1, :])
     text_axes.axis("off")
     uncertainty = _number(row.get("velocity_uncertainty_mps"))
@@ -199,13 +200,13 @@ def draw_case(images_dn, marks: list[dict] | None, case: GalleryCase, floor_mps:
     text_axes.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", fontsize=9, family="monospace",
                    transform=text_axes.transAxes)
     figure.suptitle(f"case {case.case_id} ({row.get('class_name')}), estimator {case.estimator}: {case.kind}",
-                    fontsize=11)
+                    fontsize=TITLE_POINTS + 1)
     if marks:
         for state, colour in STATUS_COLOURS.items():
             text_axes.plot([], [], marker="s", markerfacecolor="none", markeredgecolor=colour, linestyle="none",
                            label={"used": "template used", "ok": "matched, not used", "rejected": "rejected"}[state])
-        text_axes.legend(loc="lower right", fontsize=8, facecolor="0.6",
-                         title="square: template; x: IMU-predicted; +: match", title_fontsize=8)
+        text_axes.legend(loc="lower right", fontsize=NOTE_POINTS, facecolor="0.6",
+                         title="square: template; x: IMU-predicted; +: match", title_fontsize=NOTE_POINTS)
     figure.subplots_adjust(left=0.04, right=0.99, top=0.9, bottom=0.02, wspace=0.18, hspace=0.15)
     figure.savefig(path, dpi=FIGURE_DPI)
     plt.close(figure)

@@ -93,12 +93,12 @@ def _estimator_section(name: str, rows, fractions: dict, site: str, out: Path, s
         f"{level} Table (paper Tables 1-2)", "", format_table(table, markdown=True), "",
         f"False-valid: valid with a horizontal error above {false_valid_mps:g} m/s (`[campaign] false_valid_mps`).", ""]
     lines += _false_valid_section(rows, level, false_valid_mps)
+    plots.valid_fraction_bars(table, out / f"valid_fraction{suffix}.png", name)     # failed rows counted there too
+    lines += [f"{level} Valid velocities", "", f"![% valid](valid_fraction{suffix}.png)", ""]
     if not ok.empty:
         plots.error_histograms(ok, out / f"error_histograms{suffix}.png", name, false_valid_mps, list(fractions))
-        plots.valid_fraction_bars(table, out / f"valid_fraction{suffix}.png", name)
         plots.estimate_vs_truth(ok, out / f"estimate_vs_truth{suffix}.png", name)
         lines += [f"{level} Velocity error per class", "", f"![error histograms](error_histograms{suffix}.png)", "",
-                  f"{level} Valid velocities", "", f"![% valid](valid_fraction{suffix}.png)", "",
                   f"{level} Estimate against truth (valid cases)", "", f"![estimate vs truth](estimate_vs_truth{suffix}.png)", ""]
         definitions = METRICS_DOC.split("\n\n", 1)[1].strip()
         lines += [f"{level} DIMES correlation metrics against flight (paper Table 3)", "",

@@ -26,8 +26,8 @@ def write_plan_maps(config: CampaignConfig, site: SiteInputs, plan: pd.DataFrame
         density = footprint_density(site.camera, site.profiles, members, terrain.extent_m)
         path = out_dir / f"footprints-{class_name}.png"
         footprint_map(terrain, placed, site.camera, path,
-                      f"{config.site.name} {class_name}: {len(members)} cases\nfirst {len(drawn)} drawn: + lander "
-                      "at each image,\nred/orange/cyan image 1/2/3 footprints;\ncolour: footprint centres of all",
+                      f"{config.site.name} {class_name}: {len(members)} cases\nfirst {len(drawn)}: + lander at each "
+                      "image,\noutlines: images 1/2/3 red/orange/cyan\nshading: footprint centres, all cases",
                       max_cases=FOOTPRINTS_DRAWN, density=density)
         paths.append(path)
     return paths

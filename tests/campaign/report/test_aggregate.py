@@ -159,3 +159,25 @@ def test_tables_without_the_per_axis_columns_leave_those_statistics_unknown():
     table = site_table(pd.DataFrame(_rows("a", [1.0, 2.0])), {"a": 1.0}, "site").set_index("class")
     assert math.isnan(table.loc["a", "error_axis_mean_3sigma_mps"]) and math.isnan(table.loc["site", "floor_mean_3sigma_mps"])
     assert table.loc["a", "error_mean_3sigma_mps"] == pytest.approx(1.5 + 3 * math.sqrt(0.5))
+
+
+def test_flight_metrics_of_a_plugin_without_template_metrics_say_so_never_nan():
+    """A plug-in reporting features without brightness/contrast/correlation stores NaN per template (one
+    reporting none stores empty lists): its Table-3 rows say "no valid templates", never "nan [nan-nan]";
+    a class mixing NaN and finite values summarises the finite ones."""
+    from campaign.realism.flight_metrics import metrics_table
+
+    nan = math.nan
+    rows = [{"class_name": "a", "status": "ok", "feature_brightness": [nan, nan], "feature_contrast": [nan, nan],
+             "feature_correlation": [nan, nan], "feature_status": ["ok", "ok"]},
+            {"class_name": "b", "status": "ok", "feature_brightness": [], "feature_contrast": [],
+             "feature_correlation": [], "feature_status": []},
+            {"class_name": "c", "status": "ok", "feature_brightness": [nan, 2000.0], "feature_contrast": [nan, 20.0],
+             "feature_correlation": [nan, 0.5], "feature_status": ["ok", "ok"]}]
+    text = metrics_table(pd.DataFrame(rows), ["a", "b", "c"])
+    assert "nan" not in text.lower()
+    for name in ("a", "b"):
+        line = next(row for row in text.splitlines() if row.startswith(f"| {name} "))
+        assert line.count("no valid templates") == 4, line
+    line = next(row for row in text.splitlines() if row.startswith("| c "))
+    assert "2000 [2000-2000]" in line and "0.500 [0.500-0.500]" in line and "1.00 [1.00-1.00]" in line
