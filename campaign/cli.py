@@ -8,7 +8,8 @@
     campaign report DIR    a Markdown report with PNG plots
     campaign camera FILE   validate a camera TOML and print its derived numbers
     campaign cluster FILE  print the job script / pod spec a submit would use (submits nothing)
-    campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR
+    campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR, --reuse DIR
+    campaign gate DIR --baseline DIR   judge a campaign or sweep against a baseline: gate.json, exit 4 on a regression
     campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
     campaign export DIR CASE_ID OUT   a case's exact estimator inputs and its truth as files (replay it)
     campaign schema [T]    print the JSON Schema of every configuration table, or of table T
@@ -83,13 +84,25 @@ def build_parser() -> argparse.ArgumentParser:
                                 ("report", commands.report, "write a Markdown report with plots"),
                                 ("verify", commands.verify, "check every file of a store; exit 1 if any is bad")):
         command = subcommands.add_parser(name, help=text)
-        command.add_argument("dir")
+        command.add_argument("dir", help="a campaign store, or a sweep output directory (every point, or --point)")
+        command.add_argument("--point", help="of a sweep directory: one point, by its id (p003) or store (points/<hash>)")
         command.set_defaults(handler=handler)
+
+    gate = subcommands.add_parser("gate", help="judge a campaign or sweep against a baseline; write gate.json; exit 4 "
+                               "on a regression (see campaign/report/gate.py)")
+    gate.add_argument("dir", help="the candidate: a campaign store or a sweep output directory")
+    gate.add_argument("--baseline", required=True, help="the baseline: a store or sweep directory of the same kind")
+    gate.add_argument("--verdict", help="where to write the verdict JSON (default CANDIDATE/gate.json; .md beside it)")
+    gate.add_argument("--tolerances", help="a TOML file whose [tolerances] table sets the rules (e.g. the sweep file; "
+                      "default: the candidate sweep's, else the defaults)")
+    gate.set_defaults(handler=commands.gate)
 
     sweep = subcommands.add_parser("sweep", help="run a sensitivity sweep (see campaign/configuration/sweep_file.py)")
     sweep.add_argument("file")
     sweep.add_argument("--output", help="output directory (default: [sweep] output_dir)")
-    sweep.add_argument("--baseline", help="a previous sweep's output directory; exit 1 on a regression")
+    sweep.add_argument("--baseline", help="a previous sweep's output directory; writes OUT/gate.json, exit 4 on a regression")
+    sweep.add_argument("--reuse", help="a previous sweep's output directory: copy (and verify) every point whose "
+                       "configuration and code are unchanged instead of computing it")
     sweep.add_argument("--scheduler", help=SCHEDULER_HELP)
     sweep.add_argument("--workers", type=int, help="embedded cluster size (default: one per core)")
     sweep.add_argument("--cases-scale", type=float, help="multiply every class's case count ([sweep] cases_scale)")
@@ -137,7 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-PATH_ARGUMENTS = {"file": "input", "dir": "text", "baseline": "text", "output": "directory", "out": "directory"}
+PATH_ARGUMENTS = {"file": "input", "dir": "text", "baseline": "text", "output": "directory", "out": "directory",
+                  "reuse": "text", "verdict": "text", "tolerances": "input"}
 """Path arguments of the commands and how they are checked before the command runs (campaign.configuration.paths)."""
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -153,8 +154,7 @@ def status(args: argparse.Namespace) -> int:
     """``campaign status DIR``: done / failed / missing cases of a store (per point of a sweep directory)."""
     from campaign.store.campaign_store import CampaignStore
 
-    swept = (Path(args.dir) / "sweep.json").is_file() or (Path(args.dir) / "points").is_dir()
-    if swept and not (Path(args.dir) / "manifest.json").exists():
+    if _sweep_point(args) is None and _is_sweep(args.dir):
         from campaign.store.sweep_directory import sweep_status_lines  # a sweep output directory: its point stores
 
         print("\n".join(sweep_status_lines(args.dir)))
@@ -172,10 +172,53 @@ def status(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_sweep(directory: str) -> bool:
+    from campaign.store.sweep_directory import is_sweep_directory
+
+    return is_sweep_directory(directory)
+
+
+def _sweep_point(args: argparse.Namespace) -> str | None:
+    """``--point ID`` of a sweep directory: ``args.dir`` becomes the point's store (its path); None without
+    ``--point``. ``--point`` on a campaign store is a usage error (one line)."""
+    point = getattr(args, "point", None)
+    if point is None:
+        return None
+    if not _is_sweep(args.dir):
+        raise ConfigError(f"--point {point}: {args.dir} is not a sweep output directory; allowed: --point with a "
+                          "sweep directory (a campaign store needs none)")
+    from campaign.store.sweep_directory import point_store
+
+    args.dir = str(point_store(args.dir, point))
+    return point
+
+
+def _each_point(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """The (label, store) of every point of the sweep directory ``args.dir`` that has a store (status,
+    verify and report run per point without ``--point``)."""
+    from campaign.store.sweep_directory import point_choices, point_label
+
+    return [(point_label(point_id, values), str(store)) for point_id, values, store in point_choices(args.dir)
+            if (store / "manifest.json").exists()]
+
+
 def verify(args: argparse.Namespace) -> int:
-    """``campaign verify DIR``: check every file of a store against its sha256 record; 1 when one is bad."""
+    """``campaign verify DIR``: check every file of a store against its sha256 record; 1 when one is bad. A sweep
+    directory: every point's store (or ``--point``'s), one summary line each."""
     from campaign.store.verify import verify_store
 
+    if _sweep_point(args) is None and _is_sweep(args.dir):
+        bad = 0
+        points = _each_point(args)
+        for label, store in points:
+            result = verify_store(store)
+            for path, problem in result.problems:
+                print(f"{path}: {problem}")
+            bad += len(result.problems)
+            print(f"{label}: {f'{len(result.problems)} bad files' if result.problems else 'clean'} "
+                  f"({result.verified_cases} case files, {store})")
+        print(f"{args.dir}: sweep of {len(points)} point stores: {'clean' if not bad else f'{bad} bad files'}")
+        return 1 if bad else 0
     result = verify_store(args.dir)
     for path, problem in result.problems:
         print(f"{path}: {problem}")
@@ -194,14 +237,28 @@ def table(args: argparse.Namespace) -> int:
     """``campaign table DIR``: print the paper's table (also written as table.md and table.csv in DIR)."""
     from campaign.report.table import write_table
 
+    if _sweep_point(args) is None and _is_sweep(args.dir):
+        from campaign.report.sweep_outputs import directory_table
+
+        print(directory_table(args.dir))
+        print(f"one point's campaign table: `campaign table {args.dir} --point ID`")
+        return 0
     print(write_table(Path(args.dir)))
     return 0
 
 
 def report(args: argparse.Namespace) -> int:
-    """``campaign report DIR``: a Markdown report with PNG plots and the failure gallery."""
+    """``campaign report DIR``: a Markdown report with PNG plots and the failure gallery (a sweep directory:
+    every point's, in its store, or ``--point``'s)."""
     from campaign.report.markdown import write_report
 
+    if _sweep_point(args) is None and _is_sweep(args.dir):
+        points = _each_point(args)
+        for label, store in points:
+            print(f"{label}: wrote {write_report(Path(store))}")
+        print(f"{args.dir}: reports of {len(points)} points (each with gallery.md and PNGs in its store); the sweep's "
+              f"own table and plots: {Path(args.dir) / 'sensitivity.md'}, {Path(args.dir) / 'plots'}")
+        return 0
     path = write_report(Path(args.dir))
     print(f"wrote {path} and {path.parent / 'gallery.md'} (failure gallery), with their PNGs in {path.parent}")
     return 0
@@ -210,10 +267,10 @@ def report(args: argparse.Namespace) -> int:
 def sweep(args: argparse.Namespace) -> int:
     """``campaign sweep FILE``: run a sensitivity sweep, write its outputs, judge it against ``--baseline``."""
     from campaign.configuration.sweep_file import load_sweep
-    from campaign.report.baseline_gate import format_findings
-    from campaign.report.sweep_baseline import compare_to_baseline, read_baseline
+    from campaign.report.gate import gate, human_table, read_side, rules_of, write_verdict
+    from campaign.report.sweep_baseline import read_baseline
     from campaign.report.sweep_outputs import sweep_results, write_outputs
-    from campaign.run.sweep import run_sweep
+    from campaign.run.sweep import Reuse, reuse_points, run_sweep
     from campaign.store.sweep_directory import write_description
 
     start = time.perf_counter()
@@ -222,33 +279,72 @@ def sweep(args: argparse.Namespace) -> int:
     spec = load_sweep(args.file, output_dir=args.output, cases_scale=args.cases_scale)   # validates, writes nothing
     _check_directory(spec.output_dir, f"{args.file}: sweep.output_dir")
     baseline = read_baseline(args.baseline, spec) if args.baseline else None   # before the run: as it was
+    reuse = reuse_points(spec, args.reuse, progress=not args.no_progress) if args.reuse else Reuse()
+    for note in reuse.notes:
+        print(f"campaign: note: --reuse: {note}", file=sys.stderr, flush=True)
     try:
         run = run_sweep(spec, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress,
                         wait=args.wait)
     except RunStopped:
         if any((point.config.output_dir / "manifest.json").exists() for point in spec.points):
-            write_description(spec)       # a stopped sweep's points, for `campaign status`
+            write_description(spec, reuse.reused)       # a stopped sweep's points, for `campaign status`
         raise
-    _, text = write_outputs(spec)
-    print(text)
+    _, text = write_outputs(spec, reuse.reused)
+    verdict = None
+    if baseline is not None:     # judged and written before anything is printed: `| head -1` shows the verdict
+        candidate = read_side(spec.output_dir, "candidate")
+        report = gate(candidate, baseline.side, rules_of(candidate), baseline.rows)
+        verdict_path, _ = write_verdict(report, Path(spec.output_dir) / "gate.json")
+        verdict = report
+        if not _print_lines([report.summary(verdict_path)]):
+            return report.exit_code
+    if not _print_lines([text]):
+        return verdict.exit_code if verdict is not None else RUN_INCOMPLETE
     results = sweep_results(spec)                               # every point store's rows, not only this run's
     counts = _estimator_counts(results)
-    print(f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused; {run.done} cases done, "
-          f"{run.failed} failed this run){_failed_rows_note(counts)}")
-    print(f"wall time: {time.perf_counter() - start:.1f} s")
+    copied = f", {len(reuse.reused)} copied from {args.reuse}" if args.reuse else ""
+    _print_lines([f"results: {spec.output_dir}  ({run.points} points, {run.reused_points} reused{copied}; {run.done} "
+                  f"cases done, {run.failed} failed this run){_failed_rows_note(counts)}",
+                  f"wall time: {time.perf_counter() - start:.1f} s"])
     failed_rows = _report_failed_rows(results)
     unfinished = run.unfinished or failed_rows
-    if baseline is None:
+    if verdict is None:
         return RUN_INCOMPLETE if unfinished else 0
-    gate = compare_to_baseline(spec, results, baseline, spec.tolerances)
-    for note in gate.notes:
-        print(f"note: {note}")
-    if gate.findings:
-        print(f"regressions against {args.baseline}:\n{format_findings(gate.findings)}")
-        print(f"{len(gate.findings)} regressions against {args.baseline} ({gate.compared} points compared)")
-        return RUN_INCOMPLETE
-    print(f"no regression ({gate.compared} points compared against {args.baseline})")
-    return RUN_INCOMPLETE if unfinished else 0
+    _print_lines([human_table(verdict)])
+    return verdict.exit_code if verdict.regressions else RUN_INCOMPLETE if unfinished else 0
+
+
+def _print_lines(lines: list[str]) -> bool:
+    """Print ``lines`` and flush; False when stdout's reader has gone (``| head -1``): stdout is sent to
+    /dev/null and the command ends with its own exit code (not 141: a gate's verdict is not hidden)."""
+    try:
+        for line in lines:
+            print(line)
+        sys.stdout.flush()
+        return True
+    except BrokenPipeError:
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (AttributeError, OSError, ValueError):
+            pass
+        return False
+
+
+def gate(args: argparse.Namespace) -> int:
+    """``campaign gate CANDIDATE --baseline BASELINE``: judge two campaign stores or two sweep directories
+    (campaign.report.gate); write gate.json and gate.md, print the verdict line first, then the table. Exit 4
+    on a regression, 1 when the candidate has failed or missing cases, else 0."""
+    from campaign.report.gate import gate as run_gate
+    from campaign.report.gate import human_table, read_side, rules_of, write_verdict
+
+    candidate = read_side(args.dir, "candidate")
+    baseline = read_side(args.baseline, "baseline")
+    report = run_gate(candidate, baseline, rules_of(candidate, args.tolerances))
+    verdict_path, _ = write_verdict(report, Path(args.verdict) if args.verdict else Path(args.dir) / "gate.json")
+    _print_lines([report.summary(verdict_path), *human_table(report).splitlines()[1:]])
+    return report.exit_code
+
+
 
 
 def sensitivity(args: argparse.Namespace) -> int:

@@ -3,16 +3,21 @@
 A sweep file (e.g. ``sitedata/sweeps/nightly.toml``)::
 
     [sweep]
-    base = "../gusev.toml"              # base campaign TOML, relative to this file (required)
+    base = ["../gusev.toml", "../meridiani.toml"]   # base campaign TOML(s), relative to this file (required):
+                                        # one file, or a list of files of distinct sites (each point is
+                                        # swept on every base: a "site" axis, first, whose values are the
+                                        # sites' names)
     output_dir = "runs/sweeps/nightly"  # relative to the working directory (default runs/sweeps/<file stem>)
-    mode = "grid"                       # "grid": cartesian product of the axes; "list": i-th value of every axis
+    mode = "grid"                       # how the axes make points (:data:`POINT_GENERATORS`): "grid":
+                                        # cartesian product of the axes; "list": i-th value of every axis
     cases_scale = 0.05                  # optional: replaces the base's [campaign] cases_scale
-    [sweep.cases]                       # optional: class -> count, merged over the base's [campaign.cases]
-    gkep = 0
+    [sweep.cases]                       # optional: class -> count, merged over the [campaign.cases] of the
+    gkep = 0                            # base(s) having that class
 
     [axes]                              # dotted config field -> list of values (TOML units: degrees...)
     "scene.camera_effects.dark_current_scale" = [1.0, 30.0]
     sensors.attitude_random_sigma_deg = [0.05, 0.5]     # unquoted dotted keys work as well
+    "estimators.probe.parameters.bias" = [[0.0, 0.0], [6.0, 0.0]]   # a plug-in's parameter (by its name)
 
     [tolerances]                        # for --baseline (campaign/report/baseline_gate.py has the rules)
     false_valid_increase = 0            # false-valid cases a class (or the site) may gain
@@ -22,9 +27,17 @@ A sweep file (e.g. ``sitedata/sweeps/nightly.toml``)::
     error_increase_mps = 0.5            # an error mean+3 sigma growth (m/s) must exceed this to count
 
 Axis fields are any field of the ``[sensors]``, ``[estimator]`` and ``[scene]`` tables (including
-sub-tables such as ``scene.camera_effects``), or ``campaign.seed``. Each point's configuration is the
+sub-tables such as ``scene.camera_effects``), ``campaign.seed``, ``site.terrain_contrast_scale``, or a
+field of one ``[[estimators]]`` entry named by its ``name``: ``estimators.<name>.parameters.<key>`` (a
+plug-in's or a reference entry's parameter; every base must have an estimator of that name) or
+``estimators.<name>.<field>`` (e.g. ``timeout_s``; ``name`` and ``kind`` are not swept). Axis values are
+numbers, booleans, strings, or lists of numbers (a vector parameter such as a bias ``[east, north]``).
+Each point's configuration is the
 base TOML with the point's values set, validated exactly like a campaign file; its campaign
-configuration hash (``[execution]`` and ``output_dir`` excluded) is the point's key. A sweep has at most
+configuration hash (``[execution]`` and ``output_dir`` excluded) is the point's key. With several bases,
+every point of the axes is made on each base in turn (p000... on the first base's site, then the
+next's), the point's values start with ``site`` (the base's site name), ``[execution]`` is the first
+base's, and each site's table, plots and gate use its own classes and ellipse fractions. A sweep has at most
 :data:`MAX_POINTS` points. Up to :data:`EAGER_POINTS` points are validated before anything runs: all
 of a smaller sweep; of a larger one the first point and, for every axis value, the first point that
 has it (so a bad value is refused before anything is written). The other points of a large sweep are
@@ -46,7 +59,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
@@ -65,6 +78,9 @@ from config_tables.toml_file import load_toml
 
 AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed", "site.terrain_contrast_scale")
+ESTIMATOR_ENTRY_ROOT = "estimators"     # estimators.<name>.<field...>: a field of the [[estimators]] entry <name>
+ESTIMATOR_ENTRY_FIXED = ("name", "kind")    # fields of an entry that are not swept
+SITE_AXIS = "site"      # the axis of a sweep of several bases: the base's site name
 MAX_POINTS = 10_000
 EAGER_POINTS = 256      # points validated before a sweep runs (module docstring); the rest when first used
 
@@ -72,12 +88,12 @@ EAGER_POINTS = 256      # points validated before a sweep runs (module docstring
 class SweepTable(ConfigModel):
     """``[sweep]``: the base campaign and how its points are formed."""
 
-    base: ExistingFile
-    """Base campaign TOML, relative to the sweep file."""
+    base: ExistingFile | Annotated[list[ExistingFile], Field(min_length=1, max_length=64)]
+    """Base campaign TOML, relative to the sweep file; or a list of them, of distinct sites (a ``site`` axis)."""
     output_dir: str | None = None
     """Relative to the working directory (default runs/sweeps/<sweep file stem>)."""
     mode: Literal["grid", "list"] = "grid"
-    """"grid": every combination of the axis values; "list": the i-th value of every axis."""
+    """"grid": every combination of the axis values; "list": the i-th value of every axis (:data:`POINT_GENERATORS`)."""
     cases_scale: CasesScale | None = None
     """Replaces the base's [campaign] cases_scale."""
     cases: dict[str, CaseCount] = {}
@@ -105,7 +121,7 @@ class SweepFile(ConfigModel):
     sweep: SweepTable
     axes: dict[str, Any] = Field(min_length=1)
     """Dotted config field -> non-empty list of values (TOML units): sensors.*, estimator.*, scene.*, campaign.seed,
-    site.terrain_contrast_scale."""
+    site.terrain_contrast_scale, estimators.<name>.parameters.<key> (a [[estimators]] entry's parameter)."""
     tolerances: Tolerances = Tolerances()
 
 
@@ -114,7 +130,7 @@ class SweepPoint:
     """One point of a sweep: its id (``p000``...), axis values and validated campaign config."""
 
     point_id: str
-    values: dict            # axis field -> value, in axis order
+    values: dict            # axis field -> value, in axis order (``site`` first in a sweep of several bases)
     build: Callable[[], CampaignConfig] = dataclasses.field(compare=False, repr=False)
 
     @cached_property
@@ -131,12 +147,13 @@ class SweepPoint:
 class _PointBuilder:
     """Validates the points of one sweep, each once, and refuses two points of one configuration."""
 
-    def __init__(self, base_data: dict, base_path: Path, label: str, output_dir: Path):
+    def __init__(self, base_data: dict, base_path: Path, label: str, output_dir: Path, seen: dict[str, int]):
         self.base_data, self.base_path, self.label, self.output_dir = base_data, base_path, label, output_dir
-        self.seen: dict[str, int] = {}
+        self.seen = seen        # config hash -> first point index, shared by the builders of every base
 
     def __call__(self, index: int, values: dict) -> CampaignConfig:
-        point_data = _with_overrides(self.base_data, values, self.label)
+        overrides = {field: value for field, value in values.items() if field != SITE_AXIS}
+        point_data = _with_overrides(self.base_data, overrides, self.label)
         config = campaign_config_from_data(point_data, self.base_path, output_dir=self.output_dir,
                                            source=f"{self.label}: axis values applied to {self.base_path}")
         first = self.seen.setdefault(config.config_hash, index)
@@ -163,21 +180,78 @@ def eager_indices(combos: list[dict], limit: int = EAGER_POINTS) -> list[int]:
 @dataclass(frozen=True)
 class SweepSpec:
     source: Path
-    base_path: Path
+    base_path: Path         # the first base
     output_dir: Path
     mode: str
-    axes: dict              # field -> list of values
+    axes: dict              # field -> list of values (``site`` first with several bases)
     tolerances: Tolerances
     points: list            # list[SweepPoint]
-    base: CampaignConfig    # the base campaign with the sweep's case counts, without axis values
+    base: CampaignConfig    # the first base campaign with the sweep's case counts, without axis values
+    bases: tuple = ()       # every base campaign (CampaignConfig), in file order; (base,) for one base
 
     @property
     def axis_names(self) -> list[str]:
         return list(self.axes)
 
+    @property
+    def all_bases(self) -> tuple:
+        return self.bases or (self.base,)
+
+    def base_of(self, point: SweepPoint) -> CampaignConfig:
+        """The base campaign a point was made from (its site's)."""
+        site = point.values.get(SITE_AXIS) if SITE_AXIS in self.axes else None
+        return next((base for base in self.all_bases if base.site.name == site), self.base)
+
+    def site_views(self) -> list[SweepSpec]:
+        """One sweep per site: its base, its points, the axes without ``site`` ([self] for one base). The
+        tables and plots of a site use its classes."""
+        if SITE_AXIS not in self.axes:
+            return [self]
+        axes = {name: values for name, values in self.axes.items() if name != SITE_AXIS}
+        return [dataclasses.replace(self, base=base, base_path=Path(base.source), axes=axes, bases=(base,),
+                                    points=[p for p in self.points if p.values[SITE_AXIS] == base.site.name])
+                for base in self.all_bases]
+
+    @property
+    def estimators(self) -> list:
+        """The estimators of every base (each python callable and command once), for the cluster's plug-ins."""
+        seen, specs = set(), []
+        for base in self.all_bases:
+            for spec in base.estimators:
+                key = (spec.kind, spec.callable, tuple(spec.argv))
+                if key not in seen:
+                    seen.add(key)
+                    specs.append(spec)
+        return specs
+
 
 def point_store_dir(output_dir: Path, config_hash: str) -> Path:
     return Path(output_dir) / "points" / config_hash[:16]
+
+
+def grid_points(axes: dict, label: str) -> list[dict]:
+    """``mode = "grid"``: every combination of the axis values (the last axis varies fastest)."""
+    for name, values in axes.items():
+        if len({_value_key(value) for value in values}) != len(values):
+            raise ConfigError(f"{label}: axes.{name}: values {values!r} repeat; allowed: distinct values "
+                              "in a grid")
+    return [dict(zip(axes, values)) for values in itertools.product(*axes.values())]
+
+
+def list_points(axes: dict, label: str) -> list[dict]:
+    """``mode = "list"``: point i takes the i-th value of every axis (axes of equal length)."""
+    lengths = {name: len(values) for name, values in axes.items()}
+    if len(set(lengths.values())) > 1:
+        raise ConfigError(f"{label}: axes: mode \"list\" needs axes of equal length; got "
+                          f"{', '.join(f'{n} {k}' for n, k in lengths.items())}; allowed: equal lengths "
+                          "(or mode = \"grid\")")
+    return [dict(zip(axes, values)) for values in zip(*axes.values())]
+
+
+#: ``[sweep] mode`` -> the function making a sweep's points from its axes (``(axes, label) -> [values]``,
+#: each point's values a dict field -> value in axis order; ConfigError, one line, naming ``label``). Another
+#: generator (e.g. a sampling design) is one more entry here and one more value of ``SweepTable.mode``.
+POINT_GENERATORS: dict[str, Callable[[dict, str], list[dict]]] = {"grid": grid_points, "list": list_points}
 
 
 def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_scale: float | None = None) -> SweepSpec:
@@ -197,45 +271,73 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_sca
     label = str(path)
     tables = parse(SweepFile, data, label, context={"base_dir": path.resolve().parent})
     sweep = tables.sweep
-    base_path = sweep.base.resolve()     # absolute: point hashes do not depend on the working directory
+    base_paths = [item.resolve() for item in (sweep.base if isinstance(sweep.base, list) else [sweep.base])]
     out = Path(output_dir) if output_dir is not None else Path(sweep.output_dir or f"runs/sweeps/{path.stem}")
-    base_data = load_toml(base_path)
-    base_config = load_campaign_config(base_path)          # base errors name the base file
-    campaign_overrides = _campaign_overrides(sweep, base_config, label)
     if cases_scale is not None:
         parse_field(CampaignTable, "cases_scale", cases_scale, COMMAND_LINE, "--cases-scale")
-        campaign_overrides["campaign.cases_scale"] = float(cases_scale)
+    base_configs = [load_campaign_config(base_path) for base_path in base_paths]   # base errors name the base file
+    _check_sites(base_paths, base_configs, label)
+    class_names = {name for config in base_configs for name in config.cases_per_class}
     axes = _read_axes(tables.axes, label)
+    combos = POINT_GENERATORS[sweep.mode](axes, label)
+    multi_site = len(base_paths) > 1
+    if multi_site:
+        axes = {SITE_AXIS: [config.site.name for config in base_configs], **axes}
+    if len(combos) * len(base_paths) > MAX_POINTS:
+        raise ConfigError(f"{label}: axes make {len(combos) * len(base_paths)} points; allowed: at most {MAX_POINTS}")
 
-    combos = _combinations(axes, sweep.mode, label)
-    base_overridden = _with_overrides(base_data, campaign_overrides, label)
-    base = campaign_config_from_data(base_overridden, base_path, source=f"{label}: [sweep] applied to {base_path}",
-                                     output_dir=out)
-    builder = _PointBuilder(base_overridden, base_path, label, out)
-    points = [SweepPoint(point_id=f"p{index:03d}", values=values, build=functools.partial(builder, index, values))
-              for index, values in enumerate(combos)]
-    for index in eager_indices(combos):
+    seen: dict[str, int] = {}
+    bases, points, all_values = [], [], []
+    for base_path, base_config in zip(base_paths, base_configs):
+        overrides = _campaign_overrides(sweep, base_config, class_names, label)
+        if cases_scale is not None:
+            overrides["campaign.cases_scale"] = float(cases_scale)
+        base_data = _with_overrides(load_toml(base_path), overrides, label)
+        _check_estimator_axes(axes, base_data, base_path, label)
+        bases.append(campaign_config_from_data(base_data, base_path, source=f"{label}: [sweep] applied to {base_path}",
+                                               output_dir=out))
+        builder = _PointBuilder(base_data, base_path, label, out, seen)
+        for combo in combos:
+            index = len(points)
+            values = {SITE_AXIS: base_config.site.name, **combo} if multi_site else combo
+            points.append(SweepPoint(point_id=f"p{index:03d}", values=values,
+                                     build=functools.partial(builder, index, values)))
+            all_values.append(values)
+    for index in eager_indices(all_values):
         points[index].config        # noqa: B018 - validates (ConfigError, one line) before anything runs
-    return SweepSpec(source=path, base_path=base_path, output_dir=out, mode=sweep.mode, axes=axes,
-                     tolerances=tables.tolerances, points=points, base=base)
+    return SweepSpec(source=path, base_path=base_paths[0], output_dir=out, mode=sweep.mode, axes=axes,
+                     tolerances=tables.tolerances, points=points, base=bases[0], bases=tuple(bases))
 
 
-def _campaign_overrides(sweep: SweepTable, base_config: CampaignConfig, label: str) -> dict:
-    """[sweep] cases_scale and [sweep.cases] as dotted overrides of the base's [campaign] table."""
-    overrides = {}
+def _check_sites(base_paths: list[Path], configs: list[CampaignConfig], label: str) -> None:
+    """Several bases must be of distinct sites (the ``site`` axis names a point's base)."""
+    first: dict[str, Path] = {}
+    for base_path, config in zip(base_paths, configs):
+        other = first.setdefault(config.site.name, base_path)
+        if other != base_path:
+            raise ConfigError(f"{label}: sweep.base: {other} and {base_path} are both of site {config.site.name}; "
+                              "allowed: one base per site (sweep a field to compare two variants of a site)")
+
+
+def _campaign_overrides(sweep: SweepTable, base_config: CampaignConfig, class_names: set[str], label: str) -> dict:
+    """[sweep] cases_scale and [sweep.cases] as dotted overrides of a base's [campaign] table ([sweep.cases]
+    keys that are classes of another base are left out)."""
+    overrides: dict[str, Any] = {}
     if sweep.cases_scale is not None:
         overrides["campaign.cases_scale"] = sweep.cases_scale
     names = list(base_config.cases_per_class)
     for key, count in sweep.cases.items():
-        if key not in names:
-            raise ConfigError(f"{label}: sweep.cases.{key} is not a class of site {base_config.site.name}; "
-                              f"allowed: {', '.join(names)}")
-        overrides[f"campaign.cases.{key}"] = count
+        if key not in class_names:
+            sites = "" if len(class_names) == len(names) else " of any base"
+            raise ConfigError(f"{label}: sweep.cases.{key} is not a class of site {base_config.site.name}{sites}; "
+                              f"allowed: {', '.join(sorted(class_names) if sites else names)}")
+        if key in names:
+            overrides[f"campaign.cases.{key}"] = count
     return overrides
 
 
 def _read_axes(raw: dict, label: str) -> dict:
-    """Flatten [axes] (quoted or unquoted dotted keys) into field -> list of scalar values."""
+    """Flatten [axes] (quoted or unquoted dotted keys) into field -> list of values."""
     axes: dict[str, list] = {}
 
     def walk(prefix: str, value: Any) -> None:
@@ -253,10 +355,26 @@ def _read_axes(raw: dict, label: str) -> dict:
                           "\"scene.camera_effects.dark_current_scale\" = [1.0, 10.0]")
     for field in axes:
         parts = field.split(".")
+        if parts[0] == ESTIMATOR_ENTRY_ROOT and len(parts) >= 3 and parts[2] not in ESTIMATOR_ENTRY_FIXED:
+            continue
         if field not in AXIS_FIELDS and not (parts[0] in AXIS_ROOTS and len(parts) >= 2):
             raise ConfigError(f"{label}: axes.{field} is not a sweepable field; allowed: "
-                              f"{', '.join(root + '.<field>' for root in AXIS_ROOTS)}, {', '.join(AXIS_FIELDS)}")
+                              f"{', '.join(root + '.<field>' for root in AXIS_ROOTS)}, {', '.join(AXIS_FIELDS)}, "
+                              f"{ESTIMATOR_ENTRY_ROOT}.<estimator name>.parameters.<key>")
     return axes
+
+
+def _check_estimator_axes(axes: dict, base_data: dict, base_path: Path, label: str) -> None:
+    """Every ``estimators.<name>...`` axis names an entry of the base's [[estimators]]."""
+    entries = base_data.get("estimators")
+    names = [entry.get("name") for entry in entries if isinstance(entry, dict)] if isinstance(entries, list) else []
+    for field in axes:
+        parts = field.split(".")
+        if parts[0] == ESTIMATOR_ENTRY_ROOT and parts[1] not in names:
+            have = f"its estimators are {', '.join(map(str, names))}" if names else "it has no [[estimators]]"
+            raise ConfigError(f"{label}: axes.{field}: the base {base_path} has no estimator named {parts[1]!r} "
+                              f"({have}); allowed: estimators.<name of one of its [[estimators]]>.parameters.<key> "
+                              "(the reference's defaults are swept as estimator.<field>)")
 
 
 def _axis_values(field: str, value: Any, label: str) -> list:
@@ -266,10 +384,13 @@ def _axis_values(field: str, value: Any, label: str) -> list:
     kinds = {_kind(item) for item in value}
     if None in kinds:
         bad = next(item for item in value if _kind(item) is None)
-        raise ConfigError(f"{name}: value {bad!r} is not allowed; allowed: numbers, booleans or strings")
+        raise ConfigError(f"{name}: value {bad!r} is not allowed; allowed: numbers, booleans, strings or lists of "
+                          "numbers")
     if len(kinds) > 1:
-        raise ConfigError(f"{name}: values {value!r} mix types; allowed: all numbers, all booleans or all strings")
-    if any(isinstance(item, float) and not math.isfinite(item) for item in value):
+        raise ConfigError(f"{name}: values {value!r} mix types; allowed: all numbers, all booleans, all strings "
+                          "or all lists of numbers")
+    numbers = [number for item in value for number in (item if isinstance(item, list) else [item])]
+    if any(isinstance(number, float) and not math.isfinite(number) for number in numbers):
         raise ConfigError(f"{name}: values {value!r} must be finite")
     return list(value)
 
@@ -281,40 +402,39 @@ def _kind(item: Any) -> str | None:
         return "number"
     if isinstance(item, str):
         return "string"
+    if isinstance(item, list) and item and all(_kind(number) == "number" for number in item):
+        return "numbers"
     return None
 
 
-def _combinations(axes: dict, mode: str, label: str) -> list[dict]:
-    names = list(axes)
-    if mode == "list":
-        lengths = {name: len(values) for name, values in axes.items()}
-        if len(set(lengths.values())) > 1:
-            raise ConfigError(f"{label}: axes: mode \"list\" needs axes of equal length; got "
-                              f"{', '.join(f'{n} {k}' for n, k in lengths.items())}; allowed: equal lengths "
-                              "(or mode = \"grid\")")
-        combos = [dict(zip(names, values)) for values in zip(*axes.values())]
-    else:
-        for name, values in axes.items():
-            if len(set(values)) != len(values):
-                raise ConfigError(f"{label}: axes.{name}: values {values!r} repeat; allowed: distinct values "
-                                  "in a grid")
-        combos = [dict(zip(names, values)) for values in itertools.product(*axes.values())]
-    if len(combos) > MAX_POINTS:
-        raise ConfigError(f"{label}: axes make {len(combos)} points; allowed: at most {MAX_POINTS}")
-    return combos
+def _value_key(value: Any) -> str:
+    """A value as a comparable text (1 and 1.0, [1, 0] and [1.0, 0.0] the same)."""
+    if isinstance(value, list):
+        return "[" + ",".join(_value_key(item) for item in value) + "]"
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return repr(float(value))
+    return repr(value)
 
 
 def _with_overrides(data: dict, values: dict, label: str) -> dict:
-    """A deep copy of ``data`` with each dotted field set (sub-tables are created as needed)."""
+    """A deep copy of ``data`` with each dotted field set (sub-tables are created as needed);
+    ``estimators.<name>.<field...>`` sets a field of the [[estimators]] entry named ``<name>``."""
     result = copy.deepcopy(data)
     for field, value in values.items():
         node = result
         parts = field.split(".")
+        if parts[0] == ESTIMATOR_ENTRY_ROOT and isinstance(result.get(ESTIMATOR_ENTRY_ROOT), list):
+            entry = next((item for item in result[ESTIMATOR_ENTRY_ROOT]
+                          if isinstance(item, dict) and item.get("name") == parts[1]), None)
+            if entry is None:
+                raise ConfigError(f"{label}: axes.{field}: no estimator named {parts[1]!r} in the base campaign; "
+                                  "allowed: estimators.<name of one of its [[estimators]]>.parameters.<key>")
+            node, parts = entry, parts[2:]
         for depth, key in enumerate(parts[:-1]):
             child = node.setdefault(key, {})
             if not isinstance(child, dict):
                 raise ConfigError(f"{label}: axes.{field}: {'.'.join(parts[:depth + 1])} is a value, not a table, "
                                   "in the base campaign; allowed: a field inside a table")
             node = child
-        node[parts[-1]] = value
+        node[parts[-1]] = copy.deepcopy(value)
     return result

@@ -45,6 +45,7 @@ import pandas as pd
 from campaign.report.aggregate import format_number, mean_plus_3_sigma, render_grid
 
 RESAMPLES = 2000
+REGRESSION, PASS, NOT_JUDGED = "regression", "pass", "not judged"      # a comparison's decision
 GATE_HEADERS = ["point", "class", "estimator", "metric", "baseline", "candidate", "test", "why"]
 
 
@@ -75,7 +76,9 @@ class ClassSample:
 
 @dataclass(frozen=True)
 class Finding:
-    """One regression: where, which metric, both values, the test's figure and why it counts."""
+    """One comparison of a metric: where, which metric, both values (as read, and as numbers), the test, its
+    p-value (None for a count or an untested growth), the decision (``regression``, ``pass`` or ``not
+    judged``) and why."""
 
     point: str
     class_name: str
@@ -85,6 +88,15 @@ class Finding:
     candidate: str
     test: str
     why: str
+    decision: str = REGRESSION
+    p_value: float | None = None
+    test_name: str = ""
+    baseline_value: float | None = None
+    candidate_value: float | None = None
+
+    @property
+    def regression(self) -> bool:
+        return self.decision == REGRESSION
 
     def cells(self) -> list[str]:
         return [self.point, self.class_name, self.estimator, self.metric, self.baseline, self.candidate,
@@ -153,23 +165,26 @@ def growth_p_value(pairs: list[tuple[float, np.ndarray, np.ndarray]], seed_text:
 
 def judge(where: str, class_label: str, estimator: str, before: list[tuple[float, ClassSample]],
           now: list[tuple[float, ClassSample]], rules: GateRules, seed_text: str, weighted: bool) -> list[Finding]:
-    """The regressions of one class (one entry, weight 1) or of the site (every class with its ellipse
-    fraction; ``weighted``) of one point and estimator."""
-    findings = []
+    """Every comparison of one class (one entry, weight 1) or of the site (every class with its ellipse
+    fraction; ``weighted``) of one point and estimator: false-valid, % valid and error, each with its
+    decision (the regressions are those with ``decision == "regression"``)."""
+    comparisons = []
 
-    def found(metric, base_text, now_text, test, why):
-        findings.append(Finding(where, class_label, estimator, metric, base_text, now_text, test, why))
+    def compared(metric, base_text, now_text, test, why, decision, p_value=None, test_name="", values=(None, None)):
+        comparisons.append(Finding(where, class_label, estimator, metric, base_text, now_text, test, why, decision,
+                                   p_value, test_name, *values))
 
     cases_before, cases_now = sum(s.cases for _, s in before), sum(s.cases for _, s in now)
     if cases_before == 0 or cases_now == 0:
-        return findings
+        return comparisons
     fv_before, fv_now = sum(s.false_valid for _, s in before), sum(s.false_valid for _, s in now)
     allowed = fv_before * cases_now / cases_before + rules.false_valid_increase
-    if fv_now > allowed + 1e-9:
-        valid_before, valid_now = sum(s.valid for _, s in before), sum(s.valid for _, s in now)
-        scaled = "count" if cases_now == cases_before else f"baseline count x {cases_now}/{cases_before} cases"
-        found("false-valid", f"{fv_before} of {valid_before} valid", f"{fv_now} of {valid_now} valid",
-              scaled, f"{fv_now} > {allowed:g} allowed (baseline + {rules.false_valid_increase})")
+    valid_before, valid_now = sum(s.valid for _, s in before), sum(s.valid for _, s in now)
+    scaled = "count" if cases_now == cases_before else f"baseline count x {cases_now}/{cases_before} cases"
+    regressed = fv_now > allowed + 1e-9
+    compared("false-valid", f"{fv_before} of {valid_before} valid", f"{fv_now} of {valid_now} valid", scaled,
+             f"{fv_now} {'>' if regressed else '<='} {allowed:g} allowed (baseline + {rules.false_valid_increase})",
+             REGRESSION if regressed else PASS, test_name="count", values=(fv_before, fv_now))
 
     judged = [(w if weighted else 1.0, b, n) for (w, b), (_, n) in zip(before, now) if w > 0 or not weighted]
     if weighted:
@@ -177,32 +192,48 @@ def judge(where: str, class_label: str, estimator: str, before: list[tuple[float
     else:
         pct_before, pct_now = before[0][1].pct_valid, now[0][1].pct_valid
     drop = pct_before - pct_now
-    if judged and math.isfinite(drop) and drop > 0:
+    metric = "weighted % valid" if weighted else "% valid"
+    if judged and math.isfinite(drop):
         vb, nb = sum(b.valid for _, b, _ in judged), sum(b.cases for _, b, _ in judged)
         vn, nn = sum(n.valid for _, _, n in judged), sum(n.cases for _, _, n in judged)
         p_value = valid_drop_p_value(vb, nb, vn, nn) if nb and nn else 1.0
         reasons = []
-        if p_value < rules.significance:
+        if drop > 0 and p_value < rules.significance:
             reasons.append(f"p < {rules.significance:g}")
         if drop > rules.pct_valid_drop_points:
             reasons.append(f"drop {drop:.1f} > {rules.pct_valid_drop_points:g} points")
         if reasons:
-            found("weighted % valid" if weighted else "% valid", f"{pct_before:.1f} ({vb}/{nb})",
-                  f"{pct_now:.1f} ({vn}/{nn})", f"p = {p_value:.3g}", "; ".join(reasons))
+            why, decision = "; ".join(reasons), REGRESSION
+        elif drop > 0:
+            why = f"drop {drop:.1f} <= {rules.pct_valid_drop_points:g} points and p >= {rules.significance:g}"
+            decision = PASS
+        else:
+            why, decision = "no drop", PASS
+        compared(metric, f"{pct_before:.1f} ({vb}/{nb})", f"{pct_now:.1f} ({vn}/{nn})", f"p = {p_value:.3g}", why,
+                 decision, p_value, "fisher_exact_one_sided", (pct_before, pct_now))
 
+    metric = "weighted error m/s" if weighted else "error mean+3 sigma m/s"
     pairs = [(w, b.valid_errors_mps[np.isfinite(b.valid_errors_mps)], n.valid_errors_mps[np.isfinite(n.valid_errors_mps)])
              for w, b, n in judged]
     if pairs and all(before_errors.size and now_errors.size for _, before_errors, now_errors in pairs):
         error_before = sum(w * mean_plus_3_sigma(b) for w, b, _ in pairs)
         error_now = sum(w * mean_plus_3_sigma(n) for w, _, n in pairs)
         growth = error_now - error_before
+        texts = format_number(error_before, "{:.2f}"), format_number(error_now, "{:.2f}")
         if math.isfinite(growth) and growth > rules.error_increase_mps:
             p_value = growth_p_value(pairs, seed_text)
-            if p_value < rules.significance:
-                found("weighted error m/s" if weighted else "error mean+3 sigma m/s", format_number(error_before, "{:.2f}"),
-                      format_number(error_now, "{:.2f}"), f"p = {p_value:.3g} (permutation)",
-                      f"+{growth:.2f} > {rules.error_increase_mps:g} m/s; p < {rules.significance:g}")
-    return findings
+            regressed = p_value < rules.significance
+            compared(metric, *texts, f"p = {p_value:.3g} (permutation)",
+                     f"+{growth:.2f} > {rules.error_increase_mps:g} m/s; p {'<' if regressed else '>='} "
+                     f"{rules.significance:g}", REGRESSION if regressed else PASS, p_value, "permutation_one_sided",
+                     (error_before, error_now))
+        else:
+            compared(metric, *texts, "not tested", f"growth {growth:+.2f} <= {rules.error_increase_mps:g} m/s"
+                     if math.isfinite(growth) else "not finite", PASS, None, "none", (error_before, error_now))
+    elif pairs:
+        compared(metric, "n/a", "n/a", "not tested", "no valid case on one side (the % valid rule judges that)",
+                 NOT_JUDGED, None, "none")
+    return comparisons
 
 
 def _weighted_pct(entries: list[tuple[float, ClassSample]]) -> float:
@@ -212,7 +243,15 @@ def _weighted_pct(entries: list[tuple[float, ClassSample]]) -> float:
 def judge_point(where: str, seed_key: str, before_rows: pd.DataFrame, now_rows: pd.DataFrame,
                 fractions: dict[str, float], site_name: str, false_valid_mps: float,
                 rules: GateRules) -> list[Finding]:
-    """Every regression of one sweep point: per estimator of the candidate (rows ``estimator``; compared
+    """Every regression of one sweep point (:func:`compare_point`'s regressions)."""
+    return [finding for finding in compare_point(where, seed_key, before_rows, now_rows, fractions, site_name,
+                                                 false_valid_mps, rules) if finding.regression]
+
+
+def compare_point(where: str, seed_key: str, before_rows: pd.DataFrame, now_rows: pd.DataFrame,
+                  fractions: dict[str, float], site_name: str, false_valid_mps: float,
+                  rules: GateRules) -> list[Finding]:
+    """Every comparison of one sweep point: per estimator of the candidate (rows ``estimator``; compared
     with the baseline's rows of the same name), per class in ``fractions`` order, then the site."""
     findings = []
     for estimator in dict.fromkeys(now_rows["estimator"]) if len(now_rows) else []:

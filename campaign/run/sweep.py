@@ -10,25 +10,55 @@ Output directory (``[sweep] output_dir`` or ``--output``)::
 
 The rest of the directory (sweep.json, results.parquet, the sensitivity table and plots) is written after
 the run by :mod:`campaign.report.sweep_outputs` (``campaign.cli``); the baseline check is
-:mod:`campaign.report.sweep_baseline`. The configuration hash covers the result code
+:mod:`campaign.report.gate`. The configuration hash covers the result code
 (:func:`campaign.configuration.campaign_file.code_digest`), so after a code change every point is computed
 afresh.
+
+Reuse from a previous directory (``campaign sweep FILE --output NEW --reuse PREVIOUS``,
+:func:`reuse_points`): a point whose store is not yet in NEW is copied from ``PREVIOUS/points/<hash[:16]>``
+when, and only when,
+
+* the previous store's sealed manifest records the point's full configuration hash. The hash covers every
+  resolved table (sensors, estimator and plug-in parameters, scene, site content), the bytes of the
+  camera, trajectory and terrain files, the digest of the case computation's code (the import closure
+  of :data:`campaign.configuration.code_identity.CASE_MODULES`, plug-in modules included) and of every
+  plug-in's own files (:func:`campaign.configuration.estimators.estimator_code_digests`): an equal hash
+  means the same configuration computed by the same code;
+* the manifest records the same Python version and versions of the numerical packages
+  (:func:`campaign.run.orchestrate.package_versions`) as this process (a numpy upgrade recomputes);
+* the copy passes ``campaign verify`` (:func:`campaign.store.verify.verify_store`): manifest seal, plan
+  sha256, every case file's size, sha256, schema and recorded identity (configuration hash, case id,
+  seed, estimators), and the compacted results against their record.
+
+The previous store is copied under its writer lock (a store being written is not reused; a read-only
+one is copied without it), into a
+temporary directory beside the new store and renamed into place only when verified; anything else is
+computed as usual, with one note saying why. The copy then enters the run like any existing store: its
+missing cases (a larger ``cases_scale``) are computed, the others kept.
 """
 from __future__ import annotations
 
+import os
+import platform
+import shutil
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import pandas as pd
 
 from campaign.configuration.sweep_file import SweepPoint, SweepSpec
 from campaign.run.cluster import require_backend
-from campaign.run.orchestrate import StorePoint, cluster_session, manifest_for, run_store_points
+from campaign.run.orchestrate import StorePoint, cluster_session, manifest_for, package_versions, run_store_points
 from campaign.run.planning import plan_campaign
 from campaign.run.security import require_secure_transport
+from campaign.store.campaign_store import CampaignStore
+from campaign.store.errors import StoreError
+from campaign.store.lock import StoreBusy
+from campaign.store.verify import verify_store
 
 BATCH_CASES = 64       # planned cases of the points run together: prepared, locked, waited for and compacted
 BATCH_POINTS = 64      # at most this many point stores locked at once (two descriptors each)
@@ -97,7 +127,7 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
     require_backend(execution, str(spec.source))
     require_secure_transport(execution, str(spec.source))
     total = len(spec.points)
-    planned_each = sum(spec.base.cases_per_class.values())
+    planned_each = max(sum(base.cases_per_class.values()) for base in spec.all_bases)
 
     def say(line: str) -> None:
         if progress:
@@ -108,7 +138,7 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
     reached = reused = submitted = done = failed = unfinished = 0
     with ThreadPoolExecutor(max_workers=1) as planner, ExitStack() as cluster:
         first_plan = planner.submit(stores_of, spec.points[0])      # planned while the cluster starts
-        client = cluster.enter_context(cluster_session(execution, list(spec.base.estimators)))
+        client = cluster.enter_context(cluster_session(execution, spec.estimators))
         first_plan.result()
         for first, batch in point_batches(spec, planned_each):
             points = [stores_of(point) for point in batch]
@@ -127,3 +157,84 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
     say(f"all {reached} points: {done} cases done, {failed} failed this run, {reused} points reused, "
         f"{time.perf_counter() - start:.0f} s; now the tables and plots (every point's store is read)")
     return SweepRun(reached, reused, submitted, done, failed, time.perf_counter() - start, unfinished=unfinished)
+
+
+@dataclass
+class Reuse:
+    """What :func:`reuse_points` did: point id -> the directory its store was copied from, and one note
+    per point of the previous directory that was not reused (why)."""
+
+    reused: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def reuse_points(spec: SweepSpec, previous: str | Path, progress: bool = True) -> Reuse:
+    """Copy into the sweep's output directory every point store of ``previous`` (an earlier sweep's output
+    directory) whose configuration and code are unchanged and which verifies (module docstring). Points
+    already in the output directory are left alone. StoreError (one line) when ``previous`` is not a
+    sweep directory."""
+    previous = Path(previous)
+    if not (previous / "points").is_dir():
+        raise StoreError(f"--reuse {previous}: no points/ directory: not a sweep output directory; allowed: the "
+                         "output directory of an earlier `campaign sweep`")
+    if Path(os.path.abspath(previous)) == Path(os.path.abspath(spec.output_dir)):
+        return Reuse()          # the output directory's own points are reused anyway
+    outcome = Reuse()
+    versions = {"python": platform.python_version(), **package_versions()}
+    for point in spec.points:
+        target = Path(point.config.output_dir)
+        source = previous / "points" / target.name
+        if (target / "manifest.json").exists() or not source.is_dir():
+            continue
+        problem = _copy_verified(source, target, point.config_hash, versions)
+        where = f"{point.point_id} ({source})"
+        if problem is None:
+            outcome.reused[point.point_id] = str(previous)
+        else:
+            outcome.notes.append(f"{where}: not reused, computed: {problem}")
+    if progress:
+        print(f"sweep: --reuse {previous}: {len(outcome.reused)} point stores copied and verified"
+              + (f", {len(outcome.notes)} not reused" if outcome.notes else ""), file=sys.stderr, flush=True)
+    return outcome
+
+
+def _copy_verified(source: Path, target: Path, config_hash: str, versions: dict[str, str]) -> str | None:
+    """Copy the store ``source`` to ``target`` if its manifest records ``config_hash`` and ``versions`` and the
+    copy verifies; None when copied, else why not (nothing left behind)."""
+    try:
+        manifest = CampaignStore(source).manifest()
+    except StoreError as exc:
+        return str(exc)
+    if manifest is None:
+        return "no manifest.json"
+    if manifest.get("config_hash") != config_hash:
+        return f"configuration hash {str(manifest.get('config_hash'))[:12]} != {config_hash[:12]}"
+    recorded = {"python": manifest.get("python"), **(manifest.get("packages") or {})}
+    changed = [f"{name} {recorded.get(name)} -> {version}" for name, version in versions.items()
+               if recorded.get(name) != version]
+    if changed:
+        return "computed with other package versions (" + ", ".join(changed) + ")"
+    staging = target.with_name(f".reuse-{target.name}-{os.getpid()}")
+    try:
+        with ExitStack() as locks:
+            try:
+                locks.enter_context(CampaignStore(source).lock())
+            except PermissionError:     # a read-only archive: nobody writes it; the copy is verified anyway
+                pass
+            locks.enter_context(CampaignStore(target).lock())
+            shutil.rmtree(staging, ignore_errors=True)
+            shutil.copytree(source, staging, symlinks=True, ignore=shutil.ignore_patterns(".tmp-*", "rejected"))
+            check = verify_store(staging)
+            if check.problems:
+                path, what = check.problems[0]
+                return f"the copy does not verify ({len(check.problems)} bad files, e.g. {Path(path).name}: {what})"
+            if (target / "manifest.json").exists():
+                return "its store appeared in the output directory meanwhile"
+            os.rename(staging, target)
+    except StoreBusy as exc:
+        return f"its store is being written ({exc})"
+    except (OSError, StoreError) as exc:
+        return f"cannot be copied ({exc})"
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return None

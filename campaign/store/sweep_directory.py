@@ -1,7 +1,9 @@
-"""A sweep output directory's description and state: ``OUT/sweep.json`` (the sweep as run: file, base, mode,
-axes, tolerances, points with their values, configuration hash and store), written when a sweep ends or
-stops and read by ``campaign status OUT`` (:func:`sweep_status_lines`: per point, its store's planned, done,
-failed and missing cases) and by the baseline check (:mod:`campaign.report.sweep_baseline`)."""
+"""A sweep output directory's description and state: ``OUT/sweep.json`` (the sweep as run: file, bases, sites,
+mode, axes, tolerances, points with their values, site, configuration hash, planned cases, store, and the
+previous sweep directory a point was reused from), written when a sweep ends or stops and read by
+``campaign status OUT`` (:func:`sweep_status_lines`: per point, its store's planned, done, failed and missing
+cases), by the commands that take a sweep directory (:func:`point_store`: ``--point``) and by the gate
+(:mod:`campaign.report.gate`)."""
 from __future__ import annotations
 
 import json
@@ -19,21 +21,32 @@ if TYPE_CHECKING:           # `campaign status` reads sweep.json without loading
 ALLOWED = "allowed: the output directory of an earlier `campaign sweep` of the same sweep file"
 
 
-def write_description(spec: SweepSpec) -> None:
-    """Write OUT/sweep.json (also when a sweep stops, so `campaign status OUT` knows all its points)."""
+def write_description(spec: SweepSpec, reused_from: dict[str, str] | None = None) -> None:
+    """Write OUT/sweep.json (also when a sweep stops, so `campaign status OUT` knows all its points);
+    ``reused_from``: point id -> the previous sweep directory its store was copied from (``--reuse``)."""
     Path(spec.output_dir).mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(Path(spec.output_dir) / "sweep.json", json.dumps(sweep_description(spec), indent=2).encode())
+    atomic_write_bytes(Path(spec.output_dir) / "sweep.json",
+                       json.dumps(sweep_description(spec, reused_from), indent=2).encode())
 
 
-def sweep_description(spec: SweepSpec) -> dict:
-    """The content of OUT/sweep.json (module docstring)."""
+def sweep_description(spec: SweepSpec, reused_from: dict[str, str] | None = None) -> dict:
+    """The content of OUT/sweep.json (module docstring). ``site``, ``seed``, ``cases_per_class`` and
+    ``false_valid_mps`` are the first base's; every point records its own site and planned cases."""
+    bases = spec.all_bases
+    reused_from = reused_from or {}
     return {
-        "sweep_file": str(spec.source), "base": str(spec.base_path), "mode": spec.mode, "axes": spec.axes,
-        "site": spec.base.site.name, "seed": spec.base.seed, "cases_per_class": spec.base.cases_per_class,
+        "sweep_file": str(spec.source), "base": str(spec.base_path), "bases": [str(base.source) for base in bases],
+        "mode": spec.mode, "axes": spec.axes, "site": spec.base.site.name, "sites": [base.site.name for base in bases],
+        "classes": {base.site.name: {entry.name: entry.ellipse_fraction for entry in base.site.classes}
+                    for base in bases},
+        "seed": spec.base.seed, "cases_per_class": spec.base.cases_per_class,
         "cases_scale": spec.base.cases_scale, "false_valid_mps": spec.base.false_valid_mps,
         "tolerances": spec.tolerances.model_dump(),
-        "points": [{"point_id": p.point_id, "values": p.values, "config_hash": p.config_hash,
-                    "store": str(Path("points") / p.config.output_dir.name)} for p in spec.points],
+        "points": [{"point_id": p.point_id, "values": p.values, "site": p.config.site.name,
+                    "config_hash": p.config_hash, "planned_cases": sum(p.config.cases_per_class.values()),
+                    "store": str(Path("points") / p.config.output_dir.name),
+                    **({"reused_from": reused_from[p.point_id]} if p.point_id in reused_from else {})}
+                   for p in spec.points],
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
 
@@ -66,16 +79,15 @@ def sweep_status_lines(directory: str | Path) -> list[str]:
     if (directory / "sweep.json").is_file():
         description = read_description(directory)
         planned_each = sum(int(count) for count in description.get("cases_per_class", {}).values())
-        points = [(point_label(point["point_id"], point["values"]), directory / point["store"])
-                  for point in description["points"]]
+        points = [(point_label(point["point_id"], point["values"]), directory / point["store"],
+                   int(point.get("planned_cases", planned_each))) for point in description["points"]]
     else:
-        planned_each = 0
         points = []
         for manifest_path in sorted((directory / "points").glob("*/manifest.json")):
             values = (CampaignStore(manifest_path.parent).manifest() or {}).get("sweep_point") or {}
-            points.append((point_label(f"points/{manifest_path.parent.name}", values), manifest_path.parent))
+            points.append((point_label(f"points/{manifest_path.parent.name}", values), manifest_path.parent, 0))
     lines, totals = [], [0, 0, 0, 0]
-    for label, store in points:
+    for label, store, planned_each in points:
         if not (store / "manifest.json").is_file():
             lines.append(f"{label}: no store yet ({store}): {planned_each} cases missing")
             totals[0] += planned_each
@@ -101,5 +113,42 @@ def point_label(name: str, values: dict) -> str:
 
 
 def value_text(value: object) -> str:
-    """An axis value as people read it (a float in its shortest form)."""
+    """An axis value as people read it (a float in its shortest form; a list as ``[6, 0]``)."""
+    if isinstance(value, list):
+        return "[" + ", ".join(value_text(item) for item in value) + "]"
     return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def is_sweep_directory(directory: str | Path) -> bool:
+    """A sweep output directory (sweep.json, or point stores of a first sweep still running), not a store."""
+    directory = Path(directory)
+    return (not (directory / "manifest.json").exists()
+            and ((directory / "sweep.json").is_file() or (directory / "points").is_dir()))
+
+
+def point_choices(directory: str | Path) -> list[tuple[str, dict, Path]]:
+    """(point id, axis values, store) of every point of a sweep directory: sweep.json's, else the point stores
+    under ``points/`` (named ``points/<store>``)."""
+    directory = Path(directory)
+    if (directory / "sweep.json").is_file():
+        return [(point["point_id"], point["values"], directory / point["store"])
+                for point in read_description(directory)["points"]]
+    return [(f"points/{path.parent.name}", (CampaignStore(path.parent).manifest() or {}).get("sweep_point") or {},
+             path.parent) for path in sorted((directory / "points").glob("*/manifest.json"))]
+
+
+def point_store(directory: str | Path, point: str) -> Path:
+    """The store of the point ``point`` (its id ``p003``, its store ``points/<hash>`` or the store's name) of
+    a sweep directory; StoreError (one line, naming the points) when there is none."""
+    choices = point_choices(directory)
+    for point_id, _values, store in choices:
+        if point in (point_id, store.name, f"points/{store.name}"):
+            return store
+    raise StoreError(f"{directory}: no point {point!r}; allowed: {points_hint(choices)}")
+
+
+def points_hint(choices: list[tuple[str, dict, Path]], shown: int = 4) -> str:
+    """A few of a sweep's points as ``--point`` values, e.g. ``p000 (x=1), p001 (x=2), ... (9 points)``."""
+    listed = [point_label(point_id, values) for point_id, values, _ in choices[:shown]]
+    more = f", ... ({len(choices)} points)" if len(choices) > shown else ""
+    return ", ".join(listed) + more if listed else "no point has a store yet"

@@ -22,7 +22,8 @@ from campaign.report.baseline_gate import (
     judge_point,
     valid_drop_p_value,
 )
-from campaign.report.sweep_baseline import Baseline, compare_to_baseline, read_baseline
+from campaign.report.gate import GatePoint, GateSide, gate
+from campaign.report.sweep_baseline import read_baseline
 from campaign.store.campaign_store import StoreError
 from campaign.store.sweep_directory import sweep_status_lines
 
@@ -195,8 +196,8 @@ def _description(spec, **changes) -> dict:
     ('{"axes": {}}', "not a sweep description"),
     (None, "other axes"),
     ("site", "of site 'Meridiani'"),
-    ("values", "no point of this sweep has the axis values of a baseline point"),
-    ("rows", "no case rows of baseline point p000"),
+    ("values", "no point of this sweep has the site and axis values of a baseline point"),
+    ("rows", "no case rows of p000"),
 ])
 def test_corrupt_or_incompatible_baseline_is_one_line_exit_2(spec, tmp_path, capsys, content, expected):
     path, sweep = spec
@@ -249,21 +250,29 @@ def test_bad_cases_scale_is_one_line_exit_2(spec, tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_points_are_matched_by_axis_values_and_the_rest_is_noted(spec):
-    _, sweep = spec
-    description = _description(sweep)
-    description["points"] = [dict(description["points"][0], point_id="b007")]   # only p000's values, another id
-    baseline = Baseline(Path("."), description, {"b007": pd.DataFrame(_rows("gcp", [1.0] * 10) + _rows("gdcp", [1.0] * 10))})
-    results = pd.DataFrame([{**row, "point_id": point} for point in ("p000", "p001")
-                            for row in _rows("gcp", invalid=10) + _rows("gdcp", [1.0] * 10)
-                            + _rows("gcp", [1.0], estimator="pc")])
-    gate = compare_to_baseline(sweep, results, baseline, Tolerances())
-    assert gate.compared == 1
-    assert {(f.point.split()[0], f.class_name, f.estimator, f.metric) for f in gate.findings} == {
+def _side(directory: str, points: list[tuple[str, dict]], site: str = "Gusev") -> GateSide:
+    return GateSide(Path(directory), "sweep", ["scene.camera_effects.dark_current_scale"],
+                    [GatePoint(point_id, values, site, Path(directory) / point_id, "hash", "", FRACTIONS | {"gcp": 0.59,
+                               "gdcp": 0.41}, 5.0, 20, 20, 0) for point_id, values in points])
+
+
+def test_points_are_matched_by_axis_values_and_the_rest_is_noted():
+    axis = "scene.camera_effects.dark_current_scale"
+    baseline = _side("base", [("b007", {axis: 1})])            # only p000's values (1 and 1.0 match), another id
+    candidate = _side("cand", [("p000", {axis: 1.0}), ("p001", {axis: 2.0})])
+    rows = pd.DataFrame(_rows("gcp", invalid=10) + _rows("gdcp", [1.0] * 10) + _rows("gcp", [1.0], estimator="pc"))
+    report = gate(candidate, baseline, GateRules(), {"b007": pd.DataFrame(_rows("gcp", [1.0] * 10) + _rows("gdcp", [1.0] * 10))},
+                  {"p000": rows, "p001": rows})
+    assert report.compared == 1
+    findings = report.regressions
+    assert {(f.point.split()[0], f.class_name, f.estimator, f.metric) for f in findings} == {
         ("p000", "gcp", "dimes", "% valid"), ("p000", "Gusev weighted", "dimes", "weighted % valid")}
-    site = next(f for f in gate.findings if f.class_name == "Gusev weighted")   # 0.59 * 0 + 0.41 * 100 (gkep 0)
+    site = next(f for f in findings if f.class_name == "Gusev weighted")   # 0.59 * 0 + 0.41 * 100 (gkep 0)
     assert (site.baseline, site.candidate) == ("100.0 (20/20)", "41.0 (10/20)")
     assert site.test == f"p = {math.comb(30, 20) / math.comb(40, 20):.3g}"   # the 10 invalid all in the candidate
-    assert gate.notes == [
-        "p000 (scene.camera_effects.dark_current_scale=1): estimator pc has no rows in baseline point b007: not compared",
-        "p001 (scene.camera_effects.dark_current_scale=2): no baseline point with these axis values: not compared"]
+    assert report.notes == [
+        f"p001 ({axis}=2): no baseline point with this site and these axis values: not compared",
+        f"p000 ({axis}=1): estimator pc has no rows in baseline point b007: not compared"]
+    # the same point on another site is not a partner
+    with pytest.raises(StoreError, match="the baseline is of site 'Gusev', the candidate of 'Meridiani'"):
+        gate(_side("cand", [("p000", {axis: 1.0})], site="Meridiani"), baseline, GateRules())
