@@ -1,5 +1,6 @@
 """The sensitivity figures of ``campaign sensitivity``: per estimator, ranked bars of the indices with their
-intervals (one panel per output), and each output against its two most influential inputs."""
+intervals (one panel per output), and each output against its two most influential inputs (the second the
+best-ranked one that is not a near copy of the first)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -51,7 +52,7 @@ def top_two(table: pd.DataFrame, inputs: pd.DataFrame, outputs: pd.DataFrame, es
     figure, axes_list = plt.subplots(1, len(analysed), figsize=(6.0 * len(analysed), 5.0), squeeze=False)
     for axes, output in zip(axes_list[0], analysed):
         ranked = rows[rows["output"] == output]["input"].tolist()
-        first, second = ranked[0], ranked[1] if len(ranked) > 1 else ranked[0]
+        first, second = ranked[0], _second_input(inputs, ranked)
         values = outputs[output]
         defined = values.notna()
         horizontal, horizontal_ticks = _axis_values(inputs.loc[defined, first])
@@ -66,10 +67,27 @@ def top_two(table: pd.DataFrame, inputs: pd.DataFrame, outputs: pd.DataFrame, es
         axes.set_title(f"{estimator}: {output} against its top two inputs", fontsize=TITLE_POINTS)
         bar = figure.colorbar(points, ax=axes)
         bar.set_label(OUTPUT_MEANINGS[output], fontsize=LABEL_POINTS)
+        if set(np.unique(values[defined])) <= {0.0, 1.0}:
+            bar.set_ticks([0.0, 1.0], labels=["no (0)", "yes (1)"])
     figure.tight_layout()
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
+
+
+def _second_input(inputs: pd.DataFrame, ranked: list[str], redundant: float = 0.8) -> str:
+    """The highest-ranked input after the first that is not a near copy of it (|Spearman correlation| below
+    ``redundant``: the total attitude error of image 2 says nothing the one of image 1 did not), else the
+    second-ranked one."""
+    first = inputs[ranked[0]]
+    for name in ranked[1:]:
+        candidate = inputs[name]
+        if first.dtype.kind not in "fiub" or candidate.dtype.kind not in "fiub":
+            return name
+        correlation = first.corr(candidate, method="spearman")
+        if not np.isfinite(correlation) or abs(correlation) < redundant:
+            return name
+    return ranked[1] if len(ranked) > 1 else ranked[0]
 
 
 def _axis_values(values: pd.Series) -> tuple[np.ndarray, list[str]]:
