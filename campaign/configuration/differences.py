@@ -31,6 +31,7 @@ from estimators.entries import DEFAULT_NAME
 SHOWN_CHANGES = 6
 #: Longest value shown (longer ones are cut with "...").
 VALUE_CHARACTERS = 48
+ADDED, REMOVED = "(added)", "(removed)"
 #: Tables in the order their changes are listed (as in a campaign file; others after them).
 TABLE_ORDER = ("site", "campaign", "sensors", "estimator", "scene")
 #: The site's file fields (compared by their bytes' sha256, not by their names).
@@ -132,9 +133,9 @@ def table_changes(old: dict, new: dict) -> list[FieldChange]:
     old_entries, new_entries = estimator_entries(old), estimator_entries(new)
     for name in [*old_entries, *(name for name in new_entries if name not in old_entries)]:
         if name not in new_entries:
-            changes.append(FieldChange(f"estimators.{name}", "(an estimator)", "(removed)", frozenset({name})))
+            changes.append(FieldChange(f"estimators.{name}", "(an estimator)", REMOVED, frozenset({name})))
         elif name not in old_entries:
-            changes.append(FieldChange(f"estimators.{name}", "(none)", "(added)", frozenset({name})))
+            changes.append(FieldChange(f"estimators.{name}", "(none)", ADDED, frozenset({name})))
         else:
             index = list(new_entries).index(name)
             before, after = _leaves(old_entries[name], ""), _leaves(new_entries[name], "")
@@ -179,8 +180,12 @@ def _digest(value: Any) -> str:
 def configuration_changes(old_manifest: dict, new_manifest: dict) -> list[FieldChange]:
     """Every difference between the configurations of two manifests (:func:`table_changes`, then
     :func:`input_changes`)."""
-    return (table_changes(old_manifest.get("config") or {}, new_manifest.get("config") or {})
-            + input_changes(old_manifest, new_manifest))
+    tables = table_changes(old_manifest.get("config") or {}, new_manifest.get("config") or {})
+    whole = frozenset().union(*(change.estimators or frozenset() for change in tables
+                                if change.new in (ADDED, REMOVED)))
+    # an added or removed estimator's code is not a change of its own
+    return tables + [change for change in input_changes(old_manifest, new_manifest)
+                     if not (change.estimators and change.estimators <= whole)]
 
 
 def only_estimators(changes: list[FieldChange]) -> frozenset[str] | None:
