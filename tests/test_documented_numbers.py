@@ -293,3 +293,77 @@ def test_import_bench_records_a_range_over_the_rows_a_fact_names(copy: Path):
     assert after["bench/offnominal/angular_rate_x60/ratio_vs_nominal"]["value"] == "1.90"
     readme = (copy / "README.md").read_text(encoding="utf-8")
     assert "-->1.00-2.05<!-- measured:end --> (all within" in readme
+
+
+def test_a_superseded_figure_fails_on_a_page_without_blocks_too(copy: Path):
+    """One figure per fact on every page: an old figure is refused also where a page has no block at all."""
+    superseded = facts(copy)["bench/campaign/gusev+meridiani/wall_s"]["superseded"].split(";")[0].strip()
+    page = copy / "docs" / "no_blocks.md"
+    page.write_text(f"# A page without blocks\n\nThe Gusev campaign takes {superseded}.\n", encoding="utf-8")
+    done = doc_numbers("check", root=copy)
+    assert done.returncode == 1 and "docs/no_blocks.md" in done.stderr and superseded in done.stderr
+
+
+def test_a_was_block_quotes_history_only_for_a_recorded_superseded_figure(copy: Path):
+    row = facts(copy)["tests/suite_wall_s"]
+    old = row["superseded"].split(";")[0].strip()
+    page = copy / "docs" / "no_blocks.md"
+    page.write_text(f"Once <!-- measured:begin tests/suite_wall_s was {old} --><!-- measured:end -->.\n",
+                    encoding="utf-8")
+    assert doc_numbers("write", root=copy).returncode == 0
+    assert f"was {old} -->{old}<!-- measured:end -->" in page.read_text(encoding="utf-8")
+    assert doc_numbers("check", root=copy).returncode == 0
+    page.write_text("Once <!-- measured:begin tests/suite_wall_s was 1 min --><!-- measured:end -->.\n",
+                    encoding="utf-8")
+    done = doc_numbers("check", root=copy)
+    assert done.returncode == 1 and "'1 min' is not a superseded figure of tests/suite_wall_s" in done.stderr
+
+
+def test_the_campaign_time_has_one_figure_on_every_page():
+    """The Gusev campaign time was 41.3 s, 30.3 s or 115 s depending on the page (issue 32): outside the
+    generated blocks no page quotes a recorded old figure of it, and every block prints the record's."""
+    record = facts(REPO)["bench/campaign/gusev+meridiani/wall_s"]
+    old = [figure.strip() for figure in record["superseded"].split(";")]
+    assert {"41.3 s", "30.3 s"} <= set(old)
+    for page in [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]:
+        text = page.read_text(encoding="utf-8")
+        outside = BLOCK.sub("", text)
+        for figure in old:
+            assert not re.search(rf"(?<![\w.]){re.escape(figure)}(?!\w)", outside), (page.name, figure)
+        for body in blocks(text).get("bench/campaign/gusev+meridiani/wall_s", []):
+            assert body == f"{record['value']} {record['unit']}", page.name
+
+
+def test_the_readme_has_a_dated_quick_look_and_states_what_make_test_costs():
+    """Before "What a campaign gives you": the quick-look command with its measured time and date (a fact of
+    the record, measured 2026-11-27 or later), and make test's time (a block) and its root/SLURM step."""
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    top = readme.split("## What a campaign gives you")[0]
+    assert "campaign submit sitedata/gusev.toml --cases-scale 0.1" in top
+    found = blocks(top)
+    quick = facts(REPO)["campaign/quick_look_gusev_s01/wall_s"]
+    assert found["campaign/quick_look_gusev_s01/wall_s"] == [f"{quick['value']} {quick['unit']}"]
+    assert found["campaign/quick_look_gusev_s01/wall_s date"] == [quick["date"]] and quick["date"] >= "2026-11-27"
+    assert "--cases-scale 0.1" in quick["source"] and quick["conditions"]
+    assert found["tests/suite_wall_s"] and found["tests/suite_wall_s date"]
+    make_test = BLOCK.sub("", top.split("**`make test` takes time and root.**")[1])
+    for needed in ("root", "apt-get install", "slurmctld", "tests/slurm_node.py", "skipped"):
+        assert needed in make_test, needed
+
+
+def test_docs_campaigns_lists_every_command_the_readme_lists():
+    """docs/campaigns.md's command list names every `campaign` command of the README's (check-estimators and
+    cluster were missing)."""
+    def commands(text: str, heading: str) -> set[str]:
+        block = text.split(heading, 1)[1].split("```", 2)[1]
+        named = set()
+        for line in block.splitlines():
+            line = line.split("#", 1)[0]
+            if line.startswith("campaign "):
+                named |= {part.split()[0] for part in line[len("campaign "):].split("|") if part.strip()}
+        return named
+
+    readme = commands((REPO / "README.md").read_text(encoding="utf-8"), "### Commands")
+    campaigns = commands((REPO / "docs" / "campaigns.md").read_text(encoding="utf-8"), "## Commands")
+    assert {"check-estimators", "cluster", "submit", "status"} <= readme
+    assert readme <= campaigns, sorted(readme - campaigns)

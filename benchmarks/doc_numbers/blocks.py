@@ -9,12 +9,14 @@ A page quotes a figure through a generated block, inline or around a table::
     <!-- measured:end -->
 
 A block's name is a fact key followed by an optional form (``value``: value and unit, the default;
-``number``: the value alone; ``date``: its date), ``table NAME`` (a generated table of
+``number``: the value alone; ``date``: its date; ``was FIGURE``: one of the fact's superseded figures, quoted as
+history, e.g. "the suite then had 1090 triples": the figure must be in the record's ``superseded`` column, so a
+page never quotes an old figure as current without saying so), ``table NAME`` (a generated table of
 :data:`~benchmarks.doc_numbers.tables.TABLES` or a recorded one of ``tables.csv``: a caption with the date,
 then the table) or ``table NAME date`` (that date alone). A page adopts the record by putting a block around a
 figure or table and running ``write``. ``check`` fails when a block differs from what the record generates
-(e.g. edited by hand), names an unknown fact or table, when the record holds a fact twice, or when a page
-with blocks (or ``pyproject.toml``) still quotes a superseded figure.
+(e.g. edited by hand), names an unknown fact or table, when the record holds a fact twice, or when any page
+(or ``pyproject.toml``) still quotes a superseded figure: a fact has one figure on every page.
 """
 from __future__ import annotations
 
@@ -41,8 +43,8 @@ def render_block(name: str, sources: Sources) -> str:
     Parameters
     ----------
     name : str
-        ``KEY``, ``KEY value``, ``KEY number``, ``KEY date``, ``table NAME`` or ``table NAME date`` (the date
-        its caption states).
+        ``KEY``, ``KEY value``, ``KEY number``, ``KEY date``, ``KEY was FIGURE`` (a superseded figure),
+        ``table NAME`` or ``table NAME date`` (the date its caption states).
     sources : Sources
         The record and tables.
 
@@ -60,9 +62,15 @@ def render_block(name: str, sources: Sources) -> str:
         if len(words) == 3:
             return _caption_date(text)
         return "\n" + text + "\n"
+    if len(words) >= 3 and words[1] == "was":         # a superseded figure quoted as history
+        fact, old = sources.fact(words[0]), " ".join(words[2:])
+        if old not in fact.superseded:
+            raise RecordError(f"{old!r} is not a superseded figure of {fact.key} (superseded: "
+                              f"{'; '.join(fact.superseded) or 'none'})")
+        return old
     if len(words) not in (1, 2) or (len(words) == 2 and words[1] not in FACT_FORMS):
-        raise RecordError(f"block name {name!r} is not 'KEY', 'KEY {{{'|'.join(FACT_FORMS)}}}', 'table NAME' "
-                          "or 'table NAME date'")
+        raise RecordError(f"block name {name!r} is not 'KEY', 'KEY {{{'|'.join(FACT_FORMS)}}}', 'KEY was FIGURE', "
+                          "'table NAME' or 'table NAME date'")
     fact = sources.fact(words[0])
     form = words[1] if len(words) == 2 else "value"
     return {"value": fact.printed(), "number": fact.value, "date": fact.date}[form]
@@ -104,7 +112,7 @@ def check(root: Path) -> list[str]:
 
     A block whose text differs from what the record generates, an unknown fact or table, an unreadable or
     inconsistent record, a stray ``measured:begin``/``measured:end`` marker, and a superseded figure quoted
-    outside the blocks of a page that has blocks or of :data:`ALWAYS_SCANNED`.
+    outside the blocks of any page (with or without blocks) or in :data:`ALWAYS_SCANNED`.
     """
     try:
         sources = read_block_sources(root)
@@ -126,8 +134,7 @@ def check(root: Path) -> list[str]:
         for marker in ("measured:begin", "measured:end"):
             if marker in outside:
                 problems.append(f"{where}: a {marker} marker without its pair")
-        if BLOCK.search(text):
-            problems += _superseded_quotes(outside, sources.facts, where)
+        problems += _superseded_quotes(outside, sources.facts, where)     # every page: one figure per fact
     for name in ALWAYS_SCANNED:
         path = root / name
         if path.exists():
