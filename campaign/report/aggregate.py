@@ -198,9 +198,11 @@ TABLE_NOTE = textwrap.fill("denominators: % valid = valid / (cases - failed) (sh
 
 def render_grid(headers: list[str], body: list[list[str]], markdown: bool = False) -> str:
     """Rows of cell texts under ``headers``: right-aligned plain-text columns, or a GitHub Markdown table."""
-    if markdown:
-        lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-        return "\n".join(lines + ["| " + " | ".join(cells) + " |" for cells in body])
+    if markdown:        # a quoted name holding |, ` or a newline must not break the table (one line, escaped)
+        def cell(text: str) -> str:
+            return "<br>".join(str(text).replace("|", "\\|").replace("`", "\\`").splitlines() or [""])
+        lines = ["| " + " | ".join(map(cell, headers)) + " |", "|" + "---|" * len(headers)]
+        return "\n".join(lines + ["| " + " | ".join(map(cell, cells)) + " |" for cells in body])
     widths = [max(len(h), *(len(cells[i]) for cells in body)) for i, h in enumerate(headers)]
 
     def line(cells: list[str]) -> str:     # first column (the class) left-aligned, numbers right-aligned

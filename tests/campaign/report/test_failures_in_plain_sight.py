@@ -134,3 +134,12 @@ def test_markdown_cells_escape_what_they_quote():
     assert unescaped_pipes(cell) == 0 and "\n" not in cell
     assert cell == "a \\| b \\`c\\`<br>next &lt;tag&gt; \\_\\_init\\_\\_.py \\*x\\*"
     assert markdown_cell(float("nan")) == "" and markdown_cell("gcp_1", emphasis=False) == "gcp_1"
+
+
+def test_a_markdown_grid_escapes_a_quoted_name_holding_a_pipe_a_backtick_or_a_newline():
+    from campaign.report.aggregate import render_grid
+
+    text = render_grid(["Class", "Cases"], [["gcp|rough `v2`\nnew", "3"], ["plain", "4"]], markdown=True)
+    lines = text.splitlines()
+    assert len(lines) == 4 and all(unescaped_pipes(line) == 3 for line in lines[2:]), text
+    assert lines[2] == "| gcp\\|rough \\`v2\\`<br>new | 3 |"
