@@ -314,7 +314,7 @@ def _check_sites(base_paths: list[Path], configs: list[CampaignConfig], label: s
     first: dict[str, Path] = {}
     for base_path, config in zip(base_paths, configs):
         other = first.setdefault(config.site.name, base_path)
-        if other != base_path:
+        if other is not base_path:
             raise ConfigError(f"{label}: sweep.base: {other} and {base_path} are both of site {config.site.name}; "
                               "allowed: one base per site (sweep a field to compare two variants of a site)")
 

@@ -173,9 +173,16 @@ def format_sweep_table(points: list[PointSummary], table: pd.DataFrame, markdown
             texts.append((f"### {title}\n\n" if title else "") + render_grid(headers, body, markdown=True))
             continue
         legend = [f"{_short(axis)} = {axis}" for axis in axes if _short(axis) != axis]
-        key_widths = [max(len(h), *(len(k[i]) for k in keys)) for i, h in enumerate(key_headers)]
         group_widths = [[max(len(h), *(len(c[i]) for c in cells)) for i, h in enumerate(headers)]
                         for _, headers, cells in groups]
+        key_widths = [max(len(h), *(len(k[i]) for k in keys)) for i, h in enumerate(key_headers)]
+        overflow = sum(key_widths) + 2 * (len(key_widths) - 1) + max(sum(w + 2 for w in g) for g in group_widths) - width
+        if overflow > 0 and key_widths[-1] > len("estimator"):     # long estimator names: cut with "~"
+            room = max(len("estimator"), key_widths[-1] - overflow)
+            full = sorted({key[-1] for key in keys if len(key[-1]) > room})
+            keys = [key[:-1] + [key[-1] if len(key[-1]) <= room else key[-1][:room - 1] + "~"] for key in keys]
+            key_widths[-1] = room
+            legend += [f"estimator {name}" for name in full]
         key_width = sum(key_widths) + 2 * (len(key_widths) - 1)
         blocks: list[list[int]] = []
         for index, widths in enumerate(group_widths):
@@ -184,7 +191,9 @@ def format_sweep_table(points: list[PointSummary], table: pd.DataFrame, markdown
                 blocks[-1].append(index)
             else:
                 blocks.append([index])
-        lines = ([title] if title else []) + (["axes: " + "; ".join(legend)] if legend else [])
+        lines = ([title] if title else []) + (textwrap.wrap("names in full: " + "; ".join(legend), width,
+                                                            subsequent_indent="  ", break_on_hyphens=False)
+                                              if legend else [])
         for number, block in enumerate(blocks, start=1):
             if len(blocks) > 1:
                 lines.append(f"block {number} of {len(blocks)}")
