@@ -138,7 +138,7 @@ def valid_false_valid_bars_figure(comparison: pd.DataFrame) -> Figure:
             valid, ran = int(row["valid"]), int(row["cases"]) - failed
             value = float(row["weighted_pct_valid"] if group == site else row["pct_valid"])
             pct.append(value if math.isfinite(value) else 0.0)
-            if group == site:
+            if group == site and (ran or not failed):
                 pct_text.append((f"{value:.0f}%" if math.isfinite(value) else "no %")
                                 + (f"\n{failed} failed" if failed else ""))
             else:
