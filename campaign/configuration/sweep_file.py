@@ -287,7 +287,9 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_sca
         raise ConfigError(f"{label}: axes make {len(combos) * len(base_paths)} points; allowed: at most {MAX_POINTS}")
 
     seen: dict[str, int] = {}
-    bases, points, all_values = [], [], []
+    bases: list[CampaignConfig] = []
+    points: list[SweepPoint] = []
+    all_values: list[dict] = []
     for base_path, base_config in zip(base_paths, base_configs):
         overrides = _campaign_overrides(sweep, base_config, class_names, label)
         if cases_scale is not None:

@@ -308,13 +308,15 @@ def verdict_record(report: GateReport, verdict_path: Path | None = None) -> dict
 
 
 def human_table(report: GateReport) -> str:
-    """The gate as people read it: the verdict, the regressions (or every comparison when none regressed),
-    and the notes."""
+    """The gate as people read it: the verdict, the regressions, how many comparisons passed, and the notes
+    (gate.md lists every comparison when none regressed)."""
     lines = [report.summary()]
     if report.regressions:
         lines += [f"regressions against {report.baseline.directory}:", format_findings(report.regressions)]
-    elif report.comparisons:
-        lines += ["every comparison:", format_findings(report.comparisons)]
+    passed = sum(1 for finding in report.comparisons if not finding.regression)
+    if passed:
+        lines.append(f"{passed} comparisons passed or were not judged (every row, its test and p-value: gate.json, "
+                     "gate.md)")
     lines += [f"note: {note}" for note in report.notes]
     return "\n".join(lines)
 

@@ -118,7 +118,8 @@ def _pct_cells(row: pd.Series, pct_column: str, valid: int, ran: int) -> str:
     return format_number(row[pct_column], "{:.1f}%") + f" ({valid}/{ran})"
 
 
-def _site_groups(points: list[PointSummary], table: pd.DataFrame) -> tuple[list[str], list]:
+def _site_groups(points: list[PointSummary], table: pd.DataFrame
+                 ) -> tuple[list[list[str]], list[tuple[str, list[str], list[list[str]]]]]:
     """(classes shown, [(title, headers, per (point, estimator) row: cells)]) of one site's points."""
     site = points[0].site
     classes = [name for name in points[0].fractions if any(p.cases_per_class.get(name, 0) > 0 for p in points)]
