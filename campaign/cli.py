@@ -21,8 +21,9 @@ a run stopped (one line naming the
 cause and the fix: campaign.run.faults), a sweep regressed, another writer holds the store's lock (one line
 naming it; ``--wait`` waits instead) or ``verify`` found bad files, 2 usage or configuration
 error (one clear line on stderr, nothing written; also a path the system refuses and running out of memory),
-3 internal error (one line; CAMPAIGN_TRACEBACK=1 shows the traceback), 130 interrupted (one line saying what the
-store kept), 141 stdout closed by its reader (silent). Never a traceback (see main). Command-line values (--cases-scale, --workers,
+3 internal error (one line; CAMPAIGN_TRACEBACK=1 shows the traceback), 128 + signal interrupted by SIGINT (130),
+SIGHUP (129) or SIGTERM (143) (one line saying what the store kept and the command line that resumes), 141
+stdout closed by its reader (silent). Never a traceback (see main). Command-line values (--cases-scale, --workers,
 --scheduler) are validated against the same declarations as the TOML fields, before anything is written.
 """
 from __future__ import annotations
@@ -37,7 +38,8 @@ from campaign import commands
 from campaign.commands import RUN_INCOMPLETE
 from campaign.configuration.paths import check_input_file, check_output_dir, check_path_text
 from campaign.configuration.schemas import SCHEMA_TABLES
-from campaign.run.faults import RunStopped
+from campaign.run.faults import FULL_DISK_ERRNOS, RunStopped, storage_fix
+from campaign.run.interrupts import exit_code, resume_command, signal_label, stop_signals
 from campaign.store.errors import StoreError
 from campaign.store.lock import StoreBusy
 from config_tables.command_line import USAGE_ERROR
@@ -48,7 +50,7 @@ from config_tables.errors import ConfigError
 # the parser and the mapping of what a command raises to one stderr line and an exit code.
 
 INTERNAL_ERROR = 3      # exit code: an unexpected exception (a bug), one line
-INTERRUPTED = 130       # exit code: Ctrl-C (128 + SIGINT)
+INTERRUPTED = 130       # exit code: Ctrl-C (128 + SIGINT); SIGTERM 143, SIGHUP 129 (campaign.run.interrupts)
 BROKEN_PIPE = 141       # exit code: stdout's reader closed the pipe (128 + SIGPIPE), silent
 
 
@@ -171,19 +173,21 @@ def _check_path_arguments(args: argparse.Namespace) -> None:
             check_path_text(value, label)
 
 
-def _kept(args: argparse.Namespace) -> str:
-    """After an interrupt: what the store holds (counted from its case files, nothing imported)."""
+def _kept(args: argparse.Namespace, argv: list[str] | None) -> str:
+    """After an interrupt: what the store holds (counted from its case files, nothing imported) and the
+    user's own command line to run again (campaign.run.interrupts.resume_command)."""
     store = getattr(args, "store_dir", None)
     if args.command not in ("submit", "sweep"):
         return "files already written are kept"
+    again = resume_command(argv)
     if args.command == "sweep":
-        return f"finished cases are kept in the point stores; `campaign sweep {args.file}` again runs the rest"
+        return f"finished cases are kept in the point stores; `{again}` again runs the rest"
     cases = Path(store) / "cases" if store is not None else None
     if cases is None or not cases.is_dir():
         return "nothing was stored"
     done = sum(1 for _ in cases.glob("case-*.parquet"))
     return (f"{done} finished case files kept in {store} (a case being computed is not stored); "
-            f"`campaign submit {args.file}` again computes the missing ones")
+            f"`{again}` again computes the missing ones")
 
 
 def _quiet_stdout() -> None:
@@ -204,14 +208,15 @@ def _os_problem(exc: OSError) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run one command. Exit codes (also in the module docstring and README): 0 success, 1 cases failed or
     missing / run stopped / regression / lock held / bad store files, 2 bad input or a path the system refuses,
-    3 internal error (a bug; ``CAMPAIGN_TRACEBACK=1`` shows the traceback), 130 interrupted (Ctrl-C),
+    3 internal error (a bug; ``CAMPAIGN_TRACEBACK=1`` shows the traceback), 128 + signal interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP),
     141 stdout closed by its reader. Every failure is one line on stderr, never a traceback."""
     args = None
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
         _check_path_arguments(args)
-        code = args.handler(args)
+        with stop_signals():                # SIGINT, SIGTERM, SIGHUP: Interrupted (campaign.run.interrupts)
+            code = args.handler(args)
         sys.stdout.flush()                  # a closed pipe shows here, not at interpreter exit
         return code
     except (ConfigError, StoreError) as exc:
@@ -223,14 +228,17 @@ def main(argv: list[str] | None = None) -> int:
     except StoreBusy as exc:
         print(f"campaign: busy: {exc}", file=sys.stderr, flush=True)
         return RUN_INCOMPLETE
-    except KeyboardInterrupt:
-        print(f"campaign: interrupted; {_kept(args) if args is not None else 'nothing was written'}",
-              file=sys.stderr, flush=True)
-        return INTERRUPTED
+    except KeyboardInterrupt as exc:        # also SIGTERM and SIGHUP (campaign.run.interrupts.Interrupted)
+        print(f"campaign: interrupted{signal_label(exc)}; "
+              f"{_kept(args, argv) if args is not None else 'nothing was written'}", file=sys.stderr, flush=True)
+        return exit_code(exc)
     except BrokenPipeError:
         _quiet_stdout()
         return BROKEN_PIPE
-    except OSError as exc:                  # a path the system refuses only when used (e.g. /proc, a full disk)
+    except OSError as exc:                  # a path the system refuses only when used (e.g. /proc)
+        if exc.errno in FULL_DISK_ERRNOS:   # the machine's fault, not bad input (campaign.run.faults)
+            print(f"campaign: {_os_problem(exc)}; {storage_fix(exc)}", file=sys.stderr)
+            return RUN_INCOMPLETE
         print(f"campaign: error: {_os_problem(exc)}", file=sys.stderr)
         return USAGE_ERROR
     except (MemoryError, RecursionError) as exc:

@@ -36,7 +36,6 @@ import importlib
 import json
 import logging
 import os
-import signal
 import sys
 import threading
 import weakref
@@ -58,6 +57,7 @@ from campaign.run.batch_jobs import (
     wait_for_first_worker,
 )
 from campaign.run.faults import RunStopped
+from campaign.run.interrupts import held, raise_pending, signals_blocked
 from campaign.run.security import (
     CERTIFICATE_NAME,
     KEY_NAME,
@@ -80,6 +80,9 @@ SINGLE_THREAD_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"
 #: 30 Gusev cases in one worker, 25-30 ms more CPU per case (of about 300 ms) with it than without, taken
 #: from the cases when every core runs a worker.
 WORKER_DASK_CONFIG = {"distributed.worker.profile.enabled": False}
+#: and of the embedded cluster's worker processes only: they ignore SIGINT, SIGTERM and SIGHUP, which reach the
+#: whole process group (Ctrl-C, ``timeout``, a closed terminal); the driver stops them (campaign.run.interrupts)
+LOCAL_WORKER_DASK_CONFIG = {**WORKER_DASK_CONFIG, "distributed.worker.preload": ["campaign.run.interrupts"]}
 #: the environment of a worker process that dask starts elsewhere (batch job, pod): one thread, no profiler
 WORKER_ENVIRONMENT = {**SINGLE_THREAD_ENVIRONMENT, "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
 WORKER_JOB_NAME = "moc2dimes-worker"
@@ -95,20 +98,21 @@ DRIVER_LOG_LEVEL = int(os.environ.get("M2D_DASK_LOG_LEVEL", logging.CRITICAL))
 
 
 @contextmanager
-def workers_ignore_interrupts() -> Iterator[None]:
-    """Worker processes started inside ignore SIGINT (an ignored signal stays ignored across fork and exec).
+def workers_ignore_stop_signals() -> Iterator[None]:
+    """Worker processes started inside never act on SIGINT, SIGTERM or SIGHUP: the driver starts them with
+    those signals blocked (:func:`~campaign.run.interrupts.signals_blocked`; the mask is inherited across
+    fork and exec).
 
-    Ctrl-C reaches the terminal's whole process group; only the driver answers it (it closes the cluster, keeps
-    the finished cases and prints one line, :func:`campaign.cli.main`) instead of every worker printing a
-    KeyboardInterrupt traceback. The driver itself ignores SIGINT only while its workers start."""
+    Ctrl-C, ``timeout`` and a closed terminal signal the whole process group; only the driver answers
+    (:mod:`campaign.run.interrupts`: it drops the remaining tasks, stops the workers through dask, keeps the
+    finished cases and prints one line, :func:`campaign.cli.main`) instead of every worker dying mid-write or
+    printing a KeyboardInterrupt traceback. A signal to the driver while its workers start is delivered when
+    they have started (to its handler), never lost."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
+    with signals_blocked():
         yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> None:
@@ -392,7 +396,8 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
                              f"{execution.connect_timeout_s:g} s ({_first_line(exc)}); start it, check the address, "
                              "or raise [execution] connect_timeout_s; nothing was run or changed") from None
     elif execution.cluster == "local":
-        with workers_ignore_interrupts(), dask.config.set(WORKER_DASK_CONFIG):   # each nanny keeps the config
+        # a stop signal while the workers start is raised once the cluster is whole (below, where it is closed)
+        with held(deliver=False), workers_ignore_stop_signals(), dask.config.set(LOCAL_WORKER_DASK_CONFIG):
             cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                    processes=True, memory_limit=execution.memory_limit,
                                    dashboard_address=execution.dashboard_address, host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
@@ -402,6 +407,7 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
         cluster = _kubernetes_cluster(execution)
     if cluster is not None and execution.cluster not in ("slurm", "pbs"):
         try:
+            raise_pending()
             client = Client(cluster)
         except BaseException:
             cluster.close()
@@ -433,9 +439,10 @@ def connected_client(execution: ExecutionConfig, quiet: bool = False) -> Iterato
         try:
             yield client
         finally:
-            _quietly(client.close)
-            if cluster is not None:
-                _quietly(cluster.close)
+            with held():                # the cluster is closed whole, whatever arrives meanwhile
+                _quietly(client.close)
+                if cluster is not None:
+                    _quietly(cluster.close)
     finally:
         for logger, level in zip(loggers, levels):
             logger.setLevel(level)

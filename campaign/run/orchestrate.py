@@ -24,14 +24,17 @@ from distributed import Client
 
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
+from campaign.run.batch_jobs import SUBMIT_COMMANDS, require_submit_command
 from campaign.run.cluster import connected_client, require_backend
 from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
-from campaign.run.faults import RunStopped
+from campaign.run.faults import RunStopped, is_infrastructure, storage_problem
+from campaign.run.interrupts import held, remove_temporary_files
 from campaign.run.planning import plan_campaign
 from campaign.run.plugin_setup import PluginSetupError, ship_plugin_code
 from campaign.run.security import require_secure_transport
 from campaign.run.worker import CampaignContext
 from campaign.store.campaign_store import CampaignStore
+from campaign.store.lock import StoreBusy
 from estimators.entries import EstimatorSpec
 
 PACKAGES = ("moc2dimes", "numpy", "scipy", "dask", "distributed", "pandas", "pyarrow",
@@ -158,10 +161,16 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
     for point, store in zip(points, stores):
         store.check(point.manifest, point.plan, fresh=fresh)
     with ExitStack() as stack:
+        new_lock_files = [store.lock_path for store in stores if not store.lock_path.exists()]
         lock_stores(points, stores, stack, fresh=fresh, wait=wait)
         if client is None:
             specs = [spec for point in points for spec in point.config.estimators]
-            client = stack.enter_context(cluster_session(execution, specs, client_hook=client_hook, quiet=quiet))
+            try:
+                client = stack.enter_context(cluster_session(execution, specs, client_hook=client_hook, quiet=quiet))
+            except BaseException:           # refused before any store changed: leave nothing behind
+                for path in new_lock_files:
+                    path.unlink(missing_ok=True)        # still held: a waiter is refused by the directory lock
+                raise
         return run_locked_points(client, points, stores, execution, fresh=fresh, progress=progress,
                                  on_note=on_note)
 
@@ -172,13 +181,40 @@ def cluster_session(execution: ExecutionConfig, specs: list[EstimatorSpec], *, c
     """A connected client (:func:`~campaign.run.cluster.connected_client`) whose workers have the python
     plug-ins' code (RunStopped, one line, when a worker cannot import one: nothing changed); ``client_hook``'s
     context is entered first and left after the caller's block, before the cluster closes."""
-    with connected_client(execution, quiet=quiet) as client:
-        with client_hook(client) if client_hook is not None else nullcontext():
-            try:
-                ship_plugin_code(client, specs)
-            except PluginSetupError as problem:
-                raise RunStopped(f"run stopped before any case ran: {problem}") from None
-            yield client
+    stores: set[Path] = set()
+    _SESSION_STORES.append(stores)
+    try:
+        with connected_client(execution, quiet=quiet) as client:
+            with client_hook(client) if client_hook is not None else nullcontext():
+                try:
+                    ship_plugin_code(client, specs)
+                except PluginSetupError as problem:
+                    raise RunStopped(f"run stopped before any case ran: {problem}") from None
+                yield client
+    finally:
+        _SESSION_STORES.remove(stores)
+        _remove_temporary_files(stores)       # the workers are stopped: a write they began will not end
+
+
+_SESSION_STORES: list[set[Path]] = []
+"""Per open :func:`cluster_session`, the stores its cases were submitted to (their temporary files are removed
+when the session's cluster has closed: a run stopped or interrupted mid-write leaves none)."""
+_LOCKED_HERE: set[Path] = set()
+"""The stores whose writer lock this process holds (:func:`lock_stores`)."""
+
+
+def _remove_temporary_files(stores: set[Path]) -> None:
+    """Remove the ``cases/.tmp-*`` files of ``stores`` under their writer lock (held here already, or taken
+    now; a store another writer has locked meanwhile is left to it)."""
+    for root in sorted(stores):
+        if root in _LOCKED_HERE:
+            remove_temporary_files([root])
+            continue
+        try:
+            with CampaignStore(root).lock(wait=False):
+                remove_temporary_files([root])
+        except (StoreBusy, OSError):
+            pass
 
 
 def lock_stores(points: list[StorePoint], stores: list[CampaignStore], locks: ExitStack, *, fresh: bool = False,
@@ -186,7 +222,16 @@ def lock_stores(points: list[StorePoint], stores: list[CampaignStore], locks: Ex
     """Take every store's lock in path order (held until ``locks`` closes; StoreBusy when another writer
     holds one, unless ``wait``), then check every store again under its lock (StoreError)."""
     for store in sorted(stores, key=lambda store: str(store.root)):
-        locks.enter_context(store.lock(wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)))
+        try:
+            locks.enter_context(store.lock(wait=wait, on_wait=lambda line: print(line, file=sys.stderr, flush=True)))
+        except OSError as exc:
+            if not is_infrastructure(exc):
+                raise
+            raise RunStopped(f"run stopped before any case ran: "
+                             f"{storage_problem(exc, store.lock_path, 'writing the store lock')}") from None
+        root = store.root
+        _LOCKED_HERE.add(root)
+        locks.callback(_LOCKED_HERE.discard, root)
     for point, store in zip(points, stores):
         store.check(point.manifest, point.plan, fresh=fresh)
 
@@ -208,6 +253,8 @@ def run_locked_points(client, points: list[StorePoint], stores: list[CampaignSto
             todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
             prepared.append(PreparedPoint(point, store, todo))
             if todo:
+                for session in _SESSION_STORES:
+                    session.add(store.root)
                 tasks += submit_cases(client, CampaignContext.from_config(point.config, store.root), todo, store)
         if tasks:
             done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
@@ -216,8 +263,23 @@ def run_locked_points(client, points: list[StorePoint], stores: list[CampaignSto
         raise RunStopped(f"{stop}{min(problems, default='')}") from None
     for entry in prepared:
         if entry.todo or entry.store.results_problem() is not None:
-            entry.store.compact()
+            compact_store(entry.store)
     return StoresRun(prepared, done, failed)
+
+
+def compact_store(store: CampaignStore) -> None:
+    """Compact ``store`` (results.parquet, timings.parquet, results.json) whole, a stop signal meanwhile
+    raised after it; a full disk or another storage error is the machine's fault, not bad input:
+    RunStopped (one line: the file, the cause, the fix; the finished cases stay in cases/)."""
+    with held():
+        try:
+            store.compact()             # a failed write removes its own temporary file (store_files)
+        except OSError as exc:
+            if not is_infrastructure(exc):
+                raise
+            raise RunStopped(f"run stopped: {storage_problem(exc, store.results_path, 'writing results.parquet')}; "
+                             f"the finished cases are kept in {store.root / 'cases'} and the next submit compacts "
+                             "them") from None
 
 
 def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | None = None,
@@ -236,6 +298,8 @@ def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | 
     execution = config.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(config.source))
     require_secure_transport(execution, str(config.source))
+    if execution.cluster in SUBMIT_COMMANDS:
+        require_submit_command(execution.cluster)       # before any lock or directory is made
     _, plan = plan_campaign(config)
     point = StorePoint(config, manifest_for(config), plan)
     run = run_store_points([point], execution, fresh=fresh, progress=progress, wait=wait)
@@ -245,7 +309,8 @@ def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | 
 def compact_after_stop(store: CampaignStore) -> str:
     """Compact the finished cases of a stopped run; "" or the reason it could not (e.g. the disk is full)."""
     try:
-        store.compact()                 # a failed write removes its own temporary file (store_files)
+        with held():
+            store.compact()             # a failed write removes its own temporary file (store_files)
     except OSError as exc:
-        return f" (results.parquet not rewritten: {exc.strerror or type(exc).__name__})"
+        return f" ({store.results_path} not rewritten: {exc.strerror or type(exc).__name__})"
     return ""

@@ -14,6 +14,8 @@ import time
 
 from tqdm import tqdm
 
+from campaign.run.interrupts import interrupting
+
 DEFAULT_COLUMNS = 100   # bar width on a terminal that reports no size (0 x 0, e.g. a fresh pty)
 DEFAULT_ROWS = 24       # tqdm draws nothing on a terminal of 0 rows
 
@@ -71,8 +73,12 @@ class ProgressBar:
         self.count = count
 
     def close(self, count: int | None = None, failed: int = 0) -> None:
-        """End the progress: the bar's last state, or a last plain line."""
+        """End the progress: the bar's last state, or a last plain line (none when a stop signal ends the run:
+        its one line says what was kept, :mod:`campaign.run.interrupts`)."""
         if not self.enabled:
+            return
+        if interrupting() and self.bar is None:
+            self.enabled = False
             return
         count = self.count if count is None else count
         if self.bar is not None:
