@@ -143,3 +143,16 @@ def test_a_markdown_grid_escapes_a_quoted_name_holding_a_pipe_a_backtick_or_a_ne
     lines = text.splitlines()
     assert len(lines) == 4 and all(unescaped_pipes(line) == 3 for line in lines[2:]), text
     assert lines[2] == "| gcp\\|rough \\`v2\\`<br>new | 3 |"
+
+
+def test_a_sweeps_failure_example_names_its_point_and_the_report_lines_count_every_kind():
+    from campaign.report.failures import failure_report_lines
+
+    rows = pd.DataFrame({"point_id": [2, 2, 5], "case_id": [7, 8, 7], "estimator": ["plug"] * 3,
+                         "status": ["failed"] * 3, "reason": ["implausible", "estimator_failed", "implausible"],
+                         "error": ["estimator plug: implausible: nan", "estimator plug: timeout: no result within 5 s",
+                                   "estimator plug: implausible: inf"]})
+    lines = failure_report_lines(failure_summary(rows))
+    assert lines[0].startswith("estimator plug: 3 of 3 rows failed, 2 kinds")
+    assert lines[1:] == ["  2 x implausible answer, e.g. point 2 case 7: estimator plug: implausible: nan",
+                         "  1 x timeout, e.g. point 2 case 8: estimator plug: timeout: no result within 5 s"]
