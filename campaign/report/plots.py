@@ -187,7 +187,7 @@ def valid_fraction_bars_figure(table: pd.DataFrame, estimator: str = "") -> Figu
     readable_axes(axes)
     weighted = float(site["weighted_pct_valid"])
     weighted_text = (f"ellipse-weighted {weighted:.1f}% valid" if np.isfinite(weighted)
-                     else "no ellipse-weighted % valid (a class ran no case)")
+                     else "no ellipse-weighted % valid\n(a class ran no case)")
     failed = int(site["failed"])
     axes.set_title(f"{estimator + ': ' if estimator else ''}{site['class']} {weighted_text}"
                    + (f"\n{failed} of {int(site['cases'])} rows failed" if failed else ""), fontsize=TITLE_POINTS)
