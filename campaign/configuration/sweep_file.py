@@ -72,6 +72,7 @@ from campaign.configuration.campaign_file import (
     campaign_config_from_data,
     load_campaign_config,
 )
+from campaign.configuration.sweep_axes import SITE_AXIS
 from config_tables.errors import ConfigError
 from config_tables.models import ConfigModel, ExistingFile, parse, parse_field
 from config_tables.toml_file import load_toml
@@ -80,7 +81,6 @@ AXIS_ROOTS = ("sensors", "estimator", "scene")
 AXIS_FIELDS = ("campaign.seed", "site.terrain_contrast_scale")
 ESTIMATOR_ENTRY_ROOT = "estimators"     # estimators.<name>.<field...>: a field of the [[estimators]] entry <name>
 ESTIMATOR_ENTRY_FIXED = ("name", "kind")    # fields of an entry that are not swept
-SITE_AXIS = "site"      # the axis of a sweep of several bases: the base's site name
 MAX_POINTS = 10_000
 EAGER_POINTS = 256      # points validated before a sweep runs (module docstring); the rest when first used
 

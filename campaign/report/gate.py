@@ -249,7 +249,8 @@ class GateReport:
         counts = f"{len(self.comparisons)} comparisons in {self.compared} points"
         if self.verdict == "regression":
             points = len({finding.point for finding in self.regressions})
-            text = f"gate: REGRESSION: {len(self.regressions)} of {counts} regressed ({points} points), {where}"
+            text = (f"gate: REGRESSION: {len(self.regressions)} of {len(self.comparisons)} comparisons regressed, in "
+                    f"{points} of {self.compared} points, {where}")
         elif self.verdict == "incomplete":
             text = (f"gate: INCOMPLETE: no regression in {counts}, but {self.unfinished} candidate cases failed or "
                     f"are missing, {where}")

@@ -24,11 +24,12 @@ from __future__ import annotations
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pandas as pd
 import pyarrow as pa
 
-from campaign.configuration.sweep_file import SITE_AXIS, SweepPoint, SweepSpec
+from campaign.configuration.sweep_axes import SITE_AXIS
 from campaign.report.aggregate import NOTE_WIDTH, format_number, render_grid
 from campaign.report.compare import (
     comparison_table,
@@ -42,6 +43,9 @@ from campaign.store.campaign_store import CampaignStore
 from campaign.store.case_files import atomic_write_bytes, atomic_write_table
 from campaign.store.errors import StoreError
 from campaign.store.sweep_directory import read_description, value_text, write_description
+
+if TYPE_CHECKING:      # `campaign table SWEEP_DIR` reads stores, not sweep files (no configuration models)
+    from campaign.configuration.sweep_file import SweepPoint, SweepSpec
 
 LINE_WIDTH = 120
 """No printed line of the sweep table is wider (it is split into blocks)."""
@@ -95,7 +99,7 @@ def sweep_results(spec: SweepSpec) -> pd.DataFrame:
 def sensitivity_table(spec: SweepSpec | list[PointSummary], results: pd.DataFrame) -> pd.DataFrame:
     """One row per point, estimator and class (campaign.report.compare columns), the site row holding the
     weighted totals."""
-    points = spec_points(spec) if isinstance(spec, SweepSpec) else spec
+    points = spec if isinstance(spec, list) else spec_points(spec)
     results = with_estimator_column(results)
     frames = []
     for point in points:

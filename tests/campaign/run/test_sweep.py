@@ -7,6 +7,7 @@ and the estimator degrades with lens dust and with the angular rate multiplier (
 """
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -157,6 +158,37 @@ def test_status_of_a_sweep_directory_counts_each_point(first_sweep, capsys):
 
 @pytest.mark.cluster
 @pytest.mark.slow
+def test_table_report_verify_and_status_take_a_sweep_directory(first_sweep, capsys):
+    """Per point, or one point picked with --point; never "not a campaign directory" (issue 32)."""
+    _, out = first_sweep
+    assert main(["table", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert max(len(line) for line in text.splitlines()) <= 120
+    results = pd.read_parquet(out / "results.parquet")
+    for (point_id, class_name), members in results.groupby(["point_id", "class_name"]):   # counts beside every %
+        valid = int(members["valid"].sum())
+        line = next(line for line in text.splitlines() if line.startswith(point_id + " "))
+        assert f"{100 * valid / len(members):.1f}% ({valid}/{len(members)})" in line, (class_name, line)
+    assert f"`campaign table {out} --point ID`" in text
+    assert main(["table", str(out), "--point", "p001"]) == 0
+    single = capsys.readouterr().out
+    store = out / "points" / results.loc[results.point_id == "p001", "config_hash"].iloc[0][:16]
+    assert single.startswith("Gusev: 5 of 5 cases finished") and (store / "table.md").is_file()
+    assert main(["verify", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("p000 (scene.camera_effects.dark_current_scale=1): clean (5 case files")
+    assert lines[-1] == f"{out}: sweep of 2 point stores: clean"
+    assert main(["report", str(out), "--point", store.name]) == 0
+    assert str(store / "report" / "report.md") in capsys.readouterr().out and (store / "report" / "report.md").is_file()
+    assert main(["status", str(out), "--point", "p000"]) == 0
+    assert "5 planned, 5 done, 0 failed, 0 missing" in capsys.readouterr().out
+    assert main(["table", str(out), "--point", "p009"]) == 2
+    stderr = capsys.readouterr().err
+    assert "no point 'p009'; allowed: p000 (scene.camera_effects.dark_current_scale=1), p001" in stderr
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_plots_of_each_metric_against_each_axis(first_sweep):
     _, out = first_sweep
     for metric in ("pct_valid", "error_mean_3sigma_mps"):
@@ -197,7 +229,7 @@ def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, ca
     code, stdout, _ = _run(capsys, path, "--output", out, "--scheduler", scheduler)   # every point kept: 0 cases
     assert code == 0 and "2 points, 2 reused; 0 cases done" in stdout
     code, stdout, _ = _run(capsys, path, "--output", out, "--scheduler", scheduler, "--baseline", out)
-    assert code == 0 and "no regression (2 points compared" in stdout
+    assert code == 0 and stdout.startswith("gate: PASS: no regression in ") and " in 2 points" in stdout
     # the same sweep on a campaign whose attitude sensor is 40 x noisier (2 deg per image, the estimator
     # budgets 0.3 deg 3 sigma): every point must lose valid cases or accuracy
     base = tmp_path / "sitedata" / "noisy.toml"
@@ -208,12 +240,15 @@ def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, ca
     noisy = _sweep_file(tmp_path, '"scene.camera_effects.dark_current_scale" = [1.0, 2.0]', base=base,
                         extra="", name="noisy.toml")
     code, stdout, _ = _run(capsys, noisy, "--output", tmp_path / "out", "--scheduler", scheduler, "--baseline", out)
-    assert code == 1, stdout
+    assert code == 4, stdout            # a regression's own exit code (1: failed cases, a held lock)
+    assert stdout.splitlines()[0].startswith("gate: REGRESSION: ") and " of 2 points, " in stdout.splitlines()[0]
     table = stdout[stdout.index(f"regressions against {out}:"):].splitlines()[1:]
     assert table[0].split() == ["point", "class", "estimator", "metric", "baseline", "candidate", "test", "why"]
     assert any("p000 (scene.camera_effects.dark_current_scale=1)" in line for line in table)
     assert any("p001 (scene.camera_effects.dark_current_scale=2)" in line for line in table)
-    assert "regressions against" in table[-1] and "(2 points compared)" in table[-1]
+    verdict = json.loads((tmp_path / "out" / "gate.json").read_text())
+    assert verdict["verdict"] == "regression" and verdict["compared_points"] == 2
+    assert verdict["regressions"] == sum(row["decision"] == "regression" for row in verdict["rows"]) == len(table) - 1
 
 
 def _plugin_campaign(directory: Path, bias_east_mps: float) -> Path:
@@ -241,23 +276,23 @@ def test_added_false_valid_cases_fail_the_gate_whatever_the_error_tolerance(tmp_
     code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "again", "--scheduler", scheduler, *quick,
                            "--baseline", tmp_path / "baseline")
     assert code == 0 and "1 points, 0 reused; 2 cases done" in stdout, stdout
-    assert f"no regression (1 points compared against {tmp_path / 'baseline'})" in stdout
+    assert stdout.startswith("gate: PASS: no regression in ") and f"against {tmp_path / 'baseline'}" in stdout
     biased = _sweep_file(tmp_path / "biased", axis, base=_plugin_campaign(tmp_path / "biased", 30.0),
                          extra="[tolerances]\nerror_increase_mps = 1000.0")
     code, stdout, _ = _run(capsys, biased, "--output", tmp_path / "candidate", "--scheduler", scheduler, *quick,
                            "--baseline", tmp_path / "baseline")
-    assert code == 1, stdout
+    assert code == 4, stdout
     baseline = pd.read_parquet(tmp_path / "baseline" / "results.parquet")
     expected = {name: int((members["valid"] & (members["velocity_error_mps"] > 5.0)).sum())
                 for name, members in baseline.groupby("class_name")}
     table = stdout[stdout.index("regressions against"):].splitlines()
-    rows = table[2:-1]                                          # heading, column names, rows, summary line
+    rows = [line for line in table[2:] if not line.startswith("note:")]        # heading, column names, rows
     assert len(rows) == 3 and all(" probe " in row and " false-valid " in row for row in rows), table
     assert {row.split(" probe ")[0].split(")")[-1].strip() for row in rows} == {"gcp", "gdcp", "Gusev weighted"}
     for name, count in (("gcp", 1), ("gdcp", 1)):               # every valid case is now false-valid
         assert any(f" {name} " in row and f" {expected[name]} of {count} valid  {count} of {count} valid " in row
                    for row in rows), table
-    assert table[-1] == f"3 regressions against {tmp_path / 'baseline'} (1 points compared)"
+    assert stdout.splitlines()[0].startswith("gate: REGRESSION: 3 of ") and "in 1 of 1 points" in stdout.splitlines()[0]
 
 
 # --- issue 7, done when: the estimator degrades with lens dust and with the angular rate multiplier ----
