@@ -45,6 +45,7 @@ from pydantic import AfterValidator, Field, SkipValidation, ValidationInfo, mode
 
 from campaign.configuration.base_files import layered_data, shipped_sites
 from campaign.configuration.code_identity import code_digest, plugin_modules
+from campaign.configuration.differences import HASH_EXCLUDED_CAMPAIGN_KEYS
 from campaign.configuration.estimators import (
     CalibrationConfig,
     EstimatorTable,
@@ -327,7 +328,6 @@ def check_site_paths(site: Site, label: str) -> None:
                                   "(the presets have 5000 x 1000)")
 
 
-HASH_EXCLUDED_CAMPAIGN_KEYS = ("output_dir", "false_valid_mps", "cases", "cases_scale")
 
 
 def hashed_content(resolved: dict, site: Site) -> dict:

@@ -23,10 +23,14 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-from campaign.configuration.campaign_file import HASH_EXCLUDED_CAMPAIGN_KEYS
-from campaign.configuration.estimators import CALIBRATION_KEYS
-from estimators.entries import DEFAULT_NAME
+# Standard library only: the store imports this module, and `campaign status|verify|table` import the store
+# without the configuration's models (tests/test_layers.py).
 
+#: ``[campaign]`` keys the configuration hash leaves out (campaign_file.hashed_content).
+HASH_EXCLUDED_CAMPAIGN_KEYS = ("output_dir", "false_valid_mps", "cases", "cases_scale")
+#: ``[estimator]`` keys that make the calibration products every estimator gets (the fields of
+#: campaign.configuration.estimators.CalibrationConfig); its other keys are the reference estimator's.
+CALIBRATION_KEYS = ("flat_field", "flat_field_frames")
 #: Changes spelled out in the one line; the others are counted.
 SHOWN_CHANGES = 6
 #: Longest value shown (longer ones are cut with "...").
@@ -101,23 +105,25 @@ def _compared_tables(config: dict) -> dict:
     return tables
 
 
-def estimator_entries(config: dict) -> dict[str, dict]:
-    """Estimator name -> its ``[[estimators]]`` entry (``path`` left out), in file order; the default
-    reference entry when the configuration names none."""
+def estimator_entries(config: dict, names: list | None = None) -> dict[str, dict]:
+    """Estimator name -> its ``[[estimators]]`` entry (``path`` left out), in file order; without
+    ``[[estimators]]``, a reference entry for each of ``names`` (the manifest's ``estimators``: the default
+    reference estimator)."""
     entries = config.get("estimators")
     if entries is None:
-        return {DEFAULT_NAME: {"name": DEFAULT_NAME, "kind": "reference", "parameters": {}}}
+        return {name: {"name": name, "kind": "reference", "parameters": {}} for name in names or ()}
     return {entry["name"]: {key: value for key, value in entry.items() if key != "path"} for entry in entries}
 
 
-def _reference_users(config: dict, field: str) -> frozenset[str]:
+def _reference_users(config: dict, names: list | None, field: str) -> frozenset[str]:
     """The reference estimators of ``config`` that take ``[estimator] field`` (do not override it)."""
-    return frozenset(name for name, entry in estimator_entries(config).items()
+    return frozenset(name for name, entry in estimator_entries(config, names).items()
                      if entry.get("kind") == "reference" and field not in (entry.get("parameters") or {}))
 
 
-def table_changes(old: dict, new: dict) -> list[FieldChange]:
-    """The differing table fields of two resolved configurations (manifest ``config``), estimators by name."""
+def table_changes(old: dict, new: dict, old_names: list | None = None, new_names: list | None = None) -> list[FieldChange]:
+    """The differing table fields of two resolved configurations (manifest ``config``), estimators by name
+    (``old_names``, ``new_names``: the manifests' estimator names, for configurations without ``[[estimators]]``)."""
     changes = []
     old_leaves, new_leaves = _leaves(_compared_tables(old), ""), _leaves(_compared_tables(new), "")
     fields = [*old_leaves, *(name for name in new_leaves if name not in old_leaves)]
@@ -128,9 +134,9 @@ def table_changes(old: dict, new: dict) -> list[FieldChange]:
             touched = None
             table, _, key = field.partition(".")
             if table == "estimator" and key and "." not in key and key not in CALIBRATION_KEYS:
-                touched = _reference_users(old, key) | _reference_users(new, key)
+                touched = _reference_users(old, old_names, key) | _reference_users(new, new_names, key)
             changes.append(FieldChange(field, _text(before), _text(after), touched))
-    old_entries, new_entries = estimator_entries(old), estimator_entries(new)
+    old_entries, new_entries = estimator_entries(old, old_names), estimator_entries(new, new_names)
     for name in [*old_entries, *(name for name in new_entries if name not in old_entries)]:
         if name not in new_entries:
             changes.append(FieldChange(f"estimators.{name}", "(an estimator)", REMOVED, frozenset({name})))
@@ -180,7 +186,8 @@ def _digest(value: Any) -> str:
 def configuration_changes(old_manifest: dict, new_manifest: dict) -> list[FieldChange]:
     """Every difference between the configurations of two manifests (:func:`table_changes`, then
     :func:`input_changes`)."""
-    tables = table_changes(old_manifest.get("config") or {}, new_manifest.get("config") or {})
+    tables = table_changes(old_manifest.get("config") or {}, new_manifest.get("config") or {},
+                           old_manifest.get("estimators"), new_manifest.get("estimators"))
     whole = frozenset().union(*(change.estimators or frozenset() for change in tables
                                 if change.new in (ADDED, REMOVED)))
     # an added or removed estimator's code is not a change of its own

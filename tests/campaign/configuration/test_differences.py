@@ -136,3 +136,11 @@ def _write_campaign(directory: Path, name: str, sigma: float) -> Path:
     path = directory / f"{name}.toml"
     path.write_text('base = "gusev"\n' + ESTIMATORS.format(sigma=sigma))
     return path
+
+
+def test_the_calibration_keys_are_the_calibration_tables():
+    """differences.py names them without importing the models (the store imports it): the same keys."""
+    from campaign.configuration import differences
+    from campaign.configuration.estimators import CalibrationConfig
+
+    assert differences.CALIBRATION_KEYS == tuple(CalibrationConfig.model_fields)
