@@ -381,13 +381,16 @@ def compare_flight(args: argparse.Namespace) -> int:
 
 
 def export(args: argparse.Namespace) -> int:
-    """``campaign export DIR CASE_ID OUT``: a case's exact estimator inputs and its truth as files."""
+    """``campaign export DIR CASE_ID OUT``: a case's exact estimator inputs and its truth as files, and per
+    estimator (reference, python, command) its parameters and the command that replays its stored row."""
     from campaign.case.export import export_case
 
     written = export_case(args.dir, args.case_id, args.out)
     record = json.loads((Path(args.out) / "truth.json").read_text())
     print(f"wrote {len(written)} files to {args.out}: {', '.join(path.name for path in written)}")
-    print(f"replay: {record['replay']}")
+    for entry in record["estimators"]:        # every estimator, every kind: its stored row, bit for bit
+        answer = "answer on stdout" if entry["answer"] == "stdout" else f"answer in {entry['answer']}"
+        print(f"replay {entry['name']} ({entry['kind']}, {answer}): {entry['replay']}")
     if not record["config_hash_matches_store"]:
         print(f"campaign: note: {args.dir} was computed by other code or input files (configuration hash differs): "
               "the export is of today's case, whose answer may differ from the stored one", file=sys.stderr)
