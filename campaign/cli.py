@@ -10,6 +10,7 @@
     campaign cluster FILE  print the job script / pod spec a submit would use (submits nothing)
     campaign sweep FILE    run a sensitivity sweep (base campaign x parameter axes); --baseline DIR, --reuse DIR
     campaign gate DIR --baseline DIR   judge a campaign or sweep against a baseline: gate.json, exit 4 on a regression
+    campaign sensitivity DIR   rank the recorded inputs by their effect on validity, false-valid and error
     campaign compare-flight FLIGHT.toml   real descent images next to the simulator's view of the same poses
     campaign export DIR CASE_ID OUT   a case's exact estimator inputs and its truth as files (replay it)
     campaign schema [T]    print the JSON Schema of every configuration table, or of table T
@@ -111,6 +112,14 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--wait", action="store_true", help="wait for other writers' locks on point stores")
     sweep.add_argument("--no-progress", action="store_true")
     sweep.set_defaults(handler=commands.sweep)
+
+    sensitivity = subcommands.add_parser("sensitivity", help="rank the recorded inputs by their effect on each "
+                                      "estimator's validity, false-valid and error (see campaign/analysis/sensitivity.py)")
+    sensitivity.add_argument("dir", help="a finished campaign store, or a sweep directory (each point)")
+    sensitivity.add_argument("--estimator", action="append", help="only this estimator (repeatable; default all)")
+    sensitivity.add_argument("--resamples", type=int, default=300, help="bootstrap replicates per interval (default 300)")
+    sensitivity.add_argument("--seed", type=int, default=0, help="seed of the resampling (default 0)")
+    sensitivity.set_defaults(handler=commands.sensitivity)
 
     flight = subcommands.add_parser("compare-flight", help="compare real descent images with the simulator's view "
                                  "(see campaign/realism/compare_flight.py)")
