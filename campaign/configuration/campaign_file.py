@@ -41,7 +41,7 @@ import os
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import AfterValidator, Field, SkipValidation, ValidationInfo, model_validator
+from pydantic import AfterValidator, ConfigDict, Field, SkipValidation, ValidationInfo, model_validator
 
 from campaign.configuration.base_files import layered_data, shipped_sites
 from campaign.configuration.code_identity import code_digest, plugin_modules
@@ -90,8 +90,17 @@ class CampaignTable(ConfigModel):
     threshold, not part of the configuration hash)."""
 
 
+def _site_may_come_from_the_base(schema: dict) -> None:
+    """JSON Schema of a campaign file: ``site`` is required only of a file without ``base`` (the loader checks
+    the merged tables)."""
+    schema["required"] = [name for name in schema.get("required", []) if name != "site"]
+    schema["anyOf"] = [{"required": ["site"]}, {"required": ["base"]}]
+
+
 class CampaignFile(ConfigModel):
     """A campaign TOML file: a site file plus the campaign's optional tables."""
+
+    model_config = ConfigDict(json_schema_extra=_site_may_come_from_the_base)
 
     base: str | None = None
     """The file this one builds on: a shipped site ("gusev", "meridiani") or a TOML file relative to this one;

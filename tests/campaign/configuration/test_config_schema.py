@@ -20,6 +20,7 @@ SHIPPED = [
     ("campaign_file", SITEDATA / "examples" / "real_moc.toml"),
     ("camera", SITEDATA / "cameras" / "mer_a.toml"), ("camera", SITEDATA / "cameras" / "mer_b.toml"),
     ("campaign_file", SITEDATA / "examples" / "compare_estimators.toml"),
+    ("campaign_file", SITEDATA / "examples" / "my_estimator_gusev.toml"),
     ("sweep", SITEDATA / "sweeps" / "nightly.toml"), ("sweep", SITEDATA / "sweeps" / "atmosphere_gusev.toml"),
     ("sweep", SITEDATA / "sweeps" / "flat_field_meridiani.toml"),
     ("trajectory_set", SITEDATA / "trajectories" / "edl_gusev.toml"),
@@ -52,6 +53,8 @@ def test_every_shipped_file_satisfies_its_schema(name, path):
     ("trajectory_set", SITEDATA / "trajectories" / "edl_gusev.toml", ("bridle_length_m = 20.0", "bridle_length_m = 0.5")),
     ("sweep", SITEDATA / "sweeps" / "nightly.toml", ('mode = "grid"', 'mode = "zigzag"')),
     ("campaign_file", SITEDATA / "examples" / "compare_estimators.toml", ('kind = "python"', 'kind = "rust"')),
+    ("campaign_file", SITEDATA / "examples" / "my_estimator_gusev.toml", ('base = "gusev"', 'bass = "gusev"')),
+    ("campaign_file", SITEDATA / "examples" / "my_estimator_gusev.toml", ('path = "."', 'path = 1')),
     ("campaign_file", SITEDATA / "gusev.toml", ("[site.sun]", "[scene.atmosphere]\norbital_optical_depth = 11.0\n[site.sun]")),
     ("campaign_file", SITEDATA / "gusev.toml", ("[site.sun]", "[estimator]\nflat_field = \"magic\"\n[site.sun]")),
 ])
