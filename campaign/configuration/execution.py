@@ -128,7 +128,9 @@ class BatchJobs(ConfigModel):
     interface: str = ""
     """Network interface the scheduler and workers talk on, e.g. "ib0"; "" = the host name's address."""
     python: str = ""
-    """Python interpreter of the workers; "" = the driver's own (same path on the compute nodes)."""
+    """Python interpreter of the workers, run after the prologue (a path, or a name the prologue's PATH finds);
+    "" = "python3" of the prologue's environment when there is a prologue, else the driver's own by its path
+    (which must then exist on the compute nodes)."""
     certificate_directory: str = ""
     """Directory on a file system the compute nodes share, where a run's own TLS certificate and key are
     written for its workers (a private sub-directory, readable only by you, removed after the run);

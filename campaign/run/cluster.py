@@ -41,6 +41,7 @@ import threading
 import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from functools import partial
 from typing import Any, Protocol, cast
 
@@ -142,17 +143,70 @@ def default_worker_count() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+#: the workers' interpreter in a batch job whose ``prologue`` sets up the environment (a venv's activate, ``module
+#: load``, ``conda activate``) and whose ``python`` is "": the one that environment puts first on PATH
+PROLOGUE_PYTHON = "python3"
+
+
+def worker_python(jobs: BatchJobs) -> str:
+    """The interpreter a batch job's workers run (after the job's ``prologue``): ``[execution.slurm] python``
+    (or ``.pbs``) when given; else, with a ``prologue``, :data:`PROLOGUE_PYTHON` as the prologue's environment
+    finds it on PATH (the environment the user configured, never a path of the login node's); else the
+    driver's own interpreter, by its path (the same path must exist on the compute nodes)."""
+    if jobs.python:
+        return jobs.python
+    return PROLOGUE_PYTHON if jobs.prologue else sys.executable
+
+
+@dataclass(frozen=True)
+class JobShape:
+    """How many batch jobs, of how many single-threaded workers (one core each) and how much memory each.
+
+    ``note`` explains a shape other than ``[execution.slurm]`` (or ``.pbs``) ``cores`` and ``memory`` (""
+    when none): a worker count (``[execution] workers`` or ``--workers``) that ``cores`` does not divide."""
+
+    jobs: int
+    workers_per_job: int
+    memory: str
+    note: str = ""
+
+    @property
+    def workers(self) -> int:
+        return self.jobs * self.workers_per_job
+
+
+def job_shape(execution: ExecutionConfig) -> JobShape:
+    """The batch jobs of ``execution``: ``jobs`` x ``cores`` workers, or exactly ``[execution] workers``
+    (``--workers``) when given: jobs of ``cores`` workers when ``cores`` divides the count, else jobs of the
+    largest divisor of the count below ``cores`` (each asking that many cores and its workers' share of
+    ``memory``), with a one-line note saying so. Never more or fewer workers than asked."""
+    batch = _batch_jobs(execution)
+    wanted = execution.workers
+    if not wanted:
+        return JobShape(batch.jobs, batch.cores, batch.memory)
+    per_job = max(size for size in range(1, min(batch.cores, wanted) + 1) if wanted % size == 0)
+    if per_job == batch.cores:
+        return JobShape(wanted // per_job, per_job, batch.memory)
+    memory = f"{batch.memory_per_worker_bytes * per_job // 2**20}MiB"
+    return JobShape(wanted // per_job, per_job, memory,
+                    f"{wanted} workers: {wanted // per_job} job(s) of {per_job} worker(s) ({per_job} cores, "
+                    f"{memory} each) instead of [execution.{execution.cluster}] cores = {batch.cores} (memory "
+                    f"{batch.memory}), which does not divide {wanted}")
+
+
 def _job_options(execution: ExecutionConfig) -> dict:
     """Keyword arguments of dask-jobqueue's job (and cluster) for ``[execution.slurm]`` / ``[execution.pbs]``
-    (the TLS options are the caller's)."""
-    jobs: BatchJobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
+    (the TLS options are the caller's): the job's shape (:func:`job_shape`), its interpreter
+    (:func:`worker_python`) after the ``prologue``."""
+    jobs: BatchJobs = _batch_jobs(execution)
+    shape = job_shape(execution)
     prologue = [f"export {name}={value}" for name, value in WORKER_ENVIRONMENT.items()] + list(jobs.prologue)
     # each worker's own dashboard on the same host as the scheduler's (default: the compute node's loopback)
     worker_dashboard = f"{execution.dashboard_address.rsplit(':', 1)[0]}:0"
-    return dict(cores=jobs.cores, processes=jobs.cores, memory=jobs.memory, walltime=jobs.walltime,
-                queue=jobs.queue or None, account=jobs.account or None, job_name=WORKER_JOB_NAME,
-                job_extra_directives=list(jobs.job_extra), job_script_prologue=prologue,
-                interface=jobs.interface or None, python=jobs.python or sys.executable,
+    return dict(cores=shape.workers_per_job, processes=shape.workers_per_job, memory=shape.memory,
+                walltime=jobs.walltime, queue=jobs.queue or None, account=jobs.account or None,
+                job_name=WORKER_JOB_NAME, job_extra_directives=list(jobs.job_extra), job_script_prologue=prologue,
+                interface=jobs.interface or None, python=worker_python(jobs),
                 worker_extra_args=["--dashboard-address", worker_dashboard])
 
 
@@ -279,10 +333,10 @@ def cluster_description(execution: ExecutionConfig) -> tuple[str, str]:
     :data:`SCHEDULER_PLACEHOLDER`) or the DaskCluster resource as JSON (kubernetes); the note says how many.
     Starts and submits nothing."""
     if execution.cluster in ("slurm", "pbs"):
-        jobs = execution.slurm if execution.cluster == "slurm" else execution.pbs
-        count = -(-execution.workers // jobs.cores) if execution.workers else jobs.jobs
-        return batch_job_script(execution), (f"{count} such job(s) of {jobs.cores} single-threaded worker(s), "
-                                             f"submitted with {SUBMIT_COMMANDS[execution.cluster]}")
+        shape = job_shape(execution)
+        return batch_job_script(execution), (f"{shape.jobs} such job(s) of {shape.workers_per_job} single-threaded "
+                                             f"worker(s), submitted with {SUBMIT_COMMANDS[execution.cluster]}"
+                                             + (f" ({shape.note})" if shape.note else ""))
     if execution.cluster == "kubernetes":
         spec = kubernetes_cluster_spec(execution)
         pods = execution.kubernetes
@@ -331,11 +385,11 @@ def _batch_cluster(execution: ExecutionConfig, quiet: bool) -> tuple[Client, Clo
         certificates.remove()
         raise
     closable = _BatchCluster(cluster, certificates)
+    shape = job_shape(execution)
+    if shape.note and not quiet:
+        print(f"campaign: note: {shape.note}", file=sys.stderr, flush=True)
     try:
-        if execution.workers:
-            cluster.scale(n=execution.workers)
-        else:
-            cluster.scale(jobs=jobs.jobs)
+        cluster.scale(jobs=shape.jobs)
         client = Client(cluster)
         try:
             wait_for_first_worker(cluster, execution.cluster, record, execution.no_workers_timeout_s)
