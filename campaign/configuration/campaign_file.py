@@ -308,7 +308,12 @@ def campaign_config_from_data(data: dict, path: str | Path, *, source: str | Non
                                       "cases_scale": campaign.cases_scale if cases_scale is None else float(cases_scale)},
                      label, context={"source": label})
     except ConfigError as exc:
-        raise layered.attribute(exc) from None
+        error = layered.attribute(exc)
+        if ": site.camera = " in str(error) and ": no such file " in str(error):
+            error = ConfigError(f"{error}; relative paths resolve against the file that writes them: to build on a "
+                                f"site file without copying it, write base = \"{shipped_sites()[0]}\" (a shipped site) "
+                                "or base = \"path/to/site.toml\"")
+        raise error from None
 
 
 #: Largest synthetic terrain strip (rows x cols) a class may declare: 4x the presets' 5000 x 1000 pixels.

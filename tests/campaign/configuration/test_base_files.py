@@ -134,3 +134,14 @@ def test_command_line_exit_2_for_a_missing_base_and_a_cycle(tmp_path):
                               capture_output=True, text=True, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})
         assert done.returncode == 2 and expected in done.stderr, done.stderr
         assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_a_copied_site_file_says_how_to_build_on_it_instead(tmp_path):
+    """The copy's camera path is relative to the copy, so it breaks; the line says so and names `base`."""
+    copy = tmp_path / "copied.toml"
+    shutil.copy(GUSEV, copy)
+    with pytest.raises(ConfigError) as caught:
+        load_campaign_config(copy)
+    text = str(caught.value)
+    assert text.startswith(f"{copy}: site.camera = 'cameras/mer_a.toml': no such file {tmp_path / 'cameras' / 'mer_a.toml'}")
+    assert 'write base = "gusev" (a shipped site)' in text and "\n" not in text
