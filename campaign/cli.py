@@ -193,7 +193,7 @@ def _kept(args: argparse.Namespace, argv: list[str] | None) -> str:
         return f"finished cases are kept in the point stores; `{again}` again runs the rest"
     cases = Path(store) / "cases" if store is not None else None
     if cases is None or not cases.is_dir():
-        return "nothing was stored"
+        return f"nothing was stored; `{again}` starts it again"
     done = sum(1 for _ in cases.glob("case-*.parquet"))
     return (f"{done} finished case files kept in {store} (a case being computed is not stored); "
             f"`{again}` again computes the missing ones")

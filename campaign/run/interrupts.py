@@ -184,9 +184,15 @@ def program_words(argv: list[str] | None = None, orig_argv: list[str] | None = N
         return [sys.executable, "-m", "campaign.cli"]
     name = os.path.basename(program)
     found = shutil.which(name)
-    if found is not None and os.path.realpath(found) == os.path.realpath(program):
+    if found is not None and (os.path.realpath(found) == os.path.realpath(program) or _pyenv_shim(found)):
         return [name]
     return [program]
+
+
+def _pyenv_shim(path: str) -> bool:
+    """True for a pyenv shim (``$PYENV_ROOT/shims/NAME``), which runs the same installed command by its name."""
+    root = os.environ.get("PYENV_ROOT")
+    return bool(root) and os.path.dirname(os.path.abspath(path)) == os.path.join(os.path.abspath(root), "shims")
 
 
 def resume_command(arguments: list[str] | None) -> str:
