@@ -206,12 +206,11 @@ def resume_command(arguments: list[str] | None) -> str:
 
 def remove_temporary_files(stores: Iterable[Path | str]) -> int:
     """Remove the temporary files (``.tmp-*``) that writes cut short by a stop left in the stores' ``cases/``
-    (call with the stores locked and their workers stopped); return how many were removed."""
+    and ``examples/`` (call with the stores locked and their workers stopped); return how many were removed."""
     removed = 0
-    for store in stores:
-        cases = Path(store) / "cases"
+    for directory in (Path(store) / part for store in stores for part in ("cases", "examples")):
         try:
-            entries = list(os.scandir(cases))
+            entries = list(os.scandir(directory))
         except OSError:
             continue
         for entry in entries:
