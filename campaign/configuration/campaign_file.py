@@ -1,6 +1,7 @@
 """Campaign configuration: a site TOML plus campaign tables, validated into typed objects.
 
-A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables:
+A campaign file (e.g. ``sitedata/gusev.toml``) has these top-level tables, and optionally ``base = "gusev"`` (or
+a path): the file it builds on, whose tables it overrides key by key (:mod:`campaign.configuration.base_files`):
 
 ``[site]``       site, camera, trajectory set, sun, appearance classes (read by :mod:`sitedata.sites`)
 ``[campaign]``   ``seed`` (int), ``output_dir`` (relative to the working directory; default
