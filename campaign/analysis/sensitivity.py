@@ -18,6 +18,7 @@ import pandas as pd
 
 from campaign.analysis.case_inputs import OUTPUT_MEANINGS, OUTPUTS, case_inputs, case_outputs
 from campaign.analysis.given_data import analyse_input, continuous_null, holm_noise, is_categorical, slice_count
+from campaign.analysis.sensitivity_plots import ranked_bars, top_two
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.errors import StoreError
 from campaign.store.stored_config import stored_config
@@ -198,8 +199,6 @@ def analyse_store(directory: str | Path, settings: AnalysisSettings = AnalysisSe
     """``campaign sensitivity`` on one store: compute the table, write ``sensitivity.parquet`` and the figures
     (``sensitivity_<estimator>.png``, ``sensitivity_top2_<estimator>.png``) in the store, return the printed
     summary followed by the files written."""
-    from campaign.analysis.sensitivity_plots import ranked_bars, top_two
-
     directory = Path(directory)
     table, notes = store_sensitivity(directory, settings, estimators)
     written = [write_sensitivity(directory, table, settings)]
