@@ -31,6 +31,12 @@ def _sweep_file(directory: Path, axes: str, extra: str = "", base: Path = GUSEV,
     return path
 
 
+def _verdict(stdout: str) -> str:
+    """The gate's verdict line: the first line the sweep prints after the cluster's dashboard line."""
+    lines = [line for line in stdout.splitlines() if not line.startswith("dask dashboard: ")]
+    return lines[0] if lines else ""
+
+
 def _run(capsys, *argv) -> tuple[int, str, str]:
     code = main(["sweep", *map(str, argv), "--no-progress"])
     captured = capsys.readouterr()
@@ -229,7 +235,7 @@ def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, ca
     code, stdout, _ = _run(capsys, path, "--output", out, "--scheduler", scheduler)   # every point kept: 0 cases
     assert code == 0 and "2 points, 2 reused; 0 cases done" in stdout
     code, stdout, _ = _run(capsys, path, "--output", out, "--scheduler", scheduler, "--baseline", out)
-    assert code == 0 and stdout.startswith("gate: PASS: no regression in ") and " in 2 points" in stdout
+    assert code == 0 and _verdict(stdout).startswith("gate: PASS: no regression in ") and " in 2 points" in stdout
     # the same sweep on a campaign whose attitude sensor is 40 x noisier (2 deg per image, the estimator
     # budgets 0.3 deg 3 sigma): every point must lose valid cases or accuracy
     base = tmp_path / "sitedata" / "noisy.toml"
@@ -241,14 +247,15 @@ def test_baseline_regression_exits_1_naming_the_point(first_sweep, scheduler, ca
                         extra="", name="noisy.toml")
     code, stdout, _ = _run(capsys, noisy, "--output", tmp_path / "out", "--scheduler", scheduler, "--baseline", out)
     assert code == 4, stdout            # a regression's own exit code (1: failed cases, a held lock)
-    assert stdout.splitlines()[0].startswith("gate: REGRESSION: ") and " of 2 points, " in stdout.splitlines()[0]
+    assert _verdict(stdout).startswith("gate: REGRESSION: ") and " of 2 points, " in _verdict(stdout)
     table = stdout[stdout.index(f"regressions against {out}:"):].splitlines()[1:]
     assert table[0].split() == ["point", "class", "estimator", "metric", "baseline", "candidate", "test", "why"]
     assert any("p000 (scene.camera_effects.dark_current_scale=1)" in line for line in table)
     assert any("p001 (scene.camera_effects.dark_current_scale=2)" in line for line in table)
     verdict = json.loads((tmp_path / "out" / "gate.json").read_text())
     assert verdict["verdict"] == "regression" and verdict["compared_points"] == 2
-    assert verdict["regressions"] == sum(row["decision"] == "regression" for row in verdict["rows"]) == len(table) - 1
+    assert verdict["regressions"] == sum(row["decision"] == "regression" for row in verdict["rows"]) == len(
+        [line for line in table[1:] if line.startswith("p0")])
 
 
 def _plugin_campaign(directory: Path, bias_east_mps: float) -> Path:
@@ -276,7 +283,7 @@ def test_added_false_valid_cases_fail_the_gate_whatever_the_error_tolerance(tmp_
     code, stdout, _ = _run(capsys, honest, "--output", tmp_path / "again", "--scheduler", scheduler, *quick,
                            "--baseline", tmp_path / "baseline")
     assert code == 0 and "1 points, 0 reused; 2 cases done" in stdout, stdout
-    assert stdout.startswith("gate: PASS: no regression in ") and f"against {tmp_path / 'baseline'}" in stdout
+    assert _verdict(stdout).startswith("gate: PASS: no regression in ") and f"against {tmp_path / 'baseline'}" in stdout
     biased = _sweep_file(tmp_path / "biased", axis, base=_plugin_campaign(tmp_path / "biased", 30.0),
                          extra="[tolerances]\nerror_increase_mps = 1000.0")
     code, stdout, _ = _run(capsys, biased, "--output", tmp_path / "candidate", "--scheduler", scheduler, *quick,
@@ -286,13 +293,13 @@ def test_added_false_valid_cases_fail_the_gate_whatever_the_error_tolerance(tmp_
     expected = {name: int((members["valid"] & (members["velocity_error_mps"] > 5.0)).sum())
                 for name, members in baseline.groupby("class_name")}
     table = stdout[stdout.index("regressions against"):].splitlines()
-    rows = [line for line in table[2:] if not line.startswith("note:")]        # heading, column names, rows
+    rows = [line for line in table[2:] if line.startswith("p0")]        # heading, column names, rows, counts
     assert len(rows) == 3 and all(" probe " in row and " false-valid " in row for row in rows), table
     assert {row.split(" probe ")[0].split(")")[-1].strip() for row in rows} == {"gcp", "gdcp", "Gusev weighted"}
     for name, count in (("gcp", 1), ("gdcp", 1)):               # every valid case is now false-valid
         assert any(f" {name} " in row and f" {expected[name]} of {count} valid  {count} of {count} valid " in row
                    for row in rows), table
-    assert stdout.splitlines()[0].startswith("gate: REGRESSION: 3 of ") and "in 1 of 1 points" in stdout.splitlines()[0]
+    assert _verdict(stdout).startswith("gate: REGRESSION: 3 of ") and "in 1 of 1 points" in _verdict(stdout)
 
 
 # --- issue 7, done when: the estimator degrades with lens dust and with the angular rate multiplier ----
