@@ -199,7 +199,7 @@ def test_the_command_line_imports_only_light_modules_at_start():
              for target, local, line in GRAPH[module]
              if not local and line not in _type_checking_lines(MODULES[module])}
     assert light <= {"campaign.commands", "campaign.configuration.paths", "campaign.configuration.schemas",
-                     "campaign.run.faults", "campaign.store.errors", "campaign.store.lock",
+                     "campaign.run.faults", "campaign.run.interrupts", "campaign.store.errors", "campaign.store.lock",
                      "config_tables.command_line", "config_tables.errors"}, light
 
 
@@ -277,5 +277,6 @@ def test_a_read_only_command_loads_only_what_it_reads(command):
     starts = {_resolve(target) for target, _, line in GRAPH["campaign.commands"] if line in lines} - {None}
     starts |= _closure({"campaign.cli"})          # what the command line itself loads at start
     loaded = _closure({module for module in starts if module})
-    light = {"campaign.run", "campaign.run.faults"}    # the command line maps RunStopped to its exit code
+    # the command line maps RunStopped to its exit code and installs the stop-signal handlers (stdlib only)
+    light = {"campaign.run", "campaign.run.faults", "campaign.run.interrupts"}
     assert loaded and not [module for module in loaded - light if module.startswith(RUN_STACK)], sorted(loaded)
