@@ -193,6 +193,15 @@ def _sweep_point(args: argparse.Namespace) -> str | None:
     return point
 
 
+def _require_store_or_sweep(directory: str) -> None:
+    """``table`` and ``report`` read a store or a sweep directory: anything else is one line saying which."""
+    if not (Path(directory) / "manifest.json").exists() and not _is_sweep(directory):
+        from campaign.store.errors import StoreError
+
+        raise StoreError(f"{directory}: not a campaign store (no manifest.json) and not a sweep output directory (no "
+                         "sweep.json, no points/); allowed: the output directory of `campaign submit` or `campaign sweep`")
+
+
 def _each_point(args: argparse.Namespace) -> list[tuple[str, str]]:
     """The (label, store) of every point of the sweep directory ``args.dir`` that has a store (status,
     verify and report run per point without ``--point``)."""
@@ -237,6 +246,7 @@ def table(args: argparse.Namespace) -> int:
     """``campaign table DIR``: print the paper's table (also written as table.md and table.csv in DIR)."""
     from campaign.report.table import write_table
 
+    _require_store_or_sweep(args.dir)
     if _sweep_point(args) is None and _is_sweep(args.dir):
         from campaign.report.sweep_outputs import directory_table
 
@@ -252,6 +262,7 @@ def report(args: argparse.Namespace) -> int:
     every point's, in its store, or ``--point``'s)."""
     from campaign.report.markdown import write_report
 
+    _require_store_or_sweep(args.dir)
     if _sweep_point(args) is None and _is_sweep(args.dir):
         points = _each_point(args)
         for label, store in points:

@@ -93,7 +93,7 @@ class GatePoint:
         return (self.site.lower(), match_key({k: v for k, v in self.values.items() if k != SITE_AXIS}))
 
     def identity(self) -> dict:
-        return {"point_id": self.point_id, "values": self.values, "site": self.site, "store": str(self.store),
+        return {"point_id": self.point_id, "values": self.values, "site": self.site, "store": os.path.abspath(self.store),
                 "config_hash": self.config_hash, "manifest_sha256": self.manifest_sha256, "planned": self.planned,
                 "done": self.done, "failed": self.failed, "missing": self.missing}
 

@@ -121,6 +121,11 @@ def test_a_directory_that_is_neither_store_nor_sweep_is_one_line_exit_2(tmp_path
     stderr = capsys.readouterr().err
     assert code == 2 and "not a campaign store and not a sweep output directory" in stderr
     assert len(stderr.strip().splitlines()) == 1
+    for command in ("table", "report"):          # the store commands say what they accept
+        code = main([command, str(tmp_path / "empty")])
+        stderr = capsys.readouterr().err
+        assert code == 2 and "not a campaign store (no manifest.json) and not a sweep output directory" in stderr
+        assert len(stderr.strip().splitlines()) == 1
 
 
 # --- on a real cluster --------------------------------------------------------------------------------
