@@ -19,10 +19,11 @@ Exit codes: 0 success (every case done, no estimator row failed), 1 cases failed
 row failed in the store (submit and sweep: one stderr line per such estimator with the count and the first
 reason, e.g. ``campaign: estimator flight: 4 of 4 rows failed; first: case 0 (estimator_failed): ...``),
 a run stopped (one line naming the
-cause and the fix: campaign.run.faults), a sweep regressed, another writer holds the store's lock (one line
+cause and the fix: campaign.run.faults), another writer holds the store's lock (one line
 naming it; ``--wait`` waits instead) or ``verify`` found bad files, 2 usage or configuration
 error (one clear line on stderr, nothing written; also a path the system refuses and running out of memory),
-3 internal error (one line; CAMPAIGN_TRACEBACK=1 shows the traceback), 128 + signal interrupted by SIGINT (130),
+4 a regression against a baseline (``gate``, ``sweep --baseline``: campaign.report.gate; the verdict line is
+printed first and kept through a closed pipe), 3 internal error (one line; CAMPAIGN_TRACEBACK=1 shows the traceback), 128 + signal interrupted by SIGINT (130),
 SIGHUP (129) or SIGTERM (143) (one line saying what the store kept and the command line that resumes), 141
 stdout closed by its reader (silent). Never a traceback (see main). Command-line values (--cases-scale, --workers,
 --scheduler) are validated against the same declarations as the TOML fields, before anything is written.
@@ -216,7 +217,7 @@ def _os_problem(exc: OSError) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one command. Exit codes (also in the module docstring and README): 0 success, 1 cases failed or
-    missing / run stopped / regression / lock held / bad store files, 2 bad input or a path the system refuses,
+    missing / run stopped / lock held / bad store files, 2 bad input or a path the system refuses, 4 regression,
     3 internal error (a bug; ``CAMPAIGN_TRACEBACK=1`` shows the traceback), 128 + signal interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP),
     141 stdout closed by its reader. Every failure is one line on stderr, never a traceback."""
     args = None
