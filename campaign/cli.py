@@ -23,7 +23,8 @@ cause and the fix: campaign.run.faults), another writer holds the store's lock (
 naming it; ``--wait`` waits instead) or ``verify`` found bad files, 2 usage or configuration
 error (one clear line on stderr, nothing written; also a path the system refuses and running out of memory),
 4 a regression against a baseline (``gate``, ``sweep --baseline``: campaign.report.gate; the verdict line is
-printed first and kept through a closed pipe), 3 internal error (one line; CAMPAIGN_TRACEBACK=1 shows the traceback), 128 + signal interrupted by SIGINT (130),
+printed first and kept through a closed pipe), 3 internal error (one line; CAMPAIGN_TRACEBACK=1 shows the
+traceback), 128 + signal interrupted by SIGINT (130),
 SIGHUP (129) or SIGTERM (143) (one line saying what the store kept and the command line that resumes), 141
 stdout closed by its reader (silent). Never a traceback (see main). Command-line values (--cases-scale, --workers,
 --scheduler) are validated against the same declarations as the TOML fields, before anything is written.
