@@ -83,7 +83,8 @@ def test_batch_job_script_has_the_configured_resources_and_worker_command(kind, 
         assert directive in lines, script
     assert "export OPENBLAS_NUM_THREADS=1" in lines and "source /opt/moc2dimes/venv/bin/activate" in lines
     [worker] = [line for line in lines if "distributed.cli.dask_worker" in line]
-    assert worker.startswith(sys.executable)
+    # the prologue's environment (a venv) is the workers': its python3, never the driver's path (issue 32)
+    assert worker.startswith("python3 -m distributed.cli.dask_worker ") and sys.executable not in script
     # 4 single-threaded worker processes per job sharing 8 GiB: 2 GiB each
     for part in ("--nthreads 1", "--nworkers 4", "--memory-limit 2.00GiB"):
         assert part in worker, worker
@@ -169,16 +170,18 @@ def test_campaign_cluster_prints_the_job_script_and_submits_nothing(tmp_path, ki
     assert lines[0] == "#!/usr/bin/env bash"
     assert ("#SBATCH -p debug" if kind == "slurm" else "#PBS -q debug") in lines
     [worker] = [line for line in lines if "distributed.cli.dask_worker" in line]
-    assert "tls://SCHEDULER-ADDRESS:PORT" in worker and "--nworkers 4" in worker and "--memory-limit 2.00GiB" in worker
+    assert "tls://SCHEDULER-ADDRESS:PORT" in worker and "--nworkers 3" in worker and "--memory-limit 2.00GiB" in worker
     # TLS: the run's certificate and key by path (created when the run starts), no key material
     for part in ("--dashboard-address 127.0.0.1:0", "--protocol tls://", "--tls-ca-file RUN-CERTIFICATE-DIRECTORY/certificate.pem",
                  "--tls-cert RUN-CERTIFICATE-DIRECTORY/certificate.pem", "--tls-key RUN-CERTIFICATE-DIRECTORY/key.pem"):
         assert part in worker, worker
     assert "BEGIN" not in result.stdout and "PRIVATE KEY" not in result.stdout
     submit = "sbatch" if kind == "slurm" else "qsub"
-    # 6 workers at 4 per job: ceil(6 / 4) = 2 jobs
-    assert stderr_line(result) == (f"campaign: note: 2 such job(s) of 4 single-threaded worker(s), submitted with "
-                                   f"{submit}; nothing was submitted")
+    # exactly 6 workers, cores = 4 does not divide 6: 2 jobs of 3 (not 2 jobs of 4, 8 workers), said in the note
+    assert stderr_line(result) == (f"campaign: note: 2 such job(s) of 3 single-threaded worker(s), submitted with "
+                                   f"{submit} (6 workers: 2 job(s) of 3 worker(s) (3 cores, 6144MiB each) instead of "
+                                   f"[execution.{kind}] cores = 4 (memory 8GiB), which does not divide 6); nothing "
+                                   "was submitted")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["campaign.toml"]     # no store, no job output
 
 
