@@ -8,6 +8,7 @@ workers from the job script alone (nothing else starts a dask worker here); the 
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -128,3 +129,21 @@ def test_slurm_workers_run_in_the_prologue_environment_with_exactly_n_workers(sl
     script = slurm.run("scontrol", "write", "batch_script", jobs[0], "-").stdout
     assert f"source {venv}/bin/activate" in script and re.search(r"^python3 -m distributed\.cli\.dask_worker ", script,
                                                                    re.MULTILINE), script
+
+
+@pytest.mark.cluster
+@pytest.mark.slurm
+def test_a_submit_whose_job_slurm_rejects_leaves_nothing_behind(slurm, tmp_path):
+    """The lock is taken before the jobs are submitted (so that a busy store is refused before any job is
+    queued); a submit the batch system then refuses removes the lock file it made."""
+    text = "\n".join(f"{key} = {json.dumps(value)}" for key, value in {
+        "queue": "nosuchpartition", "cores": 1, "memory": "1500MiB", "interface": "lo"}.items())
+    config = campaign_file(tmp_path / "config", execution=f'cluster = "slurm"\n[execution.slurm]\n{text}')
+    before = file_tree(tmp_path)
+    result = subprocess.run(campaign_command("submit", config, "--output", tmp_path / "out", "--no-progress"),
+                            capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                            env={**os.environ, **slurm.environment, "PYTHONPATH": str(REPO)})
+    assert result.returncode == 1
+    line = stderr_line(result)
+    assert "sbatch rejected the worker job" in line and "nothing was run or changed" in line, line
+    assert file_tree(tmp_path) == before                 # no store, no lock file, no certificate directory
