@@ -9,7 +9,11 @@ A sweep file (e.g. ``sitedata/sweeps/nightly.toml``)::
                                         # sites' names)
     output_dir = "runs/sweeps/nightly"  # relative to the working directory (default runs/sweeps/<file stem>)
     mode = "grid"                       # how the axes make points (:data:`POINT_GENERATORS`): "grid":
-                                        # cartesian product of the axes; "list": i-th value of every axis
+                                        # cartesian product of the axes; "list": i-th value of every axis;
+                                        # "sobol" / "morris": a design sampled from each axis's range
+                                        # [low, high] (campaign/configuration/sweep_designs.py)
+    samples = 8                         # designed sweeps only: Sobol base samples (power of two) or Morris
+                                        # trajectories; design_seed = 0 the sampling's seed
     cases_scale = 0.05                  # optional: replaces the base's [campaign] cases_scale
     [sweep.cases]                       # optional: class -> count, merged over the [campaign.cases] of the
     gkep = 0                            # base(s) having that class
@@ -63,6 +67,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
+from campaign.configuration.base_files import layered_data
 from campaign.configuration.campaign_file import (
     COMMAND_LINE,
     CampaignConfig,
@@ -73,6 +78,7 @@ from campaign.configuration.campaign_file import (
     load_campaign_config,
 )
 from campaign.configuration.sweep_axes import SITE_AXIS
+from campaign.configuration.sweep_designs import DESIGN_MODES, design_points
 from config_tables.errors import ConfigError
 from config_tables.models import ConfigModel, ExistingFile, parse, parse_field
 from config_tables.toml_file import load_toml
@@ -92,8 +98,14 @@ class SweepTable(ConfigModel):
     """Base campaign TOML, relative to the sweep file; or a list of them, of distinct sites (a ``site`` axis)."""
     output_dir: str | None = None
     """Relative to the working directory (default runs/sweeps/<sweep file stem>)."""
-    mode: Literal["grid", "list"] = "grid"
-    """"grid": every combination of the axis values; "list": the i-th value of every axis (:data:`POINT_GENERATORS`)."""
+    mode: Literal["grid", "list", "sobol", "morris"] = "grid"
+    """"grid": every combination of the axis values; "list": the i-th value of every axis (:data:`POINT_GENERATORS`);
+    "sobol", "morris": a design sampled from each axis's range [low, high] (campaign.configuration.sweep_designs)."""
+    samples: int | None = Field(None, ge=2, le=4096)
+    """Designed sweeps only (required there): Sobol base samples N (a power of two; N x (axes + 2) points) or
+    Morris trajectories (N x (axes + 1) points)."""
+    design_seed: int = Field(0, ge=0, le=2**31 - 1)
+    """Designed sweeps: the seed of the sampling (same seed, same points)."""
     cases_scale: CasesScale | None = None
     """Replaces the base's [campaign] cases_scale."""
     cases: dict[str, CaseCount] = {}
@@ -147,9 +159,11 @@ class SweepPoint:
 class _PointBuilder:
     """Validates the points of one sweep, each once, and refuses two points of one configuration."""
 
-    def __init__(self, base_data: dict, base_path: Path, label: str, output_dir: Path, seen: dict[str, int]):
+    def __init__(self, base_data: dict, base_path: Path, label: str, output_dir: Path, seen: dict[str, int],
+                 repeats: bool = False):
         self.base_data, self.base_path, self.label, self.output_dir = base_data, base_path, label, output_dir
         self.seen = seen        # config hash -> first point index, shared by the builders of every base
+        self.repeats = repeats  # a design's rows may repeat a configuration: they share its store
 
     def __call__(self, index: int, values: dict) -> CampaignConfig:
         overrides = {field: value for field, value in values.items() if field != SITE_AXIS}
@@ -157,7 +171,7 @@ class _PointBuilder:
         config = campaign_config_from_data(point_data, self.base_path, output_dir=self.output_dir,
                                            source=f"{self.label}: axis values applied to {self.base_path}")
         first = self.seen.setdefault(config.config_hash, index)
-        if first != index:
+        if first != index and not self.repeats:
             raise ConfigError(f"{self.label}: axes: points p{first:03d} and p{index:03d} are the same "
                               f"configuration ({values}); allowed: distinct points")
         return config.with_output_dir(point_store_dir(self.output_dir, config.config_hash))
@@ -188,6 +202,8 @@ class SweepSpec:
     points: list            # list[SweepPoint]
     base: CampaignConfig    # the first base campaign with the sweep's case counts, without axis values
     bases: tuple = ()       # every base campaign (CampaignConfig), in file order; (base,) for one base
+    design_samples: int | None = None   # designed sweeps ([sweep] samples)
+    design_seed: int = 0                # designed sweeps ([sweep] design_seed)
 
     @property
     def axis_names(self) -> list[str]:
@@ -279,7 +295,12 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_sca
     _check_sites(base_paths, base_configs, label)
     class_names = {name for config in base_configs for name in config.cases_per_class}
     axes = _read_axes(tables.axes, label)
-    combos = POINT_GENERATORS[sweep.mode](axes, label)
+    designed = sweep.mode in DESIGN_MODES
+    if designed != (sweep.samples is not None):
+        raise ConfigError(f"{label}: sweep.samples = {sweep.samples}; allowed: an integer >= 2 with mode "
+                          f"\"sobol\" or \"morris\" (required there), none with mode \"{sweep.mode}\"")
+    combos = (design_points(sweep.mode, axes, int(sweep.samples or 0), sweep.design_seed, label) if designed
+              else POINT_GENERATORS[sweep.mode](axes, label))
     multi_site = len(base_paths) > 1
     if multi_site:
         axes = {SITE_AXIS: [config.site.name for config in base_configs], **axes}
@@ -294,11 +315,12 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_sca
         overrides = _campaign_overrides(sweep, base_config, class_names, label)
         if cases_scale is not None:
             overrides["campaign.cases_scale"] = float(cases_scale)
-        base_data = _with_overrides(load_toml(base_path), overrides, label)
+        # the base file with its own bases laid under it (campaign.configuration.base_files), then the overrides
+        base_data = _with_overrides(layered_data(load_toml(base_path), base_path, label).data, overrides, label)
         _check_estimator_axes(axes, base_data, base_path, label)
         bases.append(campaign_config_from_data(base_data, base_path, source=f"{label}: [sweep] applied to {base_path}",
                                                output_dir=out))
-        builder = _PointBuilder(base_data, base_path, label, out, seen)
+        builder = _PointBuilder(base_data, base_path, label, out, seen, repeats=designed)
         for combo in combos:
             index = len(points)
             values = {SITE_AXIS: base_config.site.name, **combo} if multi_site else combo
@@ -308,7 +330,8 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_sca
     for index in eager_indices(all_values):
         points[index].config        # noqa: B018 - validates (ConfigError, one line) before anything runs
     return SweepSpec(source=path, base_path=base_paths[0], output_dir=out, mode=sweep.mode, axes=axes,
-                     tolerances=tables.tolerances, points=points, base=bases[0], bases=tuple(bases))
+                     tolerances=tables.tolerances, points=points, base=bases[0], bases=tuple(bases),
+                     design_samples=sweep.samples, design_seed=sweep.design_seed)
 
 
 def _check_sites(base_paths: list[Path], configs: list[CampaignConfig], label: str) -> None:

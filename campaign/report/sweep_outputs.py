@@ -38,6 +38,7 @@ from campaign.report.compare import (
     estimator_names,
     with_estimator_column,
 )
+from campaign.report.sweep_indices import write_design_indices
 from campaign.report.sweep_plots import write_sweep_plots
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.case_files import atomic_write_bytes, atomic_write_table
@@ -252,13 +253,16 @@ def write_outputs(spec: SweepSpec, reused_from: dict[str, str] | None = None) ->
     heading = _heading(spec)
     if not results.empty:
         heading += f"\n{counts_line(estimator_counts(results))} (all points)"
-    atomic_write_bytes(out / "sensitivity.md", f"{heading}\n\n{format_sensitivity(spec, table, markdown=True)}\n".encode())
+    indices = write_design_indices(spec, table)       # "" unless a designed sweep (Sobol, Morris)
+    design_text = f"\n{indices}" if indices else ""
+    atomic_write_bytes(out / "sensitivity.md", (f"{heading}\n\n{format_sensitivity(spec, table, markdown=True)}\n"
+                                                + (f"\n```\n{indices}```\n" if indices else "")).encode())
     table.to_csv(out / "sensitivity.csv", index=False)
     views = spec.site_views()
     for view in views:
         members = table[table["point_id"].isin([p.point_id for p in view.points])]
         write_sweep_plots(view, members, out / "plots" / (view.base.site.name.lower() if len(views) > 1 else ""))
-    return table, f"{heading}\n{format_sensitivity(spec, table)}"
+    return table, f"{heading}\n{format_sensitivity(spec, table)}{design_text}"
 
 
 def directory_points(directory: str | Path) -> list[tuple[PointSummary, Path]]:

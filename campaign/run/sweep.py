@@ -50,6 +50,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from campaign.configuration.sweep_designs import DESIGN_MODES
 from campaign.configuration.sweep_file import SweepPoint, SweepSpec
 from campaign.run.cluster import require_backend
 from campaign.run.orchestrate import StorePoint, cluster_session, manifest_for, package_versions, run_store_points
@@ -98,15 +99,28 @@ class PointStores:
                                    "sweep_point": point.values}, self.plans[key])
 
 
+def distinct_points(spec: SweepSpec) -> list[SweepPoint]:
+    """The points to run: every point, except that of the rows of a designed sweep (Sobol, Morris) that repeat
+    a configuration only the first is run (they share its store)."""
+    if spec.mode not in DESIGN_MODES:
+        return list(spec.points)
+    first_of_store: dict[Path, SweepPoint] = {}
+    for point in spec.points:
+        first_of_store.setdefault(Path(point.config.output_dir), point)
+    return list(first_of_store.values())
+
+
 def point_batches(spec: SweepSpec, planned_cases: int):
-    """The sweep's points in order, in runs of consecutive points holding about :data:`BATCH_CASES` planned
-    cases (at most :data:`BATCH_POINTS` points; a larger point alone); the first run is at most
-    :data:`FIRST_BATCH_POINTS` long, so the first cases are submitted as soon as the cluster is up."""
+    """The sweep's distinct points (:func:`distinct_points`) in order, in runs of consecutive points holding
+    about :data:`BATCH_CASES` planned cases (at most :data:`BATCH_POINTS` points; a larger point alone); the
+    first run is at most :data:`FIRST_BATCH_POINTS` long, so the first cases are submitted as soon as the
+    cluster is up."""
     size = max(1, min(BATCH_POINTS, BATCH_CASES // max(1, planned_cases)))
-    first, total = 0, len(spec.points)
+    points = distinct_points(spec)
+    first, total = 0, len(points)
     while first < total:
         count = min(size, FIRST_BATCH_POINTS) if first == 0 else size
-        yield first, spec.points[first:first + count]
+        yield first, points[first:first + count]
         first += count
 
 
@@ -126,7 +140,7 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
     execution = spec.base.execution.with_overrides(scheduler, workers)
     require_backend(execution, str(spec.source))
     require_secure_transport(execution, str(spec.source))
-    total = len(spec.points)
+    total = len(distinct_points(spec))
     planned_each = max(sum(base.cases_per_class.values()) for base in spec.all_bases)
 
     def say(line: str) -> None:

@@ -36,7 +36,8 @@ def sweep_description(spec: SweepSpec, reused_from: dict[str, str] | None = None
     reused_from = reused_from or {}
     return {
         "sweep_file": str(spec.source), "base": str(spec.base_path), "bases": [str(base.source) for base in bases],
-        "mode": spec.mode, "axes": spec.axes, "site": spec.base.site.name, "sites": [base.site.name for base in bases],
+        "mode": spec.mode, "axes": spec.axes, "design": {"samples": spec.design_samples, "seed": spec.design_seed},
+        "site": spec.base.site.name, "sites": [base.site.name for base in bases],
         "classes": {base.site.name: {entry.name: entry.ellipse_fraction for entry in base.site.classes}
                     for base in bases},
         "seed": spec.base.seed, "cases_per_class": spec.base.cases_per_class,
