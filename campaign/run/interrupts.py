@@ -192,7 +192,8 @@ def program_words(argv: list[str] | None = None, orig_argv: list[str] | None = N
 def _pyenv_shim(path: str) -> bool:
     """True for a pyenv shim (``$PYENV_ROOT/shims/NAME``), which runs the same installed command by its name."""
     root = os.environ.get("PYENV_ROOT")
-    return bool(root) and os.path.dirname(os.path.abspath(path)) == os.path.join(os.path.abspath(root), "shims")
+    return root is not None and root != "" and \
+        os.path.dirname(os.path.abspath(path)) == os.path.join(os.path.abspath(root), "shims")
 
 
 def resume_command(arguments: list[str] | None) -> str:
