@@ -42,6 +42,7 @@ import numpy as np
 
 from simulator.scene import ground_mapping
 from simulator.scene.resample import Crop
+from simulator.scene.terrain import Terrain
 
 UNIQUE_SLOPE_BOUND = 0.9       # |q| below this over the whole ray segment: one crossing, secant converges
 MAX_COARSE_ITERATIONS = 8
@@ -244,7 +245,7 @@ class RayFamily:
         self.col_per_m = (np.float32(origin_col) - col0) * scale
         self.row_per_m = (np.float32(origin_row) - row0) * scale
 
-    def at(self, z: np.ndarray, index=None) -> tuple[np.ndarray, np.ndarray]:
+    def at(self, z: np.ndarray | np.floating | float, index=None) -> tuple[np.ndarray, np.ndarray]:
         """Window coordinates of the rays (or of ``index`` of them) at heights ``z`` (m)."""
         if index is None:
             return self.col0 + z * self.col_per_m, self.row0 + z * self.row_per_m
@@ -351,7 +352,7 @@ class ParallaxHits:
         ``pixels``, ``pixel_iterated`` (solved on their own at full resolution), ``marched`` (reference march).
     """
 
-    terrain: object
+    terrain: Terrain
     crop: Crop
     heights: np.ndarray
     col: np.ndarray
@@ -494,7 +495,8 @@ def parallax_factor(hits: ParallaxHits, sun: np.ndarray, config) -> np.ndarray:
         return np.ones(hits.col.shape, dtype=np.float32)
     horizon = None
     if relief_config.cast_shadows:
-        horizon = relief.horizon_height(hits.terrain, sun, relief_config.march_step_terrain_px)[
+        horizon = relief.horizon_height(hits.terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
+                                        relief_config.march_step_terrain_px)[
             crop.row0:crop.row1, crop.col0:crop.col1]
     nodes = shading_nodes(hits.heights, crop, hits.terrain.origin_m, hits.terrain.metres_per_pixel, hits.origin_m,
                           sun, horizon, config)
