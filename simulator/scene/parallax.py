@@ -35,17 +35,20 @@ bilinear surface's own within-cell gradient (measured difference: docs/simulator
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from simulator.derived_cache import DERIVED
 from simulator.scene import ground_mapping
 from simulator.scene.resample import Crop
 from simulator.scene.terrain import Terrain
 
 UNIQUE_SLOPE_BOUND = 0.9       # |q| below this over the whole ray segment: one crossing, secant converges
 MAX_COARSE_ITERATIONS = 8
+COARSE_UNSOLVED_FRACTION = 0.005  # the half-resolution solve stops with this fraction off the tolerance
 MAX_PIXEL_ITERATIONS = 8
 SECANT_SLOPE_RANGE = (0.1, 2.0)   # f' = 1 - q lies in (0.1, 1.9) where the bound holds
 REMAP_ROW = 1024                 # a flat list of points is remapped as rows of this many (OpenCV maps < 32767)
@@ -107,34 +110,35 @@ def slope_bound(heights: np.ndarray, metres_per_pixel: float) -> np.ndarray:
     return np.pad(bound, ((0, 1), (0, 1)), mode="edge") if bound.size else np.zeros_like(heights)
 
 
-def normal_deviation(heights: np.ndarray, d_col: np.ndarray, d_row: np.ndarray) -> np.ndarray:
+def normal_deviation(heights: np.ndarray) -> np.ndarray:
     """Per node, a bound of |bilinear-surface gradient - interpolated node gradient| in the cells it touches.
 
-    Within a cell the bilinear surface's ``dH/dcol`` runs between the cell's two column differences and the
-    interpolated node gradient between its four corners' central differences: their difference is at most
-    the largest difference between those two sets (likewise for rows). The node takes the largest bound of
-    the (up to) four cells it is a corner of, so a bilinear read at any point is at least its cell's bound.
+    Within a cell the bilinear surface's ``dH/dcol`` runs between the cell's two column differences, and the
+    interpolated node gradient (central differences) between its four corners' values: their difference is
+    at most the larger of ``max(edges) - min(corners)`` and ``max(corners) - min(edges)`` (likewise for
+    rows). A node takes the largest bound of the cells it is a corner of.
 
     Parameters
     ----------
-    heights : ndarray, shape (rows, cols), float32
-        Heights (m), rows and cols >= 2.
-    d_col, d_row : ndarray, shape (rows, cols), float32
-        Node gradients (central differences, m per grid px).
+    heights : ndarray, shape (rows, cols), rows and cols >= 3
+        Heights (m).
 
     Returns
     -------
     ndarray, shape (rows, cols), float32
         The bound (m per grid px).
     """
-    def corners(values):            # (rows - 1, cols - 1, 4) values at each cell's four nodes
-        return np.stack([values[:-1, :-1], values[:-1, 1:], values[1:, :-1], values[1:, 1:]])
+    heights = np.asarray(heights, dtype=np.float32)
+    d_row, d_col = np.gradient(heights)
 
-    def cell_bound(edges_low, edges_high, node_values):
-        stacked = corners(node_values)
-        node_max, node_min = stacked.max(axis=0), stacked.min(axis=0)
-        edge_max, edge_min = np.maximum(edges_low, edges_high), np.minimum(edges_low, edges_high)
-        return np.maximum(edge_max - node_min, node_max - edge_min)
+    def cell_bound(edge_a, edge_b, node_values):
+        corner_max = np.maximum(np.maximum(node_values[:-1, :-1], node_values[:-1, 1:]),
+                                np.maximum(node_values[1:, :-1], node_values[1:, 1:]))
+        corner_min = np.minimum(np.minimum(node_values[:-1, :-1], node_values[:-1, 1:]),
+                                np.minimum(node_values[1:, :-1], node_values[1:, 1:]))
+        corner_max -= np.minimum(edge_a, edge_b)
+        np.subtract(np.maximum(edge_a, edge_b), corner_min, out=corner_min)
+        return np.maximum(corner_max, corner_min, out=corner_max)
 
     along_cols = np.diff(heights, axis=1)            # (rows, cols - 1)
     along_rows = np.diff(heights, axis=0)            # (rows - 1, cols)
@@ -142,6 +146,40 @@ def normal_deviation(heights: np.ndarray, d_col: np.ndarray, d_row: np.ndarray) 
                       cell_bound(along_rows[:, :-1], along_rows[:, 1:], d_row))
     padded = np.pad(cell, 1, mode="edge")
     return np.maximum(np.maximum(padded[:-1, :-1], padded[:-1, 1:]), np.maximum(padded[1:, :-1], padded[1:, 1:]))
+
+
+def rough_nodes(terrain: Terrain, heights_m: np.ndarray, radius_px: int) -> np.ndarray:
+    """Nodes near a cell whose interpolated node normal is off by more than ``NORMAL_DEVIATION_LIMIT``.
+
+    Cached per terrain and radius.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The terrain (cache owner).
+    heights_m : ndarray, shape (rows, cols)
+        Its heights (m).
+    radius_px : int
+        Dilation of the mask (grid px, square).
+
+    Returns
+    -------
+    ndarray, shape (rows, cols), uint8
+        1 within ``radius_px`` of a node whose :func:`normal_deviation` / mpp exceeds the limit.
+    """
+    cache = DERIVED.of(terrain, "relief")
+    key = ("rough_nodes", NORMAL_DEVIATION_LIMIT, radius_px)
+    if key not in cache:
+        mask: np.ndarray
+        if min(heights_m.shape) < 3:
+            mask = np.ones(heights_m.shape, dtype=np.uint8)
+        else:
+            limit = np.float32(NORMAL_DEVIATION_LIMIT * terrain.metres_per_pixel)
+            mask = (normal_deviation(heights_m) > limit).view(np.uint8)
+            if radius_px > 0:
+                mask = cv2.dilate(mask, np.ones((2 * radius_px + 1, 2 * radius_px + 1), np.uint8))
+        cache[key] = mask
+    return cache[key]
 
 
 def shading_nodes(heights: np.ndarray, crop: Crop, grid_origin_m, metres_per_pixel: float, origin_m: np.ndarray,
@@ -170,21 +208,18 @@ def shading_nodes(heights: np.ndarray, crop: Crop, grid_origin_m, metres_per_pix
     Returns
     -------
     ndarray, shape (rows, cols, 4), float32
-        ``E``, ``H - S``, ``(1 - d) LS(n, v) / LS(flat, v)``, ``d (1 + n_z) / 2``, with ``E`` a bound of the
-        difference between the bilinear surface's gradient and the nodes' interpolated gradient over the
-        cells around the node (m per m; :func:`normal_deviation`).
+        ``H``, ``H - S``, ``(1 - d) LS(n, v) / LS(flat, v)``, ``d (1 + n_z) / 2``.
     """
     diffuse = np.float32(config.shadow_diffuse_fraction)
     rows, cols = heights.shape
     nodes = np.empty((rows, cols, 4), dtype=np.float32)
+    nodes[..., 0] = heights
     nodes[..., 1] = heights - horizon if horizon is not None else np.float32(NEVER_SHADOWED)
-    if not config.relief.slope_photometry or min(rows, cols) < 3:
-        nodes[..., 0] = np.float32(NEVER_SHADOWED if config.relief.slope_photometry else 0.0)   # exact per pixel
+    if not config.relief.slope_photometry or min(rows, cols) < 2:
         nodes[..., 2] = np.float32(1.0) - diffuse
         nodes[..., 3] = diffuse
         return nodes
     d_row, d_col = np.gradient(heights)
-    nodes[..., 0] = normal_deviation(heights, d_col, d_row) * np.float32(1.0 / metres_per_pixel)
     inverse_mpp = np.float32(1.0 / metres_per_pixel)
     normal_east = d_col * -inverse_mpp                  # the normal is (normal_east, normal_north, 1) unnormalised
     normal_north = d_row * inverse_mpp                  # rows run south
@@ -277,8 +312,8 @@ def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: f
     z = np.clip(level, np.float32(z_bottom), np.float32(z_top))
     for _ in range(MAX_COARSE_ITERATIONS):
         f = z - remap_points(heights, *rays.at(z))
-        if float(np.max(np.abs(f))) <= tolerance_m:
-            break
+        if np.count_nonzero(np.abs(f) > np.float32(tolerance_m)) <= COARSE_UNSOLVED_FRACTION * f.size:
+            break       # the rest are solved at full resolution
         z, z_previous, f_previous = _secant(z, f, z_previous, f_previous, z_bottom, z_top), z, f
     return z
 
@@ -334,8 +369,8 @@ class ParallaxHits:
 
     Attributes
     ----------
-    terrain : simulator.scene.relief.ReliefTerrain
-        The terrain they are on.
+    terrain : Terrain
+        The terrain they are on (a :class:`simulator.scene.relief.ReliefTerrain`).
     crop : Crop
         The terrain window holding every hit.
     heights : ndarray, shape (rows, cols), float32
@@ -346,10 +381,17 @@ class ParallaxHits:
         Rays that miss the level ground.
     any_sky : bool
         Whether any pixel sees the sky.
+    rough : ndarray, shape (H, W), bool
+        Pixels shaded at the bilinear surface's own normal (:func:`rough_nodes`).
     origin_m : ndarray, shape (3,)
         The rays' origin (m).
     counts : dict
-        ``pixels``, ``pixel_iterated`` (solved on their own at full resolution), ``marched`` (reference march).
+        ``pixels``, ``pixel_iterated`` (solved on their own at full resolution), ``marched`` (reference
+        march), ``exact_shading``.
+    factor : ndarray, shape (H, W), float32, or None
+        The radiance factor when the sun was known at the intersection (:func:`parallax_hits`).
+    sun : ndarray, shape (3,), or None
+        That sun.
     """
 
     terrain: Terrain
@@ -359,13 +401,16 @@ class ParallaxHits:
     row: np.ndarray
     sky: np.ndarray
     any_sky: bool
+    rough: np.ndarray
     origin_m: np.ndarray
     counts: dict
+    factor: np.ndarray | None = None
+    sun: np.ndarray | None = None
 
 
 def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: ground_mapping.GroundMap,
-                  config, march) -> tuple[ground_mapping.GroundMap, ParallaxHits]:
-    """The ground map of the height field (module doc: parallax).
+                  config, march, sun: np.ndarray | None = None) -> tuple[ground_mapping.GroundMap, ParallaxHits]:
+    """The ground map of the height field (module doc: parallax), and its shading when the sun is given.
 
     Parameters
     ----------
@@ -378,21 +423,25 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     level_map : GroundMap
         The level-ground map of the pose.
     config : simulator.scene_config.SceneConfig
-        Its ``relief`` table.
+        Its ``relief`` table (and ``shadow_diffuse_fraction``).
     march : callable
         ``march(heights, rays, index, z_bottom, z_top) -> z``: the reference ray march of the rays ``index``
         of a flat :class:`RayFamily` (:func:`simulator.scene.relief.march_heights`, configured).
+    sun : ndarray, shape (3,), optional
+        World unit vector toward the sun: the shading is then read in the same pass as the last check of
+        the heights (else :func:`parallax_factor` reads it).
 
     Returns
     -------
     ground_map : GroundMap
         Hit points as terrain grid coordinates (the level map's rays and sky).
     hits : ParallaxHits
-        The hits, for :func:`parallax_factor`.
+        The hits (with the radiance factor when ``sun`` is given).
     """
     from simulator.scene import relief
 
-    tolerance = float(config.relief.height_tolerance_m)
+    relief_config = config.relief
+    tolerance = float(relief_config.height_tolerance_m)
     mpp = terrain.metres_per_pixel
     crop = relief.march_window(terrain, camera, pose)
     heights = np.ascontiguousarray(terrain.height_m[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
@@ -410,39 +459,58 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         col0[sky], row0[sky] = 0.0, 0.0
     full = RayFamily(col0, row0, origin_col, origin_row, altitude)
 
-    # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound
+    # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound and by
+    #    the node normals' error
     even = height_px % 2 == 0 and width_px % 2 == 0 and min(height_px, width_px) >= 4
     sample = full
     if even:
         size = (width_px // 2, height_px // 2)
         sample = RayFamily(cv2.resize(col0, size, interpolation=cv2.INTER_AREA),
                            cv2.resize(row0, size, interpolation=cv2.INTER_AREA), origin_col, origin_row, altitude)
-        z = cv2.resize(solve_coarse(heights, sample, z_bottom, z_top, tolerance), (width_px, height_px),
-                       interpolation=cv2.INTER_LINEAR)
+        z_sample = solve_coarse(heights, sample, z_bottom, z_top, tolerance)
+        z = cv2.resize(z_sample, (width_px, height_px), interpolation=cv2.INTER_LINEAR)
     else:
-        z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
-    steep = _steep_rays(heights, sample, z_bottom, z_top, mpp, covers_neighbours=even)
+        z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
+    spacing = _ray_spacing(sample) if even else 0.0
+    steep = _steep_rays(heights, sample, z_bottom, z_top, mpp, spacing)
+    rough = np.zeros(sample.col0.shape, dtype=bool)
+    if relief_config.slope_photometry:
+        mask = rough_nodes(terrain, terrain.height_m, int(np.ceil(spacing)) + 1)[
+            crop.row0:crop.row1, crop.col0:crop.col1]
+        col_sample, row_sample = sample.at(z_sample)
+        rough = cv2.remap(mask, col_sample, row_sample, cv2.INTER_NEAREST,
+                          borderMode=cv2.BORDER_REPLICATE).view(bool)
     if even:
         steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
+        rough = cv2.resize(rough.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
     if level_map.any_sky:
         steep &= ~sky
+        rough &= ~sky
 
-    # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check;
-    #    pixels still off the tolerance iterate on their own
+    # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
+    #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
     col, row = full.at(z)
-    z -= z - remap_points(heights, col, row)            # z = H(P(z))
+    z = remap_points(heights, col, row)                 # z = H(P(z))
     col, row = full.at(z)
-    residual = z - remap_points(heights, col, row)
+    nodes = None
+    if sun is not None:
+        nodes = _nodes(heights, crop, terrain, origin, sun, config)
+        values = remap_points(nodes, col, row)
+        residual = z - values[..., 0]
+    else:
+        residual = z - remap_points(heights, col, row)
     off = np.abs(residual) > np.float32(tolerance)
     off &= ~steep
     if level_map.any_sky:
         off &= ~sky
-    flat_rays = RayFamily(col0.ravel(), row0.ravel(), origin_col, origin_row, altitude)
-    z_flat = z.ravel()
+    flat_rays = RayFamily.__new__(RayFamily)
+    flat_rays.col0, flat_rays.row0 = full.col0.reshape(-1), full.row0.reshape(-1)
+    flat_rays.col_per_m, flat_rays.row_per_m = full.col_per_m.reshape(-1), full.row_per_m.reshape(-1)
+    z_flat = z.reshape(-1)
     redo = np.flatnonzero(off)
-    marched = steep.ravel().copy()
+    marched = steep.reshape(-1).copy()
     if redo.size:
-        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual.ravel()[redo],
+        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual.reshape(-1)[redo],
                                          z_bottom, z_top, tolerance)
         z_flat[redo] = z_redo
         marched[redo[~converged]] = True
@@ -458,6 +526,12 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     if changed.size:
         col_changed, row_changed = flat_rays.at(z_flat[changed], changed)
         col.reshape(-1)[changed], row.reshape(-1)[changed] = col_changed, row_changed
+        if nodes is not None:
+            values.reshape(-1, 4)[changed] = remap_points(nodes, col_changed, row_changed)
+    counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
+    hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, rough, origin, counts)
+    factor = None if nodes is None or sun is None else _factor(hits, values, sun, config)
+
     grid_col = col + np.float32(crop.col0)
     grid_row = row + np.float32(crop.row0)
     if level_map.any_sky:
@@ -466,8 +540,38 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     ground_map = ground_mapping.GroundMap(grid_col, grid_row, sky, level_map.any_sky, level_map._step,
                                           level_map._nodes, level_map._full, level_map.camera_rays,
                                           level_map.camera_to_world, level_map.ray_dz)
-    counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
-    return ground_map, ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
+    if factor is not None:
+        hits = dataclasses.replace(hits, factor=factor, sun=np.asarray(sun, dtype=float))
+    return ground_map, hits
+
+
+def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarray, sun: np.ndarray, config):
+    """:func:`shading_nodes` of a window, with its cached sun-ray horizon."""
+    from simulator.scene import relief
+
+    horizon = None
+    if config.relief.cast_shadows:
+        horizon = relief.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
+                                        config.relief.march_step_terrain_px)[crop.row0:crop.row1, crop.col0:crop.col1]
+    return shading_nodes(heights, crop, terrain.origin_m, terrain.metres_per_pixel, origin_m, sun, horizon, config)
+
+
+def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
+    """``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit`` from the four values read at the hits."""
+    relief_config = config.relief
+    band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
+    lit = values[..., 1] * band
+    lit += np.float32(0.5)
+    np.clip(lit, np.float32(0.0), np.float32(1.0), out=lit)
+    factor = lit * values[..., 2]
+    factor += values[..., 3]
+    index = np.flatnonzero(hits.rough) if relief_config.slope_photometry else np.zeros(0, dtype=np.intp)
+    if index.size:
+        factor.reshape(-1)[index] = exact_shading(hits, index, lit.reshape(-1)[index], sun, config)
+    hits.counts["exact_shading"] = int(index.size)
+    if hits.any_sky:
+        factor[hits.sky] = 1.0
+    return factor
 
 
 def parallax_factor(hits: ParallaxHits, sun: np.ndarray, config) -> np.ndarray:
@@ -487,37 +591,12 @@ def parallax_factor(hits: ParallaxHits, sun: np.ndarray, config) -> np.ndarray:
     ndarray, shape (H, W), float32
         ``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit``; 1 for sky pixels.
     """
-    from simulator.scene import relief
-
-    relief_config = config.relief
-    crop = hits.crop
-    if not (relief_config.slope_photometry or relief_config.cast_shadows):
+    if not (config.relief.slope_photometry or config.relief.cast_shadows):
         return np.ones(hits.col.shape, dtype=np.float32)
-    horizon = None
-    if relief_config.cast_shadows:
-        horizon = relief.horizon_height(hits.terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
-                                        relief_config.march_step_terrain_px)[
-            crop.row0:crop.row1, crop.col0:crop.col1]
-    nodes = shading_nodes(hits.heights, crop, hits.terrain.origin_m, hits.terrain.metres_per_pixel, hits.origin_m,
-                          sun, horizon, config)
-    values = remap_points(nodes, hits.col, hits.row)
-    band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
-    lit = values[..., 1] * band
-    lit += np.float32(0.5)
-    np.clip(lit, np.float32(0.0), np.float32(1.0), out=lit)
-    factor = lit * values[..., 2]
-    factor += values[..., 3]
-    if relief_config.slope_photometry:
-        rough = values[..., 0] > np.float32(NORMAL_DEVIATION_LIMIT)
-        if hits.any_sky:
-            rough &= ~hits.sky
-        index = np.flatnonzero(rough)
-        if index.size:
-            factor.reshape(-1)[index] = exact_shading(hits, index, lit.reshape(-1)[index], sun, config)
-        hits.counts["exact_shading"] = int(index.size)
-    if hits.any_sky:
-        factor[hits.sky] = 1.0
-    return factor
+    if hits.factor is not None and hits.sun is not None and np.array_equal(hits.sun, np.asarray(sun, dtype=float)):
+        return hits.factor
+    nodes = _nodes(hits.heights, hits.crop, hits.terrain, hits.origin_m, sun, config)
+    return _factor(hits, remap_points(nodes, hits.col, hits.row), sun, config)
 
 
 def exact_shading(hits: ParallaxHits, index: np.ndarray, lit: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
@@ -559,27 +638,31 @@ def exact_shading(hits: ParallaxHits, index: np.ndarray, lit: np.ndarray, sun: n
     return ((1.0 - diffuse) * direct * lit + diffuse * 0.5 * (1.0 + normal[:, 2])).astype(np.float32)
 
 
+def _ray_spacing(rays: RayFamily) -> float:
+    """Largest grid distance between the level-ground points of neighbouring rays of a 2-D family (px)."""
+    if rays.col0.ndim != 2 or min(rays.col0.shape) < 2:
+        return 0.0
+    step = max(min(rays.col0.shape) // 64, 1)
+    col, row = rays.col0[::step, ::step], rays.row0[::step, ::step]
+    return float(max(np.hypot(np.diff(col, axis=1), np.diff(row, axis=1)).max(),
+                     np.hypot(np.diff(col, axis=0), np.diff(row, axis=0)).max())) / step
+
+
 def _steep_rays(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, mpp: float,
-                covers_neighbours: bool) -> np.ndarray:
+                spacing_px: float) -> np.ndarray:
     """Rays whose segment between the height bounds may hold a slope with ``|q| >= UNIQUE_SLOPE_BOUND``.
 
     A ray's segment lies within ``L`` grid px of its point at the middle height (``L`` the largest
     half-length), so every cell it crosses opens at a node within ``L + 1`` (Chebyshev) of that point and
     within ``L + 2`` of each of the four nodes the bilinear read uses: the bound map is dilated by
-    ``ceil(L + 2)``, plus the spacing of the rays when a ray also speaks for its neighbours (the
-    half-resolution solve).
+    ``ceil(L + 2)``, plus ``spacing_px`` when a ray also speaks for its neighbours (the half-resolution
+    solve).
     """
     if z_top <= z_bottom:
         return np.zeros(rays.col0.shape, dtype=bool)
     px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
     half_length = 0.5 * (z_top - z_bottom) * float(px_per_m.max())
-    spacing = 0.0
-    if covers_neighbours and rays.col0.ndim == 2 and min(rays.col0.shape) > 1:
-        step = max(min(rays.col0.shape) // 64, 1)
-        col, row = rays.col0[::step, ::step], rays.row0[::step, ::step]
-        spacing = float(max(np.hypot(np.diff(col, axis=1), np.diff(row, axis=1)).max(),
-                            np.hypot(np.diff(col, axis=0), np.diff(row, axis=0)).max())) / step
-    radius = int(np.ceil(half_length + spacing + 2.0))
+    radius = int(np.ceil(half_length + spacing_px + 2.0))
     bound = cv2.dilate(slope_bound(heights, mpp), np.ones((2 * radius + 1, 2 * radius + 1), np.uint8),
                        borderType=cv2.BORDER_REPLICATE)
     middle = np.float32(0.5 * (z_top + z_bottom))

@@ -436,7 +436,7 @@ def march_heights(heights: np.ndarray, rays, index: np.ndarray, z_bottom: float,
 
 
 def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose,
-                      level_map: ground_mapping.GroundMap, config):
+                      level_map: ground_mapping.GroundMap, config, sun_world: np.ndarray | None = None):
     """The ground map of the height field and the hits.
 
     Parameters
@@ -451,6 +451,9 @@ def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mappi
         The level-ground map of the pose (its rays).
     config : simulator.scene_config.SceneConfig
         Its ``relief`` table.
+    sun_world : ndarray, shape (3,), optional
+        World unit vector toward the sun: the ``parallax`` method then reads the shading in the same pass
+        as the hits (:func:`shading_factor` returns it).
 
     Returns
     -------
@@ -462,7 +465,8 @@ def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mappi
     if config.relief.method == "parallax":
         def march(heights, rays, index, z_bottom, z_top):
             return march_heights(heights, rays, index, z_bottom, z_top, config, terrain.metres_per_pixel)
-        return parallax.parallax_hits(terrain, camera, pose, level_map, config, march)
+        sun = None if sun_world is None else np.asarray(sun_world, dtype=float)
+        return parallax.parallax_hits(terrain, camera, pose, level_map, config, march, sun)
     rays = level_map.rays()
     hits = find_hits(terrain, camera, pose, rays, level_map.sky, config)
     row, col = terrain.world_to_pixel(hits.points_m[..., 0], hits.points_m[..., 1])
