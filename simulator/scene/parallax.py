@@ -148,10 +148,10 @@ def normal_deviation(heights: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(padded[:-1, :-1], padded[:-1, 1:]), np.maximum(padded[1:, :-1], padded[1:, 1:]))
 
 
-def rough_nodes(terrain: Terrain, heights_m: np.ndarray, radius_px: int) -> np.ndarray:
-    """Nodes near a cell whose interpolated node normal is off by more than ``NORMAL_DEVIATION_LIMIT``.
+def rough_nodes(terrain: Terrain, heights_m: np.ndarray) -> np.ndarray:
+    """Nodes of a cell whose interpolated node normal is off by more than ``NORMAL_DEVIATION_LIMIT``.
 
-    Cached per terrain and radius.
+    The nearest node of any point in such a cell is flagged. Cached per terrain.
 
     Parameters
     ----------
@@ -159,16 +159,14 @@ def rough_nodes(terrain: Terrain, heights_m: np.ndarray, radius_px: int) -> np.n
         The terrain (cache owner).
     heights_m : ndarray, shape (rows, cols)
         Its heights (m).
-    radius_px : int
-        Dilation of the mask (grid px, square).
 
     Returns
     -------
     ndarray, shape (rows, cols), uint8
-        1 within ``radius_px`` of a node whose :func:`normal_deviation` / mpp exceeds the limit.
+        1 where the node's :func:`normal_deviation` / mpp exceeds the limit.
     """
     cache = DERIVED.of(terrain, "relief")
-    key = ("rough_nodes", NORMAL_DEVIATION_LIMIT, radius_px)
+    key = ("rough_nodes", NORMAL_DEVIATION_LIMIT)
     if key not in cache:
         mask: np.ndarray
         if min(heights_m.shape) < 3:
@@ -176,8 +174,6 @@ def rough_nodes(terrain: Terrain, heights_m: np.ndarray, radius_px: int) -> np.n
         else:
             limit = np.float32(NORMAL_DEVIATION_LIMIT * terrain.metres_per_pixel)
             mask = (normal_deviation(heights_m) > limit).view(np.uint8)
-            if radius_px > 0:
-                mask = cv2.dilate(mask, np.ones((2 * radius_px + 1, 2 * radius_px + 1), np.uint8))
         cache[key] = mask
     return cache[key]
 
@@ -473,19 +469,10 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
     spacing = _ray_spacing(sample) if even else 0.0
     steep = _steep_rays(heights, sample, z_bottom, z_top, mpp, spacing)
-    rough = np.zeros(sample.col0.shape, dtype=bool)
-    if relief_config.slope_photometry:
-        mask = rough_nodes(terrain, terrain.height_m, int(np.ceil(spacing)) + 1)[
-            crop.row0:crop.row1, crop.col0:crop.col1]
-        col_sample, row_sample = sample.at(z_sample)
-        rough = cv2.remap(mask, col_sample, row_sample, cv2.INTER_NEAREST,
-                          borderMode=cv2.BORDER_REPLICATE).view(bool)
     if even:
         steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
-        rough = cv2.resize(rough.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
     if level_map.any_sky:
         steep &= ~sky
-        rough &= ~sky
 
     # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
     #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
@@ -528,6 +515,12 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         col.reshape(-1)[changed], row.reshape(-1)[changed] = col_changed, row_changed
         if nodes is not None:
             values.reshape(-1, 4)[changed] = remap_points(nodes, col_changed, row_changed)
+    rough = np.zeros(col.shape, dtype=bool)
+    if relief_config.slope_photometry:      # the nearest node of a point is a corner of its cell
+        mask = rough_nodes(terrain, terrain.height_m)[crop.row0:crop.row1, crop.col0:crop.col1]
+        rough = cv2.remap(mask, col, row, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE).view(bool)
+        if level_map.any_sky:
+            rough &= ~sky
     counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
     hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, rough, origin, counts)
     factor = None if nodes is None or sun is None else _factor(hits, values, sun, config)
