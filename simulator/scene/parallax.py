@@ -53,6 +53,8 @@ MAX_PIXEL_ITERATIONS = 8
 SECANT_SLOPE_RANGE = (0.1, 2.0)   # f' = 1 - q lies in (0.1, 1.9) where the bound holds
 REMAP_ROW = 1024                 # a flat list of points is remapped as rows of this many (OpenCV maps < 32767)
 NEVER_SHADOWED = 1.0e6           # H - S where cast shadows are off: lit everywhere
+ROUGH_OFFSET = 1.0e4              # added to a rough node's sky term: any bilinear weight above 1e-7 shows
+ROUGH_MARGIN = 1.0e-3             # a read above d + this (the sky term d (1 + n_z)/2 <= d) is rough
 NORMAL_DEVIATION_LIMIT = 0.2     # node-gradient error (m/m) above which a pixel is shaded at its own normal
 
 
@@ -108,6 +110,26 @@ def slope_bound(heights: np.ndarray, metres_per_pixel: float) -> np.ndarray:
     cell_rows = np.maximum(along_rows[:, :-1], along_rows[:, 1:])
     bound = np.sqrt(cell_cols * cell_cols + cell_rows * cell_rows) * np.float32(1.0 / metres_per_pixel)
     return np.pad(bound, ((0, 1), (0, 1)), mode="edge") if bound.size else np.zeros_like(heights)
+
+
+def terrain_slope_bound(terrain: Terrain) -> np.ndarray:
+    """:func:`slope_bound` of a relief terrain's heights, cached per terrain.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        A terrain with ``height_m``.
+
+    Returns
+    -------
+    ndarray, shape (rows, cols), float32
+        The bound (m per m).
+    """
+    cache = DERIVED.of(terrain, "relief")
+    if "slope_bound" not in cache:
+        heights = np.asarray(terrain.height_m, dtype=np.float32)  # type: ignore[attr-defined]
+        cache["slope_bound"] = slope_bound(heights, terrain.metres_per_pixel)
+    return cache["slope_bound"]
 
 
 def normal_deviation(heights: np.ndarray) -> np.ndarray:
@@ -179,7 +201,7 @@ def rough_nodes(terrain: Terrain, heights_m: np.ndarray) -> np.ndarray:
 
 
 def shading_nodes(heights: np.ndarray, crop: Crop, grid_origin_m, metres_per_pixel: float, origin_m: np.ndarray,
-                  sun: np.ndarray, horizon: np.ndarray | None, config) -> np.ndarray:
+                  sun: np.ndarray, horizon: np.ndarray | None, config, rough: np.ndarray | None = None) -> np.ndarray:
     """The four values every pixel reads at its hit point (module doc), on the terrain window.
 
     Parameters
@@ -200,11 +222,14 @@ def shading_nodes(heights: np.ndarray, crop: Crop, grid_origin_m, metres_per_pix
         Sun-ray horizon height ``S`` of the window (m); None: no cast shadows.
     config : simulator.scene_config.SceneConfig
         Its ``relief`` table and ``shadow_diffuse_fraction``.
+    rough : ndarray, shape (rows, cols), uint8, optional
+        Nodes of cells whose interpolated normal is off (:func:`rough_nodes`): ``ROUGH_OFFSET`` is added
+        to their last value, so a read above ``d + ROUGH_MARGIN`` marks a pixel to shade at its own normal.
 
     Returns
     -------
     ndarray, shape (rows, cols, 4), float32
-        ``H``, ``H - S``, ``(1 - d) LS(n, v) / LS(flat, v)``, ``d (1 + n_z) / 2``.
+        ``H``, ``H - S``, ``(1 - d) LS(n, v) / LS(flat, v)``, ``d (1 + n_z) / 2`` (+ ``ROUGH_OFFSET``).
     """
     diffuse = np.float32(config.shadow_diffuse_fraction)
     rows, cols = heights.shape
@@ -244,7 +269,12 @@ def shading_nodes(heights: np.ndarray, crop: Crop, grid_origin_m, metres_per_pix
     numerator *= np.float32(1.0) - diffuse
     nodes[..., 2] = numerator / denominator
     slope_squared = normal_east * normal_east + normal_north * normal_north
-    nodes[..., 3] = (np.float32(1.0) + np.float32(1.0) / np.sqrt(np.float32(1.0) + slope_squared)) * (np.float32(0.5) * diffuse)
+    sky_view = np.float32(1.0) / np.sqrt(np.float32(1.0) + slope_squared)
+    sky_view += np.float32(1.0)
+    sky_view *= np.float32(0.5) * diffuse
+    if rough is not None:
+        sky_view += rough * np.float32(ROUGH_OFFSET)
+    nodes[..., 3] = sky_view
     return nodes
 
 
@@ -377,8 +407,6 @@ class ParallaxHits:
         Rays that miss the level ground.
     any_sky : bool
         Whether any pixel sees the sky.
-    rough : ndarray, shape (H, W), bool
-        Pixels shaded at the bilinear surface's own normal (:func:`rough_nodes`).
     origin_m : ndarray, shape (3,)
         The rays' origin (m).
     counts : dict
@@ -397,7 +425,6 @@ class ParallaxHits:
     row: np.ndarray
     sky: np.ndarray
     any_sky: bool
-    rough: np.ndarray
     origin_m: np.ndarray
     counts: dict
     factor: np.ndarray | None = None
@@ -468,7 +495,8 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     else:
         z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
     spacing = _ray_spacing(sample) if even else 0.0
-    steep = _steep_rays(heights, sample, z_bottom, z_top, mpp, spacing)
+    bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1]
+    steep = _steep_rays(bound, sample, z_bottom, z_top, mpp, spacing)
     if even:
         steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
     if level_map.any_sky:
@@ -515,14 +543,8 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         col.reshape(-1)[changed], row.reshape(-1)[changed] = col_changed, row_changed
         if nodes is not None:
             values.reshape(-1, 4)[changed] = remap_points(nodes, col_changed, row_changed)
-    rough = np.zeros(col.shape, dtype=bool)
-    if relief_config.slope_photometry:      # the nearest node of a point is a corner of its cell
-        mask = rough_nodes(terrain, terrain.height_m)[crop.row0:crop.row1, crop.col0:crop.col1]
-        rough = cv2.remap(mask, col, row, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE).view(bool)
-        if level_map.any_sky:
-            rough &= ~sky
     counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
-    hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, rough, origin, counts)
+    hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
     factor = None if nodes is None or sun is None else _factor(hits, values, sun, config)
 
     grid_col = col + np.float32(crop.col0)
@@ -546,7 +568,11 @@ def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarr
     if config.relief.cast_shadows:
         horizon = relief.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
                                         config.relief.march_step_terrain_px)[crop.row0:crop.row1, crop.col0:crop.col1]
-    return shading_nodes(heights, crop, terrain.origin_m, terrain.metres_per_pixel, origin_m, sun, horizon, config)
+    rough = None
+    if config.relief.slope_photometry:
+        rough = rough_nodes(terrain, terrain.height_m)[crop.row0:crop.row1, crop.col0:crop.col1]  # type: ignore[attr-defined]
+    return shading_nodes(heights, crop, terrain.origin_m, terrain.metres_per_pixel, origin_m, sun, horizon, config,
+                         rough)
 
 
 def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
@@ -558,7 +584,12 @@ def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config) -> 
     np.clip(lit, np.float32(0.0), np.float32(1.0), out=lit)
     factor = lit * values[..., 2]
     factor += values[..., 3]
-    index = np.flatnonzero(hits.rough) if relief_config.slope_photometry else np.zeros(0, dtype=np.intp)
+    index = np.zeros(0, dtype=np.intp)
+    if relief_config.slope_photometry:
+        rough = values[..., 3] > np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN)
+        if hits.any_sky:
+            rough &= ~hits.sky
+        index = np.flatnonzero(rough)
     if index.size:
         factor.reshape(-1)[index] = exact_shading(hits, index, lit.reshape(-1)[index], sun, config)
     hits.counts["exact_shading"] = int(index.size)
@@ -641,7 +672,7 @@ def _ray_spacing(rays: RayFamily) -> float:
                      np.hypot(np.diff(col, axis=0), np.diff(row, axis=0)).max())) / step
 
 
-def _steep_rays(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, mpp: float,
+def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, mpp: float,
                 spacing_px: float) -> np.ndarray:
     """Rays whose segment between the height bounds may hold a slope with ``|q| >= UNIQUE_SLOPE_BOUND``.
 
@@ -656,7 +687,7 @@ def _steep_rays(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: fl
     px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
     half_length = 0.5 * (z_top - z_bottom) * float(px_per_m.max())
     radius = int(np.ceil(half_length + spacing_px + 2.0))
-    bound = cv2.dilate(slope_bound(heights, mpp), np.ones((2 * radius + 1, 2 * radius + 1), np.uint8),
+    bound = cv2.dilate(heights_bound, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8),
                        borderType=cv2.BORDER_REPLICATE)
     middle = np.float32(0.5 * (z_top + z_bottom))
     local = remap_points(bound, *rays.at(middle))
