@@ -36,6 +36,7 @@ bilinear surface's own within-cell gradient (measured difference: docs/simulator
 from __future__ import annotations
 
 import dataclasses
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -58,7 +59,21 @@ ROUGH_MARGIN = 1.0e-3             # a read above d + this (the sky term d (1 + n
 NORMAL_DEVIATION_LIMIT = 0.2     # node-gradient error (m/m) above which a pixel is shaded at its own normal
 
 
-def remap_points(source: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+_work_pool = threading.local()
+
+
+def _work_array(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """A reusable array of this thread for one of a pose's full-frame intermediates (no page faults per pose)."""
+    arrays = getattr(_work_pool, "arrays", None)
+    if arrays is None:
+        arrays = _work_pool.arrays = {}
+    key = (name, shape, np.dtype(dtype).str)
+    if key not in arrays:
+        arrays[key] = np.empty(shape, dtype=dtype)
+    return arrays[key]
+
+
+def remap_points(source: np.ndarray, col: np.ndarray, row: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Bilinear remap of a grid (1 or 4 channels) at any shape of points, edges replicated.
 
     Parameters
@@ -67,6 +82,8 @@ def remap_points(source: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.nda
         The grid.
     col, row : ndarray, float32, equal shapes
         Fractional grid coordinates.
+    out : ndarray, optional
+        Array for the result (2-D points only).
 
     Returns
     -------
@@ -74,7 +91,7 @@ def remap_points(source: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.nda
         The values (coordinates snapped to 1/32 px, OpenCV's bilinear tables).
     """
     if col.ndim == 2:
-        return cv2.remap(source, col, row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return cv2.remap(source, col, row, cv2.INTER_LINEAR, dst=out, borderMode=cv2.BORDER_REPLICATE)
     count = col.size
     rows = max(-(-count // REMAP_ROW), 1)
     padded = rows * REMAP_ROW
@@ -298,18 +315,30 @@ class RayFamily:
         Window coordinates of the origin's nadir point.
     altitude_m : float
         Origin height above z = 0 (m).
+    out : (ndarray, ndarray), optional
+        Arrays for the grid px per metre of z along columns and rows.
     """
 
-    def __init__(self, col0: np.ndarray, row0: np.ndarray, origin_col: float, origin_row: float, altitude_m: float):
+    def __init__(self, col0: np.ndarray, row0: np.ndarray, origin_col: float, origin_row: float, altitude_m: float,
+                 out=(None, None)):
         self.col0, self.row0 = col0, row0
         scale = np.float32(1.0 / altitude_m)
-        self.col_per_m = (np.float32(origin_col) - col0) * scale
-        self.row_per_m = (np.float32(origin_row) - row0) * scale
+        self.col_per_m = np.subtract(np.float32(origin_col), col0, out=out[0])
+        self.col_per_m *= scale
+        self.row_per_m = np.subtract(np.float32(origin_row), row0, out=out[1])
+        self.row_per_m *= scale
 
-    def at(self, z: np.ndarray | np.floating | float, index=None) -> tuple[np.ndarray, np.ndarray]:
-        """Window coordinates of the rays (or of ``index`` of them) at heights ``z`` (m)."""
+    def at(self, z: np.ndarray | np.floating | float, index=None, out=(None, None)) -> tuple[np.ndarray, np.ndarray]:
+        """Window coordinates of the rays (or of ``index`` of them) at heights ``z`` (m).
+
+        ``out``: arrays for the result when all rays are asked.
+        """
         if index is None:
-            return self.col0 + z * self.col_per_m, self.row0 + z * self.row_per_m
+            col = np.multiply(z, self.col_per_m, out=out[0])
+            col += self.col0
+            row = np.multiply(z, self.row_per_m, out=out[1])
+            row += self.row0
+            return col, row
         return self.col0[index] + z * self.col_per_m[index], self.row0[index] + z * self.row_per_m[index]
 
 
@@ -476,11 +505,16 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
 
     sky = level_map.sky
     height_px, width_px = level_map.col.shape
-    col0 = level_map.col - np.float32(crop.col0)
-    row0 = level_map.row - np.float32(crop.row0)
+    shape = (height_px, width_px)
+    pooled = sun is not None      # the pose's arrays are used up before the next pose: reuse their memory
+
+    def work(name, dtype=np.float32, channels=()):
+        return _work_array(name, shape + channels, dtype) if pooled else np.empty(shape + channels, dtype=dtype)
+    col0 = np.subtract(level_map.col, np.float32(crop.col0), out=work("col0"))
+    row0 = np.subtract(level_map.row, np.float32(crop.row0), out=work("row0"))
     if level_map.any_sky:       # sky pixels: any point of the window (masked at the end)
         col0[sky], row0[sky] = 0.0, 0.0
-    full = RayFamily(col0, row0, origin_col, origin_row, altitude)
+    full = RayFamily(col0, row0, origin_col, origin_row, altitude, out=(work("col_per_m"), work("row_per_m")))
 
     # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound and by
     #    the node normals' error
@@ -491,7 +525,7 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         sample = RayFamily(cv2.resize(col0, size, interpolation=cv2.INTER_AREA),
                            cv2.resize(row0, size, interpolation=cv2.INTER_AREA), origin_col, origin_row, altitude)
         z_sample = solve_coarse(heights, sample, z_bottom, z_top, tolerance)
-        z = cv2.resize(z_sample, (width_px, height_px), interpolation=cv2.INTER_LINEAR)
+        z = cv2.resize(z_sample, (width_px, height_px), dst=work("z"), interpolation=cv2.INTER_LINEAR)
     else:
         z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
     spacing = _ray_spacing(sample) if even else 0.0
@@ -504,17 +538,17 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
 
     # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
     #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
-    col, row = full.at(z)
-    z = remap_points(heights, col, row)                 # z = H(P(z))
-    col, row = full.at(z)
+    col, row = full.at(z, out=(work("col"), work("row")))
+    z = remap_points(heights, col, row, out=work("z_step"))          # z = H(P(z))
+    col, row = full.at(z, out=(col, row))
     nodes = None
     if sun is not None:
         nodes = _nodes(heights, crop, terrain, origin, sun, config)
-        values = remap_points(nodes, col, row)
-        residual = z - values[..., 0]
+        values = remap_points(nodes, col, row, out=work("values", channels=(4,)))
+        residual = np.subtract(z, values[..., 0], out=work("residual"))
     else:
         residual = z - remap_points(heights, col, row)
-    off = np.abs(residual) > np.float32(tolerance)
+    off = np.greater(np.abs(residual), np.float32(tolerance), out=work("off", bool))
     off &= ~steep
     if level_map.any_sky:
         off &= ~sky
@@ -545,10 +579,11 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
             values.reshape(-1, 4)[changed] = remap_points(nodes, col_changed, row_changed)
     counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
     hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
-    factor = None if nodes is None or sun is None else _factor(hits, values, sun, config)
+    factor = None if nodes is None or sun is None else _factor(hits, values, sun, config,
+                                                                (work("lit"), work("factor")))
 
-    grid_col = col + np.float32(crop.col0)
-    grid_row = row + np.float32(crop.row0)
+    grid_col = np.add(col, np.float32(crop.col0), out=work("grid_col"))
+    grid_row = np.add(row, np.float32(crop.row0), out=work("grid_row"))
     if level_map.any_sky:
         grid_col[sky] = -ground_mapping.MAX_MAP_COORDINATE
         grid_row[sky] = -ground_mapping.MAX_MAP_COORDINATE
@@ -575,14 +610,17 @@ def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarr
                          rough)
 
 
-def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
-    """``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit`` from the four values read at the hits."""
+def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config, out=(None, None)) -> np.ndarray:
+    """``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit`` from the four values read at the hits.
+
+    ``out``: arrays for lit and the factor.
+    """
     relief_config = config.relief
     band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
-    lit = values[..., 1] * band
+    lit = np.multiply(values[..., 1], band, out=out[0])
     lit += np.float32(0.5)
     np.clip(lit, np.float32(0.0), np.float32(1.0), out=lit)
-    factor = lit * values[..., 2]
+    factor = np.multiply(lit, values[..., 2], out=out[1])
     factor += values[..., 3]
     index = np.zeros(0, dtype=np.intp)
     if relief_config.slope_photometry:
