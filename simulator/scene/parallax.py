@@ -217,81 +217,120 @@ def rough_nodes(terrain: Terrain, heights_m: np.ndarray) -> np.ndarray:
     return cache[key]
 
 
-def shading_nodes(heights: np.ndarray, crop: Crop, grid_origin_m, metres_per_pixel: float, origin_m: np.ndarray,
-                  sun: np.ndarray, horizon: np.ndarray | None, config, rough: np.ndarray | None = None) -> np.ndarray:
-    """The four values every pixel reads at its hit point (module doc), on the terrain window.
+def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pose-independent node values of a relief terrain under a sun, cached per terrain and sun.
 
     Parameters
     ----------
-    heights : ndarray, shape (rows, cols), float32
-        Heights of the window (m).
+    terrain : Terrain
+        A terrain with ``height_m`` (:class:`simulator.scene.relief.ReliefTerrain`).
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table and ``shadow_diffuse_fraction``.
+
+    Returns
+    -------
+    pack : ndarray, shape (rows, cols, 4), float32
+        ``H``, ``H - S`` (``NEVER_SHADOWED`` without cast shadows), ``d (1 + n_z)/2`` (+ ``ROUGH_OFFSET`` at
+        the nodes of cells whose interpolated normal is off, :func:`rough_nodes`) and ``max(n.s, 0)``, with the
+        normal ``n = (normal_east, normal_north, 1)`` unnormalised (central differences).
+    normal_east, normal_north : ndarray, shape (rows, cols), float32
+        The normal's horizontal components (m per m; rows run south).
+    """
+    from simulator.scene import relief
+
+    relief_config = config.relief
+    diffuse = np.float32(config.shadow_diffuse_fraction)
+    sun = np.asarray(sun, dtype=float)
+    cache = DERIVED.of(terrain, "relief")
+    key = ("static_nodes", tuple(np.round(sun, 12)), float(relief_config.march_step_terrain_px),
+           relief_config.cast_shadows, relief_config.slope_photometry, float(diffuse), NORMAL_DEVIATION_LIMIT)
+    if key in cache:
+        return cache[key]
+    heights = np.asarray(terrain.height_m, dtype=np.float32)  # type: ignore[attr-defined]
+    rows, cols = heights.shape
+    pack = np.empty((rows, cols, 4), dtype=np.float32)
+    pack[..., 0] = heights
+    if relief_config.cast_shadows:
+        horizon = relief.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
+                                        relief_config.march_step_terrain_px)
+        pack[..., 1] = heights - horizon
+    else:
+        pack[..., 1] = np.float32(NEVER_SHADOWED)
+    if relief_config.slope_photometry and min(rows, cols) >= 2:
+        d_row, d_col = np.gradient(heights)
+        inverse_mpp = np.float32(1.0 / terrain.metres_per_pixel)
+        normal_east = d_col * -inverse_mpp
+        normal_north = d_row * inverse_mpp              # rows run south
+    else:
+        normal_east = normal_north = np.zeros_like(heights)
+    sun_x, sun_y, sun_z = (np.float32(value) for value in sun)
+    sky_view = np.float32(1.0) / np.sqrt(np.float32(1.0) + normal_east * normal_east + normal_north * normal_north)
+    sky_view += np.float32(1.0)
+    sky_view *= np.float32(0.5) * diffuse
+    if relief_config.slope_photometry:
+        sky_view += rough_nodes(terrain, heights) * np.float32(ROUGH_OFFSET)
+    pack[..., 2] = sky_view
+    pack[..., 3] = np.maximum(normal_east * sun_x + normal_north * sun_y + sun_z, np.float32(0.0))
+    cache[key] = (pack, normal_east, normal_north)
+    return cache[key]
+
+
+def shading_nodes(terrain: Terrain, crop: Crop, origin_m: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
+    """The four values every pixel reads at its hit point (module doc), on a terrain window.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The relief terrain.
     crop : Crop
-        The window in the terrain grid.
-    grid_origin_m : (float, float)
-        East, north of the terrain's (row 0, col 0) pixel centre (m).
-    metres_per_pixel : float
-        Grid spacing (m).
+        The window.
     origin_m : ndarray, shape (3,)
         The rays' origin (m).
     sun : ndarray, shape (3,)
         World unit vector toward the sun.
-    horizon : ndarray, shape (rows, cols), float32, or None
-        Sun-ray horizon height ``S`` of the window (m); None: no cast shadows.
     config : simulator.scene_config.SceneConfig
         Its ``relief`` table and ``shadow_diffuse_fraction``.
-    rough : ndarray, shape (rows, cols), uint8, optional
-        Nodes of cells whose interpolated normal is off (:func:`rough_nodes`): ``ROUGH_OFFSET`` is added
-        to their last value, so a read above ``d + ROUGH_MARGIN`` marks a pixel to shade at its own normal.
 
     Returns
     -------
     ndarray, shape (rows, cols, 4), float32
-        ``H``, ``H - S``, ``(1 - d) LS(n, v) / LS(flat, v)``, ``d (1 + n_z) / 2`` (+ ``ROUGH_OFFSET``).
+        ``H``, ``H - S``, ``d (1 + n_z) / 2`` (+ ``ROUGH_OFFSET``: :func:`static_nodes`) and
+        ``(1 - d) LS(n, v) / LS(flat, v)`` with ``v`` the unit vector from the node to the camera.
     """
+    pack, normal_east, normal_north = static_nodes(terrain, sun, config)
+    window = (slice(crop.row0, crop.row1), slice(crop.col0, crop.col1))
+    nodes = pack[window].copy()
+    rows, cols = nodes.shape[:2]
+    mpp = terrain.metres_per_pixel
+    sun_z = max(np.float32(sun[2]), np.float32(1e-12))
     diffuse = np.float32(config.shadow_diffuse_fraction)
-    rows, cols = heights.shape
-    nodes = np.empty((rows, cols, 4), dtype=np.float32)
-    nodes[..., 0] = heights
-    nodes[..., 1] = heights - horizon if horizon is not None else np.float32(NEVER_SHADOWED)
-    if not config.relief.slope_photometry or min(rows, cols) < 2:
-        nodes[..., 2] = np.float32(1.0) - diffuse
-        nodes[..., 3] = diffuse
-        return nodes
-    d_row, d_col = np.gradient(heights)
-    inverse_mpp = np.float32(1.0 / metres_per_pixel)
-    normal_east = d_col * -inverse_mpp                  # the normal is (normal_east, normal_north, 1) unnormalised
-    normal_north = d_row * inverse_mpp                  # rows run south
-    sun_x, sun_y, sun_z = (np.float32(value) for value in sun)
-    sun_z = max(sun_z, np.float32(1e-12))
-    east = grid_origin_m[0] + (crop.col0 + np.arange(cols)) * metres_per_pixel
-    north = grid_origin_m[1] - (crop.row0 + np.arange(rows)) * metres_per_pixel
+    east = terrain.origin_m[0] + (crop.col0 + np.arange(cols)) * mpp
+    north = terrain.origin_m[1] - (crop.row0 + np.arange(rows)) * mpp
     to_camera_east = (origin_m[0] - east).astype(np.float32)[None, :]
     to_camera_north = (origin_m[1] - north).astype(np.float32)[:, None]
-    to_camera_up = np.float32(origin_m[2]) - heights
-    distance = np.sqrt(to_camera_up * to_camera_up + (to_camera_east * to_camera_east + to_camera_north * to_camera_north))
+    to_camera_up = np.float32(origin_m[2]) - nodes[..., 0]
+    distance = to_camera_up * to_camera_up
+    distance += to_camera_east * to_camera_east + to_camera_north * to_camera_north
+    np.sqrt(distance, out=distance)
     # LS(n, v) / LS(flat, v) = A (s_z D + v_z) / (s_z (A D + B)), A = n.s, B = n.(O - X), D = |O - X|
     # (the normal's length cancels; A, B clipped at 0 as the photometric function clips its cosines)
-    sun_term = np.maximum(normal_east * sun_x + normal_north * sun_y + sun_z, np.float32(0.0))
-    view_term = normal_east * to_camera_east
-    view_term += normal_north * to_camera_north
+    sun_term = nodes[..., 3]
+    view_term = normal_east[window] * to_camera_east
+    view_term += normal_north[window] * to_camera_north
     view_term += to_camera_up
     np.maximum(view_term, np.float32(0.0), out=view_term)
     denominator = sun_term * distance
     denominator += view_term
     denominator *= sun_z
     np.maximum(denominator, np.float32(1e-30), out=denominator)
-    numerator = distance * sun_z
+    numerator = distance
+    numerator *= sun_z
     numerator += to_camera_up
     numerator *= sun_term
     numerator *= np.float32(1.0) - diffuse
-    nodes[..., 2] = numerator / denominator
-    slope_squared = normal_east * normal_east + normal_north * normal_north
-    sky_view = np.float32(1.0) / np.sqrt(np.float32(1.0) + slope_squared)
-    sky_view += np.float32(1.0)
-    sky_view *= np.float32(0.5) * diffuse
-    if rough is not None:
-        sky_view += rough * np.float32(ROUGH_OFFSET)
-    nodes[..., 3] = sky_view
+    np.divide(numerator, denominator, out=nodes[..., 3])
     return nodes
 
 
@@ -596,18 +635,8 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
 
 
 def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarray, sun: np.ndarray, config):
-    """:func:`shading_nodes` of a window, with its cached sun-ray horizon."""
-    from simulator.scene import relief
-
-    horizon = None
-    if config.relief.cast_shadows:
-        horizon = relief.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
-                                        config.relief.march_step_terrain_px)[crop.row0:crop.row1, crop.col0:crop.col1]
-    rough = None
-    if config.relief.slope_photometry:
-        rough = rough_nodes(terrain, terrain.height_m)[crop.row0:crop.row1, crop.col0:crop.col1]  # type: ignore[attr-defined]
-    return shading_nodes(heights, crop, terrain.origin_m, terrain.metres_per_pixel, origin_m, sun, horizon, config,
-                         rough)
+    """:func:`shading_nodes` of a window."""
+    return shading_nodes(terrain, crop, origin_m, sun, config)
 
 
 def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config, out=(None, None)) -> np.ndarray:
@@ -620,11 +649,11 @@ def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config, out
     lit = np.multiply(values[..., 1], band, out=out[0])
     lit += np.float32(0.5)
     np.clip(lit, np.float32(0.0), np.float32(1.0), out=lit)
-    factor = np.multiply(lit, values[..., 2], out=out[1])
-    factor += values[..., 3]
+    factor = np.multiply(lit, values[..., 3], out=out[1])
+    factor += values[..., 2]
     index = np.zeros(0, dtype=np.intp)
     if relief_config.slope_photometry:
-        rough = values[..., 3] > np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN)
+        rough = values[..., 2] > np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN)
         if hits.any_sky:
             rough &= ~hits.sky
         index = np.flatnonzero(rough)
