@@ -30,6 +30,7 @@ import numpy as np
 
 from flight_interface.camera_file import Timing
 from simulator.fields import bin_rows
+from simulator.scratch import scratch
 
 
 def cumsum_rows(values: np.ndarray) -> np.ndarray:
@@ -215,7 +216,8 @@ def block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows: int, t
     rows, width = radiance.shape
     blocks = rows // binning_rows
     with np.errstate(over="ignore", invalid="ignore"):      # an overflowing rate: inf, which saturates
-        product = np.multiply(radiance, gain, dtype=np.float32).reshape(blocks, binning_rows, width)
+        product = np.multiply(radiance, gain, dtype=np.float32,      # dies here: this thread's scratch array
+                              out=scratch("rate_product", (rows, width))).reshape(blocks, binning_rows, width)
         field = radiance.reshape(blocks, binning_rows, width)
         if not toward_last_row:
             product, field = product[::-1, ::-1], field[::-1, ::-1]

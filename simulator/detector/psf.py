@@ -53,6 +53,7 @@ from flight_interface.camera import Camera
 from flight_interface.camera_file import MAX_WAVEFRONT_ERROR_WAVES
 from simulator.derived_cache import DERIVED
 from simulator.fields import RadianceFields
+from simulator.scratch import scratch
 
 #: Mirrored margin beyond the frame edges (px along a row; rows scale with the field's row pitch).
 PAD_PX = 16
@@ -424,10 +425,13 @@ def binned_blur_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows:
     if padded_shape[0] % (2 * binning_rows) or padded_shape[1] % 2 or PAD_PX % binning_rows or rows % binning_rows:
         raise ValueError(f"binned blur: {binning_rows}-row blocks do not tile the padded {padded_shape} grid")
     padded_rows = padded_shape[0]
+    # both full-frame intermediates in this thread's scratch arrays (a fresh 4 MiB array costs page faults)
     extended = cv2.copyMakeBorder(field_w_m2_sr_um, PAD_PX, padded_rows - rows - PAD_PX + binning_rows - 1,
-                                  PAD_PX, padded_shape[1] - cols - PAD_PX, cv2.BORDER_REFLECT)
+                                  PAD_PX, padded_shape[1] - cols - PAD_PX, cv2.BORDER_REFLECT,
+                                  dst=scratch("psf_extended", (padded_rows + binning_rows - 1, padded_shape[1])))
     extended[padded_rows:] = extended[:binning_rows - 1]      # the padded field's rows wrap around
-    running = cv2.add(extended[:padded_rows], extended[1:padded_rows + 1])   # sum of rows r .. r + b - 1
+    running = cv2.add(extended[:padded_rows], extended[1:padded_rows + 1],     # sum of rows r .. r + b - 1
+                      dst=scratch("psf_running", padded_shape))
     for offset in range(2, binning_rows):
         cv2.add(running, extended[offset:padded_rows + offset], dst=running)
     first = PAD_PX // binning_rows
