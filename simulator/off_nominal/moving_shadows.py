@@ -274,7 +274,10 @@ class MovingShadows:
                 east -= along * np.float32(self.anti_sun[0])
                 north -= along * np.float32(self.anti_sun[1])
             # transmission 1 - (1 - T) clip(0.5 - (distance - r) / w, 0, 1), in place
-            covered = np.hypot(east, north, out=east)
+            east *= east                  # distance as sqrt(e^2 + n^2): np.hypot costs ~10x more per pixel
+            north *= north
+            east += north
+            covered = np.sqrt(east, out=east)
             covered *= np.float32(-1.0 / self.edge_m[k])
             covered += np.float32(0.5 + self.radius_m[k] / self.edge_m[k])
             np.clip(covered, np.float32(0.0), np.float32(1.0), out=covered)
