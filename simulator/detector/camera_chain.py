@@ -477,10 +477,11 @@ def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, bl
         else:                   # along each row: commutes with the block sum, and with the block order
             assert radiance_sums is not None
             blurred = psf.blur_field_along_rows(radiance_sums, camera)
-        block_gain = _flip_blocks(_block_gain(state, gains), toward_last)
-        change = block_gain * (blurred - radiance_sums)       # the blur's change of each block's charge rate
+        change = np.subtract(blurred, radiance_sums, out=blurred)     # the blur's change of each block's radiance,
+        change *= _flip_blocks(_block_gain(state, gains), toward_last)  # then of its charge rate
         plain += change
-        ramp += change * np.float32((b + 1) / 2)
+        change *= np.float32((b + 1) / 2)
+        ramp += change
     exposure_plain = plain if toward_last else plain[::-1]
     return plain, ramp, exposure_plain, largest
 

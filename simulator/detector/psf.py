@@ -430,10 +430,14 @@ def binned_blur_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows:
                                   PAD_PX, padded_shape[1] - cols - PAD_PX, cv2.BORDER_REFLECT,
                                   dst=scratch("psf_extended", (padded_rows + binning_rows - 1, padded_shape[1])))
     extended[padded_rows:] = extended[:binning_rows - 1]      # the padded field's rows wrap around
-    running = cv2.add(extended[:padded_rows], extended[1:padded_rows + 1],     # sum of rows r .. r + b - 1
-                      dst=scratch("psf_running", padded_shape))
-    for offset in range(2, binning_rows):
-        cv2.add(running, extended[offset:padded_rows + offset], dst=running)
+    running = scratch("psf_running", padded_shape)              # sum of rows r .. r + b - 1
+    if binning_rows == 4:       # pairs, then pairs of pairs: two passes
+        pairs = cv2.add(extended[:-1], extended[1:], dst=scratch("psf_pairs", (padded_rows + 2, padded_shape[1])))
+        cv2.add(pairs[:padded_rows], pairs[2:padded_rows + 2], dst=running)
+    else:
+        cv2.add(extended[:padded_rows], extended[1:padded_rows + 1], dst=running)
+        for offset in range(2, binning_rows):
+            cv2.add(running, extended[offset:padded_rows + offset], dst=running)
     first = PAD_PX // binning_rows
     plain = running[PAD_PX:PAD_PX + rows:binning_rows, PAD_PX:PAD_PX + cols].copy()
     spectrum = cv2.dft(running, dst=running)

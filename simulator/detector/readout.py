@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from flight_interface.camera_file import Electronics
+from simulator.scratch import scratch
 
 
 def shot_noise_e(rng: np.random.Generator, mean_e: np.ndarray) -> np.ndarray:
@@ -217,7 +218,7 @@ def read_out_dn(rng: np.random.Generator, mean_e: np.ndarray, electronics: Elect
     mean = np.maximum(mean_e, np.float32(0.0), dtype=np.float32)
     low = mean < np.float32(GAUSSIAN_MIN_MEAN_E)
     noisy = standard_normal_f32(rng, mean.shape)
-    sigma = np.add(mean, np.float32(read_sigma ** 2))
+    sigma = np.add(mean, np.float32(read_sigma ** 2), out=scratch("readout_sigma", mean.shape))
     np.sqrt(sigma, out=sigma)
     noisy *= sigma
     noisy += mean
@@ -240,8 +241,14 @@ def _dn_of_charge(charge_e: np.ndarray, electronics: Electronics) -> np.ndarray:
 
 
 def _expected_dn_f32(mean_e: np.ndarray, electronics: Electronics) -> np.ndarray:
-    """:func:`expected_dn` in float32."""
-    charge = np.minimum(mean_e, np.float32(electronics.binned_full_well_e), dtype=np.float32)
+    """:func:`expected_dn` in float32.
+
+    Gain and offset in one pass, then the full well and the ADC range as one clip in DN (the full well's
+    DN, ``full_well / gain + offset``, is where the charge clip lands).
+    """
+    charge = np.asarray(mean_e, dtype=np.float32)
     dn = cv2.addWeighted(charge, 1.0 / electronics.adc_gain_e_per_dn, charge, 0.0, electronics.adc_offset_dn,
                          dtype=cv2.CV_32F)
-    return np.clip(dn, np.float32(0.0), np.float32(electronics.max_dn), out=dn)
+    top = min(electronics.binned_full_well_e / electronics.adc_gain_e_per_dn + electronics.adc_offset_dn,
+              float(electronics.max_dn))
+    return np.clip(dn, np.float32(0.0), np.float32(top), out=dn)
