@@ -368,9 +368,21 @@ class RayFamily:
         self.row_per_m *= scale
 
     def at(self, z: np.ndarray | np.floating | float, index=None, out=(None, None)) -> tuple[np.ndarray, np.ndarray]:
-        """Window coordinates of the rays (or of ``index`` of them) at heights ``z`` (m).
+        """Window coordinates of the rays (or of some of them) at heights z.
 
-        ``out``: arrays for the result when all rays are asked.
+        Parameters
+        ----------
+        z : ndarray or float
+            Heights (m), one per ray asked (or one for all).
+        index : ndarray of int, optional
+            The rays asked (flat families); None: all.
+        out : (ndarray, ndarray), optional
+            Arrays for the result when all rays are asked.
+
+        Returns
+        -------
+        col, row : ndarray, float32
+            Window coordinates.
         """
         if index is None:
             col = np.multiply(z, self.col_per_m, out=out[0])
