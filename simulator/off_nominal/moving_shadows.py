@@ -312,11 +312,11 @@ class MovingShadows:
         rows, cols = row1 - row0, col1 - col0
         block = COARSE_BLOCK_PX
         block_rows, block_cols = -(-rows // block), -(-cols // block)
-        exact_col, exact_row = ground_map.col[row0:row1, col0:col1], ground_map.row[row0:row1, col0:col1]
         if not (block * block_rows <= height and block * block_cols <= width and min(block_rows, block_cols) >= 2
                 and self.edge_m[k] >= COARSE_EDGE_PX * _pixel_ground_m(ground_map, row0, row1, col0, col1,
                                                                        metres_per_pixel)):
-            return self._covered_at(k, start, exact_col, exact_row, grid_origin_m, metres_per_pixel)
+            return self._covered_at(k, start, ground_map.col[row0:row1, col0:col1], ground_map.row[row0:row1, col0:col1],
+                                    grid_origin_m, metres_per_pixel)
         top = min(row0, height - block * block_rows)
         left = min(col0, width - block * block_cols)
         window = (slice(top, top + block * block_rows), slice(left, left + block * block_cols))
@@ -334,10 +334,12 @@ class MovingShadows:
         mixed = cv2.dilate(regime, kernel) != cv2.erode(regime, kernel)
         mixed[[0, -1], :] = mixed[:, [0, -1]] = True      # the outer half blocks are extrapolated: exact there
         mixed = cv2.resize(mixed.view(np.uint8), fine_size, interpolation=cv2.INTER_NEAREST)[crop].view(bool)
-        index = np.nonzero(mixed)
-        if index[0].size:
-            covered[index] = self._covered_at(k, start, exact_col[index], exact_row[index], grid_origin_m,
-                                              metres_per_pixel)
+        index = np.flatnonzero(mixed)
+        if index.size:        # the frame's flat indices of those window pixels (the maps are whole frames)
+            frame_index = (row0 + index // cols) * width + (col0 + index % cols)
+            covered.reshape(-1)[index] = self._covered_at(k, start, ground_map.col.reshape(-1)[frame_index],
+                                                          ground_map.row.reshape(-1)[frame_index], grid_origin_m,
+                                                          metres_per_pixel)
         return covered
 
     def _covered_at(self, k: int, start: np.ndarray, col: np.ndarray, row: np.ndarray, grid_origin_m,
