@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import weakref
 from dataclasses import dataclass
 
 import cv2
@@ -54,6 +55,7 @@ MAX_PIXEL_ITERATIONS = 8
 SECANT_SLOPE_RANGE = (0.1, 2.0)   # f' = 1 - q lies in (0.1, 1.9) where the bound holds
 REMAP_ROW = 1024                 # a flat list of points is remapped as rows of this many (OpenCV maps < 32767)
 NEVER_SHADOWED = 1.0e6           # H - S where cast shadows are off: lit everywhere
+STATIC_TERRAINS_KEPT = 2         # terrains whose static node values stay cached (~100 MB each)
 ROUGH_OFFSET = 1.0e4              # added to a rough node's sky term: any bilinear weight above 1e-7 shows
 ROUGH_MARGIN = 1.0e-3             # a read above d + this (the sky term d (1 + n_z)/2 <= d) is rough
 NORMAL_DEVIATION_LIMIT = 0.2     # node-gradient error (m/m) above which a pixel is shaded at its own normal
@@ -139,13 +141,14 @@ def terrain_slope_bound(terrain: Terrain) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (rows, cols), float32
-        The bound (m per m).
+    ndarray, shape (rows, cols), float16
+        The bound (m per m), raised by 2^-9 before rounding to half precision (half the memory of float32).
     """
     cache = DERIVED.of(terrain, "relief")
     if "slope_bound" not in cache:
         heights = np.asarray(terrain.height_m, dtype=np.float32)  # type: ignore[attr-defined]
-        cache["slope_bound"] = slope_bound(heights, terrain.metres_per_pixel)
+        bound = slope_bound(heights, terrain.metres_per_pixel) * np.float32(1.0 + 2.0 ** -9)
+        cache["slope_bound"] = bound.astype(np.float16)       # rounded up by the margin: still a bound
     return cache["slope_bound"]
 
 
@@ -190,7 +193,7 @@ def normal_deviation(heights: np.ndarray) -> np.ndarray:
 def rough_nodes(terrain: Terrain, heights_m: np.ndarray) -> np.ndarray:
     """Nodes of a cell whose interpolated node normal is off by more than ``NORMAL_DEVIATION_LIMIT``.
 
-    The nearest node of any point in such a cell is flagged. Cached per terrain.
+    The nearest node of any point in such a cell is flagged (folded into :func:`static_nodes`).
 
     Parameters
     ----------
@@ -204,17 +207,10 @@ def rough_nodes(terrain: Terrain, heights_m: np.ndarray) -> np.ndarray:
     ndarray, shape (rows, cols), uint8
         1 where the node's :func:`normal_deviation` / mpp exceeds the limit.
     """
-    cache = DERIVED.of(terrain, "relief")
-    key = ("rough_nodes", NORMAL_DEVIATION_LIMIT)
-    if key not in cache:
-        mask: np.ndarray
-        if min(heights_m.shape) < 3:
-            mask = np.ones(heights_m.shape, dtype=np.uint8)
-        else:
-            limit = np.float32(NORMAL_DEVIATION_LIMIT * terrain.metres_per_pixel)
-            mask = (normal_deviation(heights_m) > limit).view(np.uint8)
-        cache[key] = mask
-    return cache[key]
+    if min(heights_m.shape) < 3:
+        return np.ones(heights_m.shape, dtype=np.uint8)
+    limit = np.float32(NORMAL_DEVIATION_LIMIT * terrain.metres_per_pixel)
+    return (normal_deviation(heights_m) > limit).view(np.uint8)
 
 
 def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -235,8 +231,12 @@ def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray,
         ``H``, ``H - S`` (``NEVER_SHADOWED`` without cast shadows), ``d (1 + n_z)/2`` (+ ``ROUGH_OFFSET`` at
         the nodes of cells whose interpolated normal is off, :func:`rough_nodes`) and ``max(n.s, 0)``, with the
         normal ``n = (normal_east, normal_north, 1)`` unnormalised (central differences).
-    normal_east, normal_north : ndarray, shape (rows, cols), float32
-        The normal's horizontal components (m per m; rows run south).
+    normal_east, normal_north : ndarray, shape (rows, cols), float16
+        The normal's horizontal components (m per m; rows run south), in half precision (5e-4 relative).
+
+    Notes
+    -----
+    ~100 MB per 1000 x 5000 strip: the values of the ``STATIC_TERRAINS_KEPT`` terrains used last are kept.
     """
     from simulator.scene import relief
 
@@ -254,7 +254,7 @@ def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray,
     pack[..., 0] = heights
     if relief_config.cast_shadows:
         horizon = relief.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
-                                        relief_config.march_step_terrain_px)
+                                        relief_config.march_step_terrain_px, cached=False)
         pack[..., 1] = heights - horizon
     else:
         pack[..., 1] = np.float32(NEVER_SHADOWED)
@@ -273,8 +273,24 @@ def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray,
         sky_view += rough_nodes(terrain, heights) * np.float32(ROUGH_OFFSET)
     pack[..., 2] = sky_view
     pack[..., 3] = np.maximum(normal_east * sun_x + normal_north * sun_y + sun_z, np.float32(0.0))
-    cache[key] = (pack, normal_east, normal_north)
+    _keep_static_nodes_of(terrain)
+    cache[key] = (pack, normal_east.astype(np.float16), normal_north.astype(np.float16))
     return cache[key]
+
+
+_static_owners: list = []      # weak references to the terrains holding static node values, oldest first
+
+
+def _keep_static_nodes_of(terrain: Terrain) -> None:
+    """Drop the static node values of all but the ``STATIC_TERRAINS_KEPT - 1`` most recent other terrains."""
+    alive = [ref for ref in _static_owners if ref() is not None and ref() is not terrain]
+    while len(alive) >= STATIC_TERRAINS_KEPT:
+        oldest = alive.pop(0)()
+        if oldest is not None:
+            cache = DERIVED.of(oldest, "relief")
+            for key in [key for key in cache if isinstance(key, tuple) and key[:1] == ("static_nodes",)]:
+                del cache[key]
+    _static_owners[:] = alive + [weakref.ref(terrain)]
 
 
 def shading_nodes(terrain: Terrain, crop: Crop, origin_m: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
@@ -317,8 +333,9 @@ def shading_nodes(terrain: Terrain, crop: Crop, origin_m: np.ndarray, sun: np.nd
     # LS(n, v) / LS(flat, v) = A (s_z D + v_z) / (s_z (A D + B)), A = n.s, B = n.(O - X), D = |O - X|
     # (the normal's length cancels; A, B clipped at 0 as the photometric function clips its cosines)
     sun_term = nodes[..., 3]
-    view_term = normal_east[window] * to_camera_east
-    view_term += normal_north[window] * to_camera_north
+    view_term = normal_east[window].astype(np.float32)
+    view_term *= to_camera_east
+    view_term += normal_north[window].astype(np.float32) * to_camera_north
     view_term += to_camera_up
     np.maximum(view_term, np.float32(0.0), out=view_term)
     denominator = sun_term * distance
@@ -580,7 +597,7 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     else:
         z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
     spacing = _ray_spacing(sample) if even else 0.0
-    bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1]
+    bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1].astype(np.float32)
     steep = _steep_rays(bound, sample, z_bottom, z_top, mpp, spacing)
     if even:
         steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)

@@ -478,7 +478,8 @@ def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mappi
     return ground_mapping.GroundMap(col, row, level_map.sky, level_map.any_sky, 0, None, rays), hits
 
 
-def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_px: float) -> np.ndarray:
+def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_px: float,
+                   cached: bool = True) -> np.ndarray:
     """Height of the lowest sun ray that clears the terrain towards the sun, from each pixel centre.
 
     ``S = max_k H(p + k s) - k s tan(elevation)`` over steps ``s`` of ``step_terrain_px`` towards the
@@ -493,6 +494,8 @@ def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_p
         World unit vector toward the sun.
     step_terrain_px : float
         March step (terrain pixels).
+    cached : bool, optional
+        Keep the result in the terrain's cache (False: a caller that keeps what it derives from it).
 
     Returns
     -------
@@ -527,7 +530,8 @@ def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_p
             shifted = top * (1 - fr) + bottom * fr
             shifted -= np.float32(k * climb)
             np.maximum(result, shifted, out=result)
-    cache[key] = result
+    if cached:
+        cache[key] = result
     return result
 
 
