@@ -31,7 +31,11 @@ height of :func:`simulator.scene.relief.horizon_height`, built once per terrain 
 differences and ``v`` the unit vector from the node to the camera. The radiance factor is
 ``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit``, ``lit = clip((H - S) / shadow_edge_m + 1/2, 0, 1)``:
 the reference's formula, with the normal of the node grid interpolated across a cell instead of the
-bilinear surface's own within-cell gradient (measured difference: docs/simulator.md, "Terrain relief").
+bilinear surface's own within-cell gradient; where the two can differ by more than
+``NORMAL_DEVIATION_LIMIT`` (a per-cell bound, flagged in the sky term's channel) the pixel is shaded at its
+own normal as the reference does (measured difference: docs/simulator.md, "Terrain relief"). The
+pose-independent values are cached per terrain and sun (:func:`static_nodes`); per pose only the view term
+is computed on the window (:func:`shading_nodes`).
 """
 from __future__ import annotations
 
