@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from flight_interface.camera import Camera
+from simulator.derived_cache import DERIVED
 from simulator.detector.camera_chain import RenderedImage, render_image
 from simulator.fields import RadianceFields
 from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
@@ -221,8 +222,13 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     profile = scale_angular_rates(profile, off_nominal.angular_rate_multiplier, camera.timing.exposure_mid_time_s(start_s))
 
     started = time.perf_counter()
-    periods = period_fields(terrain, camera, profile, start_s, sun, config,
+    binned = config.effects.binned_render and camera.binning_rows > 1
+    periods = period_fields(terrain, binned_render_camera(camera) if binned else camera, profile, start_s, sun, config,
                             need_smear_fields=camera_effects.smear, moving_shadows=moving)
+    if binned:     # the masks of the full frame: each block's rows share its ray
+        b = camera.binning_rows
+        periods = replace(periods, sky=np.repeat(periods.sky, b, axis=0), outside=np.repeat(periods.outside, b, axis=0),
+                          heat_shield=np.repeat(periods.heat_shield, b, axis=0))
     scene_ms = 1e3 * (time.perf_counter() - started)
 
     started = time.perf_counter()
@@ -242,6 +248,36 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
         scene_ms=scene_ms, camera_ms=camera_ms,
     )
     return DescentImage(rendered, periods.fields, periods.sky, periods.outside, periods.heat_shield, diagnostics)
+
+
+def binned_render_camera(camera: Camera) -> Camera:
+    """The camera whose pixel (c, k) is the centre of ``camera``'s binning block k in column c (cached).
+
+    Row ``r'`` of it sees what ``camera``'s row ``b r' + (b - 1) / 2`` sees: CAHVOR
+    ``V' = (V - (b - 1) / 2 A) / b`` over ``height / b`` rows, no binning. Rendering the scene with it
+    (the ``binned_render`` shortcut) gives each period's field per binning block: one ray per block,
+    and the pixel-area filter's second-order term (``simulator.scene.radiance.pixel_area_average``) in
+    the block's own units, so a field smooth at the pixel scale comes out as its block means.
+
+    Parameters
+    ----------
+    camera : Camera
+        The descent camera.
+
+    Returns
+    -------
+    Camera
+        The block-centre camera (``height / b`` rows, binning 1; the same C, A, H, O, R, mounting,
+        timing and radiometry).
+    """
+    cache = DERIVED.of(camera, "scene")
+    if "binned_render_camera" not in cache:
+        b = camera.binning_rows
+        model = camera.model
+        detector = camera.detector.model_copy(update={"height_px": camera.height_px // b, "binning_rows": 1})
+        cache["binned_render_camera"] = replace(camera, detector=detector,
+                                                model=replace(model, v=(model.v - 0.5 * (b - 1) * model.a) / b))
+    return cache["binned_render_camera"]
 
 
 def _camera_artefacts(off_nominal: OffNominalConfig, artefacts: OffNominalArtefacts | None) -> OffNominalArtefacts | None:

@@ -17,6 +17,7 @@ still fields       no         no     < 1 px   < 2 px
 warped smear       no         no     yes      yes
 warped blur        no         no     yes      yes     (>= 4 sub-poses: warp-and-accumulate, scene.blur_warp)
 shot noise         Poisson    Poiss. Gauss.   Gauss.  (Gaussian above 1000 e-, see readout)
+binned render      no         no     no       yes     (one ray per 4-row block: descent_image)
 =================  =========  =====  =======  =====
 
 Physics switches (shadows, heat shield, photometric correction, ...) and off-nominal effects are not
@@ -32,7 +33,8 @@ PRESETS = ("reference", "high", "default", "fast")
 DEFAULT_PRESET: Preset = "default"
 #: Scene effect switches of the exact reference render (every shortcut off).
 REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
-                         warp_smear_fields=False, warp_motion_blur=False, pixel_area_filter=False)
+                         warp_smear_fields=False, warp_motion_blur=False, pixel_area_filter=False,
+                         binned_render=False)
 
 
 def preset_fields(name: str, max_substeps: int = 16) -> dict:
@@ -65,7 +67,8 @@ def preset_fields(name: str, max_substeps: int = 16) -> dict:
                     substeps_per_terrain_px=1.0, camera_effects=dict(exact_poisson=True))
     fast = name == "fast"
     return dict(effects=dict(coarse_ray_grid=True, coarse_photometry=True, share_still_fields=True,
-                             warp_smear_fields=True, warp_motion_blur=True, pixel_area_filter=True),
+                             warp_smear_fields=True, warp_motion_blur=True, pixel_area_filter=True,
+                             binned_render=fast),
                 supersample=1, substeps_per_terrain_px=1.0, ray_grid_step_px=32 if fast else 16,
                 photometry_grid_step_px=32 if fast else 16, still_shift_terrain_px=2.0 if fast else 1.0,
                 max_substeps=4 if fast else max_substeps, camera_effects=dict(exact_poisson=False))

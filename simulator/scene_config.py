@@ -35,7 +35,7 @@ class SceneEffects(ConfigModel):
     Physics switches: ``photometric_correction``, ``spectral_ratio``, ``shadows``, ``heat_shield``,
     ``motion_blur``. Fidelity shortcuts (switch off for the reference render): ``coarse_ray_grid``,
     ``coarse_photometry``, ``share_still_fields``, ``warp_smear_fields``, ``warp_motion_blur``,
-    ``pixel_area_filter``.
+    ``pixel_area_filter``, ``binned_render``.
     """
 
     photometric_correction: bool = True
@@ -63,6 +63,10 @@ class SceneEffects(ConfigModel):
     pixel_area_filter: bool = True
     """Shortcut: the pixel-area integral approximated from point samples
     (simulator.scene.radiance.pixel_area_average); the reference supersamples instead."""
+    binned_render: bool = False
+    """Shortcut (the fast preset): the scene rendered at the read-out's resolution, one ray per binning
+    block (simulator.descent_image.binned_render_camera); the camera chain takes the fields as block means,
+    which drops the in-block structure the optics' blur and the PRNU act on (see docs/simulator.md)."""
 
 
 class AtmosphereConfig(ConfigModel):

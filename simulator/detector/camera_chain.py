@@ -15,9 +15,10 @@ in the style of ESA Pyxel's detector pipeline: each stage reads and updates one 
                                            at full well when a pixel may saturate              (e-)
       add_storage_dark                     charge_generation.storage_dark_e: dark while waiting for read-out
     read_out
-      readout.noisy_charge_e               shot noise at binned resolution (Poisson; Gaussian above
-                                           1000 e- unless exact_poisson) + output amplifier noise
-      readout.digitize                     full well, gain, offset, rounding, 12-bit clip -> uint16 (256, 1024)
+      readout.read_out_dn                  shot noise at binned resolution (Poisson; Gaussian above
+                                           1000 e- unless exact_poisson) + output amplifier noise, then
+                                           full well, gain, offset, rounding, 12-bit clip -> uint16 (256, 1024)
+                                           (fused in float32 for the Gaussian default)
 
 :func:`expected_charge_e` runs :data:`CHARGE_STAGES` (no random draw); :func:`render_image` adds
 :func:`read_out`.
@@ -205,6 +206,7 @@ class ChainState:
     rates: RadianceFields | None = None
     timing: Timing | None = None
     charge_e: np.ndarray | None = field(default=None, repr=False)
+    block_sums: dict | None = field(default=None, repr=False)
 
     @property
     def block_shape(self) -> tuple[int, int]:
@@ -420,19 +422,217 @@ def add_storage_dark(state: ChainState) -> None:
     None
     """
     if state.dark_rate_e_per_s:
-        state.charge_e = state.charge_e + charge_generation.storage_dark_e(state.camera, state.dark_rate_e_per_s)
+        state.charge_e = state.charge_e + _storage_dark_e(state.camera, state.dark_rate_e_per_s)
 
 
-#: The stages from radiance to mean binned charge, in the order the light meets them.
+def _storage_dark_e(camera: Camera, dark_rate: float) -> np.ndarray:
+    """:func:`charge_generation.storage_dark_e`, cached per camera and rate."""
+    cache = DERIVED.of(camera, "render")
+    key = ("storage_dark", float(dark_rate))
+    if key not in cache:
+        cache[key] = charge_generation.storage_dark_e(camera, dark_rate)
+        cache[key].setflags(write=False)
+    return cache[key]
+
+
+def binned_path_applies(state: ChainState) -> bool:
+    """Whether the binned path (:data:`BINNED_STAGES`) can take this image.
+
+    It takes an image whose exposure field is full frame; the full-resolution stages take an exposure
+    given per binning block (already at binned resolution) and, from :func:`collect_binned_charge`, an
+    image where a pixel may reach full well.
+
+    Parameters
+    ----------
+    state : ChainState
+        Reads ``radiance`` and the camera.
+
+    Returns
+    -------
+    bool
+        True when :data:`BINNED_STAGES` apply.
+    """
+    camera = state.camera
+    return np.shape(state.radiance.exposure) == (camera.height_px, camera.width_px) and camera.binning_rows > 1
+
+
+def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, blur: str,
+                        dark_rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """Block sums of one full-frame period field for :func:`binned_rate_sums`.
+
+    (plain, ramp, exposure-ordered plain, max pixel radiance), or None when the field is not finite
+    (the full-resolution stages read it).
+    """
+    camera = state.camera
+    b = camera.binning_rows
+    toward_last = camera.timing.transfer_toward_last_row
+    field, largest = psf.checked_field(radiance)
+    if not np.isfinite(largest):
+        return None
+    plain, ramp, radiance_sums = charge_transfer.block_rate_sums(field, gains["pixel"], b, toward_last, dark_rate,
+                                                                 radiance_sums=blur == "rows")
+    if blur != "none":
+        if blur == "psf":
+            blurred, radiance_sums = (_flip_blocks(sums, toward_last) for sums in psf.binned_blur_sums(field, camera, b))
+        else:                   # along each row: commutes with the block sum, and with the block order
+            assert radiance_sums is not None
+            blurred = psf.blur_field_along_rows(radiance_sums, camera)
+        change = np.subtract(blurred, radiance_sums, out=blurred)     # the blur's change of each block's radiance,
+        change *= _flip_blocks(_block_gain(state, gains), toward_last)  # then of its charge rate
+        plain += change
+        change *= np.float32((b + 1) / 2)
+        ramp += change
+    exposure_plain = plain if toward_last else plain[::-1]
+    return plain, ramp, exposure_plain, largest
+
+
+def binned_rate_sums(state: ChainState) -> None:
+    """Stage of the binned path: the block sums of the three periods' rates, PSF folded into the binning.
+
+    Each full-frame field ``F`` gives, per ``b``-row block, the plain and ramp-weighted sums of
+    ``F x gain + dark`` (:func:`charge_transfer.block_rate_sums`, one pass) plus the blur's change of
+    the block: the block gain times (the block sum of the blurred field - that of ``F``). The blurred
+    block sums are exact: for the exposure the PSF's spectrum folded into the binning
+    (:func:`psf.binned_blur_sums`); a smear field's line-spread blur commutes with the block sum and
+    runs on the block sums (:func:`psf.blur_field_along_rows`). What is not exact is where in the block
+    the blur moves light: it is taken spread over the block's gains, which drops the covariance of the
+    blur's in-block change with the in-block PRNU (``sum_j (B_j - F_j) (g_j - g_mean)``, a ~1 %
+    weighting of a sub-pixel change; bench row ``camera_chain/binned_vs_full_resolution``), and its
+    in-block ramp weighting of the smear (a 1 / N term). Block-mean smear fields go through
+    :func:`generation_rate` as in the full-resolution path; hot pixels add to their blocks' sums.
+
+    Parameters
+    ----------
+    state : ChainState
+        Reads ``radiance``; sets ``dark_rate_e_per_s``, ``timing`` and ``block_sums`` (None when a field is
+        not finite: the full-resolution stages take the image).
+
+    Returns
+    -------
+    None
+    """
+    camera, effects, fields = state.camera, state.effects, state.radiance
+    b, rows = camera.binning_rows, camera.height_px
+    state.dark_rate_e_per_s = (charge_generation.dark_rate_e_per_s(camera, effects.dark_current_scale)
+                               if effects.dark_current else 0.0)
+    gains = _gains(state)
+    exposure = _binned_period_sums(state, fields.exposure, gains, "psf" if effects.optics_psf else "none",
+                                   state.dark_rate_e_per_s)
+    if exposure is None:
+        state.block_sums = None
+        return
+    sums = {"exposure": exposure}
+    state.timing = camera.timing
+    if not effects.smear:
+        zero = np.zeros_like(exposure[0])
+        sums["flush"] = sums["transfer"] = (zero, zero, zero, 0.0)
+        state.timing = camera.timing.model_copy(update={"fast_flush_s": 0.0, "frame_transfer_s": 0.0})
+    else:
+        for period in ("flush", "transfer"):
+            radiance = getattr(fields, period)
+            shared = [other for other in ("exposure", "flush") if other in sums and radiance is getattr(fields, other)]
+            if shared:
+                sums[period] = sums[shared[0]]
+                continue
+            if np.shape(radiance) != (rows, camera.width_px):        # per block: the full-resolution stages' way
+                field = psf.blur_field_along_rows(radiance, camera) if effects.optics_psf else radiance
+                rate = _flip_blocks(generation_rate(state, field), camera.timing.transfer_toward_last_row)
+                plain, ramp = charge_transfer._block_sums(rate, b, rows)
+                sums[period] = (plain, ramp, plain, float(np.max(field)))
+                continue
+            period_sums = _binned_period_sums(state, radiance, gains, "rows" if effects.optics_psf else "none",
+                                              state.dark_rate_e_per_s)
+            if period_sums is None:
+                state.block_sums = None
+                return
+            sums[period] = period_sums
+    hot = state.artefacts.hot_pixels if state.artefacts is not None else None
+    if hot is not None:
+        for block_sums in {id(value): value for value in sums.values()}.values():
+            _add_hot_pixels(block_sums[0], block_sums[1], hot, camera)
+    state.block_sums = sums
+
+
+def _max_gain(state: ChainState) -> float:
+    """The largest pixel gain (e-/s per W m^-2 sr^-1 um^-1), cached with the gains."""
+    gains = _gains(state)
+    dust = state.artefacts.dust_transmission if state.artefacts is not None else None
+    cache: dict = gains if dust is not None else DERIVED.of(state.camera, "render")
+    key = ("max_gain", bool(state.effects.falloff), bool(state.effects.prnu))
+    if key not in cache:
+        cache[key] = float(np.max(gains["pixel"]))
+    return float(cache[key])
+
+
+def _flip_blocks(rate: np.ndarray, toward_last_row: bool) -> np.ndarray:
+    return rate if toward_last_row else rate[::-1]
+
+
+def _add_hot_pixels(plain: np.ndarray, ramp: np.ndarray, hot, camera: Camera) -> None:
+    """Add the hot pixels' dark rate to a period's plain and ramp block sums in place (charge-move order)."""
+    b = camera.binning_rows
+    rows, cols = np.divmod(hot.flat_index, camera.width_px)
+    if not camera.timing.transfer_toward_last_row:
+        rows = camera.height_px - 1 - rows
+    np.add.at(plain, (rows // b, cols), hot.rate_e_per_s)
+    np.add.at(ramp, (rows // b, cols), hot.rate_e_per_s * (b - rows % b).astype(np.float32))
+
+
+def collect_binned_charge(state: ChainState) -> None:
+    """Stage of the binned path: the binned charge from the block sums, when no pixel can reach full well.
+
+    The bound on a pixel's charge is the exposure's brightest pixel through the optics' kernel
+    (``max F x max gain x sum |k|``, :func:`psf.kernel_abs_sum`) plus the largest column smear; when it
+    reaches full well ``charge_e`` stays None and the full-resolution stages take the image (blooming).
+
+    Parameters
+    ----------
+    state : ChainState
+        Reads ``block_sums``, ``timing``; sets ``charge_e`` ((H / b, W), e-) or leaves it None.
+
+    Returns
+    -------
+    None
+    """
+    camera, artefacts, sums, timing = state.camera, state.artefacts, state.block_sums, state.timing
+    if sums is None:
+        return
+    assert timing is not None
+    hits = artefacts.particle_hits if artefacts is not None and artefacts.particle_hits is not None else None
+    rows = camera.height_px
+    kernel = psf.kernel_abs_sum(camera) if state.effects.optics_psf else 1.0
+    exposure_pixel = float(sums["exposure"][3]) * _max_gain(state) * kernel + state.dark_rate_e_per_s
+    bound = timing.exposure_s * exposure_pixel
+    for period, duration in (("flush", timing.fast_flush_s), ("transfer", timing.frame_transfer_s)):
+        if duration:
+            bound += duration / rows * float(sums[period][0].sum(axis=0).max())
+    if hits is not None:
+        bound += hits.max_pixel_charge_e
+    if not bound <= camera.electronics.full_well_e:      # (a NaN bound too)
+        return
+    charge = charge_transfer.binned_charge_from_sums(sums["flush"][:2], sums["exposure"][2], sums["transfer"][:2],
+                                                     timing, camera.binning_rows, rows)
+    if hits is not None:
+        particle_hits.add_to_binned(charge, hits, camera.binning_rows)
+    state.charge_e = charge
+
+
+#: The stages from radiance to mean binned charge at full resolution, in the order the light meets them.
 CHARGE_STAGES: tuple[Callable[[ChainState], None], ...] = (
     check_radiance, optics_blur, generation_rates, collect_charge, add_storage_dark)
+#: The binned path's stages between :func:`check_radiance` and :func:`add_storage_dark`: the same chain
+#: with the PSF folded into the binning (:func:`binned_rate_sums`); it leaves ``charge_e`` None for an
+#: image the full-resolution stages must take (a pixel may reach full well, a field is not finite).
+BINNED_STAGES: tuple[Callable[[ChainState], None], ...] = (binned_rate_sums, collect_binned_charge)
 
 
 def expected_charge_e(camera: Camera, radiance: RadianceInput, effects: CameraEffects = CameraEffects(),
-                      artefacts: OffNominalArtefacts | None = None) -> np.ndarray:
+                      artefacts: OffNominalArtefacts | None = None, full_resolution: bool = False) -> np.ndarray:
     """The mean charge of every binned pixel, from the radiance fields of the image's three CCD periods.
 
-    Runs :data:`CHARGE_STAGES`: everything of the chain before the noise (no random draw).
+    Everything of the chain before the noise (no random draw): :data:`BINNED_STAGES` when
+    :func:`binned_path_applies` (and they find no pixel that may reach full well), else
+    :data:`CHARGE_STAGES`.
 
     Parameters
     ----------
@@ -452,6 +652,8 @@ def expected_charge_e(camera: Camera, radiance: RadianceInput, effects: CameraEf
         Off-nominal artefacts of this image: dust transmission (on the photo-electron rate, after
         falloff), hot pixels (extra dark rate), particle-hit charge, blooming (else per-pixel clip).
         None: none of them, blooming on.
+    full_resolution : bool, optional
+        Run :data:`CHARGE_STAGES` even where the binned path applies (the reference it is measured against).
 
     Returns
     -------
@@ -459,8 +661,14 @@ def expected_charge_e(camera: Camera, radiance: RadianceInput, effects: CameraEf
         Charge per binned pixel (e-), before full-well and ADC clipping.
     """
     state = ChainState(camera, effects, artefacts, as_radiance_fields(radiance))
-    for stage in CHARGE_STAGES:
-        stage(state)
+    check_radiance(state)
+    if not full_resolution and binned_path_applies(state):
+        for stage in BINNED_STAGES:
+            stage(state)
+    if state.charge_e is None:
+        for stage in CHARGE_STAGES[1:-1]:
+            stage(state)
+    add_storage_dark(state)
     assert state.charge_e is not None
     return state.charge_e
 
@@ -488,11 +696,6 @@ def read_out(camera: Camera, charge_e: np.ndarray, rng: np.random.Generator,
     RenderedImage
         DN (uint16), expected DN and the mean charge (float32), each (height / b, width).
     """
-    electronics = camera.electronics
-    noisy = readout.noisy_charge_e(rng, charge_e, electronics.read_noise_e, effects.shot_noise,
-                                   effects.read_noise, effects.exact_poisson)
-    return RenderedImage(
-        dn=readout.digitize(noisy, electronics),
-        expected_dn=readout.expected_dn(charge_e, electronics),
-        expected_charge_e=charge_e.astype(np.float32),
-    )
+    dn, expected = readout.read_out_dn(rng, charge_e, camera.electronics, effects.shot_noise, effects.read_noise,
+                                       effects.exact_poisson)
+    return RenderedImage(dn=dn, expected_dn=expected, expected_charge_e=charge_e.astype(np.float32, copy=False))

@@ -30,12 +30,16 @@ import numpy as np
 
 from flight_interface.camera_file import Timing
 from simulator.fields import bin_rows
+from simulator.scratch import scratch
 
 
 def cumsum_rows(values: np.ndarray) -> np.ndarray:
-    """Cumulative sum down axis 0, as row-vector adds.
+    """Cumulative sum down axis 0, as row-vector adds in groups.
 
-    numpy's axis-0 cumsum walks each column separately and is ~10x slower on C-ordered images.
+    numpy's axis-0 cumsum walks each column separately and is ~10x slower on C-ordered images; one add
+    per row costs a call per row. Rows are taken in ``g ~ sqrt(N)`` groups: the running sums within every
+    group at once (``g`` adds of ``N / g`` rows), then each group's total carried into the next
+    (``N / g`` adds).
 
     Parameters
     ----------
@@ -47,11 +51,18 @@ def cumsum_rows(values: np.ndarray) -> np.ndarray:
     ndarray, shape (N, W), float32
         Cumulative sums.
     """
-    out = np.empty(values.shape, dtype=np.float32)
-    out[0] = values[0]
-    for row in range(1, values.shape[0]):
-        np.add(out[row - 1], values[row], out=out[row])
-    return out
+    rows, width = values.shape
+    group = max(int(np.sqrt(rows)), 1)
+    while rows % group:
+        group -= 1
+    out = np.empty((rows // group, group, width), dtype=np.float32)
+    grouped = values.reshape(rows // group, group, width)
+    out[:, 0] = grouped[:, 0]
+    for row in range(1, group):
+        np.add(out[:, row - 1], grouped[:, row], out=out[:, row])
+    for index in range(1, rows // group):
+        out[index] += out[index - 1, -1]
+    return out.reshape(rows, width)
 
 
 def _flip(rate: np.ndarray, toward_last_row: bool) -> np.ndarray:
@@ -109,26 +120,121 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
     """
     rows = rate_exposure.shape[0] if rows is None else rows
     toward_last = timing.transfer_toward_last_row
-    flush_blocks, flush_ramp = _block_sums(_flip(rate_flush, toward_last), binning_rows, rows)
-    flush_before = cumsum_rows(flush_blocks) - flush_blocks          # blocks strictly before
-    flush_smear = binning_rows * flush_before + flush_ramp                  # ramp weights b, b-1, .., 1
-
+    flush_sums = _block_sums(_flip(rate_flush, toward_last), binning_rows, rows)
     if rate_transfer is rate_flush:
-        transfer_blocks, transfer_ramp = flush_blocks, flush_ramp
+        transfer_sums = flush_sums
     else:
-        transfer_blocks, transfer_ramp = _block_sums(_flip(rate_transfer, toward_last), binning_rows, rows)
-    transfer_after = cumsum_rows(transfer_blocks[::-1])[::-1] - transfer_blocks
-    # weights 1, 2, .., b  =  (b + 1) * block sum - (weights b, .., 1)
-    transfer_smear = binning_rows * transfer_after + ((binning_rows + 1) * transfer_blocks - transfer_ramp)
-
-    smear = (timing.fast_flush_s / rows) * flush_smear + (timing.frame_transfer_s / rows) * transfer_smear
+        transfer_sums = _block_sums(_flip(rate_transfer, toward_last), binning_rows, rows)
     if is_block_mean(rate_exposure, rows, binning_rows):
         exposure_blocks = rate_exposure * np.float32(binning_rows)
     elif rate_exposure is rate_flush and toward_last:    # a still image: the same rows summed in the same order
-        exposure_blocks = flush_blocks
+        exposure_blocks = flush_sums[0]
     else:
         exposure_blocks = bin_rows(rate_exposure, binning_rows)
-    return (_flip(smear, toward_last) + np.float32(timing.exposure_s) * exposure_blocks).astype(np.float32)
+    return binned_charge_from_sums(flush_sums, exposure_blocks, transfer_sums, timing, binning_rows, rows)
+
+
+def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_blocks: np.ndarray,
+                            transfer_sums: tuple[np.ndarray, np.ndarray], timing: Timing, binning_rows: int,
+                            rows: int) -> np.ndarray:
+    """Binned charge from the block sums of the three periods' rates (module doc).
+
+    Parameters
+    ----------
+    flush_sums, transfer_sums : (ndarray, ndarray), each shape (N / b, W)
+        Per block of the fast-flush (transfer) rate, in the order the charge moves (blocks and rows
+        reversed when it moves toward the first row): the plain sum of its rows and the sum weighted
+        ``b, b - 1, ..., 1`` from its first row (e-/s); :func:`block_rate_sums`.
+    exposure_blocks : ndarray, shape (N / b, W)
+        Sum of the exposure rate over each block's rows (e-/s), in image order.
+    timing : Timing
+        The CCD timing (flush, exposure, transfer durations, transfer direction).
+    binning_rows : int
+        Rows per block ``b``.
+    rows : int
+        Full-frame rows N.
+
+    Returns
+    -------
+    ndarray, shape (N / b, W), float32
+        Charge per binned pixel (e-).
+    """
+    toward_last = timing.transfer_toward_last_row
+    flush_blocks, flush_ramp = flush_sums
+    transfer_blocks, transfer_ramp = transfer_sums
+    flush_through = cumsum_rows(flush_blocks)                       # blocks up to and including
+    if transfer_blocks is flush_blocks:      # one cumulative sum serves both: after = total - up to and including
+        transfer_after = np.subtract(flush_through[-1], flush_through)
+    else:
+        transfer_after = cumsum_rows(transfer_blocks[::-1])[::-1]
+        transfer_after -= transfer_blocks
+    flush_smear = flush_through
+    flush_smear -= flush_blocks                                      # blocks strictly before
+    flush_smear *= np.float32(binning_rows)
+    flush_smear += flush_ramp                                        # ramp weights b, b-1, .., 1
+    # weights 1, 2, .., b  =  (b + 1) * block sum - (weights b, .., 1)
+    transfer_smear = transfer_after
+    transfer_smear *= np.float32(binning_rows)
+    transfer_smear += np.float32(binning_rows + 1) * transfer_blocks
+    transfer_smear -= transfer_ramp
+    flush_smear *= np.float32(timing.fast_flush_s / rows)
+    transfer_smear *= np.float32(timing.frame_transfer_s / rows)
+    smear = flush_smear
+    smear += transfer_smear
+    charge = np.multiply(exposure_blocks, np.float32(timing.exposure_s), dtype=np.float32)
+    charge += _flip(smear, toward_last)
+    return charge
+
+
+def block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows: int, toward_last_row: bool,
+                    offset_e_per_s: float = 0.0,
+                    radiance_sums: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Block sums of a rate ``radiance x gain + offset`` without the full-resolution rate, in one pass.
+
+    Parameters
+    ----------
+    radiance : ndarray, shape (N, W), float32
+        Radiance per pixel (W m^-2 sr^-1 um^-1).
+    gain : ndarray, shape (N, W), float32
+        Rate per unit radiance of every pixel (e-/s per W m^-2 sr^-1 um^-1).
+    binning_rows : int
+        Rows per block ``b``.
+    toward_last_row : bool
+        The charge moves toward the last row (else blocks and the rows in them are taken in reverse,
+        as :func:`binned_charge_from_sums` wants them).
+    offset_e_per_s : float, optional
+        A rate added to every pixel (dark current, e-/s).
+    radiance_sums : bool, optional
+        Also sum the radiance (else the third array is None).
+
+    Returns
+    -------
+    (plain, ramp, radiance_sums) : three ndarrays, float32, shape (N / b, W)
+        Per block, in the order the charge moves: the sum of the rate over its rows, the sum weighted
+        ``b, b - 1, ..., 1`` from the block's first row (e-/s), and the sum of the radiance.
+    """
+    rows, width = radiance.shape
+    blocks = rows // binning_rows
+    with np.errstate(over="ignore", invalid="ignore"):      # an overflowing rate: inf, which saturates
+        product = np.multiply(radiance, gain, dtype=np.float32,      # dies here: this thread's scratch array
+                              out=scratch("rate_product", (rows, width))).reshape(blocks, binning_rows, width)
+        field = radiance.reshape(blocks, binning_rows, width)
+        if not toward_last_row:
+            product, field = product[::-1, ::-1], field[::-1, ::-1]
+        plain = product[:, 0].copy()          # partial sums over the block's first rows; their sum is the ramp
+        ramp = plain.copy()
+        for offset in range(1, binning_rows):
+            plain += product[:, offset]
+            ramp += plain
+        field_sums = None
+        if radiance_sums:
+            field_sums = field[:, 0].astype(np.float32, copy=True)
+            for offset in range(1, binning_rows):
+                field_sums += field[:, offset]
+    if offset_e_per_s:
+        plain += np.float32(binning_rows * offset_e_per_s)
+        ramp += np.float32(binning_rows * (binning_rows + 1) / 2 * offset_e_per_s)
+    return plain, ramp, field_sums
 
 
 def is_block_mean(rate: np.ndarray, rows: int, binning_rows: int) -> bool:

@@ -53,6 +53,7 @@ from flight_interface.camera import Camera
 from flight_interface.camera_file import MAX_WAVEFRONT_ERROR_WAVES
 from simulator.derived_cache import DERIVED
 from simulator.fields import RadianceFields
+from simulator.scratch import scratch
 
 #: Mirrored margin beyond the frame edges (px along a row; rows scale with the field's row pitch).
 PAD_PX = 16
@@ -330,6 +331,150 @@ def _row_otf_packed(camera: Camera, cols: int) -> np.ndarray:
         packed.setflags(write=False)
         cache[key] = packed
     return cache[key]
+
+
+def _unpacked_column(packed: np.ndarray) -> np.ndarray:
+    """The complex spectrum (rows,) of a real column from its packed (CCS) vertical spectrum (rows even)."""
+    rows = packed.shape[0]
+    values = packed.astype(np.float64)
+    column = np.empty(rows, dtype=np.complex128)
+    column[0] = values[0]
+    column[1:rows // 2] = values[1:rows - 1:2] + 1j * values[2:rows - 1:2]
+    column[rows // 2] = values[rows - 1]
+    column[rows // 2 + 1:] = np.conj(column[1:rows // 2][::-1])
+    return column
+
+
+def kernel_abs_sum(camera: Camera) -> float:
+    """Sum of the absolute values of the optics' kernel on the padded full-frame grid (cached).
+
+    A bound on how much the blur can raise a field's maximum: ``max B <= max F x kernel_abs_sum``
+    for a field ``F >= 0`` (1 plus twice the small negative lobes the band-limited OTF leaves).
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    float
+        ``sum |k|`` (>= 1).
+    """
+    import scipy.fft
+
+    cache = DERIVED.of(camera, "psf")
+    if "kernel_abs_sum" not in cache:
+        shape = _padded_shape(camera.height_px, camera.width_px, PAD_PX)
+        kernel = scipy.fft.irfft2(_otf_grid(camera, shape, camera.pixel_pitch_m), s=shape)
+        cache["kernel_abs_sum"] = float(np.abs(kernel).sum())
+    return cache["kernel_abs_sum"]
+
+
+def _fold_packed_rows(spectrum: np.ndarray, factor: int) -> np.ndarray:
+    """Fold a packed (CCS) spectrum of ``(H, W)`` to the spectrum of its every ``factor``-th row, ``(H / factor, W)``.
+
+    Sampling every ``factor``-th row of a signal sums its spectrum's ``factor`` row bands
+    (``X_d(u) = sum_q X(u + q H / factor)``; the inverse DFT of ``H / factor`` rows then scales by
+    ``factor`` too much). The columns that hold complex (Re, Im) pairs are summed as they are; the first
+    and last column hold a real column's packed vertical spectrum, unpacked to complex, folded and
+    packed again. H, W and H / factor even.
+    """
+    rows, cols = spectrum.shape
+    short = rows // factor
+    folded = spectrum[:short].copy()
+    for band in range(1, factor):
+        folded += spectrum[band * short:(band + 1) * short]
+    for col in (0, cols - 1):
+        summed = _unpacked_column(spectrum[:, col]).reshape(factor, short).sum(axis=0)
+        folded[0, col] = summed[0].real
+        folded[1:short - 1:2, col] = summed[1:short // 2].real
+        folded[2:short - 1:2, col] = summed[1:short // 2].imag
+        folded[short - 1, col] = summed[short // 2].real
+    return folded
+
+
+def binned_blur_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Block sums of ``binning_rows`` rows of a full-frame field seen through the optics, exact, and of the field.
+
+    ``Y(k, c) = sum_{j < b} B(k b + j, c)`` with ``B`` = :func:`blur_field` before its clip at 0. The
+    blur and the block sum commute: the padded field's ``b``-row running sum (circular, as the DFT sees
+    it) is transformed, multiplied by the OTF (:func:`_otf_packed`, as :func:`blur_field`), folded to
+    every ``b``-th row (:func:`_fold_packed_rows`: sampling in space is folding in frequency) and
+    transformed back at ``1 / b`` of the rows. Exact to float32 rounding; the inverse DFT costs a
+    quarter of :func:`blur_field`'s and no full-resolution blurred field is made. Sums below 0
+    (ringing next to a sky edge) are set to 0.
+
+    Parameters
+    ----------
+    field_w_m2_sr_um : ndarray, shape (height, width), float32, finite, >= 0
+        Radiance (W m^-2 sr^-1 um^-1), full frame (the caller checks it: :func:`checked_field`).
+    camera : Camera
+        The camera.
+    binning_rows : int
+        Rows per block ``b``; divides the height, the padded height (an even number of times) and the
+        row margin.
+
+    Returns
+    -------
+    (blurred, plain) : two ndarrays, float32, shape (height / b, width)
+        Block sums of the blurred field and of the field itself (W m^-2 sr^-1 um^-1 summed over ``b`` rows).
+    """
+    rows, cols = field_w_m2_sr_um.shape
+    padded_shape = _padded_shape(rows, cols, PAD_PX)
+    if padded_shape[0] % (2 * binning_rows) or padded_shape[1] % 2 or PAD_PX % binning_rows or rows % binning_rows:
+        raise ValueError(f"binned blur: {binning_rows}-row blocks do not tile the padded {padded_shape} grid")
+    padded_rows = padded_shape[0]
+    # both full-frame intermediates in this thread's scratch arrays (a fresh 4 MiB array costs page faults)
+    extended = cv2.copyMakeBorder(field_w_m2_sr_um, PAD_PX, padded_rows - rows - PAD_PX + binning_rows - 1,
+                                  PAD_PX, padded_shape[1] - cols - PAD_PX, cv2.BORDER_REFLECT,
+                                  dst=scratch("psf_extended", (padded_rows + binning_rows - 1, padded_shape[1])))
+    extended[padded_rows:] = extended[:binning_rows - 1]      # the padded field's rows wrap around
+    running = scratch("psf_running", padded_shape)              # sum of rows r .. r + b - 1
+    if binning_rows == 4:       # pairs, then pairs of pairs: two passes
+        pairs = cv2.add(extended[:-1], extended[1:], dst=scratch("psf_pairs", (padded_rows + 2, padded_shape[1])))
+        cv2.add(pairs[:padded_rows], pairs[2:padded_rows + 2], dst=running)
+    else:
+        cv2.add(extended[:padded_rows], extended[1:padded_rows + 1], dst=running)
+        for offset in range(2, binning_rows):
+            cv2.add(running, extended[offset:padded_rows + offset], dst=running)
+    first = PAD_PX // binning_rows
+    plain = running[PAD_PX:PAD_PX + rows:binning_rows, PAD_PX:PAD_PX + cols].copy()
+    spectrum = cv2.dft(running, dst=running)
+    spectrum *= _otf_packed(camera, padded_shape, camera.pixel_pitch_m)
+    sampled = cv2.idft(_fold_packed_rows(spectrum, binning_rows), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    blurred = sampled[first:first + rows // binning_rows, PAD_PX:PAD_PX + cols]
+    np.multiply(blurred, np.float32(1.0 / binning_rows), out=blurred)
+    return np.maximum(blurred, np.float32(0.0), out=blurred), plain
+
+
+def checked_field(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, float]:
+    """A field as float32 and its largest value; raises ValueError on a negative finite value.
+
+    Parameters
+    ----------
+    field_w_m2_sr_um : ndarray
+        Radiance (W m^-2 sr^-1 um^-1).
+
+    Returns
+    -------
+    (ndarray, float)
+        The field (float32, C-contiguous) and its maximum: NaN or inf when a value is not finite (the
+        minimum and maximum propagate NaN).
+
+    Raises
+    ------
+    ValueError
+        A finite value is negative.
+    """
+    field = np.ascontiguousarray(field_w_m2_sr_um, dtype=np.float32)
+    smallest, largest = float(field.min()), float(field.max())
+    if not (np.isfinite(smallest) and np.isfinite(largest)):
+        return field, float("nan")
+    if smallest < 0.0:
+        raise ValueError(f"radiance field has negative values (min {smallest:.4g} W m^-2 sr^-1 um^-1); "
+                         "radiance must be >= 0")
+    return field, largest
 
 
 def _checked(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

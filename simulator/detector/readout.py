@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from flight_interface.camera_file import Electronics
+from simulator.scratch import scratch
 
 
 def shot_noise_e(rng: np.random.Generator, mean_e: np.ndarray) -> np.ndarray:
@@ -182,3 +183,72 @@ def digitize(charge_e: np.ndarray, electronics: Electronics) -> np.ndarray:
     charge = np.minimum(charge_e, electronics.binned_full_well_e)
     dn = np.rint(charge / electronics.adc_gain_e_per_dn + electronics.adc_offset_dn)
     return np.clip(dn, 0.0, electronics.max_dn).astype(np.uint16)
+
+
+def read_out_dn(rng: np.random.Generator, mean_e: np.ndarray, electronics: Electronics, shot_noise: bool = True,
+                read_noise: bool = True, exact_poisson: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The read-out image and its expected DN: :func:`noisy_charge_e`, :func:`digitize` and :func:`expected_dn`.
+
+    The default (Gaussian shot noise, :func:`noisy_charge_e` with ``exact_poisson=False``) runs fused in
+    float32 on the same draws of the stream: the noise in place, then full well, gain, offset, rounding
+    (to nearest, ties to even, as :func:`digitize`) and the 12-bit clip in one OpenCV pass. Other
+    settings call the three functions. The DN differ from the float64 path only where float32
+    rounding moves a value across a half-DN boundary.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Noise stream (shot noise first, then read noise).
+    mean_e : ndarray, shape (binned rows, width)
+        Expected charge per binned pixel (e-); negative values count as 0.
+    electronics : Electronics
+        Read noise, full well, gain (e-/DN), offset (DN), bits.
+    shot_noise, read_noise, exact_poisson : bool
+        As :func:`noisy_charge_e`.
+
+    Returns
+    -------
+    (dn, expected_dn) : ndarray uint16 and ndarray float32, shape of ``mean_e``
+        The image (DN) and the noise-free DN before rounding.
+    """
+    read_sigma = electronics.read_noise_e if read_noise and electronics.read_noise_e > 0 else 0.0
+    if not shot_noise or exact_poisson:
+        noisy = noisy_charge_e(rng, mean_e, electronics.read_noise_e, shot_noise, read_noise, exact_poisson)
+        return digitize(noisy, electronics), expected_dn(mean_e, electronics)
+    mean = np.maximum(mean_e, np.float32(0.0), dtype=np.float32)
+    low = mean < np.float32(GAUSSIAN_MIN_MEAN_E)
+    noisy = standard_normal_f32(rng, mean.shape)
+    sigma = np.add(mean, np.float32(read_sigma ** 2), out=scratch("readout_sigma", mean.shape))
+    np.sqrt(sigma, out=sigma)
+    noisy *= sigma
+    noisy += mean
+    if low.any():
+        dim = shot_noise_e(rng, mean[low].astype(np.float64))
+        noisy[low] = dim + read_noise_e(rng, dim.shape, read_sigma) if read_sigma else dim
+    return _dn_of_charge(noisy, electronics), _expected_dn_f32(mean_e, electronics)
+
+
+def _dn_of_charge(charge_e: np.ndarray, electronics: Electronics) -> np.ndarray:
+    """:func:`digitize` of a float32 charge, in place on it.
+
+    Full well, then gain, offset and rounding to uint16 in one pass (``cv2.addWeighted`` rounds to
+    nearest even and saturates at 0), then the ADC top.
+    """
+    np.minimum(charge_e, np.float32(electronics.binned_full_well_e), out=charge_e)
+    dn = cv2.addWeighted(charge_e, 1.0 / electronics.adc_gain_e_per_dn, charge_e, 0.0, electronics.adc_offset_dn,
+                         dtype=cv2.CV_16U)
+    return np.minimum(dn, np.uint16(electronics.max_dn), out=dn)
+
+
+def _expected_dn_f32(mean_e: np.ndarray, electronics: Electronics) -> np.ndarray:
+    """:func:`expected_dn` in float32.
+
+    Gain and offset in one pass, then the full well and the ADC range as one clip in DN (the full well's
+    DN, ``full_well / gain + offset``, is where the charge clip lands).
+    """
+    charge = np.asarray(mean_e, dtype=np.float32)
+    dn = cv2.addWeighted(charge, 1.0 / electronics.adc_gain_e_per_dn, charge, 0.0, electronics.adc_offset_dn,
+                         dtype=cv2.CV_32F)
+    top = min(electronics.binned_full_well_e / electronics.adc_gain_e_per_dn + electronics.adc_offset_dn,
+              float(electronics.max_dn))
+    return np.clip(dn, np.float32(0.0), np.float32(top), out=dn)

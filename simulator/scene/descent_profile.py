@@ -9,6 +9,9 @@ Image timing: ``image_times_s[k]`` is the *start of the exposure* of image k. Th
 """
 from __future__ import annotations
 
+import bisect
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
@@ -21,8 +24,45 @@ from flight_interface.frames import (
     quat_multiply,
     quat_normalize,
     quat_to_rotation_vector,
-    slerp,
 )
+
+
+def unit_quat(quaternion: Sequence[float]) -> list[float]:
+    """:func:`flight_interface.frames.quat_normalize` of one quaternion, in scalar arithmetic."""
+    w, x, y, z = (float(value) for value in quaternion)
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if not (norm > 0 and math.isfinite(norm)):
+        raise ValueError(f"quaternion (w, x, y, z) must be finite with a non-zero norm; got {quaternion!r}")
+    sign = -1.0 if w / norm < 0 else 1.0
+    return [sign * w / norm, sign * x / norm, sign * y / norm, sign * z / norm]
+
+
+def scalar_slerp(q0: Sequence[float], q1: Sequence[float], fraction: float) -> list[float]:
+    """:func:`flight_interface.frames.slerp` of two quaternions, in scalar arithmetic.
+
+    Parameters
+    ----------
+    q0, q1 : sequence of 4 floats
+        Unit quaternions (w, x, y, z) at the ends.
+    fraction : float
+        Where between them, 0 .. 1.
+
+    Returns
+    -------
+    list of 4 floats
+        The unit quaternion (w >= 0).
+    """
+    start, end = unit_quat(q0), unit_quat(q1)
+    dot = sum(a * b for a, b in zip(start, end))
+    if dot < 0:
+        end = [-value for value in end]
+    theta = math.acos(min(max(abs(dot), -1.0), 1.0))
+    sin_theta = math.sin(theta)
+    if sin_theta < 1e-9:
+        w0, w1 = 1.0 - fraction, fraction
+    else:
+        w0, w1 = math.sin((1.0 - fraction) * theta) / sin_theta, math.sin(fraction * theta) / sin_theta
+    return unit_quat([w0 * a + w1 * b for a, b in zip(start, end)])
 
 
 @dataclass(frozen=True)
@@ -95,18 +135,21 @@ class DescentProfile:
             raise ValueError(f"profile {self.name}: heat_shield_position_m must have shape ({count}, 3)")
 
     def _locate(self, time_s: float) -> tuple[int, float]:
-        if not (self.time_s[0] <= time_s <= self.time_s[-1]):
-            raise ValueError(f"profile {self.name}: time {time_s:.4f} s outside "
-                             f"[{self.time_s[0]:.4f}, {self.time_s[-1]:.4f}] s")
-        index = int(np.clip(np.searchsorted(self.time_s, time_s, side="right") - 1, 0, len(self.time_s) - 2))
-        fraction = (time_s - self.time_s[index]) / (self.time_s[index + 1] - self.time_s[index])
-        return index, float(fraction)
+        times = self.time_s
+        time_s = float(time_s)
+        first, last = float(times[0]), float(times[-1])
+        if not (first <= time_s <= last):
+            raise ValueError(f"profile {self.name}: time {time_s:.4f} s outside [{first:.4f}, {last:.4f}] s")
+        index = min(max(bisect.bisect_right(times, time_s) - 1, 0), len(times) - 2)
+        start = float(times[index])
+        return index, (time_s - start) / (float(times[index + 1]) - start)
 
     def pose(self, time_s: float) -> Pose:
         """Lander state at a time: linear interpolation of vectors, slerp of attitude.
 
         Position uses cubic Hermite interpolation with the sampled velocities, so a profile sampled
-        coarsely still moves consistently with its own velocity.
+        coarsely still moves consistently with its own velocity. Scalar arithmetic on the two samples
+        around ``time_s`` (a pose is a handful of numbers: numpy's per-call cost would be most of it).
 
         Parameters
         ----------
@@ -119,21 +162,23 @@ class DescentProfile:
             The interpolated state.
         """
         index, fraction = self._locate(time_s)
-        step = self.time_s[index + 1] - self.time_s[index]
-        p0, p1 = self.position_m[index], self.position_m[index + 1]
-        v0, v1 = self.velocity_mps[index], self.velocity_mps[index + 1]
+        step = float(self.time_s[index + 1]) - float(self.time_s[index])
+        p0, p1 = self.position_m[index].tolist(), self.position_m[index + 1].tolist()
+        v0, v1 = self.velocity_mps[index].tolist(), self.velocity_mps[index + 1].tolist()
         s = fraction
         h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-        position = h00 * p0 + h10 * step * v0 + h01 * p1 + h11 * step * v1
+        position = [h00 * a + h10 * step * b + h01 * c + h11 * step * d for a, b, c, d in zip(p0, v0, p1, v1)]
 
         def lerp(values: np.ndarray) -> np.ndarray:
-            return (1.0 - fraction) * values[index] + fraction * values[index + 1]
+            start, end = values[index].tolist(), values[index + 1].tolist()
+            return np.array([(1.0 - fraction) * a + fraction * b for a, b in zip(start, end)])
 
         return Pose(
             time_s=float(time_s),
-            position_m=position,
-            velocity_mps=lerp(self.velocity_mps),
-            attitude_quat=slerp(self.attitude_quat[index], self.attitude_quat[index + 1], fraction),
+            position_m=np.array(position),
+            velocity_mps=np.array([(1.0 - fraction) * a + fraction * b for a, b in zip(v0, v1)]),
+            attitude_quat=np.array(scalar_slerp(self.attitude_quat[index].tolist(),
+                                                self.attitude_quat[index + 1].tolist(), fraction)),
             angular_rate_radps=lerp(self.angular_rate_radps),
             heat_shield_position_m=None if self.heat_shield_position_m is None else lerp(self.heat_shield_position_m),
         )

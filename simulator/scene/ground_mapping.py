@@ -31,9 +31,8 @@ import numpy as np
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
-from flight_interface.frames import quat_to_matrix
 from simulator.derived_cache import DERIVED
-from simulator.scene.descent_profile import Pose
+from simulator.scene.descent_profile import Pose, unit_quat
 from simulator.scene.node_grid import interpolate_nodes_window, node_positions, upsample_nodes
 from simulator.scratch import scratch
 
@@ -82,10 +81,25 @@ def camera_pose(camera: Camera, pose: Pose) -> CameraPose:
     CameraPose
         Frame origin, ray origin (m) and camera-to-world rotation.
     """
-    lander_to_world = quat_to_matrix(pose.attitude_quat)
-    camera_to_world = lander_to_world @ camera.camera_to_lander_matrix
-    frame_origin = np.asarray(pose.position_m, dtype=float) + lander_to_world @ camera.camera_position_in_lander_m
-    return CameraPose(frame_origin, frame_origin + camera_to_world @ camera.model.c, camera_to_world)
+    cache = camera_cache(camera)
+    mounting = cache.get("mounting")
+    if mounting is None:      # (camera-to-lander rotation, camera position in the lander, CAHVOR centre C)
+        mounting = cache["mounting"] = (camera.camera_to_lander_matrix,
+                                        np.asarray(camera.camera_position_in_lander_m, dtype=float),
+                                        np.asarray(camera.model.c, dtype=float))
+    camera_to_lander, position_in_lander, centre = mounting
+    lander_to_world = _rotation_matrix(pose.attitude_quat)
+    camera_to_world = lander_to_world @ camera_to_lander
+    frame_origin = np.asarray(pose.position_m, dtype=float) + lander_to_world @ position_in_lander
+    return CameraPose(frame_origin, frame_origin + camera_to_world @ centre, camera_to_world)
+
+
+def _rotation_matrix(quaternion: np.ndarray) -> np.ndarray:
+    """:func:`flight_interface.frames.quat_to_matrix` of one quaternion, in scalar arithmetic (3, 3)."""
+    w, x, y, z = unit_quat(quaternion.tolist() if isinstance(quaternion, np.ndarray) else quaternion)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def camera_cache(camera: Camera) -> dict:

@@ -288,7 +288,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                              terrain.metres_per_pixel, ray_step, scratch_maps=True)
     relief_hits = None
     if relief.has_relief(terrain, config):   # parallax and occlusion of the height field (scene.relief)
-        gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config)
+        gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config, sun)
         crop, inside = relief_hits.crop, False
     area_filter = effects.pixel_area_filter and not _sub_sample   # (a supersampled render averages point samples)
     # the point samples are filtered into a new array at once, and a supersampling sample's field is summed

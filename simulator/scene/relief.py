@@ -41,7 +41,7 @@ hit point (sub-pixel differences).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TypeGuard
+from typing import Literal, TypeGuard
 
 import cv2
 import numpy as np
@@ -50,7 +50,7 @@ from pydantic import Field
 from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
 from simulator.derived_cache import DERIVED
-from simulator.scene import ground_mapping, photometry, resample
+from simulator.scene import ground_mapping, parallax, photometry, resample
 from simulator.scene.terrain import Terrain
 
 MAX_MARCH_STEPS = 20_000        # a ray skimming the horizon stops marching here (taken at z_bottom)
@@ -66,6 +66,10 @@ class ReliefConfig(ConfigModel):
 
     enabled: bool = True
     """Render the height field of terrains that have one (off: level ground, as a plain terrain)."""
+    method: Literal["parallax", "march"] = "parallax"
+    """``parallax``: fixed-point parallax iterations, shading baked on the grid, the march only where a
+    nearer bump may occlude (simulator.scene.parallax); ``march``: every ray marched, shading per point
+    (the reference)."""
     march_step_terrain_px: float = Field(0.5, ge=0.05, le=2.0)
     """Largest horizontal move of a ray (and of a sun ray) per march step, in terrain pixels."""
     height_tolerance_m: float = Field(1.0e-3, ge=1.0e-6, le=0.1)
@@ -254,21 +258,44 @@ def intersect_rays(heights: np.ndarray, to_grid, origin_m: np.ndarray, rays: np.
         Heights z of the hit points (m); the point is ``origin + (z - O_z) / d_z d``.
     """
     rays = np.asarray(rays, dtype=np.float64)
-    count = len(rays)
-    slope = np.hypot(rays[:, 0], rays[:, 1]) / -rays[:, 2]          # horizontal move per metre of z
-    span = max(z_top - z_bottom, 0.0)
-    dz = np.minimum(step_m / np.maximum(slope, 1e-12), max(span, 1e-9))
-    dz = np.maximum(dz, span / MAX_MARCH_STEPS)
-
     # grid coordinates are affine in z along each ray (to_grid is affine): col = col0 + z col1
     col0, row0 = to_grid(origin_m[0] - origin_m[2] / rays[:, 2] * rays[:, 0],
                          origin_m[1] - origin_m[2] / rays[:, 2] * rays[:, 1])
     col_z, row_z = to_grid(origin_m[0] + (1.0 - origin_m[2]) / rays[:, 2] * rays[:, 0],
                            origin_m[1] + (1.0 - origin_m[2]) / rays[:, 2] * rays[:, 1])
     col_z, row_z = col_z - col0, row_z - row0
+    slope = np.hypot(rays[:, 0], rays[:, 1]) / -rays[:, 2]          # horizontal move per metre of z
+    return march_lines(heights, (col0, col_z, row0, row_z), slope, z_top, z_bottom, step_m, tolerance_m,
+                       skip_px, metres_per_pixel)
+
+
+def march_lines(heights: np.ndarray, lines, slope: np.ndarray, z_top: float, z_bottom: float, step_m: float,
+                tolerance_m: float, skip_px: int = SKIP_PX, metres_per_pixel: float | None = None) -> np.ndarray:
+    """The ray march of :func:`intersect_rays` on rays given as lines of the grid.
+
+    Parameters
+    ----------
+    heights : ndarray, shape (rows, cols)
+        Height grid (m).
+    lines : tuple of 4 ndarray, shape (N,)
+        ``col0, col_z, row0, row_z``: the ray at height z is at grid ``(col0 + z col_z, row0 + z row_z)``.
+    slope : ndarray, shape (N,)
+        Horizontal move per metre of z (m/m: tan of the view angle).
+    z_top, z_bottom, step_m, tolerance_m, skip_px, metres_per_pixel
+        As :func:`intersect_rays`.
+
+    Returns
+    -------
+    ndarray, shape (N,), float64
+        Heights z of the hit points (m).
+    """
+    count = len(slope)
+    span = max(z_top - z_bottom, 0.0)
+    dz = np.minimum(step_m / np.maximum(slope, 1e-12), max(span, 1e-9))
+    dz = np.maximum(dz, span / MAX_MARCH_STEPS)
 
     # evaluated in float32 (coordinates to ~1e-4 px, heights to ~1e-5 m: far inside the tolerance)
-    coarse = [np.asarray(item, dtype=np.float32) for item in (col0, col_z, row0, row_z)]
+    coarse = [np.asarray(item, dtype=np.float32) for item in lines]
 
     def residual32(index, z, grid=heights):
         z = np.asarray(z, dtype=np.float32)
@@ -376,8 +403,40 @@ def find_hits(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.Camer
     return ReliefHits(terrain, points.reshape(shape), sky, crop, view.reshape(shape))
 
 
+def march_heights(heights: np.ndarray, rays, index: np.ndarray, z_bottom: float, z_top: float, config,
+                  metres_per_pixel: float) -> np.ndarray:
+    """The reference march of some rays of a :class:`simulator.scene.parallax.RayFamily`.
+
+    Parameters
+    ----------
+    heights : ndarray, shape (rows, cols), float32
+        Window heights (m).
+    rays : simulator.scene.parallax.RayFamily
+        Flat rays in window coordinates.
+    index : ndarray of int
+        The rays to march.
+    z_bottom, z_top : float
+        Height bounds (m).
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table (march step, tolerance).
+    metres_per_pixel : float
+        Grid spacing (m).
+
+    Returns
+    -------
+    ndarray, shape (len(index),), float32
+        Heights z of the hits (m).
+    """
+    col_z, row_z = rays.col_per_m[index], rays.row_per_m[index]
+    slope = np.sqrt(col_z.astype(np.float64) ** 2 + row_z.astype(np.float64) ** 2) * metres_per_pixel
+    z = march_lines(heights, (rays.col0[index], col_z, rays.row0[index], row_z), slope, z_top, z_bottom,
+                    config.relief.march_step_terrain_px * metres_per_pixel, config.relief.height_tolerance_m,
+                    metres_per_pixel=metres_per_pixel)
+    return z.astype(np.float32)
+
+
 def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mapping.CameraPose,
-                      level_map: ground_mapping.GroundMap, config) -> tuple[ground_mapping.GroundMap, ReliefHits]:
+                      level_map: ground_mapping.GroundMap, config, sun_world: np.ndarray | None = None):
     """The ground map of the height field and the hits.
 
     Parameters
@@ -392,14 +451,22 @@ def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mappi
         The level-ground map of the pose (its rays).
     config : simulator.scene_config.SceneConfig
         Its ``relief`` table.
+    sun_world : ndarray, shape (3,), optional
+        World unit vector toward the sun: the ``parallax`` method then reads the shading in the same pass
+        as the hits (:func:`shading_factor` returns it).
 
     Returns
     -------
     ground_map : GroundMap
         Hit points as terrain grid coordinates.
-    hits : ReliefHits
-        The hits.
+    hits : ReliefHits or simulator.scene.parallax.ParallaxHits
+        The hits (``march`` or ``parallax`` method), for :func:`shading_factor`.
     """
+    if config.relief.method == "parallax":
+        def march(heights, rays, index, z_bottom, z_top):
+            return march_heights(heights, rays, index, z_bottom, z_top, config, terrain.metres_per_pixel)
+        sun = None if sun_world is None else np.asarray(sun_world, dtype=float)
+        return parallax.parallax_hits(terrain, camera, pose, level_map, config, march, sun)
     rays = level_map.rays()
     hits = find_hits(terrain, camera, pose, rays, level_map.sky, config)
     row, col = terrain.world_to_pixel(hits.points_m[..., 0], hits.points_m[..., 1])
@@ -411,7 +478,8 @@ def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mappi
     return ground_mapping.GroundMap(col, row, level_map.sky, level_map.any_sky, 0, None, rays), hits
 
 
-def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_px: float) -> np.ndarray:
+def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_px: float,
+                   cached: bool = True) -> np.ndarray:
     """Height of the lowest sun ray that clears the terrain towards the sun, from each pixel centre.
 
     ``S = max_k H(p + k s) - k s tan(elevation)`` over steps ``s`` of ``step_terrain_px`` towards the
@@ -426,6 +494,8 @@ def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_p
         World unit vector toward the sun.
     step_terrain_px : float
         March step (terrain pixels).
+    cached : bool, optional
+        Keep the result in the terrain's cache (False: a caller that keeps what it derives from it).
 
     Returns
     -------
@@ -460,17 +530,18 @@ def horizon_height(terrain: ReliefTerrain, sun_world: np.ndarray, step_terrain_p
             shifted = top * (1 - fr) + bottom * fr
             shifted -= np.float32(k * climb)
             np.maximum(result, shifted, out=result)
-    cache[key] = result
+    if cached:
+        cache[key] = result
     return result
 
 
-def shading_factor(hits: ReliefHits, sun_world: np.ndarray, config) -> np.ndarray:
+def shading_factor(hits, sun_world: np.ndarray, config) -> np.ndarray:
     """Radiance factor of slope photometry and cast shadows over level-ground radiance (module doc).
 
     Parameters
     ----------
-    hits : ReliefHits
-        The hits of the pose.
+    hits : ReliefHits or simulator.scene.parallax.ParallaxHits
+        The hits of the pose (the ``parallax`` method's shading: :func:`simulator.scene.parallax.parallax_factor`).
     sun_world : ndarray, shape (3,)
         World unit vector toward the sun.
     config : simulator.scene_config.SceneConfig
@@ -481,6 +552,8 @@ def shading_factor(hits: ReliefHits, sun_world: np.ndarray, config) -> np.ndarra
     ndarray, shape (H, W), float32
         The factor; 1 for sky pixels.
     """
+    if isinstance(hits, parallax.ParallaxHits):
+        return parallax.parallax_factor(hits, np.asarray(sun_world, dtype=float), config)
     terrain = hits.terrain
     relief = config.relief
     shape = hits.sky.shape

@@ -222,3 +222,33 @@ def test_fidelity_preset_from_toml_with_explicit_overrides(tmp_path):
     path.write_text('[scene]\nfidelity = "ultra"\n')
     with pytest.raises(ConfigError, match=r"scene\.fidelity.*allowed: reference, high, default, fast"):
         parse(SceneConfig, load_toml(path)["scene"], path, "scene")
+
+
+def test_binned_render_camera_row_k_sees_the_centre_of_block_k():
+    """CAHVOR V' = (V - 1.5 A) / 4: a world point on row r of the camera is on row (r - 1.5) / 4 of the
+    block-centre camera, on the same column (fast preset's binned_render)."""
+    from flight_interface import cahvor
+    from simulator.descent_image import binned_render_camera
+
+    binned = binned_render_camera(CAMERA)
+    assert (binned.height_px, binned.width_px, binned.binning_rows) == (256, 1024, 1)
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-0.3, 0.3, 50), rng.uniform(-0.3, 0.3, 50), np.ones(50)])
+    full, _ = cahvor.project(CAMERA.model, points)
+    block, _ = cahvor.project(binned.model, points)
+    np.testing.assert_allclose(block[:, 0], full[:, 0], atol=1e-9)
+    np.testing.assert_allclose(block[:, 1], (full[:, 1] - 1.5) / 4.0, atol=1e-9)
+
+
+def test_fast_preset_renders_block_fields_with_full_frame_masks():
+    """The fast preset's fields come per binning block; its masks stay full frame; a flat ground (exact ray
+    map and photometry, whose node grids differ between the presets) reads the default render's block
+    means to second order in the block (the photometric ratio is smooth)."""
+    flat = Terrain(np.full((1800, 1800), 0.2, np.float32), 3.0, np.array([-2698.5, 2698.5]), np.radians(30), 0.0,
+                   np.radians(30), "flat")
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, -1.0], LEVEL, 2.0, np.array([0.5]))
+    exact = dict(shadows=False, coarse_ray_grid=False, coarse_photometry=False)
+    fast = render_descent_image(flat, profile, CAMERA, 0, SUN, SceneConfig(fidelity="fast").with_effects(**exact))
+    default = render_descent_image(flat, profile, CAMERA, 0, SUN, SceneConfig().with_effects(**exact))
+    assert fast.radiance.exposure.shape == (256, 1024) and fast.sky_mask.shape == (1024, 1024)
+    np.testing.assert_allclose(fast.radiance.exposure, block_means(default.radiance.exposure, 4), rtol=1e-3)

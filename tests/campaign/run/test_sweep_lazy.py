@@ -102,6 +102,9 @@ def scheduler():
 @pytest.mark.slow
 def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_case(tmp_path, scheduler, monkeypatch,
                                                                                      capsys):
+    """Slow by design (35-85 s on the shared 2-core machine, 2026-11-27): a 6-point sweep is interrupted at its
+    first case file in a subprocess with its own embedded cluster, then resumed on this module's scheduler;
+    the interruption and the resume are the behaviour under test, so neither cluster can be shared away."""
     import campaign.run.sweep as sweep_module
 
     sweep = _sweep_file(tmp_path / "small.toml", {"scene.camera_effects.dark_current_scale": [1.0, 2.0, 3.0],

@@ -207,3 +207,99 @@ def test_relief_keys_are_validated_in_one_line():
 def test_height_field_of_another_shape_is_refused():
     with pytest.raises(ValueError, match="height_m"):
         relief_terrain(np.zeros((10, 10)), np.zeros((10, 9)), 1.0)
+
+
+# --- the fast (parallax) intersection against a brute-force march and a closed form ------------------------
+
+def brute_force_heights(heights, to_grid, origin, rays, z_top, z_bottom, mpp):
+    """First crossing of each ray with the bilinear surface: z stepped down so the ray moves 0.01 px per step,
+    then bisection of the first bracket to 1e-7 m (no skip, no early bound: a brute-force reference)."""
+    slope = np.hypot(rays[:, 0], rays[:, 1]) / -rays[:, 2]
+    dz = np.minimum(0.01 * mpp / np.maximum(slope, 1e-9), 0.01)
+    east0 = origin[0] - origin[2] / rays[:, 2] * rays[:, 0]
+    north0 = origin[1] - origin[2] / rays[:, 2] * rays[:, 1]
+
+    def residual(z):
+        east, north = east0 + z / rays[:, 2] * rays[:, 0], north0 + z / rays[:, 2] * rays[:, 1]
+        col, row = to_grid(east, north)
+        return z - relief.bilinear(heights, col, row)
+    upper = np.full(len(rays), z_top + 1e-3)
+    found = np.zeros(len(rays), dtype=bool)
+    while not found.all():
+        lower = np.maximum(upper - dz, z_bottom - 1e-3)
+        crossed = ~found & (residual(lower) <= 0)
+        found |= crossed
+        upper = np.where(found, upper, lower)
+    lower = upper - dz
+    for _ in range(60):
+        middle = 0.5 * (lower + upper)
+        below = residual(middle) <= 0
+        lower, upper = np.where(below, middle, lower), np.where(below, upper, middle)
+    return 0.5 * (lower + upper)
+
+
+def cone_terrain():
+    """A 300 m x 300 m grid (1 m) with a gentle cone (20 m high, slope 0.3) and a steep knob (20 m, slope 4)."""
+    mpp, size = 1.0, 301
+    east = (np.arange(size) - 150.0) * mpp
+    east_grid, north_grid = np.meshgrid(east, -east)
+    gentle = np.maximum(20.0 - 0.3 * np.hypot(east_grid + 40.0, north_grid - 30.0), 0.0)
+    knob = np.maximum(20.0 - 4.0 * np.hypot(east_grid - 90.0, north_grid + 20.0), 0.0)
+    heights = np.maximum(gentle, knob)
+    return relief_terrain(np.full((size, size), 0.2), heights, mpp, name="cones"), heights
+
+
+def test_parallax_hits_agree_with_a_brute_force_march_and_the_cone_in_closed_form():
+    terrain, heights = cone_terrain()
+    mpp = terrain.metres_per_pixel
+    sun = np.array([0.3, 0.2, np.sqrt(1.0 - 0.13)])
+    pose = pose_at(300.0, quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(3.0)))
+    cam = ground_mapping.camera_pose(CAMERA, pose)
+    level = ground_mapping.map_to_ground_grid(CAMERA, cam, (terrain.origin_m[0], terrain.origin_m[1]), mpp, 0)
+    config = EXACT.with_fields(relief=relief.ReliefConfig(method="parallax"))
+    ground_map, hits = relief.relief_ground_map(terrain, CAMERA, cam, level, config, sun)
+    assert hits.counts["marched"] > 0                    # the knob's hidden side is left to the march
+
+    rng = np.random.default_rng(5)
+    pixels = np.vstack([rng.uniform(0, 1023, (3000, 2)),
+                        np.stack(np.meshgrid(np.arange(860, 930.0), np.arange(630, 690.0)), -1).reshape(-1, 2)])
+    pixels = np.round(pixels)
+    cols_px, rows_px = pixels[:, 0].astype(int), pixels[:, 1].astype(int)
+    rays = ground_mapping.camera_frame_rays(CAMERA, pixels) @ cam.camera_to_world.T
+    origin = cam.ray_origin_m
+
+    def to_grid(east, north):
+        row, col = terrain.world_to_pixel(east, north)
+        return col, row
+    z = brute_force_heights(heights, to_grid, origin, rays, heights.max(), 0.0, mpp)
+    brute_col, brute_row = to_grid(origin[0] + (z - origin[2]) / rays[:, 2] * rays[:, 0],
+                                   origin[1] + (z - origin[2]) / rays[:, 2] * rays[:, 1])
+    fast_col, fast_row = ground_map.col[rows_px, cols_px], ground_map.row[rows_px, cols_px]
+    offset_px = np.hypot(fast_col - brute_col, fast_row - brute_row)
+    # the fast path reads heights at coordinates snapped to 1/32 px: within 1/64 px of the ray, plus the
+    # 1 mm tolerance. Where a nearer bump may hide the crossing it takes the reference march, which can miss
+    # a chord shorter than its 0.5 px step at the knob's silhouette: there it must be the march's point.
+    off = offset_px > 0.03
+    march_config = EXACT.with_fields(relief=relief.ReliefConfig(method="march"))
+    march_map, _ = relief.relief_ground_map(terrain, CAMERA, cam, level, march_config, sun)
+    march_offset_px = np.hypot(fast_col - march_map.col[rows_px, cols_px],
+                               fast_row - march_map.row[rows_px, cols_px])
+    assert off.mean() < 1e-3 and np.all(march_offset_px[off] < 0.03)
+    on_knob = (np.hypot(brute_col - 240.0, brute_row - 170.0) * mpp < 5.0) & (z > 1.0)
+    assert on_knob.sum() > 100          # the knob is in the sample: rays whose level point lies behind it
+
+    # the gentle cone in closed form (away from its apex and rim, where the bilinear surface is the cone)
+    apex = np.array([-40.0, 30.0, 20.0])
+    offset = origin - apex
+    a = rays[:, 2] ** 2 - 0.09 * (rays[:, 0] ** 2 + rays[:, 1] ** 2)
+    b = 2.0 * (offset[2] * rays[:, 2] - 0.09 * (offset[0] * rays[:, 0] + offset[1] * rays[:, 1]))
+    c = offset[2] ** 2 - 0.09 * (offset[0] ** 2 + offset[1] ** 2)
+    # the camera is inside the upper nappe (z - 20 > 0.3 r): the ray leaves it (the smaller root) before it
+    # meets the cone (the larger root, z < 20 m)
+    t = (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / (2 * a)
+    hit = origin + t[:, None] * rays
+    radius = np.hypot(hit[:, 0] - apex[0], hit[:, 1] - apex[1])
+    on_side = (hit[:, 2] > 0) & (radius > 3.0) & (radius < 20.0 / 0.3 - 2.0)
+    assert on_side.sum() > 100
+    exact_col, exact_row = to_grid(hit[on_side, 0], hit[on_side, 1])
+    assert np.max(np.hypot(fast_col[on_side] - exact_col, fast_row[on_side] - exact_row)) * mpp < 0.02

@@ -1,0 +1,794 @@
+"""Relief at near-nominal cost: fixed-point parallax iterations and shading baked on the terrain grid.
+
+The ``parallax`` method of ``[scene.relief]`` (the default; :mod:`simulator.scene.relief` keeps the ray
+march, ``method = "march"``, as the reference). Per pose:
+
+**Parallax.** A pixel whose ray meets the level ground z = 0 at grid point ``P0`` (the level map the
+scene already has) meets height z at ``P(z) = P0 + (z / O_z) (O - P0)`` (horizontal grid coordinates,
+``O`` the ray origin): a straight line through the origin, whatever the lens. The visible height solves
+``f(z) = z - H(P(z)) = 0``. Along the ray ``f'(z) = 1 - q`` with ``q`` the slope of the terrain along the
+ray's horizontal direction times ``tan(view angle)``; where the terrain's slope bound over the ray's
+whole segment between the window's height extremes keeps ``|q| < UNIQUE_SLOPE_BOUND`` (0.9, a dilated map
+of the bilinear surface's per-cell gradient bound), ``f`` is increasing, the ray crosses the surface once
+(no occlusion is possible) and the secant iteration from the fixed-point start ``z1 = H(P0)`` converges
+(at 1.5-2 km over the Gusev classes: 2-4 iterations to 1 mm). The solve runs on a half-resolution pixel
+grid (block means of the level map), its heights are upsampled, and every pixel is then checked at full
+resolution: where ``|z - H(P(z))| > height_tolerance_m`` the pixel iterates on its own. Rays where the
+bound does not hold (steep knobs, mesa walls: where a nearer bump may hide the crossing) and the few
+that do not converge in ``MAX_PIXEL_ITERATIONS`` take the reference ray march
+(:func:`simulator.scene.relief.march_heights`): occlusion stays exact.
+
+**The rendered point is on the surface.** Heights are read with OpenCV's bilinear remap, which snaps a
+coordinate to 1/32 px; the reflectance is read with the same maps, so each pixel shows the surface
+point ``(P_q, H(P_q))`` of its (snapped) ray at height z, exactly on the bilinear surface and within
+``height_tolerance_m`` (vertically) of the pixel's ray: an image displacement of
+``tolerance x tan(view angle) / ground pixel`` (3e-4 px at 1 mm and 1.5 m pixels).
+
+**Shading, baked on the grid.** Per pose, on the terrain window, every grid node gets four values,
+read at the hit point with one 4-channel bilinear remap: ``H``; ``H - S`` (``S`` the sun-ray horizon
+height of :func:`simulator.scene.relief.horizon_height`, built once per terrain and sun and cached);
+``(1 - d) LS(n, v) / LS(flat, v)`` and ``d (1 + n_z) / 2``, with ``n`` the node's normal from central
+differences and ``v`` the unit vector from the node to the camera. The radiance factor is
+``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit``, ``lit = clip((H - S) / shadow_edge_m + 1/2, 0, 1)``:
+the reference's formula, with the normal of the node grid interpolated across a cell instead of the
+bilinear surface's own within-cell gradient; where the two can differ by more than
+``NORMAL_DEVIATION_LIMIT`` (a per-cell bound, flagged in the sky term's channel) the pixel is shaded at its
+own normal as the reference does (measured difference: docs/simulator.md, "Terrain relief"). The
+pose-independent values are cached per terrain and sun (:func:`static_nodes`); per pose only the view term
+is computed on the window (:func:`shading_nodes`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import threading
+import weakref
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from simulator.derived_cache import DERIVED
+from simulator.scene import ground_mapping
+from simulator.scene.resample import Crop
+from simulator.scene.terrain import Terrain
+
+UNIQUE_SLOPE_BOUND = 0.9       # |q| below this over the whole ray segment: one crossing, secant converges
+MAX_COARSE_ITERATIONS = 8
+COARSE_UNSOLVED_FRACTION = 0.005  # the half-resolution solve stops with this fraction off the tolerance
+MAX_PIXEL_ITERATIONS = 8
+SECANT_SLOPE_RANGE = (0.1, 2.0)   # f' = 1 - q lies in (0.1, 1.9) where the bound holds
+REMAP_ROW = 1024                 # a flat list of points is remapped as rows of this many (OpenCV maps < 32767)
+NEVER_SHADOWED = 1.0e6           # H - S where cast shadows are off: lit everywhere
+STATIC_TERRAINS_KEPT = 2         # terrains whose static node values stay cached (~100 MB each)
+ROUGH_OFFSET = 1.0e4              # added to a rough node's sky term: any bilinear weight above 1e-7 shows
+ROUGH_MARGIN = 1.0e-3             # a read above d + this (the sky term d (1 + n_z)/2 <= d) is rough
+NORMAL_DEVIATION_LIMIT = 0.2     # node-gradient error (m/m) above which a pixel is shaded at its own normal
+
+
+_work_pool = threading.local()
+
+
+def _work_array(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """A reusable array of this thread for one of a pose's full-frame intermediates (no page faults per pose)."""
+    arrays = getattr(_work_pool, "arrays", None)
+    if arrays is None:
+        arrays = _work_pool.arrays = {}
+    key = (name, shape, np.dtype(dtype).str)
+    if key not in arrays:
+        arrays[key] = np.empty(shape, dtype=dtype)
+    return arrays[key]
+
+
+def remap_points(source: np.ndarray, col: np.ndarray, row: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Bilinear remap of a grid (1 or 4 channels) at any shape of points, edges replicated.
+
+    Parameters
+    ----------
+    source : ndarray, shape (rows, cols) or (rows, cols, channels), float32
+        The grid.
+    col, row : ndarray, float32, equal shapes
+        Fractional grid coordinates.
+    out : ndarray, optional
+        Array for the result (2-D points only).
+
+    Returns
+    -------
+    ndarray, float32, shape ``col.shape`` (+ channels)
+        The values (coordinates snapped to 1/32 px, OpenCV's bilinear tables).
+    """
+    if col.ndim == 2:
+        return cv2.remap(source, col, row, cv2.INTER_LINEAR, dst=out, borderMode=cv2.BORDER_REPLICATE)
+    count = col.size
+    rows = max(-(-count // REMAP_ROW), 1)
+    padded = rows * REMAP_ROW
+
+    def as_rows(values):
+        out = np.zeros(padded, dtype=np.float32)
+        out[:count] = values
+        return out.reshape(rows, REMAP_ROW)
+    result = cv2.remap(source, as_rows(col), as_rows(row), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    channels = source.shape[2:] if source.ndim == 3 else ()
+    return result.reshape((padded,) + channels)[:count]
+
+
+def slope_bound(heights: np.ndarray, metres_per_pixel: float) -> np.ndarray:
+    """Per grid node, an upper bound of the bilinear surface's gradient magnitude in the cell it opens.
+
+    Parameters
+    ----------
+    heights : ndarray, shape (rows, cols), float32
+        Heights (m).
+    metres_per_pixel : float
+        Grid spacing (m).
+
+    Returns
+    -------
+    ndarray, shape (rows, cols), float32
+        ``sqrt(max|dH/dcol|^2 + max|dH/drow|^2) / mpp`` over the cell's edges (m per m); the last row and
+        column repeat their neighbours.
+    """
+    along_cols = np.abs(np.diff(heights, axis=1))                  # (rows, cols - 1)
+    along_rows = np.abs(np.diff(heights, axis=0))                  # (rows - 1, cols)
+    cell_cols = np.maximum(along_cols[:-1], along_cols[1:])        # (rows - 1, cols - 1)
+    cell_rows = np.maximum(along_rows[:, :-1], along_rows[:, 1:])
+    bound = np.sqrt(cell_cols * cell_cols + cell_rows * cell_rows) * np.float32(1.0 / metres_per_pixel)
+    return np.pad(bound, ((0, 1), (0, 1)), mode="edge") if bound.size else np.zeros_like(heights)
+
+
+def terrain_slope_bound(terrain: Terrain) -> np.ndarray:
+    """:func:`slope_bound` of a relief terrain's heights, cached per terrain.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        A terrain with ``height_m``.
+
+    Returns
+    -------
+    ndarray, shape (rows, cols), float16
+        The bound (m per m), raised by 2^-9 before rounding to half precision (half the memory of float32).
+    """
+    cache = DERIVED.of(terrain, "relief")
+    if "slope_bound" not in cache:
+        heights = np.asarray(terrain.height_m, dtype=np.float32)  # type: ignore[attr-defined]
+        bound = slope_bound(heights, terrain.metres_per_pixel) * np.float32(1.0 + 2.0 ** -9)
+        cache["slope_bound"] = bound.astype(np.float16)       # rounded up by the margin: still a bound
+    return cache["slope_bound"]
+
+
+def normal_deviation(heights: np.ndarray) -> np.ndarray:
+    """Per node, a bound of |bilinear-surface gradient - interpolated node gradient| in the cells it touches.
+
+    Within a cell the bilinear surface's ``dH/dcol`` runs between the cell's two column differences, and the
+    interpolated node gradient (central differences) between its four corners' values: their difference is
+    at most the larger of ``max(edges) - min(corners)`` and ``max(corners) - min(edges)`` (likewise for
+    rows). A node takes the largest bound of the cells it is a corner of.
+
+    Parameters
+    ----------
+    heights : ndarray, shape (rows, cols), rows and cols >= 3
+        Heights (m).
+
+    Returns
+    -------
+    ndarray, shape (rows, cols), float32
+        The bound (m per grid px).
+    """
+    heights = np.asarray(heights, dtype=np.float32)
+    d_row, d_col = np.gradient(heights)
+
+    def cell_bound(edge_a, edge_b, node_values):
+        corner_max = np.maximum(np.maximum(node_values[:-1, :-1], node_values[:-1, 1:]),
+                                np.maximum(node_values[1:, :-1], node_values[1:, 1:]))
+        corner_min = np.minimum(np.minimum(node_values[:-1, :-1], node_values[:-1, 1:]),
+                                np.minimum(node_values[1:, :-1], node_values[1:, 1:]))
+        corner_max -= np.minimum(edge_a, edge_b)
+        np.subtract(np.maximum(edge_a, edge_b), corner_min, out=corner_min)
+        return np.maximum(corner_max, corner_min, out=corner_max)
+
+    along_cols = np.diff(heights, axis=1)            # (rows, cols - 1)
+    along_rows = np.diff(heights, axis=0)            # (rows - 1, cols)
+    cell = np.maximum(cell_bound(along_cols[:-1], along_cols[1:], d_col),
+                      cell_bound(along_rows[:, :-1], along_rows[:, 1:], d_row))
+    padded = np.pad(cell, 1, mode="edge")
+    return np.maximum(np.maximum(padded[:-1, :-1], padded[:-1, 1:]), np.maximum(padded[1:, :-1], padded[1:, 1:]))
+
+
+def rough_nodes(terrain: Terrain, heights_m: np.ndarray) -> np.ndarray:
+    """Nodes of a cell whose interpolated node normal is off by more than ``NORMAL_DEVIATION_LIMIT``.
+
+    The nearest node of any point in such a cell is flagged (folded into :func:`static_nodes`).
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The terrain (cache owner).
+    heights_m : ndarray, shape (rows, cols)
+        Its heights (m).
+
+    Returns
+    -------
+    ndarray, shape (rows, cols), uint8
+        1 where the node's :func:`normal_deviation` / mpp exceeds the limit.
+    """
+    if min(heights_m.shape) < 3:
+        return np.ones(heights_m.shape, dtype=np.uint8)
+    limit = np.float32(NORMAL_DEVIATION_LIMIT * terrain.metres_per_pixel)
+    return (normal_deviation(heights_m) > limit).view(np.uint8)
+
+
+def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pose-independent node values of a relief terrain under a sun, cached per terrain and sun.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        A terrain with ``height_m`` (:class:`simulator.scene.relief.ReliefTerrain`).
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table and ``shadow_diffuse_fraction``.
+
+    Returns
+    -------
+    pack : ndarray, shape (rows, cols, 4), float32
+        ``H``, ``H - S`` (``NEVER_SHADOWED`` without cast shadows), ``d (1 + n_z)/2`` (+ ``ROUGH_OFFSET`` at
+        the nodes of cells whose interpolated normal is off, :func:`rough_nodes`) and ``max(n.s, 0)``, with the
+        normal ``n = (normal_east, normal_north, 1)`` unnormalised (central differences).
+    normal_east, normal_north : ndarray, shape (rows, cols), float16
+        The normal's horizontal components (m per m; rows run south), in half precision (5e-4 relative).
+
+    Notes
+    -----
+    ~100 MB per 1000 x 5000 strip: the values of the ``STATIC_TERRAINS_KEPT`` terrains used last are kept.
+    """
+    from simulator.scene import relief
+
+    relief_config = config.relief
+    diffuse = np.float32(config.shadow_diffuse_fraction)
+    sun = np.asarray(sun, dtype=float)
+    cache = DERIVED.of(terrain, "relief")
+    key = ("static_nodes", tuple(np.round(sun, 12)), float(relief_config.march_step_terrain_px),
+           relief_config.cast_shadows, relief_config.slope_photometry, float(diffuse), NORMAL_DEVIATION_LIMIT)
+    if key in cache:
+        return cache[key]
+    heights = np.asarray(terrain.height_m, dtype=np.float32)  # type: ignore[attr-defined]
+    rows, cols = heights.shape
+    pack = np.empty((rows, cols, 4), dtype=np.float32)
+    pack[..., 0] = heights
+    if relief_config.cast_shadows:
+        horizon = relief.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
+                                        relief_config.march_step_terrain_px, cached=False)
+        pack[..., 1] = heights - horizon
+    else:
+        pack[..., 1] = np.float32(NEVER_SHADOWED)
+    if relief_config.slope_photometry and min(rows, cols) >= 2:
+        d_row, d_col = np.gradient(heights)
+        inverse_mpp = np.float32(1.0 / terrain.metres_per_pixel)
+        normal_east = d_col * -inverse_mpp
+        normal_north = d_row * inverse_mpp              # rows run south
+    else:
+        normal_east = normal_north = np.zeros_like(heights)
+    sun_x, sun_y, sun_z = (np.float32(value) for value in sun)
+    sky_view = np.float32(1.0) / np.sqrt(np.float32(1.0) + normal_east * normal_east + normal_north * normal_north)
+    sky_view += np.float32(1.0)
+    sky_view *= np.float32(0.5) * diffuse
+    if relief_config.slope_photometry:
+        sky_view += rough_nodes(terrain, heights) * np.float32(ROUGH_OFFSET)
+    pack[..., 2] = sky_view
+    pack[..., 3] = np.maximum(normal_east * sun_x + normal_north * sun_y + sun_z, np.float32(0.0))
+    _keep_static_nodes_of(terrain)
+    cache[key] = (pack, normal_east.astype(np.float16), normal_north.astype(np.float16))
+    return cache[key]
+
+
+_static_owners: list = []      # weak references to the terrains holding static node values, oldest first
+
+
+def _keep_static_nodes_of(terrain: Terrain) -> None:
+    """Drop the static node values of all but the ``STATIC_TERRAINS_KEPT - 1`` most recent other terrains."""
+    alive = [ref for ref in _static_owners if ref() is not None and ref() is not terrain]
+    while len(alive) >= STATIC_TERRAINS_KEPT:
+        oldest = alive.pop(0)()
+        if oldest is not None:
+            cache = DERIVED.of(oldest, "relief")
+            for key in [key for key in cache if isinstance(key, tuple) and key[:1] == ("static_nodes",)]:
+                del cache[key]
+    _static_owners[:] = alive + [weakref.ref(terrain)]
+
+
+def shading_nodes(terrain: Terrain, crop: Crop, origin_m: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
+    """The four values every pixel reads at its hit point (module doc), on a terrain window.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The relief terrain.
+    crop : Crop
+        The window.
+    origin_m : ndarray, shape (3,)
+        The rays' origin (m).
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table and ``shadow_diffuse_fraction``.
+
+    Returns
+    -------
+    ndarray, shape (rows, cols, 4), float32
+        ``H``, ``H - S``, ``d (1 + n_z) / 2`` (+ ``ROUGH_OFFSET``: :func:`static_nodes`) and
+        ``(1 - d) LS(n, v) / LS(flat, v)`` with ``v`` the unit vector from the node to the camera.
+    """
+    pack, normal_east, normal_north = static_nodes(terrain, sun, config)
+    window = (slice(crop.row0, crop.row1), slice(crop.col0, crop.col1))
+    nodes = pack[window].copy()
+    rows, cols = nodes.shape[:2]
+    mpp = terrain.metres_per_pixel
+    sun_z = max(np.float32(sun[2]), np.float32(1e-12))
+    diffuse = np.float32(config.shadow_diffuse_fraction)
+    east = terrain.origin_m[0] + (crop.col0 + np.arange(cols)) * mpp
+    north = terrain.origin_m[1] - (crop.row0 + np.arange(rows)) * mpp
+    to_camera_east = (origin_m[0] - east).astype(np.float32)[None, :]
+    to_camera_north = (origin_m[1] - north).astype(np.float32)[:, None]
+    to_camera_up = np.float32(origin_m[2]) - nodes[..., 0]
+    distance = to_camera_up * to_camera_up
+    distance += to_camera_east * to_camera_east + to_camera_north * to_camera_north
+    np.sqrt(distance, out=distance)
+    # LS(n, v) / LS(flat, v) = A (s_z D + v_z) / (s_z (A D + B)), A = n.s, B = n.(O - X), D = |O - X|
+    # (the normal's length cancels; A, B clipped at 0 as the photometric function clips its cosines)
+    sun_term = nodes[..., 3]
+    view_term = normal_east[window].astype(np.float32)
+    view_term *= to_camera_east
+    view_term += normal_north[window].astype(np.float32) * to_camera_north
+    view_term += to_camera_up
+    np.maximum(view_term, np.float32(0.0), out=view_term)
+    denominator = sun_term * distance
+    denominator += view_term
+    denominator *= sun_z
+    np.maximum(denominator, np.float32(1e-30), out=denominator)
+    numerator = distance
+    numerator *= sun_z
+    numerator += to_camera_up
+    numerator *= sun_term
+    numerator *= np.float32(1.0) - diffuse
+    np.divide(numerator, denominator, out=nodes[..., 3])
+    return nodes
+
+
+def _secant(z, f, z_previous, f_previous, z_bottom, z_top):
+    """One safeguarded secant step of f(z) = z - H(P(z)) (slope clipped to SECANT_SLOPE_RANGE)."""
+    dz = z - z_previous
+    safe = np.abs(dz) > np.float32(1e-6)
+    slope = np.where(safe, (f - f_previous) / np.where(safe, dz, np.float32(1.0)), np.float32(1.0))
+    np.clip(slope, np.float32(SECANT_SLOPE_RANGE[0]), np.float32(SECANT_SLOPE_RANGE[1]), out=slope)
+    return np.clip(z - f / slope, np.float32(z_bottom), np.float32(z_top))
+
+
+class RayFamily:
+    """Pixel rays through one origin as lines on the terrain window: ``P(z) = P0 + z k (O - P0)``.
+
+    Parameters
+    ----------
+    col0, row0 : ndarray, float32
+        Level-ground (z = 0) window coordinates of each ray (any shape).
+    origin_col, origin_row : float
+        Window coordinates of the origin's nadir point.
+    altitude_m : float
+        Origin height above z = 0 (m).
+    out : (ndarray, ndarray), optional
+        Arrays for the grid px per metre of z along columns and rows.
+    """
+
+    def __init__(self, col0: np.ndarray, row0: np.ndarray, origin_col: float, origin_row: float, altitude_m: float,
+                 out=(None, None)):
+        self.col0, self.row0 = col0, row0
+        scale = np.float32(1.0 / altitude_m)
+        self.col_per_m = np.subtract(np.float32(origin_col), col0, out=out[0])
+        self.col_per_m *= scale
+        self.row_per_m = np.subtract(np.float32(origin_row), row0, out=out[1])
+        self.row_per_m *= scale
+
+    def at(self, z: np.ndarray | np.floating | float, index=None, out=(None, None)) -> tuple[np.ndarray, np.ndarray]:
+        """Window coordinates of the rays (or of some of them) at heights z.
+
+        Parameters
+        ----------
+        z : ndarray or float
+            Heights (m), one per ray asked (or one for all).
+        index : ndarray of int, optional
+            The rays asked (flat families); None: all.
+        out : (ndarray, ndarray), optional
+            Arrays for the result when all rays are asked.
+
+        Returns
+        -------
+        col, row : ndarray, float32
+            Window coordinates.
+        """
+        if index is None:
+            col = np.multiply(z, self.col_per_m, out=out[0])
+            col += self.col0
+            row = np.multiply(z, self.row_per_m, out=out[1])
+            row += self.row0
+            return col, row
+        return self.col0[index] + z * self.col_per_m[index], self.row0[index] + z * self.row_per_m[index]
+
+
+def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, tolerance_m: float) -> np.ndarray:
+    """Secant iterations of every ray of a family (all at once, no compaction).
+
+    Parameters
+    ----------
+    heights : ndarray, shape (rows, cols), float32
+        Window heights (m).
+    rays : RayFamily
+        The rays.
+    z_bottom, z_top : float
+        Height bounds (m).
+    tolerance_m : float
+        Stop when every ``|z - H(P(z))|`` is within this (m).
+
+    Returns
+    -------
+    ndarray, float32, shape of the rays
+        Heights z (m).
+    """
+    z_previous = np.zeros_like(rays.col0)
+    level = remap_points(heights, rays.col0, rays.row0)
+    f_previous = -level
+    z = np.clip(level, np.float32(z_bottom), np.float32(z_top))
+    for _ in range(MAX_COARSE_ITERATIONS):
+        f = z - remap_points(heights, *rays.at(z))
+        if np.count_nonzero(np.abs(f) > np.float32(tolerance_m)) <= COARSE_UNSOLVED_FRACTION * f.size:
+            break       # the rest are solved at full resolution
+        z, z_previous, f_previous = _secant(z, f, z_previous, f_previous, z_bottom, z_top), z, f
+    return z
+
+
+def solve_points(heights: np.ndarray, rays: RayFamily, index: np.ndarray, z: np.ndarray, f: np.ndarray,
+                 z_bottom: float, z_top: float, tolerance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Secant iterations of some rays of a family, each until it is within the tolerance.
+
+    Parameters
+    ----------
+    heights : ndarray, shape (rows, cols), float32
+        Window heights (m).
+    rays : RayFamily
+        The rays (flat arrays).
+    index : ndarray of int
+        The rays to solve.
+    z, f : ndarray, float32, shape (len(index),)
+        Their current heights and residuals ``z - H(P(z))``.
+    z_bottom, z_top : float
+        Height bounds (m).
+    tolerance_m : float
+        Residual to reach (m).
+
+    Returns
+    -------
+    z : ndarray, float32, shape (len(index),)
+        Heights (m).
+    converged : ndarray, bool, shape (len(index),)
+        Whether each reached the tolerance.
+    """
+    z = z.copy()
+    converged = np.zeros(len(index), dtype=bool)
+    active = np.arange(len(index))
+    z_now = np.clip(z - f, np.float32(z_bottom), np.float32(z_top))     # the fixed-point step
+    z_previous, f_previous = z, f
+    for _ in range(MAX_PIXEL_ITERATIONS):
+        if not active.size:
+            break
+        f_now = z_now - remap_points(heights, *rays.at(z_now, index[active]))
+        done = np.abs(f_now) <= tolerance_m
+        z[active[done]] = z_now[done]
+        converged[active[done]] = True
+        going = ~done
+        active = active[going]
+        z_next = _secant(z_now[going], f_now[going], z_previous[going], f_previous[going], z_bottom, z_top)
+        z_previous, f_previous, z_now = z_now[going], f_now[going], z_next
+    return z, converged
+
+
+@dataclass(frozen=True)
+class ParallaxHits:
+    """Where each pixel's ray meets the height field (the ``parallax`` method).
+
+    Attributes
+    ----------
+    terrain : Terrain
+        The terrain they are on (a :class:`simulator.scene.relief.ReliefTerrain`).
+    crop : Crop
+        The terrain window holding every hit.
+    heights : ndarray, shape (rows, cols), float32
+        The window's heights (m).
+    col, row : ndarray, shape (H, W), float32
+        Window coordinates of each pixel's surface point (sky pixels: anything).
+    sky : ndarray, shape (H, W), bool
+        Rays that miss the level ground.
+    any_sky : bool
+        Whether any pixel sees the sky.
+    origin_m : ndarray, shape (3,)
+        The rays' origin (m).
+    counts : dict
+        ``pixels``, ``pixel_iterated`` (solved on their own at full resolution), ``marched`` (reference
+        march), ``exact_shading``.
+    factor : ndarray, shape (H, W), float32, or None
+        The radiance factor when the sun was known at the intersection (:func:`parallax_hits`).
+    sun : ndarray, shape (3,), or None
+        That sun.
+    """
+
+    terrain: Terrain
+    crop: Crop
+    heights: np.ndarray
+    col: np.ndarray
+    row: np.ndarray
+    sky: np.ndarray
+    any_sky: bool
+    origin_m: np.ndarray
+    counts: dict
+    factor: np.ndarray | None = None
+    sun: np.ndarray | None = None
+
+
+def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: ground_mapping.GroundMap,
+                  config, march, sun: np.ndarray | None = None) -> tuple[ground_mapping.GroundMap, ParallaxHits]:
+    """The ground map of the height field (module doc: parallax), and its shading when the sun is given.
+
+    Parameters
+    ----------
+    terrain : simulator.scene.relief.ReliefTerrain
+        The terrain with heights.
+    camera : Camera
+        The camera.
+    pose : CameraPose
+        The camera's world pose.
+    level_map : GroundMap
+        The level-ground map of the pose.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table (and ``shadow_diffuse_fraction``).
+    march : callable
+        ``march(heights, rays, index, z_bottom, z_top) -> z``: the reference ray march of the rays ``index``
+        of a flat :class:`RayFamily` (:func:`simulator.scene.relief.march_heights`, configured).
+    sun : ndarray, shape (3,), optional
+        World unit vector toward the sun: the shading is then read in the same pass as the last check of
+        the heights (else :func:`parallax_factor` reads it).
+
+    Returns
+    -------
+    ground_map : GroundMap
+        Hit points as terrain grid coordinates (the level map's rays and sky).
+    hits : ParallaxHits
+        The hits (with the radiance factor when ``sun`` is given).
+    """
+    from simulator.scene import relief
+
+    relief_config = config.relief
+    tolerance = float(relief_config.height_tolerance_m)
+    mpp = terrain.metres_per_pixel
+    crop = relief.march_window(terrain, camera, pose)
+    heights = np.ascontiguousarray(terrain.height_m[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
+    z_top, z_bottom = float(heights.max()), float(heights.min())
+    origin = pose.ray_origin_m
+    origin_row, origin_col = terrain.world_to_pixel(origin[0], origin[1])
+    origin_col, origin_row = float(origin_col) - crop.col0, float(origin_row) - crop.row0
+    altitude = float(origin[2])
+
+    sky = level_map.sky
+    height_px, width_px = level_map.col.shape
+    shape = (height_px, width_px)
+    pooled = sun is not None      # the pose's arrays are used up before the next pose: reuse their memory
+
+    def work(name, dtype=np.float32, channels=()):
+        return _work_array(name, shape + channels, dtype) if pooled else np.empty(shape + channels, dtype=dtype)
+    col0 = np.subtract(level_map.col, np.float32(crop.col0), out=work("col0"))
+    row0 = np.subtract(level_map.row, np.float32(crop.row0), out=work("row0"))
+    if level_map.any_sky:       # sky pixels: any point of the window (masked at the end)
+        col0[sky], row0[sky] = 0.0, 0.0
+    full = RayFamily(col0, row0, origin_col, origin_row, altitude, out=(work("col_per_m"), work("row_per_m")))
+
+    # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound and by
+    #    the node normals' error
+    even = height_px % 2 == 0 and width_px % 2 == 0 and min(height_px, width_px) >= 4
+    sample = full
+    if even:
+        size = (width_px // 2, height_px // 2)
+        sample = RayFamily(cv2.resize(col0, size, interpolation=cv2.INTER_AREA),
+                           cv2.resize(row0, size, interpolation=cv2.INTER_AREA), origin_col, origin_row, altitude)
+        z_sample = solve_coarse(heights, sample, z_bottom, z_top, tolerance)
+        z = cv2.resize(z_sample, (width_px, height_px), dst=work("z"), interpolation=cv2.INTER_LINEAR)
+    else:
+        z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
+    spacing = _ray_spacing(sample) if even else 0.0
+    bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1].astype(np.float32)
+    steep = _steep_rays(bound, sample, z_bottom, z_top, mpp, spacing)
+    if even:
+        steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
+    if level_map.any_sky:
+        steep &= ~sky
+
+    # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
+    #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
+    col, row = full.at(z, out=(work("col"), work("row")))
+    z = remap_points(heights, col, row, out=work("z_step"))          # z = H(P(z))
+    col, row = full.at(z, out=(col, row))
+    nodes = None
+    if sun is not None:
+        nodes = _nodes(heights, crop, terrain, origin, sun, config)
+        values = remap_points(nodes, col, row, out=work("values", channels=(4,)))
+        residual = np.subtract(z, values[..., 0], out=work("residual"))
+    else:
+        residual = z - remap_points(heights, col, row)
+    off = np.greater(np.abs(residual), np.float32(tolerance), out=work("off", bool))
+    off &= ~steep
+    if level_map.any_sky:
+        off &= ~sky
+    flat_rays = RayFamily.__new__(RayFamily)
+    flat_rays.col0, flat_rays.row0 = full.col0.reshape(-1), full.row0.reshape(-1)
+    flat_rays.col_per_m, flat_rays.row_per_m = full.col_per_m.reshape(-1), full.row_per_m.reshape(-1)
+    z_flat = z.reshape(-1)
+    redo = np.flatnonzero(off)
+    marched = steep.reshape(-1).copy()
+    if redo.size:
+        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual.reshape(-1)[redo],
+                                         z_bottom, z_top, tolerance)
+        z_flat[redo] = z_redo
+        marched[redo[~converged]] = True
+        redo = redo[converged]
+    # 3. rays where a nearer bump may hide the crossing: the reference march
+    marched_index = np.flatnonzero(marched)
+    if marched_index.size:
+        z_flat[marched_index] = march(heights, flat_rays, marched_index, z_bottom, z_top)
+        marched[redo] = True
+        changed = np.flatnonzero(marched)
+    else:
+        changed = redo
+    if changed.size:
+        col_changed, row_changed = flat_rays.at(z_flat[changed], changed)
+        col.reshape(-1)[changed], row.reshape(-1)[changed] = col_changed, row_changed
+        if nodes is not None:
+            values.reshape(-1, 4)[changed] = remap_points(nodes, col_changed, row_changed)
+    counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
+    hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
+    factor = None if nodes is None or sun is None else _factor(hits, values, sun, config,
+                                                                (work("lit"), work("factor")))
+
+    grid_col = np.add(col, np.float32(crop.col0), out=work("grid_col"))
+    grid_row = np.add(row, np.float32(crop.row0), out=work("grid_row"))
+    if level_map.any_sky:
+        grid_col[sky] = -ground_mapping.MAX_MAP_COORDINATE
+        grid_row[sky] = -ground_mapping.MAX_MAP_COORDINATE
+    ground_map = ground_mapping.GroundMap(grid_col, grid_row, sky, level_map.any_sky, level_map._step,
+                                          level_map._nodes, level_map._full, level_map.camera_rays,
+                                          level_map.camera_to_world, level_map.ray_dz)
+    if factor is not None:
+        hits = dataclasses.replace(hits, factor=factor, sun=np.asarray(sun, dtype=float))
+    return ground_map, hits
+
+
+def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarray, sun: np.ndarray, config):
+    """:func:`shading_nodes` of a window."""
+    return shading_nodes(terrain, crop, origin_m, sun, config)
+
+
+def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config, out=(None, None)) -> np.ndarray:
+    """``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit`` from the four values read at the hits.
+
+    ``out``: arrays for lit and the factor.
+    """
+    relief_config = config.relief
+    band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
+    lit = np.multiply(values[..., 1], band, out=out[0])
+    lit += np.float32(0.5)
+    np.clip(lit, np.float32(0.0), np.float32(1.0), out=lit)
+    factor = np.multiply(lit, values[..., 3], out=out[1])
+    factor += values[..., 2]
+    index = np.zeros(0, dtype=np.intp)
+    if relief_config.slope_photometry:
+        rough = values[..., 2] > np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN)
+        if hits.any_sky:
+            rough &= ~hits.sky
+        index = np.flatnonzero(rough)
+    if index.size:
+        factor.reshape(-1)[index] = exact_shading(hits, index, lit.reshape(-1)[index], sun, config)
+    hits.counts["exact_shading"] = int(index.size)
+    if hits.any_sky:
+        factor[hits.sky] = 1.0
+    return factor
+
+
+def parallax_factor(hits: ParallaxHits, sun: np.ndarray, config) -> np.ndarray:
+    """Radiance factor of slope photometry and cast shadows at the hits (module doc: shading).
+
+    Parameters
+    ----------
+    hits : ParallaxHits
+        The hits of the pose.
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Its ``relief`` table and ``shadow_diffuse_fraction``.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        ``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit``; 1 for sky pixels.
+    """
+    if not (config.relief.slope_photometry or config.relief.cast_shadows):
+        return np.ones(hits.col.shape, dtype=np.float32)
+    if hits.factor is not None and hits.sun is not None and np.array_equal(hits.sun, np.asarray(sun, dtype=float)):
+        return hits.factor
+    nodes = _nodes(hits.heights, hits.crop, hits.terrain, hits.origin_m, sun, config)
+    return _factor(hits, remap_points(nodes, hits.col, hits.row), sun, config)
+
+
+def exact_shading(hits: ParallaxHits, index: np.ndarray, lit: np.ndarray, sun: np.ndarray, config) -> np.ndarray:
+    """The reference's per-point shading (the bilinear surface's own normal) of some pixels.
+
+    Parameters
+    ----------
+    hits : ParallaxHits
+        The hits of the pose.
+    index : ndarray of int
+        Flat pixel indices.
+    lit : ndarray, shape (len(index),), float32
+        Their direct-sun fraction (cast shadows).
+    sun : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Its ``shadow_diffuse_fraction``.
+
+    Returns
+    -------
+    ndarray, shape (len(index),), float32
+        ``(1 - d) lit LS(n)/LS(flat) + d (1 + n_z)/2``.
+    """
+    from simulator.scene import photometry, relief
+
+    terrain, crop, origin = hits.terrain, hits.crop, hits.origin_m
+    mpp = terrain.metres_per_pixel
+    col, row = hits.col.reshape(-1)[index], hits.row.reshape(-1)[index]
+    height, d_col, d_row = relief.bilinear(hits.heights, col, row, gradient=True)
+    normal = np.stack([-d_col / mpp, d_row / mpp, np.ones_like(d_col)], axis=1).astype(np.float64)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    east = terrain.origin_m[0] + (col.astype(np.float64) + crop.col0) * mpp
+    north = terrain.origin_m[1] - (row.astype(np.float64) + crop.row0) * mpp
+    view = np.stack([origin[0] - east, origin[1] - north, origin[2] - height.astype(np.float64)], axis=1)
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    direct = photometry.lommel_seeliger(normal @ sun, np.einsum("ij,ij->i", normal, view))
+    direct /= np.maximum(photometry.lommel_seeliger(np.full(len(view), sun[2]), view[:, 2]), 1e-12)
+    diffuse = float(config.shadow_diffuse_fraction)
+    return ((1.0 - diffuse) * direct * lit + diffuse * 0.5 * (1.0 + normal[:, 2])).astype(np.float32)
+
+
+def _ray_spacing(rays: RayFamily) -> float:
+    """Largest grid distance between the level-ground points of neighbouring rays of a 2-D family (px)."""
+    if rays.col0.ndim != 2 or min(rays.col0.shape) < 2:
+        return 0.0
+    step = max(min(rays.col0.shape) // 64, 1)
+    col, row = rays.col0[::step, ::step], rays.row0[::step, ::step]
+    return float(max(np.hypot(np.diff(col, axis=1), np.diff(row, axis=1)).max(),
+                     np.hypot(np.diff(col, axis=0), np.diff(row, axis=0)).max())) / step
+
+
+def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, mpp: float,
+                spacing_px: float) -> np.ndarray:
+    """Rays whose segment between the height bounds may hold a slope with ``|q| >= UNIQUE_SLOPE_BOUND``.
+
+    A ray's segment lies within ``L`` grid px of its point at the middle height (``L`` the largest
+    half-length), so every cell it crosses opens at a node within ``L + 1`` (Chebyshev) of that point and
+    within ``L + 2`` of each of the four nodes the bilinear read uses: the bound map is dilated by
+    ``ceil(L + 2)``, plus ``spacing_px`` when a ray also speaks for its neighbours (the half-resolution
+    solve).
+    """
+    if z_top <= z_bottom:
+        return np.zeros(rays.col0.shape, dtype=bool)
+    px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
+    half_length = 0.5 * (z_top - z_bottom) * float(px_per_m.max())
+    radius = int(np.ceil(half_length + spacing_px + 2.0))
+    bound = cv2.dilate(heights_bound, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8),
+                       borderType=cv2.BORDER_REPLICATE)
+    middle = np.float32(0.5 * (z_top + z_bottom))
+    local = remap_points(bound, *rays.at(middle))
+    return local * (px_per_m * np.float32(mpp)) >= np.float32(UNIQUE_SLOPE_BOUND)
