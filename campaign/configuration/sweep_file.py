@@ -67,7 +67,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from campaign.configuration.base_files import layered_data
+from campaign.configuration.base_files import layered_data, resolve_base, shipped_sites
 from campaign.configuration.campaign_file import (
     COMMAND_LINE,
     CampaignConfig,
@@ -95,7 +95,8 @@ class SweepTable(ConfigModel):
     """``[sweep]``: the base campaign and how its points are formed."""
 
     base: ExistingFile | Annotated[list[ExistingFile], Field(min_length=1, max_length=64)]
-    """Base campaign TOML, relative to the sweep file; or a list of them, of distinct sites (a ``site`` axis)."""
+    """Base campaign TOML, relative to the sweep file, or a shipped site by name (``"gusev"``; resolved before
+    validation by :func:`_resolve_bases`); or a list of them, of distinct sites (a ``site`` axis)."""
     output_dir: str | None = None
     """Relative to the working directory (default runs/sweeps/<sweep file stem>)."""
     mode: Literal["grid", "list", "sobol", "morris"] = "grid"
@@ -270,6 +271,36 @@ def list_points(axes: dict, label: str) -> list[dict]:
 POINT_GENERATORS: dict[str, Callable[[dict, str], list[dict]]] = {"grid": grid_points, "list": list_points}
 
 
+def _resolve_bases(data: dict, path: Path, label: str) -> None:
+    """Resolve ``[sweep] base`` (one value or a list) in place, as a campaign file's ``base`` is resolved.
+
+    Each string is a shipped site's name (``"gusev"``: ``sitedata/gusev.toml`` of the installed package) or a
+    TOML file relative to the sweep file (:func:`campaign.configuration.base_files.resolve_base`); it is
+    replaced by the absolute path of the file it names. A name or file that does not exist is one line
+    naming ``sweep.base`` (other wrong values are left to the model's validation).
+
+    Raises
+    ------
+    ConfigError
+        ``sweep.base`` names neither a shipped site nor an existing file.
+    """
+    sweep = data.get("sweep")
+    if not isinstance(sweep, dict) or not isinstance(sweep.get("base"), (str, list)):
+        return
+    if sweep["base"] == []:
+        raise ConfigError(f"{label}: sweep.base = [] names no campaign; allowed: a shipped site "
+                          f"({', '.join(shipped_sites())}), a TOML file relative to the sweep file, or a list of "
+                          "1 to 64 of them")
+    writer = path.resolve()
+    resolved = []
+    for item in sweep["base"] if isinstance(sweep["base"], list) else [sweep["base"]]:
+        try:
+            resolved.append(str(resolve_base(item, writer, label)))
+        except ConfigError as error:        # "<label>: base = ..." -> "<label>: sweep.base = ..."
+            raise ConfigError(f"{label}: sweep.{str(error)[len(label) + 2:]}") from None
+    sweep["base"] = resolved if isinstance(sweep["base"], list) else resolved[0]
+
+
 def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_scale: float | None = None) -> SweepSpec:
     """Read and validate a sweep file and every point's configuration (nothing is written).
 
@@ -285,6 +316,7 @@ def load_sweep(path: str | Path, output_dir: str | Path | None = None, cases_sca
     path = Path(path)
     data = load_toml(path)
     label = str(path)
+    _resolve_bases(data, path, label)
     tables = parse(SweepFile, data, label, context={"base_dir": path.resolve().parent})
     sweep = tables.sweep
     base_paths = [item.resolve() for item in (sweep.base if isinstance(sweep.base, list) else [sweep.base])]

@@ -86,6 +86,38 @@ def test_bad_base_and_unknown_class_name_the_sweep_file(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("base, expected", [
+    ('["gusev", "no.toml"]', "sweep.base = 'no.toml': no such file"),
+    ('["gusevv"]', "sweep.base = 'gusevv' is not a shipped site"),
+    ('"no.toml"', "sweep.base = 'no.toml': no such file"),
+    ("[]", "sweep.base = [] names no campaign"),
+])
+def test_a_missing_base_is_one_readable_line(tmp_path, capsys, base, expected):
+    """A base that names no file (in a list or alone) is said in words, not as the validator's union tags."""
+    path = tmp_path / "sweep.toml"
+    path.write_text(f'[sweep]\nbase = {base}\n[axes]\n"campaign.seed" = [1]\n')
+    code, _, stderr = _run(capsys, path, "--output", tmp_path / "out")
+    lines = stderr.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and expected in lines[0], stderr
+    assert "function-before" not in lines[0] and "allowed: a shipped site (gusev, meridiani)" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_sweep_base_may_name_a_shipped_site(tmp_path):
+    """``base = ["gusev", "meridiani"]`` in a sweep file is sitedata/gusev.toml and sitedata/meridiani.toml of the
+    installed package, as in a campaign file; the points are those of the same sweep written with the paths."""
+    from campaign.configuration.sweep_file import load_sweep
+
+    by_name, by_path = tmp_path / "names.toml", tmp_path / "paths.toml"
+    axes = '[axes]\n"campaign.seed" = [1, 2]\n'
+    by_name.write_text(f'[sweep]\nbase = ["gusev", "meridiani"]\n{axes}')
+    by_path.write_text(f'[sweep]\nbase = ["{GUSEV}", "{REPO / "sitedata" / "meridiani.toml"}"]\n{axes}')
+    named, written = load_sweep(by_name, output_dir=tmp_path / "a"), load_sweep(by_path, output_dir=tmp_path / "b")
+    assert [point.values["site"] for point in named.points] == ["Gusev", "Gusev", "Meridiani", "Meridiani"]
+    assert [point.config_hash for point in named.points] == [point.config_hash for point in written.points]
+    assert [Path(base.source).resolve() for base in named.all_bases] == [GUSEV.resolve(), (REPO / "sitedata" / "meridiani.toml").resolve()]
+
+
 def test_command_line_exit_code_and_bad_baseline(tmp_path):
     path = _sweep_file(tmp_path, '"scene.camera_effects.dark_current_scale" = [1.0]')
     result = subprocess.run([sys.executable, "-m", "campaign.cli", "sweep", str(path), "--output", str(tmp_path / "out"),
