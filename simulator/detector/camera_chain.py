@@ -196,6 +196,10 @@ class ChainState:
         The CCD timing the charge is collected with (smear off: no flush, no transfer).
     charge_e : ndarray, shape (H / b, W), optional
         Mean charge per binned pixel (e-), set by :func:`collect_charge`.
+    block_sums : dict, optional
+        The binned path's per-period block sums (period name -> (plain sums, in-block ramp-weighted sums,
+        sums for the gain, largest field value)), set by the binned generation stage; None when the
+        full-resolution stages take the image.
     """
 
     camera: Camera

@@ -28,7 +28,18 @@ from flight_interface.frames import (
 
 
 def unit_quat(quaternion: Sequence[float]) -> list[float]:
-    """:func:`flight_interface.frames.quat_normalize` of one quaternion, in scalar arithmetic."""
+    """:func:`flight_interface.frames.quat_normalize` of one quaternion, in scalar arithmetic.
+
+    Parameters
+    ----------
+    quaternion : sequence of 4 float
+        (w, x, y, z), finite, non-zero.
+
+    Returns
+    -------
+    list of 4 float
+        The unit quaternion with w >= 0.
+    """
     w, x, y, z = (float(value) for value in quaternion)
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if not (norm > 0 and math.isfinite(norm)):

@@ -48,7 +48,7 @@ import cv2
 import numpy as np
 
 from simulator.derived_cache import DERIVED
-from simulator.scene import ground_mapping
+from simulator.scene import ground_mapping, height_field, photometry
 from simulator.scene.resample import Crop
 from simulator.scene.terrain import Terrain
 
@@ -242,8 +242,6 @@ def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray,
     -----
     ~100 MB per 1000 x 5000 strip: the values of the ``STATIC_TERRAINS_KEPT`` terrains used last are kept.
     """
-    from simulator.scene import relief
-
     relief_config = config.relief
     diffuse = np.float32(config.shadow_diffuse_fraction)
     sun = np.asarray(sun, dtype=float)
@@ -257,7 +255,7 @@ def static_nodes(terrain: Terrain, sun: np.ndarray, config) -> tuple[np.ndarray,
     pack = np.empty((rows, cols, 4), dtype=np.float32)
     pack[..., 0] = heights
     if relief_config.cast_shadows:
-        horizon = relief.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
+        horizon = height_field.horizon_height(terrain, sun,  # type: ignore[arg-type]  # a ReliefTerrain
                                         relief_config.march_step_terrain_px, cached=False)
         pack[..., 1] = heights - horizon
     else:
@@ -562,12 +560,10 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     hits : ParallaxHits
         The hits (with the radiance factor when ``sun`` is given).
     """
-    from simulator.scene import relief
-
     relief_config = config.relief
     tolerance = float(relief_config.height_tolerance_m)
     mpp = terrain.metres_per_pixel
-    crop = relief.march_window(terrain, camera, pose)
+    crop = height_field.march_window(terrain, camera, pose)
     heights = np.ascontiguousarray(terrain.height_m[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
     z_top, z_bottom = float(heights.max()), float(heights.min())
     origin = pose.ray_origin_m
@@ -744,12 +740,10 @@ def exact_shading(hits: ParallaxHits, index: np.ndarray, lit: np.ndarray, sun: n
     ndarray, shape (len(index),), float32
         ``(1 - d) lit LS(n)/LS(flat) + d (1 + n_z)/2``.
     """
-    from simulator.scene import photometry, relief
-
     terrain, crop, origin = hits.terrain, hits.crop, hits.origin_m
     mpp = terrain.metres_per_pixel
     col, row = hits.col.reshape(-1)[index], hits.row.reshape(-1)[index]
-    height, d_col, d_row = relief.bilinear(hits.heights, col, row, gradient=True)
+    height, d_col, d_row = height_field.bilinear(hits.heights, col, row, gradient=True)
     normal = np.stack([-d_col / mpp, d_row / mpp, np.ones_like(d_col)], axis=1).astype(np.float64)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     east = terrain.origin_m[0] + (col.astype(np.float64) + crop.col0) * mpp
