@@ -195,10 +195,14 @@ def reuse_points(spec: SweepSpec, previous: str | Path, progress: bool = True) -
         return Reuse()          # the output directory's own points are reused anyway
     outcome = Reuse()
     versions = {"python": platform.python_version(), **package_versions()}
+    changed: list[str] = []         # points without a store of their configuration hash in ``previous``
     for point in spec.points:
         target = Path(point.config.output_dir)
         source = previous / "points" / target.name
-        if (target / "manifest.json").exists() or not source.is_dir():
+        if (target / "manifest.json").exists():
+            continue
+        if not source.is_dir():
+            changed.append(point.point_id)
             continue
         problem = _copy_verified(source, target, point.config_hash, versions)
         where = f"{point.point_id} ({source})"
@@ -206,6 +210,10 @@ def reuse_points(spec: SweepSpec, previous: str | Path, progress: bool = True) -
             outcome.reused[point.point_id] = str(previous)
         else:
             outcome.notes.append(f"{where}: not reused, computed: {problem}")
+    if changed:
+        shown = ", ".join(changed[:5]) + (f" and {len(changed) - 5} more" if len(changed) > 5 else "")
+        outcome.notes.append(f"{shown}: no store of the same configuration hash in {previous} (a changed "
+                             "configuration, input file or code since; the hash covers all three): computed")
     if progress:
         print(f"sweep: --reuse {previous}: {len(outcome.reused)} point stores copied and verified"
               + (f", {len(outcome.notes)} not reused" if outcome.notes else ""), file=sys.stderr, flush=True)

@@ -238,3 +238,11 @@ def test_reuse_copies_verified_unchanged_points_and_recomputes_a_corrupt_one(tmp
     assert {p.name: p.read_bytes() for p in kept.iterdir()} == {
         p.name: p.read_bytes() for p in (stores[0].parent / "cases").iterdir()}
     assert json.loads((second / "gate.json").read_text())["verdict"] == "pass"
+    # a point whose configuration changed since the previous night is computed, and a note says why
+    path.write_text(f'[sweep]\nbase = "{base}"\n[axes]\n"estimators.probe.parameters.bias" = [[0.0, 0.0], [2.0, 0.0]]\n')
+    third = tmp_path / "night-3"
+    code = main(["sweep", str(path), "--output", str(third), "--reuse", str(first), "--scheduler", scheduler,
+                 "--no-progress"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "p001: no store of the same configuration hash in" in captured.err and "computed" in captured.err
