@@ -27,6 +27,7 @@ import io
 import json
 import os
 import re
+import time
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ import pyarrow.parquet as pq
 
 from campaign.store.case_identity import (
     StoreIdentity,
+    batch_metadata,
     check_rows_match,
     identity_metadata,
     identity_problem,
@@ -49,6 +51,9 @@ from campaign.store.result_schema import CASE_FILE_SCHEMA, ResultSchemaError, ro
 CASE_FILE = re.compile(r"^case-(\d{6,})\.(ok|failed)\.(\d+)\.([0-9a-f]{64})\.parquet$")
 UNRECORDED_CASE_FILE = re.compile(r"^case-(\d+)\.(ok|failed)\.parquet$")
 TEMPORARY_PREFIX = ".tmp-"
+BATCH_FILE = re.compile(r"^batch-(\d{6,})-(\d+)\.(\d+)\.([0-9a-f]{64})\.parquet$")
+SHARD = re.compile(r"^[0-9a-f]{2}$")
+SHARD_DIGITS = 2
 CHUNK_BYTES = 1 << 20
 
 
@@ -121,36 +126,73 @@ def store_identity(store_root: Path) -> StoreIdentity | None:
 
 def write_case_rows(cases_dir: Path, case_id: int, rows: Sequence[Mapping[str, Any]], ok: bool,
                     identity: StoreIdentity | None = None) -> Path:
-    """Durably write a case's rows (one per estimator) in one file named with its size and sha256 (atomic
-    rename), recording ``identity`` inside it, then remove any earlier file of the same case. ``ok``:
-    the case was simulated (an estimator's own failure is in its row).
+    """Durably write one case's rows (one per estimator): :func:`write_case_batch` of that one case.
+    ``ok``: the case was simulated (an estimator's own failure is in its row).
 
     ``identity``: the campaign that computed the rows (the worker passes its own); None: the identity
     of the store ``cases_dir`` belongs to, from its ``manifest.json`` (for tools rewriting a store's
-    cases), and no record at all when there is no manifest (such a file is foreign in every store).
+    cases).
 
     Raises
     ------
     campaign.store.result_schema.ResultSchemaError
-        A row does not fit :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`, or the rows are not
-        case ``case_id`` of ``identity`` (nothing is written).
+        As :func:`write_case_batch` (nothing is written).
+    """
+    return write_case_batch(cases_dir, [(case_id, rows, ok)], identity)
+
+
+def batch_file_name(first_case_id: int, cases: int, size: int, digest: str) -> str:
+    """``<sha256[:2]>/batch-<first case id>-<cases>.<size>.<sha256>.parquet``, relative to ``cases/``."""
+    return f"{digest[:SHARD_DIGITS]}/batch-{first_case_id:06d}-{cases}.{size}.{digest}.parquet"
+
+
+def write_case_batch(cases_dir: Path, entries: Sequence[tuple[int, Sequence[Mapping[str, Any]], bool]],
+                     identity: StoreIdentity | None = None) -> Path:
+    """Durably write several finished cases in one batch file, in one atomic step, and return its path.
+
+    ``entries``: (case_id, rows, ok) per case, rows one per estimator in ``[[estimators]]`` order,
+    ``ok``: the case was simulated (False: it failed after its retries; an estimator's own failure is in
+    its row). The batch is ``cases/<sha256[:2]>/batch-<first case id>-<cases>.<bytes>.<sha256>.parquet``:
+    every row of every case (:data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`), the identity record
+    of the batch (:func:`~campaign.store.case_identity.batch_metadata`: campaign, case ids and states,
+    write time) in its Parquet metadata, and its size and sha256 in its name. Written to a temporary
+    file, fsynced and renamed: a kill leaves either the whole batch or an ignored temporary file.
+
+    ``identity``: the campaign that computed the rows (the worker passes its own); None: the identity of
+    the store ``cases_dir`` belongs to, from its ``manifest.json``.
+
+    Raises
+    ------
+    campaign.store.result_schema.ResultSchemaError
+        No entries, a case twice, a row that does not fit the schema, rows that are not their case's
+        of ``identity``, or no identity at all (nothing is written).
     """
     identity = identity if identity is not None else store_identity(cases_dir.parent)
-    table = rows_table(rows, CASE_FILE_SCHEMA)
-    if identity is not None:
+    if identity is None:
+        raise ResultSchemaError(f"{cases_dir.parent}: no manifest.json to take the campaign identity from")
+    if not entries:
+        raise ResultSchemaError("a batch of no cases")
+    case_ids = [int(case_id) for case_id, _, _ in entries]
+    if len(set(case_ids)) != len(case_ids):
+        raise ResultSchemaError(f"case {next(c for c in case_ids if case_ids.count(c) > 1)} twice in one batch")
+    all_rows: list[Mapping[str, Any]] = []
+    for case_id, rows, _ in entries:
         problem = check_rows_match(rows, identity, case_id)
         if problem is not None:
             raise ResultSchemaError(f"case {case_id}: {problem}")
-        table = table.replace_schema_metadata(identity_metadata(identity, case_id))
+        all_rows += rows
+    table = rows_table(all_rows, CASE_FILE_SCHEMA)
+    states = ["ok" if ok else "failed" for _, _, ok in entries]
+    table = table.replace_schema_metadata(batch_metadata(identity, case_ids, states, time.time_ns()))
     data = table_bytes(table)
-    target = cases_dir / case_file_name(case_id, ok, len(data), sha256_bytes(data))
-    atomic_write_bytes(target, data, cases_dir / f"{TEMPORARY_PREFIX}{case_id:06d}-{uuid.uuid4().hex}.parquet")
-    for entry in os.scandir(cases_dir):
-        if entry.name.startswith(f"case-{case_id:06d}.") and entry.name != target.name:
-            match = CASE_FILE.match(entry.name) or UNRECORDED_CASE_FILE.match(entry.name)
-            if match and int(match.group(1)) == case_id:
-                Path(entry.path).unlink(missing_ok=True)
-    fsync_directory(cases_dir)
+    digest = sha256_bytes(data)
+    target = cases_dir / batch_file_name(case_ids[0], len(case_ids), len(data), digest)
+    created = not target.parent.is_dir()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(target, data, target.parent / f"{TEMPORARY_PREFIX}{uuid.uuid4().hex}.parquet")
+    fsync_directory(target.parent)
+    if created:
+        fsync_directory(cases_dir)
     return target
 
 
