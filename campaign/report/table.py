@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from campaign.configuration.execution import no_op_banner
 from campaign.report.aggregate import format_table, site_table
 from campaign.report.compare import (
     COMPARISON_NOTE,
@@ -40,6 +41,9 @@ def write_table(root: Path, false_valid_mps: float | None = None) -> str:
     heading = (f"{site}: {status.done + status.failed} of {status.planned} cases finished"
                f" ({status.failed} failed, {status.missing} missing), seed {manifest['seed']}"
                f"{', estimators ' + ', '.join(names) if names else ''}")
+    banner = no_op_banner(manifest)
+    if banner:                                   # an orchestration test: never mistaken for results
+        heading = f"{banner}\n{heading}"
     counts = estimator_counts(results)
     text, markdown = [heading], [heading, ""]
     if counts:
