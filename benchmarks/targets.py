@@ -27,6 +27,8 @@ STORE_STATUS_S = 10.0             # `campaign status`
 STORE_RESUME_SCAN_S = 10.0        # what `campaign submit` reads before it submits a case
 STORE_TABLE_S = 5.0               # `campaign table`
 STORE_COMPACT_INCREMENTAL_S = 10.0  # compaction after 1 % new cases (the cost of the new cases only)
+# issue #34, the runner: scheduler and driver CPU per no-op case, 10^5 cases (benchmarks/bench_orchestration.py)
+ORCHESTRATION_MS_PER_CASE = 1.0
 
 
 def target_columns(measured: float, target: float, unit: str, at_most: bool = True) -> dict:
