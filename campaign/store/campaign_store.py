@@ -463,9 +463,10 @@ class CampaignStore:
         return self.results()
 
     def _part_files_intact(self, part: dict) -> bool:
+        """The part's files exist with the sha256 recorded (hashing is cheap next to reading rows)."""
         try:
-            return ((self.results_path / part["name"]).stat().st_size == part["results_bytes"]
-                    and (self.timings_path / part["name"]).stat().st_size == part["timings_bytes"])
+            return (sha256_file(self.results_path / part["name"]) == part["results_sha256"]
+                    and sha256_file(self.timings_path / part["name"]) == part["timings_sha256"])
         except (OSError, KeyError, TypeError):
             return False
 

@@ -123,9 +123,7 @@ def write_case_rows(cases_dir: Path, case_id: int, rows: Sequence[Mapping[str, A
     """Durably write one case's rows (one per estimator): :func:`write_case_batch` of that one case.
     ``ok``: the case was simulated (an estimator's own failure is in its row).
 
-    ``identity``: the campaign that computed the rows (the worker passes its own); None: the identity
-    of the store ``cases_dir`` belongs to, from its ``manifest.json`` (for tools rewriting a store's
-    cases).
+    ``identity``: as :func:`write_case_batch`.
 
     Raises
     ------
@@ -153,31 +151,30 @@ def write_case_batch(cases_dir: Path, entries: Sequence[tuple[int, Sequence[Mapp
     file, fsynced and renamed: a kill leaves either the whole batch or an ignored temporary file.
 
     ``identity``: the campaign that computed the rows (the worker passes its own); None: the identity of
-    the store ``cases_dir`` belongs to, from its ``manifest.json``.
+    the store ``cases_dir`` belongs to, from its ``manifest.json`` (for tools rewriting a store's cases),
+    and no record at all when there is no manifest (such a batch is foreign in every store).
 
     Raises
     ------
     campaign.store.result_schema.ResultSchemaError
-        No entries, a case twice, a row that does not fit the schema, rows that are not their case's
-        of ``identity``, or no identity at all (nothing is written).
+        No entries, a case twice, a row that does not fit the schema, or rows that are not their case's
+        of ``identity`` (nothing is written).
     """
     identity = identity if identity is not None else store_identity(cases_dir.parent)
-    if identity is None:
-        raise ResultSchemaError(f"{cases_dir.parent}: no manifest.json to take the campaign identity from")
     if not entries:
         raise ResultSchemaError("a batch of no cases")
     case_ids = [int(case_id) for case_id, _, _ in entries]
     if len(set(case_ids)) != len(case_ids):
         raise ResultSchemaError(f"case {next(c for c in case_ids if case_ids.count(c) > 1)} twice in one batch")
-    all_rows: list[Mapping[str, Any]] = []
-    for case_id, rows, _ in entries:
-        problem = check_rows_match(rows, identity, case_id)
-        if problem is not None:
-            raise ResultSchemaError(f"case {case_id}: {problem}")
-        all_rows += rows
+    all_rows = [row for _, rows, _ in entries for row in rows]
     table = rows_table(all_rows, CASE_FILE_SCHEMA)
-    states = ["ok" if ok else "failed" for _, _, ok in entries]
-    table = table.replace_schema_metadata(batch_metadata(identity, case_ids, states, time.time_ns()))
+    if identity is not None:
+        for case_id, rows, _ in entries:
+            problem = check_rows_match(rows, identity, case_id)
+            if problem is not None:
+                raise ResultSchemaError(f"case {case_id}: {problem}")
+        states = ["ok" if ok else "failed" for _, _, ok in entries]
+        table = table.replace_schema_metadata(batch_metadata(identity, case_ids, states, time.time_ns()))
     data = table_bytes(table)
     digest = sha256_bytes(data)
     target = cases_dir / batch_file_name(case_ids[0], len(case_ids), len(data), digest)

@@ -95,7 +95,7 @@ def read_batch_identity(metadata: Mapping[bytes, bytes] | None) -> tuple[dict | 
     """A batch file's record from its key-value metadata: (record, None) or (None, what is wrong)."""
     raw = (metadata or {}).get(BATCH_IDENTITY_KEY)
     if raw is None:
-        return None, (f"{FOREIGN}: no batch identity record in its Parquet metadata (written by hand or by another "
+        return None, (f"{FOREIGN}: no identity record in its Parquet metadata (written by hand or by another "
                       "program), so it cannot be attributed to this campaign")
     try:
         record = json.loads(raw.decode("utf-8"))

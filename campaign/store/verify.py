@@ -82,7 +82,7 @@ def verify_store(root: str | Path, progress: Callable[[int, int], None] | None |
     result.notes += [f"{path}: {reason} (not counted)" for path, reason in scan.superseded if path not in bad_paths]
     result.notes += [f"{path}: bad index segment, {reason}" for path, reason in store._index.bad]
     bad_names = {str(path.relative_to(store.cases_dir)) for path in bad_paths if store.cases_dir in path.parents}
-    counted_names = scan.counted.column("batch").to_pylist() if bad_names else []
+    counted_names = scan.counted.file_names().tolist() if bad_names else []
     result.verified_cases = int(len(scan.case_ids)) - sum(name in bad_names for name in counted_names)
     planned = None
     if manifest is not None:
