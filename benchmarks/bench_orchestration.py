@@ -185,7 +185,7 @@ def measure(cluster: str, cases: int, directory: Path) -> dict:
     count = len(todo)
     overhead_ms = 1e3 * (driver_cpu + scheduler_cpu) / count
     return {"name": f"orchestration/{cluster}", "cases": count, "workers": workers, "done": done, "failed": failed,
-            "tasks": tasks["tasks"], "batches": len(batches), "cases_per_task": len(batches[0].records),
+            "tasks": tasks["tasks"], "batches": len(batches), "cases_per_task": len(batches[0].rows),
             **target_columns(overhead_ms, ORCHESTRATION_MS_PER_CASE, "ms"),
             "driver_cpu_ms_per_case": 1e3 * driver_cpu / count, "scheduler_cpu_ms_per_case": 1e3 * scheduler_cpu / count,
             "worker_ms_per_case": 1e3 * tasks["compute_s"] / count,

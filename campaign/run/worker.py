@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 
 from campaign.case.compute import EstimatorResult, compute_case, no_op_case
 from campaign.case.inputs import CampaignInputs, PlanRow, campaign_inputs
@@ -137,8 +138,8 @@ FLUSH_S = 10.0
 a worker that dies loses at most this much computed work, and a store gets about one file per task."""
 
 
-def execute_batch(context: CampaignContext, records: Sequence[Mapping[str, Any]]) -> tuple[int, int]:
-    """Run a batch of cases (plan records of one campaign) one after the other, as :func:`execute_case`
+def execute_batch(context: CampaignContext, rows: pa.Table | Sequence[Mapping[str, Any]]) -> tuple[int, int]:
+    """Run a batch of cases (plan rows of one campaign, a table or records) one after the other, as :func:`execute_case`
     does each, and return (ok, failed) counts: the one task the driver submits
     (:mod:`campaign.run.dask_runner`).
 
@@ -148,6 +149,7 @@ def execute_batch(context: CampaignContext, records: Sequence[Mapping[str, Any]]
     not recorded and a rerun of the batch (dask's after a worker died, or the next submit's) writes them. A
     case written twice (the batch rerun after its worker died) supersedes its earlier record: same bits,
     except the run-dependent columns (worker, timings)."""
+    records = rows.to_pylist() if isinstance(rows, pa.Table) else rows
     done = failed = 0
     finished: list[tuple[int, list[dict[str, Any]], bool]] = []
     oldest = time.monotonic()
