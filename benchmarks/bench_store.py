@@ -211,12 +211,15 @@ def measure(cases: int, scratch: Path) -> list[dict]:
     rows = [{"name": "store/write", "cases": written, "measured": write_s, "unit": "s",
              "per_case_us": 1e6 * write_s / written, "peak_rss_mib": float("nan")}]
     results: dict[str, dict] = {}
+    print(f"store/write cases={written} {write_s:.1f} s", file=sys.stderr, flush=True)
     for operation in ("status", "resume_scan", "verify", "compact_full"):
         results[operation] = time_operation(root, operation)
+        print(f"store/{operation} cases={cases} {results[operation]}", file=sys.stderr, flush=True)
     generator = np.random.default_rng(2)
     write_cases(store, plan[written:], _template_row(), 1, StoreIdentity.of_manifest(manifest), generator)
     for operation in ("compact_incremental", "status", "resume_scan", "table", "report_load"):
         results[operation] = time_operation(root, operation)
+        print(f"store/{operation} cases={cases} {results[operation]}", file=sys.stderr, flush=True)
     size = disk_bytes(root)
     for operation, figures in results.items():
         row = {"name": f"store/{operation}", "cases": cases, "measured": figures["seconds"], "unit": "s",

@@ -31,6 +31,7 @@ import json
 import os
 import time
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -402,8 +403,10 @@ class CampaignStore:
         codes, first, count = counted.codes[order], counted.first_row[order], counted.row_count[order]
         starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
         ends = np.r_[starts[1:], len(codes)]
-        tables = []
-        for start, end in zip(starts.tolist(), ends.tolist()):
+        identity = self.identity()
+
+        def read(bounds: tuple[int, int]) -> tuple[pa.Table | None, Path, str | None]:
+            start, end = bounds
             relative = counted.names[int(codes[start])]
             path = self.cases_dir / relative
             try:
@@ -411,17 +414,30 @@ class CampaignStore:
             except OSError as exc:
                 raise StoreError(f"{path}: unreadable: {exc.strerror or exc}; `campaign verify {self.root}` "
                                  "checks the store") from None
-            rows, problem = verify_case_file(path, relative, self.identity(), data)
-            if rows is None:
-                self._reject(path, f"{problem} (found when its rows were read)")
-                continue
-            table = pq.read_table(pa.BufferReader(data)).replace_schema_metadata(None)
+            whole: list[pa.Table] = []
+            _, problem = verify_case_file(path, relative, identity, data, keep_rows=whole)
+            if problem is not None:
+                return None, path, problem
+            table = whole[0].replace_schema_metadata(None)
             take = np.concatenate([np.arange(f, f + c) for f, c in zip(first[start:end], count[start:end])])
-            tables.append(table.take(pa.array(take)))
+            whole_file = len(take) == table.num_rows and bool(np.array_equal(take, np.arange(table.num_rows)))
+            return (table if whole_file else table.take(pa.array(take))), path, None
+
+        groups = sorted(zip(starts.tolist(), ends.tolist()), key=lambda bounds: int(counted.case_id[order][bounds[0]]))
+        tables = []
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:    # Parquet decoding releases the GIL
+            for table, path, problem in pool.map(read, groups):
+                if table is None:
+                    self._reject(path, f"{problem} (found when its rows were read)")
+                else:
+                    tables.append(table)
         if not tables:
             return CASE_FILE_SCHEMA.empty_table()
         rows = pa.concat_tables(tables)
-        return rows.take(pc.sort_indices(rows, sort_keys=[("case_id", "ascending")]))    # stable: estimator order kept
+        case_ids = rows.column("case_id").to_numpy()
+        if len(case_ids) > 1 and bool(np.any(case_ids[1:] < case_ids[:-1])):
+            rows = rows.take(pc.sort_indices(rows, sort_keys=[("case_id", "ascending")]))   # stable: estimators in order
+        return rows
 
     # --- compaction ----------------------------------------------------------------------------
     def _record(self) -> dict | None:
@@ -433,13 +449,11 @@ class CampaignStore:
             return None
         return record
 
-    def compact(self) -> pd.DataFrame:
+    def compact(self) -> int:
         """Bring results.parquet and timings.parquet up to date with the counted cases of the plan, compacting
         only what is new: parts whose cases still count from the same files are kept, the other cases are
         read from their files into one new part (sorted by case_id); results.json records the parts, their
-        sha256 and what they were compacted from. Returns the results (:meth:`results`)."""
-        import pandas as pd
-
+        sha256 and what they were compacted from. Returns how many cases were read from case files."""
         scan, planned = self.scan(), self.planned_case_array()
         counted = scan.counted.mask(scan.in_plan(planned))
         record = self._record()
@@ -452,15 +466,15 @@ class CampaignStore:
                 kept.append(part)
                 covered |= mine
         new = counted.mask(~covered)
-        parts = list(kept)
+        parts, compacted = list(kept), covered.copy()
         if new.num_rows:
             rows = self._read_rows(new)
+            read = np.isin(new.case_id, rows.column("case_id").to_numpy())   # a batch rejected while read: out
+            compacted[np.flatnonzero(~covered)[read]] = True
             if rows.num_rows:
-                parts.append(self._write_part(rows, new, [p["name"] for p in kept]))
-        self._write_parts_record(parts, counted)
-        if not parts:
-            return pd.DataFrame()
-        return self.results()
+                parts.append(self._write_part(rows, new.mask(read), [p["name"] for p in kept]))
+        self._write_parts_record(parts, counted.mask(compacted))
+        return new.num_rows
 
     def _part_files_intact(self, part: dict) -> bool:
         """The part's files exist with the sha256 recorded (hashing is cheap next to reading rows)."""

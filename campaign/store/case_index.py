@@ -80,9 +80,10 @@ LISTING_SCHEMA = pa.schema([pa.field("batch", pa.string()), pa.field("size", pa.
 
 
 def verify_case_file(path: Path, relative: str, expected: StoreIdentity | None,
-                     data: bytes | None = None) -> tuple[pa.Table | None, str | None]:
+                     data: bytes | None = None, keep_rows: list | None = None) -> tuple[pa.Table | None, str | None]:
     """Verify one file of ``cases/`` (a batch, or a one-case file of an older store): (its index rows, None)
-    or (None, what is wrong). ``relative``: its path relative to ``cases/``; ``data``: its bytes if read."""
+    or (None, what is wrong). ``relative``: its path relative to ``cases/``; ``data``: its bytes if read;
+    ``keep_rows``: a list that receives every row of the file (read once, for compaction)."""
     name = relative.rsplit("/", 1)[-1]
     batch = BATCH_FILE.match(name) if "/" in relative else None
     legacy = CASE_FILE.match(name) if "/" not in relative else None
@@ -108,7 +109,11 @@ def verify_case_file(path: Path, relative: str, expected: StoreIdentity | None,
         problem = schema_problem(schema, CASE_FILE_SCHEMA)
         if problem is not None:
             return None, problem
-        rows = parquet.read(columns=["case_id", "campaign_seed", "estimator", "status"])
+        if keep_rows is None:
+            rows = parquet.read(columns=["case_id", "campaign_seed", "estimator", "status"], use_threads=False)
+        else:
+            rows = parquet.read(use_threads=False)
+            keep_rows.append(rows)
         if batch:
             record, problem = read_batch_identity(schema.metadata)
             if record is None:

@@ -176,7 +176,8 @@ def test_a_batch_corrupted_in_place_with_its_time_restored_is_found_by_verify_an
     problems = dict(verify_store(store.root, progress=None).problems)
     assert problems[bad].startswith("corrupted: sha256") and good not in problems
     with store.lock():
-        results = CampaignStore(store.root).compact()
+        CampaignStore(store.root).compact()
+    results = CampaignStore(store.root).results()
     assert results["case_id"].tolist() == list(range(10)), "the corrupted batch's rows are not read"
     assert (store.rejected_dir / bad.name).exists()
     assert CampaignStore(store.root).status().done == 10
@@ -219,7 +220,8 @@ def test_a_case_written_twice_counts_once_from_the_later_write(tmp_path):
     scan = CampaignStore(store.root).scan()
     assert [path for path, _ in scan.superseded] == [first] and scan.path_of(0) == whole
     with store.lock():
-        results = CampaignStore(store.root).compact()
+        CampaignStore(store.root).compact()
+    results = CampaignStore(store.root).results()
     assert results["case_id"].tolist() == list(range(15))
     assert (results["status"] == "failed").sum() == 10
 
@@ -229,14 +231,15 @@ def test_compaction_reads_only_the_new_cases_and_gives_the_same_results_as_a_ful
     for start in range(0, 60, 20):
         _batch(store, range(start, start + 20))
     with store.lock():
-        store.compact()
+        assert store.compact() == 60
     parts = sorted((store.results_path).glob("part-*.parquet"))
     assert len(parts) == 1
     kept = parts[0].stat()
     _batch(store, range(60, 100, 2))
     _batch(store, range(61, 100, 2))
     with store.lock():
-        incremental = CampaignStore(store.root).compact()
+        assert CampaignStore(store.root).compact() == 40, "only the new cases are read"
+    incremental = CampaignStore(store.root).results()
     parts = sorted((store.results_path).glob("part-*.parquet"))
     assert len(parts) == 2 and parts[0].stat().st_mtime_ns == kept.st_mtime_ns, "the first part is not rewritten"
     assert pq.read_table(parts[1]).column("case_id").to_pylist() == list(range(60, 100)), "the new cases only"
@@ -245,7 +248,8 @@ def test_compaction_reads_only_the_new_cases_and_gives_the_same_results_as_a_ful
     for path in [*store.results_path.iterdir(), *store.timings_path.iterdir(), store.results_record_path]:
         path.unlink()
     with store.lock():
-        full = CampaignStore(store.root).compact()
+        assert CampaignStore(store.root).compact() == 100
+    full = CampaignStore(store.root).results()
     pd.testing.assert_frame_equal(full, incremental, check_exact=True)
     assert np.array_equal(pd.read_parquet(store.results_path)["case_id"].sort_values(), np.arange(100))
 
@@ -261,7 +265,8 @@ def test_an_older_store_of_one_case_files_is_read_and_extended(tmp_path):
     write_case_rows(store.cases_dir, 3, case_rows(3), ok=True)
     _batch(store, [4, 5])
     with store.lock():
-        results = CampaignStore(store.root).compact()
+        CampaignStore(store.root).compact()
+    results = CampaignStore(store.root).results()
     assert results["velocity_error_mps"].tolist() == [case_id / 100 for case_id in range(6)]
     assert verify_store(store.root, progress=None).clean
 
