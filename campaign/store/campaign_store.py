@@ -122,6 +122,8 @@ def _first_difference(old: pd.DataFrame, new: pd.DataFrame) -> str | None:
 
     if set(old.columns) != set(new.columns):
         return f"the plan columns differ ({', '.join(sorted(set(old.columns) ^ set(new.columns)))})"
+    if list(old.columns) == list(new.columns) and old.reset_index(drop=True).equals(new.reset_index(drop=True)):
+        return None                                  # the same plan (a resume): no case by case comparison
     old = old.set_index(old["case_id"].astype(np.int64))
     new = new.set_index(new["case_id"].astype(np.int64))
     common = old.index.intersection(new.index).sort_values()
@@ -341,11 +343,11 @@ class CampaignStore:
         return len(scan.bad) + len(scan.superseded)
 
     # --- reading -------------------------------------------------------------------------------
-    def scan(self, merge: bool = False) -> CaseScan:
+    def scan(self, merge: bool = False, record: bool = True) -> CaseScan:
         """The counted file of each finished case (files the index has unchanged are trusted by name, size
-        and time; others are verified and indexed: :mod:`~campaign.store.case_index`). ``merge``: the
-        caller holds the lock, the index's segments may be merged."""
-        return scan_cases(self.cases_dir, self._index, self.identity(), merge=merge)
+        and time; others are verified and, if ``record``, indexed: :mod:`~campaign.store.case_index`).
+        ``merge``: the caller holds the lock, the index's segments may be merged."""
+        return scan_cases(self.cases_dir, self._index, self.identity(), merge=merge, record=record)
 
     def finished_case_ids(self) -> dict[int, str]:
         """case_id -> 'ok' or 'failed' for every counted case (works during a run and after a crash)."""

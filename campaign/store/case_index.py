@@ -466,10 +466,11 @@ def fingerprint(counted: Entries) -> str:
                         + b"\0" + rank[codes].astype("<i8").tobytes())
 
 
-def scan_cases(cases_dir: Path, index: CaseIndex, expected: StoreIdentity | None, *, merge: bool = False) -> CaseScan:
+def scan_cases(cases_dir: Path, index: CaseIndex, expected: StoreIdentity | None, *, merge: bool = False,
+               record: bool = True) -> CaseScan:
     """List ``cases/``, trust the files the index has unchanged, verify the others (appending what they hold
-    to the index), and count each case once. ``merge``: the caller holds the store's lock (the index's
-    segments may be merged)."""
+    to the index unless not ``record``, or the store has no identity), and count each case once.
+    ``merge``: the caller holds the store's lock (the index's segments may be merged)."""
     listing = list_case_files(cases_dir)
     scan = CaseScan(cases_dir, bad=list(listing.bad), temporary=listing.temporary)
     listed = {relative: (size, mtime) for relative, size, mtime in listing.files}
@@ -493,7 +494,8 @@ def scan_cases(cases_dir: Path, index: CaseIndex, expected: StoreIdentity | None
             claimed.add(relative)
     if new_parts:
         new = Entries.concat(new_parts)
-        index.append(new, expected)
+        if record and expected is not None:
+            index.append(new, expected)
         parts.append(new)
     everything = Entries.concat(parts)
     if merge:

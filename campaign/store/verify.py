@@ -77,7 +77,7 @@ def verify_store(root: str | Path, progress: Callable[[int, int], None] | None |
             if progress is not None and (time.monotonic() - last >= PROGRESS_EVERY_S or done == len(names)):
                 progress(done, len(names))
                 last = time.monotonic()
-    scan = store.scan()                    # the counted case of each file (every file was just re-hashed)
+    scan = store.scan(record=False)        # the counted case of each file (every file was just re-hashed)
     bad_paths = {path for path, _ in result.problems}
     result.notes += [f"{path}: {reason} (not counted)" for path, reason in scan.superseded if path not in bad_paths]
     result.notes += [f"{path}: bad index segment, {reason}" for path, reason in store._index.bad]
