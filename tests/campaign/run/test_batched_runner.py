@@ -102,7 +102,9 @@ def test_no_op_campaign_is_batched_windowed_and_marked_everywhere(tmp_path):
     total = sum(cases.values())
     assert run.done == total and run.failed == 0
     assert len(watch.keys) == total // 10                          # one task per 10 cases
-    assert watch.most <= max(MIN_IN_FLIGHT, IN_FLIGHT_PER_WORKER * 2)   # the window, never the whole run
+    # the window (plus tasks released by the driver that the scheduler has not forgotten yet), never the run
+    window = max(MIN_IN_FLIGHT, IN_FLIGHT_PER_WORKER * 2)
+    assert watch.most <= 2 * window < len(watch.keys)
 
     # the rows: every declared column, one per case, status ok, invalid, reason no_op, no truth
     results = pq.read_table(out / "results.parquet")
