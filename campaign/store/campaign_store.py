@@ -532,9 +532,11 @@ class CampaignStore:
         of the plan)."""
         if not self.results_path.exists():
             return "missing"
+        if self.results_path.is_file():                  # compacted before parts: one file
+            return self._single_file_problem(scan, planned)
         record = self._record()
         if record is None:
-            return "no valid record in results.json (or one of a store compacted before parts), so it cannot be verified"
+            return "no valid record in results.json, so it cannot be verified"
         for part in record["parts"]:
             for directory, key in ((self.results_path, "results"), (self.timings_path, "timings")):
                 try:
@@ -549,12 +551,31 @@ class CampaignStore:
             return "out of date: compacted from other case files than the verified ones now in cases/"
         return None
 
+    def _single_file_problem(self, scan: CaseScan | None, planned: np.ndarray | None) -> str | None:
+        """Why the single-file results.parquet of a store compacted before parts cannot be trusted (its
+        results.json records its sha256 and the sha256 of the sorted names of the case files)."""
+        try:
+            record = json.loads(self.results_record_path.read_text())
+            recorded = record["results_sha256"], record["case_files_sha256"]
+        except (OSError, ValueError, KeyError, TypeError):
+            return "no valid record in results.json, so it cannot be verified"
+        if sha256_file(self.results_path) != recorded[0]:
+            return "corrupted: its sha256 differs from the one recorded in results.json"
+        scan = self.scan() if scan is None else scan
+        planned = self.planned_case_array() if planned is None else planned
+        names = sorted(Path(name).name for name in scan.counted.mask(scan.in_plan(planned)).file_names().tolist())
+        if sha256_bytes("\n".join(names).encode()) != recorded[1]:
+            return "out of date: compacted from other case files than the verified ones now in cases/"
+        return None
+
     def results(self, columns: list[str] | None = None) -> pd.DataFrame:
         """The compacted results (sorted by case_id, estimators in order) if they match the counted cases, else
         the rows read from the case files; ``columns``: only those."""
         import pandas as pd
 
         scan, planned = self.scan(), self.planned_case_array()
+        if self.results_problem(scan, planned) is None and self.results_path.is_file():
+            return pd.read_parquet(self.results_path, columns=columns)      # a store compacted before parts
         if self.results_problem(scan, planned) is None:
             record = self._record() or {"parts": []}
             tables = [pq.read_table(self.results_path / part["name"], columns=columns) for part in record["parts"]]
