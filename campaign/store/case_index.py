@@ -129,6 +129,7 @@ def verify_case_file(path: Path, relative: str, expected: StoreIdentity | None,
             case_ids, failed = record["case_ids"], [state == "failed" for state in record["states"]]
             written_ns = int(record["written_ns"])
         else:
+            assert legacy is not None                    # a name that is neither was refused above
             record, problem = read_identity(schema.metadata)
             if record is None:
                 return None, problem

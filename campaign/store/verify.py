@@ -52,8 +52,9 @@ def verify_store(root: str | Path, progress: Callable[[int, int], None] | None |
     store = CampaignStore(root)
     if not store.root.is_dir():
         raise StoreError(f"{store.root}: not a directory; allowed: a campaign output directory")
-    if progress == "terminal":
-        progress = _terminal_progress if sys.stderr.isatty() else None
+    report: Callable[[int, int], None] | None = (
+        (_terminal_progress if sys.stderr.isatty() else None) if progress == "terminal"
+        else progress if callable(progress) else None)
     result = Verification()
     manifest, problem = store._manifest_state()
     if manifest is None and problem is None:
@@ -74,8 +75,8 @@ def verify_store(root: str | Path, progress: Callable[[int, int], None] | None |
             if file_problem is not None:
                 result.problems.append((store.cases_dir / relative, file_problem))
             done += 1
-            if progress is not None and (time.monotonic() - last >= PROGRESS_EVERY_S or done == len(names)):
-                progress(done, len(names))
+            if report is not None and (time.monotonic() - last >= PROGRESS_EVERY_S or done == len(names)):
+                report(done, len(names))
                 last = time.monotonic()
     scan = store.scan(record=False)        # the counted case of each file (every file was just re-hashed)
     bad_paths = {path for path, _ in result.problems}

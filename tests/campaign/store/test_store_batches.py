@@ -8,6 +8,7 @@ subprocess.
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -32,7 +33,7 @@ from campaign.store.case_files import (
 )
 from campaign.store.case_identity import StoreIdentity, identity_metadata
 from campaign.store.case_index import MERGE_SEGMENTS
-from campaign.store.result_schema import rows_table
+from campaign.store.result_schema import RESULTS_SCHEMA, rows_table
 from campaign.store.verify import verify_store
 
 REPO = Path(__file__).resolve().parents[3]
@@ -257,15 +258,26 @@ def test_compaction_reads_only_the_new_cases_and_gives_the_same_results_as_a_ful
 def test_an_older_store_of_one_case_files_is_read_and_extended(tmp_path):
     store = make_store(tmp_path / "store", range(6))
     identity = _identity(store)
+    names = []
     for case_id in range(3):                                # as the one-file-per-case store wrote them
         table = rows_table(case_rows(case_id)).replace_schema_metadata(identity_metadata(identity, case_id))
         data = table_bytes(table)
-        (store.cases_dir / case_file_name(case_id, True, len(data), sha256_bytes(data))).write_bytes(data)
+        names.append(case_file_name(case_id, True, len(data), sha256_bytes(data)))
+        (store.cases_dir / names[-1]).write_bytes(data)
+    rows = rows_table([row for case_id in range(3) for row in case_rows(case_id)]).select(RESULTS_SCHEMA.names)
+    record = {"case_files_sha256": sha256_bytes("\n".join(sorted(names)).encode()), "cases": 3,
+              "results_sha256": sha256_bytes(table_bytes(rows)), "timings_sha256": ""}
+    store.results_path.write_bytes(table_bytes(rows))      # its compaction: one results.parquet file
+    store.results_record_path.write_text(json.dumps(record))
     assert store.status().done == 3
+    assert store.results_problem() is None and verify_store(store.root, progress=None).clean
+    assert store.results()["velocity_error_mps"].tolist() == [0.0, 0.01, 0.02]
     write_case_rows(store.cases_dir, 3, case_rows(3), ok=True)
     _batch(store, [4, 5])
+    assert CampaignStore(store.root).results_problem().startswith("out of date")
     with store.lock():
         CampaignStore(store.root).compact()
+    assert store.results_path.is_dir(), "the next compaction writes parts"
     results = CampaignStore(store.root).results()
     assert results["velocity_error_mps"].tolist() == [case_id / 100 for case_id in range(6)]
     assert verify_store(store.root, progress=None).clean
