@@ -134,8 +134,10 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
 
 
 FLUSH_S = 10.0
-"""A task writes its finished cases to the store (one batch file) at least this often (s) and when it ends:
-a worker that dies loses at most this much computed work, and a store gets about one file per task."""
+"""A task writes its finished cases to the store (one batch file) at least this often (s), every
+:data:`FLUSH_CASES` cases and when it ends: a worker that dies loses at most this much computed work, a
+store gets about one file per task, and a worker holds the rows of at most :data:`FLUSH_CASES` cases."""
+FLUSH_CASES = 2000
 
 
 def execute_batch(context: CampaignContext, rows: pa.Table | Sequence[Mapping[str, Any]]) -> tuple[int, int]:
@@ -144,7 +146,7 @@ def execute_batch(context: CampaignContext, rows: pa.Table | Sequence[Mapping[st
     (:mod:`campaign.run.dask_runner`).
 
     Finished cases are written together (:func:`write_cases`, one batch file) every :data:`FLUSH_S` seconds
-    and when the batch ends, and before an exception leaves the batch (an infrastructure error, a
+    or :data:`FLUSH_CASES` cases and when the batch ends, and before an exception leaves the batch (an infrastructure error, a
     plug-in that cannot be set up): a batch that dies half-way keeps the cases it wrote; its other cases are
     not recorded and a rerun of the batch (dask's after a worker died, or the next submit's) writes them. A
     case written twice (the batch rerun after its worker died) supersedes its earlier record: same bits,
@@ -162,7 +164,7 @@ def execute_batch(context: CampaignContext, rows: pa.Table | Sequence[Mapping[st
             finished.append((plan.case_id, rows, ok))
             done += ok
             failed += not ok
-            if time.monotonic() - oldest >= FLUSH_S:
+            if time.monotonic() - oldest >= FLUSH_S or len(finished) >= FLUSH_CASES:
                 flushed, finished = finished, []
                 write_cases(context, flushed)
     finally:

@@ -133,3 +133,57 @@ def test_no_op_campaign_is_batched_windowed_and_marked_everywhere(tmp_path):
     # the no-op campaign again: nothing left to run
     code, text = _cli("submit", path, "--output", out, "--no-progress")
     assert code == 0 and "(0 done, 0 failed this run)" in text, text
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
+def test_a_worker_killed_mid_batch_keeps_its_written_cases_and_the_rerun_duplicates_nothing(tmp_path):
+    """One task of 60000 no-op cases writes its cases in batches of ``FLUSH_CASES``; after the first, its
+    worker process is killed: dask reruns the task on a worker, the cases written before stay, the rerun's own write
+    of them supersedes them, and the store counts every case once."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    import pyarrow.dataset as ds
+
+    from campaign.run.worker import FLUSH_CASES
+    from campaign.store.campaign_store import CampaignStore
+    from service_campaigns import REPO, DaskProcesses, campaign_command
+
+    cases = {"gcp": 30000, "gdcp": 20000, "gkep": 10000}
+    total = sum(cases.values())
+    processes = DaskProcesses(tmp_path, workers=2)
+    try:
+        processes.import_case_code()
+        path = campaign_file(tmp_path, cases=cases,
+                             execution=f'case_mode = "no_op"\ncases_per_task = {total}\nscheduler = "{processes.address}"')
+        out = tmp_path / "out"
+        submit = subprocess.Popen(campaign_command("submit", path, "--output", out, "--no-progress"), cwd=REPO,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        started = time.monotonic()
+        first: list = []
+        while not first and submit.poll() is None and time.monotonic() - started < 300:
+            time.sleep(0.1)
+            first = sorted((out / "cases").glob("*/batch-*.parquet")) if (out / "cases").is_dir() else []
+        assert first, submit.communicate()
+        written = pq.read_table(first[0], columns=["case_id", "worker"])
+        assert written.num_rows == FLUSH_CASES < total       # a part of the task
+        assert set(written.column("worker").to_pylist()) == {written.column("worker")[0].as_py()}
+        worker_pid = int(written.column("worker")[0].as_py().rsplit(":", 1)[1])
+        os.kill(worker_pid, signal.SIGKILL)                  # the worker process running the task
+        stdout, stderr = submit.communicate(timeout=600)
+        assert submit.returncode == 0, stderr
+        assert f"({total} done, 0 failed this run)" in stdout
+    finally:
+        processes.close()
+    status = CampaignStore(out).status()
+    assert (status.done, status.failed, status.missing) == (total, 0, 0)
+    case_ids = ds.dataset(out / "results.parquet", format="parquet").to_table(columns=["case_id"]).column("case_id")
+    assert sorted(case_ids.to_pylist()) == sorted(CampaignStore(out).plan()["case_id"].tolist())
+    # the cases of the killed worker's first write were written again by the rerun, which counts
+    timings = ds.dataset(out / "timings.parquet", format="parquet").to_table(columns=["case_id", "worker"]).to_pandas()
+    first_cases = timings[timings["case_id"].isin(set(written.column("case_id").to_pylist()))]
+    assert len(first_cases) == FLUSH_CASES
+    assert not first_cases["worker"].str.endswith(f":{worker_pid}").any()
