@@ -167,7 +167,7 @@ def _kept(args: argparse.Namespace) -> str:
     cases = Path(store) / "cases" if store is not None else None
     if cases is None or not cases.is_dir():
         return "nothing was stored"
-    done = sum(1 for _ in cases.glob("case-*.parquet"))
+    done = sum(1 for _ in cases.glob("??/batch-*.parquet")) + sum(1 for _ in cases.glob("case-*.parquet"))
     return (f"{done} finished case files kept in {store} (a case being computed is not stored); "
             f"`campaign submit {args.file}` again computes the missing ones")
 
