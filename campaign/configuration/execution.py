@@ -53,7 +53,8 @@ NO_OP_REASON = "no_op"
 """The ``reason`` of every row of a no-op case."""
 NO_OP_BANNER = ("NO-OP RUN ([execution] case_mode = \"no_op\", an orchestration test): nothing was rendered or "
                 "estimated; these rows are not results")
-MAX_CASES_PER_TASK = 100_000
+CASES_PER_TASK_LIMIT = 100_000
+"""Largest ``[execution] cases_per_task`` accepted."""
 WALLTIME = re.compile(r"^(\d+-)?\d{1,3}:\d{2}(:\d{2})?$")
 KUBERNETES_QUANTITY = re.compile(r"^\d+(\.\d+)?(m|k|M|G|T|Ki|Mi|Gi|Ti)?$")
 KUBERNETES_NAME = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
@@ -249,7 +250,7 @@ class ExecutionConfig(ConfigModel):
     start, stops the run at once: campaign.run.batch_jobs)."""
     paused_timeout_s: float = Field(20.0, ge=1.0, le=86400.0)
     """Stop the run when every worker has been paused at its memory limit, with no case finishing, for this long (s)."""
-    cases_per_task: int = Field(0, ge=0, le=MAX_CASES_PER_TASK)
+    cases_per_task: int = Field(0, ge=0, le=CASES_PER_TASK_LIMIT)
     """Cases one dask task runs, one after the other (0 = automatic: a few tasks per worker, at most 16 cases
     per task when computing, 2000 for no-op cases); each case is written to the store as it finishes."""
     case_mode: CaseMode = "compute"
