@@ -246,13 +246,19 @@ class Entries:
                    failures=failures, **columns)
 
     def to_table(self) -> pa.Table:
-        names = pa.array(self.names, type=pa.string())
-        failed = [self.failures.get(row, []) for row in range(self.num_rows)] if self.failures \
-            else pa.array([[]] * self.num_rows, type=pa.list_(pa.string()))
-        return pa.table({"batch": names.take(pa.array(self.codes)), "size": self.size, "mtime_ns": self.mtime_ns,
-                         "written_ns": self.written_ns, "case_id": self.case_id, "failed_case": self.failed_case,
-                         "first_row": self.first_row, "row_count": self.row_count, "failed_estimators": failed},
-                        schema=INDEX_SCHEMA)
+        """As a table of :data:`INDEX_SCHEMA`, ``batch`` dictionary-encoded (a name per file, not per case)."""
+        lengths = np.zeros(self.num_rows, dtype=np.int32)
+        values: list[str] = []
+        for row in sorted(self.failures):
+            lengths[row] = len(self.failures[row])
+            values += self.failures[row]
+        offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32)
+        failed = pa.ListArray.from_arrays(pa.array(offsets), pa.array(values, type=pa.string()))
+        batch = pa.DictionaryArray.from_arrays(pa.array(self.codes.astype(np.int32)), pa.array(self.names, type=pa.string()))
+        schema = INDEX_SCHEMA.set(0, pa.field("batch", batch.type))
+        return pa.table({"batch": batch, "size": self.size, "mtime_ns": self.mtime_ns, "written_ns": self.written_ns,
+                         "case_id": self.case_id, "failed_case": self.failed_case, "first_row": self.first_row,
+                         "row_count": self.row_count, "failed_estimators": failed}, schema=schema)
 
     def take(self, rows: np.ndarray) -> Entries:
         """These rows (positions), in this order."""
