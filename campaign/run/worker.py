@@ -1,9 +1,11 @@
-"""Running cases on a worker process: the task's context, estimator set-up, retries, and writing a case's
+"""Running cases on a worker process: the task's context, estimator set-up, retries, and writing cases'
 rows (ok or failed) and example PNGs to the store.
 
-Tasks carry only the small :class:`CampaignContext` and one plan row; the big read-only inputs are loaded
-once per worker process (:func:`campaign.case.inputs.campaign_inputs`). The case itself is computed by
-:func:`campaign.case.compute.compute_case` and turned into rows by :func:`campaign.case.result_rows.case_rows`.
+A task (:func:`execute_batch`) carries only the small :class:`CampaignContext` and a batch of plan rows; the
+big read-only inputs are loaded once per worker process (:func:`campaign.case.inputs.campaign_inputs`). A
+case is computed by :func:`campaign.case.compute.compute_case` (or, in a no-op campaign, not at all:
+:func:`campaign.case.compute.no_op_case`) and turned into rows by :func:`campaign.case.result_rows.case_rows`;
+the batch's finished cases are written together (:func:`write_cases`).
 """
 from __future__ import annotations
 
