@@ -504,6 +504,7 @@ class CampaignStore:
             data = table_bytes(rows.select(schema.names))
             atomic_write_bytes(directory / f"{TEMPORARY_PREFIX}{name}", data)
             entry[f"{key}_sha256"], entry[f"{key}_bytes"] = sha256_bytes(data), len(data)
+            entry[f"{key}_mtime_ns"] = (directory / f"{TEMPORARY_PREFIX}{name}").stat().st_mtime_ns   # kept by rename
         return entry
 
     def _write_parts_record(self, parts: list[dict], counted: Entries) -> None:
@@ -527,9 +528,11 @@ class CampaignStore:
                     path.unlink(missing_ok=True)
             fsync_directory(directory)
 
-    def results_problem(self, scan: CaseScan | None = None, planned: np.ndarray | None = None) -> str | None:
+    def results_problem(self, scan: CaseScan | None = None, planned: np.ndarray | None = None,
+                        deep: bool = False) -> str | None:
         """Why results.parquet cannot be trusted (None: its parts match their records and the counted cases
-        of the plan)."""
+        of the plan). A part matches its record by size and modification time (a part is never rewritten in
+        place), or with ``deep`` (``campaign verify``) by its sha256."""
         if not self.results_path.exists():
             return "missing"
         if self.results_path.is_file():                  # compacted before parts: one file
@@ -540,10 +543,13 @@ class CampaignStore:
         for part in record["parts"]:
             for directory, key in ((self.results_path, "results"), (self.timings_path, "timings")):
                 try:
-                    digest = sha256_file(directory / part["name"])
+                    stat = (directory / part["name"]).stat()
+                    same = (stat.st_size, stat.st_mtime_ns) == (part.get(f"{key}_bytes"), part.get(f"{key}_mtime_ns"))
+                    if deep or not same:
+                        same = sha256_file(directory / part["name"]) == part[f"{key}_sha256"]
                 except OSError:
                     return f"part {part['name']} of {directory.name} is missing or unreadable"
-                if digest != part[f"{key}_sha256"]:
+                if not same:
                     return f"corrupted: {directory.name}/{part['name']} differs from the sha256 recorded in results.json"
         scan = self.scan() if scan is None else scan
         planned = self.planned_case_array() if planned is None else planned

@@ -98,7 +98,7 @@ def verify_store(root: str | Path, progress: Callable[[int, int], None] | None |
             result.notes.append(f"{store.cases_dir}: {len(outside)} verified cases outside the plan (kept, not "
                                 f"counted), e.g. case {int(outside[0])} in {scan.path_of(int(outside[0])).name}")
         if store.results_path.exists() or store.results_record_path.exists():
-            results_problem = store.results_problem(scan, planned)
+            results_problem = store.results_problem(scan, planned, deep=True)
             if results_problem is not None:
                 result.problems.append((store.results_path, results_problem))
     if store.rejected_dir.is_dir():

@@ -307,3 +307,22 @@ def test_status_counts_failed_rows_per_estimator_and_exits_1(tmp_path):
     assert f"{store.root}: 19 planned, 19 done, 0 failed, 0 missing" in result.stdout
     assert f"{store.root}: estimator myest: 19 failed rows (of 19 finished cases)" in result.stdout
     assert "estimator dimes" not in result.stdout
+
+
+def test_a_changed_results_part_is_not_trusted_and_verify_rehashes_the_parts(tmp_path):
+    store = make_store(tmp_path / "store", range(30))
+    _batch(store, range(30))
+    with store.lock():
+        store.compact()
+    part = next(store.results_path.glob("part-*.parquet"))
+    stat = part.stat()
+    _flip_byte(part, stat.st_size // 2)                              # a new modification time: found at once
+    assert CampaignStore(store.root).results_problem().startswith("corrupted: results.parquet/part-")
+    assert CampaignStore(store.root).results()["case_id"].tolist() == list(range(30)), "read from the batches"
+    os.utime(part, ns=(stat.st_atime_ns, stat.st_mtime_ns))          # its time restored: only a re-hash finds it
+    assert CampaignStore(store.root).results_problem() is None
+    problems = dict(verify_store(store.root, progress=None).problems)
+    assert problems[store.results_path].startswith("corrupted: results.parquet/part-")
+    with store.lock():
+        assert CampaignStore(store.root).compact() == 30, "compaction re-hashes the parts it keeps"
+    assert verify_store(store.root, progress=None).clean
