@@ -165,7 +165,7 @@ OPERATIONS = {
     "report_load": "store.results()",
 }
 PROLOGUE = """
-import json, resource, sys, time
+import json, sys, time
 from pathlib import Path
 import pandas as pd
 from campaign.store.campaign_store import CampaignStore
@@ -177,8 +177,10 @@ start = time.perf_counter()
 """
 EPILOGUE = """
 seconds = time.perf_counter() - start
-print(json.dumps({"seconds": seconds, "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+peak_kib = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM:"))
+print(json.dumps({"seconds": seconds, "peak_rss_mib": peak_kib / 1024}))
 """
+# VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss over exec, so a child would report its parent's peak
 
 
 def time_operation(root: Path, operation: str) -> dict:
