@@ -319,6 +319,7 @@ class CaseIndex:
     def __init__(self, index_dir: Path):
         self.dir = index_dir
         self._segments: dict[str, Segment] = {}
+        self.last_scan: tuple[tuple, CaseScan] | None = None    # (what it was made from, the scan)
         self.bad: list[tuple[Path, str]] = []
 
     def segment_names(self) -> list[str]:
@@ -479,6 +480,17 @@ def scan_cases(cases_dir: Path, index: CaseIndex, expected: StoreIdentity | None
     to the index unless not ``record``, or the store has no identity), and count each case once.
     ``merge``: the caller holds the store's lock (the index's segments may be merged)."""
     listing = list_case_files(cases_dir)
+    key = (tuple(listing.files), tuple(path for path, _ in listing.bad), tuple(listing.temporary),
+           tuple(index.segment_names()), index_identity(expected), record)
+    if not merge and index.last_scan is not None and index.last_scan[0] == key:
+        return index.last_scan[1]                   # nothing changed since this process's last scan
+    scan = _scan_listed(cases_dir, listing, index, expected, merge=merge, record=record)
+    index.last_scan = (key, scan) if not merge else None
+    return scan
+
+
+def _scan_listed(cases_dir: Path, listing: Listing, index: CaseIndex, expected: StoreIdentity | None, *,
+                 merge: bool, record: bool) -> CaseScan:
     scan = CaseScan(cases_dir, bad=list(listing.bad), temporary=listing.temporary)
     listed = {relative: (size, mtime) for relative, size, mtime in listing.files}
     claimed: set[str] = set()
