@@ -1,29 +1,38 @@
-"""The campaign store: one directory per campaign, durable per-case results, a compacted dataset.
+"""The campaign store: one directory per campaign, durable batches of case results, an index, compacted parts.
 
 Layout::
 
     OUT/manifest.json          config (as resolved), its hash, input file digests, package versions, the
                                plan's sha256 and case count, and its own sha256 (``manifest_sha256``)
     OUT/plan.parquet           every planned case (ids, class, terrain, trajectory, placement, seeds)
-    OUT/cases/case-<id>.<ok|failed>.<bytes>.<sha256>.parquet
-                               the rows of one finished case, one per estimator (``estimator`` column, in
-                               [[estimators]] order), written by the worker that computed it; the name
-                               records size and sha256 (:mod:`campaign.store.case_files`); ``failed``: the
-                               simulation failed after its retries (with its error)
-    OUT/results.parquet        the verified rows of the planned cases, sorted by case_id (same seed -> same bits)
-    OUT/timings.parquet        per-case stage timings and worker names (vary from run to run)
-    OUT/results.json           what results.parquet and timings.parquet were compacted from (a fingerprint of
-                               the case files) and their sha256: they are trusted only when both match
+    OUT/cases/<xx>/batch-<first case id>-<cases>.<bytes>.<sha256>.parquet
+                               the rows of finished cases, one per case and estimator (``estimator`` column,
+                               in [[estimators]] order), written by the worker task that computed them; the
+                               name records size and sha256, the metadata the campaign, case ids, states
+                               ('failed': the simulation failed after its retries) and write time
+                               (:mod:`campaign.store.case_files`); stores from before batches hold
+                               ``cases/case-<id>.<ok|failed>.<bytes>.<sha256>.parquet``, read as batches of one
+    OUT/index/segment-<uuid>.<bytes>.<sha256>.parquet
+                               which verified file holds each case (:mod:`campaign.store.case_index`): a scan
+                               hashes only files the index lacks
+    OUT/results.parquet/part-<n>.parquet
+                               the rows of the planned cases, each part sorted by case_id (same seed -> same
+                               bits); :meth:`CampaignStore.results` concatenates and sorts them
+    OUT/timings.parquet/part-<n>.parquet
+                               per-case stage timings and worker names (vary from run to run)
+    OUT/results.json           the parts, their size, time and sha256, and what each was compacted from:
+                               they are trusted only while both match; compaction keeps the parts that
+                               still match and compacts only the other cases
     OUT/rejected/              bad files moved out of the way (never deleted), ``rejected.log`` says why
     OUT.lock                   beside the store: one writer at a time (:mod:`campaign.store.lock`)
 
 Integrity: every file is checked before it is trusted. A case file that is truncated, corrupted, has no
 record, does not fit the result schema or is *foreign* (the identity recorded inside it - configuration
-hash, case id, seed, estimators, schema version: :mod:`campaign.store.case_identity` - is not this
+hash, case ids, seed, estimators, schema version: :mod:`campaign.store.case_identity` - is not this
 store's) is not counted by ``status``, never read by ``table`` or compaction, and is moved to
 ``rejected/`` and recomputed by the next ``submit``. Case files of cases that are not in the plan are
 kept but not counted. A corrupt ``manifest.json`` or ``plan.parquet`` is a one-line error; ``campaign
-verify DIR`` lists every bad file.
+verify DIR`` re-hashes every file and lists every bad one.
 """
 from __future__ import annotations
 
