@@ -3,7 +3,7 @@
 Cases go to the workers in batches (:func:`batch_cases`): one task runs several cases one after the other
 (:func:`campaign.run.worker.execute_batch`, :func:`cases_per_task` of them), so the scheduler sees far fewer
 tasks than cases. The driver keeps a bounded window of tasks in flight (:func:`run_batches`: about
-:data:`IN_FLIGHT_PER_WORKER` per worker, submitted as others finish, :class:`distributed.as_completed`), so
+:data:`IN_FLIGHT_PER_WORKER` per worker, submitted as others finish, told by the futures' done callbacks), so
 neither the driver nor the scheduler holds a future or a task per case: their memory does not grow with
 the campaign.
 
@@ -23,16 +23,18 @@ the earlier files, same bits but the run-dependent columns).
 """
 from __future__ import annotations
 
+import functools
 import math
-import threading
+import queue
 import time
 from collections import deque
 from collections.abc import Sequence
+from concurrent.futures import CancelledError
 from dataclasses import dataclass
 
 import pyarrow as pa
 from dask.distributed import Client
-from distributed import Future, as_completed
+from distributed import Future
 from distributed.comm.core import CommClosedError
 
 from campaign.configuration.execution import ExecutionConfig
@@ -180,8 +182,7 @@ def run_batches(client: Client, batches: Sequence[CaseBatch], watch: Watch = Wat
     bar = ProgressBar(total, enabled=progress, stream=stream)
     waiting = deque(batches)
     running: dict[Future, CaseBatch] = {}
-    # results gathered by the client's event loop (a result lost with its worker is recomputed meanwhile)
-    finished = as_completed(loop=client.loop, with_results=True, raise_errors=False)
+    ended: queue.Queue[tuple[Future, tuple[int, int] | None]] = queue.Queue()
     done = failed = 0
     try:
         monitor.check()
@@ -191,12 +192,17 @@ def run_batches(client: Client, batches: Sequence[CaseBatch], watch: Watch = Wat
                 batch = waiting.popleft()
                 future = client.submit(execute_batch, batch.context, batch.rows, key=batch.key, pure=False)
                 running[future] = batch
-                finished.add(future)
-            for future, result in _next_finished(finished, POLL_S):
-                if future.status != "finished":         # raised, cancelled: cancelled with the rest
+                future.add_done_callback(functools.partial(_report_end, ended))
+            for future, result in _ended_tasks(ended, POLL_S):
+                if future.status in ("error", "cancelled"):      # cancelled with the rest
                     raise RunStopped(monitor.task_problem(running[future], future))
-                del running[future]
+                if result is None:
+                    # its result went with its worker (dask computes it again) or the connection dropped (the
+                    # monitor stops the run when the scheduler is lost): wait for it again
+                    future.add_done_callback(functools.partial(_report_end, ended))
+                    continue
                 ok, bad = result
+                del running[future]
                 future.release()
                 done += ok
                 failed += bad
@@ -215,13 +221,31 @@ def run_batches(client: Client, batches: Sequence[CaseBatch], watch: Watch = Wat
     return done, failed
 
 
-def _next_finished(finished: as_completed, timeout_s: float) -> list[tuple[Future, tuple[int, int]]]:
-    """The tasks that ended since the last call with their results, waiting at most ``timeout_s`` for one."""
-    condition: threading.Condition = finished.thread_condition
-    with condition:
-        if not finished.has_ready():
-            condition.wait(timeout=timeout_s)
-    return finished.next_batch(block=False) if finished.has_ready() else []
+def _report_end(ended: queue.Queue, future: Future) -> None:
+    """Run by dask in its callback thread when a task ends: put (future, its (ok, failed) counts) on
+    ``ended``; counts None when the task did not finish or its result could not be fetched. The fetch
+    happens here, not in the driver's loop, so a hung worker or a lost scheduler never delays the watch."""
+    result = None
+    if future.status == "finished":
+        try:
+            result = future.result(timeout=SCHEDULER_CALL_TIMEOUT_S)
+        except (OSError, CommClosedError, TimeoutError, CancelledError):
+            result = None
+    ended.put((future, result))
+
+
+def _ended_tasks(ended: queue.Queue, timeout_s: float) -> list[tuple[Future, tuple[int, int] | None]]:
+    """The tasks that ended since the last call, waiting at most ``timeout_s`` for one."""
+    try:
+        first = [ended.get(timeout=timeout_s)]
+    except queue.Empty:
+        return []
+    rest = []
+    while True:
+        try:
+            rest.append(ended.get_nowait())
+        except queue.Empty:
+            return first + rest
 
 
 def _cancel(client: Client, futures: list[Future]) -> None:
