@@ -28,7 +28,7 @@ import math
 import queue
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import CancelledError
 from dataclasses import dataclass
 
@@ -178,7 +178,8 @@ def run_batches(client: Client, batches: Sequence[CaseBatch], watch: Watch = Wat
     Raises RunStopped (remaining tasks cancelled, none submitted any more) when the run cannot progress
     (module docstring)."""
     total = sum(len(batch.rows) for batch in batches)
-    monitor = _Monitor(client, watch)
+    stores = list({id(batch.store): batch.store for batch in batches}.values())
+    monitor = _Monitor(client, watch, lambda: sum(len(store.finished_case_ids()) for store in stores))
     bar = ProgressBar(total, enabled=progress, stream=stream)
     waiting = deque(batches)
     running: dict[Future, CaseBatch] = {}
@@ -211,8 +212,7 @@ def run_batches(client: Client, batches: Sequence[CaseBatch], watch: Watch = Wat
             bar.update(done + failed, failed)
     except RunStopped as stop:
         _cancel(client, list(running))
-        stores = {id(batch.store): batch.store for batch in batches}
-        on_disk = {key: store.finished_case_ids() for key, store in stores.items()}
+        on_disk = {id(store): store.finished_case_ids() for store in stores}
         left = sum(1 for batch in batches for case_id in batch.case_ids if case_id not in on_disk[id(batch.store)])
         raise RunStopped(f"run stopped: {stop}; {total - left} cases of this run finished and kept, {left} left "
                          "for the next submit") from None
@@ -260,9 +260,14 @@ def _cancel(client: Client, futures: list[Future]) -> None:
 class _Monitor:
     """The driver's view of the cluster: when a case last finished, since when no worker, all paused."""
 
-    def __init__(self, client: Client, watch: Watch):
+    def __init__(self, client: Client, watch: Watch, cases_on_disk: Callable[[], int] | None = None):
         self.client = client
         self.watch = watch
+        # a task's cases are written before its result reaches the driver (a paused worker does not serve
+        # results; a long task flushes its cases every few seconds): before it stops a run that seems not to
+        # progress, the driver counts the cases in the store
+        self.cases_on_disk = cases_on_disk
+        self.cases_seen = cases_on_disk() if cases_on_disk is not None else 0
         self.address = getattr(client.scheduler, "address", "?")
         now = time.monotonic()
         self.last_finish = now
@@ -276,12 +281,23 @@ class _Monitor:
         self.last_finish = time.monotonic()
         self.paused_since = None
 
+    def store_progressed(self) -> bool:
+        """True (and a case counted as finished now) when the store holds more cases than at the last look."""
+        if self.cases_on_disk is None:
+            return False
+        count = self.cases_on_disk()
+        if count <= self.cases_seen:
+            return False
+        self.cases_seen = count
+        self.case_finished()
+        return True
+
     def check(self) -> None:
         now = time.monotonic()
         if now - self.last_scheduler_poll >= SCHEDULER_POLL_S:
             self.last_scheduler_poll = now
             self._check_scheduler(now)
-        if self.workers and now - self.last_finish > self.watch.stall_timeout_s:
+        if self.workers and now - self.last_finish > self.watch.stall_timeout_s and not self.store_progressed():
             raise RunStopped(f"no case finished in {now - self.last_finish:.0f} s with {self.workers} workers up "
                              f"([execution] stall_timeout_s = {self.watch.stall_timeout_s:g}); check the workers on the "
                              f"dashboard ({self.client.dashboard_link}), or raise stall_timeout_s if a case takes longer")
@@ -313,7 +329,7 @@ class _Monitor:
         if all(info.get("status") == "paused" for info in workers.values()):
             self.paused_since = self.paused_since or now
             since = max(self.paused_since, self.last_finish)
-            if now - since > self.watch.paused_timeout_s:
+            if now - since > self.watch.paused_timeout_s and not self.store_progressed():
                 limits = sorted({int(info.get("memory_limit") or 0) for info in workers.values()})
                 limit = ", ".join(f"{value / 2**20:.0f}MiB" for value in limits)
                 raise RunStopped(f"all {len(workers)} workers paused at memory_limit {limit} for {now - since:.0f} s "
