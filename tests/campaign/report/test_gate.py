@@ -223,7 +223,7 @@ def test_reuse_copies_verified_unchanged_points_and_recomputes_a_corrupt_one(tmp
     stores = sorted((first / "points").glob("*/manifest.json"))
     assert len(stores) == 2
     damaged = stores[1].parent
-    case_file = next((damaged / "cases").glob("case-*.parquet"))
+    case_file = next((damaged / "cases").glob("??/batch-*.parquet"))
     case_file.write_bytes(case_file.read_bytes()[:-7] + b"garbage")      # same name, other bytes
     code = main(["sweep", str(path), "--output", str(second), "--reuse", str(first), "--scheduler", scheduler,
                  "--no-progress", "--baseline", str(first)])

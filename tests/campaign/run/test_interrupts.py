@@ -87,10 +87,10 @@ def test_every_stop_signal_ends_a_submit_the_same_way_and_its_printed_command_re
     out = tmp_path / "store"
     argv = [sys.executable, "-m", "campaign.cli", "submit", str(path), "--cases-scale", "1", "--workers", "1",
             "--no-progress", "--output", str(out)]
-    code, err, left, seconds = _interrupt(argv, out, "cases/case-*.parquet", 2, number, tmp_path)
+    code, err, left, seconds = _interrupt(argv, out, "cases/??/batch-*.parquet", 2, number, tmp_path)
     assert code == 128 + number, err
     hint = _assert_one_clean_line(err, number, argv)
-    kept = sorted((out / "cases").glob("case-*.parquet"))
+    kept = sorted((out / "cases").glob("??/batch-*.parquet"))
     assert f"; {len(kept)} finished case files kept in {out} " in err
     assert list(out.rglob(".tmp*")) == []                                 # cases/ and examples/
     assert left == [], f"processes of the submit still alive: {left}"      # workers and nannies stopped
@@ -103,7 +103,7 @@ def test_every_stop_signal_ends_a_submit_the_same_way_and_its_printed_command_re
     assert f"({6 - status.done} done, 0 failed this run)" in resumed.stdout
     final = CampaignStore(out).status()
     assert (final.done, final.missing, final.failed) == (6, 0, 0)
-    assert {path.name for path in kept} <= {path.name for path in (out / "cases").glob("case-*.parquet")}
+    assert {path.name for path in kept} <= {path.name for path in (out / "cases").glob("??/batch-*.parquet")}
     print(f"{signal.Signals(number).name}: exit {code} {seconds:.1f} s after the signal, {len(kept)} cases kept")
 
 
@@ -116,7 +116,7 @@ def test_sigterm_ends_a_sweep_in_one_line_and_its_printed_command_resumes(tmp_pa
     out = tmp_path / "sweep out"
     argv = [sys.executable, "-m", "campaign.cli", "sweep", str(sweep), "--workers", "1", "--no-progress",
             "--output", str(out)]
-    code, err, left, _ = _interrupt(argv, out, "points/*/cases/case-*.parquet", 2, signal.SIGTERM, tmp_path)
+    code, err, left, _ = _interrupt(argv, out, "points/*/cases/??/batch-*.parquet", 2, signal.SIGTERM, tmp_path)
     assert code == 128 + signal.SIGTERM, err
     hint = _assert_one_clean_line(err, signal.SIGTERM, argv)
     assert list(out.rglob(".tmp*")) == []

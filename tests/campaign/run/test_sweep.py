@@ -134,7 +134,7 @@ def scheduler():
 
 
 def _case_files(out: Path) -> dict:
-    return {p.relative_to(out): p.stat().st_mtime_ns for p in out.glob("points/*/cases/case-*.parquet")}
+    return {p.relative_to(out): p.stat().st_mtime_ns for p in out.glob("points/*/cases/*/batch-*.parquet")}
 
 
 @pytest.fixture(scope="module")
