@@ -205,8 +205,3 @@ def run() -> list[dict]:
         finally:
             shutil.rmtree(directory, ignore_errors=True)
     return rows
-
-
-if __name__ == "__main__":
-    for row in run():
-        print(row)

@@ -266,8 +266,3 @@ def run() -> list[dict]:
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return rows
-
-
-if __name__ == "__main__":
-    for result in run():
-        print(result)
