@@ -129,10 +129,10 @@ def _one_thread(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
             start = time.thread_time()
             execute_case(context, record)
             cpu_ms[int(record["case_id"])] = 1e3 * (time.thread_time() - start)
-        for path in sorted((root / site / "cases").glob("case-*.parquet")):
-            case = read_case_table(path).to_pandas().iloc[0]
-            rows.append({"site": site, "case_id": int(case["case_id"]), "t_case_ms": float(case["t_case_ms"]),
-                         "cpu_ms": cpu_ms[int(case["case_id"])]})
+        for path in sorted((root / site / "cases").glob("??/batch-*.parquet")):   # a batch file per case here
+            for case in read_case_table(path).to_pandas().drop_duplicates("case_id").itertuples():
+                rows.append({"site": site, "case_id": int(case.case_id), "t_case_ms": float(case.t_case_ms),
+                             "cpu_ms": cpu_ms[int(case.case_id)]})
     return pd.DataFrame(rows).set_index(["site", "case_id"])
 
 

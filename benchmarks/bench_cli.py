@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 from benchmarks.targets import target_columns
+from campaign.store.campaign_store import CampaignStore
 
 REPO = Path(__file__).resolve().parents[1]
 STORE_VARIABLE = "MOC2DIMES_BENCH_GUSEV_STORE"
@@ -69,7 +70,7 @@ def run() -> list[dict]:
     root = Path(tempfile.mkdtemp(prefix="bench-cli-"))
     try:
         store = gusev_store(root)
-        cases = sum(1 for _ in (store / "cases").glob("case-*.parquet"))
+        cases = CampaignStore(store).status().done
         rows = []
         for name, template in COMMANDS.items():
             arguments = [part.format(store=store) for part in template]

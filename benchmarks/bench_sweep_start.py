@@ -56,7 +56,7 @@ def start_and_interrupt(sweep: Path, out: Path, limit_s: float = 180.0) -> tuple
     reader.start()
     first_case, stores = None, 0
     while time.perf_counter() - start < limit_s and process.poll() is None:
-        if any(out.glob("points/*/cases/case-*.parquet")):
+        if any(out.glob("points/*/cases/??/batch-*.parquet")):
             first_case = time.perf_counter() - start
             stores = sum(1 for _ in out.glob("points/*/manifest.json"))
             break

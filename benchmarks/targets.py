@@ -26,6 +26,13 @@ REFERENCE_IMAGE_MS = 1000.0       # one image at the reference preset
 RMS_DN_VS_REFERENCE = 0.5         # default vs reference preset, expected image
 VELOCITY_CHANGE_MPS = 0.05        # default vs reference preset, estimated velocity
 FAST_CASE_RATIO = 0.5             # fast preset case time / default preset case time, same run
+# issue #34, the campaign store at 10^6 cases (benchmarks/bench_store.py), seconds
+STORE_STATUS_S = 10.0             # `campaign status`
+STORE_RESUME_SCAN_S = 10.0        # what `campaign submit` reads before it submits a case
+STORE_TABLE_S = 5.0               # `campaign table`
+STORE_COMPACT_INCREMENTAL_S = 10.0  # compaction after 1 % new cases (the cost of the new cases only)
+# issue #34, the runner: scheduler and driver CPU per no-op case, 10^5 cases (benchmarks/bench_orchestration.py)
+ORCHESTRATION_MS_PER_CASE = 1.0
 
 
 def target_columns(measured: float, target: float, unit: str, at_most: bool = True) -> dict:

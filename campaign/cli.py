@@ -196,7 +196,7 @@ def _kept(args: argparse.Namespace, argv: list[str] | None) -> str:
     cases = Path(store) / "cases" if store is not None else None
     if cases is None or not cases.is_dir():
         return f"nothing was stored; `{again}` starts it again"
-    done = sum(1 for _ in cases.glob("case-*.parquet"))
+    done = sum(1 for _ in cases.glob("??/batch-*.parquet")) + sum(1 for _ in cases.glob("case-*.parquet"))
     return (f"{done} finished case files kept in {store} (a case being computed is not stored); "
             f"`{again}` again computes the missing ones")
 

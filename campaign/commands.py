@@ -151,7 +151,8 @@ def plan(args: argparse.Namespace) -> int:
 
 
 def status(args: argparse.Namespace) -> int:
-    """``campaign status DIR``: done / failed / missing cases of a store (per point of a sweep directory)."""
+    """``campaign status DIR``: done / failed / missing cases of a store (per point of a sweep directory) and
+    the failed rows of each estimator; 1 when there are failed rows, else 0."""
     from campaign.store.campaign_store import CampaignStore
 
     if _sweep_point(args) is None and _is_sweep(args.dir):
@@ -169,7 +170,9 @@ def status(args: argparse.Namespace) -> int:
         print(f"{args.dir}: {counts.rejected} files rejected earlier, in rejected/ (rejected/rejected.log says why)")
     if counts.outside_plan:
         print(f"{args.dir}: {counts.outside_plan} case files of cases outside the plan (kept, not counted)")
-    return 0
+    for name, rows in counts.failed_rows.items():
+        print(f"{args.dir}: estimator {name}: {rows} failed rows (of {counts.done + counts.failed} finished cases)")
+    return 1 if counts.failed_rows else 0
 
 
 def _is_sweep(directory: str) -> bool:

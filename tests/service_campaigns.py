@@ -97,7 +97,8 @@ def stderr_line(result) -> str:
     return lines[0]
 
 
-def case_files(out: Path, pattern: str = "case-*.parquet") -> list[Path]:
+def case_files(out: Path, pattern: str = "*/batch-*.parquet") -> list[Path]:
+    """The batch files of a store's worker tasks (``cases/<xx>/batch-*.parquet``), or those matching ``pattern``."""
     return sorted((out / "cases").glob(pattern)) if (out / "cases").exists() else []
 
 

@@ -16,6 +16,9 @@ one for the off-nominal artefacts (dust, hot pixels, per-image particle hits; dr
 configured), so a case is bit-for-bit reproducible whatever the worker count or order. The flat field
 is drawn once per campaign (:mod:`campaign.case.inputs`).
 
+No-op cases (``[execution] case_mode = "no_op"``, :func:`no_op_case`) skip all of this: they exist to measure
+the orchestration and the store at 10^5-10^6 cases, and their rows say so (``reason = "no_op"``).
+
 Estimators: every estimator runs on the same images, measurements and calibration products
 (:class:`estimators.contract.EstimatorInputs`), handed over read-only. An estimator that violates the
 contract, raises anything (``SystemExit`` included), times out or answers implausibly (a valid horizontal
@@ -31,6 +34,7 @@ import numpy as np
 
 from campaign.case.error_budget import attitude_floor_mps
 from campaign.case.inputs import CampaignInputs, PlanRow
+from campaign.configuration.execution import NO_OP_REASON
 from campaign.store.result_schema import IMAGE_COUNT
 from estimators.contract import EstimatorInputs
 from estimators.plugins import EstimatorRun, run_estimator
@@ -194,6 +198,15 @@ class EstimatorResult:
             t_estimator_ms=run.elapsed_ms)
 
     @classmethod
+    def of_no_op_case(cls, estimator: str) -> EstimatorResult:
+        """The row of an estimator on a no-op case (``[execution] case_mode = "no_op"``: nothing rendered or
+        estimated): status ok, no answer, invalid with reason ``no_op``."""
+        return cls(estimator=estimator, status="ok", error="", estimate_velocity_east_mps=None,
+                   estimate_velocity_north_mps=None, valid=False, reason=NO_OP_REASON, velocity_error_mps=None,
+                   velocity_uncertainty_mps=None, feature_brightness=(), feature_contrast=(),
+                   feature_correlation=(), feature_status=(), t_estimator_ms=0.0)
+
+    @classmethod
     def of_failed_case(cls, estimator: str, error: str) -> EstimatorResult:
         """The row of an estimator on a case whose simulation failed (no answer: nulls, invalid)."""
         return cls(estimator=estimator, status="failed", error=error, estimate_velocity_east_mps=None,
@@ -260,3 +273,10 @@ def compute_case(resources: CampaignInputs, plan: PlanRow) -> CaseComputation:
                                              outside_terrain)
                       for spec, estimator in resources.estimators())
     return CaseComputation(truth, estimates, images)
+
+
+def no_op_case(estimator_names: list[str]) -> tuple[EstimatorResult, ...]:
+    """The estimator results of a no-op case (``[execution] case_mode = "no_op"``, an orchestration test): no
+    image is rendered, no sensor drawn, no estimator run and no campaign input loaded; one
+    :meth:`EstimatorResult.of_no_op_case` per estimator, and the case has no truth (its case columns null)."""
+    return tuple(EstimatorResult.of_no_op_case(name) for name in estimator_names)

@@ -356,6 +356,8 @@ def hashed_content(resolved: dict, site: Site) -> dict:
     prefix of the full one (see :mod:`campaign.plan.placement`).
     """
     content = json.loads(json.dumps({name: value for name, value in resolved.items() if name != "execution"}))
+    if resolved.get("execution", {}).get("case_mode", "compute") != "compute":    # a no-op store is never results
+        content["case_mode"] = resolved["execution"]["case_mode"]
     for key in HASH_EXCLUDED_CAMPAIGN_KEYS:
         content.get("campaign", {}).pop(key, None)
     for entry in content.get("estimators") or []:

@@ -17,6 +17,14 @@ The slurm, pbs and kubernetes backends talk TLS (a per-run certificate, or the u
 The watch fields (``stall_timeout_s``, ``no_workers_timeout_s``, ``paused_timeout_s``) decide when the
 driver stops a run that cannot progress (:mod:`campaign.run.dask_runner`): it then keeps every finished case,
 prints one line naming the cause and exits 1; the next ``submit`` runs the unfinished cases.
+
+``cases_per_task`` sets how many cases one dask task runs (0: chosen from the cases and workers,
+:func:`campaign.run.dask_runner.cases_per_task`). ``case_mode = "no_op"`` is a test of the orchestration
+only: cases are planned, dispatched and written through the real store as rows of the declared schema, but
+nothing is rendered or estimated (every row ``valid = false``, ``reason = "no_op"``, no truth). It is the
+one ``[execution]`` field in the configuration hash (a no-op store can never be resumed as a real
+campaign, nor the reverse), the manifest records it, and ``table`` / ``report`` head their output with
+:data:`NO_OP_BANNER`.
 """
 from __future__ import annotations
 
@@ -39,6 +47,14 @@ LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "[::1]")
 MIN_MEMORY_LIMIT_BYTES = 2**20
 #: Backends a campaign runs on ([execution] cluster).
 Cluster = Literal["local", "scheduler", "slurm", "pbs", "kubernetes"]
+#: What a case does ([execution] case_mode): "compute" (render and estimate) or "no_op" (orchestration test).
+CaseMode = Literal["compute", "no_op"]
+NO_OP_REASON = "no_op"
+"""The ``reason`` of every row of a no-op case."""
+NO_OP_BANNER = ("NO-OP RUN ([execution] case_mode = \"no_op\", an orchestration test): nothing was rendered or "
+                "estimated; these rows are not results")
+CASES_PER_TASK_LIMIT = 100_000
+"""Largest ``[execution] cases_per_task`` accepted."""
 WALLTIME = re.compile(r"^(\d+-)?\d{1,3}:\d{2}(:\d{2})?$")
 KUBERNETES_QUANTITY = re.compile(r"^\d+(\.\d+)?(m|k|M|G|T|Ki|Mi|Gi|Ti)?$")
 KUBERNETES_NAME = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")
@@ -236,6 +252,12 @@ class ExecutionConfig(ConfigModel):
     start, stops the run at once: campaign.run.batch_jobs)."""
     paused_timeout_s: float = Field(20.0, ge=1.0, le=86400.0)
     """Stop the run when every worker has been paused at its memory limit, with no case finishing, for this long (s)."""
+    cases_per_task: int = Field(0, ge=0, le=CASES_PER_TASK_LIMIT)
+    """Cases one dask task runs, one after the other (0 = automatic: a few tasks per worker, at most 16 cases
+    per task when computing, 2000 for no-op cases); each case is written to the store as it finishes."""
+    case_mode: CaseMode = "compute"
+    """"compute" (default), or "no_op": an orchestration test that renders and estimates nothing and writes
+    rows marked reason = "no_op" (part of the configuration hash; table and report say so on top)."""
     slurm: BatchJobs = BatchJobs()
     """SLURM jobs (cluster = "slurm")."""
     pbs: BatchJobs = BatchJobs()
@@ -321,3 +343,9 @@ class ExecutionConfig(ConfigModel):
         if not update:
             return self
         return ExecutionConfig.model_validate({**self.model_dump(exclude_unset=True), **update})
+
+
+def no_op_banner(manifest: dict) -> str | None:
+    """:data:`NO_OP_BANNER` when a store's manifest records ``[execution] case_mode = "no_op"``, else None."""
+    execution = (manifest.get("config") or {}).get("execution") or {}
+    return NO_OP_BANNER if execution.get("case_mode") == "no_op" else None

@@ -33,7 +33,7 @@ def with_estimator_column(results: pd.DataFrame) -> pd.DataFrame:
 def estimator_names(results: pd.DataFrame) -> list[str]:
     """Estimator names in the order the rows first name them (the campaign's [[estimators]] order)."""
     results = with_estimator_column(results)
-    return list(dict.fromkeys(results["estimator"])) if not results.empty else []
+    return [str(name) for name in pd.unique(results["estimator"])] if not results.empty else []   # vectorised: 10^6 rows
 
 
 def comparison_table(results: pd.DataFrame, fractions: dict[str, float], site_name: str,

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from campaign.configuration.execution import no_op_banner
 from campaign.realism.flight_metrics import __doc__ as METRICS_DOC
 from campaign.realism.flight_metrics import metrics_table
 from campaign.report import compare_plots, plots
@@ -45,6 +46,7 @@ def write_report(root: Path) -> Path:
     comparison = comparison_table(results, fractions, site, list(fractions), names, false_valid_mps=threshold)
     lines = [
         f"# {site} DIMES campaign report", "",
+        *([f"**{no_op_banner(manifest)}**", ""] if no_op_banner(manifest) else []),
         f"Configuration `{manifest['config_file']}` (hash `{manifest['config_hash'][:12]}`), seed {manifest['seed']}; "
         f"{status.planned} cases planned, {status.done} done, {status.failed} failed, {status.missing} missing; "
         f"estimators: {', '.join(f'`{name}`' for name in names)} (each ran on the same images and sensor draws).", "",

@@ -8,7 +8,7 @@ and never becomes a case's permanent record: the run stops, keeps every finished
 - on the worker, :class:`InfrastructureError` (raised by :func:`campaign.run.worker.execute_case`): the case
   file could not be written (``OSError``: ENOSPC, EDQUOT, EROFS, EIO, ...), the computation hit a
   storage error of that kind, or ran out of memory (``MemoryError``);
-- on the driver, :class:`RunStopped` (raised by :func:`campaign.run.dask_runner.wait_for_cases`): a worker died
+- on the driver, :class:`RunStopped` (raised by :func:`campaign.run.dask_runner.run_batches`): a worker died
   running a case too often (``KilledWorker``), the scheduler was lost, no worker for
   ``no_workers_timeout_s``, every worker paused at its memory limit, or no case finished for
   ``stall_timeout_s``; or a storage error of the driver's own writes: the store's lock record and the

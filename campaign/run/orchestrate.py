@@ -26,7 +26,7 @@ from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.batch_jobs import SUBMIT_COMMANDS, require_submit_command
 from campaign.run.cluster import connected_client, require_backend
-from campaign.run.dask_runner import RunSummary, Watch, submit_cases, wait_for_cases
+from campaign.run.dask_runner import RunSummary, Watch, batch_cases, run_batches
 from campaign.run.faults import RunStopped, is_infrastructure, storage_problem
 from campaign.run.interrupts import held, remove_temporary_files
 from campaign.run.planning import plan_campaign
@@ -239,8 +239,8 @@ def lock_stores(points: list[StorePoint], stores: list[CampaignStore], locks: Ex
 def run_locked_points(client, points: list[StorePoint], stores: list[CampaignStore], execution: ExecutionConfig, *,
                       fresh: bool = False, progress: bool = True,
                       on_note: Callable[[str], None] = _print_note) -> StoresRun:
-    """With the stores locked (:func:`lock_stores`) and the plug-ins shipped: prepare each store and submit its
-    missing cases at once (they run while the next store is prepared), wait for all of them and compact
+    """With the stores locked (:func:`lock_stores`) and the plug-ins shipped: prepare each store and cut its
+    missing cases into tasks (:func:`~campaign.run.dask_runner.batch_cases`), run them all and compact
     the stores (RunStopped: the finished cases compacted first, as :func:`run_store_points` says)."""
     prepared: list[PreparedPoint] = []
     tasks: list = []
@@ -255,9 +255,9 @@ def run_locked_points(client, points: list[StorePoint], stores: list[CampaignSto
             if todo:
                 for session in _SESSION_STORES:
                     session.add(store.root)
-                tasks += submit_cases(client, CampaignContext.from_config(point.config, store.root), todo, store)
+                tasks += batch_cases(client, CampaignContext.from_config(point.config, store.root), todo, store)
         if tasks:
-            done, failed = wait_for_cases(client, tasks, Watch.from_execution(execution), progress)
+            done, failed = run_batches(client, tasks, Watch.from_execution(execution), progress)
     except RunStopped as stop:
         problems = {compact_after_stop(entry.store) for entry in prepared} - {""}
         raise RunStopped(f"{stop}{min(problems, default='')}") from None

@@ -1,9 +1,11 @@
-"""Running cases on a worker process: the task's context, estimator set-up, retries, and writing a case's
+"""Running cases on a worker process: the task's context, estimator set-up, retries, and writing cases'
 rows (ok or failed) and example PNGs to the store.
 
-Tasks carry only the small :class:`CampaignContext` and one plan row; the big read-only inputs are loaded
-once per worker process (:func:`campaign.case.inputs.campaign_inputs`). The case itself is computed by
-:func:`campaign.case.compute.compute_case` and turned into rows by :func:`campaign.case.result_rows.case_rows`.
+A task (:func:`execute_batch`) carries only the small :class:`CampaignContext` and a batch of plan rows; the
+big read-only inputs are loaded once per worker process (:func:`campaign.case.inputs.campaign_inputs`). A
+case is computed by :func:`campaign.case.compute.compute_case` (or, in a no-op campaign, not at all:
+:func:`campaign.case.compute.no_op_case`) and turned into rows by :func:`campaign.case.result_rows.case_rows`;
+the batch's finished cases are written together (:func:`write_cases`).
 """
 from __future__ import annotations
 
@@ -13,20 +15,21 @@ import pickle
 import socket
 import time
 import traceback
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 
-from campaign.case.compute import EstimatorResult, compute_case
+from campaign.case.compute import EstimatorResult, compute_case, no_op_case
 from campaign.case.inputs import CampaignInputs, PlanRow, campaign_inputs
 from campaign.case.result_rows import case_rows
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.run.faults import InfrastructureError, describe, is_infrastructure
 from campaign.run.plugin_setup import PluginSetupError, worker_address
-from campaign.store.case_files import write_case_rows
+from campaign.store.case_files import write_case_batch, write_case_rows
 from campaign.store.case_identity import StoreIdentity
 from estimators.plugins import EstimatorSetupError, build_estimator
 from file_formats.descent_images import write_preview_png
@@ -123,13 +126,68 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
     ``MemoryError``, in the computation or while writing the case file, is the machine's fault: nothing
     is recorded, the writes remove their own temporary files and
     :class:`~campaign.run.faults.InfrastructureError` is raised (the driver stops the run; the next
-    submit runs the case again)."""
-    config = context.config
+    submit runs the case again).
+
+    A no-op campaign (``[execution] case_mode = "no_op"``) computes nothing: :func:`~campaign.case.compute.no_op_case`."""
     plan = PlanRow.from_record(record)
+    rows, ok = case_result(context, plan)
+    write_case(context, plan.case_id, rows, ok)
+    return "ok" if ok else "failed"
+
+
+FLUSH_S = 10.0
+"""A task writes its finished cases to the store (one batch file) at least this often (s), every
+:data:`FLUSH_CASES` cases and when it ends: a worker that dies loses at most this much computed work, a
+store gets about one file per task, and a worker holds the rows of at most :data:`FLUSH_CASES` cases."""
+FLUSH_CASES = 2000
+
+
+def execute_batch(context: CampaignContext, rows: pa.Table | Sequence[Mapping[str, Any]]) -> tuple[int, int]:
+    """Run a batch of cases (plan rows of one campaign, a table or records) one after the other, as :func:`execute_case`
+    does each, and return (ok, failed) counts: the one task the driver submits
+    (:mod:`campaign.run.dask_runner`).
+
+    Finished cases are written together (:func:`write_cases`, one batch file) every :data:`FLUSH_S` seconds
+    or :data:`FLUSH_CASES` cases and when the batch ends, and before an exception leaves the batch (an infrastructure error, a
+    plug-in that cannot be set up): a batch that dies half-way keeps the cases it wrote; its other cases are
+    not recorded and a rerun of the batch (dask's after a worker died, or the next submit's) writes them. A
+    case written twice (the batch rerun after its worker died) supersedes its earlier record: same bits,
+    except the run-dependent columns (worker, timings)."""
+    records = rows.to_pylist() if isinstance(rows, pa.Table) else rows
+    done = failed = 0
+    finished: list[tuple[int, list[dict[str, Any]], bool]] = []
+    oldest = time.monotonic()
+    try:
+        for record in records:
+            plan = PlanRow.from_record(record)
+            rows, ok = case_result(context, plan)
+            if not finished:
+                oldest = time.monotonic()
+            finished.append((plan.case_id, rows, ok))
+            done += ok
+            failed += not ok
+            if time.monotonic() - oldest >= FLUSH_S or len(finished) >= FLUSH_CASES:
+                flushed, finished = finished, []
+                write_cases(context, flushed)
+    finally:
+        if finished:            # also when a case raised: the cases before it are kept
+            flushed, finished = finished, []
+            write_cases(context, flushed)
+    return done, failed
+
+
+def case_result(context: CampaignContext, plan: PlanRow) -> tuple[list[dict[str, Any]], bool]:
+    """A case's result rows (one per estimator) and whether it was simulated (False: recorded failed after
+    its retries), computed with the retries of :func:`execute_case` (which says what is raised)."""
+    config = context.config
     worker = f"{socket.gethostname()}:{os.getpid()}"
+    started = time.perf_counter()
+    if config.execution.case_mode == "no_op":
+        rows = case_rows(plan, config.seed, no_op_case(config.estimator_names), None, attempts=1, worker=worker,
+                         t_case_ms=1e3 * (time.perf_counter() - started))
+        return rows, True
     attempts = config.execution.retries + 1
     error = ""
-    started = time.perf_counter()
     computation = None
     for attempt in range(1, attempts + 1):
         try:
@@ -155,15 +213,34 @@ def execute_case(context: CampaignContext, record: Mapping[str, Any]) -> str:
         estimates, truth = tuple(EstimatorResult.of_failed_case(name, error) for name in config.estimator_names), None
     else:
         estimates, truth = computation.estimates, computation.truth
-    seed = config.seed
-    rows = case_rows(plan, seed, estimates, truth, attempts=attempts_used, worker=worker, t_case_ms=t_case_ms)
+    rows = case_rows(plan, config.seed, estimates, truth, attempts=attempts_used, worker=worker, t_case_ms=t_case_ms)
+    return rows, computation is not None
+
+
+def write_case(context: CampaignContext, case_id: int, rows: list[dict[str, Any]], ok: bool) -> None:
+    """Durably write one case's rows to the store (:func:`~campaign.store.case_files.write_case_rows`);
+    a storage error or ``MemoryError`` is :class:`~campaign.run.faults.InfrastructureError` (nothing recorded)."""
+    config = context.config
     try:
-        identity = StoreIdentity(context.config_hash, seed, tuple(config.estimator_names))
-        write_case_rows(Path(context.store_root) / "cases", plan.case_id, rows, ok=computation is not None,
-                        identity=identity)
+        identity = StoreIdentity(context.config_hash, config.seed, tuple(config.estimator_names))
+        write_case_rows(Path(context.store_root) / "cases", case_id, rows, ok=ok, identity=identity)
     except (OSError, MemoryError) as exc:       # the failed write removed its own temporary file
-        raise InfrastructureError(describe(exc, plan.case_id, "writing its result", worker, context.store_root)) from None
-    return "ok" if computation is not None else "failed"
+        worker = f"{socket.gethostname()}:{os.getpid()}"
+        raise InfrastructureError(describe(exc, case_id, "writing its result", worker, context.store_root)) from None
+
+
+def write_cases(context: CampaignContext, finished: Sequence[tuple[int, list[dict[str, Any]], bool]]) -> None:
+    """Durably write finished cases, (case id, rows, ok) each, in one batch file
+    (:func:`~campaign.store.case_files.write_case_batch`); a storage error or ``MemoryError`` is
+    :class:`~campaign.run.faults.InfrastructureError` naming the first case (nothing of the batch recorded)."""
+    config = context.config
+    try:
+        identity = StoreIdentity(context.config_hash, config.seed, tuple(config.estimator_names))
+        write_case_batch(Path(context.store_root) / "cases", finished, identity)
+    except (OSError, MemoryError) as exc:       # the failed write removed its own temporary file
+        worker = f"{socket.gethostname()}:{os.getpid()}"
+        what = "writing its result" if len(finished) == 1 else f"writing its result with {len(finished) - 1} more"
+        raise InfrastructureError(describe(exc, finished[0][0], what, worker, context.store_root)) from None
 
 
 def save_examples(store_root: Path, plan: PlanRow, images_dn: tuple[np.ndarray, ...]) -> None:

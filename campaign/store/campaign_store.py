@@ -1,29 +1,38 @@
-"""The campaign store: one directory per campaign, durable per-case results, a compacted dataset.
+"""The campaign store: one directory per campaign, durable batches of case results, an index, compacted parts.
 
 Layout::
 
     OUT/manifest.json          config (as resolved), its hash, input file digests, package versions, the
                                plan's sha256 and case count, and its own sha256 (``manifest_sha256``)
     OUT/plan.parquet           every planned case (ids, class, terrain, trajectory, placement, seeds)
-    OUT/cases/case-<id>.<ok|failed>.<bytes>.<sha256>.parquet
-                               the rows of one finished case, one per estimator (``estimator`` column, in
-                               [[estimators]] order), written by the worker that computed it; the name
-                               records size and sha256 (:mod:`campaign.store.case_files`); ``failed``: the
-                               simulation failed after its retries (with its error)
-    OUT/results.parquet        the verified rows of the planned cases, sorted by case_id (same seed -> same bits)
-    OUT/timings.parquet        per-case stage timings and worker names (vary from run to run)
-    OUT/results.json           what results.parquet and timings.parquet were compacted from (a fingerprint of
-                               the case files) and their sha256: they are trusted only when both match
+    OUT/cases/<xx>/batch-<first case id>-<cases>.<bytes>.<sha256>.parquet
+                               the rows of finished cases, one per case and estimator (``estimator`` column,
+                               in [[estimators]] order), written by the worker task that computed them; the
+                               name records size and sha256, the metadata the campaign, case ids, states
+                               ('failed': the simulation failed after its retries) and write time
+                               (:mod:`campaign.store.case_files`); stores from before batches hold
+                               ``cases/case-<id>.<ok|failed>.<bytes>.<sha256>.parquet``, read as batches of one
+    OUT/index/segment-<uuid>.<bytes>.<sha256>.parquet
+                               which verified file holds each case (:mod:`campaign.store.case_index`): a scan
+                               hashes only files the index lacks
+    OUT/results.parquet/part-<n>.parquet
+                               the rows of the planned cases, each part sorted by case_id (same seed -> same
+                               bits); :meth:`CampaignStore.results` concatenates and sorts them
+    OUT/timings.parquet/part-<n>.parquet
+                               per-case stage timings and worker names (vary from run to run)
+    OUT/results.json           the parts, their size, time and sha256, and what each was compacted from:
+                               they are trusted only while both match; compaction keeps the parts that
+                               still match and compacts only the other cases
     OUT/rejected/              bad files moved out of the way (never deleted), ``rejected.log`` says why
     OUT.lock                   beside the store: one writer at a time (:mod:`campaign.store.lock`)
 
 Integrity: every file is checked before it is trusted. A case file that is truncated, corrupted, has no
 record, does not fit the result schema or is *foreign* (the identity recorded inside it - configuration
-hash, case id, seed, estimators, schema version: :mod:`campaign.store.case_identity` - is not this
+hash, case ids, seed, estimators, schema version: :mod:`campaign.store.case_identity` - is not this
 store's) is not counted by ``status``, never read by ``table`` or compaction, and is moved to
 ``rejected/`` and recomputed by the next ``submit``. Case files of cases that are not in the plan are
 kept but not counted. A corrupt ``manifest.json`` or ``plan.parquet`` is a one-line error; ``campaign
-verify DIR`` lists every bad file.
+verify DIR`` re-hashes every file and lists every bad one.
 """
 from __future__ import annotations
 
@@ -31,10 +40,12 @@ import json
 import os
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
@@ -42,16 +53,16 @@ import pyarrow.parquet as pq
 from campaign.configuration.differences import describe_change
 from campaign.configuration.paths import special_kind
 from campaign.store.case_files import (
-    CaseScan,
+    TEMPORARY_PREFIX,
     atomic_write_bytes,
     atomic_write_table,
     fsync_directory,
-    read_case_table,
-    scan_case_files,
     sha256_bytes,
     sha256_file,
+    table_bytes,
 )
 from campaign.store.case_identity import FOREIGN, StoreIdentity
+from campaign.store.case_index import CaseIndex, CaseScan, Entries, fingerprint, scan_cases, verify_case_file
 from campaign.store.errors import StoreError
 from campaign.store.lock import StoreLock, lock_path_for
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULTS_SCHEMA, TIMINGS_SCHEMA
@@ -61,6 +72,9 @@ if TYPE_CHECKING:
 
 # pandas is imported by the methods that make a DataFrame, when they run: `campaign status` and `verify` read a
 # store with pyarrow alone (pandas is half of their start-up time).
+
+RESULTS_FORMAT = 2
+"""results.json of a store whose results.parquet and timings.parquet are directories of parts."""
 
 FRESH_HINT = "`campaign submit --fresh` moves this store aside (DIR.previous-<UTC time>) and starts afresh"
 
@@ -75,6 +89,7 @@ class CaseStatus:
     outside_plan: int = 0        # verified case files of cases not in the plan (kept, not counted)
     foreign: int = 0             # of ``bad``: files of another campaign, schema version, or without identity
     rejected: int = 0            # files moved to rejected/ earlier (see rejected/rejected.log)
+    failed_rows: dict[str, int] = field(default_factory=dict)   # estimator -> its rows with status 'failed'
 
     @property
     def missing(self) -> int:
@@ -105,18 +120,34 @@ def manifest_problem(text: bytes) -> tuple[dict | None, str | None]:
     return manifest, None
 
 
+def _same_case_ids(first, second) -> bool:
+    import numpy as np
+
+    return bool(np.array_equal(np.sort(np.asarray(first, dtype=np.int64)), np.sort(np.asarray(second, dtype=np.int64))))
+
+
 def _first_difference(old: pd.DataFrame, new: pd.DataFrame) -> str | None:
     """The first case planned differently in two plans (over the case_ids in both), or None."""
+    import numpy as np
+
     if set(old.columns) != set(new.columns):
         return f"the plan columns differ ({', '.join(sorted(set(old.columns) ^ set(new.columns)))})"
-    common = sorted(set(old["case_id"].astype(int)) & set(new["case_id"].astype(int)))
-    left = old.set_index(old["case_id"].astype(int)).loc[common, sorted(old.columns)]
-    right = new.set_index(new["case_id"].astype(int)).loc[common, sorted(old.columns)]
+    if list(old.columns) == list(new.columns) and old.reset_index(drop=True).equals(new.reset_index(drop=True)):
+        return None                                  # the same plan (a resume): no case by case comparison
+    old = old.set_index(old["case_id"].astype(np.int64))
+    new = new.set_index(new["case_id"].astype(np.int64))
+    common = old.index.intersection(new.index).sort_values()
+    left, right = old.loc[common, sorted(old.columns)], new.loc[common, sorted(old.columns)]
     for column in left.columns:
         a, b = left[column].to_numpy(), right[column].to_numpy()
-        for case_id, x, y in zip(common, a, b):
-            if not (x == y or (isinstance(x, float) and isinstance(y, float) and x != x and y != y)):
-                return f"case {case_id} has {column} = {x!r} in the stored plan and {y!r} in the new one"
+        if a.dtype.kind == "f" and b.dtype.kind == "f":
+            same = (a == b) | (np.isnan(a) & np.isnan(b))
+        else:
+            same = np.asarray(a == b, dtype=bool)
+        if not same.all():
+            position = int(np.flatnonzero(~same)[0])
+            return (f"case {int(common[position])} has {column} = {a[position]!r} in the stored plan and "
+                    f"{b[position]!r} in the new one")
     return None
 
 
@@ -133,7 +164,8 @@ class CampaignStore:
         self.results_record_path = self.root / "results.json"
         self.rejected_dir = self.root / "rejected"
         self.lock_path = lock_path_for(self.root)
-        self._verified: dict[str, tuple] = {}   # case files this object has verified
+        self.index_dir = self.root / "index"
+        self._index = CaseIndex(self.index_dir)   # the index segments this object has read
         self._lock: StoreLock | None = None
 
     def lock(self, wait: bool = False, on_wait=None) -> StoreLock:
@@ -243,7 +275,6 @@ class CampaignStore:
         outside it are kept but not counted. A missing or corrupt plan of the same configuration is
         written again (the bad one goes to ``rejected/``). Bad case files are moved to ``rejected/``.
         """
-        import pandas as pd
 
         notes = []
         if fresh and self.root.exists():
@@ -264,7 +295,8 @@ class CampaignStore:
                 self._reject(self.plan_path, problem)
             notes.append(f"{self.plan_path}: {problem}; written again from the configuration")
             self._record_plan({**existing, **recorded}, plan)
-        elif set(pd.read_parquet(self.plan_path, columns=["case_id"])["case_id"]) != set(plan["case_id"]):
+        elif not _same_case_ids(pq.read_table(self.plan_path, columns=["case_id"]).column("case_id").to_numpy(),
+                                plan["case_id"].to_numpy()):
             old_size = existing.get("plan_cases", "?")   # check() found the cases in both planned identically
             self._record_plan({**existing, **recorded}, plan)
             notes.append(f"{self.root}: same configuration, plan of {len(plan)} cases recorded (was {old_size}); "
@@ -310,8 +342,9 @@ class CampaignStore:
         return target
 
     def reject_bad_files(self) -> int:
-        """Move bad and superseded case files to ``rejected/`` (one log line each); return how many."""
-        scan = scan_case_files(self.cases_dir, expected=self.identity())   # everything hashed afresh before a run
+        """Move bad and superseded case files to ``rejected/`` (one log line each), and merge the index;
+        return how many files moved. Call it holding the lock (``prepare`` does)."""
+        scan = self.scan(merge=True)
         for path, reason in [*scan.bad, *scan.superseded]:
             self._reject(path, reason)
         if scan.bad or scan.superseded:
@@ -319,28 +352,40 @@ class CampaignStore:
         return len(scan.bad) + len(scan.superseded)
 
     # --- reading -------------------------------------------------------------------------------
-    def scan(self) -> CaseScan:
-        """Every case file verified (files this object verified before and that are unchanged: by stat)."""
-        return scan_case_files(self.cases_dir, self._verified, self.identity())
+    def scan(self, merge: bool = False, record: bool = True) -> CaseScan:
+        """The counted file of each finished case (files the index has unchanged are trusted by name, size
+        and time; others are verified and, if ``record``, indexed: :mod:`~campaign.store.case_index`).
+        ``merge``: the caller holds the lock, the index's segments may be merged."""
+        return scan_cases(self.cases_dir, self._index, self.identity(), merge=merge, record=record)
 
     def finished_case_ids(self) -> dict[int, str]:
-        """case_id -> 'ok' or 'failed' for every verified case file (works during a run and after a crash)."""
-        return {case_id: case.state for case_id, case in self.scan().cases.items()}
+        """case_id -> 'ok' or 'failed' for every counted case (works during a run and after a crash)."""
+        return self.scan().states()
 
     def planned_case_ids(self) -> set[int]:
         """The case ids of the verified plan."""
+        return set(self.planned_case_array().tolist())
+
+    def planned_case_array(self) -> np.ndarray:
+        """The case ids of the verified plan, sorted."""
         plan = pq.ParquetFile(self._verified_plan_path()).read(columns=["case_id"])   # no pandas, no dataset
-        return {int(case_id) for case_id in plan.column("case_id").to_pylist()}
+        return np.sort(plan.column("case_id").to_numpy())
 
     def status(self) -> CaseStatus:
-        planned = self.planned_case_ids()
+        planned = self.planned_case_array()
         scan = self.scan()
-        counted = [case for case_id, case in scan.cases.items() if case_id in planned]
-        failed = sum(1 for case in counted if case.state == "failed")
-        return CaseStatus(planned=len(planned), done=len(counted) - failed, failed=failed, bad=len(scan.bad),
-                          outside_plan=len(scan.cases) - len(counted),
+        inside = scan.in_plan(planned)
+        counted = int(np.count_nonzero(inside))
+        failed = int(np.count_nonzero(scan.failed_case[inside]))
+        failed_rows = scan.failed_rows(inside)
+        identity = self.identity()
+        estimators = list(identity.estimators or ()) if identity is not None else []
+        order = estimators + sorted(set(failed_rows) - set(estimators))
+        return CaseStatus(planned=len(planned), done=counted - failed, failed=failed, bad=len(scan.bad),
+                          outside_plan=int(len(inside) - np.count_nonzero(inside)),
                           foreign=sum(1 for _, reason in scan.bad if reason.startswith(FOREIGN)),
-                          rejected=len(self.rejected_files()))
+                          rejected=len(self.rejected_files()),
+                          failed_rows={name: failed_rows[name] for name in order if name in failed_rows})
 
     def rejected_files(self) -> list[Path]:
         """The files moved to ``rejected/`` (``rejected.log`` says when and why)."""
@@ -349,40 +394,181 @@ class CampaignStore:
         return sorted(path for path in self.rejected_dir.iterdir() if path.name != "rejected.log")
 
     def read_case_table(self, case_ids: Iterable[int] | None = None, scan: CaseScan | None = None,
-                        planned: set[int] | None = None) -> pa.Table:
-        """The rows of the verified case files of the planned cases (of ``case_ids`` if given), by case_id,
-        as one table of :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` (``scan`` and ``planned``:
-        already read by the caller). Raises ResultSchemaError for a file that does not fit the schema."""
+                        planned: np.ndarray | set[int] | None = None) -> pa.Table:
+        """The rows of the counted cases of the plan (of ``case_ids`` if given), by case_id, as one table of
+        :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` (``scan`` and ``planned``: already read by
+        the caller). Each file read is verified again (its sha256); one that fails is moved to
+        ``rejected/`` and its cases are left out."""
         scan = self.scan() if scan is None else scan
-        wanted = (self.planned_case_ids() if planned is None else planned) & set(scan.cases)
+        planned = self.planned_case_array() if planned is None else planned
+        wanted = scan.in_plan(np.fromiter(planned, np.int64) if not isinstance(planned, np.ndarray) else planned)
         if case_ids is not None:
-            wanted &= {int(case_id) for case_id in case_ids}
-        tables = [read_case_table(scan.cases[case_id].path) for case_id in sorted(wanted)]
-        return pa.concat_tables(tables) if tables else CASE_FILE_SCHEMA.empty_table()
+            wanted &= np.isin(scan.case_ids, np.fromiter((int(c) for c in case_ids), np.int64))
+        return self._read_rows(scan.counted.mask(wanted))
+
+    def _read_rows(self, counted: Entries) -> pa.Table:
+        """The rows of the cases of ``counted`` (index rows), sorted by case_id (estimators in order)."""
+        if counted.num_rows == 0:
+            return CASE_FILE_SCHEMA.empty_table()
+        order = np.lexsort((counted.first_row, counted.codes))
+        codes, first, count = counted.codes[order], counted.first_row[order], counted.row_count[order]
+        starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
+        ends = np.r_[starts[1:], len(codes)]
+        identity = self.identity()
+
+        def read(bounds: tuple[int, int]) -> tuple[pa.Table | None, Path, str | None]:
+            start, end = bounds
+            relative = counted.names[int(codes[start])]
+            path = self.cases_dir / relative
+            try:
+                data = path.read_bytes()
+            except OSError as exc:
+                raise StoreError(f"{path}: unreadable: {exc.strerror or exc}; `campaign verify {self.root}` "
+                                 "checks the store") from None
+            whole: list[pa.Table] = []
+            _, problem = verify_case_file(path, relative, identity, data, keep_rows=whole)
+            if problem is not None:
+                return None, path, problem
+            table = whole[0].replace_schema_metadata(None)
+            take = np.concatenate([np.arange(f, f + c) for f, c in zip(first[start:end], count[start:end])])
+            whole_file = len(take) == table.num_rows and bool(np.array_equal(take, np.arange(table.num_rows)))
+            return (table if whole_file else table.take(pa.array(take))), path, None
+
+        groups = sorted(zip(starts.tolist(), ends.tolist()), key=lambda bounds: int(counted.case_id[order][bounds[0]]))
+        tables = []
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:    # Parquet decoding releases the GIL
+            for table, path, problem in pool.map(read, groups):
+                if table is None:
+                    self._reject(path, f"{problem} (found when its rows were read)")
+                else:
+                    tables.append(table)
+        if not tables:
+            return CASE_FILE_SCHEMA.empty_table()
+        rows = pa.concat_tables(tables)
+        case_ids = rows.column("case_id").to_numpy()
+        if len(case_ids) > 1 and bool(np.any(case_ids[1:] < case_ids[:-1])):
+            rows = rows.take(pc.sort_indices(rows, sort_keys=[("case_id", "ascending")]))   # stable: estimators in order
+        return rows
 
     # --- compaction ----------------------------------------------------------------------------
-    def compact(self) -> pd.DataFrame:
-        """Write results.parquet (deterministic columns, sorted by case_id), timings.parquet and their record
-        results.json, from the verified case files of the planned cases."""
-        import pandas as pd
+    def _record(self) -> dict | None:
+        try:
+            record = json.loads(self.results_record_path.read_text())
+        except (OSError, ValueError):
+            return None
+        if not isinstance(record, dict) or record.get("format") != RESULTS_FORMAT or not isinstance(record.get("parts"), list):
+            return None
+        return record
 
-        scan, planned = self.scan(), self.planned_case_ids()
-        rows = self.read_case_table(scan=scan, planned=planned)
-        if rows.num_rows == 0:
-            return pd.DataFrame()
-        rows = rows.sort_by("case_id")           # a stable sort: estimators stay in [[estimators]] order
-        results = rows.select(RESULTS_SCHEMA.names)
-        record = {"case_files_sha256": scan.fingerprint(planned),
-                  "cases": len(pc.unique(results["case_id"])),
-                  "results_sha256": atomic_write_table(self.results_path, results),
-                  "timings_sha256": atomic_write_table(self.timings_path, rows.select(TIMINGS_SCHEMA.names))}
-        atomic_write_bytes(self.results_record_path, json.dumps(record, indent=2, sort_keys=True).encode())
-        return results.to_pandas()
+    def compact(self) -> int:
+        """Bring results.parquet and timings.parquet up to date with the counted cases of the plan, compacting
+        only what is new: parts whose cases still count from the same files are kept, the other cases are
+        read from their files into one new part (sorted by case_id); results.json records the parts, their
+        sha256 and what they were compacted from. Returns how many cases were read from case files."""
+        scan, planned = self.scan(), self.planned_case_array()
+        counted = scan.counted.mask(scan.in_plan(planned))
+        record = self._record()
+        kept, covered = [], np.zeros(counted.num_rows, dtype=bool)
+        for part in (record or {}).get("parts", []):
+            batches = set(part.get("batches", ()))
+            of_part = np.array([name in batches for name in counted.names], dtype=bool)
+            mine = (of_part[counted.codes] if counted.num_rows else covered) & ~covered
+            if fingerprint(counted.mask(mine)) == part.get("cases_sha256") and self._part_files_intact(part):
+                kept.append(part)
+                covered |= mine
+        new = counted.mask(~covered)
+        parts, compacted = list(kept), covered.copy()
+        if new.num_rows:
+            rows = self._read_rows(new)
+            read = np.isin(new.case_id, rows.column("case_id").to_numpy())   # a batch rejected while read: out
+            compacted[np.flatnonzero(~covered)[read]] = True
+            if rows.num_rows:
+                parts.append(self._write_part(rows, new.mask(read), [p["name"] for p in kept]))
+        self._write_parts_record(parts, counted.mask(compacted))
+        return new.num_rows
 
-    def results_problem(self, scan: CaseScan | None = None, planned: set[int] | None = None) -> str | None:
-        """Why results.parquet cannot be trusted (None: it matches the verified case files of the plan)."""
+    def _part_files_intact(self, part: dict) -> bool:
+        """The part's files exist with the sha256 recorded (hashing is cheap next to reading rows)."""
+        try:
+            return (sha256_file(self.results_path / part["name"]) == part["results_sha256"]
+                    and sha256_file(self.timings_path / part["name"]) == part["timings_sha256"])
+        except (OSError, KeyError, TypeError):
+            return False
+
+    def _write_part(self, rows: pa.Table, counted: Entries, taken: list[str]) -> dict:
+        """Write the rows of a new part (in both results.parquet/ and timings.parquet/) under temporary
+        names; :meth:`_write_parts_record` renames them once the record lists them."""
+        number = 1 + max((int(name.split("-")[1].split(".")[0]) for name in taken), default=0)
+        number = max(number, 1 + max((int(p.name.split("-")[1].split(".")[0]) for directory in
+                                      (self.results_path, self.timings_path) if directory.is_dir()
+                                      for p in directory.glob("part-*.parquet")), default=0))
+        name = f"part-{number:06d}.parquet"
+        entry = {"name": name, "cases": counted.num_rows, "cases_sha256": fingerprint(counted),
+                 "batches": sorted(counted.names[code] for code in counted.used_codes().tolist())}
+        for directory, schema, key in ((self.results_path, RESULTS_SCHEMA, "results"),
+                                       (self.timings_path, TIMINGS_SCHEMA, "timings")):
+            if directory.is_file():                     # a results.parquet of a store compacted before parts
+                directory.unlink()
+            directory.mkdir(exist_ok=True)
+            data = table_bytes(rows.select(schema.names))
+            atomic_write_bytes(directory / f"{TEMPORARY_PREFIX}{name}", data)
+            entry[f"{key}_sha256"], entry[f"{key}_bytes"] = sha256_bytes(data), len(data)
+            entry[f"{key}_mtime_ns"] = (directory / f"{TEMPORARY_PREFIX}{name}").stat().st_mtime_ns   # kept by rename
+        return entry
+
+    def _write_parts_record(self, parts: list[dict], counted: Entries) -> None:
+        """results.json (the commit point), then the new parts under their names, then the parts no longer
+        recorded removed."""
+        for directory in (self.results_path, self.timings_path):
+            if directory.is_file():                     # of a store compacted before parts
+                directory.unlink()
+        record = {"format": RESULTS_FORMAT, "case_files_sha256": fingerprint(counted),
+                  "cases": sum(part["cases"] for part in parts), "parts": parts}
+        atomic_write_bytes(self.results_record_path, json.dumps(record, indent=1, sort_keys=True).encode())
+        names = {part["name"] for part in parts}
+        for directory in (self.results_path, self.timings_path):
+            if not directory.is_dir():
+                continue
+            for path in directory.iterdir():
+                final = path.name.removeprefix(TEMPORARY_PREFIX)
+                if path.name.startswith(TEMPORARY_PREFIX) and final in names:
+                    os.replace(path, directory / final)
+                elif final not in names or path.name.startswith(TEMPORARY_PREFIX):
+                    path.unlink(missing_ok=True)
+            fsync_directory(directory)
+
+    def results_problem(self, scan: CaseScan | None = None, planned: np.ndarray | None = None,
+                        deep: bool = False) -> str | None:
+        """Why results.parquet cannot be trusted (None: its parts match their records and the counted cases
+        of the plan). A part matches its record by size and modification time (a part is never rewritten in
+        place), or with ``deep`` (``campaign verify``) by its sha256."""
         if not self.results_path.exists():
             return "missing"
+        if self.results_path.is_file():                  # compacted before parts: one file
+            return self._single_file_problem(scan, planned)
+        record = self._record()
+        if record is None:
+            return "no valid record in results.json, so it cannot be verified"
+        for part in record["parts"]:
+            for directory, key in ((self.results_path, "results"), (self.timings_path, "timings")):
+                try:
+                    stat = (directory / part["name"]).stat()
+                    same = (stat.st_size, stat.st_mtime_ns) == (part.get(f"{key}_bytes"), part.get(f"{key}_mtime_ns"))
+                    if deep or not same:
+                        same = sha256_file(directory / part["name"]) == part[f"{key}_sha256"]
+                except OSError:
+                    return f"part {part['name']} of {directory.name} is missing or unreadable"
+                if not same:
+                    return f"corrupted: {directory.name}/{part['name']} differs from the sha256 recorded in results.json"
+        scan = self.scan() if scan is None else scan
+        planned = self.planned_case_array() if planned is None else planned
+        if scan.fingerprint(planned) != record["case_files_sha256"]:
+            return "out of date: compacted from other case files than the verified ones now in cases/"
+        return None
+
+    def _single_file_problem(self, scan: CaseScan | None, planned: np.ndarray | None) -> str | None:
+        """Why the single-file results.parquet of a store compacted before parts cannot be trusted (its
+        results.json records its sha256 and the sha256 of the sorted names of the case files)."""
         try:
             record = json.loads(self.results_record_path.read_text())
             recorded = record["results_sha256"], record["case_files_sha256"]
@@ -391,16 +577,33 @@ class CampaignStore:
         if sha256_file(self.results_path) != recorded[0]:
             return "corrupted: its sha256 differs from the one recorded in results.json"
         scan = self.scan() if scan is None else scan
-        if scan.fingerprint(self.planned_case_ids() if planned is None else planned) != recorded[1]:
+        planned = self.planned_case_array() if planned is None else planned
+        names = sorted(Path(name).name for name in scan.counted.mask(scan.in_plan(planned)).file_names().tolist())
+        if sha256_bytes("\n".join(names).encode()) != recorded[1]:
             return "out of date: compacted from other case files than the verified ones now in cases/"
         return None
 
-    def results(self) -> pd.DataFrame:
-        """The compacted results if they match the verified case files, else the rows read from those files."""
+    def results(self, columns: list[str] | None = None) -> pd.DataFrame:
+        """The compacted results (sorted by case_id, estimators in order) if they match the counted cases, else
+        the rows read from the case files; ``columns``: only those."""
         import pandas as pd
 
-        scan, planned = self.scan(), self.planned_case_ids()
+        scan, planned = self.scan(), self.planned_case_array()
+        if self.results_problem(scan, planned) is None and self.results_path.is_file():
+            return pd.read_parquet(self.results_path, columns=columns)      # a store compacted before parts
         if self.results_problem(scan, planned) is None:
-            return pd.read_parquet(self.results_path)
-        rows = self.read_case_table(scan=scan, planned=planned)
-        return rows.select(RESULTS_SCHEMA.names).to_pandas() if rows.num_rows else pd.DataFrame()
+            record = self._record() or {"parts": []}
+            tables = [pq.read_table(self.results_path / part["name"], columns=columns) for part in record["parts"]]
+            if not tables:
+                return pd.DataFrame()
+            rows = pa.concat_tables(tables).replace_schema_metadata(None)
+        else:
+            rows = self.read_case_table(scan=scan, planned=planned)
+            if rows.num_rows == 0:
+                return pd.DataFrame()
+            rows = rows.select(columns or RESULTS_SCHEMA.names)
+        if rows.num_rows == 0:
+            return pd.DataFrame()
+        if "case_id" in rows.column_names:
+            rows = rows.take(pc.sort_indices(rows, sort_keys=[("case_id", "ascending")]))
+        return rows.to_pandas()

@@ -1,24 +1,23 @@
-"""Case files with their integrity record, atomic writes, and the scan that verifies a store's cases.
+"""Case files: the batch writer, integrity records in file names, atomic writes.
 
-A case file's name records its size and sha256, computed by the worker from the exact bytes it writes::
+A worker stores finished cases with :func:`write_case_batch` (several cases, one file) or
+:func:`write_case_rows` (one case), as a *batch file* whose name records its size and sha256, computed
+from the exact bytes written::
 
-    cases/case-<id>.<ok|failed>.<size in bytes>.<sha256 hex>.parquet
+    cases/<sha256[:2]>/batch-<first case id>-<cases>.<size in bytes>.<sha256 hex>.parquet
 
-The bytes are written to a temporary file (``.tmp-`` prefix, never read as a result), fsynced and
-renamed to that name (``os.replace`` is atomic on POSIX): the file and its record appear together, in
-one step. A kill at any instant leaves either no file, an ignored temporary file, or a complete file
-whose name verifies it. ``sha256sum`` checks a case file by hand against its name.
+in one of 256 shard directories (named by the first two digits of the sha256). Its rows are every
+row of every case of the batch (:data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`, one per estimator,
+cases in order), its Parquet metadata records the campaign, the case ids, their states and the write
+time (:func:`~campaign.store.case_identity.batch_metadata`). The bytes are written to a temporary file
+(``.tmp-`` prefix, never read as a result), fsynced and renamed to that name (``os.replace`` is atomic on
+POSIX): the batch and its record appear together, in one step. A kill at any instant leaves either no
+file, an ignored temporary file, or a complete batch whose name verifies it. ``sha256sum`` checks a
+batch by hand against its name.
 
-A file is *verified* when its name has the record, its size and sha256 match it, its Parquet schema is
-exactly the declared :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA` and the identity recorded
-inside it (:mod:`campaign.store.case_identity`: configuration hash, case id, seed, estimators, schema
-version) is the store's, with rows that agree. Anything else in ``cases/`` is *bad*: truncated,
-corrupted, a name without the record (an older version, or by hand), a file whose columns do not fit
-the declared result schema (the reason names the column), a *foreign* file (another campaign's, another
-schema version's, or one without an identity record), or not a case file at all. Bad files are
-never counted or read; :meth:`CampaignStore.reject_bad_files` moves them to ``rejected/`` so their
-cases are recomputed. A case recomputed after a kill can have two verified files for a moment (the
-worker removes the older one right after its rename); the newest counts, the others are *superseded* and never counted twice.
+Stores written before batches hold one-case files ``cases/case-<id>.<ok|failed>.<size>.<sha256>.parquet``
+(:func:`case_file_name`); they are read as batches of one case. Which files are verified and counted,
+and the index that spares hashing them again: :mod:`campaign.store.case_index`.
 """
 from __future__ import annotations
 
@@ -27,9 +26,9 @@ import io
 import json
 import os
 import re
+import time
 import uuid
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,17 +37,17 @@ import pyarrow.parquet as pq
 
 from campaign.store.case_identity import (
     StoreIdentity,
+    batch_metadata,
     check_rows_match,
-    identity_metadata,
-    identity_problem,
-    read_identity,
-    rows_problem,
 )
 from campaign.store.result_schema import CASE_FILE_SCHEMA, ResultSchemaError, rows_table, schema_problem
 
 CASE_FILE = re.compile(r"^case-(\d{6,})\.(ok|failed)\.(\d+)\.([0-9a-f]{64})\.parquet$")
 UNRECORDED_CASE_FILE = re.compile(r"^case-(\d+)\.(ok|failed)\.parquet$")
 TEMPORARY_PREFIX = ".tmp-"
+BATCH_FILE = re.compile(r"^batch-(\d{6,})-(\d+)\.(\d+)\.([0-9a-f]{64})\.parquet$")
+SHARD = re.compile(r"^[0-9a-f]{2}$")
+SHARD_DIGITS = 2
 CHUNK_BYTES = 1 << 20
 
 
@@ -121,60 +120,71 @@ def store_identity(store_root: Path) -> StoreIdentity | None:
 
 def write_case_rows(cases_dir: Path, case_id: int, rows: Sequence[Mapping[str, Any]], ok: bool,
                     identity: StoreIdentity | None = None) -> Path:
-    """Durably write a case's rows (one per estimator) in one file named with its size and sha256 (atomic
-    rename), recording ``identity`` inside it, then remove any earlier file of the same case. ``ok``:
-    the case was simulated (an estimator's own failure is in its row).
+    """Durably write one case's rows (one per estimator): :func:`write_case_batch` of that one case.
+    ``ok``: the case was simulated (an estimator's own failure is in its row).
 
-    ``identity``: the campaign that computed the rows (the worker passes its own); None: the identity
-    of the store ``cases_dir`` belongs to, from its ``manifest.json`` (for tools rewriting a store's
-    cases), and no record at all when there is no manifest (such a file is foreign in every store).
+    ``identity``: as :func:`write_case_batch`.
 
     Raises
     ------
     campaign.store.result_schema.ResultSchemaError
-        A row does not fit :data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`, or the rows are not
-        case ``case_id`` of ``identity`` (nothing is written).
+        As :func:`write_case_batch` (nothing is written).
+    """
+    return write_case_batch(cases_dir, [(case_id, rows, ok)], identity)
+
+
+def batch_file_name(first_case_id: int, cases: int, size: int, digest: str) -> str:
+    """``<sha256[:2]>/batch-<first case id>-<cases>.<size>.<sha256>.parquet``, relative to ``cases/``."""
+    return f"{digest[:SHARD_DIGITS]}/batch-{first_case_id:06d}-{cases}.{size}.{digest}.parquet"
+
+
+def write_case_batch(cases_dir: Path, entries: Sequence[tuple[int, Sequence[Mapping[str, Any]], bool]],
+                     identity: StoreIdentity | None = None) -> Path:
+    """Durably write several finished cases in one batch file, in one atomic step, and return its path.
+
+    ``entries``: (case_id, rows, ok) per case, rows one per estimator in ``[[estimators]]`` order,
+    ``ok``: the case was simulated (False: it failed after its retries; an estimator's own failure is in
+    its row). The batch is ``cases/<sha256[:2]>/batch-<first case id>-<cases>.<bytes>.<sha256>.parquet``:
+    every row of every case (:data:`~campaign.store.result_schema.CASE_FILE_SCHEMA`), the identity record
+    of the batch (:func:`~campaign.store.case_identity.batch_metadata`: campaign, case ids and states,
+    write time) in its Parquet metadata, and its size and sha256 in its name. Written to a temporary
+    file, fsynced and renamed: a kill leaves either the whole batch or an ignored temporary file.
+
+    ``identity``: the campaign that computed the rows (the worker passes its own); None: the identity of
+    the store ``cases_dir`` belongs to, from its ``manifest.json`` (for tools rewriting a store's cases),
+    and no record at all when there is no manifest (such a batch is foreign in every store).
+
+    Raises
+    ------
+    campaign.store.result_schema.ResultSchemaError
+        No entries, a case twice, a row that does not fit the schema, or rows that are not their case's
+        of ``identity`` (nothing is written).
     """
     identity = identity if identity is not None else store_identity(cases_dir.parent)
-    table = rows_table(rows, CASE_FILE_SCHEMA)
+    if not entries:
+        raise ResultSchemaError("a batch of no cases")
+    case_ids = [int(case_id) for case_id, _, _ in entries]
+    if len(set(case_ids)) != len(case_ids):
+        raise ResultSchemaError(f"case {next(c for c in case_ids if case_ids.count(c) > 1)} twice in one batch")
+    all_rows = [row for _, rows, _ in entries for row in rows]
+    table = rows_table(all_rows, CASE_FILE_SCHEMA)
     if identity is not None:
-        problem = check_rows_match(rows, identity, case_id)
-        if problem is not None:
-            raise ResultSchemaError(f"case {case_id}: {problem}")
-        table = table.replace_schema_metadata(identity_metadata(identity, case_id))
+        for case_id, rows, _ in entries:
+            problem = check_rows_match(rows, identity, case_id)
+            if problem is not None:
+                raise ResultSchemaError(f"case {case_id}: {problem}")
+        states = ["ok" if ok else "failed" for _, _, ok in entries]
+        table = table.replace_schema_metadata(batch_metadata(identity, case_ids, states, time.time_ns()))
     data = table_bytes(table)
-    target = cases_dir / case_file_name(case_id, ok, len(data), sha256_bytes(data))
-    atomic_write_bytes(target, data, cases_dir / f"{TEMPORARY_PREFIX}{case_id:06d}-{uuid.uuid4().hex}.parquet")
-    for entry in os.scandir(cases_dir):
-        if entry.name.startswith(f"case-{case_id:06d}.") and entry.name != target.name:
-            match = CASE_FILE.match(entry.name) or UNRECORDED_CASE_FILE.match(entry.name)
-            if match and int(match.group(1)) == case_id:
-                Path(entry.path).unlink(missing_ok=True)
-    fsync_directory(cases_dir)
+    digest = sha256_bytes(data)
+    target = cases_dir / batch_file_name(case_ids[0], len(case_ids), len(data), digest)
+    created = not target.parent.is_dir()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(target, data, target.parent / f"{TEMPORARY_PREFIX}{uuid.uuid4().hex}.parquet")
+    fsync_directory(target.parent)
+    if created:
+        fsync_directory(cases_dir)
     return target
-
-
-@dataclass(frozen=True)
-class CaseFile:
-    """A verified case file."""
-    case_id: int
-    state: str            # "ok" or "failed"
-    path: Path
-    mtime_ns: int
-
-
-@dataclass
-class CaseScan:
-    """What ``cases/`` holds: one verified file per case, and the files that are not counted."""
-    cases: dict[int, CaseFile] = field(default_factory=dict)
-    bad: list[tuple[Path, str]] = field(default_factory=list)
-    superseded: list[tuple[Path, str]] = field(default_factory=list)
-    temporary: list[Path] = field(default_factory=list)
-
-    def fingerprint(self, case_ids) -> str:
-        """sha256 over the names (so sizes and digests) of the counted files of ``case_ids``."""
-        names = sorted(self.cases[case_id].path.name for case_id in case_ids if case_id in self.cases)
-        return sha256_bytes("\n".join(names).encode())
 
 
 def read_case_table(path: Path) -> pa.Table:
@@ -191,81 +201,3 @@ def read_case_table(path: Path) -> pa.Table:
     if problem is not None:
         raise ResultSchemaError(f"{path}: {problem}")
     return table.replace_schema_metadata(None)      # the identity record stays with its file
-
-
-def check_case_file(path: Path, match: re.Match, expected: StoreIdentity | None = None) -> str | None:
-    """What is wrong with a file whose name has the record, or None when its size and sha256 match it,
-    its schema is the declared case-file schema and its identity record is ``expected`` (the store's;
-    None: only the case id and schema version are checked) for the case of its name, with rows that
-    agree with it."""
-    recorded_size, recorded_digest = int(match.group(3)), match.group(4)
-    try:
-        size = path.stat().st_size
-        if size != recorded_size:
-            kind = "truncated" if size < recorded_size else "too long"
-            return f"{kind}: {size} bytes, {recorded_size} recorded at write time"
-        data = path.read_bytes()             # case files are small (tens of kB): read once, hashed and parsed
-    except OSError as exc:
-        return f"unreadable: {exc.strerror or exc}"
-    digest = sha256_bytes(data)
-    if digest != recorded_digest:
-        return f"corrupted: sha256 {digest[:16]}... differs from the {recorded_digest[:16]}... recorded at write time"
-    try:
-        parquet = pq.ParquetFile(pa.BufferReader(data))
-        schema = parquet.schema_arrow
-        problem = schema_problem(schema, CASE_FILE_SCHEMA)
-        if problem is not None:
-            return problem
-        record, problem = read_identity(schema.metadata)
-        if record is None:
-            return problem
-        problem = identity_problem(record, int(match.group(1)), expected)
-        if problem is not None:
-            return problem
-        return rows_problem(parquet.read(columns=["case_id", "campaign_seed", "estimator"]), record)
-    except (OSError, pa.ArrowException) as exc:
-        return f"unreadable as Parquet: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-
-
-def scan_case_files(cases_dir: Path, verified_before: dict | None = None,
-                    expected: StoreIdentity | None = None) -> CaseScan:
-    """Verify every file in ``cases_dir`` (size and sha256 against its name, schema, identity against
-    ``expected``) and sort them out.
-
-    ``verified_before``: a cache, name -> (size, mtime, inode, expected identity) of files this process
-    has verified; a case file is never rewritten in place (a new write has a new name), so an unchanged
-    entry is not hashed again (the runner polls the store while cases finish)."""
-    scan = CaseScan()
-    if not cases_dir.is_dir():
-        return scan
-    verified: dict[int, list[CaseFile]] = {}
-    for entry in sorted(os.scandir(cases_dir), key=lambda e: e.name):
-        path = Path(entry.path)
-        if entry.name.startswith(TEMPORARY_PREFIX):
-            scan.temporary.append(path)
-            continue
-        match = CASE_FILE.match(entry.name) if entry.is_file(follow_symlinks=False) else None
-        if match is None:
-            if UNRECORDED_CASE_FILE.match(entry.name):
-                scan.bad.append((path, "unrecorded: no size and sha256 in its name (written by an older version "
-                                       "or by hand), so it cannot be verified"))
-            else:
-                scan.bad.append((path, "not a case file (allowed: case-<id>.<ok|failed>.<bytes>.<sha256>.parquet)"))
-            continue
-        stat = entry.stat()
-        identity = (stat.st_size, stat.st_mtime_ns, stat.st_ino, expected)
-        if verified_before is None or verified_before.get(entry.name) != identity:
-            problem = check_case_file(path, match, expected)
-            if problem is not None:
-                scan.bad.append((path, problem))
-                continue
-            if verified_before is not None:
-                verified_before[entry.name] = identity
-        case = CaseFile(int(match.group(1)), match.group(2), path, stat.st_mtime_ns)
-        verified.setdefault(case.case_id, []).append(case)
-    for case_id, files in verified.items():
-        files.sort(key=lambda f: (f.mtime_ns, f.path.name))
-        scan.cases[case_id] = files[-1]
-        scan.superseded += [(f.path, f"superseded by the newer {files[-1].path.name} of the same case")
-                            for f in files[:-1]]
-    return scan

@@ -74,6 +74,82 @@ def identity_metadata(identity: StoreIdentity, case_id: int) -> dict[bytes, byte
     return {IDENTITY_KEY: json.dumps(identity.record(case_id), sort_keys=True).encode()}
 
 
+BATCH_IDENTITY_KEY = b"moc2dimes.batch_identity"
+BATCH_FIELDS = ("config_hash", "campaign_seed", "estimators", "result_schema_version", "case_ids", "states",
+                "written_ns")
+
+
+def batch_metadata(identity: StoreIdentity, case_ids: Sequence[int], states: Sequence[str],
+                   written_ns: int) -> dict[bytes, bytes]:
+    """The Parquet key-value metadata of a batch file: the campaign's record (as :meth:`StoreIdentity.record`
+    without the case id) with the batch's ``case_ids`` in row order, their ``states`` ('ok', or 'failed':
+    the simulation failed) and ``written_ns`` (the writer's clock: of two batches holding a case, the
+    later one counts)."""
+    record = {key: value for key, value in identity.record(0).items() if key != "case_id"}
+    record |= {"case_ids": [int(case_id) for case_id in case_ids], "states": list(states),
+               "written_ns": int(written_ns)}
+    return {BATCH_IDENTITY_KEY: json.dumps(record, sort_keys=True).encode()}
+
+
+def read_batch_identity(metadata: Mapping[bytes, bytes] | None) -> tuple[dict | None, str | None]:
+    """A batch file's record from its key-value metadata: (record, None) or (None, what is wrong)."""
+    raw = (metadata or {}).get(BATCH_IDENTITY_KEY)
+    if raw is None:
+        return None, (f"{FOREIGN}: no identity record in its Parquet metadata (written by hand or by another "
+                      "program), so it cannot be attributed to this campaign")
+    try:
+        record = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        return None, f"{FOREIGN}: its batch identity record is not valid JSON"
+    if not isinstance(record, dict) or any(name not in record for name in BATCH_FIELDS):
+        missing = [name for name in BATCH_FIELDS if not isinstance(record, dict) or name not in record]
+        return None, f"{FOREIGN}: its batch identity record lacks {', '.join(missing)}"
+    case_ids, states = record["case_ids"], record["states"]
+    if (not isinstance(case_ids, list) or not isinstance(states, list) or not case_ids
+            or len(case_ids) != len(states) or not all(isinstance(c, int) for c in case_ids)
+            or any(state not in ("ok", "failed") for state in states) or len(set(case_ids)) != len(case_ids)):
+        return None, f"{FOREIGN}: its batch identity record has no valid case list"
+    return record, None
+
+
+def campaign_problem(record: Mapping[str, Any], expected: StoreIdentity | None) -> str | None:
+    """Why a batch's record is not of campaign ``expected`` (every field that differs, one line), or None
+    (``expected`` None: only the schema version is compared)."""
+    wanted: dict[str, Any] = {"result_schema_version": RESULT_SCHEMA_VERSION}
+    if expected is not None:
+        wanted |= {"config_hash": expected.config_hash, "campaign_seed": int(expected.campaign_seed)}
+        if expected.estimators is not None:
+            wanted["estimators"] = list(expected.estimators)
+    differences = [f"{name} {_shown(record.get(name))} (this store: {_shown(value)})"
+                   for name, value in wanted.items() if record.get(name) != value]
+    if differences:
+        return f"{FOREIGN}: records {'; '.join(differences)}"
+    return None
+
+
+def batch_rows_problem(rows: pa.Table, record: Mapping[str, Any]) -> str | None:
+    """Why a batch's rows (columns case_id, campaign_seed, estimator at least) disagree with its record
+    (for each recorded case in order, one row per recorded estimator in order, with that case id and the
+    recorded seed), or None."""
+    import numpy as np
+
+    estimators, case_ids = list(record["estimators"]), record["case_ids"]
+    if rows.num_rows != len(estimators) * len(case_ids):
+        return (f"{FOREIGN}: {rows.num_rows} rows, its identity record says {len(case_ids)} cases of "
+                f"{len(estimators)} estimators")
+    if rows.num_rows == 0:
+        return f"{FOREIGN}: no rows"
+    if rows.column("estimator").to_pylist() != estimators * len(case_ids):
+        return f"{FOREIGN}: its rows are not of estimators {estimators} for each case, in order"
+    found = rows.column("case_id").to_numpy(zero_copy_only=False)
+    if rows.column("case_id").null_count or not np.array_equal(found, np.repeat(case_ids, len(estimators))):
+        return f"{FOREIGN}: its rows' case ids are not the {len(case_ids)} cases its identity record lists"
+    seeds = rows.column("campaign_seed")
+    if seeds.null_count or set(seeds.to_numpy(zero_copy_only=False).tolist()) != {record["campaign_seed"]}:
+        return f"{FOREIGN}: its rows' campaign_seed differs from its identity record's {record['campaign_seed']}"
+    return None
+
+
 def read_identity(metadata: Mapping[bytes, bytes] | None) -> tuple[dict | None, str | None]:
     """A file's identity record from its key-value metadata: (record, None) or (None, what is wrong)."""
     raw = (metadata or {}).get(IDENTITY_KEY)

@@ -95,7 +95,7 @@ def declared_columns(image_count: int = IMAGE_COUNT) -> tuple[ResultColumn, ...]
         column("estimate_velocity_east_mps", f64, "m/s", "estimated horizontal velocity, east (null unless valid)"),
         column("estimate_velocity_north_mps", f64, "m/s", "estimated horizontal velocity, north (null unless valid)"),
         column("valid", flag, "", "the estimate is flagged valid (and the images see only terrain)"),
-        column("reason", text, "", "the estimator's reason, or outside_terrain, estimator_failed, implausible, case_failed"),
+        column("reason", text, "", "the estimator's reason, or outside_terrain, estimator_failed, implausible, case_failed, no_op"),
         column("velocity_error_mps", f64, "m/s", "horizontal error of a valid estimate against the truth"),
         column("velocity_uncertainty_mps", f64, "m/s", "the estimator's own stated uncertainty (null unless valid and stated)"),
         column("feature_brightness", pa.list_(f64), "DN", "mean brightness of each tracked feature"),

@@ -230,7 +230,7 @@ def interrupted(tmp_path_factory) -> Interrupted:
                                 "--cases-scale", "0.5", "--workers", "2", "--no-progress"], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, cwd=root, env=ENV, start_new_session=True)
     deadline = time.monotonic() + 300
-    while time.monotonic() < deadline and not list((store / "cases").glob("case-*.parquet")):
+    while time.monotonic() < deadline and not list((store / "cases").glob("??/batch-*.parquet")):
         if process.poll() is not None:
             break
         time.sleep(0.2)
@@ -245,7 +245,7 @@ def interrupted(tmp_path_factory) -> Interrupted:
 @pytest.mark.slow
 @pytest.mark.cluster
 def test_sigint_during_submit_is_one_line_exit_130_and_workers_stop_quietly(interrupted):
-    cases = list((interrupted.store / "cases").glob("case-*.parquet"))
+    cases = list((interrupted.store / "cases").glob("??/batch-*.parquet"))
     assert interrupted.code == 130, interrupted
     err = interrupted.err
     assert err.count("\n") == 1 and "Traceback" not in err and "KeyboardInterrupt" not in err, err

@@ -223,7 +223,7 @@ def test_reuse_copies_verified_unchanged_points_and_recomputes_a_corrupt_one(tmp
     stores = sorted((first / "points").glob("*/manifest.json"))
     assert len(stores) == 2
     damaged = stores[1].parent
-    case_file = next((damaged / "cases").glob("case-*.parquet"))
+    case_file = next((damaged / "cases").glob("??/batch-*.parquet"))
     case_file.write_bytes(case_file.read_bytes()[:-7] + b"garbage")      # same name, other bytes
     code = main(["sweep", str(path), "--output", str(second), "--reuse", str(first), "--scheduler", scheduler,
                  "--no-progress", "--baseline", str(first)])
@@ -235,8 +235,8 @@ def test_reuse_copies_verified_unchanged_points_and_recomputes_a_corrupt_one(tmp
     reused = [p for p in description["points"] if "reused_from" in p]
     assert len(reused) == 1 and reused[0]["store"] == f"points/{stores[0].parent.name}"
     kept = second / reused[0]["store"] / "cases"
-    assert {p.name: p.read_bytes() for p in kept.iterdir()} == {
-        p.name: p.read_bytes() for p in (stores[0].parent / "cases").iterdir()}
+    assert {p.name: p.read_bytes() for p in kept.rglob("*.parquet")} == {
+        p.name: p.read_bytes() for p in (stores[0].parent / "cases").rglob("*.parquet")}
     assert json.loads((second / "gate.json").read_text())["verdict"] == "pass"
     # a point whose configuration changed since the previous night is computed, and a note says why
     path.write_text(f'[sweep]\nbase = "{base}"\n[axes]\n"estimators.probe.parameters.bias" = [[0.0, 0.0], [2.0, 0.0]]\n')

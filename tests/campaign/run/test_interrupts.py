@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -87,10 +88,10 @@ def test_every_stop_signal_ends_a_submit_the_same_way_and_its_printed_command_re
     out = tmp_path / "store"
     argv = [sys.executable, "-m", "campaign.cli", "submit", str(path), "--cases-scale", "1", "--workers", "1",
             "--no-progress", "--output", str(out)]
-    code, err, left, seconds = _interrupt(argv, out, "cases/case-*.parquet", 2, number, tmp_path)
+    code, err, left, seconds = _interrupt(argv, out, "cases/??/batch-*.parquet", 2, number, tmp_path)
     assert code == 128 + number, err
     hint = _assert_one_clean_line(err, number, argv)
-    kept = sorted((out / "cases").glob("case-*.parquet"))
+    kept = sorted((out / "cases").glob("??/batch-*.parquet"))
     assert f"; {len(kept)} finished case files kept in {out} " in err
     assert list(out.rglob(".tmp*")) == []                                 # cases/ and examples/
     assert left == [], f"processes of the submit still alive: {left}"      # workers and nannies stopped
@@ -103,7 +104,7 @@ def test_every_stop_signal_ends_a_submit_the_same_way_and_its_printed_command_re
     assert f"({6 - status.done} done, 0 failed this run)" in resumed.stdout
     final = CampaignStore(out).status()
     assert (final.done, final.missing, final.failed) == (6, 0, 0)
-    assert {path.name for path in kept} <= {path.name for path in (out / "cases").glob("case-*.parquet")}
+    assert {path.name for path in kept} <= {path.name for path in (out / "cases").glob("??/batch-*.parquet")}
     print(f"{signal.Signals(number).name}: exit {code} {seconds:.1f} s after the signal, {len(kept)} cases kept")
 
 
@@ -116,7 +117,7 @@ def test_sigterm_ends_a_sweep_in_one_line_and_its_printed_command_resumes(tmp_pa
     out = tmp_path / "sweep out"
     argv = [sys.executable, "-m", "campaign.cli", "sweep", str(sweep), "--workers", "1", "--no-progress",
             "--output", str(out)]
-    code, err, left, _ = _interrupt(argv, out, "points/*/cases/case-*.parquet", 2, signal.SIGTERM, tmp_path)
+    code, err, left, _ = _interrupt(argv, out, "points/*/cases/??/batch-*.parquet", 2, signal.SIGTERM, tmp_path)
     assert code == 128 + signal.SIGTERM, err
     hint = _assert_one_clean_line(err, signal.SIGTERM, argv)
     assert list(out.rglob(".tmp*")) == []
@@ -186,8 +187,8 @@ def test_full_disk_at_the_lock_or_while_compacting_results_is_an_infrastructure_
     out = small_tmpfs / "store"
     first = run_campaign("submit", path, "--output", out, "--no-progress")
     assert first.returncode == 0, first.stderr
-    for name in ("results.parquet", "results.json", "timings.parquet"):
-        (out / name).unlink()                     # every case is stored; only the compaction is left to do
+    for name in ("results.parquet", "results.json", "timings.parquet"):   # parts directories, or older files
+        shutil.rmtree(out / name) if (out / name).is_dir() else (out / name).unlink()   # only the compaction is left
 
     filler = _fill(small_tmpfs)                   # not a byte left: the lock's holder record cannot be written
     locked = run_campaign("submit", path, "--output", out, "--no-progress")
@@ -207,4 +208,4 @@ def test_full_disk_at_the_lock_or_while_compacting_results_is_an_infrastructure_
     filler.unlink()
     fixed = run_campaign("submit", path, "--output", out, "--no-progress")
     assert fixed.returncode == 0, fixed.stderr
-    assert (out / "results.parquet").is_file() and "(0 done, 0 failed this run)" in fixed.stdout
+    assert (out / "results.parquet").exists() and "(0 done, 0 failed this run)" in fixed.stdout

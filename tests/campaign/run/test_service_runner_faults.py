@@ -44,7 +44,8 @@ def test_failure_of_the_simulation_itself_is_recorded_exit_1_and_kept(tmp_path):
     assert result.returncode == 1, result.stderr
     assert "(0 done, 1 failed this run)" in result.stdout
     [failed] = case_files(out)
-    assert failed.name.startswith("case-000000.failed.")      # then its size and sha256 (campaign.store.case_files)
+    assert failed.name.startswith("batch-000000-1.")          # then its size and sha256 (campaign.store.case_files)
+    assert CampaignStore(out).finished_case_ids() == {0: "failed"}
     rows = pd.read_parquet(failed)
     assert rows["status"].tolist() == ["failed"] and "below the ground" in rows["error"].iloc[0]
     before = failed.stat().st_mtime_ns
@@ -104,7 +105,7 @@ def test_full_disk_stops_the_run_keeps_cases_and_the_next_submit_finishes(tmp_pa
     line = stderr_line(result)
     assert "run stopped" in line and "No space left on device" in line and "free space there" in line, line
     assert "left for the next submit" in line
-    assert case_files(out, "*.failed.*.parquet") == []                   # never a case's failure
+    assert CampaignStore(out).status().failed == 0                      # never a case's failure
     assert list(out.rglob(".tmp-*")) == []                             # temporaries removed
     status = CampaignStore(out).status()
     assert status.failed == 0 and status.missing > 0
@@ -139,7 +140,8 @@ def test_memory_limit_too_small_stops_with_one_line(tmp_path, limit, pause, case
     for text in expected:
         assert text in line, line
     assert "about 600 MiB" in line and "1 left for the next submit" in line
-    assert len(case_files(out, "*.ok.*.parquet")) == cases - 1 and case_files(out, "*.failed.*.parquet") == []
+    status = CampaignStore(out).status()
+    assert (status.done, status.failed) == (cases - 1, 0)
     print(f"memory_limit {limit}: stopped after {seconds:.1f} s")
 
 

@@ -134,7 +134,7 @@ def scheduler():
 
 
 def _case_files(out: Path) -> dict:
-    return {p.relative_to(out): p.stat().st_mtime_ns for p in out.glob("points/*/cases/case-*.parquet")}
+    return {p.relative_to(out): p.stat().st_mtime_ns for p in out.glob("points/*/cases/*/batch-*.parquet")}
 
 
 @pytest.fixture(scope="module")
@@ -255,8 +255,10 @@ def test_rerun_computes_nothing_and_a_changed_value_only_its_point(first_sweep, 
         (out / name).unlink()
     code, stdout, _ = _run(capsys, changed, "--output", out, "--scheduler", scheduler)
     assert code == 0 and "2 cases done" in stdout
-    # the same cases (a recomputed case's file name records the sha256 of its new write, timings included)
-    assert {(p.parent, p.name.split(".")[0]) for p in _case_files(out)} == {(p.parent, p.name.split(".")[0]) for p in after}
+    # the same cases (a recomputed case's file name, and its shard cases/<sha[:2]>, record the sha256 of its new
+    # write, timings included)
+    assert ({(p.parents[1], p.name.split(".")[0]) for p in _case_files(out)}
+            == {(p.parents[1], p.name.split(".")[0]) for p in after})
     assert pd.read_parquet(out / "results.parquet").equals(results)
 
 

@@ -53,7 +53,7 @@ def _interrupt_at_first_case(sweep: Path, out: Path, limit_s: float = 180.0):
     reader.start()
     first_case, stores = None, 0
     while time.monotonic() - started < limit_s and process.poll() is None:
-        if any(out.glob("points/*/cases/case-*.parquet")):
+        if any(out.glob("points/*/cases/*/batch-*.parquet")):
             first_case = time.monotonic() - started
             stores = sum(1 for _ in out.glob("points/*/manifest.json"))
             break
@@ -70,7 +70,7 @@ def _interrupt_at_first_case(sweep: Path, out: Path, limit_s: float = 180.0):
 
 
 def _case_files(out: Path) -> dict:
-    return {p.relative_to(out): (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("points/*/cases/case-*.parquet")}
+    return {p.relative_to(out): (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("points/*/cases/*/batch-*.parquet")}
 
 
 @pytest.mark.cluster

@@ -7,17 +7,17 @@ real LocalCluster and real Parquet stores."""
 from __future__ import annotations
 
 import pandas as pd
-import pyarrow.parquet as pq
 import pytest
 
 from campaign.cli import main
+from campaign.store.campaign_store import CampaignStore
 from service_campaigns import campaign_file
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
 
 def _results(store) -> pd.DataFrame:
-    return pq.read_table(store / "results.parquet").to_pandas()
+    return CampaignStore(store).results()
 
 
 def _submit(capsys, *args) -> str:
@@ -35,12 +35,12 @@ def test_a_larger_run_reuses_the_quick_look_and_equals_a_fresh_run(tmp_path, cap
     store, fresh_store = tmp_path / "store", tmp_path / "fresh"
 
     _submit(capsys, quick, "--output", store, "--workers", "1")
-    before = {path.name: path.read_bytes() for path in (store / "cases").glob("case-*")}
+    before = {path.name: path.read_bytes() for path in (store / "cases").rglob("batch-*")}
     assert len(before) == 3
 
     larger = _submit(capsys, full, "--output", store, "--workers", "1")
     assert "(2 done, 0 failed this run)" in larger     # only the two added cases were computed
-    after = {path.name: path.read_bytes() for path in (store / "cases").glob("case-*")}
+    after = {path.name: path.read_bytes() for path in (store / "cases").rglob("batch-*")}
     assert all(after[name] == data for name, data in before.items())   # the quick look's files untouched
 
     _submit(capsys, full, "--output", fresh_store, "--workers", "2")

@@ -15,9 +15,11 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from store_files import case_files as _case_files
+from store_files import place, results_part
 
 from campaign.store.campaign_store import CampaignStore
-from campaign.store.case_files import CASE_FILE, case_file_name, sha256_bytes, table_bytes, write_case_rows
+from campaign.store.case_files import table_bytes, write_case_rows
 from campaign.store.result_schema import (
     CASE_FILE_SCHEMA,
     RESULT_COLUMNS,
@@ -49,20 +51,10 @@ def reference(tmp_path_factory) -> Path:
     return out
 
 
-def _case_files(store: Path) -> dict[int, Path]:
-    return {int(CASE_FILE.match(p.name).group(1)): p for p in (store / "cases").iterdir() if CASE_FILE.match(p.name)}
-
-
 def _write_recorded(store: Path, case_id: int, table: pa.Table) -> Path:
     """``table`` as the case file of ``case_id`` with a correct size and sha256 record in its name (so only
     its schema can be wrong), replacing the worker's file."""
-    for path in _case_files(store).values():
-        if int(CASE_FILE.match(path.name).group(1)) == case_id:
-            path.unlink()
-    data = table_bytes(table)
-    path = store / "cases" / case_file_name(case_id, True, len(data), sha256_bytes(data))
-    path.write_bytes(data)
-    return path
+    return place(store, case_id, table_bytes(table))
 
 
 @pytest.mark.cluster
@@ -70,7 +62,7 @@ def _write_recorded(store: Path, case_id: int, table: pa.Table) -> Path:
 def test_worker_files_and_compacted_results_have_the_declared_schema(reference):
     for path in _case_files(reference).values():
         assert pq.read_schema(path).remove_metadata() == CASE_FILE_SCHEMA
-    assert pq.read_schema(reference / "results.parquet").remove_metadata() == RESULTS_SCHEMA
+    assert pq.read_schema(results_part(reference)).remove_metadata() == RESULTS_SCHEMA
     sensor_columns = [name for name in CASE_FILE_SCHEMA.names if name.startswith(SENSOR_PREFIX)]
     assert sensor_columns == [SENSOR_PREFIX + name for name, _ in error_fields(3)]
 

@@ -22,17 +22,20 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from store_files import case_files as _case_files
+from store_files import place as _place
+from store_files import results
 
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.case_files import (
-    CASE_FILE,
+    BATCH_FILE,
     case_file_name,
-    scan_case_files,
     sha256_bytes,
     table_bytes,
     write_case_rows,
 )
-from campaign.store.case_identity import IDENTITY_KEY, StoreIdentity
+from campaign.store.case_identity import BATCH_IDENTITY_KEY, IDENTITY_KEY, StoreIdentity
+from campaign.store.case_index import CaseIndex, scan_cases
 from campaign.store.lock import StoreBusy, StoreLock
 from campaign.store.result_schema import CASE_FILE_SCHEMA, RESULT_SCHEMA_VERSION, ResultSchemaError, rows_table
 from service_campaigns import campaign_in_process, file_tree, project_environment, site_copy, start_lock_holders
@@ -48,19 +51,6 @@ def _campaign(*args, timeout=300) -> subprocess.CompletedProcess:
 
 def _submit(site: Path, out: Path) -> list:
     return ["submit", site, "--output", out, "--cases-scale", SCALE, "--workers", "1", "--no-progress"]
-
-
-def _case_files(store: Path) -> dict[int, Path]:
-    return {int(CASE_FILE.match(p.name).group(1)): p for p in (store / "cases").iterdir() if CASE_FILE.match(p.name)}
-
-
-def _place(store: Path, case_id: int, data: bytes) -> Path:
-    """``data`` as the case file of ``case_id`` under its own correct size and sha256 name, replacing the
-    store's file of that case."""
-    _case_files(store)[case_id].unlink()
-    path = store / "cases" / case_file_name(case_id, True, len(data), sha256_bytes(data))
-    path.write_bytes(data)
-    return path
 
 
 def _rows(case_id: int, seed: int, estimators=("dimes", "yes_man")) -> list[dict]:
@@ -80,9 +70,10 @@ def test_only_files_whose_recorded_identity_and_rows_are_the_stores_are_counted(
     cases.mkdir()
     store = StoreIdentity(HASH, SEED, ("dimes", "yes_man"))
     good = write_case_rows(cases, 7, _rows(7, SEED), ok=True, identity=store)
-    assert json.loads(pq.read_schema(good).metadata[IDENTITY_KEY]) == {
-        "config_hash": HASH, "case_id": 7, "campaign_seed": SEED, "estimators": ["dimes", "yes_man"],
-        "result_schema_version": RESULT_SCHEMA_VERSION}
+    record = json.loads(pq.read_schema(good).metadata[BATCH_IDENTITY_KEY])
+    assert record.pop("written_ns") > 0 and record == {
+        "config_hash": HASH, "case_ids": [7], "states": ["ok"], "campaign_seed": SEED,
+        "estimators": ["dimes", "yes_man"], "result_schema_version": RESULT_SCHEMA_VERSION}
     other_seed = write_case_rows(cases, 11, _rows(11, OTHER_SEED), ok=True,
                                  identity=StoreIdentity(HASH, OTHER_SEED, ("dimes", "yes_man")))
     other_hash = write_case_rows(cases, 12, _rows(12, SEED), ok=True,
@@ -92,13 +83,15 @@ def test_only_files_whose_recorded_identity_and_rows_are_the_stores_are_counted(
     newer_schema = write_case_rows(cases, 14, _rows(14, SEED), ok=True, identity=StoreIdentity(
         HASH, SEED, ("dimes", "yes_man"), result_schema_version=RESULT_SCHEMA_VERSION + 1))
     unrecorded = _recorded(cases, 15, rows_table(_rows(15, SEED)))          # written before identities
-    renamed = cases / case_file_name(16, True, good.stat().st_size, good.name.split(".")[3])
-    renamed.write_bytes(good.read_bytes())                                   # case 7's file named case 16
+    renamed = good.with_name(good.name.replace("batch-000007-1.", "batch-000016-1."))
+    renamed.write_bytes(good.read_bytes())                                   # case 7's batch named case 16's
     lying = _recorded(cases, 17, rows_table(_rows(17, OTHER_SEED)).replace_schema_metadata(
         {IDENTITY_KEY: json.dumps(store.record(17)).encode()}))              # record says seed 5, rows say 8
+    old_good = _recorded(cases, 19, rows_table(_rows(19, SEED)).replace_schema_metadata(
+        {IDENTITY_KEY: json.dumps(store.record(19)).encode()}))              # an older store's one-case file
 
-    scan = scan_case_files(cases, expected=store)
-    assert list(scan.cases) == [7] and scan.cases[7].path == good
+    scan = scan_cases(cases, CaseIndex(tmp_path / "index"), store)
+    assert scan.case_ids.tolist() == [7, 19] and scan.path_of(7) == good and scan.path_of(19) == old_good
     reasons = dict(scan.bad)
     assert set(reasons) == {other_seed, other_hash, other_estimators, newer_schema, unrecorded, renamed, lying}
     assert all(reason.startswith("foreign: ") for reason in reasons.values()), reasons
@@ -107,12 +100,12 @@ def test_only_files_whose_recorded_identity_and_rows_are_the_stores_are_counted(
     assert 'estimators ["dimes"] (this store: ["dimes", "yes_man"])' in reasons[other_estimators]
     assert f"result_schema_version {RESULT_SCHEMA_VERSION + 1} (this store: {RESULT_SCHEMA_VERSION})" in reasons[newer_schema]
     assert "no identity record" in reasons[unrecorded]
-    assert "case_id 7 (this store: 16)" in reasons[renamed]
+    assert "its name says 1 cases from case 000016, its identity record 1 from case 7" in reasons[renamed]
     assert f"rows have campaign_seed [{OTHER_SEED}]" in reasons[lying]
 
     with pytest.raises(ResultSchemaError, match="campaign_seed"):        # a writer cannot mislabel its rows
         write_case_rows(cases, 18, _rows(18, OTHER_SEED), ok=True, identity=store)
-    assert not list(cases.glob("*000018*"))
+    assert not list(cases.rglob("*000018*"))
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +140,7 @@ def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaig
     case_id = min(_case_files(other))
     stranger = _case_files(other)[case_id]
     placed = _place(store, case_id, stranger.read_bytes())
-    assert CASE_FILE.match(placed.name).group(4) == sha256_bytes(placed.read_bytes()), "its name verifies it"
+    assert BATCH_FILE.match(placed.name).group(4) == sha256_bytes(placed.read_bytes()), "its name verifies it"
 
     status = cli("status", store)
     assert status.returncode == 0 and f"{store}: 3 planned, 2 done, 0 failed, 1 missing" in status.stdout, status.stdout
@@ -162,10 +155,9 @@ def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaig
     assert "(1 done, 0 failed this run)" in rerun.stdout and "moved 1 bad or superseded case files" in rerun.stdout
     assert (store / "rejected" / placed.name).read_bytes() == stranger.read_bytes(), "moved aside, not deleted"
     log = (store / "rejected" / "rejected.log").read_text().splitlines()
-    assert len(log) == 1 and f"cases/{placed.name} -> rejected/{placed.name}: foreign: " in log[0]
-    results = pd.read_parquet(store / "results.parquet")
-    assert set(results["campaign_seed"]) == {SEED}
-    pd.testing.assert_frame_equal(results, pd.read_parquet(reference / "results.parquet"), check_exact=True)
+    assert len(log) == 1 and f"cases/{placed.parent.name}/{placed.name} -> rejected/{placed.name}: foreign: " in log[0]
+    assert set(results(store)["campaign_seed"]) == {SEED}
+    pd.testing.assert_frame_equal(results(store), results(reference), check_exact=True)
     assert cli("verify", store).returncode == 0
     assert "1 files rejected earlier" in cli("status", store).stdout
 
@@ -197,8 +189,7 @@ def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_tra
     assert rerun.returncode == 0, rerun.stdout + rerun.stderr
     assert "(2 done, 0 failed this run)" in rerun.stdout
     assert {name: (store / "rejected" / name).read_bytes() for name in kept} == kept, "nothing lost"
-    pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
-                                  pd.read_parquet(reference / "results.parquet"), check_exact=True)
+    pd.testing.assert_frame_equal(results(store), results(reference), check_exact=True)
 
 
 @pytest.fixture()

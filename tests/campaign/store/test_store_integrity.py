@@ -22,17 +22,17 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from store_files import all_case_files, results, results_part
+from store_files import case_files as _case_files
 
 from campaign.store.campaign_store import CampaignStore, StoreError
 from campaign.store.case_files import (
-    CASE_FILE,
-    case_file_name,
-    scan_case_files,
+    BATCH_FILE,
     sha256_bytes,
-    table_bytes,
     write_case_rows,
 )
 from campaign.store.case_identity import StoreIdentity
+from campaign.store.case_index import CaseIndex, scan_cases
 from service_campaigns import campaign_in_process, file_tree, site_copy
 
 REPO = Path(__file__).resolve().parents[3]
@@ -57,10 +57,6 @@ def _one_line(text: str) -> str:
     lines = text.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in text, text
     return lines[0]
-
-
-def _case_files(store: Path) -> dict[int, Path]:
-    return {int(CASE_FILE.match(p.name).group(1)): p for p in (store / "cases").iterdir() if CASE_FILE.match(p.name)}
 
 
 def _replaced(table: pa.Table, **values) -> pa.Table:
@@ -106,7 +102,7 @@ def test_a_clean_store_verifies_and_names_record_size_and_sha256(reference, cli)
     files = _case_files(reference)
     assert sorted(files) == sorted(CampaignStore(reference).plan()["case_id"])
     for path in files.values():
-        match = CASE_FILE.match(path.name)
+        match = BATCH_FILE.match(path.name)
         data = path.read_bytes()
         assert int(match.group(3)) == len(data) and match.group(4) == sha256_bytes(data)
     result = cli("verify", reference)
@@ -120,10 +116,11 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     first, second, third = sorted(files)
     os.truncate(files[first], 100)                                 # truncated (disk full, killed copy)
     _flip_byte(files[second], files[second].stat().st_size // 2)   # corrupted, same size
-    unrecorded = files[third].with_name(f"case-{third:06d}.ok.parquet")   # no record (older version, by hand)
+    unrecorded = store / "cases" / f"case-{third:06d}.ok.parquet"   # no record (older version, by hand)
     files[third].rename(unrecorded)
     stray_rows = pq.read_table(unrecorded).to_pylist()
     stray = write_case_rows(store / "cases", 999999, [{**row, "case_id": 999999} for row in stray_rows], ok=True)
+    os.utime(stray, ns=(0, 0))                    # older than the index: found and verified by its name, not its time
     junk = store / "cases" / "notes.txt"
     junk.write_text("not a case")
 
@@ -152,36 +149,34 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     assert (store / "rejected" / files[first].name).stat().st_size == 100, "a rejected file is moved, not deleted"
     assert (store / "rejected" / "notes.txt").read_text() == "not a case"
     assert stray.exists(), "a verified case file outside the plan is kept"
-    pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
-                                  pd.read_parquet(reference / "results.parquet"), check_exact=True)
+    pd.testing.assert_frame_equal(results(store), results(reference), check_exact=True)
     assert cli("verify", store).returncode == 0
 
 
 @pytest.mark.cluster
 @pytest.mark.slow
 def test_two_verified_files_of_one_case_count_once(reference, store, cli):
-    """A kill between a recomputed case's rename and the removal of its older file leaves two verified
-    files: the newest counts, once."""
+    """A case computed twice (a worker killed after its write, a task retried) has two verified files: the
+    later write counts, once; a file none of whose cases count is superseded."""
     files = _case_files(store)
     first, second, _ = sorted(files)
-    again = _replaced(pq.read_table(files[first]), t_case_ms=1.0)
-    data = table_bytes(again)
-    newer = store / "cases" / case_file_name(first, True, len(data), sha256_bytes(data))
-    newer.write_bytes(data)
-    failed = _replaced(pq.read_table(files[second]), status="failed", error="RuntimeError: test")
-    data = table_bytes(failed)
-    failed_path = store / "cases" / case_file_name(second, False, len(data), sha256_bytes(data))
-    failed_path.write_bytes(data)
-    for path in (newer, failed_path):
-        os.utime(path, ns=(time.time_ns() + 10**9, time.time_ns() + 10**9))
+    again = [{**row, "t_case_ms": 1.0} for row in pq.read_table(files[first]).to_pylist()]
+    newer = write_case_rows(store / "cases", first, again, ok=True)
+    failed = [{**row, "status": "failed", "error": "RuntimeError: test"} for row in pq.read_table(files[second]).to_pylist()]
+    failed_path = write_case_rows(store / "cases", second, failed, ok=False)
+    for path in (files[first], files[second]):
+        os.utime(path, ns=(time.time_ns() + 10**9, time.time_ns() + 10**9))   # the write time counts, not mtime
 
     status = cli("status", store)
     assert f"{store}: 3 planned, 2 done, 1 failed, 0 missing" in status.stdout, status.stdout
+    assert status.returncode == 1 and "estimator dimes: 1 failed rows" in status.stdout, status.stdout
     verify = cli("verify", store)
-    assert f"note: {files[first]}: superseded by the newer {newer.name}" in verify.stdout
+    assert f"note: {files[first]}: superseded: each of its cases is in a newer file" in verify.stdout, verify.stdout
+    assert newer.exists() and failed_path.exists()
     results = CampaignStore(store).results()
     assert results["case_id"].is_unique and len(results) == 3
     assert results.set_index("case_id").at[second, "status"] == "failed"
+    assert results.set_index("case_id").at[first, "status"] == "ok"
 
 
 KILLED_WRITER = """
@@ -211,10 +206,10 @@ def test_a_writer_killed_at_any_instant_leaves_a_verified_file_or_an_ignored_one
         time.sleep(delay_s)
         process.send_signal(signal.SIGKILL)
         process.wait()
-        scan = scan_case_files(cases, expected=StoreIdentity("0" * 64, 1, ("dimes",)))
+        scan = scan_cases(cases, CaseIndex(tmp_path / "index"), StoreIdentity("0" * 64, 1, ("dimes",)))
         assert scan.bad == [], scan.bad
-        assert list(scan.cases) == [7], "exactly one counted file for the case"
-        for path in [scan.cases[7].path, *(path for path, _ in scan.superseded)]:
+        assert scan.case_ids.tolist() == [7], "exactly one counted file for the case"
+        for path in [scan.path_of(7), *(path for path, _ in scan.superseded)]:
             assert pq.read_table(path).column("case_id").to_pylist() == [7]
 
 
@@ -243,7 +238,7 @@ def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, st
     assert result.returncode == 2 and "corrupted or edited" in _one_line(result.stderr)
     path.write_text(json.dumps(manifest, indent=2, sort_keys=True))
 
-    _flip_byte(store / "results.parquet", 200)
+    _flip_byte(results_part(store), 200)
     table = cli("table", store)
     assert table.returncode == 0 and table.stdout == cli("table", reference).stdout.replace(str(reference), str(store))
     verify = cli("verify", store)
@@ -256,8 +251,7 @@ def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, st
     assert rerun.returncode == 0, rerun.stderr
     assert "written again from the configuration" in rerun.stdout and "(0 done, 0 failed this run)" in rerun.stdout
     assert cli("verify", store).returncode == 0
-    pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
-                                  pd.read_parquet(reference / "results.parquet"), check_exact=True)
+    pd.testing.assert_frame_equal(results(store), results(reference), check_exact=True)
 
 
 def _site_with_seed(directory: Path, seed: int) -> Path:
@@ -282,7 +276,7 @@ def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside
     assert file_tree(previous[0]) == old_tree, "the old store (examples included) is moved aside intact"
     assert "(3 done, 0 failed this run)" in fresh.stdout
     assert CampaignStore(store).manifest()["seed"] == 5
-    assert not set(p.name for p in (store / "cases").iterdir()) & set(p.name for p in (previous[0] / "cases").iterdir())
+    assert not all_case_files(store) & all_case_files(previous[0])
     old_examples = {p.name: p.read_bytes() for p in (previous[0] / "examples").iterdir()}
     new_examples = {p.name: p.read_bytes() for p in (store / "examples").iterdir()}
     assert old_examples and all(new_examples.get(name) != data for name, data in old_examples.items())
@@ -298,7 +292,9 @@ def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
     result = _campaign(*_submit(store, "--fresh", "--scheduler", "tcp://127.0.0.1:9", site=site), timeout=120)
     assert result.returncode == 1 and "127.0.0.1:9" in _one_line(result.stderr), result.stderr
     after = file_tree(tmp_path)
-    assert after.pop("store.lock")[0] == 0, "the lock file beside the store is left released (no holder record)"
+    lock = after.pop("store.lock", None)     # released (no holder record), or removed when this run made it
+    assert lock is None or lock[0] == 0, "the lock file beside the store is left released (no holder record)"
+    before.pop("store.lock", None)
     assert after == before, "--fresh moved or changed the store although the cluster was unusable"
 
 
@@ -308,17 +304,16 @@ def test_another_case_count_reuses_the_cases_in_both_plans(reference, store, cli
     """Case identity is (class, index within class) and the configuration hash ignores case counts: a
     larger --cases-scale on the same store computes only the new cases, a smaller one runs nothing; the
     cases outside the current plan are kept and reported, not counted."""
-    before = {p.name for p in (store / "cases").iterdir()}
+    before = all_case_files(store)
     larger = cli(*_submit(store, scale="0.011"))   # gcp 2, gdcp 1, gkep 1
     assert larger.returncode == 0, larger.stderr
     assert "plan of 4 cases recorded (was 3)" in larger.stdout and "(1 done, 0 failed this run)" in larger.stdout
-    assert before < {p.name for p in (store / "cases").iterdir()}, "the three cases of both plans are reused"
+    assert before < all_case_files(store), "the three cases of both plans are reused"
     smaller = cli(*_submit(store))
     assert smaller.returncode == 0 and "(0 done, 0 failed this run)" in smaller.stdout, smaller.stderr
     status = cli("status", store).stdout
     assert "3 planned, 3 done, 0 failed, 0 missing" in status and "1 case files of cases outside the plan" in status
-    pd.testing.assert_frame_equal(pd.read_parquet(store / "results.parquet"),
-                                  pd.read_parquet(reference / "results.parquet"), check_exact=True)
+    pd.testing.assert_frame_equal(results(store), results(reference), check_exact=True)
     assert cli("verify", store).returncode == 0
 
 
