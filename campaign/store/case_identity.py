@@ -93,17 +93,10 @@ def batch_metadata(identity: StoreIdentity, case_ids: Sequence[int], states: Seq
 
 def read_batch_identity(metadata: Mapping[bytes, bytes] | None) -> tuple[dict | None, str | None]:
     """A batch file's record from its key-value metadata: (record, None) or (None, what is wrong)."""
-    raw = (metadata or {}).get(BATCH_IDENTITY_KEY)
-    if raw is None:
-        return None, (f"{FOREIGN}: no identity record in its Parquet metadata (written by hand or by another "
-                      "program), so it cannot be attributed to this campaign")
-    try:
-        record = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError):
-        return None, f"{FOREIGN}: its batch identity record is not valid JSON"
-    if not isinstance(record, dict) or any(name not in record for name in BATCH_FIELDS):
-        missing = [name for name in BATCH_FIELDS if not isinstance(record, dict) or name not in record]
-        return None, f"{FOREIGN}: its batch identity record lacks {', '.join(missing)}"
+    record, problem = _json_record(metadata, BATCH_IDENTITY_KEY, BATCH_FIELDS, "batch identity",
+                                   "written by hand or by another program")
+    if record is None:
+        return None, problem
     case_ids, states = record["case_ids"], record["states"]
     if (not isinstance(case_ids, list) or not isinstance(states, list) or not case_ids
             or len(case_ids) != len(states) or not all(isinstance(c, int) for c in case_ids)
@@ -152,17 +145,26 @@ def batch_rows_problem(rows: pa.Table, record: Mapping[str, Any]) -> str | None:
 
 def read_identity(metadata: Mapping[bytes, bytes] | None) -> tuple[dict | None, str | None]:
     """A file's identity record from its key-value metadata: (record, None) or (None, what is wrong)."""
-    raw = (metadata or {}).get(IDENTITY_KEY)
+    return _json_record(metadata, IDENTITY_KEY, IDENTITY_FIELDS, "identity",
+                        "written before identities were recorded, by hand or by another program")
+
+
+def _json_record(metadata: Mapping[bytes, bytes] | None, key: bytes, fields, name: str,
+                 absent: str) -> tuple[dict | None, str | None]:
+    """The JSON record under ``key`` of a file's key-value metadata, with every one of ``fields``:
+    (record, None) or (None, what is wrong; ``name`` names the record, ``absent`` says how a file without one
+    came to be)."""
+    raw = (metadata or {}).get(key)
     if raw is None:
-        return None, (f"{FOREIGN}: no identity record in its Parquet metadata (written before identities were "
-                      "recorded, by hand or by another program), so it cannot be attributed to this campaign")
+        return None, (f"{FOREIGN}: no identity record in its Parquet metadata ({absent}), so it cannot be "
+                      "attributed to this campaign")
     try:
         record = json.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, ValueError):
-        return None, f"{FOREIGN}: its identity record is not valid JSON"
-    if not isinstance(record, dict) or any(name not in record for name in IDENTITY_FIELDS):
-        missing = [name for name in IDENTITY_FIELDS if not isinstance(record, dict) or name not in record]
-        return None, f"{FOREIGN}: its identity record lacks {', '.join(missing)}"
+        return None, f"{FOREIGN}: its {name} record is not valid JSON"
+    if not isinstance(record, dict) or any(field not in record for field in fields):
+        missing = [field for field in fields if not isinstance(record, dict) or field not in record]
+        return None, f"{FOREIGN}: its {name} record lacks {', '.join(missing)}"
     return record, None
 
 
