@@ -46,8 +46,11 @@ def _interrupt(argv: list[str], stores: Path, pattern: str, count: int, number: 
     """Run ``argv`` in its own process group until ``count`` files match ``stores.glob(pattern)``, send
     signal ``number`` to the group, and return (exit code, stderr, processes of the group still alive 30 s
     after it ended, seconds from the signal to the exit)."""
+    # SIGHUP as a terminal would deliver it: the default disposition even when this test runs under nohup (a
+    # command started with SIGHUP ignored keeps ignoring it, as nohup promises: campaign.run.interrupts)
     process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=cwd,
-                               env=project_environment(), start_new_session=True)
+                               env=project_environment(), start_new_session=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))
     deadline = time.monotonic() + 300
     while len(list(stores.glob(pattern))) < count:
         assert process.poll() is None, f"ended early ({process.returncode}): {process.stderr.read()}"
