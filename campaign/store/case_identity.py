@@ -105,10 +105,12 @@ def read_batch_identity(metadata: Mapping[bytes, bytes] | None) -> tuple[dict | 
     return record, None
 
 
-def campaign_problem(record: Mapping[str, Any], expected: StoreIdentity | None) -> str | None:
+def campaign_problem(record: Mapping[str, Any], expected: StoreIdentity | None,
+                     also: Mapping[str, Any] | None = None) -> str | None:
     """Why a batch's record is not of campaign ``expected`` (every field that differs, one line), or None
-    (``expected`` None: only the schema version is compared)."""
-    wanted: dict[str, Any] = {"result_schema_version": RESULT_SCHEMA_VERSION}
+    (``expected`` None: only the schema version is compared); ``also``: more fields the record must have
+    (a one-case file's ``case_id``), compared first."""
+    wanted: dict[str, Any] = {**(also or {}), "result_schema_version": RESULT_SCHEMA_VERSION}
     if expected is not None:
         wanted |= {"config_hash": expected.config_hash, "campaign_seed": int(expected.campaign_seed)}
         if expected.estimators is not None:
@@ -178,16 +180,7 @@ def identity_problem(record: Mapping[str, Any], case_id: int, expected: StoreIde
     """Why a file's identity record does not belong at its place (every field that differs, in one line),
     or None. ``case_id``: the id in the file's name; ``expected``: the store's identity (None: no
     verified manifest, only the case id and the schema version are compared)."""
-    wanted: dict[str, Any] = {"case_id": int(case_id), "result_schema_version": RESULT_SCHEMA_VERSION}
-    if expected is not None:
-        wanted |= {"config_hash": expected.config_hash, "campaign_seed": int(expected.campaign_seed)}
-        if expected.estimators is not None:
-            wanted["estimators"] = list(expected.estimators)
-    differences = [f"{name} {_shown(record.get(name))} (this store: {_shown(value)})"
-                   for name, value in wanted.items() if record.get(name) != value]
-    if differences:
-        return f"{FOREIGN}: records {'; '.join(differences)}"
-    return None
+    return campaign_problem(record, expected, also={"case_id": int(case_id)})
 
 
 def rows_problem(rows: pa.Table, record: Mapping[str, Any]) -> str | None:
