@@ -98,8 +98,37 @@ def analyse_output(inputs: pd.DataFrame, outputs: pd.Series, settings: AnalysisS
     return table
 
 
+@dataclass(frozen=True)
+class StoreCases:
+    """What a store's cases give the analysis: the result rows, one input row per case
+    (:func:`campaign.analysis.case_inputs.case_inputs`) and the false-valid threshold (m/s)."""
+
+    results: pd.DataFrame
+    inputs: pd.DataFrame
+    false_valid_mps: float
+
+    def outputs(self, estimator: str) -> pd.DataFrame:
+        """One estimator's outputs per case, aligned with :attr:`inputs`."""
+        return case_outputs(self.results, estimator, self.false_valid_mps).reindex(self.inputs.index)
+
+
+def read_store_cases(directory: str | Path) -> StoreCases:
+    """Read a finished campaign store once for the analysis (StoreError, one line, when it is none or empty)."""
+    store = CampaignStore(directory)
+    manifest = store.manifest()
+    if manifest is None:
+        raise StoreError(f"{directory}: not a campaign directory (no manifest.json); allowed: a campaign store "
+                         "written by `campaign submit` (a sweep's points are its subdirectories)")
+    results = store.results()
+    if results.empty:
+        raise StoreError(f"{directory}: no case results yet; run `campaign submit` first")
+    config = stored_config(store, manifest)
+    return StoreCases(results, case_inputs(results, config.site.trajectory_path), config.false_valid_mps)
+
+
 def store_sensitivity(directory: str | Path, settings: AnalysisSettings = AnalysisSettings(),
-                      estimators: list[str] | None = None) -> tuple[pd.DataFrame, list[str]]:
+                      estimators: list[str] | None = None,
+                      cases: StoreCases | None = None) -> tuple[pd.DataFrame, list[str]]:
     """The sensitivity table of a finished campaign store and the notes on what was not analysed.
 
     Parameters
@@ -110,22 +139,16 @@ def store_sensitivity(directory: str | Path, settings: AnalysisSettings = Analys
         Resampling and test settings.
     estimators : list of str, optional
         Only these estimators (default: every estimator of the store).
+    cases : StoreCases, optional
+        The store already read (:func:`read_store_cases`).
 
     Returns
     -------
     (pandas.DataFrame, list of str)
         Rows :data:`SENSITIVITY_COLUMNS`; notes such as "no false-valid case".
     """
-    store = CampaignStore(directory)
-    manifest = store.manifest()
-    if manifest is None:
-        raise StoreError(f"{directory}: not a campaign directory (no manifest.json); allowed: a campaign store "
-                         "written by `campaign submit` (a sweep's points are its subdirectories)")
-    results = store.results()
-    if results.empty:
-        raise StoreError(f"{directory}: no case results yet; run `campaign submit` first")
-    config = stored_config(store, manifest)
-    inputs = case_inputs(results, config.site.trajectory_path)
+    cases = cases or read_store_cases(directory)
+    results, inputs = cases.results, cases.inputs
     names = sorted(results["estimator"].unique()) if estimators is None else estimators
     unknown = sorted(set(names) - set(results["estimator"].unique()))
     if unknown:
@@ -134,7 +157,7 @@ def store_sensitivity(directory: str | Path, settings: AnalysisSettings = Analys
     rng = np.random.default_rng(settings.seed)
     tables, notes = [], []
     for estimator in names:
-        outputs = case_outputs(results, estimator, config.false_valid_mps).reindex(inputs.index)
+        outputs = cases.outputs(estimator)
         for output in OUTPUTS:
             series = outputs[output]
             defined = int(series.notna().sum())
@@ -200,16 +223,11 @@ def analyse_store(directory: str | Path, settings: AnalysisSettings = AnalysisSe
     (``sensitivity_<estimator>.png``, ``sensitivity_top2_<estimator>.png``) in the store, return the printed
     summary followed by the files written."""
     directory = Path(directory)
-    table, notes = store_sensitivity(directory, settings, estimators)
+    cases = read_store_cases(directory)
+    table, notes = store_sensitivity(directory, settings, estimators, cases)
     written = [write_sensitivity(directory, table, settings)]
-    if len(table):
-        store = CampaignStore(directory)
-        manifest = store.manifest() or {}
-        results = store.results()
-        config = stored_config(store, manifest)
-        inputs = case_inputs(results, config.site.trajectory_path)
-        for estimator in dict.fromkeys(table["estimator"]):
-            outputs = case_outputs(results, estimator, config.false_valid_mps).reindex(inputs.index)
-            written.append(ranked_bars(table, estimator, directory / f"sensitivity_{estimator}.png"))
-            written.append(top_two(table, inputs, outputs, estimator, directory / f"sensitivity_top2_{estimator}.png"))
+    for estimator in dict.fromkeys(table["estimator"]):
+        written.append(ranked_bars(table, estimator, directory / f"sensitivity_{estimator}.png"))
+        written.append(top_two(table, cases.inputs, cases.outputs(estimator), estimator,
+                               directory / f"sensitivity_top2_{estimator}.png"))
     return format_sensitivity(table, notes) + "wrote " + ", ".join(str(path) for path in written) + "\n"
