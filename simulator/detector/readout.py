@@ -11,6 +11,12 @@ same mean and variance, merged with the read noise into one float32 normal draw 
 seeded from the image's stream: 15x cheaper than numpy's Poisson sampler). The two distributions differ only through the Poisson skewness
 ``1 / sqrt(mean)`` (<= 3 % at 1000 e-, a shift of the median by ``1/3`` e-, far below the 150 e-/DN
 quantisation step); below the threshold (sky, shadows) the draw stays exact Poisson.
+
+Exact presets (``exact_poisson=True``: ``reference``, ``high``): every pixel exact Poisson plus Gaussian
+read noise, drawn from the same float32 normal deviates as the default (same stream, same first call)
+by inversion, ``F^-1(Phi(u); m)``, of a rotation of them with one more normal per pixel
+(:mod:`simulator.detector.coupled_poisson`): the presets compared on the same seeds carry the same
+noise up to the Poisson skewness, so their differences are those of the rendering.
 """
 from __future__ import annotations
 
@@ -18,6 +24,7 @@ import cv2
 import numpy as np
 
 from flight_interface.camera_file import Electronics
+from simulator.detector import coupled_poisson
 from simulator.scratch import scratch
 
 
@@ -67,7 +74,8 @@ def noisy_charge_e(rng: np.random.Generator, mean_e: np.ndarray, read_noise_sigm
     shot_noise, read_noise : bool
         Switches of the two noise sources.
     exact_poisson : bool
-        True draws every pixel from Poisson then adds Gaussian read noise (reference); False uses the
+        True draws every pixel from Poisson and adds Gaussian read noise (reference), both from the
+        normal deviates the default draws (:mod:`simulator.detector.coupled_poisson`); False uses the
         Gaussian approximation above :data:`GAUSSIAN_MIN_MEAN_E` (see module doc).
 
     Returns
@@ -79,7 +87,10 @@ def noisy_charge_e(rng: np.random.Generator, mean_e: np.ndarray, read_noise_sigm
     read_sigma = read_noise_sigma_e if read_noise and read_noise_sigma_e > 0 else 0.0
     if shot_noise and not exact_poisson:
         return _gaussian_shot_and_read_noise_e(rng, mean, read_sigma)
-    noisy = shot_noise_e(rng, mean) if shot_noise else mean.astype(np.float64)
+    if shot_noise:      # exact Poisson on the default's deviates (common random numbers, coupled_poisson)
+        return coupled_poisson.coupled_shot_and_read_noise_e(standard_normal_f32(rng, mean.shape), rng, mean,
+                                                             read_sigma)
+    noisy = mean.astype(np.float64)
     return noisy + read_noise_e(rng, noisy.shape, read_sigma) if read_sigma else noisy
 
 
