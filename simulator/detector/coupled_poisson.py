@@ -38,10 +38,10 @@ integer; the ~2 % of pixels nearer an integer are decided by one exact CDF evalu
 (``scipy.special.pdtr``/``pdtrc``), except where scipy's CDF is itself inaccurate (upper tail beyond
 :data:`SCIPY_TAIL_MAX_DEVIATE` at means above :data:`SCIPY_TAIL_MAX_MEAN_E`; :data:`MAX_CHECKED_MEAN_E`):
 there the expansion (error < 2e-8 counts) decides alone, so the count can differ from the exact quantile
-only with a probability below 1e-12 per pixel. Dim pixels (``m`` below :data:`EXPANSION_MIN_MEAN_E`)
-and far tails (``|u| >`` :data:`EXPANSION_MAX_DEVIATE` at means up to :data:`SCIPY_TAIL_MAX_MEAN_E`)
-search the exact CDF from a normal guess (two or more CDF evaluations per pixel: ~10x the cost of a
-bright pixel). Above :data:`MAX_POISSON_MEAN_E` the mean itself is returned (no shot noise).
+only with a probability below 1e-12 per pixel. Dim pixels from :data:`DIM_MIN_MEAN_E` take the expansion
+too for ``|u| <=`` :data:`DIM_MAX_DEVIATE`, with a wider margin (its error grows as ``1 / m^2``). Dimmer
+pixels sum the CDF from 0 (the pmf recursion); the rare larger deviates step along the exact CDF from an
+expansion guess (one CDF value and the pmf recursion). Above :data:`MAX_POISSON_MEAN_E` the mean itself is returned (no shot noise).
 """
 from __future__ import annotations
 
@@ -50,12 +50,18 @@ import scipy.special as special
 
 from simulator.scratch import scratch
 
-#: Means (e-) from which the inversion starts from the Cornish-Fisher expansion (else an exact CDF search).
+#: Means (e-) from which the inversion starts from the Cornish-Fisher expansion for ``|u| <=``
+#: :data:`EXPANSION_MAX_DEVIATE` (error < 2e-4 counts), with the margin :data:`BOUNDARY_MARGIN`.
 EXPANSION_MIN_MEAN_E = 1000.0
-#: Largest |normal deviate| the expansion's error bound covers (beyond: exact CDF search).
 EXPANSION_MAX_DEVIATE = 8.0
 #: Distance (counts) of the expansion's continuous quantile to an integer below which the exact CDF decides.
 BOUNDARY_MARGIN = 0.01
+#: Dim pixels from this mean (e-) to :data:`EXPANSION_MIN_MEAN_E` take the expansion too for ``|u| <=``
+#: :data:`DIM_MAX_DEVIATE` (error < 1.3e-3 (100 / m)^2 counts), with the margin ``DIM_MARGIN_E2 / m^2``
+#: (50x that error: 6.5 % at 100 e-); dimmer pixels and larger deviates search the exact CDF.
+DIM_MIN_MEAN_E = 100.0
+DIM_MAX_DEVIATE = 5.0
+DIM_MARGIN_E2 = 650.0
 #: Means (e-) above which the expansion's count is taken without an exact check (float64 rounding of
 #: ``y`` there nears the margin; 10x the camera file's largest full well).
 MAX_CHECKED_MEAN_E = 1.0e11
@@ -142,30 +148,60 @@ def poisson_quantile(normal_deviate: np.ndarray, mean_e: np.ndarray) -> np.ndarr
     mean = np.asarray(mean_e, dtype=np.float64)
     if np.isnan(mean).any() or (mean < 0).any():
         raise ValueError("Poisson means must be >= 0 (a mean is negative or NaN)")
-    expansion = mean >= EXPANSION_MIN_MEAN_E
-    if expansion.all() and float(np.abs(deviate).max(initial=0.0)) <= EXPANSION_MAX_DEVIATE \
-            and float(mean.max(initial=0.0)) <= MAX_POISSON_MEAN_E:
+    magnitude = np.abs(deviate)
+    if float(mean.min(initial=np.inf)) >= EXPANSION_MIN_MEAN_E and float(magnitude.max(initial=0.0)) \
+            <= EXPANSION_MAX_DEVIATE and float(mean.max(initial=0.0)) <= MAX_POISSON_MEAN_E:
         return _expansion_count(deviate, mean)        # every pixel bright (the usual image): no indexing
     counts = np.empty(mean.shape, dtype=np.float64)
     huge = mean > MAX_POISSON_MEAN_E
     counts[huge] = mean[huge]
-    search = ~expansion | ((np.abs(deviate) > EXPANSION_MAX_DEVIATE) & (mean <= SCIPY_TAIL_MAX_MEAN_E))
-    fast = expansion & ~search & ~huge
-    counts[fast] = _expansion_count(deviate[fast], mean[fast])
+    expansion = ((mean >= EXPANSION_MIN_MEAN_E) & (magnitude <= EXPANSION_MAX_DEVIATE)) \
+        | ((mean >= DIM_MIN_MEAN_E) & (magnitude <= DIM_MAX_DEVIATE)) | (mean > SCIPY_TAIL_MAX_MEAN_E)
+    expansion &= ~huge
+    summed = ~expansion & ~huge & (mean < DIM_MIN_MEAN_E) & (deviate <= DIM_MAX_DEVIATE)
+    search = ~expansion & ~huge & ~summed
+    counts[expansion] = _expansion_count(deviate[expansion], mean[expansion])
+    counts[summed] = _summed_count(deviate[summed], mean[summed])
     counts[search] = _search_count(deviate[search], mean[search])
     return counts
 
 
-def _expansion_count(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
-    """Counts from the Cornish-Fisher quantile (means >= :data:`EXPANSION_MIN_MEAN_E`).
+def _summed_count(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """Exact quantile of the dimmest pixels (``m <`` :data:`DIM_MIN_MEAN_E`, ``u <=`` :data:`DIM_MAX_DEVIATE`).
 
-    One exact CDF check where the quantile lies near an integer and scipy's CDF is accurate.
+    ``k = #{j >= 0: F(j) < Phi(u)}``, the CDF summed from ``j = 0`` by the pmf recursion
+    ``p(j) = p(j - 1) m / j``, all pixels in step (a few full-array operations per count).
+    """
+    target = special.ndtr(deviate)              # <= Phi(5): the sum reaches it with 2.9e-7 to spare
+    pmf = np.exp(-mean)
+    cdf = pmf.copy()
+    short = cdf < target
+    counts = short.astype(np.float64)
+    step = 0
+    while short.any():
+        step += 1
+        pmf *= mean
+        pmf *= 1.0 / step
+        cdf += pmf
+        np.less(cdf, target, out=short)
+        counts += short
+    return counts
+
+
+def _expansion_count(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """Counts from the Cornish-Fisher quantile (means >= :data:`DIM_MIN_MEAN_E`).
+
+    One exact CDF check where the quantile lies within the margin of an integer and scipy's CDF is
+    accurate.
     """
     quantile = _continuous_quantile(deviate, mean)
     nearest = np.rint(quantile, out=scratch("poisson_nearest", mean.shape, np.float64))
     distance = np.subtract(quantile, nearest, out=scratch("poisson_term", mean.shape, np.float64))
     np.abs(distance, out=distance)
-    near = np.less(distance, BOUNDARY_MARGIN, out=scratch("poisson_near", mean.shape, np.bool_))
+    margin: float | np.ndarray = BOUNDARY_MARGIN
+    if float(mean.min(initial=np.inf)) < EXPANSION_MIN_MEAN_E:
+        margin = np.maximum(BOUNDARY_MARGIN, DIM_MARGIN_E2 / np.square(mean))
+    near = np.less(distance, margin, out=scratch("poisson_near", mean.shape, np.bool_))
     counts = np.ceil(quantile, out=quantile)
     index = np.flatnonzero(near)
     near_mean, near_deviate = mean.ravel()[index], deviate.ravel()[index]
@@ -217,22 +253,45 @@ def _continuous_quantile(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
 
 
 def _search_count(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
-    """Exact quantile by stepping from a normal guess along the exact CDF (dim pixels, far tails)."""
-    counts = np.maximum(np.floor(mean + np.sqrt(mean) * deviate + (deviate * deviate - 4.0) / 6.0), 0.0)
-    short = ~_cdf_reaches(counts, mean, deviate)
-    while short.any():                                   # F(k) < p: step up
-        index = np.flatnonzero(short)
-        counts[index] += 1.0
-        short[index] = ~_cdf_reaches(counts[index], mean[index], deviate[index])
-    over = counts > 0
-    over[over] = _cdf_reaches(counts[over] - 1.0, mean[over], deviate[over])
-    while over.any():                                    # F(k - 1) >= p: step down
-        index = np.flatnonzero(over)
-        counts[index] -= 1.0
-        positive = counts[index] > 0
-        over[index] = positive
-        kept = index[positive]
-        over[kept] = _cdf_reaches(counts[kept] - 1.0, mean[kept], deviate[kept])
+    """Exact quantile by stepping along the CDF from an expansion guess (dim pixels, far tails).
+
+    One exact CDF (or tail) value at the guess, then the pmf recursion ``p(k + 1) = p(k) m / (k + 1)``
+    step by step: on the lower tail ``F(k)`` for ``u <= 0``, on the upper tail ``P(X > k)`` for ``u > 0``.
+    """
+    counts = np.zeros(mean.shape)
+    live = np.flatnonzero(mean > 0)                      # Poisson(0) is 0
+    if live.size == 0:
+        return counts
+    m, u = mean[live], deviate[live]
+    root = np.sqrt(m)
+    guess = m + root * u + (u * u - 4.0) / 6.0 - u * (u * u + 2.0) / (72.0 * np.maximum(root, 1.0))
+    k = np.maximum(np.floor(guess), 0.0)
+    upper = u > 0
+    # tail[i]: F(k) below (u <= 0) or P(X > k) above (u > 0); target the matching normal tail
+    tail = np.empty(k.shape)
+    tail[upper] = special.pdtrc(k[upper], m[upper])
+    tail[~upper] = special.pdtr(k[~upper], m[~upper])
+    target = special.ndtr(np.where(upper, -u, u))
+    pmf = np.exp(k * np.log(m) - m - special.gammaln(k + 1.0))
+    sign = np.where(upper, -1.0, 1.0)                    # stepping up adds pmf to F, removes it from P(X > k)
+    reached = np.where(upper, tail <= target, tail >= target)
+    up = np.flatnonzero(~reached)
+    while up.size:                                       # F(k) < p: k + 1
+        k[up] += 1.0
+        pmf[up] *= m[up] / k[up]
+        tail[up] += sign[up] * pmf[up]
+        done = np.where(upper[up], tail[up] <= target[up], tail[up] >= target[up])
+        up = up[~done]
+    down = np.flatnonzero(k > 0)
+    while down.size:                                     # F(k - 1) >= p: k - 1
+        below = tail[down] - sign[down] * pmf[down]      # the tail value at k - 1
+        step = np.where(upper[down], below <= target[down], below >= target[down])
+        down = down[step]
+        tail[down] = below[step]
+        pmf[down] *= k[down] / m[down]
+        k[down] -= 1.0
+        down = down[k[down] > 0]
+    counts[live] = k
     return counts
 
 
