@@ -103,15 +103,17 @@ def coupled_shot_and_read_noise_e(deviate: np.ndarray, rng: np.random.Generator,
     if not read_sigma_e:
         return poisson_quantile(np.asarray(deviate, dtype=np.float64), mean)
     shape = mean.shape
-    other = rng.standard_normal(out=scratch("poisson_other", shape, np.float64))                 # e
-    read_share = np.add(mean, read_sigma_e ** 2, out=scratch("poisson_read_share", shape, np.float64))
+    # this thread's scratch arrays "poisson_a".."poisson_f" (a fresh full-frame array costs page faults): here
+    # a = e, b = b then v, c = a, d = work, e = u; the quantile reuses a, c, d (dead by then) and f
+    other = rng.standard_normal(out=scratch("poisson_a", shape, np.float64))    # e
+    read_share = np.add(mean, read_sigma_e ** 2, out=scratch("poisson_b", shape, np.float64))
     np.sqrt(read_share, out=read_share)
     np.divide(read_sigma_e, read_share, out=read_share)           # b = s / sqrt(m + s^2) (0 where m is infinite)
-    shot_share = np.multiply(read_share, read_share, out=scratch("poisson_shot_share", shape, np.float64))
+    shot_share = np.multiply(read_share, read_share, out=scratch("poisson_c", shape, np.float64))
     np.subtract(1.0, shot_share, out=shot_share)
     np.sqrt(shot_share, out=shot_share)                           # a = sqrt(1 - b^2)
-    work = scratch("poisson_work", shape, np.float64)
-    shot_deviate = np.multiply(shot_share, deviate, out=scratch("poisson_shot_deviate", shape, np.float64))
+    work = scratch("poisson_d", shape, np.float64)
+    shot_deviate = np.multiply(shot_share, deviate, out=scratch("poisson_e", shape, np.float64))
     shot_deviate += np.multiply(read_share, other, out=work)      # u = a z + b e
     read_deviate = np.multiply(read_share, deviate, out=read_share)
     read_deviate -= np.multiply(shot_share, other, out=work)      # v = b z - a e
@@ -195,8 +197,8 @@ def _expansion_count(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
     accurate.
     """
     quantile = _continuous_quantile(deviate, mean)
-    nearest = np.rint(quantile, out=scratch("poisson_nearest", mean.shape, np.float64))
-    distance = np.subtract(quantile, nearest, out=scratch("poisson_term", mean.shape, np.float64))
+    nearest = np.rint(quantile, out=scratch("poisson_a", mean.shape, np.float64))
+    distance = np.subtract(quantile, nearest, out=scratch("poisson_c", mean.shape, np.float64))
     np.abs(distance, out=distance)
     margin: float | np.ndarray = BOUNDARY_MARGIN
     if float(mean.min(initial=np.inf)) < EXPANSION_MIN_MEAN_E:
@@ -219,14 +221,14 @@ def _continuous_quantile(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
     """``y`` with ``Q(y + 1, m) = Phi(u)``: the Cornish-Fisher expansion of the module doc (to ``m^-1.5``).
 
     Evaluated as ``m + sqrt(m) u + c0 + (c1 + (c2 + c3 / sqrt(m)) / sqrt(m)) / sqrt(m)`` in this thread's
-    scratch arrays (a fresh full-frame array costs page faults); returns a new array.
+    scratch arrays ``poisson_a``, ``_c``, ``_d``, ``_f``; returns a new array.
     """
     shape = mean.shape
-    inverse_root = np.sqrt(mean, out=scratch("poisson_root", shape, np.float64))
-    linear = np.multiply(inverse_root, deviate, out=scratch("poisson_linear", shape, np.float64))   # sqrt(m) u
+    inverse_root = np.sqrt(mean, out=scratch("poisson_a", shape, np.float64))
+    linear = np.multiply(inverse_root, deviate, out=scratch("poisson_c", shape, np.float64))   # sqrt(m) u
     np.divide(1.0, inverse_root, out=inverse_root)
-    square = np.multiply(deviate, deviate, out=scratch("poisson_square", shape, np.float64))
-    work = scratch("poisson_term", shape, np.float64)
+    square = np.multiply(deviate, deviate, out=scratch("poisson_d", shape, np.float64))
+    work = scratch("poisson_f", shape, np.float64)
     series = np.multiply(square, -207.0 / 155520.0)                      # c3 = -u (207 u^4 + 548 u^2 - 2684) / 155520
     series -= 548.0 / 155520.0
     series *= square
