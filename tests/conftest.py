@@ -12,6 +12,7 @@ modules beside this file (``service_campaigns``, ``fuzz_inputs``, ``planetary_fi
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -30,6 +31,20 @@ def mer_a(mer_a_path):
     from flight_interface.camera import load_camera
 
     return load_camera(mer_a_path)
+
+
+@pytest.fixture(scope="session")
+def warm_scheduler() -> Iterator[str]:
+    """The address (``tcp://127.0.0.1:port``) of one embedded campaign cluster that this test process starts at
+    its first use and keeps for the session: ``campaign.run.cluster.start_cluster`` with two single-threaded
+    workers, the same LocalCluster ``campaign submit`` embeds. For tests where the cluster is incidental to
+    what they check (store files, identity, locks, sweeps, gates, reports): they pass it as ``--scheduler`` and
+    pay no cluster start-up and no worker imports of the case code per command (about 5-10 s each on the
+    2-core machine). Tests of the cluster itself (killed workers, interrupts, worker counts, plug-in set-up on
+    fresh workers, SLURM) start their own."""
+    from service_campaigns import embedded_scheduler
+
+    yield from embedded_scheduler(2)
 
 
 @pytest.fixture(scope="session")

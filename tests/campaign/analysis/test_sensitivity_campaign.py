@@ -44,12 +44,14 @@ ATTITUDE_INPUTS = ("sensor_attitude_bias_", "sensor_attitude_error_")
 
 
 @pytest.fixture(scope="module")
-def analysed(tmp_path_factory):
+def analysed(tmp_path_factory, warm_scheduler):
+    """The 80-case campaign (on the test process's warm two-worker cluster, ``warm_scheduler`` in
+    tests/conftest.py) and its `campaign sensitivity` run."""
     directory = tmp_path_factory.mktemp("sensitivity")
     campaign = directory / "two_classes.toml"
     campaign.write_text(SITE)
     store = directory / "store"
-    submitted = run_campaign("submit", campaign, "--workers", "2", "--no-progress", "--output", store)
+    submitted = run_campaign("submit", campaign, "--scheduler", warm_scheduler, "--no-progress", "--output", store)
     assert submitted.returncode == 0, submitted.stderr
     result = run_campaign("sensitivity", store, "--resamples", "100")
     return store, result

@@ -1,4 +1,7 @@
-"""`campaign export DIR CASE_ID OUT` + `python -m dimes_velocity` replay a campaign case bit for bit."""
+"""`campaign export DIR CASE_ID OUT` + `python -m dimes_velocity` replay a campaign case bit for bit.
+
+The campaigns run on the test process's warm cluster (``warm_scheduler``, tests/conftest.py): the replay is
+tested, not the cluster's start-up."""
 from __future__ import annotations
 
 import json
@@ -16,10 +19,10 @@ from service_campaigns import REPO, campaign_file, file_tree, run_campaign, stde
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
 
-def test_export_replays_the_reference_answer_bit_for_bit(tmp_path):
+def test_export_replays_the_reference_answer_bit_for_bit(tmp_path, warm_scheduler):
     store = tmp_path / "store"
     submitted = run_campaign("submit", campaign_file(tmp_path, {"gcp": 2, "gdcp": 1, "gkep": 0}), "--output", store,
-                             "--workers", "1", "--no-progress")
+                             "--scheduler", warm_scheduler, "--no-progress")
     assert submitted.returncode == 0, submitted.stderr
     results = pd.read_parquet(store / "results.parquet")
     reference = results[results["estimator"] == "dimes"].set_index("case_id")
@@ -97,9 +100,10 @@ def _answer(entry: dict, replayed: subprocess.CompletedProcess) -> dict:
     return json.loads(replayed.stdout) if entry["answer"] == "stdout" else json.loads(Path(entry["answer"]).read_text())
 
 
-def test_export_replays_every_estimator_kind_bit_for_bit(tmp_path):
+def test_export_replays_every_estimator_kind_bit_for_bit(tmp_path, warm_scheduler):
     store = tmp_path / "store"
-    submitted = run_campaign("submit", _three_kinds(tmp_path), "--output", store, "--workers", "1", "--no-progress")
+    submitted = run_campaign("submit", _three_kinds(tmp_path), "--output", store, "--scheduler", warm_scheduler,
+                             "--no-progress")
     assert submitted.returncode == 0, submitted.stderr
     results = pd.read_parquet(store / "results.parquet")
     assert set(results["estimator"]) == {"dimes_tight", "imu_py", "imu_cmd"}

@@ -26,7 +26,7 @@ from campaign.cli import main
 from campaign.configuration.sweep_file import SITE_AXIS, load_sweep
 from campaign.report.gate import REGRESSION_EXIT
 from campaign.report.sweep_outputs import PointSummary, format_sweep_table, sensitivity_table
-from service_campaigns import campaign_file, embedded_scheduler
+from service_campaigns import campaign_file
 
 REPO = Path(__file__).resolve().parents[3]
 NIGHTLY = REPO / "sitedata" / "sweeps" / "nightly.toml"
@@ -130,8 +130,9 @@ def test_a_directory_that_is_neither_store_nor_sweep_is_one_line_exit_2(tmp_path
 
 # --- on a real cluster --------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def scheduler():
-    yield from embedded_scheduler(2)
+def scheduler(warm_scheduler) -> str:
+    """The test process's warm cluster (``warm_scheduler``, tests/conftest.py): its start-up is not tested here."""
+    return warm_scheduler
 
 
 @pytest.fixture(scope="module")

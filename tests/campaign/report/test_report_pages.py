@@ -28,12 +28,14 @@ def _png_size(path) -> tuple[int, int]:
 
 
 @pytest.fixture(scope="module")
-def reported(tmp_path_factory):
+def reported(tmp_path_factory, warm_scheduler):
+    """The reported store (on the test process's warm cluster, ``warm_scheduler`` in tests/conftest.py: the
+    report is tested, not the cluster's start-up)."""
     directory = tmp_path_factory.mktemp("report")
     config = campaign_with_command_estimator(directory, "decliner", DECLINER)
     config.write_text(config.read_text().replace("[campaign]\n", "[campaign]\nfalse_valid_mps = 0.01\n", 1))
     out = directory / "out"
-    submit = run_campaign("submit", config, "--output", out, "--no-progress")
+    submit = run_campaign("submit", config, "--output", out, "--scheduler", warm_scheduler, "--no-progress")
     assert submit.returncode == 0, submit.stdout + submit.stderr
     report = run_campaign("report", out)
     assert report.returncode == 0 and "Traceback" not in report.stderr, report.stderr

@@ -141,7 +141,9 @@ def test_missing_optional_package_names_the_pip_extra(tmp_path, kind, module, ex
 @pytest.mark.slow
 def test_scheduler_backend_runs_for_real_and_gives_the_embedded_clusters_bits(tmp_path, capfd):
     """Both submits are ``campaign.cli.main`` in this process (``campaign_in_process``): the cluster
-    processes are what is real here, the driver's interpreter start is not under test."""
+    processes are what is real here, the driver's interpreter start is not under test. Slow by design (over
+    60 s in a loaded suite run): a fresh external scheduler with two workers and then an embedded cluster, since
+    the bits of the two backends' own start-ups are what is compared."""
     processes = DaskProcesses(tmp_path, workers=2)
     try:
         external = campaign_file(tmp_path / "external", execution=f'cluster = "scheduler"\nscheduler = "{processes.address}"')

@@ -35,12 +35,15 @@ def _timed(*args, **kwargs):
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_failure_of_the_simulation_itself_is_recorded_exit_1_and_kept(tmp_path):
+def test_failure_of_the_simulation_itself_is_recorded_exit_1_and_kept(tmp_path, warm_scheduler):
+    """A case whose simulation raises is a failed case, recorded once and kept by the rerun. The fault is in
+    the case, not the cluster: both submits run on the test process's warm cluster (``warm_scheduler``,
+    tests/conftest.py)."""
     trajectory = low_camera_trajectory(tmp_path / "low.parquet")
     path = campaign_file(tmp_path, {"gcp": 1, "gdcp": 0, "gkep": 0}, "workers = 1\nretries = 0",
                          trajectory=trajectory)
     out = tmp_path / "out"
-    result = run_campaign("submit", path, "--output", out, "--no-progress")
+    result = run_campaign("submit", path, "--output", out, "--scheduler", warm_scheduler, "--no-progress")
     assert result.returncode == 1, result.stderr
     assert "(0 done, 1 failed this run)" in result.stdout
     [failed] = case_files(out)
@@ -49,7 +52,7 @@ def test_failure_of_the_simulation_itself_is_recorded_exit_1_and_kept(tmp_path):
     rows = pd.read_parquet(failed)
     assert rows["status"].tolist() == ["failed"] and "below the ground" in rows["error"].iloc[0]
     before = failed.stat().st_mtime_ns
-    rerun = run_campaign("submit", path, "--output", out, "--no-progress")
+    rerun = run_campaign("submit", path, "--output", out, "--scheduler", warm_scheduler, "--no-progress")
     assert rerun.returncode == 1 and "(0 done, 0 failed this run)" in rerun.stdout
     assert case_files(out) == [failed] and failed.stat().st_mtime_ns == before
 
@@ -98,6 +101,9 @@ def tiny_tmpfs(tmp_path):
 @pytest.mark.cluster
 @pytest.mark.slow
 def test_full_disk_stops_the_run_keeps_cases_and_the_next_submit_finishes(tmp_path, tiny_tmpfs):
+    """Slow by design (over 60 s in a loaded suite run): two `campaign submit` processes, each with its own
+    embedded cluster, on a real 100 KiB tmpfs. The stop on a full disk is an infrastructure stop of the run and
+    its cluster, so neither the process nor the cluster can be shared away."""
     path = campaign_file(tmp_path, {"gcp": 2, "gdcp": 1, "gkep": 0}, "workers = 1")
     out = tiny_tmpfs / "store"
     result, seconds = _timed("submit", path, "--output", out, "--no-progress")
@@ -129,6 +135,9 @@ def test_full_disk_stops_the_run_keeps_cases_and_the_next_submit_finishes(tmp_pa
 @pytest.mark.cluster
 @pytest.mark.slow
 def test_memory_limit_too_small_stops_with_one_line(tmp_path, limit, pause, cases, expected):
+    """Slow by design (about 60 s each in a loaded suite run): a `campaign submit` process whose own embedded
+    worker is paused or killed by its memory limit; the worker's limit and its death are what is tested, so
+    the cluster cannot be shared."""
     path = campaign_file(tmp_path, {"gcp": cases, "gdcp": 0, "gkep": 0},
                          f'workers = 1\nmemory_limit = "{limit}"\npaused_timeout_s = 3')
     out = tmp_path / "out"
@@ -161,6 +170,9 @@ def _start_submit(path: Path, out: Path) -> subprocess.Popen:
 @pytest.mark.cluster
 @pytest.mark.slow
 def test_lost_cluster_stops_the_run_with_one_line(tmp_path, dask_processes, fault):
+    """Slow by design (about 60 s each in a loaded suite run): a real scheduler and worker (``DaskProcesses``)
+    killed or stopped under a running `campaign submit` process, then the stall or no-worker timeout; the lost
+    cluster is what is tested, so it cannot be a shared one."""
     path = campaign_file(tmp_path, {"gcp": 3, "gdcp": 1, "gkep": 0},
                          f'cluster = "scheduler"\nscheduler = "{dask_processes.address}"\n'
                          f"no_workers_timeout_s = 3\nstall_timeout_s = {8 if fault == 'workers hung' else 600}")

@@ -17,7 +17,6 @@ import pytest
 from PIL import Image
 
 from campaign.cli import main
-from service_campaigns import embedded_scheduler
 
 REPO = Path(__file__).resolve().parents[3]
 GUSEV = REPO / "sitedata" / "gusev.toml"
@@ -129,8 +128,9 @@ def test_command_line_exit_code_and_bad_baseline(tmp_path):
 
 # --- runs on a real cluster -------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def scheduler():
-    yield from embedded_scheduler(2)
+def scheduler(warm_scheduler) -> str:
+    """The test process's warm cluster (``warm_scheduler``, tests/conftest.py): its start-up is not tested here."""
+    return warm_scheduler
 
 
 def _case_files(out: Path) -> dict:

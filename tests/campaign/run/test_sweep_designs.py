@@ -68,12 +68,13 @@ def test_repeated_configurations_share_one_store(tmp_path):
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_small_sobol_sweep_end_to_end(tmp_path, capsys):
-    """Three axes, N = 2: 10 points of 3 cases on a 2-worker cluster; the sweep prints S1 and ST with intervals
-    for every axis (or says why an outcome has nothing to attribute) and writes them to design_indices.csv."""
+def test_small_sobol_sweep_end_to_end(tmp_path, capsys, warm_scheduler):
+    """Three axes, N = 2: 10 points of 3 cases on a 2-worker cluster (the test process's warm one,
+    ``warm_scheduler`` in tests/conftest.py); the sweep prints S1 and ST with intervals for every axis (or says
+    why an outcome has nothing to attribute) and writes them to design_indices.csv."""
     path = _sweep_file(tmp_path, 'mode = "sobol"\nsamples = 2')
     out = tmp_path / "out"
-    code = main(["sweep", str(path), "--output", str(out), "--workers", "2", "--no-progress"])
+    code = main(["sweep", str(path), "--output", str(out), "--scheduler", warm_scheduler, "--no-progress"])
     printed = capsys.readouterr().out
     assert code == 0, printed
     assert "first-order S1 and total ST Sobol indices" in printed

@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from campaign.cli import main
-from service_campaigns import GUSEV, REPO, campaign_command, embedded_scheduler, project_environment
+from service_campaigns import GUSEV, REPO, campaign_command, project_environment
 
 #: 40 x 50 = 2000 grid points (the grid of the benchmark sweep/2000_points_first_batch)
 WIDE_AXES = {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(40)],
@@ -94,8 +94,9 @@ def test_a_sweep_of_2000_points_starts_computing_at_its_first_batch_with_progres
 
 
 @pytest.fixture(scope="module")
-def scheduler():
-    yield from embedded_scheduler(1)
+def scheduler(warm_scheduler) -> str:
+    """The test process's warm cluster (``warm_scheduler``, tests/conftest.py): its start-up is not tested here."""
+    return warm_scheduler
 
 
 @pytest.mark.cluster
@@ -103,8 +104,9 @@ def scheduler():
 def test_an_interrupted_sweep_resumes_in_batches_without_losing_or_repeating_a_case(tmp_path, scheduler, monkeypatch,
                                                                                      capsys):
     """Slow by design (35-85 s on the shared 2-core machine, 2026-11-27): a 6-point sweep is interrupted at its
-    first case file in a subprocess with its own embedded cluster, then resumed on this module's scheduler;
-    the interruption and the resume are the behaviour under test, so neither cluster can be shared away."""
+    first case file in a subprocess with its own embedded cluster, then resumed in this process on the warm
+    cluster (``scheduler``); the interruption of a process with its own cluster is the behaviour under test, so
+    that cluster cannot be shared away."""
     import campaign.run.sweep as sweep_module
 
     sweep = _sweep_file(tmp_path / "small.toml", {"scene.camera_effects.dark_current_scale": [1.0, 2.0, 3.0],

@@ -43,10 +43,12 @@ def _campaign(*args) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> Path:
-    """A finished store of three cases (gcp, gdcp, gkep: one each)."""
+def reference(tmp_path_factory, warm_scheduler) -> Path:
+    """A finished store of three cases (gcp, gdcp, gkep: one each), computed on the test process's warm cluster
+    (``warm_scheduler``, tests/conftest.py: the files' schema is tested, not the cluster's start-up)."""
     out = tmp_path_factory.mktemp("schema") / "reference"
-    result = _campaign("submit", SITE, "--output", out, "--cases-scale", "0.005", "--workers", "1", "--no-progress")
+    result = _campaign("submit", SITE, "--output", out, "--cases-scale", "0.005", "--scheduler", warm_scheduler,
+                       "--no-progress")
     assert result.returncode == 0, result.stdout + result.stderr
     return out
 

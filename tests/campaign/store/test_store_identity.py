@@ -3,7 +3,8 @@ seed, estimators, result-schema version) in its Parquet metadata, and the store 
 identity is the store's; the writer's lock survives the deletion of ``DIR.lock``; a read-only store can
 be inspected.
 
-Real parts: the ``campaign`` CLI on a real dask LocalCluster (a subprocess for the two campaigns, then
+Real parts: the ``campaign`` CLI on a real dask LocalCluster (the test process's warm one, ``warm_scheduler`` in
+tests/conftest.py; a subprocess for the two campaigns, then
 ``campaign.cli.main`` in this process with its file descriptors captured, see
 ``service_campaigns.campaign_in_process``), two real campaigns with different seeds, real Parquet files, a
 real second process holding the lock, a real read-only bind mount.
@@ -49,8 +50,10 @@ def _campaign(*args, timeout=300) -> subprocess.CompletedProcess:
                           timeout=timeout, cwd=REPO, env=project_environment())
 
 
-def _submit(site: Path, out: Path) -> list:
-    return ["submit", site, "--output", out, "--cases-scale", SCALE, "--workers", "1", "--no-progress"]
+def _submit(site: Path, out: Path, scheduler: str) -> list:
+    """``campaign submit`` of ``site`` into ``out`` on the cluster at ``scheduler`` (the test process's warm one,
+    ``warm_scheduler`` in tests/conftest.py: what is tested here is the store, not the cluster's start-up)."""
+    return ["submit", site, "--output", out, "--cases-scale", SCALE, "--scheduler", scheduler, "--no-progress"]
 
 
 def _rows(case_id: int, seed: int, estimators=("dimes", "yes_man")) -> list[dict]:
@@ -109,13 +112,13 @@ def test_only_files_whose_recorded_identity_and_rows_are_the_stores_are_counted(
 
 
 @pytest.fixture(scope="module")
-def campaigns(tmp_path_factory) -> tuple[Path, Path]:
+def campaigns(tmp_path_factory, warm_scheduler) -> tuple[Path, Path]:
     """Two finished stores of the same campaign but for the seed (SEED, OTHER_SEED), 3 cases each."""
     root = tmp_path_factory.mktemp("identity")
     stores = []
     for seed in (SEED, OTHER_SEED):
         site = site_copy(root, f"\n[campaign]\nseed = {seed}\n", name=f"gusev-seed{seed}.toml")
-        result = _campaign(*_submit(site, root / f"seed{seed}"))
+        result = _campaign(*_submit(site, root / f"seed{seed}", warm_scheduler))
         assert result.returncode == 0, result.stdout + result.stderr
         stores.append(root / f"seed{seed}")
     return stores[0], stores[1]
@@ -133,7 +136,7 @@ def _site(store: Path) -> Path:
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaigns, tmp_path, cli):
+def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaigns, tmp_path, cli, warm_scheduler):
     reference, other = campaigns
     store = tmp_path / "store"
     shutil.copytree(reference, store)
@@ -150,7 +153,7 @@ def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaig
     named = [line for line in verify.stdout.splitlines() if line.startswith(f"{placed}: foreign: ")]
     assert len(named) == 1 and f"campaign_seed {OTHER_SEED} (this store: {SEED})" in named[0], verify.stdout
 
-    rerun = cli(*_submit(_site(reference), store))
+    rerun = cli(*_submit(_site(reference), store, warm_scheduler))
     assert rerun.returncode == 0, rerun.stdout + rerun.stderr
     assert "(1 done, 0 failed this run)" in rerun.stdout and "moved 1 bad or superseded case files" in rerun.stdout
     assert (store / "rejected" / placed.name).read_bytes() == stranger.read_bytes(), "moved aside, not deleted"
@@ -164,7 +167,8 @@ def test_a_case_file_of_another_seed_is_rejected_by_verify_and_by_submit(campaig
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_traceback(campaigns, tmp_path, cli):
+def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_traceback(campaigns, tmp_path, cli,
+                                                                                       warm_scheduler):
     reference, _ = campaigns
     store = tmp_path / "store"
     shutil.copytree(reference, store)
@@ -185,7 +189,7 @@ def test_a_foreign_schema_and_a_file_without_identity_are_rejected_without_a_tra
         if command == "table":
             assert "1 of 3 cases finished (0 failed, 2 missing)" in result.stdout
 
-    rerun = cli(*_submit(_site(reference), store))
+    rerun = cli(*_submit(_site(reference), store, warm_scheduler))
     assert rerun.returncode == 0, rerun.stdout + rerun.stderr
     assert "(2 done, 0 failed this run)" in rerun.stdout
     assert {name: (store / "rejected" / name).read_bytes() for name in kept} == kept, "nothing lost"
@@ -200,7 +204,7 @@ def holder():
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_deleting_the_lock_file_does_not_let_a_second_writer_in(campaigns, tmp_path, holder, cli):
+def test_deleting_the_lock_file_does_not_let_a_second_writer_in(campaigns, tmp_path, holder, cli, warm_scheduler):
     reference, _ = campaigns
     store = tmp_path / "store"
     shutil.copytree(reference, store)
@@ -208,7 +212,7 @@ def test_deleting_the_lock_file_does_not_let_a_second_writer_in(campaigns, tmp_p
     process = holder(store)
     (tmp_path / "store.lock").unlink()                           # the bypass: remove the lock file
     before = file_tree(store)
-    refused = cli(*_submit(_site(reference), store))
+    refused = cli(*_submit(_site(reference), store, warm_scheduler))
     assert refused.returncode == 1, refused.stdout + refused.stderr
     lines = refused.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in refused.stderr, refused.stderr

@@ -4,8 +4,9 @@ trusted only when they match; ``--fresh`` checks everything and moves the old st
 
 Real processes (the ``campaign`` CLI as a subprocess for the reference run and the unusable-cluster check, as
 ``campaign.cli.main`` in this process with its file descriptors captured for the other commands, see
-``service_campaigns.campaign_in_process``; a real dask LocalCluster), real files, damaged the way disks,
-editors and kills damage them.
+``service_campaigns.campaign_in_process``; the cases run on the test process's warm LocalCluster,
+``warm_scheduler`` in tests/conftest.py, whose start-up is not what is tested here), real files, damaged the way
+disks, editors and kills damage them.
 """
 from __future__ import annotations
 
@@ -49,8 +50,11 @@ def _campaign(*args, timeout=300) -> subprocess.CompletedProcess:
                           timeout=timeout, cwd=REPO, env=_environment())
 
 
-def _submit(out: Path, *extra, site: Path = SITE, scale: str = SCALE) -> list:
-    return ["submit", site, "--output", out, "--cases-scale", scale, "--workers", "1", "--no-progress", *extra]
+def _submit(out: Path, *extra, site: Path = SITE, scale: str = SCALE, scheduler: str = "") -> list:
+    """``campaign submit`` of ``site`` into ``out``: on the cluster at ``scheduler`` (the session's warm one, see
+    tests/conftest.py), else on an embedded cluster of one worker."""
+    cluster = ["--scheduler", scheduler] if scheduler else ["--workers", "1"]
+    return ["submit", site, "--output", out, "--cases-scale", scale, *cluster, "--no-progress", *extra]
 
 
 def _one_line(text: str) -> str:
@@ -81,9 +85,9 @@ def cli(capfd):
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> Path:
+def reference(tmp_path_factory, warm_scheduler) -> Path:
     out = tmp_path_factory.mktemp("integrity") / "reference"
-    result = _campaign(*_submit(out))
+    result = _campaign(*_submit(out, scheduler=warm_scheduler))
     assert result.returncode == 0, result.stdout + result.stderr
     return out
 
@@ -111,7 +115,8 @@ def test_a_clean_store_verifies_and_names_record_size_and_sha256(reference, cli)
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomputed(reference, store, cli):
+def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomputed(reference, store, cli,
+                                                                                   warm_scheduler):
     files = _case_files(store)
     first, second, third = sorted(files)
     os.truncate(files[first], 100)                                 # truncated (disk full, killed copy)
@@ -141,7 +146,7 @@ def test_damaged_and_stray_case_files_are_not_counted_then_rejected_and_recomput
     assert table.returncode == 0 and "Traceback" not in table.stderr, table.stderr
     assert "0 of 3 cases finished (0 failed, 3 missing)" in table.stdout
 
-    rerun = cli(*_submit(store))
+    rerun = cli(*_submit(store, scheduler=warm_scheduler))
     assert rerun.returncode == 0, rerun.stderr
     assert "(3 done, 0 failed this run)" in rerun.stdout and "moved 4 bad or superseded case files" in rerun.stdout
     log = (store / "rejected" / "rejected.log").read_text().splitlines()
@@ -215,10 +220,10 @@ def test_a_writer_killed_at_any_instant_leaves_a_verified_file_or_an_ignored_one
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_corrupt_or_edited_manifest_is_one_line(store, cli):
+def test_corrupt_or_edited_manifest_is_one_line(store, cli, warm_scheduler):
     (store / "manifest.json").write_text('{"config_hash": "abc", "seed": ')
     before = file_tree(store)
-    for command in (["status", store], ["table", store], _submit(store)):
+    for command in (["status", store], ["table", store], _submit(store, scheduler=warm_scheduler)):
         result = cli(*command)
         assert result.returncode == 2, (command, result.stdout, result.stderr)
         line = _one_line(result.stderr)
@@ -230,7 +235,7 @@ def test_corrupt_or_edited_manifest_is_one_line(store, cli):
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, store, cli):
+def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, store, cli, warm_scheduler):
     path = store / "manifest.json"
     manifest = json.loads(path.read_text())
     path.write_text(json.dumps({**manifest, "seed": 2}, indent=2))
@@ -247,7 +252,7 @@ def test_edited_manifest_and_corrupt_plan_and_results_are_detected(reference, st
     _flip_byte(store / "plan.parquet", 100)
     status = cli("status", store)
     assert status.returncode == 2 and f"{store / 'plan.parquet'}: corrupted or replaced" in _one_line(status.stderr)
-    rerun = cli(*_submit(store))
+    rerun = cli(*_submit(store, scheduler=warm_scheduler))
     assert rerun.returncode == 0, rerun.stderr
     assert "written again from the configuration" in rerun.stdout and "(0 done, 0 failed this run)" in rerun.stdout
     assert cli("verify", store).returncode == 0
@@ -261,15 +266,15 @@ def _site_with_seed(directory: Path, seed: int) -> Path:
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside(store, tmp_path, cli):
+def test_deleted_manifest_and_new_seed_never_mix_and_fresh_moves_the_store_aside(store, tmp_path, cli, warm_scheduler):
     (store / "manifest.json").unlink()
     old_tree = file_tree(store)
     site = _site_with_seed(tmp_path, 5)
-    refused = cli(*_submit(store, site=site))
+    refused = cli(*_submit(store, site=site, scheduler=warm_scheduler))
     assert refused.returncode == 2 and "no manifest.json" in _one_line(refused.stderr)
     assert file_tree(store) == old_tree
 
-    fresh = cli(*_submit(store, "--fresh", site=site))
+    fresh = cli(*_submit(store, "--fresh", site=site, scheduler=warm_scheduler))
     assert fresh.returncode == 0, fresh.stderr
     previous = [p for p in tmp_path.iterdir() if p.name.startswith("store.previous-")]
     assert len(previous) == 1 and f"moved the previous store aside to {previous[0]}" in fresh.stdout
@@ -300,16 +305,16 @@ def test_fresh_checks_the_cluster_before_touching_the_store(store, tmp_path):
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_another_case_count_reuses_the_cases_in_both_plans(reference, store, cli):
+def test_another_case_count_reuses_the_cases_in_both_plans(reference, store, cli, warm_scheduler):
     """Case identity is (class, index within class) and the configuration hash ignores case counts: a
     larger --cases-scale on the same store computes only the new cases, a smaller one runs nothing; the
     cases outside the current plan are kept and reported, not counted."""
     before = all_case_files(store)
-    larger = cli(*_submit(store, scale="0.011"))   # gcp 2, gdcp 1, gkep 1
+    larger = cli(*_submit(store, scale="0.011", scheduler=warm_scheduler))   # gcp 2, gdcp 1, gkep 1
     assert larger.returncode == 0, larger.stderr
     assert "plan of 4 cases recorded (was 3)" in larger.stdout and "(1 done, 0 failed this run)" in larger.stdout
     assert before < all_case_files(store), "the three cases of both plans are reused"
-    smaller = cli(*_submit(store))
+    smaller = cli(*_submit(store, scheduler=warm_scheduler))
     assert smaller.returncode == 0 and "(0 done, 0 failed this run)" in smaller.stdout, smaller.stderr
     status = cli("status", store).stdout
     assert "3 planned, 3 done, 0 failed, 0 missing" in status and "1 case files of cases outside the plan" in status

@@ -2,7 +2,8 @@
 
 The holder is a real process holding the real ``flock`` (a small Python process using
 :class:`campaign.store.lock.StoreLock`, or a real ``campaign submit``); the other side is the
-``campaign`` CLI on a real dask LocalCluster: a subprocess where it waits or races, else ``campaign.cli.main``
+``campaign`` CLI on a real dask LocalCluster (the test process's warm one, ``warm_scheduler`` in
+tests/conftest.py): a subprocess where it waits or races, else ``campaign.cli.main``
 in this process with its file descriptors captured (``service_campaigns.campaign_in_process``; the lock is
 a ``flock`` of another open file description, refused as between processes).
 """
@@ -32,8 +33,10 @@ def _popen_campaign(*args) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True, cwd=REPO, env=project_environment(), start_new_session=True)
 
 
-def _submit(out: Path, *extra, site: Path = SITE) -> list:
-    return ["submit", site, "--output", out, "--cases-scale", SCALE, "--workers", "1", "--no-progress", *extra]
+def _submit(out: Path, *extra, site: Path = SITE, scheduler: str) -> list:
+    """``campaign submit`` of ``site`` into ``out`` on the cluster at ``scheduler`` (the test process's warm one,
+    ``warm_scheduler`` in tests/conftest.py: the lock is what is tested, not the cluster's start-up)."""
+    return ["submit", site, "--output", out, "--cases-scale", SCALE, "--scheduler", scheduler, "--no-progress", *extra]
 
 
 def _site_with_seed(directory: Path, seed: int) -> Path:
@@ -47,21 +50,22 @@ def holder():
     yield from start_lock_holders()
 
 
-def test_second_writer_is_told_who_holds_the_lock_and_wait_takes_over_a_killed_holder(tmp_path, holder, capfd):
+def test_second_writer_is_told_who_holds_the_lock_and_wait_takes_over_a_killed_holder(tmp_path, holder, capfd,
+                                                                                       warm_scheduler):
     out = tmp_path / "store"
     process = holder(out)
     record = json.loads((tmp_path / "store.lock").read_text())
     assert record["pid"] == process.pid and record["host"] == socket.gethostname()
     assert "StoreLock" in record["command"] and record["started"].endswith("Z")
 
-    refused = campaign_in_process(capfd, *_submit(out))
+    refused = campaign_in_process(capfd, *_submit(out, scheduler=warm_scheduler))
     assert refused.returncode == 1, refused.stdout + refused.stderr
     lines = refused.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in refused.stderr, refused.stderr
     assert f"pid {process.pid} on {socket.gethostname()}" in lines[0] and "--wait" in lines[0]
     assert not out.exists(), "a refused writer must not create the store"
 
-    waiting = _popen_campaign(*_submit(out, "--wait"))
+    waiting = _popen_campaign(*_submit(out, "--wait", scheduler=warm_scheduler))
     try:
         first_line = waiting.stderr.readline()
         assert "waiting for the lock held by" in first_line and f"pid {process.pid}" in first_line
@@ -79,7 +83,7 @@ def test_second_writer_is_told_who_holds_the_lock_and_wait_takes_over_a_killed_h
     assert (tmp_path / "store.lock").read_text() == "", "a released lock keeps no holder record"
 
 
-def test_fresh_while_another_writer_holds_the_lock_changes_nothing(tmp_path, holder, capfd):
+def test_fresh_while_another_writer_holds_the_lock_changes_nothing(tmp_path, holder, capfd, warm_scheduler):
     out = tmp_path / "store"
     (out / "cases").mkdir(parents=True)
     (out / "cases" / "case-000000.ok.parquet").write_bytes(b"results of a running campaign")
@@ -87,18 +91,18 @@ def test_fresh_while_another_writer_holds_the_lock_changes_nothing(tmp_path, hol
     (out / "examples" / "gcp-case000000-image1.png").write_bytes(b"png")
     holder(out)
     before = file_tree(tmp_path)
-    result = campaign_in_process(capfd, *_submit(out, "--fresh"))
+    result = campaign_in_process(capfd, *_submit(out, "--fresh", scheduler=warm_scheduler))
     assert result.returncode == 1 and len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert "another writer holds its lock" in result.stderr
     assert file_tree(tmp_path) == before, "--fresh changed something while another writer held the lock"
 
 
-def test_two_submits_of_different_configurations_at_once_accept_one(tmp_path, capfd):
+def test_two_submits_of_different_configurations_at_once_accept_one(tmp_path, capfd, warm_scheduler):
     """The prepare race: both start together on an empty store; the lock serialises them and the second,
     once it has the lock, finds the first's configuration and is refused (exit 2). Never two configs."""
     out = tmp_path / "store"
     sites = [_site_with_seed(tmp_path, seed) for seed in (11, 12)]
-    processes = [_popen_campaign(*_submit(out, "--wait", site=site)) for site in sites]
+    processes = [_popen_campaign(*_submit(out, "--wait", site=site, scheduler=warm_scheduler)) for site in sites]
     results = [(process.wait(timeout=300), *process.communicate()) for process in processes]
     codes = sorted(code for code, _, _ in results)
     assert codes == [0, 2], results
@@ -113,7 +117,7 @@ def test_two_submits_of_different_configurations_at_once_accept_one(tmp_path, ca
     assert results_seed == set(store.plan()["case_id"])
 
 
-def test_sweep_takes_the_lock_of_each_point_store(tmp_path, holder, capfd):
+def test_sweep_takes_the_lock_of_each_point_store(tmp_path, holder, capfd, warm_scheduler):
     from campaign.configuration.sweep_file import load_sweep
 
     sweep = tmp_path / "sweep.toml"
@@ -124,7 +128,7 @@ def test_sweep_takes_the_lock_of_each_point_store(tmp_path, holder, capfd):
     process = holder(points[1].config.output_dir)
     before = {path: stat for path, stat in file_tree(out).items()        # the point stores (sweep.json, the
               if path.startswith("points") and not path.endswith(".lock")}  # sweep's own record, may be written)
-    result = campaign_in_process(capfd, "sweep", sweep, "--output", out, "--workers", "1", "--no-progress")
+    result = campaign_in_process(capfd, "sweep", sweep, "--output", out, "--scheduler", warm_scheduler, "--no-progress")
     assert result.returncode == 1, result.stdout + result.stderr
     line = result.stderr.strip()
     assert len(line.splitlines()) == 1 and str(points[1].config.output_dir) in line and f"pid {process.pid}" in line
