@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from flight_interface.camera_file import Electronics
-from simulator.scratch import scratch
 
 
 def shot_noise_e(rng: np.random.Generator, mean_e: np.ndarray) -> np.ndarray:
@@ -215,17 +215,65 @@ def read_out_dn(rng: np.random.Generator, mean_e: np.ndarray, electronics: Elect
     if not shot_noise or exact_poisson:
         noisy = noisy_charge_e(rng, mean_e, electronics.read_noise_e, shot_noise, read_noise, exact_poisson)
         return digitize(noisy, electronics), expected_dn(mean_e, electronics)
-    mean = np.maximum(mean_e, np.float32(0.0), dtype=np.float32)
-    low = mean < np.float32(GAUSSIAN_MIN_MEAN_E)
-    noisy = standard_normal_f32(rng, mean.shape)
-    sigma = np.add(mean, np.float32(read_sigma ** 2), out=scratch("readout_sigma", mean.shape))
-    np.sqrt(sigma, out=sigma)
-    noisy *= sigma
-    noisy += mean
-    if low.any():
+    mean_f32 = np.ascontiguousarray(mean_e, dtype=np.float32)
+    noisy = standard_normal_f32(rng, mean_f32.shape)          # becomes the noisy charge (e-), in place
+    dn = np.empty(mean_f32.shape, dtype=np.uint16)
+    expected = np.empty(mean_f32.shape, dtype=np.float32)
+    gain, offset, full_well, max_dn = _adc_constants(electronics)
+    low_count = _gaussian_read_out_kernel(mean_f32, noisy, np.float32(read_sigma ** 2), np.float32(GAUSSIAN_MIN_MEAN_E),
+                                          full_well, gain, offset, max_dn, _expected_dn_top(electronics), dn, expected)
+    if low_count:
+        mean = np.maximum(mean_f32, np.float32(0.0))
+        low = mean < np.float32(GAUSSIAN_MIN_MEAN_E)
         dim = shot_noise_e(rng, mean[low].astype(np.float64))
         noisy[low] = dim + read_noise_e(rng, dim.shape, read_sigma) if read_sigma else dim
-    return _dn_of_charge(noisy, electronics), _expected_dn_f32(mean_e, electronics)
+        dn[low] = _dn_of_charge(noisy[low], electronics)
+    return dn, expected
+
+
+def _adc_constants(electronics: Electronics) -> tuple[float, float, np.float32, int]:
+    """(1 / gain, offset) as float32 values in float64 (what OpenCV's float32 multiply-add uses), the binned full
+    well (float32, e-) and the largest DN."""
+    return (float(np.float32(1.0 / electronics.adc_gain_e_per_dn)), float(np.float32(electronics.adc_offset_dn)),
+            np.float32(electronics.binned_full_well_e), int(electronics.max_dn))
+
+
+def _expected_dn_top(electronics: Electronics) -> np.float32:
+    """The expected DN's ceiling: the full well's DN, ``full_well / gain + offset``, or the ADC top if lower."""
+    return np.float32(min(electronics.binned_full_well_e / electronics.adc_gain_e_per_dn + electronics.adc_offset_dn,
+                          float(electronics.max_dn)))
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _dn_value(charge, gain, offset):
+    """``charge / gain + offset`` as OpenCV's float32 ``addWeighted`` gives it: one fused multiply-add of float32
+    values, rounded once to float32 (the float64 product of two float32 is exact)."""
+    return np.float32(np.float64(charge) * gain + offset)
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _gaussian_read_out_kernel(mean_e, noisy, read_variance, gaussian_min, full_well, gain, offset, max_dn, top,
+                              dn, expected):
+    """The default read-out in one pass: ``noisy`` (standard normal draws on entry) becomes
+    ``mean + sqrt(mean + read variance) x draw`` (mean clipped at 0, float32 as the numpy form), then full
+    well, gain, offset, rounding to nearest even, the ADC range; the expected DN alongside. Returns how many
+    pixels have a mean below ``gaussian_min`` (exact Poisson: the caller redraws them)."""
+    rows, width = mean_e.shape
+    low = 0
+    zero = np.float32(0.0)
+    for row in range(rows):
+        means, draws, counts, expectation = mean_e[row], noisy[row], dn[row], expected[row]
+        for col in range(width):
+            mean = max(means[col], zero)
+            if mean < gaussian_min:
+                low += 1
+            charge = draws[col] * np.sqrt(mean + read_variance) + mean
+            draws[col] = charge
+            value = np.rint(_dn_value(min(charge, full_well), gain, offset))
+            counts[col] = np.uint16(min(max(value, zero), np.float32(max_dn)))
+            level = _dn_value(means[col], gain, offset)
+            expectation[col] = min(max(level, zero), top)
+    return low
 
 
 def _dn_of_charge(charge_e: np.ndarray, electronics: Electronics) -> np.ndarray:
