@@ -419,14 +419,19 @@ def add_storage_dark(state: ChainState) -> None:
     Parameters
     ----------
     state : ChainState
-        Reads ``dark_rate_e_per_s``; updates ``charge_e`` (a new array).
+        Reads ``dark_rate_e_per_s``; updates ``charge_e`` (in place when it is float32, the chain's own array).
 
     Returns
     -------
     None
     """
     if state.dark_rate_e_per_s:
-        state.charge_e = state.charge_e + _storage_dark_e(state.camera, state.dark_rate_e_per_s)
+        assert state.charge_e is not None
+        dark = _storage_dark_e(state.camera, state.dark_rate_e_per_s)
+        if state.charge_e.dtype == np.float32 and state.charge_e.flags.writeable:
+            np.add(state.charge_e, dark, out=state.charge_e)
+        else:
+            state.charge_e = state.charge_e + dark
 
 
 def _storage_dark_e(camera: Camera, dark_rate: float) -> np.ndarray:
@@ -475,10 +480,11 @@ def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, bl
     toward_last = camera.timing.transfer_toward_last_row
     blur_sums = None
     if blur == "psf" and toward_last:     # the field read once for the rate sums and the blur
-        blur_sums = psf.binned_blur_rate_sums(radiance, camera, b, gains["pixel"], dark_rate, smear_fields)
+        blur_sums = psf.binned_blur_rate_sums(radiance, camera, b, gains["pixel"], dark_rate, smear_fields, reuse=True)
         assert blur_sums.rate_plain is not None and blur_sums.rate_ramp is not None
-        read = [(blur_sums.rate_plain, blur_sums.rate_ramp, blur_sums.plain, blur_sums.smallest, blur_sums.largest),
-                *blur_sums.smear]
+        read: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]] = [
+            (blur_sums.rate_plain, blur_sums.rate_ramp, blur_sums.plain, blur_sums.smallest, blur_sums.largest),
+            *blur_sums.smear]
         blurs = [blur] + ["rows"] * len(smear_fields)
     else:
         if smear_fields:
@@ -494,16 +500,17 @@ def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, bl
         if smallest < 0.0:
             raise ValueError(f"radiance field has negative values (min {smallest:.4g} W m^-2 sr^-1 um^-1); "
                              "radiance must be >= 0")
+        blurred_and_not: tuple[np.ndarray, np.ndarray] | None = None
         if field_blur == "psf":
             if blur_sums is None:
-                blur_sums = psf.binned_blur_rate_sums(radiance, camera, b)
-            blurred, radiance_sums = blur_sums.blurred, blur_sums.plain
+                blur_sums = psf.binned_blur_rate_sums(radiance, camera, b, reuse=True)
+            blurred_and_not = (blur_sums.blurred, blur_sums.plain)
         elif field_blur == "rows":    # along each row: commutes with the block sum, and with the block order
-            radiance_sums = _flip_blocks(radiance_sums, toward_last)       # image order
-            blurred = psf.row_blurred_block_sums(radiance_sums, camera)
-        if field_blur != "none":      # the blur's change of each block's radiance, then of its charge rate
-            charge_transfer.add_blur_change(plain, ramp, blurred, radiance_sums, _block_gain(state, gains),
-                                            toward_last, b)
+            assert radiance_sums is not None
+            unblurred = _flip_blocks(radiance_sums, toward_last)       # image order
+            blurred_and_not = (psf.row_blurred_block_sums(unblurred, camera), unblurred)
+        if blurred_and_not is not None:      # the blur's change of each block's radiance, then of its charge rate
+            charge_transfer.add_blur_change(plain, ramp, *blurred_and_not, _block_gain(state, gains), toward_last, b)
         results.append((plain, ramp, plain if toward_last else plain[::-1], largest))
     return results
 

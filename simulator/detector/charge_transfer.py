@@ -31,6 +31,7 @@ from numba import njit
 
 from flight_interface.camera_file import Timing
 from simulator.fields import bin_rows
+from simulator.scratch import scratch
 
 
 def cumsum_rows(values: np.ndarray) -> np.ndarray:
@@ -167,7 +168,8 @@ def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_
                           np.ascontiguousarray(exposure_blocks, dtype=np.float32), timing.transfer_toward_last_row,
                           np.float32(binning_rows), np.float32(timing.fast_flush_s / rows),
                           np.float32(timing.frame_transfer_s / rows), np.float32(timing.exposure_s),
-                          _cumsum_group(flush_blocks.shape[0]), charge)
+                          _cumsum_group(flush_blocks.shape[0]), scratch("charge_flush_through", charge.shape),
+                          scratch("charge_transfer_from", charge.shape), charge)
     return charge
 
 
@@ -181,9 +183,11 @@ def _cumsum_group(rows: int) -> int:
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _grouped_cumsum(values, reverse, group, out):
-    """:func:`cumsum_rows` of ``values`` (of ``values[::-1]``, written back reversed, when ``reverse``), the same
-    float32 additions in the same order: running sums within groups of ``group`` rows, each group's total
-    carried into the next."""
+    """:func:`cumsum_rows` into ``out``: the same float32 additions in the same order.
+
+    Running sums within groups of ``group`` rows, each group's total carried into the next; with
+    ``reverse`` the cumulative sum of ``values[::-1]``, written back reversed.
+    """
     rows, width = values.shape
     within = np.empty(width, dtype=np.float32)
     carry = np.zeros(width, dtype=np.float32)
@@ -210,14 +214,15 @@ def _grouped_cumsum(values, reverse, group, out):
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, transfer_ramp, exposure_blocks,
-                          toward_last_row, binning_rows, flush_scale, transfer_scale, exposure_s, group, charge):
-    """:func:`binned_charge_from_sums`, compiled: the float32 operations of the numpy form, in its order."""
+                          toward_last_row, binning_rows, flush_scale, transfer_scale, exposure_s, group, flush_through,
+                          transfer_from, charge):
+    """:func:`binned_charge_from_sums`, compiled: the float32 operations of the numpy form, in its order.
+
+    ``flush_through``, ``transfer_from``: work arrays of the charge's shape.
+    """
     blocks, width = flush_blocks.shape
-    flush_through = np.empty((blocks, width), dtype=np.float32)       # blocks up to and including
-    _grouped_cumsum(flush_blocks, False, group, flush_through)
-    transfer_from = flush_through
+    _grouped_cumsum(flush_blocks, False, group, flush_through)        # blocks up to and including
     if not shared:                                                     # blocks from this one on
-        transfer_from = np.empty((blocks, width), dtype=np.float32)
         _grouped_cumsum(transfer_blocks, True, group, transfer_from)
     total = flush_through[blocks - 1]
     ramp_weight = binning_rows + np.float32(1.0)
@@ -388,8 +393,11 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
 @njit(cache=True, nogil=True, boundscheck=False)
 def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_offset, ramp_offset, add_offset,
                             plain, ramp, with_sums, field_sums, extremes):
-    """:func:`checked_block_rate_sums`' pass (``field_sums`` one unused row unless ``with_sums``). ``extremes``:
-    per column min, max, and a sum that is NaN where a value is not finite (``x - x``)."""
+    """:func:`checked_block_rate_sums`' pass.
+
+    ``field_sums`` has one unused row unless ``with_sums``. ``extremes``: per column min, max, and a sum
+    that is NaN where a value is not finite (``x - x``).
+    """
     blocks, width = plain.shape
     smallest, largest, finite = extremes[0], extremes[1], extremes[2]
     for col in range(width):

@@ -374,45 +374,65 @@ def _fold_packed_rows(spectrum: np.ndarray, factor: int, otf: np.ndarray | None 
     (``X_d(u) = sum_q X(u + q H / factor)``; the inverse DFT of ``H / factor`` rows then scales by
     ``factor`` too much). The columns that hold complex (Re, Im) pairs are summed as they are; the first
     and last column hold a real column's packed vertical spectrum, unpacked to complex (float64), folded
-    and packed again. H, W and H / factor even. With ``otf`` (packed, :func:`_otf_packed`) the spectrum
-    is multiplied by it on the way (each product rounded to float32), in the same pass (numba).
+    and packed again. H, W and H / factor even. With ``otf`` (packed, :func:`_otf_packed`: one value per
+    (Re, Im) pair) the spectrum is multiplied by it on the way (each product rounded to float32), in the
+    same pass (numba). The result is this thread's scratch array (:func:`simulator.scratch.scratch`):
+    valid until the next fold.
     """
     rows, cols = spectrum.shape
     if rows % (2 * factor) or cols % 2:
         raise ValueError(f"fold: a ({rows}, {cols}) spectrum does not fold to every {factor}-th row")
-    folded = np.empty((rows // factor, cols), dtype=np.float32)
-    has_otf = otf is not None
-    _fold_kernel(np.ascontiguousarray(spectrum, dtype=np.float32),
-                 np.ascontiguousarray(otf, dtype=np.float32) if has_otf else np.ones((1, 1), np.float32),
-                 has_otf, factor, folded)
+    pairs, edges = _otf_fold_parts(np.ones(spectrum.shape, dtype=np.float32) if otf is None else otf)
+    folded = scratch("psf_folded", (rows // factor, cols))        # dies in the inverse transform
+    _fold_kernel(np.ascontiguousarray(spectrum, dtype=np.float32), pairs, edges, factor, folded)
     return folded
 
 
+def _otf_fold_parts(otf_packed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A packed OTF as the fold reads it: one value per (Re, Im) pair, and the first and last columns.
+
+    Shapes (rows, W / 2 - 1) and (rows, 2). The pair's two entries are equal (:func:`_otf_packed`), so this
+    is the same OTF in half the memory; cached on a cached OTF (read-only).
+    """
+    if otf_packed.flags.writeable:
+        return _fold_parts(otf_packed)
+    cache = DERIVED.of(otf_packed, "psf")
+    if "fold_parts" not in cache:
+        cache["fold_parts"] = _fold_parts(otf_packed)
+    return cache["fold_parts"]
+
+
+def _fold_parts(otf_packed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    pairs = np.ascontiguousarray(otf_packed[:, 1:-1:2], dtype=np.float32)
+    if not np.array_equal(pairs, otf_packed[:, 2:-1:2]):
+        raise ValueError("fold: the OTF's (Re, Im) entries of a frequency differ")
+    return pairs, np.ascontiguousarray(otf_packed[:, [0, -1]], dtype=np.float32)
+
+
 @njit(cache=True, nogil=True, boundscheck=False)
-def _fold_kernel(spectrum, otf, has_otf, factor, folded):
-    """:func:`_fold_packed_rows`: band sums ``((b0 + b1) + b2) + ...`` of the (OTF-multiplied) spectrum."""
+def _fold_kernel(spectrum, otf_pairs, otf_edges, factor, folded):
+    """:func:`_fold_packed_rows`: band sums ``((b0 + b1) + b2) + ...`` of the OTF-multiplied spectrum."""
     rows, cols = spectrum.shape
     short = rows // factor
+    pairs = otf_pairs.shape[1]
     for row in range(short):
         out = folded[row]
         for band in range(factor):
             values = spectrum[band * short + row]
-            weights = otf[band * short + row if has_otf else 0]
+            weights = otf_pairs[band * short + row]
             if band == 0:
-                if has_otf:
-                    for col in range(1, cols - 1):
-                        out[col] = values[col] * weights[col]
-                else:
-                    for col in range(1, cols - 1):
-                        out[col] = values[col]
-            elif has_otf:
-                for col in range(1, cols - 1):
-                    out[col] += values[col] * weights[col]
+                for pair in range(pairs):
+                    weight = weights[pair]
+                    out[2 * pair + 1] = values[2 * pair + 1] * weight
+                    out[2 * pair + 2] = values[2 * pair + 2] * weight
             else:
-                for col in range(1, cols - 1):
-                    out[col] += values[col]
+                for pair in range(pairs):
+                    weight = weights[pair]
+                    out[2 * pair + 1] += values[2 * pair + 1] * weight
+                    out[2 * pair + 2] += values[2 * pair + 2] * weight
     half = short // 2
-    for col in (0, cols - 1):
+    for edge in range(2):
+        col = 0 if edge == 0 else cols - 1
         for folded_row in range(half + 1):
             real = 0.0
             imag = 0.0
@@ -427,14 +447,10 @@ def _fold_kernel(spectrum, otf, has_otf, factor, folded):
                     re_index, im_index = rows - 1, -1
                 else:
                     re_index, im_index = 2 * frequency - 1, 2 * frequency
-                part_re = spectrum[re_index, col]
-                if has_otf:
-                    part_re = part_re * otf[re_index, col]
+                part_re = spectrum[re_index, col] * otf_edges[re_index, edge]
                 part_im = np.float32(0.0)
                 if im_index >= 0:
-                    part_im = spectrum[im_index, col]
-                    if has_otf:
-                        part_im = part_im * otf[im_index, col]
+                    part_im = spectrum[im_index, col] * otf_edges[im_index, edge]
                     if conjugate:
                         part_im = -part_im
                 if band == 0:
@@ -622,7 +638,7 @@ class BinnedBlurSums:
 
 def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows: int,
                           gain: np.ndarray | None = None, offset_e_per_s: float = 0.0,
-                          smear_fields: tuple[np.ndarray, ...] = ()) -> BinnedBlurSums:
+                          smear_fields: tuple[np.ndarray, ...] = (), reuse: bool = False) -> BinnedBlurSums:
     """:func:`binned_blur_sums`' transform, before the clip, and with a gain the rate's block sums from the same pass.
 
     The frame is read once: each padded row's running sum (:func:`_mirrored_running_sums`), and with
@@ -643,6 +659,10 @@ def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_
         A rate added to every pixel (dark current, e-/s), with ``gain``.
     smear_fields : tuple of up to two ndarrays, shape (height, width), optional
         With ``gain``: other fields (the smear periods') whose rate sums come from the same pass (not blurred).
+    reuse : bool, optional
+        Give every array in this thread's scratch arrays (:func:`simulator.scratch.scratch`: a fresh 1 MiB
+        array costs its page faults, ~0.3 ms here), valid until the next call with ``reuse``; else new
+        arrays, except ``blurred``, a view of the inverse transform's scratch output (valid until the next call).
 
     Returns
     -------
@@ -657,11 +677,15 @@ def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_
     blocks = rows // binning_rows
     # the full-frame intermediate in this thread's scratch array (a fresh 4 MiB array costs page faults)
     running = scratch("psf_running", padded_shape)              # sum of rows r .. r + b - 1
-    plain = np.empty((blocks, cols), dtype=np.float32)
+
+    def output(name: str, shape: tuple[int, ...]) -> np.ndarray:
+        return scratch(name, shape) if reuse else np.empty(shape, dtype=np.float32)
+
+    plain = output("psf_block_sums", (blocks, cols))
     with_rate = gain is not None
     rate_rows = blocks if with_rate else 1
-    rate_plain = np.empty((rate_rows, cols), dtype=np.float32)
-    rate_ramp = np.empty((rate_rows, cols), dtype=np.float32)
+    rate_plain = output("psf_rate_plain", (rate_rows, cols))
+    rate_ramp = output("psf_rate_ramp", (rate_rows, cols))
     extremes = np.empty((3, cols), dtype=np.float32)
     gains = np.ascontiguousarray(gain, dtype=np.float32) if with_rate else field
     if len(smear_fields) > 2 or (smear_fields and not with_rate):
@@ -671,7 +695,7 @@ def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_
         if smear.shape != field.shape:
             raise ValueError(f"binned blur: a smear field of shape {smear.shape}; expected {field.shape}")
     smear_rows = (len(smears), blocks, cols) if smears else (1, 1, cols)
-    smear_plain, smear_ramp, smear_sums = (np.empty(smear_rows, dtype=np.float32) for _ in range(3))
+    smear_plain, smear_ramp, smear_sums = (output(f"psf_smear_{name}", smear_rows) for name in ("plain", "ramp", "sums"))
     smear_extremes = np.empty((2, 3, cols), dtype=np.float32)
     padding = smears + [field] * (2 - len(smears))
     _mirrored_running_sums(field, PAD_PX, binning_rows, running, plain, gains, with_rate, rate_plain, rate_ramp,
@@ -681,14 +705,14 @@ def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_
     spectrum = cv2.dft(running, dst=running)
     folded = _fold_packed_rows(spectrum, binning_rows, _otf_packed(camera, padded_shape, camera.pixel_pitch_m,
                                                                    1.0 / binning_rows))
-    sampled = cv2.idft(folded, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    sampled = cv2.idft(folded, dst=scratch("psf_sampled", folded.shape), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
     first = PAD_PX // binning_rows
     blurred = sampled[first:first + blocks, PAD_PX:PAD_PX + cols]
     if not with_rate:
         return BinnedBlurSums(blurred, plain)
-    smear = tuple((smear_plain[index], smear_ramp[index], smear_sums[index], *_extremes(smear_extremes[index]))
-                  for index in range(len(smears)))
-    return BinnedBlurSums(blurred, plain, rate_plain, rate_ramp, *_extremes(extremes), smear)
+    smear_read = tuple((smear_plain[index], smear_ramp[index], smear_sums[index], *_extremes(smear_extremes[index]))
+                       for index in range(len(smears)))
+    return BinnedBlurSums(blurred, plain, rate_plain, rate_ramp, *_extremes(extremes), smear_read)
 
 
 def _extremes(per_column: np.ndarray) -> tuple[float, float]:
@@ -833,14 +857,16 @@ def row_blurred_block_sums(block_sums: np.ndarray, camera: Camera) -> np.ndarray
     Returns
     -------
     ndarray, float32, shape of ``block_sums``
-        The sums through the line-spread function (a view with strided rows), not clipped.
+        The sums through the line-spread function, not clipped: a view with strided rows of this thread's
+        scratch array, valid until the next call.
     """
     import scipy.fft
 
     sums = np.asarray(block_sums, dtype=np.float32)
     cols = sums.shape[1]
     padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX)
-    padded = cv2.copyMakeBorder(sums, 0, 0, PAD_PX, padded_cols - cols - PAD_PX, cv2.BORDER_REFLECT)
+    padded = cv2.copyMakeBorder(sums, 0, 0, PAD_PX, padded_cols - cols - PAD_PX, cv2.BORDER_REFLECT,
+                                dst=scratch("psf_row_blur", (sums.shape[0], padded_cols)))
     spectrum = cv2.dft(padded, dst=padded, flags=cv2.DFT_ROWS)
     spectrum *= _row_otf_packed(camera, padded_cols)
     blurred = cv2.idft(spectrum, dst=spectrum, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
