@@ -591,7 +591,8 @@ def binned_blur_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows:
     Parameters
     ----------
     field_w_m2_sr_um : ndarray, shape (height, width), float32, finite, >= 0
-        Radiance (W m^-2 sr^-1 um^-1), full frame (the caller checks it: :func:`checked_field`).
+        Radiance (W m^-2 sr^-1 um^-1), full frame (the caller checks it:
+        :func:`simulator.detector.charge_transfer.checked_block_rate_sums`).
     camera : Camera
         The camera.
     binning_rows : int
@@ -720,35 +721,6 @@ def _extremes(per_column: np.ndarray) -> tuple[float, float]:
     if not np.isfinite(per_column[2].sum()):
         return float("nan"), float("nan")
     return float(per_column[0].min()), float(per_column[1].max())
-
-
-def checked_field(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, float]:
-    """A field as float32 and its largest value; raises ValueError on a negative finite value.
-
-    Parameters
-    ----------
-    field_w_m2_sr_um : ndarray
-        Radiance (W m^-2 sr^-1 um^-1).
-
-    Returns
-    -------
-    (ndarray, float)
-        The field (float32, C-contiguous) and its maximum: NaN or inf when a value is not finite (the
-        minimum and maximum propagate NaN).
-
-    Raises
-    ------
-    ValueError
-        A finite value is negative.
-    """
-    field = np.ascontiguousarray(field_w_m2_sr_um, dtype=np.float32)
-    smallest, largest = float(field.min()), float(field.max())
-    if not (np.isfinite(smallest) and np.isfinite(largest)):
-        return field, float("nan")
-    if smallest < 0.0:
-        raise ValueError(f"radiance field has negative values (min {smallest:.4g} W m^-2 sr^-1 um^-1); "
-                         "radiance must be >= 0")
-    return field, largest
 
 
 def _checked(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -193,9 +193,10 @@ def read_out_dn(rng: np.random.Generator, mean_e: np.ndarray, electronics: Elect
     """The read-out image and its expected DN: :func:`noisy_charge_e`, :func:`digitize` and :func:`expected_dn`.
 
     The default (Gaussian shot noise, :func:`noisy_charge_e` with ``exact_poisson=False``) runs fused in
-    float32 on the same draws of the stream: the noise in place, then full well, gain, offset, rounding
-    (to nearest, ties to even, as :func:`digitize`) and the 12-bit clip in one OpenCV pass. Other
-    settings call the three functions. The DN differ from the float64 path only where float32
+    float32 on the same draws of the stream: the noise, full well, gain, offset, rounding (to nearest,
+    ties to even, as :func:`digitize`), the 12-bit clip and the expected DN in one compiled pass (numba;
+    the gain and offset as OpenCV's float32 multiply-add, which it replaces), the dim pixels' exact
+    Poisson draws after it. Other settings call the three functions. The DN differ from the float64 path only where float32
     rounding moves a value across a half-DN boundary.
 
     Parameters
@@ -298,17 +299,3 @@ def _dn_of_charge(charge_e: np.ndarray, electronics: Electronics) -> np.ndarray:
     dn = cv2.addWeighted(charge_e, 1.0 / electronics.adc_gain_e_per_dn, charge_e, 0.0, electronics.adc_offset_dn,
                          dtype=cv2.CV_16U)
     return np.minimum(dn, np.uint16(electronics.max_dn), out=dn)
-
-
-def _expected_dn_f32(mean_e: np.ndarray, electronics: Electronics) -> np.ndarray:
-    """:func:`expected_dn` in float32.
-
-    Gain and offset in one pass, then the full well and the ADC range as one clip in DN (the full well's
-    DN, ``full_well / gain + offset``, is where the charge clip lands).
-    """
-    charge = np.asarray(mean_e, dtype=np.float32)
-    dn = cv2.addWeighted(charge, 1.0 / electronics.adc_gain_e_per_dn, charge, 0.0, electronics.adc_offset_dn,
-                         dtype=cv2.CV_32F)
-    top = min(electronics.binned_full_well_e / electronics.adc_gain_e_per_dn + electronics.adc_offset_dn,
-              float(electronics.max_dn))
-    return np.clip(dn, np.float32(0.0), np.float32(top), out=dn)
