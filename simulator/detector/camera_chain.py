@@ -466,7 +466,7 @@ def binned_path_applies(state: ChainState) -> bool:
 
 
 def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, blur: str, dark_rate: float,
-                        smear_fields: tuple[np.ndarray, ...] = (),
+                        smear_fields: tuple[np.ndarray, ...] = (), period: str = "exposure",
                         ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float] | None]:
     """Block sums of one full-frame period field for :func:`binned_rate_sums`, and of smear fields read with it.
 
@@ -474,6 +474,7 @@ def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, bl
     or None when the field is not finite (the full-resolution stages read it). The first field is blurred
     as ``blur`` says ("psf", "rows" or "none"); ``smear_fields`` (only with "psf", charge moving toward the
     last row) are read in the same pass (:func:`psf.binned_blur_rate_sums`) and blurred along their rows.
+    The sums are this thread's scratch arrays (``period`` names the separate pass's), dead after the image.
     """
     camera = state.camera
     b = camera.binning_rows
@@ -490,7 +491,7 @@ def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, bl
         if smear_fields:
             raise ValueError("smear fields are read with a PSF-blurred exposure, charge moving toward the last row")
         read = [charge_transfer.checked_block_rate_sums(radiance, gains["pixel"], b, toward_last, dark_rate,
-                                                        radiance_sums=blur == "rows")]
+                                                        radiance_sums=blur == "rows", scratch_name=f"rate_{period}")]
         blurs = [blur]
     results: list[tuple[np.ndarray, np.ndarray, np.ndarray, float] | None] = []
     for (plain, ramp, radiance_sums, smallest, largest), field_blur in zip(read, blurs):
@@ -583,7 +584,7 @@ def binned_rate_sums(state: ChainState) -> None:
                 smear_sums = read_with_exposure[id(radiance)]
             else:
                 smear_sums = _binned_period_sums(state, radiance, gains, "rows" if effects.optics_psf else "none",
-                                                 state.dark_rate_e_per_s)[0]
+                                                 state.dark_rate_e_per_s, period=period)[0]
             if smear_sums is None:
                 state.block_sums = None
                 return

@@ -353,7 +353,7 @@ def block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows: int, t
 
 
 def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows: int, toward_last_row: bool,
-                            offset_e_per_s: float = 0.0, radiance_sums: bool = True
+                            offset_e_per_s: float = 0.0, radiance_sums: bool = True, scratch_name: str | None = None
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]:
     """:func:`block_rate_sums` with the radiance's smallest and largest value, from the same pass.
 
@@ -365,6 +365,9 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
     ----------
     radiance, gain, binning_rows, toward_last_row, offset_e_per_s, radiance_sums
         As :func:`block_rate_sums`.
+    scratch_name : str, optional
+        Give the sums in this thread's scratch arrays of this name (:func:`simulator.scratch.scratch`; valid
+        until the next call with the name) instead of new arrays.
 
     Returns
     -------
@@ -376,9 +379,12 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
     blocks = rows // binning_rows
     field = np.ascontiguousarray(radiance, dtype=np.float32)
     gains = np.ascontiguousarray(gain, dtype=np.float32)
-    plain = np.empty((blocks, width), dtype=np.float32)
-    ramp = np.empty((blocks, width), dtype=np.float32)
-    field_sums = np.empty((blocks if radiance_sums else 1, width), dtype=np.float32)
+    def output(name: str, shape: tuple[int, int]) -> np.ndarray:
+        return np.empty(shape, dtype=np.float32) if scratch_name is None else scratch(f"{scratch_name}_{name}", shape)
+
+    plain = output("plain", (blocks, width))
+    ramp = output("ramp", (blocks, width))
+    field_sums = output("radiance", (blocks if radiance_sums else 1, width))
     extremes = np.empty((3, width), dtype=np.float32)
     _block_rate_sums_kernel(field, gains, binning_rows, toward_last_row, np.float32(binning_rows * offset_e_per_s),
                             np.float32(binning_rows * (binning_rows + 1) / 2 * offset_e_per_s), bool(offset_e_per_s),
