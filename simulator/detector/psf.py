@@ -478,12 +478,13 @@ def _mirrored_running_sums(field, pad_px, binning_rows, padded, block_sums, gain
     OpenCV's BORDER_REFLECT) ``pad_px`` beyond its first row and column and on to the padded shape
     ``(R, C)``; pairs for ``b = 4`` (``(E0 + E1) + (E2 + E3)``), else in order. ``block_sums[k]`` is the
     sum of the frame's rows ``k b .. k b + b - 1`` (the running sum at padded row ``pad_px + k b``).
-    With ``with_rate`` the frame rows read on the way also give the block sums of the rate
-    ``field x gain`` (+ the offsets), plain and ramp-weighted, charge moving toward the last row, and the
-    per-column extremes, as :func:`simulator.detector.charge_transfer.checked_block_rate_sums`; so do
-    ``smear_count`` (0 .. 2) other fields (``first_smear``, ``second_smear``: their rate sums, block sums and
-    extremes into ``smear_plain[i]``, ``smear_ramp[i]``, ``smear_sums[i]``, ``smear_extremes[i]``), the gain
-    read once for all.
+    With ``with_rate``, first, the block sums of the rate ``field x gain`` (+ the offsets), plain and
+    ramp-weighted, charge moving toward the last row, and the per-column extremes, as
+    :func:`simulator.detector.charge_transfer.checked_block_rate_sums`; so for ``smear_count`` (0 .. 2)
+    other fields (``first_smear``, ``second_smear``: their rate sums, block sums and extremes into
+    ``smear_plain[i]``, ``smear_ramp[i]``, ``smear_sums[i]``, ``smear_extremes[i]``), the gain read once for
+    all. The rate sums come first so that the padded field, written last, is still in cache for the
+    transform that reads it next.
     """
     rows, cols = field.shape
     padded_rows, padded_cols = padded.shape
@@ -494,6 +495,29 @@ def _mirrored_running_sums(field, pad_px, binning_rows, padded, block_sums, gain
             target[0, col] = np.inf
             target[1, col] = -np.inf
             target[2, col] = 0.0
+    for frame_row in range(rows if with_rate else 0):
+        block, offset = frame_row // binning_rows, frame_row % binning_rows
+        gains = gain[frame_row]
+        for index in range(1 + smear_count):
+            if index == 0:
+                values, block_plain, block_ramp = field[frame_row], rate_plain[block], rate_ramp[block]
+                limits = extremes
+            else:
+                values = first_smear[frame_row] if index == 1 else second_smear[frame_row]
+                block_plain, block_ramp = smear_plain[index - 1, block], smear_ramp[index - 1, block]
+                limits = smear_extremes[index - 1]
+                block_field = smear_sums[index - 1, block]
+                if offset == 0:
+                    for col in range(cols):
+                        block_field[col] = values[col]
+                else:
+                    for col in range(cols):
+                        block_field[col] += values[col]
+            _add_rate_row(values, gains, offset, block_plain, block_ramp, limits[0], limits[1], limits[2])
+            if offset == binning_rows - 1 and plain_offset != 0.0:
+                for col in range(cols):
+                    block_plain[col] += plain_offset
+                    block_ramp[col] += ramp_offset
     for padded_row in range(padded_rows):
         for offset in range(binning_rows):
             source = (padded_row + offset) % padded_rows - pad_px
@@ -522,36 +546,10 @@ def _mirrored_running_sums(field, pad_px, binning_rows, padded, block_sums, gain
         for col in range(right):
             right_margin[col] = out[cols - 1 - col]
         frame_row = padded_row - pad_px
-        if not 0 <= frame_row < rows:
-            continue
-        block, offset = frame_row // binning_rows, frame_row % binning_rows
-        if offset == 0:
-            sums = block_sums[block]
+        if 0 <= frame_row < rows and frame_row % binning_rows == 0:
+            sums = block_sums[frame_row // binning_rows]
             for col in range(cols):
                 sums[col] = out[col]
-        if not with_rate:
-            continue
-        gains = gain[frame_row]
-        for index in range(1 + smear_count):
-            if index == 0:
-                values, block_plain, block_ramp = field[frame_row], rate_plain[block], rate_ramp[block]
-                limits = extremes
-            else:
-                values = first_smear[frame_row] if index == 1 else second_smear[frame_row]
-                block_plain, block_ramp = smear_plain[index - 1, block], smear_ramp[index - 1, block]
-                limits = smear_extremes[index - 1]
-                block_field = smear_sums[index - 1, block]
-                if offset == 0:
-                    for col in range(cols):
-                        block_field[col] = values[col]
-                else:
-                    for col in range(cols):
-                        block_field[col] += values[col]
-            _add_rate_row(values, gains, offset, block_plain, block_ramp, limits[0], limits[1], limits[2])
-            if offset == binning_rows - 1 and plain_offset != 0.0:
-                for col in range(cols):
-                    block_plain[col] += plain_offset
-                    block_ramp[col] += ramp_offset
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
