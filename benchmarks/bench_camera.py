@@ -16,6 +16,11 @@ target <= 0.02 DN RMS), and on the speed rows' white-noise texture (no target: a
 17 % contrast is the worst case of the one term the binned path does not keep, the in-block covariance
 of the blur's change and the PRNU).
 
+Start-up row (``camera_chain/start_up``): the chain's compiled passes (numba, cached on disk beside the
+sources) cost a fresh process (a campaign worker) the import of numba and the load of the cached machine code
+at its first image; a fresh process (the cache already written) reports its CPU seconds to import the chain
+and to render its first still image, and the second image's for comparison (no target).
+
 Pyxel peer (``pip install -e ".[peer]"``; a row says it is skipped when ``pyxel`` cannot be imported):
 Pyxel's exposure mode (``pyxel.run_mode``) on a CCD of the same size, pixel, quantum efficiency, dark
 current, full well, read noise, gain and bit depth, its photon input set from memory (the photon rate
@@ -31,6 +36,9 @@ the targets use it, the smaller of the two Pyxel figures.
 from __future__ import annotations
 
 import importlib.util
+import json
+import subprocess
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -68,6 +76,7 @@ def run() -> list[dict]:
             row.update(target_columns(ours, targets[name], "ms"))
         rows.append(row)
     rows += accuracy_rows(camera, texture)
+    rows.append(start_up_row())
     rows += pyxel_peer_rows(camera, texture, {"psf_off_still": (still, CameraEffects(optics_psf=False)),
                                               "still": (still, CameraEffects()),
                                               "moving": (moving, CameraEffects())})
@@ -117,6 +126,41 @@ def accuracy_rows(camera: Camera, texture: np.ndarray) -> list[dict]:
         {"name": "camera_chain/binned_vs_full_resolution_white_noise_texture",
          "rms_dn": float(np.sqrt(np.mean(texture_error ** 2))), "max_dn": float(np.abs(texture_error).max())},
     ]
+
+
+START_UP_SCRIPT = """
+import json, time
+start = time.process_time()
+import numpy as np
+from flight_interface.camera import load_camera
+from simulator.detector.camera_chain import render_image
+from simulator.fields import RadianceFields
+imported = time.process_time()
+camera = load_camera({camera!r})
+texture = (30.0 + 5.0 * np.random.default_rng(0).standard_normal((1024, 1024))).astype(np.float32)
+fields = RadianceFields(texture, texture, texture)
+ready = time.process_time()
+render_image(camera, fields, np.random.default_rng(1))
+first = time.process_time()
+render_image(camera, fields, np.random.default_rng(1))
+second = time.process_time()
+print(json.dumps({{"import_cpu_s": imported - start, "first_image_cpu_s": first - ready,
+                   "second_image_cpu_s": second - first}}))
+"""
+
+
+def start_up_row() -> dict:
+    """CPU seconds of a fresh process: importing the chain, its first still image (with what it loads), its second.
+
+    Run twice; the second run's figures (the compiled passes' cache written by then, as in a campaign's workers).
+    """
+    script = START_UP_SCRIPT.format(camera=str(CAMERA))
+    repo = str(Path(__file__).resolve().parents[1])
+    figures: dict = {}
+    for _ in range(2):
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=repo, check=True)
+        figures = json.loads(done.stdout.strip().splitlines()[-1])
+    return {"name": "camera_chain/start_up", **figures}
 
 
 # ---------------------------------------------------------------------------------------------- Pyxel peer

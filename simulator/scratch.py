@@ -17,7 +17,7 @@ import threading
 import numpy as np
 from numpy.typing import DTypeLike
 
-SCRATCH_ARRAYS_KEPT = 16         # per thread (least recently used dropped): a few frame sizes x a few uses
+SCRATCH_ARRAYS_KEPT = 40         # per thread (least recently used dropped): the scene's and the camera chain's uses
 _scratch_pools = threading.local()
 
 

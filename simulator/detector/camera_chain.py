@@ -419,14 +419,19 @@ def add_storage_dark(state: ChainState) -> None:
     Parameters
     ----------
     state : ChainState
-        Reads ``dark_rate_e_per_s``; updates ``charge_e`` (a new array).
+        Reads ``dark_rate_e_per_s``; updates ``charge_e`` (in place when it is float32, the chain's own array).
 
     Returns
     -------
     None
     """
     if state.dark_rate_e_per_s:
-        state.charge_e = state.charge_e + _storage_dark_e(state.camera, state.dark_rate_e_per_s)
+        assert state.charge_e is not None
+        dark = _storage_dark_e(state.camera, state.dark_rate_e_per_s)
+        if state.charge_e.dtype == np.float32 and state.charge_e.flags.writeable:
+            np.add(state.charge_e, dark, out=state.charge_e)
+        else:
+            state.charge_e = state.charge_e + dark
 
 
 def _storage_dark_e(camera: Camera, dark_rate: float) -> np.ndarray:
@@ -460,34 +465,55 @@ def binned_path_applies(state: ChainState) -> bool:
     return np.shape(state.radiance.exposure) == (camera.height_px, camera.width_px) and camera.binning_rows > 1
 
 
-def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, blur: str,
-                        dark_rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
-    """Block sums of one full-frame period field for :func:`binned_rate_sums`.
+def _binned_period_sums(state: ChainState, radiance: np.ndarray, gains: dict, blur: str, dark_rate: float,
+                        smear_fields: tuple[np.ndarray, ...] = (), period: str = "exposure",
+                        ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float] | None]:
+    """Block sums of one full-frame period field for :func:`binned_rate_sums`, and of smear fields read with it.
 
-    (plain, ramp, exposure-ordered plain, max pixel radiance), or None when the field is not finite
-    (the full-resolution stages read it).
+    Per field (the first, then ``smear_fields``): (plain, ramp, exposure-ordered plain, max pixel radiance),
+    or None when the field is not finite (the full-resolution stages read it). The first field is blurred
+    as ``blur`` says ("psf", "rows" or "none"); ``smear_fields`` (only with "psf", charge moving toward the
+    last row) are read in the same pass (:func:`psf.binned_blur_rate_sums`) and blurred along their rows.
+    The sums are this thread's scratch arrays (``period`` names the separate pass's), dead after the image.
     """
     camera = state.camera
     b = camera.binning_rows
     toward_last = camera.timing.transfer_toward_last_row
-    field, largest = psf.checked_field(radiance)
-    if not np.isfinite(largest):
-        return None
-    plain, ramp, radiance_sums = charge_transfer.block_rate_sums(field, gains["pixel"], b, toward_last, dark_rate,
-                                                                 radiance_sums=blur == "rows")
-    if blur != "none":
-        if blur == "psf":
-            blurred, radiance_sums = (_flip_blocks(sums, toward_last) for sums in psf.binned_blur_sums(field, camera, b))
-        else:                   # along each row: commutes with the block sum, and with the block order
+    blur_sums = None
+    if blur == "psf" and toward_last:     # the field read once for the rate sums and the blur
+        blur_sums = psf.binned_blur_rate_sums(radiance, camera, b, gains["pixel"], dark_rate, smear_fields, reuse=True)
+        assert blur_sums.rate_plain is not None and blur_sums.rate_ramp is not None
+        read: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]] = [
+            (blur_sums.rate_plain, blur_sums.rate_ramp, blur_sums.plain, blur_sums.smallest, blur_sums.largest),
+            *blur_sums.smear]
+        blurs = [blur] + ["rows"] * len(smear_fields)
+    else:
+        if smear_fields:
+            raise ValueError("smear fields are read with a PSF-blurred exposure, charge moving toward the last row")
+        read = [charge_transfer.checked_block_rate_sums(radiance, gains["pixel"], b, toward_last, dark_rate,
+                                                        radiance_sums=blur == "rows", scratch_name=f"rate_{period}")]
+        blurs = [blur]
+    results: list[tuple[np.ndarray, np.ndarray, np.ndarray, float] | None] = []
+    for (plain, ramp, radiance_sums, smallest, largest), field_blur in zip(read, blurs):
+        if not np.isfinite(largest):
+            results.append(None)
+            continue
+        if smallest < 0.0:
+            raise ValueError(f"radiance field has negative values (min {smallest:.4g} W m^-2 sr^-1 um^-1); "
+                             "radiance must be >= 0")
+        blurred_and_not: tuple[np.ndarray, np.ndarray] | None = None
+        if field_blur == "psf":
+            if blur_sums is None:
+                blur_sums = psf.binned_blur_rate_sums(radiance, camera, b, reuse=True)
+            blurred_and_not = (blur_sums.blurred, blur_sums.plain)
+        elif field_blur == "rows":    # along each row: commutes with the block sum, and with the block order
             assert radiance_sums is not None
-            blurred = psf.blur_field_along_rows(radiance_sums, camera)
-        change = np.subtract(blurred, radiance_sums, out=blurred)     # the blur's change of each block's radiance,
-        change *= _flip_blocks(_block_gain(state, gains), toward_last)  # then of its charge rate
-        plain += change
-        change *= np.float32((b + 1) / 2)
-        ramp += change
-    exposure_plain = plain if toward_last else plain[::-1]
-    return plain, ramp, exposure_plain, largest
+            unblurred = _flip_blocks(radiance_sums, toward_last)       # image order
+            blurred_and_not = (psf.row_blurred_block_sums(unblurred, camera), unblurred)
+        if blurred_and_not is not None:      # the blur's change of each block's radiance, then of its charge rate
+            charge_transfer.add_blur_change(plain, ramp, *blurred_and_not, _block_gain(state, gains), toward_last, b)
+        results.append((plain, ramp, plain if toward_last else plain[::-1], largest))
+    return results
 
 
 def binned_rate_sums(state: ChainState) -> None:
@@ -520,11 +546,21 @@ def binned_rate_sums(state: ChainState) -> None:
     state.dark_rate_e_per_s = (charge_generation.dark_rate_e_per_s(camera, effects.dark_current_scale)
                                if effects.dark_current else 0.0)
     gains = _gains(state)
-    exposure = _binned_period_sums(state, fields.exposure, gains, "psf" if effects.optics_psf else "none",
-                                   state.dark_rate_e_per_s)
+    full_frame = (rows, camera.width_px)
+    smear_fields: list[np.ndarray] = []         # distinct full-frame smear fields, read in the exposure's pass
+    if effects.smear and effects.optics_psf and camera.timing.transfer_toward_last_row:
+        for period in ("flush", "transfer"):
+            radiance = getattr(fields, period)
+            if (np.shape(radiance) == full_frame and radiance is not fields.exposure
+                    and not any(radiance is other for other in smear_fields)):
+                smear_fields.append(radiance)
+    period_sums = _binned_period_sums(state, fields.exposure, gains, "psf" if effects.optics_psf else "none",
+                                      state.dark_rate_e_per_s, tuple(smear_fields))
+    exposure = period_sums[0]
     if exposure is None:
         state.block_sums = None
         return
+    read_with_exposure = {id(field): result for field, result in zip(smear_fields, period_sums[1:])}
     sums = {"exposure": exposure}
     state.timing = camera.timing
     if not effects.smear:
@@ -538,18 +574,21 @@ def binned_rate_sums(state: ChainState) -> None:
             if shared:
                 sums[period] = sums[shared[0]]
                 continue
-            if np.shape(radiance) != (rows, camera.width_px):        # per block: the full-resolution stages' way
+            if np.shape(radiance) != full_frame:        # per block: the full-resolution stages' way
                 field = psf.blur_field_along_rows(radiance, camera) if effects.optics_psf else radiance
                 rate = _flip_blocks(generation_rate(state, field), camera.timing.transfer_toward_last_row)
                 plain, ramp = charge_transfer._block_sums(rate, b, rows)
                 sums[period] = (plain, ramp, plain, float(np.max(field)))
                 continue
-            period_sums = _binned_period_sums(state, radiance, gains, "rows" if effects.optics_psf else "none",
-                                              state.dark_rate_e_per_s)
-            if period_sums is None:
+            if id(radiance) in read_with_exposure:
+                smear_sums = read_with_exposure[id(radiance)]
+            else:
+                smear_sums = _binned_period_sums(state, radiance, gains, "rows" if effects.optics_psf else "none",
+                                                 state.dark_rate_e_per_s, period=period)[0]
+            if smear_sums is None:
                 state.block_sums = None
                 return
-            sums[period] = period_sums
+            sums[period] = smear_sums
     hot = state.artefacts.hot_pixels if state.artefacts is not None else None
     if hot is not None:
         for block_sums in {id(value): value for value in sums.values()}.values():
@@ -607,9 +646,13 @@ def collect_binned_charge(state: ChainState) -> None:
     kernel = psf.kernel_abs_sum(camera) if state.effects.optics_psf else 1.0
     exposure_pixel = float(sums["exposure"][3]) * _max_gain(state) * kernel + state.dark_rate_e_per_s
     bound = timing.exposure_s * exposure_pixel
+    column_sums: dict[int, float] = {}        # a shared field's sums once
     for period, duration in (("flush", timing.fast_flush_s), ("transfer", timing.frame_transfer_s)):
         if duration:
-            bound += duration / rows * float(sums[period][0].sum(axis=0).max())
+            plain = sums[period][0]
+            if id(plain) not in column_sums:
+                column_sums[id(plain)] = charge_transfer.column_sum_max(plain)
+            bound += duration / rows * column_sums[id(plain)]
     if hits is not None:
         bound += hits.max_pixel_charge_e
     if not bound <= camera.electronics.full_well_e:      # (a NaN bound too)

@@ -27,6 +27,7 @@ rate): smear only sees them through block sums, so that is all the fast path nee
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from flight_interface.camera_file import Timing
 from simulator.fields import bin_rows
@@ -159,31 +160,164 @@ def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_
     ndarray, shape (N / b, W), float32
         Charge per binned pixel (e-).
     """
-    toward_last = timing.transfer_toward_last_row
-    flush_blocks, flush_ramp = flush_sums
-    transfer_blocks, transfer_ramp = transfer_sums
-    flush_through = cumsum_rows(flush_blocks)                       # blocks up to and including
-    if transfer_blocks is flush_blocks:      # one cumulative sum serves both: after = total - up to and including
-        transfer_after = np.subtract(flush_through[-1], flush_through)
-    else:
-        transfer_after = cumsum_rows(transfer_blocks[::-1])[::-1]
-        transfer_after -= transfer_blocks
-    flush_smear = flush_through
-    flush_smear -= flush_blocks                                      # blocks strictly before
-    flush_smear *= np.float32(binning_rows)
-    flush_smear += flush_ramp                                        # ramp weights b, b-1, .., 1
-    # weights 1, 2, .., b  =  (b + 1) * block sum - (weights b, .., 1)
-    transfer_smear = transfer_after
-    transfer_smear *= np.float32(binning_rows)
-    transfer_smear += np.float32(binning_rows + 1) * transfer_blocks
-    transfer_smear -= transfer_ramp
-    flush_smear *= np.float32(timing.fast_flush_s / rows)
-    transfer_smear *= np.float32(timing.frame_transfer_s / rows)
-    smear = flush_smear
-    smear += transfer_smear
-    charge = np.multiply(exposure_blocks, np.float32(timing.exposure_s), dtype=np.float32)
-    charge += _flip(smear, toward_last)
+    flush_blocks, flush_ramp = (np.ascontiguousarray(sums, dtype=np.float32) for sums in flush_sums)
+    shared = transfer_sums[0] is flush_sums[0]
+    transfer_blocks, transfer_ramp = (np.ascontiguousarray(sums, dtype=np.float32) for sums in transfer_sums)
+    charge = np.empty(flush_blocks.shape, dtype=np.float32)
+    _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, transfer_ramp,
+                          np.ascontiguousarray(exposure_blocks, dtype=np.float32), timing.transfer_toward_last_row,
+                          np.float32(binning_rows), np.float32(timing.fast_flush_s / rows),
+                          np.float32(timing.frame_transfer_s / rows), np.float32(timing.exposure_s),
+                          _cumsum_group(flush_blocks.shape[0]), scratch("charge_flush_through", charge.shape),
+                          scratch("charge_transfer_from", charge.shape), charge)
     return charge
+
+
+def _cumsum_group(rows: int) -> int:
+    """Rows per group of :func:`cumsum_rows` (``~ sqrt(rows)``, dividing ``rows``)."""
+    group = max(int(np.sqrt(rows)), 1)
+    while rows % group:
+        group -= 1
+    return group
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _grouped_cumsum(values, reverse, group, out):
+    """:func:`cumsum_rows` into ``out``: the same float32 additions in the same order.
+
+    Running sums within groups of ``group`` rows, each group's total carried into the next; with
+    ``reverse`` the cumulative sum of ``values[::-1]``, written back reversed.
+    """
+    rows, width = values.shape
+    within = np.empty(width, dtype=np.float32)
+    carry = np.zeros(width, dtype=np.float32)
+    for index in range(rows):
+        source = rows - 1 - index if reverse else index
+        row = values[source]
+        target = out[source]
+        if index % group == 0:
+            for col in range(width):
+                within[col] = row[col]
+        else:
+            for col in range(width):
+                within[col] += row[col]
+        if index < group:
+            for col in range(width):
+                target[col] = within[col]
+        else:
+            for col in range(width):
+                target[col] = within[col] + carry[col]
+        if index % group == group - 1:
+            for col in range(width):
+                carry[col] = target[col]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, transfer_ramp, exposure_blocks,
+                          toward_last_row, binning_rows, flush_scale, transfer_scale, exposure_s, group, flush_through,
+                          transfer_from, charge):
+    """:func:`binned_charge_from_sums`, compiled: the float32 operations of the numpy form, in its order.
+
+    ``flush_through``, ``transfer_from``: work arrays of the charge's shape.
+    """
+    blocks, width = flush_blocks.shape
+    _grouped_cumsum(flush_blocks, False, group, flush_through)        # blocks up to and including
+    if not shared:                                                     # blocks from this one on
+        _grouped_cumsum(transfer_blocks, True, group, transfer_from)
+    total = flush_through[blocks - 1]
+    ramp_weight = binning_rows + np.float32(1.0)
+    for block in range(blocks):
+        through, plain, ramp = flush_through[block], flush_blocks[block], flush_ramp[block]
+        after_source, transfer_plain, transfer_weighted = transfer_from[block], transfer_blocks[block], transfer_ramp[block]
+        image_block = block if toward_last_row else blocks - 1 - block
+        exposure, out = exposure_blocks[image_block], charge[image_block]
+        for col in range(width):
+            if shared:        # after = total - up to and including
+                after = total[col] - through[col]
+            else:
+                after = after_source[col] - transfer_plain[col]
+            flush_smear = ((through[col] - plain[col]) * binning_rows + ramp[col]) * flush_scale
+            transfer_smear = ((after * binning_rows + ramp_weight * transfer_plain[col]) - transfer_weighted[col]) * transfer_scale
+            out[col] = exposure[col] * exposure_s + (flush_smear + transfer_smear)
+
+
+def add_blur_change(plain: np.ndarray, ramp: np.ndarray, blurred: np.ndarray, unblurred: np.ndarray,
+                    block_gain: np.ndarray, toward_last_row: bool, binning_rows: int) -> None:
+    """Add the blur's change of a period's block sums to its rate sums, in place (one compiled pass).
+
+    ``change = (max(blurred, 0) - unblurred) x block gain`` per block (the clip: a band-limited blur's ringing
+    next to a sky edge); ``plain += change`` and ``ramp += change x (b + 1) / 2`` (the change spread evenly
+    over the block's rows).
+
+    Parameters
+    ----------
+    plain, ramp : ndarray, float32, shape (N / b, W)
+        The rate's plain and ramp-weighted block sums (e-/s), in the order the charge moves; updated.
+    blurred, unblurred : ndarray, float32, shape (N / b, W)
+        Block sums of the blurred and of the unblurred radiance (W m^-2 sr^-1 um^-1), in image order
+        (``blurred`` may be a view with strided rows).
+    block_gain : ndarray, float32, shape (N / b, W)
+        Mean gain of each block (e-/s per W m^-2 sr^-1 um^-1), in image order.
+    toward_last_row : bool
+        The charge moves toward the last row (else the sums are in reversed block order).
+    binning_rows : int
+        Rows per block ``b``.
+
+    Returns
+    -------
+    None
+    """
+    if blurred.dtype != np.float32 or blurred.strides[1] != blurred.itemsize:
+        blurred = np.ascontiguousarray(blurred, dtype=np.float32)
+    _add_blur_change_kernel(plain, ramp, blurred,
+                            np.ascontiguousarray(unblurred, dtype=np.float32),
+                            np.ascontiguousarray(block_gain, dtype=np.float32), toward_last_row,
+                            np.float32((binning_rows + 1) / 2))
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _add_blur_change_kernel(plain, ramp, blurred, unblurred, block_gain, toward_last_row, ramp_factor):
+    blocks, width = plain.shape
+    zero = np.float32(0.0)
+    for block in range(blocks):
+        image_block = block if toward_last_row else blocks - 1 - block
+        new, old, gain = blurred[image_block, :width], unblurred[image_block], block_gain[image_block]
+        block_plain, block_ramp = plain[block], ramp[block]
+        for col in range(width):
+            change = (max(new[col], zero) - old[col]) * gain[col]
+            block_plain[col] += change
+            block_ramp[col] += change * ramp_factor
+
+
+def column_sum_max(values: np.ndarray) -> float:
+    """The largest column sum of a (N, W) array, summed in float32 row by row (as numpy's ``sum(axis=0)``).
+
+    Parameters
+    ----------
+    values : ndarray, float32, shape (N, W)
+        Values (e.g. block sums of a rate, e-/s).
+
+    Returns
+    -------
+    float
+        ``max_c sum_r values[r, c]`` (NaN propagates).
+    """
+    return float(_column_sum_max_kernel(np.ascontiguousarray(values, dtype=np.float32)))
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _column_sum_max_kernel(values):
+    rows, width = values.shape
+    sums = values[0].copy()
+    for row in range(1, rows):
+        line = values[row]
+        for col in range(width):
+            sums[col] += line[col]
+    largest = sums[0]
+    for col in range(width):
+        if not sums[col] <= largest:      # NaN wins
+            largest = sums[col]
+    return largest
 
 
 def block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows: int, toward_last_row: bool,
@@ -213,28 +347,102 @@ def block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows: int, t
         Per block, in the order the charge moves: the sum of the rate over its rows, the sum weighted
         ``b, b - 1, ..., 1`` from the block's first row (e-/s), and the sum of the radiance.
     """
+    plain, ramp, field_sums, _, _ = checked_block_rate_sums(radiance, gain, binning_rows, toward_last_row,
+                                                            offset_e_per_s, radiance_sums)
+    return plain, ramp, field_sums
+
+
+def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows: int, toward_last_row: bool,
+                            offset_e_per_s: float = 0.0, radiance_sums: bool = True, scratch_name: str | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]:
+    """:func:`block_rate_sums` with the radiance's smallest and largest value, from the same pass.
+
+    One compiled pass over the rows (numba): per pixel the float32 product ``radiance x gain`` (inf where it
+    overflows: a saturating rate), summed into its block's plain and ramp-weighted sums in the order
+    the charge moves, the radiance summed likewise, and the extremes kept per column.
+
+    Parameters
+    ----------
+    radiance, gain, binning_rows, toward_last_row, offset_e_per_s, radiance_sums
+        As :func:`block_rate_sums`.
+    scratch_name : str, optional
+        Give the sums in this thread's scratch arrays of this name (:func:`simulator.scratch.scratch`; valid
+        until the next call with the name) instead of new arrays.
+
+    Returns
+    -------
+    (plain, ramp, radiance_sums, smallest, largest)
+        The sums of :func:`block_rate_sums` and the radiance's minimum and maximum (W m^-2 sr^-1 um^-1):
+        both NaN when a value is not finite.
+    """
     rows, width = radiance.shape
     blocks = rows // binning_rows
-    with np.errstate(over="ignore", invalid="ignore"):      # an overflowing rate: inf, which saturates
-        product = np.multiply(radiance, gain, dtype=np.float32,      # dies here: this thread's scratch array
-                              out=scratch("rate_product", (rows, width))).reshape(blocks, binning_rows, width)
-        field = radiance.reshape(blocks, binning_rows, width)
-        if not toward_last_row:
-            product, field = product[::-1, ::-1], field[::-1, ::-1]
-        plain = product[:, 0].copy()          # partial sums over the block's first rows; their sum is the ramp
-        ramp = plain.copy()
-        for offset in range(1, binning_rows):
-            plain += product[:, offset]
-            ramp += plain
-        field_sums = None
-        if radiance_sums:
-            field_sums = field[:, 0].astype(np.float32, copy=True)
-            for offset in range(1, binning_rows):
-                field_sums += field[:, offset]
-    if offset_e_per_s:
-        plain += np.float32(binning_rows * offset_e_per_s)
-        ramp += np.float32(binning_rows * (binning_rows + 1) / 2 * offset_e_per_s)
-    return plain, ramp, field_sums
+    field = np.ascontiguousarray(radiance, dtype=np.float32)
+    gains = np.ascontiguousarray(gain, dtype=np.float32)
+    def output(name: str, shape: tuple[int, int]) -> np.ndarray:
+        return np.empty(shape, dtype=np.float32) if scratch_name is None else scratch(f"{scratch_name}_{name}", shape)
+
+    plain = output("plain", (blocks, width))
+    ramp = output("ramp", (blocks, width))
+    field_sums = output("radiance", (blocks if radiance_sums else 1, width))
+    extremes = np.empty((3, width), dtype=np.float32)
+    _block_rate_sums_kernel(field, gains, binning_rows, toward_last_row, np.float32(binning_rows * offset_e_per_s),
+                            np.float32(binning_rows * (binning_rows + 1) / 2 * offset_e_per_s), bool(offset_e_per_s),
+                            plain, ramp, bool(radiance_sums), field_sums, extremes)
+    if not np.isfinite(extremes[2].sum()):
+        smallest = largest = float("nan")
+    else:
+        smallest, largest = float(extremes[0].min()), float(extremes[1].max())
+    return plain, ramp, field_sums if radiance_sums else None, smallest, largest
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_offset, ramp_offset, add_offset,
+                            plain, ramp, with_sums, field_sums, extremes):
+    """:func:`checked_block_rate_sums`' pass.
+
+    ``field_sums`` has one unused row unless ``with_sums``. ``extremes``: per column min, max, and a sum
+    that is NaN where a value is not finite (``x - x``).
+    """
+    blocks, width = plain.shape
+    smallest, largest, finite = extremes[0], extremes[1], extremes[2]
+    for col in range(width):
+        smallest[col] = np.inf
+        largest[col] = -np.inf
+        finite[col] = 0.0
+    for block in range(blocks):
+        image_block = block if toward_last_row else blocks - 1 - block
+        block_plain, block_ramp = plain[block], ramp[block]
+        block_field = field_sums[block if with_sums else 0]
+        for offset in range(binning_rows):
+            row = image_block * binning_rows + (offset if toward_last_row else binning_rows - 1 - offset)
+            values, gains = field[row], gain[row]
+            if offset == 0:
+                for col in range(width):
+                    product = values[col] * gains[col]
+                    block_plain[col] = product
+                    block_ramp[col] = product
+            else:
+                for col in range(width):
+                    total = block_plain[col] + values[col] * gains[col]
+                    block_plain[col] = total
+                    block_ramp[col] += total
+            if with_sums:
+                if offset == 0:
+                    for col in range(width):
+                        block_field[col] = values[col]
+                else:
+                    for col in range(width):
+                        block_field[col] += values[col]
+            for col in range(width):
+                value = values[col]
+                smallest[col] = min(smallest[col], value)
+                largest[col] = max(largest[col], value)
+                finite[col] += value - value
+        if add_offset:
+            for col in range(width):
+                block_plain[col] += plain_offset
+                block_ramp[col] += ramp_offset
 
 
 def is_block_mean(rate: np.ndarray, rows: int, binning_rows: int) -> bool:

@@ -46,8 +46,11 @@ only (a 1-D DFT per row, :func:`blur_field_along_rows`): a sixth of the 2-D cost
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
+from numba import njit
 
 from flight_interface.camera import Camera
 from flight_interface.camera_file import MAX_WAVEFRONT_ERROR_WAVES
@@ -280,7 +283,7 @@ def _otf_grid(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.
     return cache[key]
 
 
-def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> np.ndarray:
+def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float, scale: float = 1.0) -> np.ndarray:
     """The OTF laid out as OpenCV's packed (CCS) real spectrum of ``shape``: float32, cached.
 
     The OTF is real and even, so it multiplies a frequency's real and imaginary parts alike: each entry
@@ -288,12 +291,17 @@ def _otf_packed(camera: Camera, shape: tuple[int, int], row_pitch_m: float) -> n
     an even width, last column) gets its frequency's OTF, and the product is one elementwise multiply.
     The values are taken from the forward DFT of the OTF's own periodic kernel (the inverse real DFT of
     :func:`_otf_grid`), so OpenCV's packing is its own whatever the parity of the sizes; there the
-    imaginary entries are ~0 and take the real entry of their frequency.
+    imaginary entries are ~0 and take the real entry of their frequency. ``scale`` multiplies it (a power of
+    two, e.g. ``1 / b``, scales every product exactly).
     """
     import scipy.fft
 
     cache = DERIVED.of(camera, "psf")
-    key = ("ccs", shape, row_pitch_m)
+    key = ("ccs", shape, row_pitch_m, scale)
+    if key not in cache and scale != 1.0:
+        scaled = _otf_packed(camera, shape, row_pitch_m) * np.float32(scale)
+        scaled.setflags(write=False)
+        cache[key] = scaled
     if key not in cache:
         kernel = scipy.fft.irfft2(_otf_grid(camera, shape, row_pitch_m), s=shape)
         spectrum = cv2.dft(kernel.astype(np.float32))
@@ -333,18 +341,6 @@ def _row_otf_packed(camera: Camera, cols: int) -> np.ndarray:
     return cache[key]
 
 
-def _unpacked_column(packed: np.ndarray) -> np.ndarray:
-    """The complex spectrum (rows,) of a real column from its packed (CCS) vertical spectrum (rows even)."""
-    rows = packed.shape[0]
-    values = packed.astype(np.float64)
-    column = np.empty(rows, dtype=np.complex128)
-    column[0] = values[0]
-    column[1:rows // 2] = values[1:rows - 1:2] + 1j * values[2:rows - 1:2]
-    column[rows // 2] = values[rows - 1]
-    column[rows // 2 + 1:] = np.conj(column[1:rows // 2][::-1])
-    return column
-
-
 def kernel_abs_sum(camera: Camera) -> float:
     """Sum of the absolute values of the optics' kernel on the padded full-frame grid (cached).
 
@@ -371,27 +367,210 @@ def kernel_abs_sum(camera: Camera) -> float:
     return cache["kernel_abs_sum"]
 
 
-def _fold_packed_rows(spectrum: np.ndarray, factor: int) -> np.ndarray:
+def _fold_packed_rows(spectrum: np.ndarray, factor: int, otf: np.ndarray | None = None) -> np.ndarray:
     """Fold a packed (CCS) spectrum of ``(H, W)`` to the spectrum of its every ``factor``-th row, ``(H / factor, W)``.
 
     Sampling every ``factor``-th row of a signal sums its spectrum's ``factor`` row bands
     (``X_d(u) = sum_q X(u + q H / factor)``; the inverse DFT of ``H / factor`` rows then scales by
     ``factor`` too much). The columns that hold complex (Re, Im) pairs are summed as they are; the first
-    and last column hold a real column's packed vertical spectrum, unpacked to complex, folded and
-    packed again. H, W and H / factor even.
+    and last column hold a real column's packed vertical spectrum, unpacked to complex (float64), folded
+    and packed again. H, W and H / factor even. With ``otf`` (packed, :func:`_otf_packed`: one value per
+    (Re, Im) pair) the spectrum is multiplied by it on the way (each product rounded to float32), in the
+    same pass (numba). The result is this thread's scratch array (:func:`simulator.scratch.scratch`):
+    valid until the next fold.
     """
     rows, cols = spectrum.shape
-    short = rows // factor
-    folded = spectrum[:short].copy()
-    for band in range(1, factor):
-        folded += spectrum[band * short:(band + 1) * short]
-    for col in (0, cols - 1):
-        summed = _unpacked_column(spectrum[:, col]).reshape(factor, short).sum(axis=0)
-        folded[0, col] = summed[0].real
-        folded[1:short - 1:2, col] = summed[1:short // 2].real
-        folded[2:short - 1:2, col] = summed[1:short // 2].imag
-        folded[short - 1, col] = summed[short // 2].real
+    if rows % (2 * factor) or cols % 2:
+        raise ValueError(f"fold: a ({rows}, {cols}) spectrum does not fold to every {factor}-th row")
+    pairs, edges = _otf_fold_parts(np.ones(spectrum.shape, dtype=np.float32) if otf is None else otf)
+    folded = scratch("psf_folded", (rows // factor, cols))        # dies in the inverse transform
+    _fold_kernel(np.ascontiguousarray(spectrum, dtype=np.float32), pairs, edges, factor, folded)
     return folded
+
+
+def _otf_fold_parts(otf_packed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A packed OTF as the fold reads it: one value per (Re, Im) pair, and the first and last columns.
+
+    Shapes (rows, W / 2 - 1) and (rows, 2). The pair's two entries are equal (:func:`_otf_packed`), so this
+    is the same OTF in half the memory; cached on a cached OTF (read-only).
+    """
+    if otf_packed.flags.writeable:
+        return _fold_parts(otf_packed)
+    cache = DERIVED.of(otf_packed, "psf")
+    if "fold_parts" not in cache:
+        cache["fold_parts"] = _fold_parts(otf_packed)
+    return cache["fold_parts"]
+
+
+def _fold_parts(otf_packed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    pairs = np.ascontiguousarray(otf_packed[:, 1:-1:2], dtype=np.float32)
+    if not np.array_equal(pairs, otf_packed[:, 2:-1:2]):
+        raise ValueError("fold: the OTF's (Re, Im) entries of a frequency differ")
+    return pairs, np.ascontiguousarray(otf_packed[:, [0, -1]], dtype=np.float32)
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _fold_kernel(spectrum, otf_pairs, otf_edges, factor, folded):
+    """:func:`_fold_packed_rows`: band sums ``((b0 + b1) + b2) + ...`` of the OTF-multiplied spectrum."""
+    rows, cols = spectrum.shape
+    short = rows // factor
+    pairs = otf_pairs.shape[1]
+    for row in range(short):
+        out = folded[row]
+        for band in range(factor):
+            values = spectrum[band * short + row]
+            weights = otf_pairs[band * short + row]
+            if band == 0:
+                for pair in range(pairs):
+                    weight = weights[pair]
+                    out[2 * pair + 1] = values[2 * pair + 1] * weight
+                    out[2 * pair + 2] = values[2 * pair + 2] * weight
+            else:
+                for pair in range(pairs):
+                    weight = weights[pair]
+                    out[2 * pair + 1] += values[2 * pair + 1] * weight
+                    out[2 * pair + 2] += values[2 * pair + 2] * weight
+    half = short // 2
+    for edge in range(2):
+        col = 0 if edge == 0 else cols - 1
+        for folded_row in range(half + 1):
+            real = 0.0
+            imag = 0.0
+            for band in range(factor):
+                frequency = folded_row + band * short
+                conjugate = frequency > rows // 2
+                if conjugate:
+                    frequency = rows - frequency
+                if frequency == 0:
+                    re_index, im_index = 0, -1
+                elif frequency == rows // 2:
+                    re_index, im_index = rows - 1, -1
+                else:
+                    re_index, im_index = 2 * frequency - 1, 2 * frequency
+                part_re = spectrum[re_index, col] * otf_edges[re_index, edge]
+                part_im = np.float32(0.0)
+                if im_index >= 0:
+                    part_im = spectrum[im_index, col] * otf_edges[im_index, edge]
+                    if conjugate:
+                        part_im = -part_im
+                if band == 0:
+                    real = np.float64(part_re)
+                    imag = np.float64(part_im)
+                else:
+                    real += np.float64(part_re)
+                    imag += np.float64(part_im)
+            if folded_row == 0:
+                folded[0, col] = real
+            elif folded_row == half:
+                folded[short - 1, col] = real
+            else:
+                folded[2 * folded_row - 1, col] = real
+                folded[2 * folded_row, col] = imag
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _mirrored_running_sums(field, pad_px, binning_rows, padded, block_sums, gain, with_rate, rate_plain, rate_ramp,
+                           plain_offset, ramp_offset, extremes, smear_count, first_smear, second_smear, smear_plain,
+                           smear_ramp, smear_sums, smear_extremes):
+    """The padded, mirrored field's circular ``binning_rows``-row running sums, and the frame's block sums.
+
+    ``padded[r] = sum_{j < b} E[(r + j) mod R]`` where ``E`` is the field mirrored (``f e d | d e f``,
+    OpenCV's BORDER_REFLECT) ``pad_px`` beyond its first row and column and on to the padded shape
+    ``(R, C)``; pairs for ``b = 4`` (``(E0 + E1) + (E2 + E3)``), else in order. ``block_sums[k]`` is the
+    sum of the frame's rows ``k b .. k b + b - 1`` (the running sum at padded row ``pad_px + k b``).
+    With ``with_rate``, first, the block sums of the rate ``field x gain`` (+ the offsets), plain and
+    ramp-weighted, charge moving toward the last row, and the per-column extremes, as
+    :func:`simulator.detector.charge_transfer.checked_block_rate_sums`; so for ``smear_count`` (0 .. 2)
+    other fields (``first_smear``, ``second_smear``: their rate sums, block sums and extremes into
+    ``smear_plain[i]``, ``smear_ramp[i]``, ``smear_sums[i]``, ``smear_extremes[i]``), the gain read once for
+    all. The rate sums come first so that the padded field, written last, is still in cache for the
+    transform that reads it next.
+    """
+    rows, cols = field.shape
+    padded_rows, padded_cols = padded.shape
+    right = padded_cols - pad_px - cols
+    sources = np.empty(binning_rows, dtype=np.int64)
+    for target in (extremes, smear_extremes[0], smear_extremes[1]):
+        for col in range(cols):
+            target[0, col] = np.inf
+            target[1, col] = -np.inf
+            target[2, col] = 0.0
+    for frame_row in range(rows if with_rate else 0):
+        block, offset = frame_row // binning_rows, frame_row % binning_rows
+        gains = gain[frame_row]
+        for index in range(1 + smear_count):
+            if index == 0:
+                values, block_plain, block_ramp = field[frame_row], rate_plain[block], rate_ramp[block]
+                limits = extremes
+            else:
+                values = first_smear[frame_row] if index == 1 else second_smear[frame_row]
+                block_plain, block_ramp = smear_plain[index - 1, block], smear_ramp[index - 1, block]
+                limits = smear_extremes[index - 1]
+                block_field = smear_sums[index - 1, block]
+                if offset == 0:
+                    for col in range(cols):
+                        block_field[col] = values[col]
+                else:
+                    for col in range(cols):
+                        block_field[col] += values[col]
+            _add_rate_row(values, gains, offset, block_plain, block_ramp, limits[0], limits[1], limits[2])
+            if offset == binning_rows - 1 and plain_offset != 0.0:
+                for col in range(cols):
+                    block_plain[col] += plain_offset
+                    block_ramp[col] += ramp_offset
+    for padded_row in range(padded_rows):
+        for offset in range(binning_rows):
+            source = (padded_row + offset) % padded_rows - pad_px
+            if source < 0:
+                source = -source - 1
+            elif source >= rows:
+                source = 2 * rows - source - 1
+            sources[offset] = source
+        out = padded[padded_row, pad_px:pad_px + cols]
+        first = field[sources[0]]
+        if binning_rows == 4:
+            second, third, fourth = field[sources[1]], field[sources[2]], field[sources[3]]
+            for col in range(cols):
+                out[col] = (first[col] + second[col]) + (third[col] + fourth[col])
+        else:
+            for col in range(cols):
+                out[col] = first[col]
+            for offset in range(1, binning_rows):
+                values = field[sources[offset]]
+                for col in range(cols):
+                    out[col] += values[col]
+        left_margin = padded[padded_row, :pad_px]
+        for col in range(pad_px):
+            left_margin[col] = out[pad_px - 1 - col]
+        right_margin = padded[padded_row, pad_px + cols:]
+        for col in range(right):
+            right_margin[col] = out[cols - 1 - col]
+        frame_row = padded_row - pad_px
+        if 0 <= frame_row < rows and frame_row % binning_rows == 0:
+            sums = block_sums[frame_row // binning_rows]
+            for col in range(cols):
+                sums[col] = out[col]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _add_rate_row(values, gains, offset, block_plain, block_ramp, smallest, largest, finite):
+    """One row of a block into its rate sums (the block's first when ``offset`` is 0) and the column extremes."""
+    cols = values.shape[0]
+    if offset == 0:
+        for col in range(cols):
+            product = values[col] * gains[col]
+            block_plain[col] = product
+            block_ramp[col] = product
+    else:
+        for col in range(cols):
+            total = block_plain[col] + values[col] * gains[col]
+            block_plain[col] = total
+            block_ramp[col] += total
+    for col in range(cols):
+        value = values[col]
+        smallest[col] = min(smallest[col], value)
+        largest[col] = max(largest[col], value)
+        finite[col] += value - value
 
 
 def binned_blur_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows: int) -> tuple[np.ndarray, np.ndarray]:
@@ -403,12 +582,15 @@ def binned_blur_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows:
     every ``b``-th row (:func:`_fold_packed_rows`: sampling in space is folding in frequency) and
     transformed back at ``1 / b`` of the rows. Exact to float32 rounding; the inverse DFT costs a
     quarter of :func:`blur_field`'s and no full-resolution blurred field is made. Sums below 0
-    (ringing next to a sky edge) are set to 0.
+    (ringing next to a sky edge) are set to 0. The padding with the running sum, and the OTF product
+    with the fold, are each one compiled pass (numba) around OpenCV's two transforms
+    (:func:`binned_blur_rate_sums`).
 
     Parameters
     ----------
     field_w_m2_sr_um : ndarray, shape (height, width), float32, finite, >= 0
-        Radiance (W m^-2 sr^-1 um^-1), full frame (the caller checks it: :func:`checked_field`).
+        Radiance (W m^-2 sr^-1 um^-1), full frame (the caller checks it:
+        :func:`simulator.detector.charge_transfer.checked_block_rate_sums`).
     camera : Camera
         The camera.
     binning_rows : int
@@ -420,61 +602,123 @@ def binned_blur_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows:
     (blurred, plain) : two ndarrays, float32, shape (height / b, width)
         Block sums of the blurred field and of the field itself (W m^-2 sr^-1 um^-1 summed over ``b`` rows).
     """
-    rows, cols = field_w_m2_sr_um.shape
-    padded_shape = _padded_shape(rows, cols, PAD_PX)
-    if padded_shape[0] % (2 * binning_rows) or padded_shape[1] % 2 or PAD_PX % binning_rows or rows % binning_rows:
-        raise ValueError(f"binned blur: {binning_rows}-row blocks do not tile the padded {padded_shape} grid")
-    padded_rows = padded_shape[0]
-    # both full-frame intermediates in this thread's scratch arrays (a fresh 4 MiB array costs page faults)
-    extended = cv2.copyMakeBorder(field_w_m2_sr_um, PAD_PX, padded_rows - rows - PAD_PX + binning_rows - 1,
-                                  PAD_PX, padded_shape[1] - cols - PAD_PX, cv2.BORDER_REFLECT,
-                                  dst=scratch("psf_extended", (padded_rows + binning_rows - 1, padded_shape[1])))
-    extended[padded_rows:] = extended[:binning_rows - 1]      # the padded field's rows wrap around
-    running = scratch("psf_running", padded_shape)              # sum of rows r .. r + b - 1
-    if binning_rows == 4:       # pairs, then pairs of pairs: two passes
-        pairs = cv2.add(extended[:-1], extended[1:], dst=scratch("psf_pairs", (padded_rows + 2, padded_shape[1])))
-        cv2.add(pairs[:padded_rows], pairs[2:padded_rows + 2], dst=running)
-    else:
-        cv2.add(extended[:padded_rows], extended[1:padded_rows + 1], dst=running)
-        for offset in range(2, binning_rows):
-            cv2.add(running, extended[offset:padded_rows + offset], dst=running)
-    first = PAD_PX // binning_rows
-    plain = running[PAD_PX:PAD_PX + rows:binning_rows, PAD_PX:PAD_PX + cols].copy()
-    spectrum = cv2.dft(running, dst=running)
-    spectrum *= _otf_packed(camera, padded_shape, camera.pixel_pitch_m)
-    sampled = cv2.idft(_fold_packed_rows(spectrum, binning_rows), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
-    blurred = sampled[first:first + rows // binning_rows, PAD_PX:PAD_PX + cols]
-    np.multiply(blurred, np.float32(1.0 / binning_rows), out=blurred)
-    return np.maximum(blurred, np.float32(0.0), out=blurred), plain
+    sums = binned_blur_rate_sums(field_w_m2_sr_um, camera, binning_rows)
+    return np.maximum(sums.blurred, np.float32(0.0)), sums.plain
 
 
-def checked_field(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, float]:
-    """A field as float32 and its largest value; raises ValueError on a negative finite value.
+@dataclass(frozen=True)
+class BinnedBlurSums:
+    """What :func:`binned_blur_rate_sums` gives.
+
+    Attributes
+    ----------
+    blurred : ndarray, float32, shape (height / b, width)
+        Block sums of the blurred field before the clip at 0 (a view into the inverse transform's output).
+    plain : ndarray, float32, shape (height / b, width)
+        Block sums of the field itself.
+    rate_plain, rate_ramp : ndarray, float32, shape (height / b, width), or None
+        With a gain: the block sums of the rate ``field x gain + offset``, plain and ramp-weighted, as
+        :func:`simulator.detector.charge_transfer.block_rate_sums` (charge moving toward the last row).
+    smallest, largest : float
+        With a gain: the field's minimum and maximum, both NaN when a value is not finite (else NaN).
+    smear : tuple of (plain, ramp, radiance sums, smallest, largest)
+        Per other field given (a smear period's): its rate sums, block sums and extremes, as
+        :func:`simulator.detector.charge_transfer.checked_block_rate_sums`.
+    """
+
+    blurred: np.ndarray
+    plain: np.ndarray
+    rate_plain: np.ndarray | None = None
+    rate_ramp: np.ndarray | None = None
+    smallest: float = float("nan")
+    largest: float = float("nan")
+    smear: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, float, float], ...] = ()
+
+
+def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_rows: int,
+                          gain: np.ndarray | None = None, offset_e_per_s: float = 0.0,
+                          smear_fields: tuple[np.ndarray, ...] = (), reuse: bool = False) -> BinnedBlurSums:
+    """:func:`binned_blur_sums`' transform, before the clip, and with a gain the rate's block sums from the same pass.
+
+    The frame is read once: each padded row's running sum (:func:`_mirrored_running_sums`), and with
+    ``gain`` the rate sums and extremes of the frame rows it reads. The OTF is applied with the fold,
+    scaled by ``1 / b`` (a power of two for ``b`` = 4: the same bits as scaling the result).
 
     Parameters
     ----------
-    field_w_m2_sr_um : ndarray
-        Radiance (W m^-2 sr^-1 um^-1).
+    field_w_m2_sr_um : ndarray, shape (height, width)
+        Radiance (W m^-2 sr^-1 um^-1), full frame.
+    camera : Camera
+        The camera.
+    binning_rows : int
+        Rows per block ``b`` (as :func:`binned_blur_sums`).
+    gain : ndarray, shape (height, width), optional
+        Rate per unit radiance of every pixel (e-/s per W m^-2 sr^-1 um^-1).
+    offset_e_per_s : float, optional
+        A rate added to every pixel (dark current, e-/s), with ``gain``.
+    smear_fields : tuple of up to two ndarrays, shape (height, width), optional
+        With ``gain``: other fields (the smear periods') whose rate sums come from the same pass (not blurred).
+    reuse : bool, optional
+        Give every array in this thread's scratch arrays (:func:`simulator.scratch.scratch`: a fresh 1 MiB
+        array costs its page faults, ~0.3 ms here), valid until the next call with ``reuse``; else new
+        arrays, except ``blurred``, a view of the inverse transform's scratch output (valid until the next call).
 
     Returns
     -------
-    (ndarray, float)
-        The field (float32, C-contiguous) and its maximum: NaN or inf when a value is not finite (the
-        minimum and maximum propagate NaN).
-
-    Raises
-    ------
-    ValueError
-        A finite value is negative.
+    BinnedBlurSums
+        The block sums (the blurred ones not clipped at 0).
     """
     field = np.ascontiguousarray(field_w_m2_sr_um, dtype=np.float32)
-    smallest, largest = float(field.min()), float(field.max())
-    if not (np.isfinite(smallest) and np.isfinite(largest)):
-        return field, float("nan")
-    if smallest < 0.0:
-        raise ValueError(f"radiance field has negative values (min {smallest:.4g} W m^-2 sr^-1 um^-1); "
-                         "radiance must be >= 0")
-    return field, largest
+    rows, cols = field.shape
+    padded_shape = _padded_shape(rows, cols, PAD_PX)
+    if padded_shape[0] % (2 * binning_rows) or padded_shape[1] % 2 or PAD_PX % binning_rows or rows % binning_rows:
+        raise ValueError(f"binned blur: {binning_rows}-row blocks do not tile the padded {padded_shape} grid")
+    blocks = rows // binning_rows
+    # the full-frame intermediate in this thread's scratch array (a fresh 4 MiB array costs page faults)
+    running = scratch("psf_running", padded_shape)              # sum of rows r .. r + b - 1
+
+    def output(name: str, shape: tuple[int, ...]) -> np.ndarray:
+        return scratch(name, shape) if reuse else np.empty(shape, dtype=np.float32)
+
+    plain = output("psf_block_sums", (blocks, cols))
+    with_rate = gain is not None
+    rate_rows = blocks if with_rate else 1
+    rate_plain = output("psf_rate_plain", (rate_rows, cols))
+    rate_ramp = output("psf_rate_ramp", (rate_rows, cols))
+    extremes = np.empty((3, cols), dtype=np.float32)
+    gains = np.ascontiguousarray(gain, dtype=np.float32) if with_rate else field
+    if len(smear_fields) > 2 or (smear_fields and not with_rate):
+        raise ValueError("binned blur: up to two smear fields, with a gain")
+    smears = [np.ascontiguousarray(smear, dtype=np.float32) for smear in smear_fields]
+    for smear in smears:
+        if smear.shape != field.shape:
+            raise ValueError(f"binned blur: a smear field of shape {smear.shape}; expected {field.shape}")
+    smear_rows = (len(smears), blocks, cols) if smears else (1, 1, cols)
+    smear_plain, smear_ramp, smear_sums = (output(f"psf_smear_{name}", smear_rows) for name in ("plain", "ramp", "sums"))
+    smear_extremes = np.empty((2, 3, cols), dtype=np.float32)
+    padding = smears + [field] * (2 - len(smears))
+    _mirrored_running_sums(field, PAD_PX, binning_rows, running, plain, gains, with_rate, rate_plain, rate_ramp,
+                           np.float32(binning_rows * offset_e_per_s),
+                           np.float32(binning_rows * (binning_rows + 1) / 2 * offset_e_per_s), extremes,
+                           len(smears), padding[0], padding[1], smear_plain, smear_ramp, smear_sums, smear_extremes)
+    spectrum = cv2.dft(running, dst=running)
+    folded = _fold_packed_rows(spectrum, binning_rows, _otf_packed(camera, padded_shape, camera.pixel_pitch_m,
+                                                                   1.0 / binning_rows))
+    sampled = cv2.idft(folded, dst=scratch("psf_sampled", folded.shape), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    first = PAD_PX // binning_rows
+    blurred = sampled[first:first + blocks, PAD_PX:PAD_PX + cols]
+    if not with_rate:
+        return BinnedBlurSums(blurred, plain)
+    smear_read = tuple((smear_plain[index], smear_ramp[index], smear_sums[index], *_extremes(smear_extremes[index]))
+                       for index in range(len(smears)))
+    return BinnedBlurSums(blurred, plain, rate_plain, rate_ramp, *_extremes(extremes), smear_read)
+
+
+def _extremes(per_column: np.ndarray) -> tuple[float, float]:
+    """(min, max) from per-column min, max and NaN-if-not-finite rows; both NaN when a value is not finite."""
+    if not np.isfinite(per_column[2].sum()):
+        return float("nan"), float("nan")
+    return float(per_column[0].min()), float(per_column[1].max())
 
 
 def _checked(field_w_m2_sr_um: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -565,6 +809,38 @@ def blur_field_along_rows(field_w_m2_sr_um: np.ndarray, camera: Camera) -> np.nd
     spectrum *= _row_otf_packed(camera, padded_cols)
     blurred = cv2.idft(spectrum, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
     return _finished(blurred[:, PAD_PX:PAD_PX + cols], field, bad)
+
+
+def row_blurred_block_sums(block_sums: np.ndarray, camera: Camera) -> np.ndarray:
+    """:func:`blur_field_along_rows` of a smear field's finite, non-negative block sums, before its clip at 0.
+
+    The binned path's form: the sums come from a field checked on the way (no check here), and the
+    clip is the caller's (:func:`simulator.detector.charge_transfer.add_blur_change`).
+
+    Parameters
+    ----------
+    block_sums : ndarray, shape (height / b, width)
+        Block sums of a smear field's radiance (W m^-2 sr^-1 um^-1), finite and >= 0.
+    camera : Camera
+        The camera.
+
+    Returns
+    -------
+    ndarray, float32, shape of ``block_sums``
+        The sums through the line-spread function, not clipped: a view with strided rows of this thread's
+        scratch array, valid until the next call.
+    """
+    import scipy.fft
+
+    sums = np.asarray(block_sums, dtype=np.float32)
+    cols = sums.shape[1]
+    padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX)
+    padded = cv2.copyMakeBorder(sums, 0, 0, PAD_PX, padded_cols - cols - PAD_PX, cv2.BORDER_REFLECT,
+                                dst=scratch("psf_row_blur", (sums.shape[0], padded_cols)))
+    spectrum = cv2.dft(padded, dst=padded, flags=cv2.DFT_ROWS)
+    spectrum *= _row_otf_packed(camera, padded_cols)
+    blurred = cv2.idft(spectrum, dst=spectrum, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    return blurred[:, PAD_PX:PAD_PX + cols]
 
 
 def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:
