@@ -238,8 +238,9 @@ class _Plan:
         pixels = motion_blur.sample_pixels(self.camera, CHECK_GRID)
         rays = ground_mapping.camera_frame_rays(self.camera, pixels)
         centre = self.cam_at(self.centre_s)
-        moved_levels = _flows(self.camera, centre, [(self.step_pose(level), rays) for level in range(self.levels)])
-        if moved_levels is None:                 # some level fails: level by level
+        together = _flows(self.camera, centre, [(self.step_pose(level), rays) for level in range(self.levels)])
+        moved_levels: list[np.ndarray | None] = list(together) if together is not None else []
+        if together is None:                     # some level fails: level by level
             moved_levels = [_flow_points(self.camera, self.step_pose(level), centre, pixels, rays)
                             for level in range(self.levels)]
         return [math.inf if moved is None else float(np.abs(moved[:, 1] - pixels[:, 1]).max())
