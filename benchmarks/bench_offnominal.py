@@ -10,7 +10,7 @@ classes: the ``relief`` row), <= 1.3 for 100 dust particles, moving shadows (two
 a default cloud) and every other effect. Beside the relief row, its accuracy against the reference ray march
 (``[scene.relief] method = "march"``) on the same cases: RMS (in DN and relative to the mean signal) and
 largest |difference| of the expected (noise-free) images, and the change of the estimated velocity (m/s;
-<= 0.05 m/s, the presets' bound). Beside the x60 row, the same accuracy rows against the exact sub-pose path
+<= 0.05 m/s, the presets' bound). Beside the x60 row, the same accuracy rows (for the x60 and the x30 points) against the exact sub-pose path
 (every sub-pose of the three periods rendered: ``warp_motion_blur`` and ``warp_smear_fields`` off), which the
 warp-and-accumulate of one rendered field (scene.blur_warp) stands for. The ``nightly/`` rows are the 9 points of the nightly
 sweep (sitedata/sweeps/nightly.toml), each within 2x of the nominal point. The cost curve rows give the
@@ -139,8 +139,9 @@ def run() -> list[dict]:
                       "ratio_vs_nominal": ratio, **target_columns(ratio, target, "x")})
         if name == "relief":
             table += _relief_accuracy(configs["relief"][0], rows)
-        if name == "angular_rate_x60":
-            table += _blur_accuracy(configs["angular_rate_x60"][0], rows)
+        if name == "angular_rate_x60":     # and the x30 point (more of its cases give a valid estimate)
+            table += _blur_accuracy(name, configs[name][0], rows)
+            table += _blur_accuracy("curve/angular_rate=30", configs["angular_rate=30"][0], rows)
     curve_names = sorted([name for name in configs if "=" in name and not name.startswith("nightly/")] + list(CURVE_ALIASES),
                          key=lambda name: (name.split("=")[0], float(name.split("=")[1])))
     for name in curve_names:
@@ -166,12 +167,11 @@ def _relief_accuracy(resources, rows: list[dict]) -> list[dict]:
     return _accuracy_rows("offnominal/relief", "march", resources, rows, march_scene, RELIEF_VELOCITY_TARGET_MPS)
 
 
-def _blur_accuracy(resources, rows: list[dict]) -> list[dict]:
-    """The x60 point's images and velocities against the exact sub-pose path (every sub-pose of the three
+def _blur_accuracy(name: str, resources, rows: list[dict]) -> list[dict]:
+    """A high-rate point's images and velocities against the exact sub-pose path (every sub-pose of the three
     periods rendered: warp_motion_blur and warp_smear_fields off, the same sub-pose rule), case by case."""
     exact_scene = resources.config.scene.with_effects(warp_motion_blur=False, warp_smear_fields=False)
-    return _accuracy_rows("offnominal/angular_rate_x60", "sub_poses", resources, rows, exact_scene,
-                          BLUR_VELOCITY_TARGET_MPS)
+    return _accuracy_rows(f"offnominal/{name}", "sub_poses", resources, rows, exact_scene, BLUR_VELOCITY_TARGET_MPS)
 
 
 def _accuracy_rows(prefix: str, against: str, resources, rows: list[dict], reference_scene,
