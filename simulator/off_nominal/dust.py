@@ -273,9 +273,9 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
         row1 = min(int((centres[k, 1] + half - first) / NODE_STEP_PX) + 2, x.shape[0])
         if col1 <= col0 or row1 <= row0:
             continue
-        rows, cols = np.mgrid[row0:row1, col0:col1]
-        pair_nodes.append((rows * x.shape[1] + cols).ravel())
-        pair_particles.append(np.full(rows.size, k))
+        box_nodes = np.add.outer(np.arange(row0, row1) * x.shape[1], np.arange(col0, col1)).ravel()
+        pair_nodes.append(box_nodes)
+        pair_particles.append(np.full(box_nodes.size, k))
     nodes: np.ndarray = np.ones(x.shape, dtype=np.float32)
     if pair_nodes:
         node, particle = np.concatenate(pair_nodes), np.concatenate(pair_particles)
