@@ -273,14 +273,23 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
         row1 = min(int((centres[k, 1] + half - first) / NODE_STEP_PX) + 2, x.shape[0])
         if col1 <= col0 or row1 <= row0:
             continue
-        rows, cols = np.mgrid[row0:row1, col0:col1]
-        pair_nodes.append((rows * x.shape[1] + cols).ravel())
-        pair_particles.append(np.full(rows.size, k))
+        box_nodes = np.add.outer(np.arange(row0, row1) * x.shape[1], np.arange(col0, col1)).ravel()
+        pair_nodes.append(box_nodes)
+        pair_particles.append(np.full(box_nodes.size, k))
     nodes: np.ndarray = np.ones(x.shape, dtype=np.float32)
     if pair_nodes:
         node, particle = np.concatenate(pair_nodes), np.concatenate(pair_particles)
         separation = np.hypot(x.ravel()[node] - positions[particle, 0], y.ravel()[node] - positions[particle, 1])
-        blocked = overlap_area(pupil, radii[particle], separation) / (np.pi * pupil**2)
+        # only the pairs whose discs overlap block light (the others add log 1 = 0: the same sums); of those,
+        # only the transition band needs the lens area, the core blocks the particle's whole disc
+        radius = radii[particle]
+        near = separation < pupil + radius
+        node, radius, separation = node[near], radius[near], separation[near]
+        core = separation <= np.abs(pupil - radius)
+        blocked = np.empty(separation.shape)
+        blocked[core] = np.pi * np.minimum(pupil, radius[core])**2 / (np.pi * pupil**2)
+        band = ~core
+        blocked[band] = overlap_area(pupil, radius[band], separation[band]) / (np.pi * pupil**2)
         with np.errstate(divide="ignore"):     # a black core (a > R) is log 0 = -inf: transmission 0
             log_sum = np.bincount(node, weights=np.log(np.clip(1.0 - blocked, 0.0, 1.0)), minlength=x.size)
         nodes = np.exp(log_sum).reshape(x.shape).astype(np.float32)

@@ -16,7 +16,9 @@ shortcut always has (they reach the image only through column sums over the whol
 
 Cost. One field is rendered at the exposure mid-time on a camera enlarged by margins (the CAHVOR
 model with ``H' = H + L A``, ``V' = V + T A`` sees the original pixel (c, r) at (c + L, r + T)), each
-side's margin as wide as the path reaches beyond it, so every sub-pose's view lies inside it. The rows
+side's margin as wide as the path reaches beyond it, so every exposure sub-pose's view lies inside it (the
+flush and transfer reads may pass it by :data:`SMEAR_EDGE_PX` and take the edge values there, the bound of
+the ``warp_smear_fields`` shortcut: those fields reach the image only through column sums). The rows
 enter the image only through 4-row binning blocks
 (smear and binning sum them), so the warps run at binned resolution on block means: columns keep full
 resolution, rows are resolved to a block, which is what the binned image can show. A fractional-block
@@ -34,7 +36,15 @@ itself spaces sub-poses up to several pixels apart on long paths, ``max_substeps
 the flush and transfer fields, which reach the image only through column sums over many rows (smear),
 and whose average is moved furthest from the rendered pose (1 to 1.5 periods). A last warp per period (flush, exposure, transfer) moves
 the average to the period's mid-time. So a 64-sub-pose blur costs about 6 + 3 block-resolution warps
-instead of 3 x 64 rendered fields.
+instead of 3 x 64 rendered fields. Each warp resamples the accumulated field; bilinear resampling at
+fractional offsets is a low-pass filter, and compounded over the levels it took a third of the texture
+that survives a x60 blur (RMS of the high-pass, against the exact sub-poses), which moved the estimated
+velocity by 0.2-0.3 m/s; the block-row levels and the exposure's last warp are therefore bicubic (the
+texture kept to 0.9-0.96; the full-resolution levels and the smear fields' warps stay bilinear).
+
+Checks cost numpy's per-call overhead, not arithmetic (25 pixels): every map of the checks is computed
+in a few batched calls (:func:`_flows`: many target poses, one projection; one unprojection per doubling
+level for every period's composed positions).
 
 Bounds: the path (with margin) must stay within :data:`MAX_MARGIN_PX`, no pixel of the enlarged field
 may see the sky (the flow is defined on the ground only); otherwise :func:`warped_period_fields`
@@ -54,17 +64,18 @@ import numpy as np
 from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.fields import RadianceFields, block_means
-from simulator.scene import ground_mapping, motion_blur, node_grid, resample, shadow
+from simulator.scene import ground_mapping, motion_blur, node_grid, shadow
 from simulator.scene.descent_profile import Pose
 
 MARGIN_STEP_PX = 32            # margins are multiples of the flow node step (and of the binning rows)
-MAX_MARGIN_PX = 256
+MAX_MARGIN_PX = 512            # a 2048 x 2048 field at most: still ~8x cheaper than 16 rendered sub-poses
 EXPANDED_CAMERAS_KEPT = 4      # enlarged cameras cached per camera (least recently used dropped)
 GROUP_TOLERANCE_PX = {"exposure": 0.5, "flush": 1.0, "transfer": 1.0}   # composed vs exact map (px)
 MOVING_TOLERANCE_PX = 0.5      # shadows and heat shield: true pixel vs where the warp puts them
 FLOW_STEP_PX = 32
 FULL_RESOLUTION_ROW_SHIFT_PX = 4.0   # doubling levels with less row motion per step run at full resolution
 CHECK_GRID = 5
+SMEAR_EDGE_PX = 32.0           # flush / transfer reads allowed beyond the rendered field (smear_warp's node step)
 CHECKED_LEAVES = 5
 
 
@@ -138,19 +149,61 @@ def expanded_camera(camera: Camera, margins_px: tuple[int, int, int, int]) -> Ca
     return cache[key]
 
 
+def _flows(camera: Camera, source: ground_mapping.CameraPose,
+           groups: list[tuple[ground_mapping.CameraPose, np.ndarray]]) -> list[np.ndarray] | None:
+    """Exact source pixels of the ground points seen along camera-frame rays from several target poses, at once.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera of both images.
+    source : CameraPose
+        The pose of the image read from.
+    groups : list of (CameraPose, ndarray of shape (..., 3))
+        Target poses, each with the camera-frame unit rays of pixels of the image made at it.
+
+    Returns
+    -------
+    list of ndarray, shape (..., 2), or None
+        Per group, the (column, row) source pixels (px); None when any ray sees the sky or its ground
+        point lies behind the source camera. One projection serves every group (the small arrays of
+        the checks cost numpy's per-call overhead, not arithmetic).
+    """
+    points = []
+    for target, rays in groups:
+        world = rays @ target.camera_to_world.T
+        if not (target.ray_origin_m[2] > 0 and np.all(world[..., 2] < -ground_mapping.HORIZON_EPSILON)):
+            return None
+        points.append(target.ray_origin_m + (-target.ray_origin_m[2] / world[..., 2])[..., None] * world)
+    flat = points[0] if len(points) == 1 else np.concatenate([item.reshape(-1, 3) for item in points])
+    pixels, in_front = ground_mapping.world_to_pixels(camera, source, flat)
+    if not bool(np.all(in_front)):
+        return None
+    if len(points) == 1:
+        return [pixels]
+    ends = np.cumsum([item[..., 0].size for item in points])[:-1]
+    return [part.reshape(*item.shape[:-1], 2) for part, item in zip(np.split(pixels, ends), points)]
+
+
 def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
                  pixels: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray | None:
     """Exact source pixels (..., 2) of the ground points that ``pixels`` see at ``target``.
 
-    Camera-frame ``rays`` of the pixels when known); None when any of them sees the sky or lands behind the camera.
+    Camera-frame ``rays`` of the pixels when known; None when any of them sees the sky or lands behind the camera.
     """
     rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) if rays is None else rays
-    rays = rays @ target.camera_to_world.T
-    if not (target.ray_origin_m[2] > 0 and np.all(rays[..., 2] < -ground_mapping.HORIZON_EPSILON)):
-        return None
-    points = target.ray_origin_m + (-target.ray_origin_m[2] / rays[..., 2])[..., None] * rays
-    source_pixels, in_front = ground_mapping.world_to_pixels(camera, source, points)
-    return source_pixels if bool(np.all(in_front)) else None
+    flows = _flows(camera, source, [(target, rays)])
+    return None if flows is None else flows[0]
+
+
+def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, np.ndarray]]
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`~simulator.scene.ground_mapping.world_to_pixels` of several (pose, points (n, 3)) pairs in one projection."""
+    in_camera = np.concatenate([(np.asarray(points, dtype=float) - pose.frame_origin_m) @ pose.camera_to_world
+                                for pose, points in items])
+    pixels, in_front = cahvor.project(camera.model, in_camera)
+    ends = np.cumsum([len(points) for _, points in items])[:-1]
+    return list(zip(np.split(pixels, ends), np.split(in_front, ends)))
 
 
 def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
@@ -173,6 +226,13 @@ def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: groun
                                          row_step_px=FLOW_STEP_PX // b)
 
 
+def _warped(field: np.ndarray, flow: np.ndarray, interpolation: int) -> np.ndarray:
+    """``field`` resampled at the (column, row) coordinates of ``flow`` (edge values beyond the frame)."""
+    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
+    return cv2.remap(field, flow, None, interpolation=interpolation,  # type: ignore[call-overload]
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
 class _Plan:
     """Times and exact maps of the doubling scheme for one image (see module doc)."""
 
@@ -187,12 +247,22 @@ class _Plan:
         self.delta_s = next(iter(self.step_s.values()))
         self.average_centre_s = centre_s + 0.5 * (self.count - 1) * self.delta_s
 
-    def row_shift_px(self, level: int) -> float:
-        """Largest row motion (px) of the sample pixels over one step of ``level`` (2^level sub-poses)."""
+    def step_pose(self, level: int) -> ground_mapping.CameraPose:
+        """The camera pose one step of ``level`` (2^level sub-poses) after the centre."""
+        return self.cam_at(self.centre_s + (2 ** level) * self.delta_s)
+
+    def row_shifts_px(self) -> list[float]:
+        """Largest row motion (px) of the sample pixels over one step of each level (inf where a ray misses)."""
         pixels = motion_blur.sample_pixels(self.camera, CHECK_GRID)
-        moved = _flow_points(self.camera, self.cam_at(self.centre_s + (2 ** level) * self.delta_s),
-                             self.cam_at(self.centre_s), pixels)
-        return math.inf if moved is None else float(np.abs(moved[:, 1] - pixels[:, 1]).max())
+        rays = ground_mapping.camera_frame_rays(self.camera, pixels)
+        centre = self.cam_at(self.centre_s)
+        together = _flows(self.camera, centre, [(self.step_pose(level), rays) for level in range(self.levels)])
+        moved_levels: list[np.ndarray | None] = list(together) if together is not None else []
+        if together is None:                     # some level fails: level by level
+            moved_levels = [_flow_points(self.camera, self.step_pose(level), centre, pixels, rays)
+                            for level in range(self.levels)]
+        return [math.inf if moved is None else float(np.abs(moved[:, 1] - pixels[:, 1]).max())
+                for moved in moved_levels]
 
     def leaf_times(self, period: str) -> np.ndarray:
         start, end = self.windows[period]
@@ -206,36 +276,54 @@ class _Plan:
         """
         return np.unique(np.linspace(0, self.count - 1, min(self.count, CHECKED_LEAVES)).round().astype(int))
 
-    def composed(self, period: str, pixels: np.ndarray, leaves: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
-        """Where the doubling scheme reads the centre field for the given leaves.
+    def composed(self, queries: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
+                 ) -> list[tuple[np.ndarray, np.ndarray]] | None:
+        """Where the doubling scheme reads the centre field for given leaves, for several queries at once.
 
-        (L, P, 2) from pixels (P, 2) (the same for every leaf) or (L, P, 2) (leaf by leaf), and how far any intermediate
-        position lies from its pixel as (column, row) lows and highs, (2, 2) px (the end leaves, always
-        checked, reach furthest on a path that does not turn back); None when a ray misses the ground.
+        Parameters
+        ----------
+        queries : list of (str, ndarray (L,), ndarray (L, P, 2), ndarray (L, P, 3))
+            Period, leaves, the pixels of each leaf's image (px) and their camera-frame unit rays.
+
+        Returns
+        -------
+        list of (ndarray (L, P, 2), ndarray (2, 2)) or None
+            Per query, the positions read in the centre field (px) and how far any intermediate position
+            lies from its pixel as (column, row) lows and highs (px; the end leaves, always checked, reach
+            furthest on a path that does not turn back); None when a ray misses the ground. Each level
+            moves the chosen positions of every query with one unprojection and one projection.
         """
-        start, end = self.windows[period]
-        pixels = np.broadcast_to(pixels, (len(leaves), *pixels.shape[-2:]))
-        first = _flow_points(self.camera, self.cam_at(0.5 * (start + end)), self.cam_at(self.average_centre_s), pixels)
-        extent = np.zeros((2, 2))
-        if first is None:
-            return None, extent
-        positions = first.copy()
-
-        def extend(offsets: np.ndarray) -> None:
-            extent[0] = np.minimum(extent[0], offsets.reshape(-1, 2).min(axis=0))
-            extent[1] = np.maximum(extent[1], offsets.reshape(-1, 2).max(axis=0))
-        extend(first - pixels)
+        centre = self.cam_at(self.centre_s)
+        firsts = _flows(self.camera, self.cam_at(self.average_centre_s),
+                        [(self.cam_at(0.5 * sum(self.windows[period])), rays) for period, _, _, rays in queries])
+        if firsts is None:
+            return None
+        positions = [first.copy() for first in firsts]
+        extents = []
+        for first, (_, _, pixels, _) in zip(firsts, queries):
+            offsets = (first - pixels).reshape(-1, 2)
+            extents.append(np.array([np.minimum(offsets.min(axis=0), 0.0), np.maximum(offsets.max(axis=0), 0.0)]))
         for level in reversed(range(self.levels)):
-            chosen = (leaves >> level) & 1 == 1
-            if not chosen.any():
+            chosen = [(leaves >> level) & 1 == 1 for _, leaves, _, _ in queries]
+            moving = [position[mask] for position, mask in zip(positions, chosen)]
+            sizes = [len(item) for item in moving]
+            if not any(sizes):
                 continue
-            moved = _flow_points(self.camera, self.cam_at(self.centre_s + (2 ** level) * self.delta_s),
-                                 self.cam_at(self.centre_s), positions[chosen])
+            stacked = np.concatenate([item.reshape(-1, 2) for item in moving])
+            moved = _flow_points(self.camera, self.step_pose(level), centre, stacked)
             if moved is None:
-                return None, extent
-            positions[chosen] = moved
-            extend(positions - pixels)
-        return positions, extent
+                return None
+            offset = 0
+            for index, (item, mask) in enumerate(zip(moving, chosen)):
+                if not len(item):
+                    continue
+                count = item[..., 0].size
+                positions[index][mask] = moved[offset:offset + count].reshape(item.shape)
+                offset += count
+                offsets = (positions[index] - queries[index][2]).reshape(-1, 2)
+                extents[index][0] = np.minimum(extents[index][0], offsets.min(axis=0))
+                extents[index][1] = np.maximum(extents[index][1], offsets.max(axis=0))
+        return list(zip(positions, extents))
 
 
 def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
@@ -271,22 +359,9 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     plan = _Plan(camera, cam_at, centre_s, windows, count)
     if not plan.ok:
         return None
-    pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
-    rays = ground_mapping.camera_frame_rays(camera, pixels)
-    extent = np.zeros((2, 2))
-    for period in windows:
-        checked = plan.checked_leaves()
-        positions, period_extent = plan.composed(period, pixels, checked)
-        if positions is None:
-            return None
-        times = plan.leaf_times(period)
-        for index, leaf in enumerate(checked):
-            exact = _flow_points(camera, cam_at(float(times[leaf])), cam_at(centre_s), pixels, rays)
-            if exact is None or not float(np.max(np.abs(positions[index] - exact))) <= GROUP_TOLERANCE_PX[period]:
-                return None
-        extent = np.array([np.minimum(extent[0], period_extent[0]), np.maximum(extent[1], period_extent[1])])
-        if period == "exposure" and not _moving_features_follow(plan, period, moving_points):
-            return None
+    extent = _checked_extent(plan, moving_points)
+    if extent is None:
+        return None
     # per side: the furthest any read position lies beyond the frame (+10 % for pixels between samples)
     left, top = (MARGIN_STEP_PX * math.ceil((1.1 * max(-low, 0.0) + 4.0) / MARGIN_STEP_PX) for low in extent[0])
     right, bottom = (MARGIN_STEP_PX * math.ceil((1.1 * max(high, 0.0) + 4.0) / MARGIN_STEP_PX) for high in extent[1])
@@ -305,14 +380,16 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     # its fractional-block shifts interpolate well (module doc)
     accumulated, block = field.radiance, 1
     centre_cam = cam_at(centre_s)
+    row_shifts = plan.row_shifts_px()
     for level in range(plan.levels):
-        level_cam = cam_at(centre_s + (2 ** level) * plan.delta_s)
-        if block == 1 and plan.row_shift_px(level) >= FULL_RESOLUTION_ROW_SHIFT_PX:
+        if block == 1 and row_shifts[level] >= FULL_RESOLUTION_ROW_SHIFT_PX:
             accumulated, block = block_means(accumulated, b), b
-        flow = _block_flow(big, level_cam, centre_cam, (0.0, 0.0), block)
+        flow = _block_flow(big, plan.step_pose(level), centre_cam, (0.0, 0.0), block)
         if flow is None:
             return None
-        accumulated = cv2.addWeighted(accumulated, 0.5, resample.warped_field(accumulated, flow), 0.5, 0.0)
+        # block rows: bicubic (bilinear at fractional-block shifts would smooth the rows at the block scale)
+        warped = _warped(accumulated, flow, cv2.INTER_LINEAR if block == 1 else cv2.INTER_CUBIC)
+        accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0)
     if block == 1:
         accumulated = block_means(accumulated, b)
     averaged = {}
@@ -320,7 +397,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), (left, top), b)
         if flow is None:
             return None
-        averaged[period] = resample.warped_field(accumulated, flow)
+        averaged[period] = _warped(accumulated, flow, cv2.INTER_CUBIC if period == "exposure" else cv2.INTER_LINEAR)
     outside = _mask_union(field.outside, camera, (left, top), plan, cam_at)
     shield_full = field.heat_shield
     shield = (_mask_union(shield_full, camera, (left, top), plan, cam_at) if shield_full is not None
@@ -334,33 +411,88 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         field.shadow_centres_m, margins)
 
 
-def _moving_features_follow(plan: _Plan, period: str, moving_points: Callable[[float], list]) -> bool:
-    """Whether the self-moving points follow the warp.
+def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.ndarray | None:
+    """Verify the doubling scheme on this image and measure how far its reads reach (module doc).
 
-    True when every self-moving point (shadow centres, heat shield) in or near the frame lands, at
-    every sub-pose, within :data:`MOVING_TOLERANCE_PX` of where the composed warp reads it in the
-    centre field (where the point is at the rendered pose).
+    For a :data:`CHECK_GRID` grid of pixels and the :meth:`_Plan.checked_leaves` of each period, the
+    composed map must agree with the exact one to :data:`GROUP_TOLERANCE_PX`; every self-moving point
+    (shadow centres, heat shield) in or near the frame must land, at every checked exposure sub-pose,
+    within :data:`MOVING_TOLERANCE_PX` of where the composed warp reads it in the centre field (where
+    the point is at the rendered pose). All maps are computed together (:func:`_flows`).
+
+    Parameters
+    ----------
+    plan : _Plan
+        The doubling scheme of the image.
+    moving_points : callable
+        ``time_s -> list`` of world points (m) that move on their own.
+
+    Returns
+    -------
+    ndarray, shape (2, 2), or None
+        (column, row) lows and highs of the read positions relative to their pixels (px), or None when a
+        check fails (then the scene is rendered per sub-pose).
+    """
+    camera, cam_at = plan.camera, plan.cam_at
+    pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
+    rays = ground_mapping.camera_frame_rays(camera, pixels)
+    checked = plan.checked_leaves()
+    shape = (len(checked), *pixels.shape)
+    queries = [(period, checked, np.broadcast_to(pixels, shape), np.broadcast_to(rays, (*shape[:2], 3)))
+               for period in plan.windows]
+    moving = _moving_query(plan, checked, moving_points)
+    if moving is not None:
+        where_centre, moving_pixels = moving
+        queries.append(("exposure", checked, moving_pixels, cahvor.unproject(camera.model, moving_pixels)))
+    composed = plan.composed(queries)
+    if composed is None:
+        return None
+    centre = cam_at(plan.centre_s)
+    leaf_times = {period: plan.leaf_times(period) for period in plan.windows}
+    exact = _flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
+                                    for period in plan.windows for leaf in checked])
+    if exact is None:
+        return None
+    extent = np.zeros((2, 2))
+    for index, period in enumerate(plan.windows):
+        positions, period_extent = composed[index]
+        for leaf_index in range(len(checked)):
+            error = float(np.max(np.abs(positions[leaf_index] - exact[index * len(checked) + leaf_index])))
+            if not error <= GROUP_TOLERANCE_PX[period]:
+                return None
+        if period != "exposure":      # the smear fields may read up to SMEAR_EDGE_PX beyond the field (edge values)
+            period_extent = np.array([np.minimum(period_extent[0] + SMEAR_EDGE_PX, 0.0),
+                                      np.maximum(period_extent[1] - SMEAR_EDGE_PX, 0.0)])
+        extent = np.array([np.minimum(extent[0], period_extent[0]), np.maximum(extent[1], period_extent[1])])
+    if moving is not None and not float(np.max(np.abs(composed[-1][0] - where_centre))) <= MOVING_TOLERANCE_PX:
+        return None
+    return extent
+
+
+def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[float], list]
+                  ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The self-moving points to check: their pixels at the centre (S, 2) and at the checked exposure leaves (L, S, 2).
+
+    Only the points seen at the centre and at every checked leaf, within 64 px of the frame; None when
+    there are none.
     """
     camera = plan.camera
     reference = moving_points(plan.centre_s)
     if not reference:
-        return True
-    where_centre, front = ground_mapping.world_to_pixels(camera, plan.cam_at(plan.centre_s), np.asarray(reference))
-    times = plan.leaf_times(period)
-    checked = plan.checked_leaves()
-    pixels = np.zeros((len(times), len(reference), 2))
-    seen = np.array(front, dtype=bool)
-    for leaf in checked:
-        pixels[leaf], in_front = ground_mapping.world_to_pixels(camera, plan.cam_at(float(times[leaf])),
-                                                                np.asarray(moving_points(float(times[leaf]))))
+        return None
+    times = plan.leaf_times("exposure")
+    items = [(plan.cam_at(plan.centre_s), np.asarray(reference))]
+    items += [(plan.cam_at(float(times[leaf])), np.asarray(moving_points(float(times[leaf])))) for leaf in checked]
+    projected = _project_many(camera, items)
+    where_centre, seen = projected[0][0], np.array(projected[0][1], dtype=bool)
+    pixels = np.stack([leaf_pixels for leaf_pixels, _ in projected[1:]])
+    for _, in_front in projected[1:]:
         seen &= in_front
     size = np.array([camera.width_px, camera.height_px], dtype=float)
-    seen &= np.all((pixels[checked] > -64.0) & (pixels[checked] < size + 64.0), axis=(0, 2))
+    seen &= np.all((pixels > -64.0) & (pixels < size + 64.0), axis=(0, 2))
     if not seen.any():
-        return True
-    positions, _ = plan.composed(period, pixels[checked][:, seen], checked)
-    return (positions is not None
-            and float(np.max(np.abs(positions - where_centre[seen]))) <= MOVING_TOLERANCE_PX)
+        return None
+    return where_centre[seen], np.ascontiguousarray(pixels[:, seen])
 
 
 def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan: _Plan,
@@ -372,14 +504,16 @@ def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan:
     """
     height, width = camera.height_px, camera.width_px
     union = mask[offset[1]:offset[1] + height, offset[0]:offset[0] + width].copy()
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    rows = np.flatnonzero(mask.any(axis=1))
     if rows.size == 0:
         return union
+    cols = np.flatnonzero(mask[rows[0]:rows[-1] + 1].any(axis=0))
     r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
     box = mask[r0:r1, c0:c1]
     centre = np.array([[0.5 * (c0 + c1 - 1) - offset[0], 0.5 * (r0 + r1 - 1) - offset[1]]])
+    rays = cahvor.unproject(camera.model, centre)
     for time_s in plan.leaf_times("exposure")[[0, -1]]:
-        source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.centre_s), centre)
+        source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.centre_s), centre, rays)
         if source is None:
             continue
         # a pixel x of the sub-pose image reads the centre field at x + d: the mask moves by -d

@@ -18,12 +18,9 @@ from functools import cached_property
 import numpy as np
 
 from flight_interface.frames import (
-    quat_conjugate,
     quat_from_axis_angle,
-    quat_from_rotation_vector,
     quat_multiply,
     quat_normalize,
-    quat_to_rotation_vector,
 )
 
 
@@ -352,9 +349,21 @@ class RateScaledProfile(DescentProfile):
             The state (angular rate times ``rate_multiplier``).
         """
         base = super().pose(time_s)
-        centre = self._centre_attitude
-        relative = quat_to_rotation_vector(quat_multiply(quat_conjugate(centre), base.attitude_quat))
-        attitude = quat_normalize(quat_multiply(centre, quat_from_rotation_vector(self.rate_multiplier * relative)))
+        # scalar arithmetic (a pose is a handful of numbers; the motion-blur checks ask for ~30 per image):
+        # quat_to_rotation_vector(conj(c) * q), scaled by k, quat_from_rotation_vector, c * that, normalised
+        cw, cx, cy, cz = self._centre_attitude.tolist()
+        bw, bx, by, bz = base.attitude_quat.tolist()
+        rw, rx, ry, rz = unit_quat([cw * bw + cx * bx + cy * by + cz * bz, cw * bx - cx * bw - cy * bz + cz * by,
+                                    cw * by + cx * bz - cy * bw - cz * bx, cw * bz - cx * by + cy * bx - cz * bw])
+        sin_half = math.sqrt(rx * rx + ry * ry + rz * rz)
+        to_vector = 2.0 * math.atan2(sin_half, rw) / sin_half if sin_half > 1e-12 else 2.0
+        vx, vy, vz = (self.rate_multiplier * to_vector * value for value in (rx, ry, rz))
+        angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+        half = 0.5 * angle
+        to_quat = math.sin(half) / angle if angle > 1e-8 else 0.5 - angle ** 2 / 48.0
+        ew, ex, ey, ez = math.cos(half), to_quat * vx, to_quat * vy, to_quat * vz
+        attitude = np.array(unit_quat([cw * ew - cx * ex - cy * ey - cz * ez, cw * ex + cx * ew + cy * ez - cz * ey,
+                                       cw * ey - cx * ez + cy * ew + cz * ex, cw * ez + cx * ey - cy * ex + cz * ew]))
         return replace(base, attitude_quat=attitude, angular_rate_radps=self.rate_multiplier * base.angular_rate_radps)
 
 

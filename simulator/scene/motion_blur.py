@@ -57,7 +57,7 @@ def sample_pixels(camera: Camera, per_axis: int = 9) -> np.ndarray:
 
 
 def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_mapping.CameraPose,
-                terrain_mpp: float, pixels: np.ndarray | None = None) -> float:
+                terrain_mpp: float, pixels: np.ndarray | None = None, ground: dict | None = None) -> float:
     """Largest shift of the sample pixels between two camera poses, in terrain pixels (see module doc).
 
     Parameters
@@ -70,6 +70,9 @@ def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_ma
         Terrain pixel size (m).
     pixels : ndarray, shape (n, 2), optional
         Sample pixels (default :func:`sample_pixels`).
+    ground : dict, optional
+        Memo of the sample pixels' ground points per pose (``id(pose) -> (points, hit)``), shared by
+        the calls of one image (the window ends recur).
 
     Returns
     -------
@@ -77,8 +80,12 @@ def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_ma
         Shift (terrain pixels); 0 when no sample sees the ground at both poses.
     """
     pixels = sample_pixels(camera) if pixels is None else pixels
-    ground_start, hit_start = ground_mapping.ground_points(camera, start, pixels)
-    ground_end, hit_end = ground_mapping.ground_points(camera, end, pixels)
+    ground = {} if ground is None else ground
+    for pose in (start, end):
+        if id(pose) not in ground:
+            ground[id(pose)] = (pose, *ground_mapping.ground_points(camera, pose, pixels))
+    _, ground_start, hit_start = ground[id(start)]
+    _, ground_end, hit_end = ground[id(end)]
     hit = hit_start & hit_end
     if not hit.any():
         return 0.0
@@ -201,7 +208,8 @@ def choose_blur(camera: Camera, cam_at: Callable[[float], ground_mapping.CameraP
     effects = config.effects
     first = windows["flush"][0] if need_smear_fields else windows["exposure"][0]
     last = windows["transfer"][1] if need_smear_fields else windows["exposure"][1]
-    total_shift = image_shift(camera, cam_at(first), cam_at(last), terrain_mpp)
+    ground: dict = {}        # the window ends' ground points, computed once (each pose object is kept alive in it)
+    total_shift = image_shift(camera, cam_at(first), cam_at(last), terrain_mpp, ground=ground)
     still = effects.share_still_fields and total_shift < config.still_shift_terrain_px
     if still or not effects.motion_blur and not need_smear_fields:
         return BlurChoice("still", {"flush": 0, "exposure": 1, "transfer": 0}, False)
@@ -210,7 +218,7 @@ def choose_blur(camera: Camera, cam_at: Callable[[float], ground_mapping.CameraP
         if period != "exposure" and not need_smear_fields:
             counts[period] = 0
         elif effects.motion_blur:
-            shift = image_shift(camera, cam_at(start), cam_at(end), terrain_mpp)
+            shift = image_shift(camera, cam_at(start), cam_at(end), terrain_mpp, ground=ground)
             counts[period] = substep_count(shift * config.substeps_per_terrain_px, config.max_substeps)
         else:
             counts[period] = 1

@@ -81,7 +81,7 @@ def clamped_pose(profile: DescentProfile, time_s: float) -> Pose:
     Pose
         The pose at ``time_s`` clamped to ``[profile.time_s[0], profile.time_s[-1]]``.
     """
-    return profile.pose(float(np.clip(time_s, profile.time_s[0], profile.time_s[-1])))
+    return profile.pose(min(max(float(time_s), float(profile.time_s[0])), float(profile.time_s[-1])))   # np.clip's value
 
 
 def period_windows(camera: Camera, exposure_start_s: float) -> dict[str, tuple[float, float]]:
