@@ -27,6 +27,7 @@ How this follows the flight DIMES algorithm is in the package docstring (:mod:`d
 """
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 
@@ -125,10 +126,29 @@ class RectifiedImage:
         return self.flat.noise_dn_at(source_row, source_column)
 
 
+_SCALAR_POINTS = 12      # up to this many points, pairwise distances in Python scalars (fewer calls than numpy)
+
+
+def _largest_distance(points) -> float:
+    """Largest distance between 2-D points (0 for none).
+
+    ``np.linalg.norm(p[:, None] - p[None], axis=-1).max()``: ``sqrt(dx * dx + dy * dy)`` (the same rounding: a
+    sum of two squares, a correctly rounded square root), in Python scalars for a few points.
+    """
+    values = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(values) > _SCALAR_POINTS:
+        return float(np.linalg.norm(values[:, None] - values[None], axis=-1).max())
+    pairs = values.tolist()
+    squares = [(x - other_x) * (x - other_x) + (y - other_y) * (y - other_y)
+               for k, (x, y) in enumerate(pairs) for other_x, other_y in pairs[k + 1:]]
+    if any(square != square for square in squares):       # NaN, as numpy's max
+        return math.nan
+    return math.sqrt(max(squares, default=0.0))
+
+
 def _span(centres_px) -> float:
     """Largest distance between template centres (px)."""
-    points = np.asarray(centres_px, dtype=float).reshape(-1, 2)
-    return float(np.linalg.norm(points[:, None] - points[None], axis=-1).max()) if len(points) else 0.0
+    return _largest_distance(centres_px)
 
 
 def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m: float, min_span_px: float) -> bool:
@@ -138,9 +158,8 @@ def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m:
     """
     if len(displacements_m) < count:
         return False
-    points = np.asarray(displacements_m, dtype=float)
-    return (bool(np.linalg.norm(points[:, None] - points[None], axis=-1).max() <= tolerance_m)
-            and (len(points) == 1 or _span(centres_px) >= min_span_px))
+    return (_largest_distance(displacements_m) <= tolerance_m
+            and (len(displacements_m) == 1 or _span(centres_px) >= min_span_px))
 
 
 def _erode(mask: np.ndarray, half: int) -> np.ndarray:
@@ -180,7 +199,8 @@ class _MatchCheck:
     match is on usable ground, and how much decorrelation the pixel noise of template and match explains.
     """
 
-    def __init__(self, a: RectifiedImage, b: RectifiedImage, feature, match, config: EstimatorConfig):
+    def __init__(self, a: RectifiedImage, b: RectifiedImage, feature, match, config: EstimatorConfig,
+                 noise_a: float | None = None):
         self.column, self.row = round(float(match.position_px[0])), round(float(match.position_px[1]))   # = np.rint
         size = b.image.shape
         self.inside = 0 <= self.row < size[0] and 0 <= self.column < size[1]
@@ -194,7 +214,7 @@ class _MatchCheck:
             float(map_b.map_y[self.row, self.column]) - float(map_a.map_y[feature.row, feature.column])))
         half = config.template_size_px // 2
         window = b.image[max(self.row - half, 0): self.row + half + 1, max(self.column - half, 0): self.column + half + 1]
-        noise_a = a.noise_at(feature.column, feature.row)
+        noise_a = a.noise_at(feature.column, feature.row) if noise_a is None else noise_a
         noise_b = b.noise_at(self.column, self.row)
         signal_a = max(feature.contrast_dn ** 2 - noise_a ** 2, 1e-12)
         signal_b = max(_variance(window) - noise_b ** 2, 1e-12)
@@ -412,9 +432,10 @@ class DimesEstimator:
             rows, columns = b.image.shape
             noise_b = b.noise_at(min(max(int(round(float(predicted[0]))), 0), columns - 1),
                                  min(max(int(round(float(predicted[1]))), 0), rows - 1))
+            noise_a = a.noise_at(feature.column, feature.row)
             match = match_template(a.image, b.image, a.coarse, b.coarse, (feature.column, feature.row),
-                                   predicted, radius, config, a.noise_at(feature.column, feature.row), noise_b)
-            check = _MatchCheck(a, b, feature, match, config)
+                                   predicted, radius, config, noise_a, noise_b)
+            check = _MatchCheck(a, b, feature, match, config, noise_a)
             status = match.status
             if status == "ok" and not check.on_usable_ground(match_valid_b):
                 status = "match_in_excluded_area"

@@ -338,6 +338,7 @@ def _cone_cells(cosines: np.ndarray, threshold: float) -> tuple[int, int, int, i
 
 
 _FIELD_RADIUS: dict[int, tuple[Camera, float]] = {}
+_TWO_DEGREES_RAD = float(np.radians(2.0))
 
 
 def field_radius_rad(camera: Camera) -> float:
@@ -429,27 +430,30 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
     n_cols, n_rows = camera.width_px // b, camera.height_px // b
     half = 0.5 * (size - 1)
     origin = np.asarray(centre_m, dtype=float) + sample_m * np.array([-half, half])
-    operator = knot_operator(size, knots)
-    knot_px = operator[0]
-    east = origin[0] + sample_m * knot_px[None, :] + 0.0 * knot_px[:, None]
-    north = origin[1] - sample_m * knot_px[:, None] + 0.0 * knot_px[None, :]
-    ground = np.stack([east, north, np.zeros_like(east)], axis=-1)           # (K+2, K+2, 3)
+    knot_px = knot_operator(size, knots)[0]
+    extended = len(knot_px)
+    # (K+2, K+2, 3): east varies along columns, north along rows, height 0 (the same values as broadcasting
+    # ``origin + s (u, -v)`` over the grid)
+    ground = np.empty((extended, extended, 3))
+    ground[:, :, 0] = origin[0] + sample_m * knot_px
+    ground[:, :, 1] = (origin[1] - sample_m * knot_px)[:, None]
+    ground[:, :, 2] = 0.0
     pixels, in_front = cahvor.project(pose.model, ground)
     binned = (pixels - 0.5 * (b - 1)) / b
     usable = in_front & np.all(np.abs(binned) < 1e5, axis=-1)
-    channels = [np.where(usable, binned[..., 0], 0.0), np.where(usable, binned[..., 1], 0.0)]
-    rays = ground - pose.centre_m
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    reach = field_radius_rad(camera) + np.radians(2.0)       # only cones that can meet the frame
+    reach = field_radius_rad(camera) + _TWO_DEGREES_RAD       # only cones that can meet the frame
     cones = []
     if anti_sun is not None and zero_phase_half_angle_rad > 0:
         cones.append((np.asarray(anti_sun, dtype=float), zero_phase_half_angle_rad))
     if heat_shield_m is not None and heat_shield_half_angle_rad > 0:
         shield = np.asarray(heat_shield_m, dtype=float) - pose.centre_m
         cones.append((shield / max(float(np.linalg.norm(shield)), 1e-9), heat_shield_half_angle_rad))
+    boresight = pose.boresight
     cones = [(axis, cone_half) for axis, cone_half in cones
-             if np.arccos(np.clip(axis @ pose.boresight, -1.0, 1.0)) < reach + cone_half]
-    maps = _upsample(size, knots, np.stack(channels, axis=-1))
+             if np.arccos(min(max(axis @ boresight, -1.0), 1.0)) < reach + cone_half]
+    knot_maps = np.zeros((extended, extended, 2))
+    np.copyto(knot_maps, binned, where=usable[:, :, None])                 # 0 where not usable
+    maps = _upsample(size, knots, knot_maps)
     map_x, map_y = maps[0], maps[1]
     rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
     cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
@@ -457,8 +461,11 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
     if not cells.all():
         counts = np.bincount(cell_of_pixel(size, knots), minlength=knots - 1)
         visible &= np.repeat(np.repeat(cells, counts, axis=0), counts, axis=1)
-    excluded = np.zeros((size, size), dtype=bool)
-    segments = _segments(size, knots)
+    excluded = np.zeros((size, size), dtype=np.uint8)
+    if cones:
+        rays = ground - pose.centre_m
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        segments = _segments(size, knots)
     for axis, cone_half in cones:
         # the cone's cosine is interpolated only over the knot cells where it may exceed cos(half angle)
         cosines = rays @ axis
@@ -470,9 +477,10 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
         rows = [seg for seg in segments if block[0] <= seg[2] < block[1]]
         columns = [seg for seg in segments if block[2] <= seg[2] < block[3]]
         if rows and columns:
-            excluded[rows[0][0]: rows[-1][1], columns[0][0]: columns[-1][1]] |= cosine > threshold
+            inside = excluded[rows[0][0]: rows[-1][1], columns[0][0]: columns[-1][1]].view(bool)
+            inside |= cosine > threshold
     return Rectification(origin_m=origin, sample_m=float(sample_m), map_x=map_x, map_y=map_y,
-                         visible=visible.astype(np.uint8), excluded_zone=excluded.astype(np.uint8))
+                         visible=visible.view(np.uint8), excluded_zone=excluded)
 
 
 def warp(image: np.ndarray, rectification: Rectification, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
