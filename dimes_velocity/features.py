@@ -219,7 +219,7 @@ class FeatureSelector:
                     cell = scored[upper - top:lower - top, first - left:last - left]
                     if cell.size == 0:
                         continue
-                    index = int(np.argmax(cell))
+                    index = int(cell.argmax())
                     row, column = divmod(index, cell.shape[1])
                     if cell[row, column] < 0:
                         continue
