@@ -303,11 +303,10 @@ class DimesEstimator:
         sun = np.asarray(measurements.sun_direction_world, dtype=float)
         anti_sun = -sun / np.linalg.norm(sun)
         sun_up = -float(anti_sun[2])            # sine of the sun elevation; <= 0: no sunlit ground to track
-        rectified: list[RectifiedImage | None] = []
         unusable: list[str] = []
-        for k, (flat, pose, measurement) in enumerate(zip(flats, poses, measurements.images)):
+        requests: list[geometry.RectificationRequest] = []
+        for k, (pose, measurement) in enumerate(zip(poses, measurements.images)):
             if sun_up <= 0.0 or pose.off_nadir_rad > config.max_off_nadir_rad or pose.centre_m[2] <= 0.0:
-                rectified.append(None)
                 unusable.append("sun_below_horizon" if sun_up <= 0.0 else "bad_attitude")
                 continue
             unusable.append("")
@@ -318,14 +317,21 @@ class DimesEstimator:
                 shield = lander + np.asarray(measurement.heat_shield_offset_m, dtype=float)
                 distance = max(float(np.linalg.norm(shield - pose.centre_m)), 1e-3)
                 half_angle = float(np.arctan2(config.heat_shield_radius_m, distance)) + config.heat_shield_margin_rad
-            rectification = geometry.rectify_map(
-                pose, self.camera, config.rectified_size_px, sample_m,
-                geometry.ground_centre_m(pose, config.max_off_nadir_rad), config.rectification_knots,
-                anti_sun, config.zero_phase_half_angle_rad, shield, half_angle)
+            requests.append(geometry.RectificationRequest(
+                pose, geometry.ground_centre_m(pose, config.max_off_nadir_rad), shield, half_angle))
+        # all the usable images' maps at once (one interpolation of their knot maps)
+        rectifications = iter(geometry.rectify_maps(requests, self.camera, config.rectified_size_px, sample_m,
+                                                    config.rectification_knots, anti_sun,
+                                                    config.zero_phase_half_angle_rad))
+        rectified: list[RectifiedImage | None] = []
+        for flat, pose, reason in zip(flats, poses, unusable):
+            if reason:
+                rectified.append(None)
+                continue
             ratio = sample_m * self.focal_px / pose.centre_m[2]
             blur = config.resolution_blur * np.sqrt(max(ratio * ratio - 1.0, 0.0)) if config.equalize_resolution else 0.0
             blur = min(blur, MAX_BLUR_PX)
-            rectified.append(RectifiedImage(flat, rectification, pose, config, blur))
+            rectified.append(RectifiedImage(flat, next(rectifications), pose, config, blur))
         t_rect = time.perf_counter()
 
         times = np.array([m.time_s for m in measurements.images])
