@@ -95,7 +95,7 @@ class RectifiedImage:
             bad_pixel = codes > 0
             self.valid = visible & ~bad_pixel & ~zone
         else:                                                # no bad block: nothing to carry over
-            self.valid = visible & ~zone
+            self.valid = np.greater(rectification.visible, rectification.excluded_zone)   # 0/1: visible & ~zone
         self.coverage = float(np.count_nonzero(self.valid)) / self.valid.size
         self.unusable_reason = "ok"
         if self.coverage < config.min_ground_coverage:
