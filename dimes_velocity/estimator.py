@@ -220,8 +220,16 @@ class _MatchCheck:
         signal_b = max(_variance(window) - noise_b ** 2, 1e-12)
         self.noise_decorrelation = 0.5 * (noise_a ** 2 / signal_a + noise_b ** 2 / signal_b)
 
-    def on_usable_ground(self, match_valid_b: np.ndarray) -> bool:
-        return self.inside and bool(match_valid_b[self.row, self.column])
+    def on_usable_ground(self, valid_b: np.ndarray, half: int) -> bool:
+        """The match's whole template, ``(2 half + 1)^2`` around it, lies on usable ground of B.
+
+        ``_erode(valid_b, half)`` at the match, without eroding the whole image: outside the image is not usable.
+        """
+        row, column = self.row, self.column
+        rows, columns = valid_b.shape
+        if not self.inside or row < half or column < half or row + half >= rows or column + half >= columns:
+            return False
+        return bool(valid_b[row - half: row + half + 1, column - half: column + half + 1].all())
 
 
 class DimesEstimator:
@@ -429,7 +437,6 @@ class DimesEstimator:
             reason = "low_contrast" if selector.low_contrast else "no_overlap"
             return result(reason, radius), [], t1 - t0, 0.0
 
-        match_valid_b = _erode(b.valid, config.template_size_px // 2)
         # feature, match, status, ground position in A, displacement, checks
         records: list[tuple[Candidate, Match, str, np.ndarray, np.ndarray, _MatchCheck]] = []
         select_s = 0.0
@@ -443,7 +450,7 @@ class DimesEstimator:
                                    predicted, radius, config, noise_a, noise_b)
             check = _MatchCheck(a, b, feature, match, config, noise_a)
             status = match.status
-            if status == "ok" and not check.on_usable_ground(match_valid_b):
+            if status == "ok" and not check.on_usable_ground(b.valid, config.template_size_px // 2):
                 status = "match_in_excluded_area"
             elif status == "ok" and check.image_motion_px < config.min_image_motion_px:
                 status = "camera_fixed"
