@@ -208,7 +208,7 @@ def templates_statistics(image: np.ndarray, centres: list[tuple[int, int]],
     return list(zip(means.tolist(), spreads.tolist(), detrended.tolist()))
 
 
-_FIRST_STATISTICS = 4       # offers whose contrast is measured together first (a pair often stops there)
+_STATISTICS_BATCH = 4       # offers whose contrast is measured together (a pair often stops after the first four)
 
 
 def _edges(start: int, stop: int, cells: int) -> list[int]:
@@ -220,9 +220,9 @@ def _edges(start: int, stop: int, cells: int) -> list[int]:
 class FeatureSelector:
     """Templates in decreasing interest, drawn one at a time (:meth:`next`).
 
-    The contrast of the offers is measured as they are drawn: the first four together (a pair whose first matches
-    agree pays for no more), then all the others at once (:func:`templates_statistics`, the same values as one at
-    a time).
+    The contrast of the offers is measured as they are drawn: four at a time (a pair whose first matches agree pays
+    for no more), after eight all the others at once (:func:`templates_statistics`, the same values as one at a
+    time).
 
     Parameters
     ----------
@@ -294,8 +294,9 @@ class FeatureSelector:
             if any((column - c.column) ** 2 + (row - c.row) ** 2 < spacing2 for c in self.chosen):
                 continue
             index = self._position - 1
-            if index >= len(self._statistics):      # measure the next few offers at once: first 4, then the rest
-                stop = _FIRST_STATISTICS if not self._statistics else len(self._offers)
+            if index >= len(self._statistics):      # measure the next few offers at once: 4, 4 more, then the rest
+                done = len(self._statistics)
+                stop = done + _STATISTICS_BATCH if done < 2 * _STATISTICS_BATCH else len(self._offers)
                 self._statistics += templates_statistics(
                     self.image, [(c, r) for _, c, r in self._offers[len(self._statistics): max(stop, index + 1)]],
                     half)
