@@ -27,6 +27,7 @@ How this follows the flight DIMES algorithm is in the package docstring (:mod:`d
 """
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 
@@ -94,7 +95,7 @@ class RectifiedImage:
             bad_pixel = codes > 0
             self.valid = visible & ~bad_pixel & ~zone
         else:                                                # no bad block: nothing to carry over
-            self.valid = visible & ~zone
+            self.valid = np.greater(rectification.visible, rectification.excluded_zone)   # 0/1: visible & ~zone
         self.coverage = float(np.count_nonzero(self.valid)) / self.valid.size
         self.unusable_reason = "ok"
         if self.coverage < config.min_ground_coverage:
@@ -125,10 +126,29 @@ class RectifiedImage:
         return self.flat.noise_dn_at(source_row, source_column)
 
 
+_SCALAR_POINTS = 12      # up to this many points, pairwise distances in Python scalars (fewer calls than numpy)
+
+
+def _largest_distance(points) -> float:
+    """Largest distance between 2-D points (0 for none).
+
+    ``np.linalg.norm(p[:, None] - p[None], axis=-1).max()``: ``sqrt(dx * dx + dy * dy)`` (the same rounding: a
+    sum of two squares, a correctly rounded square root), in Python scalars for a few points.
+    """
+    values = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(values) > _SCALAR_POINTS:
+        return float(np.linalg.norm(values[:, None] - values[None], axis=-1).max())
+    pairs = values.tolist()
+    squares = [(x - other_x) * (x - other_x) + (y - other_y) * (y - other_y)
+               for k, (x, y) in enumerate(pairs) for other_x, other_y in pairs[k + 1:]]
+    if any(square != square for square in squares):       # NaN, as numpy's max
+        return math.nan
+    return math.sqrt(max(squares, default=0.0))
+
+
 def _span(centres_px) -> float:
     """Largest distance between template centres (px)."""
-    points = np.asarray(centres_px, dtype=float).reshape(-1, 2)
-    return float(np.linalg.norm(points[:, None] - points[None], axis=-1).max()) if len(points) else 0.0
+    return _largest_distance(centres_px)
 
 
 def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m: float, min_span_px: float) -> bool:
@@ -138,9 +158,8 @@ def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m:
     """
     if len(displacements_m) < count:
         return False
-    points = np.asarray(displacements_m, dtype=float)
-    return (bool(np.linalg.norm(points[:, None] - points[None], axis=-1).max() <= tolerance_m)
-            and (len(points) == 1 or _span(centres_px) >= min_span_px))
+    return (_largest_distance(displacements_m) <= tolerance_m
+            and (len(displacements_m) == 1 or _span(centres_px) >= min_span_px))
 
 
 def _erode(mask: np.ndarray, half: int) -> np.ndarray:
@@ -180,7 +199,8 @@ class _MatchCheck:
     match is on usable ground, and how much decorrelation the pixel noise of template and match explains.
     """
 
-    def __init__(self, a: RectifiedImage, b: RectifiedImage, feature, match, config: EstimatorConfig):
+    def __init__(self, a: RectifiedImage, b: RectifiedImage, feature, match, config: EstimatorConfig,
+                 noise_a: float | None = None):
         self.column, self.row = round(float(match.position_px[0])), round(float(match.position_px[1]))   # = np.rint
         size = b.image.shape
         self.inside = 0 <= self.row < size[0] and 0 <= self.column < size[1]
@@ -194,14 +214,22 @@ class _MatchCheck:
             float(map_b.map_y[self.row, self.column]) - float(map_a.map_y[feature.row, feature.column])))
         half = config.template_size_px // 2
         window = b.image[max(self.row - half, 0): self.row + half + 1, max(self.column - half, 0): self.column + half + 1]
-        noise_a = a.noise_at(feature.column, feature.row)
+        noise_a = a.noise_at(feature.column, feature.row) if noise_a is None else noise_a
         noise_b = b.noise_at(self.column, self.row)
         signal_a = max(feature.contrast_dn ** 2 - noise_a ** 2, 1e-12)
         signal_b = max(_variance(window) - noise_b ** 2, 1e-12)
         self.noise_decorrelation = 0.5 * (noise_a ** 2 / signal_a + noise_b ** 2 / signal_b)
 
-    def on_usable_ground(self, match_valid_b: np.ndarray) -> bool:
-        return self.inside and bool(match_valid_b[self.row, self.column])
+    def on_usable_ground(self, valid_b: np.ndarray, half: int) -> bool:
+        """The match's whole template, ``(2 half + 1)^2`` around it, lies on usable ground of B.
+
+        ``_erode(valid_b, half)`` at the match, without eroding the whole image: outside the image is not usable.
+        """
+        row, column = self.row, self.column
+        rows, columns = valid_b.shape
+        if not self.inside or row < half or column < half or row + half >= rows or column + half >= columns:
+            return False
+        return bool(valid_b[row - half: row + half + 1, column - half: column + half + 1].all())
 
 
 class DimesEstimator:
@@ -283,11 +311,10 @@ class DimesEstimator:
         sun = np.asarray(measurements.sun_direction_world, dtype=float)
         anti_sun = -sun / np.linalg.norm(sun)
         sun_up = -float(anti_sun[2])            # sine of the sun elevation; <= 0: no sunlit ground to track
-        rectified: list[RectifiedImage | None] = []
         unusable: list[str] = []
-        for k, (flat, pose, measurement) in enumerate(zip(flats, poses, measurements.images)):
+        requests: list[geometry.RectificationRequest] = []
+        for k, (pose, measurement) in enumerate(zip(poses, measurements.images)):
             if sun_up <= 0.0 or pose.off_nadir_rad > config.max_off_nadir_rad or pose.centre_m[2] <= 0.0:
-                rectified.append(None)
                 unusable.append("sun_below_horizon" if sun_up <= 0.0 else "bad_attitude")
                 continue
             unusable.append("")
@@ -298,14 +325,21 @@ class DimesEstimator:
                 shield = lander + np.asarray(measurement.heat_shield_offset_m, dtype=float)
                 distance = max(float(np.linalg.norm(shield - pose.centre_m)), 1e-3)
                 half_angle = float(np.arctan2(config.heat_shield_radius_m, distance)) + config.heat_shield_margin_rad
-            rectification = geometry.rectify_map(
-                pose, self.camera, config.rectified_size_px, sample_m,
-                geometry.ground_centre_m(pose, config.max_off_nadir_rad), config.rectification_knots,
-                anti_sun, config.zero_phase_half_angle_rad, shield, half_angle)
+            requests.append(geometry.RectificationRequest(
+                pose, geometry.ground_centre_m(pose, config.max_off_nadir_rad), shield, half_angle))
+        # all the usable images' maps at once (one interpolation of their knot maps)
+        rectifications = iter(geometry.rectify_maps(requests, self.camera, config.rectified_size_px, sample_m,
+                                                    config.rectification_knots, anti_sun,
+                                                    config.zero_phase_half_angle_rad))
+        rectified: list[RectifiedImage | None] = []
+        for flat, pose, reason in zip(flats, poses, unusable):
+            if reason:
+                rectified.append(None)
+                continue
             ratio = sample_m * self.focal_px / pose.centre_m[2]
             blur = config.resolution_blur * np.sqrt(max(ratio * ratio - 1.0, 0.0)) if config.equalize_resolution else 0.0
             blur = min(blur, MAX_BLUR_PX)
-            rectified.append(RectifiedImage(flat, rectification, pose, config, blur))
+            rectified.append(RectifiedImage(flat, next(rectifications), pose, config, blur))
         t_rect = time.perf_counter()
 
         times = np.array([m.time_s for m in measurements.images])
@@ -403,7 +437,6 @@ class DimesEstimator:
             reason = "low_contrast" if selector.low_contrast else "no_overlap"
             return result(reason, radius), [], t1 - t0, 0.0
 
-        match_valid_b = _erode(b.valid, config.template_size_px // 2)
         # feature, match, status, ground position in A, displacement, checks
         records: list[tuple[Candidate, Match, str, np.ndarray, np.ndarray, _MatchCheck]] = []
         select_s = 0.0
@@ -412,11 +445,12 @@ class DimesEstimator:
             rows, columns = b.image.shape
             noise_b = b.noise_at(min(max(int(round(float(predicted[0]))), 0), columns - 1),
                                  min(max(int(round(float(predicted[1]))), 0), rows - 1))
+            noise_a = a.noise_at(feature.column, feature.row)
             match = match_template(a.image, b.image, a.coarse, b.coarse, (feature.column, feature.row),
-                                   predicted, radius, config, a.noise_at(feature.column, feature.row), noise_b)
-            check = _MatchCheck(a, b, feature, match, config)
+                                   predicted, radius, config, noise_a, noise_b)
+            check = _MatchCheck(a, b, feature, match, config, noise_a)
             status = match.status
-            if status == "ok" and not check.on_usable_ground(match_valid_b):
+            if status == "ok" and not check.on_usable_ground(b.valid, config.template_size_px // 2):
                 status = "match_in_excluded_area"
             elif status == "ok" and check.image_motion_px < config.min_image_motion_px:
                 status = "camera_fixed"
@@ -489,7 +523,23 @@ class DimesEstimator:
                              self.config.pair_agreement_mps, self.config.require_both_pairs)
 
 
-_CACHE: dict[tuple[int, int], tuple[Camera, EstimatorConfig, object, DimesEstimator]] = {}
+_CACHE: dict[tuple, tuple[Camera, EstimatorConfig, object, DimesEstimator]] = {}
+
+
+def _flat_field_key(flat_field: np.ndarray | None) -> tuple[object, tuple]:
+    """The array that owns a flat field's memory, and where in it the flat field lies.
+
+    Two arrays with the same owner, data address, shape, strides and dtype are the same values (a campaign hands
+    every case a fresh read-only view of one flat field: without this, each view would build a new estimator,
+    ~5 ms a case). ``(None, ())`` for no flat field.
+    """
+    if flat_field is None:
+        return None, ()
+    array = np.asarray(flat_field)
+    owner = array
+    while isinstance(owner.base, np.ndarray):
+        owner = owner.base
+    return owner, (array.__array_interface__["data"][0], array.shape, array.strides, array.dtype.str)
 
 
 def estimate_velocity(images: Sequence[np.ndarray], measurements: DescentMeasurements, camera: Camera,
@@ -508,18 +558,20 @@ def estimate_velocity(images: Sequence[np.ndarray], measurements: DescentMeasure
     config : EstimatorConfig, optional
         The estimator's parameters.
     flat_field : ndarray or None, optional
-        Measured flat field, shape ``camera.binned_shape``; cached by identity (the same array object).
+        Measured flat field, shape ``camera.binned_shape``; cached by its memory: the same array, or a view of
+        the same memory with the same shape, strides and dtype (e.g. a fresh read-only view per case).
 
     Returns
     -------
     VelocityEstimate
         As :meth:`DimesEstimator.estimate`.
     """
-    key = (id(camera), id(flat_field))
+    owner, layout = _flat_field_key(flat_field)
+    key = (id(camera), id(owner), layout)
     cached = _CACHE.get(key)
-    if cached is None or cached[0] is not camera or cached[1] != config or cached[2] is not flat_field:
+    if cached is None or cached[0] is not camera or cached[1] != config or cached[2] is not owner:
         if len(_CACHE) > 8:
             _CACHE.clear()
-        cached = (camera, config, flat_field, DimesEstimator(camera, config, flat_field))
+        cached = (camera, config, owner, DimesEstimator(camera, config, flat_field))
         _CACHE[key] = cached
     return cached[3].estimate(images, measurements)

@@ -164,6 +164,53 @@ def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> 
     return mean, std, float(np.sqrt(np.add.reduce(residual, axis=None) / count))
 
 
+def templates_statistics(image: np.ndarray, centres: list[tuple[int, int]],
+                         half: int) -> list[tuple[float, float, float]]:
+    """:func:`template_statistics` of several templates, in fewer calls.
+
+    The same values: the same float64 operations on each template (a reduction over a C-contiguous template's
+    row of a ``(n, side * side)`` stack is the one over that template alone; the plane slopes are the same
+    per-template dot products).
+
+    Parameters
+    ----------
+    image : ndarray, shape (N, M)
+        Rectified, flattened image (DN).
+    centres : list of (int, int)
+        Template centres ``(column, row)`` (px); every template lies inside the image.
+    half : int
+        Half size: the templates are (2 half + 1) x (2 half + 1) pixels.
+
+    Returns
+    -------
+    list of (mean_dn, std_dn, detrended_std_dn)
+        Per template, as :func:`template_statistics`.
+    """
+    if not centres:
+        return []
+    side = 2 * half + 1
+    count = side * side
+    offsets, norm = _plane_offsets(half)
+    patches = np.stack([image[row - half: row + half + 1, column - half: column + half + 1]
+                        for column, row in centres]).astype(np.float64)             # (n, side, side)
+    templates = len(centres)
+    means = np.add.reduce(patches.reshape(templates, count), axis=1) / count
+    column_sums, row_sums = patches.sum(axis=1), patches.sum(axis=2)               # = patch.sum(axis=0 / 1)
+    slopes_x = np.array([float((column_sums[k] @ offsets) / norm) for k in range(templates)])
+    slopes_y = np.array([float((row_sums[k] @ offsets) / norm) for k in range(templates)])
+    centred = patches - means[:, None, None]
+    spreads = np.sqrt(np.add.reduce((centred * centred).reshape(templates, count), axis=1) / count)
+    residual = centred - slopes_x[:, None, None] * offsets[None, None, :]
+    residual -= slopes_y[:, None, None] * offsets[None, :, None]
+    residual -= (np.add.reduce(residual.reshape(templates, count), axis=1) / count)[:, None, None]
+    residual *= residual
+    detrended = np.sqrt(np.add.reduce(residual.reshape(templates, count), axis=1) / count)
+    return list(zip(means.tolist(), spreads.tolist(), detrended.tolist()))
+
+
+_STATISTICS_BATCH = 4       # offers whose contrast is measured together (a pair often stops after the first four)
+
+
 def _edges(start: int, stop: int, cells: int) -> list[int]:
     """``np.linspace(start, stop, cells + 1).astype(int)`` (the same float64 steps) as Python ints."""
     step = (stop - start) / cells
@@ -173,8 +220,9 @@ def _edges(start: int, stop: int, cells: int) -> list[int]:
 class FeatureSelector:
     """Templates in decreasing interest, drawn one at a time (:meth:`next`).
 
-    The contrast of an offer is measured only when it is drawn, so a pair whose first matches agree pays for no
-    more.
+    The contrast of the offers is measured as they are drawn: four at a time (a pair whose first matches agree pays
+    for no more), after eight all the others at once (:func:`templates_statistics`, the same values as one at a
+    time).
 
     Parameters
     ----------
@@ -219,7 +267,7 @@ class FeatureSelector:
                     cell = scored[upper - top:lower - top, first - left:last - left]
                     if cell.size == 0:
                         continue
-                    index = int(np.argmax(cell))
+                    index = int(cell.argmax())
                     row, column = divmod(index, cell.shape[1])
                     if cell[row, column] < 0:
                         continue
@@ -227,6 +275,7 @@ class FeatureSelector:
             self._offers.sort(key=lambda offer: -offer[0])
         self.offered = len(self._offers)
         self._position = 0
+        self._statistics: list[tuple[float, float, float]] = []     # of the offers measured so far, in order
 
     def next(self) -> Candidate | None:
         """The next template with enough contrast, at least ``min_feature_spacing_px`` from those drawn before.
@@ -244,7 +293,14 @@ class FeatureSelector:
             self._position += 1
             if any((column - c.column) ** 2 + (row - c.row) ** 2 < spacing2 for c in self.chosen):
                 continue
-            mean, std, detrended = template_statistics(self.image, column, row, half)
+            index = self._position - 1
+            if index >= len(self._statistics):      # measure the next few offers at once: 4, 4 more, then the rest
+                done = len(self._statistics)
+                stop = done + _STATISTICS_BATCH if done < 2 * _STATISTICS_BATCH else len(self._offers)
+                self._statistics += templates_statistics(
+                    self.image, [(c, r) for _, c, r in self._offers[len(self._statistics): max(stop, index + 1)]],
+                    half)
+            mean, std, detrended = self._statistics[index]
             noise = max(float(self.noise_dn_at(column, row)), 1e-6)
             if detrended / noise < config.min_contrast_to_noise or std < config.min_template_contrast_dn:
                 self.low_contrast += 1

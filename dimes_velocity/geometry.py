@@ -310,16 +310,11 @@ def _upsample(size: int, knots: int, knot_values: np.ndarray,
     return out.astype(np.float32).reshape(channels, row_count, column_count)
 
 
-def _support_extreme(values: np.ndarray, operation) -> np.ndarray:
-    """``operation`` (np.maximum / np.minimum) over the 4 x 4 knots of every cell: (K+2, K+2) -> (K-1, K-1)."""
-    rows = operation(operation(values[:-3], values[1:-2]), operation(values[2:-1], values[3:]))
-    return operation(operation(rows[:, :-3], rows[:, 1:-2]), operation(rows[:, 2:-1], rows[:, 3:]))
-
-
 # Catmull-Rom weights of a cell sum to 1 with at most 0.28125 negative (1-D: -t (1 - t) / 2 <= 1/8 for each
 # axis; 2-D: (1 + 1/8) / 8 twice): an interpolated value is at most max + 0.28125 (max - min) of the cell's
 # 4 x 4 knots.
 _CATMULL_ROM_OVERSHOOT = 0.28125
+_KNOT_SUPPORT = np.ones((4, 4), np.uint8)      # a cell's 4 x 4 knots, from its first (anchor (0, 0))
 _CONE_TEST_MARGIN = 1e-6       # covers float64 rounding and the float32 map values
 
 
@@ -328,8 +323,10 @@ def _cone_cells(cosines: np.ndarray, threshold: float) -> tuple[int, int, int, i
 
     Outside the block no interpolated cosine can exceed ``threshold`` (None: nowhere).
     """
-    highest = _support_extreme(cosines, np.maximum)
-    lowest = _support_extreme(cosines, np.minimum)
+    cells = len(cosines) - 3
+    # largest and smallest of every cell's 4 x 4 knots: (K+2, K+2) -> (K-1, K-1)
+    highest = cv2.dilate(cosines, _KNOT_SUPPORT, anchor=(0, 0))[:cells, :cells]
+    lowest = cv2.erode(cosines, _KNOT_SUPPORT, anchor=(0, 0))[:cells, :cells]
     possible = highest + _CATMULL_ROM_OVERSHOOT * (highest - lowest) > threshold - _CONE_TEST_MARGIN
     if not possible.any():
         return None
@@ -338,6 +335,7 @@ def _cone_cells(cosines: np.ndarray, threshold: float) -> tuple[int, int, int, i
 
 
 _FIELD_RADIUS: dict[int, tuple[Camera, float]] = {}
+_TWO_DEGREES_RAD = float(np.radians(2.0))
 
 
 def field_radius_rad(camera: Camera) -> float:
@@ -425,54 +423,125 @@ def rectify_map(pose: CameraPose, camera: Camera, size: int, sample_m: float, ce
     Rectification
         The map of the grid into the binned image, and where it is visible or excluded.
     """
+    return rectify_maps([RectificationRequest(pose, centre_m, heat_shield_m, heat_shield_half_angle_rad)], camera,
+                        size, sample_m, knots, anti_sun, zero_phase_half_angle_rad)[0]
+
+
+@dataclass(frozen=True)
+class RectificationRequest:
+    """One image's part of :func:`rectify_maps`: its camera, grid centre and heat shield cone.
+
+    Attributes
+    ----------
+    pose : CameraPose
+        The image's camera in the world frame.
+    centre_m : ndarray, shape (2,)
+        Ground east and north of the grid's centre (m).
+    heat_shield_m : ndarray (3,) or None
+        Predicted heat shield centre (world, m); None: no heat shield cone.
+    heat_shield_half_angle_rad : float
+        Half angle of the heat shield's cone (rad).
+    """
+
+    pose: CameraPose
+    centre_m: np.ndarray
+    heat_shield_m: np.ndarray | None = None
+    heat_shield_half_angle_rad: float = 0.0
+
+
+def rectify_maps(requests: list[RectificationRequest], camera: Camera, size: int, sample_m: float, knots: int,
+                 anti_sun: np.ndarray | None, zero_phase_half_angle_rad: float) -> list[Rectification]:
+    """:func:`rectify_map` of several images at one ground sampling.
+
+    The knot maps of all the images are interpolated in one :func:`_upsample` (the same products per pixel as
+    one image at a time, in fewer calls).
+
+    Parameters
+    ----------
+    requests : list of RectificationRequest
+        Each image's camera, grid centre and heat shield cone.
+    camera : Camera
+        The camera (binning, frame size, field radius).
+    size : int
+        Rectified grid size N (px).
+    sample_m : float
+        Ground sampling (m per rectified pixel).
+    knots : int
+        Knots per axis of the Catmull-Rom map (:func:`knot_operator`).
+    anti_sun : ndarray (3,) or None
+        Unit vector from the sun's direction reversed (-sun); None: no zero-phase zone.
+    zero_phase_half_angle_rad : float
+        Half angle of the zero-phase zone (rad).
+
+    Returns
+    -------
+    list of Rectification
+        One per request, in order.
+    """
+    if not requests:
+        return []
     b = camera.binning_rows
     n_cols, n_rows = camera.width_px // b, camera.height_px // b
     half = 0.5 * (size - 1)
-    origin = np.asarray(centre_m, dtype=float) + sample_m * np.array([-half, half])
-    operator = knot_operator(size, knots)
-    knot_px = operator[0]
-    east = origin[0] + sample_m * knot_px[None, :] + 0.0 * knot_px[:, None]
-    north = origin[1] - sample_m * knot_px[:, None] + 0.0 * knot_px[None, :]
-    ground = np.stack([east, north, np.zeros_like(east)], axis=-1)           # (K+2, K+2, 3)
-    pixels, in_front = cahvor.project(pose.model, ground)
-    binned = (pixels - 0.5 * (b - 1)) / b
-    usable = in_front & np.all(np.abs(binned) < 1e5, axis=-1)
-    channels = [np.where(usable, binned[..., 0], 0.0), np.where(usable, binned[..., 1], 0.0)]
-    rays = ground - pose.centre_m
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    reach = field_radius_rad(camera) + np.radians(2.0)       # only cones that can meet the frame
-    cones = []
-    if anti_sun is not None and zero_phase_half_angle_rad > 0:
-        cones.append((np.asarray(anti_sun, dtype=float), zero_phase_half_angle_rad))
-    if heat_shield_m is not None and heat_shield_half_angle_rad > 0:
-        shield = np.asarray(heat_shield_m, dtype=float) - pose.centre_m
-        cones.append((shield / max(float(np.linalg.norm(shield)), 1e-9), heat_shield_half_angle_rad))
-    cones = [(axis, cone_half) for axis, cone_half in cones
-             if np.arccos(np.clip(axis @ pose.boresight, -1.0, 1.0)) < reach + cone_half]
-    maps = _upsample(size, knots, np.stack(channels, axis=-1))
-    map_x, map_y = maps[0], maps[1]
-    rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
-    cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
-    visible = (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1)
-    if not cells.all():
-        counts = np.bincount(cell_of_pixel(size, knots), minlength=knots - 1)
-        visible &= np.repeat(np.repeat(cells, counts, axis=0), counts, axis=1)
-    excluded = np.zeros((size, size), dtype=bool)
-    segments = _segments(size, knots)
-    for axis, cone_half in cones:
-        # the cone's cosine is interpolated only over the knot cells where it may exceed cos(half angle)
-        cosines = rays @ axis
-        threshold = float(np.cos(cone_half))
-        block = _cone_cells(cosines, threshold)
-        if block is None:
-            continue
-        cosine = _upsample(size, knots, cosines[:, :, None], block)[0]
-        rows = [seg for seg in segments if block[0] <= seg[2] < block[1]]
-        columns = [seg for seg in segments if block[2] <= seg[2] < block[3]]
-        if rows and columns:
-            excluded[rows[0][0]: rows[-1][1], columns[0][0]: columns[-1][1]] |= cosine > threshold
-    return Rectification(origin_m=origin, sample_m=float(sample_m), map_x=map_x, map_y=map_y,
-                         visible=visible.astype(np.uint8), excluded_zone=excluded.astype(np.uint8))
+    knot_px = knot_operator(size, knots)[0]
+    extended = len(knot_px)
+    reach = field_radius_rad(camera) + _TWO_DEGREES_RAD       # only cones that can meet the frame
+    knot_maps = np.zeros((extended, extended, 2 * len(requests)))
+    parts = []
+    for index, request in enumerate(requests):
+        pose = request.pose
+        origin = np.asarray(request.centre_m, dtype=float) + sample_m * np.array([-half, half])
+        # (K+2, K+2, 3): east varies along columns, north along rows, height 0 (the same values as broadcasting
+        # ``origin + s (u, -v)`` over the grid)
+        ground = np.empty((extended, extended, 3))
+        ground[:, :, 0] = origin[0] + sample_m * knot_px
+        ground[:, :, 1] = (origin[1] - sample_m * knot_px)[:, None]
+        ground[:, :, 2] = 0.0
+        pixels, in_front = cahvor.project(pose.model, ground)
+        binned = (pixels - 0.5 * (b - 1)) / b
+        usable = in_front & np.all(np.abs(binned) < 1e5, axis=-1)
+        np.copyto(knot_maps[:, :, 2 * index: 2 * index + 2], binned, where=usable[:, :, None])   # 0 where not usable
+        cones = []
+        if anti_sun is not None and zero_phase_half_angle_rad > 0:
+            cones.append((np.asarray(anti_sun, dtype=float), zero_phase_half_angle_rad))
+        if request.heat_shield_m is not None and request.heat_shield_half_angle_rad > 0:
+            shield = np.asarray(request.heat_shield_m, dtype=float) - pose.centre_m
+            cones.append((shield / max(float(np.linalg.norm(shield)), 1e-9), request.heat_shield_half_angle_rad))
+        boresight = pose.boresight
+        cones = [(axis, cone_half) for axis, cone_half in cones
+                 if np.arccos(min(max(axis @ boresight, -1.0), 1.0)) < reach + cone_half]
+        parts.append((pose, origin, ground, usable, cones))
+    maps = _upsample(size, knots, knot_maps)
+    rectifications = []
+    for index, (pose, origin, ground, usable, cones) in enumerate(parts):
+        map_x, map_y = maps[2 * index], maps[2 * index + 1]
+        rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
+        cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
+        visible = (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1)
+        if not cells.all():
+            counts = np.bincount(cell_of_pixel(size, knots), minlength=knots - 1)
+            visible &= np.repeat(np.repeat(cells, counts, axis=0), counts, axis=1)
+        excluded = np.zeros((size, size), dtype=np.uint8)
+        if cones:
+            rays = ground - pose.centre_m
+            rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+            segments = _segments(size, knots)
+        for axis, cone_half in cones:
+            # the cone's cosine is interpolated only over the knot cells where it may exceed cos(half angle)
+            cosines = rays @ axis
+            threshold = float(np.cos(cone_half))
+            block = _cone_cells(cosines, threshold)
+            if block is None:
+                continue
+            cosine = _upsample(size, knots, cosines[:, :, None], block)[0]
+            rows = [seg for seg in segments if block[0] <= seg[2] < block[1]]
+            columns = [seg for seg in segments if block[2] <= seg[2] < block[3]]
+            if rows and columns:
+                inside = excluded[rows[0][0]: rows[-1][1], columns[0][0]: columns[-1][1]].view(bool)
+                inside |= cosine > threshold
+        rectifications.append(Rectification(origin_m=origin, sample_m=float(sample_m), map_x=map_x, map_y=map_y,
+                                            visible=visible.view(np.uint8), excluded_zone=excluded))
+    return rectifications
 
 
 def warp(image: np.ndarray, rectification: Rectification, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:

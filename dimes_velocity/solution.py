@@ -8,7 +8,11 @@ the pairs must then agree with each other.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+_SCALAR_MATCHES = 12        # up to this many matches, the agreement test in Python scalars (fewer calls)
 
 
 def consensus(displacements_m: np.ndarray, correlations: np.ndarray, tolerance_m: float, min_count: int,
@@ -37,10 +41,20 @@ def consensus(displacements_m: np.ndarray, correlations: np.ndarray, tolerance_m
     count = len(displacements_m)
     if count == 0:
         return np.zeros(0, dtype=int)
-    close = np.linalg.norm(displacements_m[:, None, :] - displacements_m[None, :, :], axis=-1) <= tolerance_m
-    sizes = close.sum(axis=1)
-    seed = int(np.argmax(sizes + 1e-3 * np.clip(np.asarray(correlations, dtype=float), -1.0, 1.0)))
-    group = np.flatnonzero(close[seed])
+    weights = np.asarray(correlations, dtype=float).ravel()
+    if count <= _SCALAR_MATCHES and np.isfinite(displacements_m).all() and np.isfinite(weights).all():
+        # the same test in Python scalars: the norm of a 2-vector is sqrt(dx * dx + dy * dy), correctly rounded
+        points, values = displacements_m.tolist(), weights.tolist()
+        close_rows = [[math.sqrt((x - other_x) * (x - other_x) + (y - other_y) * (y - other_y)) <= tolerance_m
+                       for other_x, other_y in points] for x, y in points]
+        scores = [sum(row) + 1e-3 * min(max(value, -1.0), 1.0) for row, value in zip(close_rows, values)]
+        seed = max(range(count), key=scores.__getitem__)            # the first largest, as np.argmax
+        group = np.array([k for k, near in enumerate(close_rows[seed]) if near], dtype=np.intp)
+    else:
+        close = np.linalg.norm(displacements_m[:, None, :] - displacements_m[None, :, :], axis=-1) <= tolerance_m
+        sizes = close.sum(axis=1)
+        seed = int(np.argmax(sizes + 1e-3 * np.clip(weights, -1.0, 1.0)))
+        group = np.flatnonzero(close[seed])
     if len(group) < min_count or (require_majority and 2 * len(group) <= count):
         return np.zeros(0, dtype=int)
     return group

@@ -92,6 +92,25 @@ def test_estimate_velocity_wrapper_matches_the_estimator(mer_a, noisy_descent, e
     assert wrapped.velocity_east_mps == direct.velocity_east_mps and wrapped.valid == direct.valid
 
 
+def test_estimate_velocity_reuses_its_estimator_for_views_of_one_flat_field(mer_a, noisy_descent):
+    """A campaign hands every case a fresh read-only view of its flat field: one estimator serves them all, and a
+    flat field in other memory (other values) gets its own."""
+    from dimes_velocity import estimator as module
+
+    flat = np.ones(mer_a.binned_shape, np.float32)
+    answers = []
+    for _ in range(3):
+        view = flat.view()
+        view.setflags(write=False)
+        answers.append(estimate_velocity(noisy_descent.images, noisy_descent.truth, mer_a, flat_field=view))
+    built = [entry for entry in module._CACHE.values() if entry[0] is mer_a and entry[2] is flat]
+    assert len(built) == 1
+    assert len({(a.velocity_east_mps, a.velocity_north_mps) for a in answers}) == 1
+    brighter = estimate_velocity(noisy_descent.images, noisy_descent.truth, mer_a, flat_field=0.5 * flat)
+    ratio = brighter.features[0].brightness_dn / answers[0].features[0].brightness_dn
+    assert ratio == pytest.approx(2.0, rel=1e-5)        # its own flattening: signal / 0.5
+
+
 def test_blank_scene_is_invalid(mer_a, estimator):
     blank = random_ground(np.random.default_rng(2), size_px=512, metres_per_pixel=12.0, contrast=0.0)
     descent = constant_velocity_descent(mer_a, blank, np.random.default_rng(3), velocity_mps=VELOCITY)

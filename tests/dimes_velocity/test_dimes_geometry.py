@@ -109,3 +109,25 @@ def test_predicted_positions_prefer_imu_positions():
                                                       np.array([9.0, -2.0, -72.0])))
     fallback = geometry.predicted_positions_m(DescentMeasurements(partial, np.array([0, 0, 1.0])))
     assert np.allclose(fallback, [[0, 0], [34.2, -7.6], [68.4, -15.2]])
+
+
+def test_rectifying_images_together_gives_each_image_its_own_maps(mer_a):
+    """rectify_maps interpolates the images' knot maps in one call: each image's maps and masks are bit for bit the
+    ones it gets alone (its zero-phase zone and heat shield cone included)."""
+    sun = np.array([0.3, -0.2, 0.93])
+    sun /= np.linalg.norm(sun)
+    sample = 2000.0 / geometry.binned_focal_px(mer_a)
+    requests = []
+    for altitude, tilt_deg, shield in ((2000.0, 3.0, None), (1725.0, 12.0, np.array([40.0, -30.0, 1600.0])),
+                                       (1450.0, 25.0, None)):
+        attitude = quat_from_axis_angle(np.array([1.0, 0.4, 0.0]), np.radians(tilt_deg))
+        pose = geometry.camera_pose(mer_a, attitude, altitude, np.array([5.0, -8.0]))
+        requests.append(geometry.RectificationRequest(pose, geometry.ground_centre_m(pose, np.radians(60)), shield,
+                                                      0.05 if shield is not None else 0.0))
+    together = geometry.rectify_maps(requests, mer_a, 256, sample, 17, -sun, np.radians(4.3))
+    for request, rect in zip(requests, together):
+        alone = geometry.rectify_map(request.pose, mer_a, 256, sample, request.centre_m, 17, -sun, np.radians(4.3),
+                                     request.heat_shield_m, request.heat_shield_half_angle_rad)
+        for name in ("origin_m", "map_x", "map_y", "visible", "excluded_zone"):
+            assert np.array_equal(getattr(rect, name), getattr(alone, name)), name
+    assert any(rect.excluded_zone.any() for rect in together)          # a cone is in view: the test covers it

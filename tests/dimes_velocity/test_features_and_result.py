@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from dimes_velocity.config import EstimatorConfig
-from dimes_velocity.features import FeatureSelector, interest_map, select_features, template_statistics
+from dimes_velocity.features import (
+    FeatureSelector,
+    interest_map,
+    select_features,
+    template_statistics,
+    templates_statistics,
+)
 from dimes_velocity.result import REASONS, FeatureMetrics, PairResult, StageTimings, VelocityEstimate
 
 
@@ -87,3 +93,13 @@ def test_template_contrast_gate_in_dn_refuses_the_blander_templates_only():
                             EstimatorConfig(feature_grid=4, features_per_pair=16, min_template_contrast_dn=20.0))
     assert gated.features and all(f.column > size // 2 and f.contrast_dn >= 20.0 for f in gated.features)
     assert gated.low_contrast >= 1 and all(f.contrast_dn == pytest.approx(30.0, rel=0.05) for f in gated.features)
+
+
+def test_templates_statistics_are_the_one_template_values_bit_for_bit():
+    """Measured together (the selector's batches), each template's statistics are exactly its own."""
+    rng = np.random.default_rng(11)
+    columns = np.arange(64.0)
+    image = (400.0 + 3.0 * columns[None, :] - 2.0 * columns[:, None] + rng.normal(0.0, 25.0, (64, 64))).astype(np.float32)
+    centres = [(int(c), int(r)) for c, r in rng.integers(7, 57, (9, 2))]
+    assert templates_statistics(image, centres, 7) == [template_statistics(image, c, r, 7) for c, r in centres]
+    assert templates_statistics(image, [], 7) == []
