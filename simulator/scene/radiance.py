@@ -30,6 +30,7 @@ import numpy as np
 
 from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
+from simulator.heap import keep_freed_buffers
 from simulator.scene import (
     atmosphere,
     ground_mapping,
@@ -249,6 +250,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     PoseField
         Radiance (H, W) float32 (W m^-2 sr^-1 um^-1) with its masks.
     """
+    keep_freed_buffers()       # simulator.heap: frame-sized arrays reused from the heap
     samples = config.supersample
     if samples > 1:
         single = config.model_copy(update={"supersample": 1})
