@@ -30,6 +30,7 @@ import numpy as np
 
 from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
+from simulator.derived_cache import DERIVED
 from simulator.heap import keep_freed_buffers
 from simulator.scene import (
     atmosphere,
@@ -162,6 +163,27 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
     view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
     return ground_mapping.field_at_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px,
                                           scratch_name="photometric_ratio")
+
+
+def terrain_moc_model(terrain: Terrain) -> float:
+    """:func:`~simulator.scene.photometry.moc_reflectance_model` of a terrain's MOC geometry (cached per terrain).
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The orbital image with its MOC incidence, emission and phase angles.
+
+    Returns
+    -------
+    float
+        The model value (the photometric ratio's denominator).
+    """
+    cache = DERIVED.of(terrain, "scene")
+    key = ("moc_model", terrain.moc_incidence_rad, terrain.moc_emission_rad, terrain.moc_phase_rad)
+    if key not in cache:
+        cache[key] = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
+                                                      terrain.moc_phase_rad)
+    return cache[key]
 
 
 HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not in supersampling's samples)
@@ -310,8 +332,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
     moc_value = None
     if effects.photometric_correction:
-        moc_value = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
-                                                     terrain.moc_phase_rad)
+        moc_value = terrain_moc_model(terrain)
     added = None
     if config.atmosphere.enabled:
         # orbital haze out, descent gain and added light on the photometry grid (simulator.scene.atmosphere)
