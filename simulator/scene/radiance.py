@@ -24,13 +24,13 @@ The fields of the three CCD periods, from fields at several poses, are made by :
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import cv2
 import numpy as np
 
 from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
-from simulator.derived_cache import DERIVED
 from simulator.heap import keep_freed_buffers
 from simulator.scene import (
     atmosphere,
@@ -166,7 +166,9 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
 
 
 def terrain_moc_model(terrain: Terrain) -> float:
-    """:func:`~simulator.scene.photometry.moc_reflectance_model` of a terrain's MOC geometry (cached per terrain).
+    """:func:`~simulator.scene.photometry.moc_reflectance_model` of a terrain's MOC geometry.
+
+    Memoised on the three angles (a pure function of them), not on the terrain object.
 
     Parameters
     ----------
@@ -178,12 +180,12 @@ def terrain_moc_model(terrain: Terrain) -> float:
     float
         The model value (the photometric ratio's denominator).
     """
-    cache = DERIVED.of(terrain, "scene")
-    key = ("moc_model", terrain.moc_incidence_rad, terrain.moc_emission_rad, terrain.moc_phase_rad)
-    if key not in cache:
-        cache[key] = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
-                                                      terrain.moc_phase_rad)
-    return cache[key]
+    return _moc_model(float(terrain.moc_incidence_rad), float(terrain.moc_emission_rad), float(terrain.moc_phase_rad))
+
+
+@lru_cache(maxsize=64)
+def _moc_model(incidence_rad: float, emission_rad: float, phase_rad: float) -> float:
+    return photometry.moc_reflectance_model(incidence_rad, emission_rad, phase_rad)
 
 
 HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not in supersampling's samples)
