@@ -310,8 +310,14 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                           and foot_cols.max() < cols - 1.5 and foot_rows.max() < rows - 1.5)
 
     ray_step = config.ray_grid_step_px if effects.coarse_ray_grid else 0
+    photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
+    has_relief = relief.has_relief(terrain, config)
+    # per-pixel photometry on an exact map: its phase cosines come with the map (one pass over the rays)
+    with_phase = (ray_step == 0 and photo_step == 0 and effects.photometric_correction
+                  and not config.atmosphere.enabled and not has_relief)
     gmap = ground_mapping.map_to_ground_grid(camera, cam, (terrain.origin_m[0], terrain.origin_m[1]),
-                                             terrain.metres_per_pixel, ray_step, scratch_maps=True)
+                                             terrain.metres_per_pixel, ray_step, scratch_maps=True,
+                                             phase_sun_world=sun if with_phase else None)
     relief_hits = None
     if relief.has_relief(terrain, config):   # parallax and occlusion of the height field (scene.relief)
         gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config, sun)
@@ -331,7 +337,6 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
     scale = irradiance / np.pi * (config.spectral_ratio if effects.spectral_ratio else 1.0)
     radiance = moc_if
-    photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
     moc_value = None
     if effects.photometric_correction:
         moc_value = terrain_moc_model(terrain)
