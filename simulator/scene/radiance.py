@@ -360,7 +360,9 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     if effects.shadows:
         centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,
                                        photometry.solar_angular_radius_rad(config.sun_distance_au),
-                                       config.shadow_diffuse_fraction)
+                                       config.shadow_diffuse_fraction,
+                                       view_bounds_m=None if relief_hits is not None
+                                       else shadow.view_bounds_m(footprint, hit))
     if moving_shadows is not None:
         moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s, terrain.origin_m, terrain.metres_per_pixel)
     if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky
