@@ -24,6 +24,7 @@ from flight_interface.camera import Camera
 from simulator.derived_cache import DERIVED
 from simulator.detector.camera_chain import RenderedImage, render_image
 from simulator.fields import RadianceFields
+from simulator.heap import keep_freed_buffers
 from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
 from simulator.off_nominal.moving_shadows import place_moving_shadows
 from simulator.scene import ground_mapping, photometry, shadow
@@ -205,6 +206,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
         ``.sky_mask``, ``.outside_terrain_mask``, ``.heat_shield_mask`` (1024, 1024) bool;
         ``.diagnostics`` (anti-sun pixel, sub-steps, footprint, timings...).
     """
+    keep_freed_buffers()       # frame-sized arrays reused from the heap, not faulted in afresh (simulator.heap)
     config = SceneConfig() if config is None else config
     camera_effects = config.camera_effects
     if rng is None:

@@ -190,10 +190,13 @@ class GroundMap:
         Exact map: rotation of those rays.
     ray_dz : ndarray, shape (height, width), float32, optional
         Exact map: world d_z of every unit pixel ray.
+    cos_phase : ndarray, shape (height, width), float32, optional
+        Exact map built with a sun vector: the phase-angle cosine of every pixel, handed over (and
+        dropped) by :func:`view_cosines`.
     """
 
     def __init__(self, col, row, sky, any_sky, step_px, node_rays_world=None, full_rays=None,
-                 camera_rays=None, camera_to_world=None, ray_dz=None):
+                 camera_rays=None, camera_to_world=None, ray_dz=None, cos_phase=None):
         self.col, self.row, self.sky, self.any_sky = col, row, sky, any_sky
         self._step = step_px
         self._nodes = node_rays_world
@@ -201,6 +204,7 @@ class GroundMap:
         self.camera_rays = camera_rays          # exact map: the camera's unit pixel rays (H, W, 3) float32
         self.camera_to_world = camera_to_world  # exact map: (3, 3) rotation of those rays
         self.ray_dz = ray_dz                    # exact map: world d_z of every unit pixel ray (H, W) float32
+        self.cos_phase = cos_phase              # exact map: phase cosine per pixel (scratch), read once by view_cosines
 
     def rays(self, row0: int = 0, row1: int | None = None, col0: int = 0, col1: int | None = None) -> np.ndarray:
         """World ray directions of the pixels ``[row0:row1, col0:col1]``.
@@ -233,8 +237,12 @@ class GroundMap:
         return interpolate_nodes_window(self._nodes, self._step, row0, row1, col0, col1)
 
 
+EXACT_STRIP_ROWS = 128   # rows per strip of the exact map (1.5 MiB of rays): read from memory once, reused from cache
+
+
 def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[float, float],
-                       metres_per_pixel: float, grid_step_px: int, scratch_maps: bool = False) -> GroundMap:
+                       metres_per_pixel: float, grid_step_px: int, scratch_maps: bool = False,
+                       phase_sun_world: np.ndarray | None = None) -> GroundMap:
     """Intersect every pixel's ray with the ground and express the points on a ground grid.
 
     Parameters
@@ -253,6 +261,9 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         Write ``col``, ``row`` (and the exact map's ``d_z``) into this thread's
         :func:`~simulator.scratch.scratch` arrays: the map is then valid only until the next such call
         for a frame of the same size (a render that is done with its map before it renders again).
+    phase_sun_world : ndarray, shape (3,), optional
+        Exact map: also the cosine of the phase angle of every pixel for this world sun vector, read
+        once by :func:`view_cosines` (computed in the same pass over the rays).
 
     Returns
     -------
@@ -264,6 +275,12 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
     ``col = col0 - O_z d_x / (d_z mpp)`` is written as ``P_c / d_z`` with ``P_c = col0 d_z - O_z d_x / mpp``
     (likewise for rows); on the coarse grid ``P_c``, ``P_r`` and ``d_z`` are interpolated and divided per
     pixel, so the map is exact for a pinhole camera and the horizon is found per pixel.
+
+    The exact map runs over :data:`EXACT_STRIP_ROWS`-row strips: each linear form (and the phase
+    cosine) is a ``cv2.transform`` of the strip's rays and each map value a ``cv2.divide`` of the strip,
+    element by element as over the whole frame (the same bits), but the (H, W, 3) rays - 12 MiB per
+    camera, one camera per supersampling offset - are read from memory once per pose instead of once
+    per form.
     """
     height, width = camera.height_px, camera.width_px
     altitude = float(pose.ray_origin_m[2])
@@ -281,35 +298,69 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         unit_dz_max = float(np.max(dz_nodes / np.linalg.norm(nodes, axis=-1)))
         any_sky = altitude <= 0 or unit_dz_max >= -HORIZON_EPSILON
     else:
-        nodes = None
-        camera_rays = pixel_rays_f32(camera)
-        rotation = pose.camera_to_world
-        # P_c, P_r and d_z are linear forms of the camera-frame ray: one transform pass each
-        forms = (col0 * rotation[2] - k * rotation[0], row0 * rotation[2] + k * rotation[1], rotation[2])
-        names = ("exact_col_num", "exact_row_num", "exact_dz" if scratch_maps else None)
-        col_num, row_num, dz = (cv2.transform(camera_rays, form[None, :]) if name is None
-                                else cv2.transform(camera_rays, form[None, :], dst=scratch(name, (height, width)))
-                                for form, name in zip(forms, names))
-        any_sky = altitude <= 0 or float(dz.max()) >= -HORIZON_EPSILON
+        exact = _exact_map(pixel_rays_f32(camera), pose.camera_to_world, col0, row0, k, scratch_maps, phase_sun_world)
+        col, row, dz, cos_phase, dz_max = exact
+        any_sky = altitude <= 0 or dz_max >= -HORIZON_EPSILON
+        sky = _sky_and_clip(col, row, dz, any_sky, altitude)
+        return GroundMap(col, row, sky, any_sky, 0, camera_rays=pixel_rays_f32(camera),
+                         camera_to_world=pose.camera_to_world, ray_dz=dz, cos_phase=cos_phase)
     if scratch_maps:
         col = cv2.divide(col_num, dz, dst=scratch("map_col_out", (height, width)))
         row = cv2.divide(row_num, dz, dst=scratch("map_row_out", (height, width)))
     else:
         col = cv2.divide(col_num, dz)
         row = cv2.divide(row_num, dz)
-    if any_sky:
-        sky = dz >= -np.float32(HORIZON_EPSILON)
-        if altitude <= 0:   # camera at or below the ground: nothing sensible to see, all sky
-            sky[:] = True
-        np.clip(col, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=col)
-        np.clip(row, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=row)
-        col[sky] = -MAX_MAP_COORDINATE
-        row[sky] = -MAX_MAP_COORDINATE
-    else:
-        sky = np.zeros((height, width), dtype=bool)
-    if grid_step_px > 0:
-        return GroundMap(col, row, sky, any_sky, grid_step_px, nodes)
-    return GroundMap(col, row, sky, any_sky, 0, camera_rays=camera_rays, camera_to_world=rotation, ray_dz=dz)
+    sky = _sky_and_clip(col, row, dz, any_sky, altitude)
+    return GroundMap(col, row, sky, any_sky, grid_step_px, nodes)
+
+
+def _exact_map(camera_rays: np.ndarray, rotation: np.ndarray, col0: float, row0: float, k: float,
+               scratch_maps: bool, phase_sun_world: np.ndarray | None):
+    """The exact map's ``col, row, d_z``, the phase cosine (or None) and ``max d_z``, strip by strip.
+
+    ``P_c``, ``P_r`` and ``d_z`` are linear forms of the camera-frame ray (one ``cv2.transform`` each);
+    see :func:`map_to_ground_grid`.
+    """
+    height, width = camera_rays.shape[:2]
+
+    def frame(name: str) -> np.ndarray:
+        return scratch(name, (height, width)) if scratch_maps else np.empty((height, width), dtype=np.float32)
+    forms = [form[None, :] for form in (col0 * rotation[2] - k * rotation[0], row0 * rotation[2] + k * rotation[1],
+                                        rotation[2])]
+    col, row, dz = frame("map_col_out"), frame("map_row_out"), frame("exact_dz")
+    cos_phase = None
+    if phase_sun_world is not None:   # as view_cosines: cos phase = -(R^T s) . r
+        phase_form = -(rotation.T @ np.asarray(phase_sun_world, dtype=float))[None, :]
+        cos_phase = scratch("cos_phase", (height, width))
+    strip_col = scratch("exact_strip_col_num", (EXACT_STRIP_ROWS, width))
+    strip_row = scratch("exact_strip_row_num", (EXACT_STRIP_ROWS, width))
+    dz_max = -np.inf
+    for row_start in range(0, height, EXACT_STRIP_ROWS):
+        row_end = min(row_start + EXACT_STRIP_ROWS, height)
+        rays = camera_rays[row_start:row_end]
+        strip_dz = cv2.transform(rays, forms[2], dst=dz[row_start:row_end])
+        cv2.divide(cv2.transform(rays, forms[0], dst=strip_col[:row_end - row_start]), strip_dz,
+                   dst=col[row_start:row_end])
+        cv2.divide(cv2.transform(rays, forms[1], dst=strip_row[:row_end - row_start]), strip_dz,
+                   dst=row[row_start:row_end])
+        if cos_phase is not None:
+            cv2.transform(rays, phase_form, dst=cos_phase[row_start:row_end])
+        dz_max = max(dz_max, float(strip_dz.max()))
+    return col, row, dz, cos_phase, dz_max
+
+
+def _sky_and_clip(col: np.ndarray, row: np.ndarray, dz: np.ndarray, any_sky: bool, altitude: float) -> np.ndarray:
+    """The sky mask; with sky in view, the map clipped to +-MAX_MAP_COORDINATE and set to its minimum on sky."""
+    if not any_sky:
+        return np.zeros(col.shape, dtype=bool)
+    sky = dz >= -np.float32(HORIZON_EPSILON)
+    if altitude <= 0:   # camera at or below the ground: nothing sensible to see, all sky
+        sky[:] = True
+    np.clip(col, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=col)
+    np.clip(row, -MAX_MAP_COORDINATE, MAX_MAP_COORDINATE, out=row)
+    col[sky] = -MAX_MAP_COORDINATE
+    row[sky] = -MAX_MAP_COORDINATE
+    return sky
 
 
 CACHED_RAY_SETS = 64            # distinct small pixel sets whose camera rays are kept per camera
@@ -373,8 +424,12 @@ def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
     if ground_map.ray_dz is not None:
         rotation = ground_map.camera_to_world
         cos_emission = np.negative(ground_map.ray_dz, out=scratch("cos_emission", ground_map.ray_dz.shape))
-        cos_phase = cv2.transform(ground_map.camera_rays, -(rotation.T @ np.asarray(sun_world, dtype=float))[None, :],
-                                  dst=scratch("cos_phase", ground_map.ray_dz.shape))
+        cos_phase = ground_map.cos_phase      # computed with the map (for this sun: radiance_at_pose's)
+        ground_map.cos_phase = None           # the caller overwrites it
+        if cos_phase is None:
+            cos_phase = cv2.transform(ground_map.camera_rays,
+                                      -(rotation.T @ np.asarray(sun_world, dtype=float))[None, :],
+                                      dst=scratch("cos_phase", ground_map.ray_dz.shape))
         return cos_emission, cos_phase
     view = view_directions(camera, pose, ground_map, 0)
     return np.ascontiguousarray(view[..., 2]), view @ np.asarray(sun_world, dtype=np.float32)

@@ -192,7 +192,9 @@ def photometric_ratio_from_cosines(cos_emission: np.ndarray, cos_phase: np.ndarr
     ndarray, shape (H, W), float32
         The DIMES / MOC ratio.
     """
-    ratio = np.maximum(cos_emission, np.float32(0.0), out=cos_emission)       # mu
+    # mu = max(cos e, 0): np.clip with both bounds takes numpy's vectorised clip loop (~3x faster here than
+    # np.maximum with a scalar), the same values (+inf never binds, NaN propagates as in np.maximum)
+    ratio = np.clip(cos_emission, np.float32(0.0), np.float32(np.inf), out=cos_emission)
     mu0 = np.float32(max(sun_z, 0.0))
     if mu0 > 0:      # mu0 / (mu + mu0): the sum never vanishes while the sun is up
         ratio += mu0

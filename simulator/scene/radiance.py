@@ -24,12 +24,14 @@ The fields of the three CCD periods, from fields at several poses, are made by :
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import cv2
 import numpy as np
 
 from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
+from simulator.heap import keep_freed_buffers
 from simulator.scene import (
     atmosphere,
     ground_mapping,
@@ -163,6 +165,29 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
                                           scratch_name="photometric_ratio")
 
 
+def terrain_moc_model(terrain: Terrain) -> float:
+    """:func:`~simulator.scene.photometry.moc_reflectance_model` of a terrain's MOC geometry.
+
+    Memoised on the three angles (a pure function of them), not on the terrain object.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        The orbital image with its MOC incidence, emission and phase angles.
+
+    Returns
+    -------
+    float
+        The model value (the photometric ratio's denominator).
+    """
+    return _moc_model(float(terrain.moc_incidence_rad), float(terrain.moc_emission_rad), float(terrain.moc_phase_rad))
+
+
+@lru_cache(maxsize=64)
+def _moc_model(incidence_rad: float, emission_rad: float, phase_rad: float) -> float:
+    return photometry.moc_reflectance_model(incidence_rad, emission_rad, phase_rad)
+
+
 HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhouette (not in supersampling's samples)
 
 
@@ -249,6 +274,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     PoseField
         Radiance (H, W) float32 (W m^-2 sr^-1 um^-1) with its masks.
     """
+    keep_freed_buffers()       # simulator.heap: frame-sized arrays reused from the heap
     samples = config.supersample
     if samples > 1:
         single = config.model_copy(update={"supersample": 1})
@@ -284,8 +310,14 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                           and foot_cols.max() < cols - 1.5 and foot_rows.max() < rows - 1.5)
 
     ray_step = config.ray_grid_step_px if effects.coarse_ray_grid else 0
+    photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
+    has_relief = relief.has_relief(terrain, config)
+    # per-pixel photometry on an exact map: its phase cosines come with the map (one pass over the rays)
+    with_phase = (ray_step == 0 and photo_step == 0 and effects.photometric_correction
+                  and not config.atmosphere.enabled and not has_relief)
     gmap = ground_mapping.map_to_ground_grid(camera, cam, (terrain.origin_m[0], terrain.origin_m[1]),
-                                             terrain.metres_per_pixel, ray_step, scratch_maps=True)
+                                             terrain.metres_per_pixel, ray_step, scratch_maps=True,
+                                             phase_sun_world=sun if with_phase else None)
     relief_hits = None
     if relief.has_relief(terrain, config):   # parallax and occlusion of the height field (scene.relief)
         gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config, sun)
@@ -305,11 +337,9 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
     scale = irradiance / np.pi * (config.spectral_ratio if effects.spectral_ratio else 1.0)
     radiance = moc_if
-    photo_step = config.photometry_grid_step_px if effects.coarse_photometry else 0
     moc_value = None
     if effects.photometric_correction:
-        moc_value = photometry.moc_reflectance_model(terrain.moc_incidence_rad, terrain.moc_emission_rad,
-                                                     terrain.moc_phase_rad)
+        moc_value = terrain_moc_model(terrain)
     added = None
     if config.atmosphere.enabled:
         # orbital haze out, descent gain and added light on the photometry grid (simulator.scene.atmosphere)
@@ -330,7 +360,9 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     if effects.shadows:
         centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,
                                        photometry.solar_angular_radius_rad(config.sun_distance_au),
-                                       config.shadow_diffuse_fraction)
+                                       config.shadow_diffuse_fraction,
+                                       view_bounds_m=None if relief_hits is not None
+                                       else shadow.view_bounds_m(footprint, hit))
     if moving_shadows is not None:
         moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s, terrain.origin_m, terrain.metres_per_pixel)
     if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky

@@ -130,13 +130,16 @@ def occluded_fraction(points_m: np.ndarray, caster: Caster, sun_world: np.ndarra
 
 def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                   pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
-                  sun_radius_rad: float, diffuse_fraction: float) -> list[np.ndarray]:
+                  sun_radius_rad: float, diffuse_fraction: float,
+                  view_bounds_m: tuple[float, float, float, float] | None = None) -> list[np.ndarray]:
     """Darken a radiance field in place inside each caster's shadow.
 
     Only the image window that can hold the penumbra is computed: the ground circle of radius
     ``(r + D tan(R_s)) / cos(i)`` (D the caster's distance to the ground along the sun line, i the
     sun's incidence angle) around the shadow centre is projected into the image and its bounding box,
-    padded by 2 pixels, is evaluated exactly.
+    padded by 2 pixels, is evaluated exactly. With ``view_bounds_m`` a circle that does not meet those
+    ground bounds is not projected at all: every pixel outside the circle has a hidden fraction of
+    exactly 0 (factor 1.0), so skipping it changes no bit.
 
     Parameters
     ----------
@@ -156,6 +159,9 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
         Angular radius of the solar disc (rad).
     diffuse_fraction : float
         Fraction of the irradiance that is sky light (not shadowed).
+    view_bounds_m : (float, float, float, float), optional
+        ``(west, east, south, north)`` (m) holding every ground point the image sees
+        (:func:`view_bounds_m`); None projects every caster's circle.
 
     Returns
     -------
@@ -172,6 +178,8 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
         reach = float(np.linalg.norm(caster.centre_m - centre))
         # penumbra radius across the sun line, stretched by 1/cos(incidence) along it on the ground
         outer = (caster.radius_m + reach * np.tan(sun_radius_rad)) / sun_world[2] + 1.0
+        if view_bounds_m is not None and not _circle_meets_box(centre, outer, view_bounds_m):
+            continue
         angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
         ring = centre + outer * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1)
         pixels, in_front = ground_mapping.world_to_pixels(camera, pose, np.vstack([ring, centre]))
@@ -191,3 +199,43 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
         occluded[window_sky] = 0.0
         radiance[row0:row1, col0:col1] *= 1.0 - np.float32(1.0 - diffuse_fraction) * occluded
     return centres
+
+
+VIEW_BOUNDS_MARGIN = 0.05      # of the footprint's extent, on each side: the border between its samples
+
+
+def view_bounds_m(footprint_m: np.ndarray, hit: np.ndarray) -> tuple[float, float, float, float] | None:
+    """Ground bounds holding every point an image sees, from its border footprint.
+
+    The bounding box of the border's ground points (:func:`simulator.scene.ground_mapping.footprint_m`),
+    widened by :data:`VIEW_BOUNDS_MARGIN` of its extent on each side for the border between the samples.
+    The ground seen by a camera above level ground is the convex-ish region inside its border's image
+    (a line of sight through an inner pixel meets the ground between those of the border), so the box
+    holds it.
+
+    Parameters
+    ----------
+    footprint_m : ndarray, shape (n, 2)
+        East, north of the border points on the ground (m).
+    hit : ndarray, shape (n,), bool
+        Whether each border ray meets the ground.
+
+    Returns
+    -------
+    tuple of float or None
+        ``(west, east, south, north)`` (m); None when part of the border sees the sky (unbounded view).
+    """
+    if not hit.all():
+        return None
+    west, south = footprint_m.min(axis=0)
+    east, north = footprint_m.max(axis=0)
+    margin = VIEW_BOUNDS_MARGIN * max(east - west, north - south)
+    return float(west - margin), float(east + margin), float(south - margin), float(north + margin)
+
+
+def _circle_meets_box(centre_m: np.ndarray, radius_m: float, bounds_m: tuple[float, float, float, float]) -> bool:
+    """Whether a ground circle meets a (west, east, south, north) box (distance to the box <= radius)."""
+    west, east, south, north = bounds_m
+    dx = max(west - centre_m[0], 0.0, centre_m[0] - east)
+    dy = max(south - centre_m[1], 0.0, centre_m[1] - north)
+    return dx * dx + dy * dy <= radius_m * radius_m

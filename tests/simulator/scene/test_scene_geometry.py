@@ -174,3 +174,25 @@ def test_footprint_crop_holds_every_ground_point():
     assert crop.row0 <= gmap.row.min() - 1 and gmap.row.max() + 1 <= crop.row1 - 1
     # the crop is the footprint, not the whole strip (1.7 km of a 4.8 km terrain)
     assert (crop.col1 - crop.col0) < 0.4 * terrain.shape[1]
+
+
+def test_exact_map_with_phase_cosines_matches_the_world_rays():
+    # the exact map runs strip by strip and hands over the phase cosines it computed with the map: each
+    # must be the per-pixel value of the world ray (float64 closed form), and asking for the cosines must
+    # leave the map itself unchanged (also with the sky in view: the horizon at the top rows)
+    for tilt_deg in (30.0, 80.0):
+        tilt = quat_from_axis_angle([0.6, 0.8, 0.0] if tilt_deg < 45 else [1.0, 0.0, 0.0], np.radians(tilt_deg))
+        profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], tilt, 1.0, [0.0])
+        cam = ground_mapping.camera_pose(CAMERA, profile.pose(0.0))
+        plain = ground_mapping.map_to_ground_grid(CAMERA, cam, (-2400.0, 2400.0), 3.0, 0)
+        plain_col, plain_row, plain_sky = plain.col.copy(), plain.row.copy(), plain.sky.copy()
+        with_phase = ground_mapping.map_to_ground_grid(CAMERA, cam, (-2400.0, 2400.0), 3.0, 0, phase_sun_world=SUN)
+        assert np.array_equal(with_phase.col, plain_col) and np.array_equal(with_phase.row, plain_row)
+        assert np.array_equal(with_phase.sky, plain_sky) and with_phase.any_sky == (tilt_deg > 45)
+        world_rays = CAMERA.pixel_rays @ cam.camera_to_world.T
+        cos_emission, cos_phase = ground_mapping.view_cosines(CAMERA, cam, with_phase, SUN)
+        assert np.max(np.abs(cos_phase - (-world_rays @ SUN))) < 1e-6
+        assert np.max(np.abs(cos_emission + world_rays[..., 2])) < 1e-6
+        assert with_phase.cos_phase is None       # handed over once: a second call recomputes
+        _, again = ground_mapping.view_cosines(CAMERA, cam, with_phase, SUN)
+        assert np.max(np.abs(again - (-world_rays @ SUN))) < 1e-6

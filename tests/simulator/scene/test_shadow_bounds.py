@@ -1,0 +1,69 @@
+"""Shadows skipped by the view bounds: the bounds hold every ground point seen, and skipping changes no bit."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flight_interface.camera import load_camera
+from flight_interface.frames import quat_from_axis_angle
+from simulator.scene import ground_mapping, shadow
+from simulator.scene.descent_profile import constant_velocity_profile
+
+ROOT = Path(__file__).resolve().parents[3]
+CAMERA = load_camera(ROOT / "sitedata" / "cameras" / "mer_a.toml")
+SUN = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])
+
+
+def camera_pose(tilt_deg: float, altitude_m: float = 2000.0) -> ground_mapping.CameraPose:
+    attitude = quat_from_axis_angle([0.6, 0.8, 0.0], np.radians(tilt_deg))
+    profile = constant_velocity_profile([0.0, 0.0, altitude_m], [0.0, 0.0, 0.0], attitude, 1.0, [0.0])
+    return ground_mapping.camera_pose(CAMERA, profile.pose(0.0))
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 20.0, 40.0])
+def test_view_bounds_hold_every_ground_point_seen(tilt_deg):
+    cam = camera_pose(tilt_deg)
+    footprint, hit = ground_mapping.footprint_m(CAMERA, cam)
+    west, east, south, north = shadow.view_bounds_m(footprint, hit)
+    pixels = np.stack(np.meshgrid(np.arange(-0.5, 1024, 8.0), np.arange(-0.5, 1024, 8.0)), axis=-1).reshape(-1, 2)
+    points, seen = ground_mapping.ground_points(CAMERA, cam, pixels)
+    assert seen.all()
+    assert np.all((points[:, 0] >= west) & (points[:, 0] <= east) & (points[:, 1] >= south) & (points[:, 1] <= north))
+
+
+def test_unbounded_view_has_no_bounds():
+    cam = camera_pose(80.0)          # the top of the frame sees the sky
+    footprint, hit = ground_mapping.footprint_m(CAMERA, cam)
+    assert not hit.all() and shadow.view_bounds_m(footprint, hit) is None
+
+
+def test_circle_meets_box_closed_form():
+    box = (0.0, 10.0, 0.0, 10.0)
+    assert shadow._circle_meets_box(np.array([5.0, 5.0, 0.0]), 0.1, box)          # inside
+    assert shadow._circle_meets_box(np.array([13.0, 14.0, 0.0]), 5.0, box)        # corner at distance 5
+    assert not shadow._circle_meets_box(np.array([13.0, 14.0, 0.0]), 4.99, box)
+    assert not shadow._circle_meets_box(np.array([-3.0, 5.0, 0.0]), 2.9, box)     # beside an edge
+    assert shadow._circle_meets_box(np.array([-3.0, 5.0, 0.0]), 3.0, box)
+
+
+@pytest.mark.parametrize("beyond_edge_m", [-800.0, -5.0, 30.0, 200.0, 2000.0])
+def test_bounds_change_no_bit(beyond_edge_m):
+    # a parachute-sized caster (7.5 m radius, 300 m up) whose shadow sits at the image centre, across the
+    # footprint's east edge, just beyond it (inside the bounds' margin: projected, empty window) and far
+    # beyond (skipped by the bounds): the field with the bounds equals the one without
+    cam = camera_pose(0.0)
+    gmap = ground_mapping.map_to_ground_grid(CAMERA, cam, (-2400.0, 2400.0), 3.0, 16)
+    footprint, hit = ground_mapping.footprint_m(CAMERA, cam)
+    edge_m = float(footprint[np.abs(footprint[:, 1]) < 60.0, 0].max())
+    ground = np.array([edge_m + beyond_edge_m, 0.0, 0.0])
+    caster = shadow.Caster("parachute", ground + (300.0 / SUN[2]) * SUN, 7.5)
+    fields = []
+    for bounds in (None, shadow.view_bounds_m(footprint, hit)):
+        field = np.full((1024, 1024), 40.0, dtype=np.float32)
+        centres = shadow.apply_shadows(field, gmap, CAMERA, cam, [caster], SUN, 3.05e-3, 0.3, view_bounds_m=bounds)
+        assert np.allclose(centres[0], ground, atol=1e-9)
+        fields.append(field)
+    assert np.array_equal(fields[0], fields[1])
+    assert (fields[0] < 40.0).any() == (beyond_edge_m < 0.0)
