@@ -168,11 +168,9 @@ def start_worker_forkserver() -> bool:
         stop()                              # its workers have all ended: it exits at once
         _forkserver_environment = None
     forkserver.set_forkserver_preload(list(WORKER_FORKSERVER_PRELOAD))    # for a server not started yet
-    # the server starts the resource tracker first if it is not running, which unblocks SIGINT and SIGTERM in
-    # the calling thread once it has started: the tracker started first (the stop signals blocked, as for the
-    # workers: a SIGHUP to the process group would kill it), then the server in a block of its own
-    with workers_ignore_stop_signals():
-        resource_tracker.ensure_running()
+    # the server starts the resource tracker first if it is not running, which unblocks SIGINT and SIGTERM
+    # in the calling thread when it has started: started before the stop signals are blocked for the server
+    resource_tracker.ensure_running()
     with workers_ignore_stop_signals():
         forkserver.ensure_running()         # starts it (or again, if it died) with this environment
     _forkserver_environment = environment
