@@ -3,9 +3,8 @@
 ``campaign/gusev+meridiani``: both full campaigns (630 cases) planned and run together on one embedded
 LocalCluster of 2 single-threaded workers, by the run path of ``campaign submit``
 (:func:`campaign.run.orchestrate.run_store_points`, with a client hook that registers the CPU clock and asks
-the workers' usage before the cluster closes; the workers' fork server started first, as ``campaign submit``
-starts it before it plans): wall time from planning to the compacted stores and the closed cluster, cluster
-start included (target <= 35 s, issue #33), and each worker process's peak RSS (``ru_maxrss``, asked of
+the workers' usage before the cluster closes): wall time from planning to the compacted stores,
+cluster start included (target <= 35 s, issue #33), and each worker process's peak RSS (``ru_maxrss``, asked of
 the workers before the cluster closes; target <= 1 GiB).
 
 ``campaign/parallel_efficiency``: every ``EVERY``-th case of each campaign is run again in this process, one thread,
