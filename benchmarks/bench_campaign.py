@@ -78,7 +78,6 @@ def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
     """Plan and run both campaigns on one embedded cluster: (wall s, cases run, peak RSS MiB per worker,
     thread CPU ms per case by (site, case_id))."""
     from campaign.configuration.campaign_file import load_campaign_config
-    from campaign.run.cluster import start_worker_forkserver
     from campaign.run.orchestrate import StorePoint, manifest_for, run_store_points
     from campaign.run.planning import plan_campaign
 
@@ -92,7 +91,6 @@ def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
         usage.extend(client.run(_worker_usage).values())
 
     start = time.perf_counter()
-    start_worker_forkserver()       # as campaign submit does before it plans (the workers' imports meanwhile)
     points = []
     for site in SITES:
         config = load_campaign_config(REPO / "sitedata" / f"{site}.toml", output_dir=root / site,

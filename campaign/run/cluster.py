@@ -36,7 +36,6 @@ import importlib
 import json
 import logging
 import os
-import signal
 import sys
 import threading
 import weakref
@@ -44,12 +43,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
-from multiprocessing import forkserver, resource_tracker
 from typing import Any, Protocol, cast
 
 import dask
 from dask.distributed import Client, LocalCluster
-from distributed.core import Status
 from distributed.security import Security
 
 from campaign.configuration.execution import BatchJobs, ExecutionConfig, kubernetes_bytes, kubernetes_headroom_bytes
@@ -87,14 +84,6 @@ WORKER_DASK_CONFIG = {"distributed.worker.profile.enabled": False}
 #: and of the embedded cluster's worker processes only: they ignore SIGINT, SIGTERM and SIGHUP, which reach the
 #: whole process group (Ctrl-C, ``timeout``, a closed terminal); the driver stops them (campaign.run.interrupts)
 LOCAL_WORKER_DASK_CONFIG = {**WORKER_DASK_CONFIG, "distributed.worker.preload": ["campaign.run.interrupts"]}
-#: what the embedded cluster's fork server imports once, before it forks the worker processes
-#: (:func:`start_worker_forkserver`): dask's worker, the worker start-up modules and the case code a worker
-#: imports for its first task (simulator, estimators, store: about 2 s of CPU per worker process otherwise)
-WORKER_FORKSERVER_PRELOAD = ("distributed", "campaign.run.interrupts", "campaign.run.worker_startup",
-                             "campaign.run.worker")
-#: environment variables that may change between runs of one process without the workers needing to see it
-#: (pytest names the running test in one)
-VOLATILE_ENVIRONMENT = frozenset({"PYTEST_CURRENT_TEST"})
 #: the environment of a worker process that dask starts elsewhere (batch job, pod): one thread, no profiler
 WORKER_ENVIRONMENT = {**SINGLE_THREAD_ENVIRONMENT, "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
 WORKER_JOB_NAME = "moc2dimes-worker"
@@ -125,56 +114,6 @@ def workers_ignore_stop_signals() -> Iterator[None]:
         return
     with signals_blocked():
         yield
-
-
-_forkserver_environment: dict[str, str] | None = None
-"""os.environ (less :data:`VOLATILE_ENVIRONMENT`) when :func:`start_worker_forkserver` started the fork server."""
-_forked_clusters: weakref.WeakSet = weakref.WeakSet()
-"""The embedded clusters whose workers were forked from the fork server (:func:`start_cluster`)."""
-
-
-def _current_environment() -> dict[str, str]:
-    return {name: value for name, value in os.environ.items() if name not in VOLATILE_ENVIRONMENT}
-
-
-def start_worker_forkserver() -> bool:
-    """Start the fork server the embedded cluster's worker processes are forked from, if it is not running
-    with this environment; return whether the workers can be forked from it (else they are spawned, each a
-    fresh interpreter, as before).
-
-    The server is a fresh interpreter that imports :data:`WORKER_FORKSERVER_PRELOAD` once; every worker
-    process forked from it starts with them imported (about 2 s of CPU less per worker before its first
-    case, and their pages shared), whereas a spawned worker imports them itself. Started before the driver
-    plans (:func:`campaign.run.orchestrate.submit`, the campaign benchmark), the server imports on the other
-    core while the driver plans and starts the scheduler. It starts with the stop signals blocked (its
-    workers ignore them, as spawned ones do: :func:`workers_ignore_stop_signals`) and with the environment
-    of this moment, the one-thread variables of :data:`SINGLE_THREAD_ENVIRONMENT` set first.
-
-    A worker sees the server's environment, not the driver's at the time it is forked: when the environment
-    has changed since the server started (e.g. PATH, which a command estimator searches), the server is
-    started again, unless workers forked from it still run (another open embedded cluster of this process):
-    then False, and this cluster's workers are spawned. Also False outside the main thread (the signal mask
-    is per thread). The server ends with this process; workers forked from it do not depend on it."""
-    global _forkserver_environment
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
-        return False
-    for variable, value in SINGLE_THREAD_ENVIRONMENT.items():
-        os.environ.setdefault(variable, value)
-    environment = _current_environment()
-    if _forkserver_environment is not None and environment != _forkserver_environment:
-        stop = getattr(forkserver._forkserver, "_stop", None)     # the standard library's own (its tests use it)
-        if stop is None or any(cluster.status != Status.closed for cluster in list(_forked_clusters)):
-            return False
-        stop()                              # its workers have all ended: it exits at once
-        _forkserver_environment = None
-    forkserver.set_forkserver_preload(list(WORKER_FORKSERVER_PRELOAD))    # for a server not started yet
-    # the server starts the resource tracker first if it is not running, which unblocks SIGINT and SIGTERM
-    # in the calling thread when it has started: started before the stop signals are blocked for the server
-    resource_tracker.ensure_running()
-    with workers_ignore_stop_signals():
-        forkserver.ensure_running()         # starts it (or again, if it died) with this environment
-    _forkserver_environment = environment
-    return True
 
 
 def require_backend(execution: ExecutionConfig, source: str = "[execution]") -> None:
@@ -512,14 +451,10 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
                              "or raise [execution] connect_timeout_s; nothing was run or changed") from None
     elif execution.cluster == "local":
         # a stop signal while the workers start is raised once the cluster is whole (below, where it is closed)
-        start_method = "forkserver" if start_worker_forkserver() else "spawn"
-        with held(deliver=False), workers_ignore_stop_signals(), dask.config.set(
-                {**LOCAL_WORKER_DASK_CONFIG, "distributed.worker.multiprocessing-method": start_method}):
+        with held(deliver=False), workers_ignore_stop_signals(), dask.config.set(LOCAL_WORKER_DASK_CONFIG):
             cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                    processes=True, memory_limit=execution.memory_limit,
                                    dashboard_address=execution.dashboard_address, host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)
-        if start_method == "forkserver":
-            _forked_clusters.add(cluster)
     elif execution.cluster in ("slurm", "pbs"):
         client, cluster = _batch_cluster(execution, quiet)
     else:

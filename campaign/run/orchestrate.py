@@ -25,7 +25,7 @@ from distributed import Client
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.batch_jobs import SUBMIT_COMMANDS, require_submit_command
-from campaign.run.cluster import connected_client, require_backend, start_worker_forkserver
+from campaign.run.cluster import connected_client, require_backend
 from campaign.run.dask_runner import (
     RunSummary,
     Watch,
@@ -309,8 +309,6 @@ def submit(config: CampaignConfig, scheduler: str | None = None, workers: int | 
     require_secure_transport(execution, str(config.source))
     if execution.cluster in SUBMIT_COMMANDS:
         require_submit_command(execution.cluster)       # before any lock or directory is made
-    if execution.cluster == "local":
-        start_worker_forkserver()       # imports the workers' code on the other core while this one plans
     _, plan = plan_campaign(config)
     point = StorePoint(config, manifest_for(config), plan)
     run = run_store_points([point], execution, fresh=fresh, progress=progress, wait=wait)
