@@ -2,10 +2,11 @@
 
 Cases go to the workers in batches (:func:`batch_cases`): one task runs several cases one after the other
 (:func:`campaign.run.worker.execute_batch`, :func:`cases_per_task` of them), so the scheduler sees far fewer
-tasks than cases. The driver keeps a bounded window of tasks in flight (:func:`run_batches`: about
-:data:`IN_FLIGHT_PER_WORKER` per worker, submitted as others finish, told by the futures' done callbacks), so
-neither the driver nor the scheduler holds a future or a task per case: their memory does not grow with
-the campaign.
+tasks than cases; the last tasks of a run are cut shorter (:func:`balanced_tail`), so that the workers
+finish together instead of one running a whole batch while the others idle. The driver keeps a bounded
+window of tasks in flight (:func:`run_batches`: about :data:`IN_FLIGHT_PER_WORKER` per worker, submitted as
+others finish, told by the futures' done callbacks), so neither the driver nor the scheduler holds a future
+or a task per case: their memory does not grow with the campaign.
 
 Tasks are pure functions of small, picklable inputs (the :class:`~campaign.run.worker.CampaignContext` and
 the batch's plan rows); each worker loads terrain, camera and trajectories once (see
@@ -57,8 +58,13 @@ so the last tasks of a run are short next to the whole."""
 MAX_CASES_PER_TASK = {"compute": 16, "no_op": 2000}
 """Automatic batch size cap per ``[execution] case_mode``: a computed case takes seconds (a task of at most
 16 of them keeps the progress and the stall watch fine-grained), a no-op case about a millisecond."""
+TAIL_SHARES = 2
+""":func:`balanced_tail`: a task near the end of a run takes at most 1 / (this x workers) of the cases left."""
+TAIL_MIN_CASES = 2
+""":func:`balanced_tail`: the fewest cases of a task it cuts (one task more costs a scheduler round trip and a
+batch file)."""
 
-__all__ = ["CaseBatch", "RunSummary", "Watch", "batch_cases", "cases_per_task", "run_batches"]
+__all__ = ["CaseBatch", "RunSummary", "Watch", "balanced_tail", "batch_cases", "cases_per_task", "run_batches"]
 
 
 @dataclass(frozen=True)
@@ -161,13 +167,60 @@ def batch_cases(client: Client, context: CampaignContext, rows: Sequence[dict], 
     only on workers, and a killed worker would take it along and cancel every case waiting for it."""
     execution = context.config.execution
     size = cases_per_task(len(rows), cluster_workers(client) or expected_workers(execution), execution)
-    batches = []
-    for start in range(0, len(rows), size):
-        # a table of its own: a pickled slice of a larger table carries the whole of its buffers
-        part = pa.Table.from_pylist(list(rows[start:start + size]))
-        first = int(rows[start]["case_id"])
-        batches.append(CaseBatch(context, store, part, f"cases-{context.config_hash[:12]}-{first:07d}-{len(part)}"))
-    return batches
+    return [_case_batch(context, store, rows[start:start + size]) for start in range(0, len(rows), size)]
+
+
+def _case_batch(context: CampaignContext, store: CampaignStore, rows: Sequence[dict]) -> CaseBatch:
+    """One task of the plan rows ``rows`` (at least one), keyed by the campaign, its first case and its size."""
+    # a table of its own: a pickled slice of a larger table carries the whole of its buffers
+    part = pa.Table.from_pylist(list(rows))
+    first = int(rows[0]["case_id"])
+    return CaseBatch(context, store, part, f"cases-{context.config_hash[:12]}-{first:07d}-{len(part)}")
+
+
+def balanced_tail(batches: Sequence[CaseBatch], workers: int) -> list[CaseBatch]:
+    """``batches`` (in run order) with the ones near the end cut shorter, so that the workers finish together.
+
+    The driver hands tasks out as workers free up (:func:`run_batches`), so a run ends when its last task
+    does: with batches of :func:`cases_per_task` cases, a worker can be left running a whole batch while the
+    others idle (up to 16 computed cases, about 1.7 s at 108 ms a case). Here each task takes at most
+    1 / (:data:`TAIL_SHARES` x ``workers``) of the cases left from its start to the end of the run (at least
+    :data:`TAIL_MIN_CASES`): the sizes fall towards the end (guided self-scheduling), and only the last few
+    batches of a run are cut (their cases re-cut as one run per store, so the sizes fall steadily). A batch
+    sized by ``[execution] cases_per_task`` is kept as it is; the cases, their order and what each computes
+    are unchanged (a case's result does not depend on its task)."""
+    shares = TAIL_SHARES * max(workers, 1)
+    left = sum(len(batch.rows) for batch in batches)
+    cut: list[CaseBatch] = []
+    pending: list[dict] = []            # plan rows of the tail, of one campaign and store, not yet cut
+    owner: CaseBatch | None = None      # the batch whose context and store they have
+
+    def cut_pending() -> None:
+        nonlocal left
+        if owner is None:
+            return
+        start = 0
+        while start < len(pending):
+            size = min(len(pending) - start, max(TAIL_MIN_CASES, math.ceil(left / shares)))
+            cut.append(_case_batch(owner.context, owner.store, pending[start:start + size]))
+            start += size
+            left -= size
+        pending.clear()
+
+    for batch in batches:
+        count = len(batch.rows)
+        in_tail = owner is not None or math.ceil(left / shares) < count
+        if not in_tail or batch.context.config.execution.cases_per_task:
+            cut_pending()
+            cut.append(batch)
+            left -= count
+            continue
+        if owner is not None and (owner.context is not batch.context or owner.store is not batch.store):
+            cut_pending()
+        owner = batch
+        pending.extend(batch.rows.to_pylist())     # consecutive batches of a store are cut as one run of cases
+    cut_pending()
+    return cut
 
 
 def run_batches(client: Client, batches: Sequence[CaseBatch], watch: Watch = Watch(), progress: bool = True,

@@ -26,7 +26,15 @@ from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.batch_jobs import SUBMIT_COMMANDS, require_submit_command
 from campaign.run.cluster import connected_client, require_backend
-from campaign.run.dask_runner import RunSummary, Watch, batch_cases, run_batches
+from campaign.run.dask_runner import (
+    RunSummary,
+    Watch,
+    balanced_tail,
+    batch_cases,
+    cluster_workers,
+    expected_workers,
+    run_batches,
+)
 from campaign.run.faults import RunStopped, is_infrastructure, storage_problem
 from campaign.run.interrupts import held, remove_temporary_files
 from campaign.run.planning import plan_campaign
@@ -257,6 +265,7 @@ def run_locked_points(client, points: list[StorePoint], stores: list[CampaignSto
                     session.add(store.root)
                 tasks += batch_cases(client, CampaignContext.from_config(point.config, store.root), todo, store)
         if tasks:
+            tasks = balanced_tail(tasks, cluster_workers(client) or expected_workers(execution))
             done, failed = run_batches(client, tasks, Watch.from_execution(execution), progress)
     except RunStopped as stop:
         problems = {compact_after_stop(entry.store) for entry in prepared} - {""}
