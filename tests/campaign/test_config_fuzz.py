@@ -181,6 +181,8 @@ LOADERS = {"campaign_file": load_campaign_config, "camera": load_camera, "sweep"
 
 @pytest.mark.parametrize("kind", list(EXAMPLES))
 def test_every_schema_violation_of_every_file_is_refused(work, kind):
+    """Slow by design for the campaign file (over 60 s in a loaded suite run): every schema violation of the
+    file, some two thousand, each loaded and refused; their number is the coverage under test."""
     data = tomllib.loads((work / EXAMPLES[kind]).read_text())
     variants = schema_mutations(table_schema(kind), data, skip=(("axes",), ("estimators", 0, "parameters"),
                                                                 ("estimators", 1, "parameters")))

@@ -43,6 +43,9 @@ def class_statistics(tmp_path_factory, mer_sampling):
 
 @pytest.mark.slow
 def test_every_rough_class_falls_inside_the_real_range_of_its_kind(class_statistics):
+    """Slow by design (over 60 s in a loaded suite run, most of it the module's ``class_statistics``): every
+    rough-MOC class's full 5000 x 1000 strip is synthesised in a fresh cache and measured, since its statistics
+    at full size are what is compared with the real ranges."""
     assert set(class_statistics) == set(ref.KIND_OF_CLASS)
     for name, stats in class_statistics.items():
         kind = ref.RECORDED_RANGES[ref.KIND_OF_CLASS[name]]

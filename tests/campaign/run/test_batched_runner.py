@@ -140,7 +140,8 @@ def test_no_op_campaign_is_batched_windowed_and_marked_everywhere(tmp_path):
 def test_a_worker_killed_mid_batch_keeps_its_written_cases_and_the_rerun_duplicates_nothing(tmp_path):
     """One task of 60000 no-op cases writes its cases in batches of ``FLUSH_CASES``; after the first, its
     worker process is killed: dask reruns the task on a worker, the cases written before stay, the rerun's own write
-    of them supersedes them, and the store counts every case once."""
+    of them supersedes them, and the store counts every case once. Slow by design (about 60 s in a loaded suite
+    run): its own scheduler and worker processes, one of them killed mid-task."""
     import os
     import signal
     import subprocess

@@ -107,6 +107,9 @@ def _wait_for_cases(out: Path, count: int, process: subprocess.Popen, limit_s: f
 
 
 def test_killed_driver_then_rerun_equals_uninterrupted_run(reference_run, tmp_path):
+    """Slow by design (over 60 s in a loaded suite run): a `campaign submit` process with its own two-worker
+    cluster is killed mid-run (SIGKILL to its process group), then rerun; the killed driver and its cluster
+    are what is tested."""
     process = subprocess.Popen([sys.executable, "-m", "campaign.cli", *_submit_args(tmp_path, "--workers", "2")],
                                cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
@@ -152,6 +155,9 @@ def dask_cluster(tmp_path):
 
 
 def test_external_cluster_survives_a_killed_worker(reference_run, tmp_path, dask_cluster):
+    """Slow by design (over 60 s in a loaded suite run): a `campaign submit` process on its own external
+    scheduler and workers, one worker killed mid-run; the killed worker is what is tested, so the cluster
+    cannot be a shared one."""
     address, workers = dask_cluster
     out = tmp_path / "external"
     process = subprocess.Popen([sys.executable, "-m", "campaign.cli", *_submit_args(out, "--scheduler", address)],

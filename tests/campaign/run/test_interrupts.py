@@ -87,6 +87,9 @@ def _assert_one_clean_line(err: str, number: int, argv: list[str]) -> str:
 @pytest.mark.slow
 @pytest.mark.parametrize("number", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=lambda n: signal.Signals(n).name)
 def test_every_stop_signal_ends_a_submit_the_same_way_and_its_printed_command_resumes(tmp_path, number):
+    """Slow by design (over 60 s each in a loaded suite run): a `campaign submit` process with its own embedded
+    cluster is stopped by the signal mid-run, then its printed command resumes it; the signal to the process
+    group and the stop of its own workers are what is tested."""
     # 30 cases of one case per task: when the second batch file appears 28 are still to run (seconds even on an
     # idle machine), so the signal always lands in the middle of the run
     path = campaign_file(tmp_path, {"gcp": 20, "gdcp": 10, "gkep": 0}, "cases_per_task = 1",
@@ -117,6 +120,9 @@ def test_every_stop_signal_ends_a_submit_the_same_way_and_its_printed_command_re
 @pytest.mark.cluster
 @pytest.mark.slow
 def test_sigterm_ends_a_sweep_in_one_line_and_its_printed_command_resumes(tmp_path):
+    """Slow by design (over 60 s in a loaded suite run): a `campaign sweep` process with its own embedded
+    cluster is stopped by SIGTERM, then its printed command resumes it; the stopped process and cluster are what
+    is tested."""
     sweep = tmp_path / "nightly.toml"
     sweep.write_text(f'[sweep]\nbase = "{GUSEV}"\n[sweep.cases]\ngcp = 2\ngdcp = 1\ngkep = 0\n'
                      '[axes]\n"sensors.attitude_random_sigma_deg" = [0.01, 0.02]\n')
@@ -189,6 +195,9 @@ def _fill(directory: Path, leave_bytes: int = 0) -> Path:
 @pytest.mark.slow
 def test_full_disk_at_the_lock_or_while_compacting_results_is_an_infrastructure_stop_naming_the_file(
         tmp_path, small_tmpfs):
+    """Slow by design (over 60 s in a loaded suite run): four `campaign submit` processes, with their own
+    embedded cluster, on a real small tmpfs filled at the lock and while the results are compacted; the stop of
+    a whole run (process and cluster) on a full disk is what is tested, so neither can be shared away."""
     path = campaign_file(tmp_path, {"gcp": 2, "gdcp": 1, "gkep": 0}, "workers = 1")
     out = small_tmpfs / "store"
     first = run_campaign("submit", path, "--output", out, "--no-progress")

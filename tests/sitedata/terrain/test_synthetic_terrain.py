@@ -77,6 +77,8 @@ def real_slope_range():
 # class ordering and realism
 @pytest.mark.slow
 def test_strip_geometry_and_values(site_strips):
+    """Slow by design when it is the session's first user of ``site_strips`` (tests/conftest.py; over 60 s in
+    a loaded suite run): that fixture synthesises the shipped classes' full strips once for the session."""
     for name, (_, _, terrain) in site_strips.items():
         image = terrain.reflectance_if
         assert image.dtype == np.float32 and image.shape == (5000, 1000), name
