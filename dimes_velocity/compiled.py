@@ -1,0 +1,280 @@
+"""Compiled (numba) passes of the matcher: the per-feature small-array work in a few calls.
+
+Each kernel does the same float64 operations in the same order as the numpy definition it replaces in
+:mod:`dimes_velocity.matching`, so the results are the same bits:
+
+- sums of arrays are numpy's pairwise summation (:func:`pairwise_sum`: 8 running sums over blocks of up to 128
+  values, halves above that), which is what ``np.add.reduce`` does on a contiguous float64 array;
+- dot products and the 6 x 9 biquadratic fit call ``np.dot``, which numba hands to the same BLAS routines
+  (``ddot``, ``dgemv``) as numpy;
+- element-wise passes keep numpy's order of operations (no fast-math: no fused multiply-adds, no reassociation).
+
+Each kernel is tested against its numpy definition (tests/dimes_velocity/test_compiled_matching.py). The
+kernels are compiled on first use and cached on disk (``cache=True``).
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_PAIRWISE_BLOCK = 128    # numpy's PW_BLOCKSIZE
+
+
+@numba.njit(cache=True)
+def pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
+    """``np.add.reduce(values[start:start + count])`` of a contiguous float64 array, by the same pairwise sum.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,), float64
+        The values.
+    start, count : int
+        The slice summed.
+
+    Returns
+    -------
+    float
+        The sum (the same bits as numpy's).
+    """
+    if count < 8:
+        total = 0.0
+        for i in range(count):
+            total += values[start + i]
+        return total
+    if count <= _PAIRWISE_BLOCK:
+        r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+        r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+        i = 8
+        whole = count - count % 8
+        while i < whole:
+            at = start + i
+            r0 += values[at]
+            r1 += values[at + 1]
+            r2 += values[at + 2]
+            r3 += values[at + 3]
+            r4 += values[at + 4]
+            r5 += values[at + 5]
+            r6 += values[at + 6]
+            r7 += values[at + 7]
+            i += 8
+        total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < count:
+            total += values[start + i]
+            i += 1
+        return total
+    half = count // 2
+    half -= half % 8
+    return pairwise_sum(values, start, half) + pairwise_sum(values, start + half, count - half)
+
+
+@numba.njit(cache=True)
+def keys_weights(fraction: float) -> tuple[float, float, float, float]:
+    """Keys (a = -1/2) cubic convolution weights of the samples at -1, 0, 1, 2 for a point at ``fraction``."""
+    t = fraction
+    return (((-0.5 * t + 1.0) * t - 0.5) * t,
+            (1.5 * t - 2.5) * t * t + 1.0,
+            ((-1.5 * t + 2.0) * t + 0.5) * t,
+            (0.5 * t - 0.5) * t * t)
+
+
+@numba.njit(cache=True)
+def shifted_window(window: np.ndarray, offset_x: float, offset_y: float, out_size: int) -> np.ndarray:
+    """``matching._shifted_window``: Keys cubic re-sampling of a square float64 window, (out_size, out_size).
+
+    The horizontal 4-tap pass, then the vertical one, each sum taken left to right (``((w0 s0 + w1 s1) + w2 s2)
+    + w3 s3``).
+    """
+    first_out = window.shape[0] // 2 - out_size // 2
+    whole_x, whole_y = math.floor(offset_x), math.floor(offset_y)
+    wx0, wx1, wx2, wx3 = keys_weights(offset_x - whole_x)
+    wy0, wy1, wy2, wy3 = keys_weights(offset_y - whole_y)
+    fx, fy = first_out + whole_x - 1, first_out + whole_y - 1
+    columns = np.empty((out_size + 3, out_size))
+    for r in range(out_size + 3):
+        for c in range(out_size):
+            at = fx + c
+            value = window[fy + r, at] * wx0
+            value += window[fy + r, at + 1] * wx1
+            value += window[fy + r, at + 2] * wx2
+            value += window[fy + r, at + 3] * wx3
+            columns[r, c] = value
+    out = np.empty((out_size, out_size))
+    for r in range(out_size):
+        for c in range(out_size):
+            value = columns[r, c] * wy0
+            value += columns[r + 1, c] * wy1
+            value += columns[r + 2, c] * wy2
+            value += columns[r + 3, c] * wy3
+            out[r, c] = value
+    return out
+
+
+@numba.njit(cache=True)
+def _normalised_at(window: np.ndarray, offset_x: float, offset_y: float, size: int) -> tuple[np.ndarray, bool]:
+    """The re-sampled window of B at an offset, raveled, to zero mean and unit variance (flag: not flat)."""
+    moved = shifted_window(window, offset_x, offset_y, size).ravel()
+    count = moved.size
+    mean = pairwise_sum(moved, 0, count) / count
+    for i in range(count):
+        moved[i] -= mean
+    norm = math.sqrt(np.dot(moved, moved) / count)
+    if not norm > 0:
+        return moved, False
+    for i in range(count):
+        moved[i] /= norm
+    return moved, True
+
+
+@numba.njit(cache=True)
+def refine(image_a: np.ndarray, image_b: np.ndarray, centre_column: int, centre_row: int, peak_column: int,
+           peak_row: int, offset_x: float, offset_y: float, half: int,
+           iterations: int) -> tuple[float, float, float]:
+    """``matching._refine`` (inverse-compositional Gauss-Newton sub-pixel refinement), compiled.
+
+    Parameters
+    ----------
+    image_a, image_b : ndarray, shape (N, N), float32
+        The pair's rectified, flattened images.
+    centre_column, centre_row : int
+        Template centre in A (px).
+    peak_column, peak_row : int
+        Integer fine-level peak in B (px).
+    offset_x, offset_y : float
+        Starting sub-pixel offset from the peak (px).
+    half : int
+        Template half size (px).
+    iterations : int
+        Gauss-Newton steps at most.
+
+    Returns
+    -------
+    offset_x, offset_y, correlation : float
+        The refined offset from the peak (px) and the normalised correlation there (NaN when a window leaves the
+        image or the template is flat: the offset is then the last one reached).
+    """
+    nan = math.nan
+    reach_b, reach_a = half + 4, half + 1
+    rows_b, columns_b = image_b.shape
+    rows_a, columns_a = image_a.shape
+    if (peak_row - reach_b < 0 or peak_column - reach_b < 0 or peak_row + reach_b >= rows_b
+            or peak_column + reach_b >= columns_b):
+        return offset_x, offset_y, nan
+    if (centre_row - reach_a < 0 or centre_column - reach_a < 0 or centre_row + reach_a >= rows_a
+            or centre_column + reach_a >= columns_a):
+        return offset_x, offset_y, nan
+    window = image_b[peak_row - reach_b: peak_row + reach_b + 1,
+                     peak_column - reach_b: peak_column + reach_b + 1].astype(np.float64)
+    padded = image_a[centre_row - reach_a: centre_row + reach_a + 1,
+                     centre_column - reach_a: centre_column + reach_a + 1].astype(np.float64)
+    size = 2 * half + 1
+    count = size * size
+    template = np.empty(count)
+    for r in range(size):
+        for c in range(size):
+            template[r * size + c] = padded[r + 1, c + 1]
+    mean = pairwise_sum(template, 0, count) / count
+    centred = np.empty(count)
+    for i in range(count):
+        centred[i] = template[i] - mean
+    spread = math.sqrt(np.dot(centred, centred) / count)
+    if not spread > 0:
+        return offset_x, offset_y, nan
+    target = np.empty(count)
+    for i in range(count):
+        target[i] = centred[i] / spread
+    scale = 0.5 / spread
+    grad_x = np.empty(count)
+    grad_y = np.empty(count)
+    for r in range(size):
+        for c in range(size):
+            grad_x[r * size + c] = scale * (padded[r + 1, c + 2] - padded[r + 1, c])
+            grad_y[r * size + c] = scale * (padded[r + 2, c + 1] - padded[r, c + 1])
+    hxx, hxy, hyy = np.dot(grad_x, grad_x), np.dot(grad_x, grad_y), np.dot(grad_y, grad_y)
+    determinant = hxx * hyy - hxy * hxy
+    if not determinant > 1e-12 * max(hxx * hyy, 1e-300):
+        return offset_x, offset_y, nan
+    correlation = nan
+    for step in range(iterations + 1):
+        normalised, usable = _normalised_at(window, offset_x, offset_y, size)
+        if not usable:
+            return offset_x, offset_y, nan
+        correlation = np.dot(normalised, target) / count
+        if step == iterations:
+            break
+        for i in range(count):
+            normalised[i] -= target[i]
+        ex, ey = np.dot(grad_x, normalised), np.dot(grad_y, normalised)
+        delta_x, delta_y = (hyy * ex - hxy * ey) / determinant, (hxx * ey - hxy * ex) / determinant
+        offset_x, offset_y = clip(offset_x - delta_x, 1.5), clip(offset_y - delta_y, 1.5)
+        if max(abs(delta_x), abs(delta_y)) < 1e-3:
+            normalised, usable = _normalised_at(window, offset_x, offset_y, size)
+            if usable:
+                correlation = np.dot(normalised, target) / count
+            break
+    return offset_x, offset_y, correlation
+
+
+@numba.njit(cache=True)
+def clip(value: float, bound: float) -> float:
+    """``value`` clipped to ``[-bound, bound]`` (NaN stays NaN)."""
+    return -bound if value < -bound else bound if value > bound else value
+
+
+@numba.njit(cache=True)
+def fit_peak(fit: np.ndarray, patch: np.ndarray) -> tuple[float, float, float, float]:
+    """``matching.fit_peak`` of a 3 x 3 patch, compiled: (offset x, offset y, peak value, curvature).
+
+    ``fit`` is the (6, 9) least-squares operator of the biquadratic (``matching._FIT``).
+    """
+    values = np.empty(9)
+    for r in range(3):
+        for c in range(3):
+            values[3 * r + c] = np.float64(patch[r, c])
+    coefficients = np.dot(fit, values)
+    a, bx, by, dxx, exy, fyy = (coefficients[0], coefficients[1], coefficients[2], coefficients[3],
+                                coefficients[4], coefficients[5])
+    hxx, hxy, hyy = 2.0 * dxx, exy, 2.0 * fyy
+    larger = 0.5 * (hxx + hyy) + math.hypot(0.5 * (hxx - hyy), hxy)
+    if larger < 0.0:
+        determinant = hxx * hyy - hxy * hxy
+        x = (-bx * hyy + by * hxy) / determinant
+        y = (-by * hxx + bx * hxy) / determinant
+        curvature = -larger
+    else:
+        x = -bx / hxx if hxx < 0 else 0.0
+        y = -by / hyy if hyy < 0 else 0.0
+        curvature = 0.0
+    x, y = min(max(x, -1.0), 1.0), min(max(y, -1.0), 1.0)
+    value = a + bx * x + by * y + dxx * x * x + exy * x * y + fyy * y * y
+    return x, y, min(max(value, -1.0), 1.0), curvature
+
+
+@numba.njit(cache=True)
+def correlation_difference_sigma(best: float, other: float, template_variance: float, window_variance: float,
+                                 noise_a_dn: float, noise_b_dn: float, pixels: int) -> float:
+    """``matching.correlation_difference_sigma``, compiled (the same scalar operations)."""
+    rho0 = min(max(best, -1.0), 1.0)
+    rho1 = min(max(other, -1.0), 1.0)
+    eps_a2 = 0.25 * noise_a_dn * noise_a_dn / max(template_variance, 1e-12)
+    eps_b2 = max(0.25 * noise_b_dn * noise_b_dn / max(window_variance, 1e-12), 2.0 * (1.0 - rho0) - eps_a2)
+    return math.sqrt((eps_a2 + eps_b2) / pixels) * (math.sqrt(max(1.0 - rho0 * rho0, 0.0))
+                                                     + math.sqrt(max(1.0 - rho1 * rho1, 0.0)))
+
+
+@numba.njit(cache=True)
+def distinct_peak_level(best: float, template_variance: float, window_variance: float, noise_a_dn: float,
+                        noise_b_dn: float, pixels: int, confidence_sigma: float) -> float:
+    """``matching.distinct_peak_level``, compiled (the same fixed-point iteration)."""
+    rho0 = min(max(best, -1.0), 1.0)
+    level = rho0
+    for _ in range(8):
+        updated = rho0 - confidence_sigma * correlation_difference_sigma(
+            rho0, level, template_variance, window_variance, noise_a_dn, noise_b_dn, pixels)
+        if updated <= -1.0:
+            return -1.0
+        if abs(updated - level) < 1e-6:
+            return updated
+        level = updated
+    return level
