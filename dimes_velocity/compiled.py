@@ -23,8 +23,41 @@ _PAIRWISE_BLOCK = 128    # numpy's PW_BLOCKSIZE
 
 
 @numba.njit(cache=True)
+def _block_sum(values: np.ndarray, start: int, count: int) -> float:
+    """numpy's pairwise sum of at most ``_PAIRWISE_BLOCK`` values: 8 running sums (sequential below 8 values)."""
+    if count < 8:
+        total = 0.0
+        for i in range(count):
+            total += values[start + i]
+        return total
+    r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+    r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+    i = 8
+    whole = count - count % 8
+    while i < whole:
+        at = start + i
+        r0 += values[at]
+        r1 += values[at + 1]
+        r2 += values[at + 2]
+        r3 += values[at + 3]
+        r4 += values[at + 4]
+        r5 += values[at + 5]
+        r6 += values[at + 6]
+        r7 += values[at + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < count:
+        total += values[start + i]
+        i += 1
+    return total
+
+
+@numba.njit(cache=True)
 def pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
     """``np.add.reduce(values[start:start + count])`` of a contiguous float64 array, by the same pairwise sum.
+
+    Above ``_PAIRWISE_BLOCK`` values numpy sums the two halves (the first a multiple of 8 long) and adds them; the
+    halving is walked here with an explicit stack (a recursive function does not survive numba's on-disk cache).
 
     Parameters
     ----------
@@ -38,35 +71,31 @@ def pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
     float
         The sum (the same bits as numpy's).
     """
-    if count < 8:
-        total = 0.0
-        for i in range(count):
-            total += values[start + i]
-        return total
     if count <= _PAIRWISE_BLOCK:
-        r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
-        r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
-        i = 8
-        whole = count - count % 8
-        while i < whole:
-            at = start + i
-            r0 += values[at]
-            r1 += values[at + 1]
-            r2 += values[at + 2]
-            r3 += values[at + 3]
-            r4 += values[at + 4]
-            r5 += values[at + 5]
-            r6 += values[at + 6]
-            r7 += values[at + 7]
-            i += 8
-        total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < count:
-            total += values[start + i]
-            i += 1
-        return total
-    half = count // 2
-    half -= half % 8
-    return pairwise_sum(values, start, half) + pairwise_sum(values, start + half, count - half)
+        return _block_sum(values, start, count)
+    starts = np.empty(64, np.int64)        # pending halvings (post-order): first value, count, halves summed
+    counts = np.empty(64, np.int64)
+    stage = np.empty(64, np.int64)
+    partial = np.empty(64)                 # sums of finished halves, left before right
+    depth, done = 1, 0
+    starts[0], counts[0], stage[0] = start, count, 0
+    while depth:
+        depth -= 1
+        first, size, visited = starts[depth], counts[depth], stage[depth]
+        if size <= _PAIRWISE_BLOCK:
+            partial[done] = _block_sum(values, first, size)
+            done += 1
+        elif visited:
+            partial[done - 2] = partial[done - 2] + partial[done - 1]
+            done -= 1
+        else:
+            half = size // 2
+            half -= half % 8
+            starts[depth], counts[depth], stage[depth] = first, size, 1
+            starts[depth + 1], counts[depth + 1], stage[depth + 1] = first + half, size - half, 0
+            starts[depth + 2], counts[depth + 2], stage[depth + 2] = first, half, 0
+            depth += 3
+    return partial[0]
 
 
 @numba.njit(cache=True)
