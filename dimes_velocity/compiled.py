@@ -24,7 +24,7 @@ _PAIRWISE_BLOCK = 128    # numpy's PW_BLOCKSIZE
 
 @numba.njit(cache=True)
 def _block_sum(values: np.ndarray, start: int, count: int) -> float:
-    """numpy's pairwise sum of at most ``_PAIRWISE_BLOCK`` values: 8 running sums (sequential below 8 values)."""
+    """The pairwise sum (numpy's) of at most ``_PAIRWISE_BLOCK`` values: 8 running sums (sequential below 8 values)."""
     if count < 8:
         total = 0.0
         for i in range(count):
