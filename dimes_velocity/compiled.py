@@ -446,3 +446,105 @@ def flattened_signal(charge_e: np.ndarray, smear: bool, total_divisor: float, ga
             dark[row, column] = below
             dark_count += below
     return signal, dark, dark_count
+
+
+@numba.njit(cache=True)
+def variance(values: np.ndarray) -> float:
+    """``matching._variance``: population variance of a 2-D array in float64 (numpy's pairwise sums, one each).
+
+    numpy reduces the (buffered, float64) values in one pairwise sum, the mean divided by the count, the squared
+    deviations summed the same way.
+    """
+    rows, columns = values.shape
+    count = rows * columns
+    flat = np.empty(count)
+    for row in range(rows):
+        for column in range(columns):
+            flat[row * columns + column] = np.float64(values[row, column])
+    mean = pairwise_sum(flat, 0, count) / count
+    for i in range(count):
+        deviation = flat[i] - mean
+        flat[i] = deviation * deviation
+    return pairwise_sum(flat, 0, count) / count
+
+
+@numba.njit(cache=True)
+def peak_and_second(surface: np.ndarray, exclusion_px: int) -> tuple[float, int, int, float]:
+    """The best peak of a correlation surface and ``matching.second_peak`` in one pass over it.
+
+    The best peak is ``cv2.minMaxLoc``'s maximum (the first in row-major order); the second is the highest
+    local maximum (a value at least each of its 3 x 3 neighbours inside the surface, as ``cv2.dilate`` with its
+    default border) outside the ``exclusion_px`` box around the best, -1 when there is none.
+
+    Parameters
+    ----------
+    surface : ndarray, shape (rows, columns), float32
+        Correlation surface (no NaN).
+    exclusion_px : int
+        Local maxima within this many pixels of the best peak in both directions are ignored.
+
+    Returns
+    -------
+    best : float
+        The largest value.
+    column, row : int
+        Where it is.
+    second : float
+        The second peak's value (-1 when there is none).
+    """
+    rows, columns = surface.shape
+    best = surface[0, 0]
+    best_row = best_column = 0
+    for row in range(rows):
+        for column in range(columns):
+            if surface[row, column] > best:
+                best, best_row, best_column = surface[row, column], row, column
+    return np.float64(best), best_column, best_row, second_peak(surface, best_column, best_row, exclusion_px)
+
+
+@numba.njit(cache=True)
+def second_peak(surface: np.ndarray, best_column: int, best_row: int, exclusion_px: int) -> float:
+    """``matching.second_peak``: the highest local maximum away from the best peak (-1: none), compiled."""
+    rows, columns = surface.shape
+    second = -1.0
+    found = False
+    for row in range(rows):
+        for column in range(columns):
+            if abs(row - best_row) <= exclusion_px and abs(column - best_column) <= exclusion_px:
+                continue
+            value = surface[row, column]
+            local = True
+            for near_row in range(max(row - 1, 0), min(row + 2, rows)):
+                for near_column in range(max(column - 1, 0), min(column + 2, columns)):
+                    if surface[near_row, near_column] > value:
+                        local = False
+            if local and (not found or value > second):
+                second, found = np.float64(value), True
+    return second
+
+
+@numba.njit(cache=True)
+def lobes_above(surface: np.ndarray, level: np.float32) -> int:
+    """``matching.lobes_above``: 8-connected regions of ``surface >= level`` (flood fill), compiled."""
+    rows, columns = surface.shape
+    label = np.zeros((rows, columns), np.uint8)
+    stack = np.empty(rows * columns, np.int64)
+    regions = 0
+    for row in range(rows):
+        for column in range(columns):
+            if label[row, column] or not surface[row, column] >= level:
+                continue
+            regions += 1
+            label[row, column] = 1
+            stack[0] = row * columns + column
+            size = 1
+            while size:
+                size -= 1
+                at_row, at_column = divmod(stack[size], columns)
+                for near_row in range(max(at_row - 1, 0), min(at_row + 2, rows)):
+                    for near_column in range(max(at_column - 1, 0), min(at_column + 2, columns)):
+                        if not label[near_row, near_column] and surface[near_row, near_column] >= level:
+                            label[near_row, near_column] = 1
+                            stack[size] = near_row * columns + near_column
+                            size += 1
+    return regions

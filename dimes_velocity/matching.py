@@ -44,7 +44,6 @@ _OFFSETS = np.array([(x, y) for y in (-1, 0, 1) for x in (-1, 0, 1)], dtype=floa
 _DESIGN = np.column_stack([np.ones(9), _OFFSETS[:, 0], _OFFSETS[:, 1], _OFFSETS[:, 0] ** 2,
                            _OFFSETS[:, 0] * _OFFSETS[:, 1], _OFFSETS[:, 1] ** 2])
 _FIT = np.linalg.pinv(_DESIGN)   # (6, 9): biquadratic coefficients from a raveled 3 x 3 patch
-_KERNEL_3X3 = np.ones((3, 3), np.uint8)
 
 
 @dataclass(frozen=True)
@@ -114,24 +113,16 @@ def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -
     float
         The second peak's value; -1 when there is none.
     """
-    local = cv2.compare(surface, cv2.dilate(surface, _KERNEL_3X3), cv2.CMP_GE)      # 255 at local maxima
     column, row = best
-    local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = 0
-    _, highest, _, where = cv2.minMaxLoc(surface, local)
-    return float(highest) if where[0] >= 0 else -1.0
+    return float(compiled.second_peak(np.asarray(surface, dtype=np.float32), int(column), int(row), int(exclusion_px)))
 
 
 def _variance(values: np.ndarray) -> float:
-    """Population variance of an array (float64): ``np.var(values, dtype=np.float64)``.
+    """Population variance of a 2-D array (float64): ``np.var(values, dtype=np.float64)`` (:func:`compiled.variance`).
 
-    The same ufunc calls as numpy's ``var`` (sum to the mean, divide, subtract, square, sum, divide), without
-    its argument handling: the same value, in a third of the time.
+    The same float64 operations as numpy's ``var`` (sum to the mean, divide, subtract, square, sum, divide).
     """
-    mean = np.add.reduce(values, axis=None, dtype=np.float64, keepdims=True)
-    np.true_divide(mean, values.size, out=mean)
-    deviations = np.subtract(values, mean)
-    np.square(deviations, out=deviations)
-    return float(np.add.reduce(deviations, axis=None, dtype=np.float64) / values.size)
+    return float(compiled.variance(values))
 
 
 def correlation_difference_sigma(best: float, other: float, template_variance: float, window_variance: float,
@@ -226,9 +217,7 @@ def lobes_above(surface: np.ndarray, level: float) -> int:
     int
         Regions; 1 when only the best peak's own lobe reaches the level.
     """
-    above = np.ascontiguousarray(surface >= level, dtype=np.uint8)
-    count, _ = cv2.connectedComponents(above, connectivity=8)
-    return int(count) - 1
+    return int(compiled.lobes_above(surface, np.float32(level)))     # float32 >= a Python float: at float32
 
 
 def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -323,8 +312,7 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     if template_c is None or window_c is None:
         return failed("search_outside")
     surface = _correlate(window_c, template_c)
-    _, best, _, (i_col, i_row) = cv2.minMaxLoc(surface)
-    second = second_peak(surface, (i_col, i_row), config.second_peak_exclusion_px)
+    best, i_col, i_row, second = compiled.peak_and_second(surface, config.second_peak_exclusion_px)
     ratio = min(max(second / best, -1.0), 1.0) if best > 1e-6 else 1.0
     last = surface.shape[0] - 1
     if i_row in (0, last) or i_col in (0, last):
