@@ -214,3 +214,55 @@ def test_distinct_peak_level_is_its_definition():
         arguments = (rng.uniform(-0.2, 1.0), rng.uniform(1.0, 500.0), rng.uniform(1.0, 500.0), rng.uniform(0.0, 20.0),
                      rng.uniform(0.0, 20.0), int(rng.integers(9, 200)), rng.uniform(0.0, 5.0))
         assert distinct_peak_level(*arguments) == _distinct_peak_level(*arguments)
+
+
+def _second_peak(surface, best, exclusion_px):
+    """Highest 3 x 3 local maximum away from ``best`` by OpenCV (dilate, compare, masked minMaxLoc)."""
+    import cv2
+    local = cv2.compare(surface, cv2.dilate(surface, np.ones((3, 3), np.uint8)), cv2.CMP_GE)
+    column, row = best
+    local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = 0
+    _, highest, _, where = cv2.minMaxLoc(surface, local)
+    return float(highest) if where[0] >= 0 else -1.0
+
+
+def _surfaces(seed, count=60):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        rows, columns = rng.integers(3, 25, 2)
+        smooth = rng.standard_normal((rows + 4, columns + 4)).cumsum(axis=0).cumsum(axis=1)
+        surface = smooth[2:-2, 2:-2] / np.abs(smooth).max()
+        yield np.round(surface, int(rng.integers(1, 4))).astype(np.float32)     # rounded: ties and plateaus too
+
+
+def test_peak_and_second_are_opencvs():
+    import cv2
+    for surface in _surfaces(21):
+        for exclusion in (0, 1, 3):
+            best, column, row, second = compiled.peak_and_second(surface, exclusion)
+            _, want_best, _, want_where = cv2.minMaxLoc(surface)
+            assert (best, (column, row)) == (want_best, want_where)
+            assert second == _second_peak(surface, want_where, exclusion)
+
+
+def test_lobes_are_opencvs_connected_components():
+    import cv2
+
+    from dimes_velocity.matching import lobes_above
+    for surface in _surfaces(22):
+        for level in (0.0, 0.3, -0.2, float(surface.max()), 0.1 + 1e-9):
+            above = np.ascontiguousarray(surface >= level, dtype=np.uint8)
+            want = int(cv2.connectedComponents(above, connectivity=8)[0]) - 1
+            assert lobes_above(surface, level) == want
+
+
+def test_variance_is_numpys():
+    rng = np.random.default_rng(23)
+    image = (rng.standard_normal((80, 80)) * 10.0 ** rng.uniform(-3, 5, (80, 80))).astype(np.float32)
+    for _ in range(200):
+        row, column, side = *rng.integers(0, 50, 2), int(rng.integers(3, 30))
+        window = image[row: row + side, column: column + side]
+        mean = np.add.reduce(window, axis=None, dtype=np.float64, keepdims=True) / window.size
+        deviations = np.square(np.subtract(window, mean))
+        assert compiled.variance(window) == float(np.add.reduce(deviations, axis=None, dtype=np.float64) / window.size)
+        assert compiled.variance(window) == float(window.astype(np.float64).var())
