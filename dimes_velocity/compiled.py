@@ -100,7 +100,18 @@ def pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
 
 @numba.njit(cache=True)
 def keys_weights(fraction: float) -> tuple[float, float, float, float]:
-    """Keys (a = -1/2) cubic convolution weights of the samples at -1, 0, 1, 2 for a point at ``fraction``."""
+    """Keys (a = -1/2) cubic convolution weights of the samples at -1, 0, 1, 2 for a point at ``fraction``.
+
+    Parameters
+    ----------
+    fraction : float
+        Position of the point after sample 0 (0 .. 1, px).
+
+    Returns
+    -------
+    tuple of 4 float
+        The weights of the samples at -1, 0, 1 and 2.
+    """
     t = fraction
     return (((-0.5 * t + 1.0) * t - 0.5) * t,
             (1.5 * t - 2.5) * t * t + 1.0,
@@ -110,10 +121,24 @@ def keys_weights(fraction: float) -> tuple[float, float, float, float]:
 
 @numba.njit(cache=True)
 def shifted_window(window: np.ndarray, offset_x: float, offset_y: float, out_size: int) -> np.ndarray:
-    """``matching._shifted_window``: Keys cubic re-sampling of a square float64 window, (out_size, out_size).
+    """Keys cubic re-sampling of a square float64 window at ``(x + offset_x, y + offset_y)`` (``shift_window``).
 
     The horizontal 4-tap pass, then the vertical one, each sum taken left to right (``((w0 s0 + w1 s1) + w2 s2)
     + w3 s3``).
+
+    Parameters
+    ----------
+    window : ndarray, shape (M, M), float64
+        The window; it extends ``|offset| + 2`` pixels beyond the output on every side.
+    offset_x, offset_y : float
+        The shift (px).
+    out_size : int
+        Side of the output square (px).
+
+    Returns
+    -------
+    ndarray, shape (out_size, out_size), float64
+        The central square, shifted.
     """
     first_out = window.shape[0] // 2 - out_size // 2
     whole_x, whole_y = math.floor(offset_x), math.floor(offset_y)
@@ -247,15 +272,40 @@ def refine(image_a: np.ndarray, image_b: np.ndarray, centre_column: int, centre_
 
 @numba.njit(cache=True)
 def clip(value: float, bound: float) -> float:
-    """``value`` clipped to ``[-bound, bound]`` (NaN stays NaN)."""
+    """``value`` clipped to ``[-bound, bound]`` (NaN stays NaN).
+
+    Parameters
+    ----------
+    value, bound : float
+        The value and the bound (> 0).
+
+    Returns
+    -------
+    float
+        The clipped value.
+    """
     return -bound if value < -bound else bound if value > bound else value
 
 
 @numba.njit(cache=True)
 def fit_peak(fit: np.ndarray, patch: np.ndarray) -> tuple[float, float, float, float]:
-    """``matching.fit_peak`` of a 3 x 3 patch, compiled: (offset x, offset y, peak value, curvature).
+    """``matching.fit_peak`` of a 3 x 3 patch, compiled.
 
-    ``fit`` is the (6, 9) least-squares operator of the biquadratic (``matching._FIT``).
+    Parameters
+    ----------
+    fit : ndarray, shape (6, 9), float64
+        The least-squares operator of the biquadratic (``matching._FIT``).
+    patch : ndarray, shape (3, 3)
+        Correlation values around the maximum.
+
+    Returns
+    -------
+    offset_x, offset_y : float
+        Sub-pixel position of the maximum from the centre (px, clipped to +-1).
+    peak_value : float
+        Fitted value there (clipped to [-1, 1]).
+    curvature : float
+        Smallest principal curvature (0 when not a maximum), 1/px^2.
     """
     values = np.empty(9)
     for r in range(3):
@@ -283,7 +333,24 @@ def fit_peak(fit: np.ndarray, patch: np.ndarray) -> tuple[float, float, float, f
 @numba.njit(cache=True)
 def correlation_difference_sigma(best: float, other: float, template_variance: float, window_variance: float,
                                  noise_a_dn: float, noise_b_dn: float, pixels: int) -> float:
-    """``matching.correlation_difference_sigma``, compiled (the same scalar operations)."""
+    """``matching.correlation_difference_sigma``, compiled (the same scalar operations).
+
+    Parameters
+    ----------
+    best, other : float
+        The two correlations.
+    template_variance, window_variance : float
+        Variances of the coarse template and of the coarse window at the best peak (DN^2).
+    noise_a_dn, noise_b_dn : float
+        Fine-level pixel noise of A and B (DN).
+    pixels : int
+        Pixels of the coarse template.
+
+    Returns
+    -------
+    float
+        Standard deviation of ``best - other`` (correlation units).
+    """
     rho0 = min(max(best, -1.0), 1.0)
     rho1 = min(max(other, -1.0), 1.0)
     eps_a2 = 0.25 * noise_a_dn * noise_a_dn / max(template_variance, 1e-12)
@@ -295,7 +362,26 @@ def correlation_difference_sigma(best: float, other: float, template_variance: f
 @numba.njit(cache=True)
 def distinct_peak_level(best: float, template_variance: float, window_variance: float, noise_a_dn: float,
                         noise_b_dn: float, pixels: int, confidence_sigma: float) -> float:
-    """``matching.distinct_peak_level``, compiled (the same fixed-point iteration)."""
+    """``matching.distinct_peak_level``, compiled (the same fixed-point iteration).
+
+    Parameters
+    ----------
+    best : float
+        Best coarse correlation.
+    template_variance, window_variance : float
+        Variances of the coarse template and of the coarse window at the best peak (DN^2).
+    noise_a_dn, noise_b_dn : float
+        Fine-level pixel noise of A and B (DN).
+    pixels : int
+        Pixels of the coarse template.
+    confidence_sigma : float
+        Standard deviations below the best a distinct peak must lie.
+
+    Returns
+    -------
+    float
+        The level (-1 when nothing can be told apart).
+    """
     rho0 = min(max(best, -1.0), 1.0)
     level = rho0
     for _ in range(8):
@@ -454,6 +540,16 @@ def variance(values: np.ndarray) -> float:
 
     numpy reduces the (buffered, float64) values in one pairwise sum, the mean divided by the count, the squared
     deviations summed the same way.
+
+    Parameters
+    ----------
+    values : ndarray, shape (rows, columns)
+        The values (any real dtype, any strides).
+
+    Returns
+    -------
+    float
+        Their population variance.
     """
     rows, columns = values.shape
     count = rows * columns
@@ -504,7 +600,22 @@ def peak_and_second(surface: np.ndarray, exclusion_px: int) -> tuple[float, int,
 
 @numba.njit(cache=True)
 def second_peak(surface: np.ndarray, best_column: int, best_row: int, exclusion_px: int) -> float:
-    """``matching.second_peak``: the highest local maximum away from the best peak (-1: none), compiled."""
+    """``matching.second_peak``: the highest local maximum away from the best peak, compiled.
+
+    Parameters
+    ----------
+    surface : ndarray, shape (rows, columns), float32
+        Correlation surface.
+    best_column, best_row : int
+        The best peak.
+    exclusion_px : int
+        Maxima within this many pixels of the best in both directions are ignored.
+
+    Returns
+    -------
+    float
+        The second peak's value; -1 when there is none.
+    """
     rows, columns = surface.shape
     second = -1.0
     found = False
@@ -525,7 +636,20 @@ def second_peak(surface: np.ndarray, best_column: int, best_row: int, exclusion_
 
 @numba.njit(cache=True)
 def lobes_above(surface: np.ndarray, level: np.float32) -> int:
-    """``matching.lobes_above``: 8-connected regions of ``surface >= level`` (flood fill), compiled."""
+    """``matching.lobes_above``: 8-connected regions of ``surface >= level`` (flood fill), compiled.
+
+    Parameters
+    ----------
+    surface : ndarray, shape (rows, columns), float32
+        Correlation surface.
+    level : float32
+        The level.
+
+    Returns
+    -------
+    int
+        Regions.
+    """
     rows, columns = surface.shape
     label = np.zeros((rows, columns), np.uint8)
     stack = np.empty(rows * columns, np.int64)
