@@ -260,7 +260,7 @@ def test_variance_is_numpys():
     rng = np.random.default_rng(23)
     image = (rng.standard_normal((80, 80)) * 10.0 ** rng.uniform(-3, 5, (80, 80))).astype(np.float32)
     for _ in range(200):
-        row, column, side = *rng.integers(0, 50, 2), int(rng.integers(3, 30))
+        row, column, side = int(rng.integers(0, 50)), int(rng.integers(0, 50)), int(rng.integers(3, 30))
         window = image[row: row + side, column: column + side]
         mean = np.add.reduce(window, axis=None, dtype=np.float64, keepdims=True) / window.size
         deviations = np.square(np.subtract(window, mean))
