@@ -34,7 +34,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from dimes_velocity import geometry
+from dimes_velocity import compiled, geometry
 from dimes_velocity.config import EstimatorConfig
 from dimes_velocity.features import Candidate, FeatureSelector
 from dimes_velocity.matching import Match, match_template
@@ -184,12 +184,8 @@ def _shifted(mask: np.ndarray, shift_columns: int, shift_rows: int) -> np.ndarra
 
 
 def _variance(window: np.ndarray) -> float:
-    """``float(window.astype(np.float64).var())`` with the same float64 reductions, fewer calls."""
-    values = window.astype(np.float64)
-    count = values.size
-    values -= float(np.add.reduce(values, axis=None)) / count
-    values *= values
-    return float(np.add.reduce(values, axis=None)) / count
+    """``float(window.astype(np.float64).var())`` with the same float64 reductions (:func:`compiled.variance`)."""
+    return float(compiled.variance(window))
 
 
 class _MatchCheck:

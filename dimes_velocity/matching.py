@@ -37,13 +37,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from dimes_velocity import compiled
 from dimes_velocity.config import EstimatorConfig
 
 _OFFSETS = np.array([(x, y) for y in (-1, 0, 1) for x in (-1, 0, 1)], dtype=float)
 _DESIGN = np.column_stack([np.ones(9), _OFFSETS[:, 0], _OFFSETS[:, 1], _OFFSETS[:, 0] ** 2,
                            _OFFSETS[:, 0] * _OFFSETS[:, 1], _OFFSETS[:, 1] ** 2])
 _FIT = np.linalg.pinv(_DESIGN)   # (6, 9): biquadratic coefficients from a raveled 3 x 3 patch
-_KERNEL_3X3 = np.ones((3, 3), np.uint8)
 
 
 @dataclass(frozen=True)
@@ -113,24 +113,16 @@ def second_peak(surface: np.ndarray, best: tuple[int, int], exclusion_px: int) -
     float
         The second peak's value; -1 when there is none.
     """
-    local = cv2.compare(surface, cv2.dilate(surface, _KERNEL_3X3), cv2.CMP_GE)      # 255 at local maxima
     column, row = best
-    local[max(row - exclusion_px, 0): row + exclusion_px + 1, max(column - exclusion_px, 0): column + exclusion_px + 1] = 0
-    _, highest, _, where = cv2.minMaxLoc(surface, local)
-    return float(highest) if where[0] >= 0 else -1.0
+    return float(compiled.second_peak(np.asarray(surface, dtype=np.float32), int(column), int(row), int(exclusion_px)))
 
 
 def _variance(values: np.ndarray) -> float:
-    """Population variance of an array (float64): ``np.var(values, dtype=np.float64)``.
+    """Population variance of a 2-D array (float64): ``np.var(values, dtype=np.float64)`` (:func:`compiled.variance`).
 
-    The same ufunc calls as numpy's ``var`` (sum to the mean, divide, subtract, square, sum, divide), without
-    its argument handling: the same value, in a third of the time.
+    The same float64 operations as numpy's ``var`` (sum to the mean, divide, subtract, square, sum, divide).
     """
-    mean = np.add.reduce(values, axis=None, dtype=np.float64, keepdims=True)
-    np.true_divide(mean, values.size, out=mean)
-    deviations = np.subtract(values, mean)
-    np.square(deviations, out=deviations)
-    return float(np.add.reduce(deviations, axis=None, dtype=np.float64) / values.size)
+    return float(compiled.variance(values))
 
 
 def correlation_difference_sigma(best: float, other: float, template_variance: float, window_variance: float,
@@ -205,17 +197,9 @@ def distinct_peak_level(best: float, template_variance: float, window_variance: 
     float
         The level ``L`` (-1 when nothing can be told apart).
     """
-    rho0 = min(max(float(best), -1.0), 1.0)
-    level = rho0
-    for _ in range(8):
-        updated = rho0 - confidence_sigma * correlation_difference_sigma(
-            rho0, level, template_variance, window_variance, noise_a_dn, noise_b_dn, pixels)
-        if updated <= -1.0:
-            return -1.0
-        if abs(updated - level) < 1e-6:
-            return updated
-        level = updated
-    return level
+    return float(compiled.distinct_peak_level(float(best), float(template_variance), float(window_variance),
+                                              float(noise_a_dn), float(noise_b_dn), int(pixels),
+                                              float(confidence_sigma)))
 
 
 def lobes_above(surface: np.ndarray, level: float) -> int:
@@ -233,9 +217,7 @@ def lobes_above(surface: np.ndarray, level: float) -> int:
     int
         Regions; 1 when only the best peak's own lobe reaches the level.
     """
-    above = np.ascontiguousarray(surface >= level, dtype=np.uint8)
-    count, _ = cv2.connectedComponents(above, connectivity=8)
-    return int(count) - 1
+    return int(compiled.lobes_above(surface, np.float32(level)))     # float32 >= a Python float: at float32
 
 
 def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -255,30 +237,8 @@ def fit_peak(patch: np.ndarray) -> tuple[np.ndarray, float, float]:
     curvature : float
         Smallest principal curvature ``min(-eig(Hessian))`` (0 when the surface is not a maximum).
     """
-    a, bx, by, dxx, exy, fyy = (_FIT @ patch.astype(float).ravel()).tolist()
-    hxx, hxy, hyy = 2.0 * dxx, exy, 2.0 * fyy                          # Hessian of the fit
-    larger = 0.5 * (hxx + hyy) + float(np.hypot(0.5 * (hxx - hyy), hxy))   # its larger eigenvalue
-    if larger < 0.0:                                                   # both negative: a maximum
-        determinant = hxx * hyy - hxy * hxy
-        x = (-bx * hyy + by * hxy) / determinant
-        y = (-by * hxx + bx * hxy) / determinant
-        curvature = -larger
-    else:  # not a maximum: separable parabolas, and report no curvature
-        x = -bx / hxx if hxx < 0 else 0.0
-        y = -by / hyy if hyy < 0 else 0.0
-        curvature = 0.0
-    x, y = min(max(x, -1.0), 1.0), min(max(y, -1.0), 1.0)
-    value = a + bx * x + by * y + dxx * x * x + exy * x * y + fyy * y * y
-    return np.array([x, y]), min(max(value, -1.0), 1.0), curvature
-
-
-def _keys_weights(fraction: float) -> tuple[float, float, float, float]:
-    """Keys (a = -1/2) cubic convolution weights of the samples at -1, 0, 1, 2 for a point at ``fraction``."""
-    t = float(fraction)
-    return (((-0.5 * t + 1.0) * t - 0.5) * t,
-            (1.5 * t - 2.5) * t * t + 1.0,
-            ((-1.5 * t + 2.0) * t + 0.5) * t,
-            (0.5 * t - 0.5) * t * t)
+    x, y, value, curvature = compiled.fit_peak(_FIT, np.asarray(patch))
+    return np.array([x, y]), value, curvature
 
 
 def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.ndarray:
@@ -301,93 +261,8 @@ def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.nd
     ndarray, shape (out_size, out_size), float64
         The central square, shifted.
     """
-    return _shifted_window(np.asarray(window, dtype=np.float64), float(offset[0]), float(offset[1]), out_size)
-
-
-def _shifted_window(window: np.ndarray, offset_x: float, offset_y: float, out_size: int) -> np.ndarray:
-    """:func:`shift_window` of a float64 window.
-
-    The horizontal 4-tap pass, then the vertical one, each sum taken left to right (``((w0 s0 + w1 s1) + w2 s2) +
-    w3 s3``) into one buffer.
-    """
-    first_out = window.shape[0] // 2 - out_size // 2
-    whole_x, whole_y = math.floor(offset_x), math.floor(offset_y)
-    wx, wy = _keys_weights(offset_x - whole_x), _keys_weights(offset_y - whole_y)
-    fx, fy = first_out + whole_x - 1, first_out + whole_y - 1
-    rows = window[fy: fy + out_size + 3]
-    columns = np.multiply(rows[:, fx: fx + out_size], wx[0])
-    term = np.empty_like(columns)
-    for k in (1, 2, 3):
-        columns += np.multiply(rows[:, fx + k: fx + k + out_size], wx[k], out=term)
-    out = np.multiply(columns[0:out_size], wy[0])
-    term = term[:out_size]
-    for k in (1, 2, 3):
-        out += np.multiply(columns[k: k + out_size], wy[k], out=term)
-    return out
-
-
-def _refine(image_a: np.ndarray, image_b: np.ndarray, centre_a: tuple[int, int], peak: tuple[int, int],
-            offset: np.ndarray, half: int, iterations: int) -> tuple[np.ndarray, float]:
-    """Inverse-compositional Gauss-Newton (Lucas-Kanade) refinement of the sub-pixel shift.
-
-    Both the template ``T`` (from A) and the re-sampled window of B are normalised to zero mean and
-    unit variance (so gain and bias do not matter); the shift update is
-    ``dp = H^-1 sum grad T (B_n(x + p) - T_n(x))`` with ``H = sum grad T grad T^T`` computed once, and
-    ``p <- p + dp``. For a pure translation the fixed point is the true shift whatever the asymmetry
-    of the correlation surface. Returns the offset relative to ``peak`` and the normalised correlation
-    there (NaN when a window leaves the image or the template is flat).
-    """
-    window = _crop(image_b, int(peak[0]), int(peak[1]), half + 4)
-    padded = _crop(image_a, int(centre_a[0]), int(centre_a[1]), half + 1)
-    if window is None or padded is None:
-        return offset, float("nan")
-    window = window.astype(np.float64)          # once: every re-sampling reads it
-    padded = padded.astype(np.float64)
-    template = padded[1:-1, 1:-1].ravel()
-    count = template.size
-    centred = template - float(np.add.reduce(template)) / count          # = template.mean()
-    spread = float(np.sqrt(np.dot(centred, centred) / count))
-    if not spread > 0:
-        return offset, float("nan")
-    target = centred / spread
-    grad_x = ((0.5 / spread) * (padded[1:-1, 2:] - padded[1:-1, :-2])).ravel()
-    grad_y = ((0.5 / spread) * (padded[2:, 1:-1] - padded[:-2, 1:-1])).ravel()
-    hxx, hxy, hyy = np.dot(grad_x, grad_x), np.dot(grad_x, grad_y), np.dot(grad_y, grad_y)
-    determinant = hxx * hyy - hxy * hxy
-    if not determinant > 1e-12 * max(hxx * hyy, 1e-300):
-        return offset, float("nan")
-    size = 2 * half + 1
-
-    def normalised_at(shift_x: float, shift_y: float) -> np.ndarray | None:
-        moved = _shifted_window(window, shift_x, shift_y, size).ravel()
-        moved -= float(np.add.reduce(moved)) / count                       # = moved.mean()
-        norm = float(np.sqrt(np.dot(moved, moved) / count))
-        return np.divide(moved, norm, out=moved) if norm > 0 else None
-
-    offset_x, offset_y = float(offset[0]), float(offset[1])
-    correlation = float("nan")
-    for step in range(iterations + 1):
-        normalised = normalised_at(offset_x, offset_y)
-        if normalised is None:
-            return np.array([offset_x, offset_y]), float("nan")
-        correlation = float(np.dot(normalised, target)) / count
-        if step == iterations:
-            break
-        error = np.subtract(normalised, target, out=normalised)
-        ex, ey = np.dot(grad_x, error), np.dot(grad_y, error)
-        delta_x, delta_y = (hyy * ex - hxy * ey) / determinant, (hxx * ey - hxy * ex) / determinant
-        offset_x, offset_y = _clip(offset_x - delta_x, 1.5), _clip(offset_y - delta_y, 1.5)
-        if max(abs(delta_x), abs(delta_y)) < 1e-3:
-            normalised = normalised_at(offset_x, offset_y)
-            if normalised is not None:
-                correlation = float(np.dot(normalised, target)) / count
-            break
-    return np.array([offset_x, offset_y]), correlation
-
-
-def _clip(value: float, bound: float) -> float:
-    """``value`` clipped to ``[-bound, bound]`` (NaN stays NaN, as with ``np.minimum(np.maximum(...))``)."""
-    return -bound if value < -bound else bound if value > bound else value
+    return compiled.shifted_window(np.ascontiguousarray(window, dtype=np.float64), float(offset[0]), float(offset[1]),
+                                   int(out_size))
 
 
 def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray, b_coarse: np.ndarray,
@@ -437,8 +312,7 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
     if template_c is None or window_c is None:
         return failed("search_outside")
     surface = _correlate(window_c, template_c)
-    _, best, _, (i_col, i_row) = cv2.minMaxLoc(surface)
-    second = second_peak(surface, (i_col, i_row), config.second_peak_exclusion_px)
+    best, i_col, i_row, second = compiled.peak_and_second(surface, config.second_peak_exclusion_px)
     ratio = min(max(second / best, -1.0), 1.0) if best > 1e-6 else 1.0
     last = surface.shape[0] - 1
     if i_row in (0, last) or i_col in (0, last):
@@ -474,10 +348,10 @@ def match_template(a_fine: np.ndarray, b_fine: np.ndarray, a_coarse: np.ndarray,
         return failed("search_border", best, ratio, coarse_curvature)
     offset, correlation, curvature = fit_peak(fine[j_row - 1: j_row + 2, j_col - 1: j_col + 2])
     if config.subpixel_iterations > 0:
-        refined, value = _refine(a_fine, b_fine, (u, v), (guess_u, guess_v), offset, half_f,
-                                 config.subpixel_iterations)
+        refined_x, refined_y, value = compiled.refine(a_fine, b_fine, u, v, guess_u, guess_v, float(offset[0]),
+                                                      float(offset[1]), half_f, config.subpixel_iterations)
         if math.isfinite(value):
-            offset, correlation = refined, value
+            offset, correlation = np.array([refined_x, refined_y]), value
     position = np.array([guess_u + offset[0], guess_v + offset[1]], dtype=float)
     if curvature < config.min_peak_curvature:
         status = "flat_peak"

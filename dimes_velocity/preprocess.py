@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dimes_velocity import compiled
 from dimes_velocity.config import EstimatorConfig
 from flight_interface.calibration import readout_flat_field
 from flight_interface.camera import Camera
@@ -316,7 +317,16 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
     b = flattening.binning
     gain = np.float32(flattening.gain_e_per_dn)
     raw = np.asarray(raw_dn)
+    alpha, beta, gamma = flattening.alpha_s, flattening.beta_s, flattening.gamma_s
+    no_smear = beta == 0.0 and gamma == 0.0
+    compiled_pass = raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2 and (no_smear or beta == gamma)
     highest = raw.max()
+    if compiled_pass:      # integer DN, no smear or MER's equal times: the same float32 bits in two compiled passes
+        offset_dn = np.float32(b * flattening.adc_offset_dn)
+        if b == 4 and raw.dtype == np.uint16 and raw.flags.c_contiguous:
+            charge_e = compiled.binned_charge_u16x4(raw.view(np.uint64), offset_dn, flattening.storage_dark_dn, gain)
+        else:
+            charge_e = compiled.binned_charge(raw, b, offset_dn, flattening.storage_dark_dn, gain)
     if highest >= flattening.saturation_dn:
         brightest = raw[:, 0::b]
         for offset in range(1, b):
@@ -324,20 +334,29 @@ def flatten(raw_dn: np.ndarray, flattening: Flattening, config: EstimatorConfig)
         saturated: np.ndarray | None = brightest >= flattening.saturation_dn
     else:
         saturated = None                    # no block saturated
-    # the same float32 operations in the same order as written out in the module docstring, in place
-    summed_dn = bin_columns(raw, b, float(highest))
-    summed_dn -= np.float32(b * flattening.adc_offset_dn)
-    summed_dn -= flattening.storage_dark_dn
-    charge_e = np.multiply(summed_dn, gain, out=summed_dn)
-    signal = unsmear(charge_e, flattening)
-    signal -= np.float32(flattening.area_dark_e_per_s)
-    signal *= np.float32(flattening.exposure_s) / gain
-    signal *= flattening.inverse_response
-    dark = signal < np.float32(config.min_signal_dn)
-    excluded = (np.bitwise_or(saturated, dark) if saturated is not None else dark).view(np.uint8)
+    if compiled_pass:
+        d = alpha - gamma
+        signal, dark, dark_count = compiled.flattened_signal(
+            charge_e, not no_smear, d + charge_e.shape[0] * gamma, gamma, np.float32(alpha if no_smear else d),
+            np.float32(flattening.area_dark_e_per_s), np.float32(flattening.exposure_s) / gain,
+            flattening.inverse_response, np.float32(config.min_signal_dn))
+        excluded = np.bitwise_or(saturated, dark) if saturated is not None else dark
+    else:
+        # the same float32 operations in the same order as written out in the module docstring, in place
+        summed_dn = bin_columns(raw, b, float(highest))
+        summed_dn -= np.float32(b * flattening.adc_offset_dn)
+        summed_dn -= flattening.storage_dark_dn
+        charge_e = np.multiply(summed_dn, gain, out=summed_dn)
+        signal = unsmear(charge_e, flattening)
+        signal -= np.float32(flattening.area_dark_e_per_s)
+        signal *= np.float32(flattening.exposure_s) / gain
+        signal *= flattening.inverse_response
+        dark_mask = signal < np.float32(config.min_signal_dn)
+        dark_count = int(np.count_nonzero(dark_mask))
+        excluded = (np.bitwise_or(saturated, dark_mask) if saturated is not None else dark_mask).view(np.uint8)
     return FlatImage(signal_dn=signal, excluded=excluded,
                      saturated_fraction=float(np.count_nonzero(saturated)) / saturated.size if saturated is not None
                      else 0.0,
-                     dark_fraction=float(np.count_nonzero(dark)) / dark.size, charge_e=charge_e,
+                     dark_fraction=float(dark_count) / signal.size, charge_e=charge_e,
                      variance_floor_e2=float(b * flattening.read_noise_e**2 + b * flattening.gain_e_per_dn**2 / 12.0),
                      noise_scale=flattening.noise_scale)
