@@ -429,12 +429,58 @@ class RayFamily:
             Window coordinates.
         """
         if index is None:
+            if isinstance(z, np.ndarray) and z.shape == self.col0.shape and z.dtype == np.float32 and all(
+                    part.flags.c_contiguous for part in (z, self.col0, self.row0, self.col_per_m, self.row_per_m)):
+                col = np.empty_like(z) if out[0] is None else out[0]
+                row = np.empty_like(z) if out[1] is None else out[1]
+                _ray_points_kernel(z.reshape(-1), self.col0.reshape(-1), self.row0.reshape(-1),
+                                   self.col_per_m.reshape(-1), self.row_per_m.reshape(-1), col.reshape(-1),
+                                   row.reshape(-1))
+                return col, row
             col = np.multiply(z, self.col_per_m, out=out[0])
             col += self.col0
             row = np.multiply(z, self.row_per_m, out=out[1])
             row += self.row0
             return col, row
         return self.col0[index] + z * self.col_per_m[index], self.row0[index] + z * self.row_per_m[index]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _ray_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
+    """:meth:`RayFamily.at` of every ray in one pass (float32 products and sums, as numpy rounds them)."""
+    for ray in range(z.shape[0]):
+        col[ray] = z[ray] * col_per_m[ray] + col0[ray]
+        row[ray] = z[ray] * row_per_m[ray] + row0[ray]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _level_rays_kernel(level_col, level_row, sky, any_sky, window_col0, window_row0, origin_col, origin_row,
+                       inverse_altitude, col0, row0, col_per_m, row_per_m):
+    """The level map in window coordinates (0 at sky pixels) and :class:`RayFamily`'s lines, in one pass."""
+    for pixel in range(level_col.shape[0]):
+        if any_sky and sky[pixel]:
+            col, row = np.float32(0.0), np.float32(0.0)
+        else:
+            col, row = level_col[pixel] - window_col0, level_row[pixel] - window_row0
+        col0[pixel], row0[pixel] = col, row
+        col_per_m[pixel] = (origin_col - col) * inverse_altitude
+        row_per_m[pixel] = (origin_row - row) * inverse_altitude
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _off_tolerance_kernel(z, heights_read, steep, sky, any_sky, tolerance, index, residual):
+    """Flat indices (and residuals ``z - H``) of the pixels with ``|z - H| > tolerance``, neither steep nor sky.
+
+    ``heights_read``: (pixels, channels), the heights in channel 0. Returns their count.
+    """
+    count = 0
+    for pixel in range(z.shape[0]):
+        difference = z[pixel] - heights_read[pixel, 0]
+        if abs(difference) > tolerance and not steep[pixel] and not (any_sky and sky[pixel]):
+            index[count] = pixel
+            residual[count] = difference
+            count += 1
+    return count
 
 
 def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, tolerance_m: float) -> np.ndarray:
@@ -603,11 +649,15 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
 
     def work(name, dtype=np.float32, channels=()):
         return _work_array(name, shape + channels, dtype) if pooled else np.empty(shape + channels, dtype=dtype)
-    col0 = np.subtract(level_map.col, np.float32(crop.col0), out=work("col0"))
-    row0 = np.subtract(level_map.row, np.float32(crop.row0), out=work("row0"))
-    if level_map.any_sky:       # sky pixels: any point of the window (masked at the end)
-        col0[sky], row0[sky] = 0.0, 0.0
-    full = RayFamily(col0, row0, origin_col, origin_row, altitude, out=(work("col_per_m"), work("row_per_m")))
+    # the level map in window coordinates (sky pixels: any point of the window, masked at the end) and the
+    # rays' lines, in one compiled pass
+    col0, row0 = work("col0"), work("row0")
+    full = RayFamily.__new__(RayFamily)
+    full.col0, full.row0, full.col_per_m, full.row_per_m = col0, row0, work("col_per_m"), work("row_per_m")
+    _level_rays_kernel(level_map.col.reshape(-1), level_map.row.reshape(-1), sky.reshape(-1), level_map.any_sky,
+                       np.float32(crop.col0), np.float32(crop.row0), np.float32(origin_col), np.float32(origin_row),
+                       np.float32(1.0 / altitude), col0.reshape(-1), row0.reshape(-1), full.col_per_m.reshape(-1),
+                       full.row_per_m.reshape(-1))
 
     # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound and by
     #    the node normals' error
@@ -624,10 +674,13 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     spacing = _ray_spacing(sample) if even else 0.0
     bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1]
     steep = _steep_rays(bound, sample, z_bottom, z_top, mpp, spacing)
-    if even:
-        steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
-    if level_map.any_sky:
-        steep &= ~sky
+    if not steep.any():
+        steep = np.zeros(shape, dtype=bool)
+    else:
+        if even:
+            steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
+        if level_map.any_sky:
+            steep &= ~sky
 
     # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
     #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
@@ -638,21 +691,22 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     if sun is not None:
         nodes = _nodes(heights, crop, terrain, origin, sun, config)
         values = remap_points(nodes, col, row, out=work("values", channels=(4,)))
-        residual = np.subtract(z, values[..., 0], out=work("residual"))
+        heights_read = values.reshape(-1, 4)
     else:
-        residual = z - remap_points(heights, col, row)
-    off = np.greater(np.abs(residual), np.float32(tolerance), out=work("off", bool))
-    off &= ~steep
-    if level_map.any_sky:
-        off &= ~sky
+        heights_read = remap_points(heights, col, row).reshape(-1, 1)
+    # the pixels off the tolerance (not steep, not sky) and their residuals, in one compiled pass
+    redo_buffer, residual_buffer = work("redo", np.int32), work("residual")
+    count = _off_tolerance_kernel(z.reshape(-1), heights_read, steep.reshape(-1), sky.reshape(-1),
+                                  level_map.any_sky, np.float32(tolerance), redo_buffer.reshape(-1),
+                                  residual_buffer.reshape(-1))
+    redo = redo_buffer.reshape(-1)[:count].astype(np.intp)
     flat_rays = RayFamily.__new__(RayFamily)
     flat_rays.col0, flat_rays.row0 = full.col0.reshape(-1), full.row0.reshape(-1)
     flat_rays.col_per_m, flat_rays.row_per_m = full.col_per_m.reshape(-1), full.row_per_m.reshape(-1)
     z_flat = z.reshape(-1)
-    redo = np.flatnonzero(off)
     marched = steep.reshape(-1).copy()
     if redo.size:
-        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual.reshape(-1)[redo],
+        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual_buffer.reshape(-1)[:count],
                                          z_bottom, z_top, tolerance)
         z_flat[redo] = z_redo
         marched[redo[~converged]] = True
@@ -824,7 +878,10 @@ def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_t
         return np.zeros(rays.col0.shape, dtype=bool)
     px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
     largest_px_per_m = float(px_per_m.max())
-    if float(heights_bound.max()) * largest_px_per_m * mpp * (1.0 + 1e-5) < UNIQUE_SLOPE_BOUND:
+    # the bound is >= 0, so its half-precision bits order as unsigned integers (an exact, faster maximum)
+    largest_bound = float(heights_bound.view(np.uint16).max().view(np.float16)) if heights_bound.dtype == np.float16 \
+        else float(heights_bound.max())
+    if largest_bound * largest_px_per_m * mpp * (1.0 + 1e-5) < UNIQUE_SLOPE_BOUND:
         return np.zeros(rays.col0.shape, dtype=bool)    # no slope in the window reaches the bound for any ray
     half_length = 0.5 * (z_top - z_bottom) * largest_px_per_m
     radius = int(np.ceil(half_length + spacing_px + 2.0))
