@@ -36,6 +36,12 @@ bilinear surface's own within-cell gradient; where the two can differ by more th
 own normal as the reference does (measured difference: docs/simulator.md, "Terrain relief"). The
 pose-independent values are cached per terrain and sun (:func:`static_nodes`); per pose only the view term
 is computed on the window (:func:`shading_nodes`).
+
+**Compiled passes.** The elementwise work is fused into numba passes (``cache=True``; ~1.1 s of CPU to
+compile once per machine): the level rays' lines, the ray points, the off-tolerance pixels, the view term
+(reading the half-precision normals' bits exactly) and the radiance factor; OpenCV's remap keeps the
+bilinear reads (5x faster than a scalar compiled read here). They compute the same float32 operations as
+the numpy passes they replace: the same bits.
 """
 from __future__ import annotations
 
