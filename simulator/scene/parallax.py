@@ -36,6 +36,12 @@ bilinear surface's own within-cell gradient; where the two can differ by more th
 own normal as the reference does (measured difference: docs/simulator.md, "Terrain relief"). The
 pose-independent values are cached per terrain and sun (:func:`static_nodes`); per pose only the view term
 is computed on the window (:func:`shading_nodes`).
+
+**Compiled passes.** The elementwise work is fused into numba passes (``cache=True``; ~1.1 s of CPU to
+compile once per machine): the level rays' lines, the ray points, the off-tolerance pixels, the view term
+(reading the half-precision normals' bits exactly) and the radiance factor; OpenCV's remap keeps the
+bilinear reads (5x faster than a scalar compiled read here). They compute the same float32 operations as
+the numpy passes they replace: the same bits.
 """
 from __future__ import annotations
 
@@ -46,6 +52,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from simulator.derived_cache import DERIVED
 from simulator.scene import ground_mapping, height_field, photometry
@@ -319,38 +326,62 @@ def shading_nodes(terrain: Terrain, crop: Crop, origin_m: np.ndarray, sun: np.nd
     """
     pack, normal_east, normal_north = static_nodes(terrain, sun, config)
     window = (slice(crop.row0, crop.row1), slice(crop.col0, crop.col1))
-    nodes = pack[window].copy()
-    rows, cols = nodes.shape[:2]
+    rows, cols = crop.row1 - crop.row0, crop.col1 - crop.col0
     mpp = terrain.metres_per_pixel
-    sun_z = max(np.float32(sun[2]), np.float32(1e-12))
-    diffuse = np.float32(config.shadow_diffuse_fraction)
     east = terrain.origin_m[0] + (crop.col0 + np.arange(cols)) * mpp
     north = terrain.origin_m[1] - (crop.row0 + np.arange(rows)) * mpp
-    to_camera_east = (origin_m[0] - east).astype(np.float32)[None, :]
-    to_camera_north = (origin_m[1] - north).astype(np.float32)[:, None]
-    to_camera_up = np.float32(origin_m[2]) - nodes[..., 0]
-    distance = to_camera_up * to_camera_up
-    distance += to_camera_east * to_camera_east + to_camera_north * to_camera_north
-    np.sqrt(distance, out=distance)
-    # LS(n, v) / LS(flat, v) = A (s_z D + v_z) / (s_z (A D + B)), A = n.s, B = n.(O - X), D = |O - X|
-    # (the normal's length cancels; A, B clipped at 0 as the photometric function clips its cosines)
-    sun_term = nodes[..., 3]
-    view_term = normal_east[window].astype(np.float32)
-    view_term *= to_camera_east
-    view_term += normal_north[window].astype(np.float32) * to_camera_north
-    view_term += to_camera_up
-    np.maximum(view_term, np.float32(0.0), out=view_term)
-    denominator = sun_term * distance
-    denominator += view_term
-    denominator *= sun_z
-    np.maximum(denominator, np.float32(1e-30), out=denominator)
-    numerator = distance
-    numerator *= sun_z
-    numerator += to_camera_up
-    numerator *= sun_term
-    numerator *= np.float32(1.0) - diffuse
-    np.divide(numerator, denominator, out=nodes[..., 3])
+    nodes = np.empty((rows, cols, 4), dtype=np.float32)
+    _view_term_kernel(pack[window], normal_east[window].view(np.uint16), normal_north[window].view(np.uint16),
+                      (origin_m[0] - east).astype(np.float32), (origin_m[1] - north).astype(np.float32),
+                      np.float32(origin_m[2]), max(np.float32(sun[2]), np.float32(1e-12)),
+                      np.float32(1.0) - np.float32(config.shadow_diffuse_fraction), HALF_SCALES, nodes)
     return nodes
+
+
+#: 2^(e - 25) for the 32 exponent fields e of IEEE half precision (2^-24 for e = 0: subnormal)
+HALF_SCALES = np.array([2.0 ** -24] + [2.0 ** (exponent - 25) for exponent in range(1, 32)], dtype=np.float32)
+
+
+@njit(cache=True, nogil=True, boundscheck=False, inline="always")
+def _half_to_float32(bits, scales):
+    """The value of IEEE half-precision bits, exactly.
+
+    Numba reads no float16 arrays; the normals hold no inf or nan. ``scales``: :data:`HALF_SCALES`.
+    """
+    exponent = (bits >> 10) & 0x1F
+    significand = np.float32(bits & 0x3FF)
+    if exponent != 0:
+        significand += np.float32(1024.0)
+    value = significand * scales[exponent]
+    return -value if bits & 0x8000 else value
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _view_term_kernel(pack, normal_east, normal_north, to_camera_east, to_camera_north, origin_up, sun_z,
+                      direct_fraction, half_scales, nodes):
+    """:func:`shading_nodes` in one pass over the window.
+
+    Channels 0-2 are copied from the static values, channel 3 is
+    ``(1 - d) LS(n, v) / LS(flat, v) = (1 - d) A (s_z D + v_z) / (s_z (A D + B))`` with ``A = n.s`` (channel 3
+    of the static values), ``B = max(n.(O - X), 0)`` and ``D = |O - X|`` (the normal's length cancels).
+    """
+    rows, cols = normal_east.shape
+    for row in range(rows):
+        north = to_camera_north[row]
+        for col in range(cols):
+            east = to_camera_east[col]
+            slope_east = _half_to_float32(normal_east[row, col], half_scales)
+            slope_north = _half_to_float32(normal_north[row, col], half_scales)
+            height = pack[row, col, 0]
+            up = origin_up - height
+            distance = np.sqrt(up * up + (east * east + north * north))
+            sun_term = pack[row, col, 3]
+            view_term = max(slope_east * east + slope_north * north + up, np.float32(0.0))
+            denominator = max((sun_term * distance + view_term) * sun_z, np.float32(1e-30))
+            nodes[row, col, 0] = height
+            nodes[row, col, 1] = pack[row, col, 1]
+            nodes[row, col, 2] = pack[row, col, 2]
+            nodes[row, col, 3] = (distance * sun_z + up) * sun_term * direct_fraction / denominator
 
 
 def _secant(z, f, z_previous, f_previous, z_bottom, z_top):
@@ -404,12 +435,58 @@ class RayFamily:
             Window coordinates.
         """
         if index is None:
+            if isinstance(z, np.ndarray) and z.shape == self.col0.shape and z.dtype == np.float32 and all(
+                    part.flags.c_contiguous for part in (z, self.col0, self.row0, self.col_per_m, self.row_per_m)):
+                col = np.empty_like(z) if out[0] is None else out[0]
+                row = np.empty_like(z) if out[1] is None else out[1]
+                _ray_points_kernel(z.reshape(-1), self.col0.reshape(-1), self.row0.reshape(-1),
+                                   self.col_per_m.reshape(-1), self.row_per_m.reshape(-1), col.reshape(-1),
+                                   row.reshape(-1))
+                return col, row
             col = np.multiply(z, self.col_per_m, out=out[0])
             col += self.col0
             row = np.multiply(z, self.row_per_m, out=out[1])
             row += self.row0
             return col, row
         return self.col0[index] + z * self.col_per_m[index], self.row0[index] + z * self.row_per_m[index]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _ray_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
+    """:meth:`RayFamily.at` of every ray in one pass (float32 products and sums, as numpy rounds them)."""
+    for ray in range(z.shape[0]):
+        col[ray] = z[ray] * col_per_m[ray] + col0[ray]
+        row[ray] = z[ray] * row_per_m[ray] + row0[ray]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _level_rays_kernel(level_col, level_row, sky, any_sky, window_col0, window_row0, origin_col, origin_row,
+                       inverse_altitude, col0, row0, col_per_m, row_per_m):
+    """The level map in window coordinates (0 at sky pixels) and :class:`RayFamily`'s lines, in one pass."""
+    for pixel in range(level_col.shape[0]):
+        if any_sky and sky[pixel]:
+            col, row = np.float32(0.0), np.float32(0.0)
+        else:
+            col, row = level_col[pixel] - window_col0, level_row[pixel] - window_row0
+        col0[pixel], row0[pixel] = col, row
+        col_per_m[pixel] = (origin_col - col) * inverse_altitude
+        row_per_m[pixel] = (origin_row - row) * inverse_altitude
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _off_tolerance_kernel(z, heights_read, steep, sky, any_sky, tolerance, index, residual):
+    """Flat indices (and residuals ``z - H``) of the pixels with ``|z - H| > tolerance``, neither steep nor sky.
+
+    ``heights_read``: (pixels, channels), the heights in channel 0. Returns their count.
+    """
+    count = 0
+    for pixel in range(z.shape[0]):
+        difference = z[pixel] - heights_read[pixel, 0]
+        if abs(difference) > tolerance and not steep[pixel] and not (any_sky and sky[pixel]):
+            index[count] = pixel
+            residual[count] = difference
+            count += 1
+    return count
 
 
 def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, tolerance_m: float) -> np.ndarray:
@@ -578,11 +655,15 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
 
     def work(name, dtype=np.float32, channels=()):
         return _work_array(name, shape + channels, dtype) if pooled else np.empty(shape + channels, dtype=dtype)
-    col0 = np.subtract(level_map.col, np.float32(crop.col0), out=work("col0"))
-    row0 = np.subtract(level_map.row, np.float32(crop.row0), out=work("row0"))
-    if level_map.any_sky:       # sky pixels: any point of the window (masked at the end)
-        col0[sky], row0[sky] = 0.0, 0.0
-    full = RayFamily(col0, row0, origin_col, origin_row, altitude, out=(work("col_per_m"), work("row_per_m")))
+    # the level map in window coordinates (sky pixels: any point of the window, masked at the end) and the
+    # rays' lines, in one compiled pass
+    col0, row0 = work("col0"), work("row0")
+    full = RayFamily.__new__(RayFamily)
+    full.col0, full.row0, full.col_per_m, full.row_per_m = col0, row0, work("col_per_m"), work("row_per_m")
+    _level_rays_kernel(level_map.col.reshape(-1), level_map.row.reshape(-1), sky.reshape(-1), level_map.any_sky,
+                       np.float32(crop.col0), np.float32(crop.row0), np.float32(origin_col), np.float32(origin_row),
+                       np.float32(1.0 / altitude), col0.reshape(-1), row0.reshape(-1), full.col_per_m.reshape(-1),
+                       full.row_per_m.reshape(-1))
 
     # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound and by
     #    the node normals' error
@@ -597,12 +678,15 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     else:
         z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
     spacing = _ray_spacing(sample) if even else 0.0
-    bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1].astype(np.float32)
+    bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1]
     steep = _steep_rays(bound, sample, z_bottom, z_top, mpp, spacing)
-    if even:
-        steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
-    if level_map.any_sky:
-        steep &= ~sky
+    if not steep.any():
+        steep = np.zeros(shape, dtype=bool)
+    else:
+        if even:
+            steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
+        if level_map.any_sky:
+            steep &= ~sky
 
     # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
     #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
@@ -613,21 +697,22 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     if sun is not None:
         nodes = _nodes(heights, crop, terrain, origin, sun, config)
         values = remap_points(nodes, col, row, out=work("values", channels=(4,)))
-        residual = np.subtract(z, values[..., 0], out=work("residual"))
+        heights_read = values.reshape(-1, 4)
     else:
-        residual = z - remap_points(heights, col, row)
-    off = np.greater(np.abs(residual), np.float32(tolerance), out=work("off", bool))
-    off &= ~steep
-    if level_map.any_sky:
-        off &= ~sky
+        heights_read = remap_points(heights, col, row).reshape(-1, 1)
+    # the pixels off the tolerance (not steep, not sky) and their residuals, in one compiled pass
+    redo_buffer, residual_buffer = work("redo", np.int32), work("residual")
+    count = _off_tolerance_kernel(z.reshape(-1), heights_read, steep.reshape(-1), sky.reshape(-1),
+                                  level_map.any_sky, np.float32(tolerance), redo_buffer.reshape(-1),
+                                  residual_buffer.reshape(-1))
+    redo = redo_buffer.reshape(-1)[:count].astype(np.intp)
     flat_rays = RayFamily.__new__(RayFamily)
     flat_rays.col0, flat_rays.row0 = full.col0.reshape(-1), full.row0.reshape(-1)
     flat_rays.col_per_m, flat_rays.row_per_m = full.col_per_m.reshape(-1), full.row_per_m.reshape(-1)
     z_flat = z.reshape(-1)
-    redo = np.flatnonzero(off)
     marched = steep.reshape(-1).copy()
     if redo.size:
-        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual.reshape(-1)[redo],
+        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual_buffer.reshape(-1)[:count],
                                          z_bottom, z_top, tolerance)
         z_flat[redo] = z_redo
         marched[redo[~converged]] = True
@@ -648,7 +733,7 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
     hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
     factor = None if nodes is None or sun is None else _factor(hits, values, sun, config,
-                                                                (work("lit"), work("factor")))
+                                                                (work("rough_index", np.int32), work("factor")))
 
     grid_col = np.add(col, np.float32(crop.col0), out=work("grid_col"))
     grid_row = np.add(row, np.float32(crop.row0), out=work("grid_row"))
@@ -671,27 +756,46 @@ def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarr
 def _factor(hits: ParallaxHits, values: np.ndarray, sun: np.ndarray, config, out=(None, None)) -> np.ndarray:
     """``d (1 + n_z)/2 + (1 - d) LS(n)/LS(flat) lit`` from the four values read at the hits.
 
-    ``out``: arrays for lit and the factor.
+    One compiled pass; pixels whose read touches a rough node are then shaded at their own normal
+    (:func:`exact_shading`).
+
+    ``out``: arrays for the pass's rough-pixel buffer (flat, int32) and the factor.
     """
     relief_config = config.relief
     band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
-    lit = np.multiply(values[..., 1], band, out=out[0])
-    lit += np.float32(0.5)
-    np.clip(lit, np.float32(0.0), np.float32(1.0), out=lit)
-    factor = np.multiply(lit, values[..., 3], out=out[1])
-    factor += values[..., 2]
-    index = np.zeros(0, dtype=np.intp)
-    if relief_config.slope_photometry:
-        rough = values[..., 2] > np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN)
-        if hits.any_sky:
-            rough &= ~hits.sky
-        index = np.flatnonzero(rough)
+    shape = hits.col.shape
+    factor = np.empty(shape, dtype=np.float32) if out[1] is None else out[1]
+    rough_index = np.empty(hits.col.size, dtype=np.int32) if out[0] is None else out[0].reshape(-1)
+    rough_lit = np.empty(hits.col.size, dtype=np.float32)
+    rough_above = np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN if relief_config.slope_photometry else np.inf)
+    count = _factor_kernel(values.reshape(-1, 4), hits.sky.reshape(-1), hits.any_sky, band, rough_above,
+                           factor.reshape(-1), rough_index, rough_lit)
+    index = rough_index[:count].astype(np.intp)
     if index.size:
-        factor.reshape(-1)[index] = exact_shading(hits, index, lit.reshape(-1)[index], sun, config)
+        factor.reshape(-1)[index] = exact_shading(hits, index, rough_lit[:count], sun, config)
     hits.counts["exact_shading"] = int(index.size)
-    if hits.any_sky:
-        factor[hits.sky] = 1.0
     return factor
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _factor_kernel(values, sky, any_sky, band, rough_above, factor, rough_index, rough_lit):
+    """:func:`_factor`'s pass over flat pixels; returns the count of rough pixels.
+
+    Writes the factor (1 for sky), and the indices and direct-sun fractions of the pixels whose sky term
+    exceeds ``rough_above`` (a rough node in their read).
+    """
+    count = 0
+    for pixel in range(values.shape[0]):
+        if any_sky and sky[pixel]:
+            factor[pixel] = np.float32(1.0)
+            continue
+        lit = min(max(values[pixel, 1] * band + np.float32(0.5), np.float32(0.0)), np.float32(1.0))
+        factor[pixel] = lit * values[pixel, 3] + values[pixel, 2]
+        if values[pixel, 2] > rough_above:
+            rough_index[count] = pixel
+            rough_lit[count] = lit
+            count += 1
+    return count
 
 
 def parallax_factor(hits: ParallaxHits, sun: np.ndarray, config) -> np.ndarray:
@@ -779,9 +883,15 @@ def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_t
     if z_top <= z_bottom:
         return np.zeros(rays.col0.shape, dtype=bool)
     px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
-    half_length = 0.5 * (z_top - z_bottom) * float(px_per_m.max())
+    largest_px_per_m = float(px_per_m.max())
+    # the bound is >= 0, so its half-precision bits order as unsigned integers (an exact, faster maximum)
+    largest_bound = float(heights_bound.view(np.uint16).max().view(np.float16)) if heights_bound.dtype == np.float16 \
+        else float(heights_bound.max())
+    if largest_bound * largest_px_per_m * mpp * (1.0 + 1e-5) < UNIQUE_SLOPE_BOUND:
+        return np.zeros(rays.col0.shape, dtype=bool)    # no slope in the window reaches the bound for any ray
+    half_length = 0.5 * (z_top - z_bottom) * largest_px_per_m
     radius = int(np.ceil(half_length + spacing_px + 2.0))
-    bound = cv2.dilate(heights_bound, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8),
+    bound = cv2.dilate(np.asarray(heights_bound, dtype=np.float32), np.ones((2 * radius + 1, 2 * radius + 1), np.uint8),
                        borderType=cv2.BORDER_REPLICATE)
     middle = np.float32(0.5 * (z_top + z_bottom))
     local = remap_points(bound, *rays.at(middle))

@@ -303,3 +303,22 @@ def test_parallax_hits_agree_with_a_brute_force_march_and_the_cone_in_closed_for
     assert on_side.sum() > 100
     exact_col, exact_row = to_grid(hit[on_side, 0], hit[on_side, 1])
     assert np.max(np.hypot(fast_col[on_side] - exact_col, fast_row[on_side] - exact_row)) * mpp < 0.02
+
+
+def test_half_precision_normals_decode_exactly_in_the_compiled_view_term():
+    """The view-term kernel reads the cached float16 normals as raw bits: every finite half value must decode
+    to numpy's own float16 -> float32 conversion, signed zeros and subnormals included."""
+    from numba import njit
+
+    from simulator.scene import parallax
+
+    @njit
+    def decode(bits, scales, out):
+        for index in range(bits.size):
+            out[index] = parallax._half_to_float32(bits[index], scales)
+    bits = np.arange(65536, dtype=np.uint16)
+    finite = np.isfinite(bits.view(np.float16))
+    decoded = np.empty(bits.size, dtype=np.float32)
+    decode(bits, parallax.HALF_SCALES, decoded)
+    expected = bits.view(np.float16).astype(np.float32)
+    assert np.array_equal(decoded[finite].view(np.uint32), expected[finite].view(np.uint32))
