@@ -58,6 +58,8 @@ def analysed(tmp_path_factory, warm_scheduler):
 
 
 def test_runs_and_writes_its_files(analysed):
+    """Slow by design (the module's ``analysed`` fixture, about 110 s in a loaded suite run, is paid by this
+    first test): 80 cases, since the physics checks below rank inputs against resampled noise."""
     store, result = analysed
     assert result.returncode == 0, result.stderr
     assert (store / "sensitivity.parquet").is_file()

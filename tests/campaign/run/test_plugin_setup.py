@@ -154,7 +154,8 @@ json.dump({"velocity_east_mps": 3.0, "velocity_north_mps": 4.0, "valid": True, "
 def test_command_that_cannot_start_stops_the_run_and_the_next_submit_runs_its_cases(tmp_path):
     """The program passes the file's check (it exists) but is not executable: every worker fails its set-up;
     no case is recorded for any estimator, the reference included; made executable, the same campaign runs
-    all of them."""
+    all of them. Slow by design (about 70 s in a loaded suite run): two `campaign submit` processes, each with
+    its own embedded cluster, since the set-up of fresh workers is what is tested."""
     program = tmp_path / "flight.py"
     program.write_text(f"#!{sys.executable}\n{NOT_EXECUTABLE}")
     program.chmod(0o644)

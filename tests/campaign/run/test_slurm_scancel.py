@@ -48,6 +48,9 @@ def _written_cases(out: Path) -> int:
 
 
 def test_a_cancelled_worker_job_loses_and_duplicates_nothing_and_resume_completes(slurm, tmp_path):
+    """Slow by design (over 60 s in a loaded suite run): a `campaign submit` process whose worker jobs run on the
+    private SLURM node, one of them cancelled with scancel mid-run, then the resume; the batch jobs and the
+    cancelled one are what is tested."""
     config = campaign_file(tmp_path, cases=CASES, execution=_execution(tmp_path))
     out = tmp_path / "out"
     environment = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONUNBUFFERED": "1", **slurm.environment}
