@@ -40,10 +40,27 @@ coarse level where the search is done; a match within the
 prior's circle; a residual consistent with the templates' noise; matches that do not move in the raw
 image refused as marks on the optics; a stated uncertainty with every valid velocity.
 """
+from typing import TYPE_CHECKING, Any
+
 from dimes_velocity.config import EstimatorConfig, estimator_config_from_data
-from dimes_velocity.estimator import DimesEstimator, estimate_velocity
 from dimes_velocity.result import REASONS, FeatureMetrics, PairResult, StageTimings, VelocityEstimate
 from flight_interface.measurements import DescentMeasurements, ImageMeasurement, MeasurementError
+
+if TYPE_CHECKING:
+    from dimes_velocity.estimator import DimesEstimator, estimate_velocity
+
+
+def __getattr__(name: str) -> Any:
+    """Load ``DimesEstimator`` and ``estimate_velocity`` on first use.
+
+    The estimator's compiled passes load numba, which imports scipy: reading an estimator's configuration
+    (``dimes_velocity.config``) loads no numerical stack.
+    """
+    if name in ("DimesEstimator", "estimate_velocity"):
+        from dimes_velocity import estimator
+
+        return getattr(estimator, name)
+    raise AttributeError(f"module 'dimes_velocity' has no attribute {name!r}")
 
 __all__ = [
     "DimesEstimator", "estimate_velocity", "EstimatorConfig", "estimator_config_from_data", "DescentMeasurements",

@@ -18,11 +18,11 @@ from pydantic import Field, field_validator, model_validator
 
 from config_tables.errors import FieldProblem
 from config_tables.models import ConfigModel
-from simulator.detector.camera_chain import CameraEffects
+from simulator.detector.effects import CameraEffects
 from simulator.fidelity import DEFAULT_PRESET, PRESETS, REFERENCE_EFFECTS, Preset, preset_fields
 from simulator.off_nominal import OffNominalConfig
 from simulator.scene import atmosphere, photometry
-from simulator.scene.relief import ReliefConfig
+from simulator.scene.relief_config import ReliefConfig
 
 FRAME_PX = 1024
 

@@ -49,7 +49,7 @@ from pydantic import Field, PrivateAttr, ValidationInfo, create_model, model_val
 from config_tables.errors import ConfigError, FieldProblem
 from config_tables.models import ConfigModel, ExistingFile, InputPath, fixed_vector, parse
 from config_tables.toml_file import load_toml
-from simulator.scene.relief import ReliefTerrain
+from simulator.scene.height_field import ReliefTerrain
 from simulator.scene.terrain import Terrain
 from sitedata.terrain.real_terrain import load_terrain
 from sitedata.terrain.relief import relief_terrain

@@ -29,7 +29,7 @@ import numpy as np
 
 from campaign.plan.placement import HEADING_SEARCH_STEP_RAD, _turn, footprint_points_m
 from simulator.scene.ground_mapping import border_pixels, camera_pose, ground_points
-from simulator.scene.relief import ReliefTerrain
+from simulator.scene.height_field import ReliefTerrain
 from simulator.scene.terrain import Terrain
 from sitedata.sites import RESAMPLE_MODES
 

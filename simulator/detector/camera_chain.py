@@ -29,42 +29,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import Field
 
-from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
 from flight_interface.camera_file import Timing
 from simulator.derived_cache import DERIVED
 from simulator.detector import blooming, charge_generation, charge_transfer, optics, psf, readout
+from simulator.detector.effects import CameraEffects
 from simulator.fields import RadianceFields, bin_rows, block_means
 from simulator.off_nominal import OffNominalArtefacts, hot_pixels, particle_hits
 
 PERIODS = ("flush", "exposure", "transfer")
 BLOCK_EXPOSURE_BOUND_FACTOR = 1.5   # max pixel / max block mean allowance for an exposure given per block
 SATURATING_RATE_E_PER_S = 1.0e30   # stands for an overflowing (or infinite) generation rate: fills any well
-
-
-class CameraEffects(ConfigModel):
-    """``[scene.camera_effects]``: switches of the camera chain; all on is the nominal camera."""
-
-    optics_psf: bool = True
-    """The optics' point-spread function (the camera's [optics]; simulator.detector.psf)."""
-    falloff: bool = True
-    """cos^4 falloff with field angle."""
-    prnu: bool = True
-    """Pixel response non-uniformity."""
-    dark_current: bool = True
-    """Dark current (image and storage areas)."""
-    dark_current_scale: float = Field(1.0, ge=0.0, le=1e6)
-    """Multiplies the camera's dark current (excessive dark current: > 1)."""
-    smear: bool = True
-    """Fast-flush and frame-transfer smear."""
-    shot_noise: bool = True
-    """Photon and dark shot noise."""
-    read_noise: bool = True
-    """Output amplifier noise."""
-    exact_poisson: bool = False
-    """Poisson shot noise at every level (false: Gaussian above readout.GAUSSIAN_MIN_MEAN_E, a fidelity shortcut)."""
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,6 @@ expansion guess (one CDF value and the pmf recursion). Above :data:`MAX_POISSON_
 from __future__ import annotations
 
 import numpy as np
-import scipy.special as special
 
 from simulator.scratch import scratch
 
@@ -174,6 +173,7 @@ def _summed_count(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
     ``k = #{j >= 0: F(j) < Phi(u)}``, the CDF summed from ``j = 0`` by the pmf recursion
     ``p(j) = p(j - 1) m / j``, all pixels in step (a few full-array operations per count).
     """
+    import scipy.special as special  # here, not at module level: declaring a configuration imports no scipy
     target = special.ndtr(deviate)              # <= Phi(5): the sum reaches it with 2.9e-7 to spare
     pmf = np.exp(-mean)
     cdf = pmf.copy()
@@ -260,6 +260,7 @@ def _search_count(deviate: np.ndarray, mean: np.ndarray) -> np.ndarray:
     One exact CDF (or tail) value at the guess, then the pmf recursion ``p(k + 1) = p(k) m / (k + 1)``
     step by step: on the lower tail ``F(k)`` for ``u <= 0``, on the upper tail ``P(X > k)`` for ``u > 0``.
     """
+    import scipy.special as special  # here, not at module level: declaring a configuration imports no scipy
     counts = np.zeros(mean.shape)
     live = np.flatnonzero(mean > 0)                      # Poisson(0) is 0
     if live.size == 0:
@@ -303,6 +304,7 @@ def _cdf_reaches(count: np.ndarray, mean: np.ndarray, deviate: np.ndarray) -> np
     Compared on the lower tail for ``u <= 0`` and the upper tail for ``u > 0`` (full double precision in
     both tails).
     """
+    import scipy.special as special  # here, not at module level: declaring a configuration imports no scipy
     reaches = np.empty(np.shape(count), dtype=bool)
     upper = deviate > 0
     lower = ~upper

@@ -41,44 +41,19 @@ hit point (sub-pixel differences).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, TypeGuard
+from typing import TypeGuard
 
 import cv2
 import numpy as np
-from pydantic import Field
 
-from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
 from simulator.scene import ground_mapping, parallax, photometry, resample
 from simulator.scene.height_field import MAX_MARCH_STEPS, ReliefTerrain, bilinear, horizon_height, march_window
+from simulator.scene.relief_config import ReliefConfig  # noqa: F401  (re-exported: the [scene.relief] table)
 from simulator.scene.terrain import Terrain
 
 MAX_REFINE_ITERATIONS = 60
 SKIP_PX = 8                      # coarse skip of the ray march (grid pixels), bounded by a dilated height map
-
-
-class ReliefConfig(ConfigModel):
-    """``[scene.relief]``: how a terrain's height field is rendered.
-
-    Terrains without one are unaffected; a class gets one with ``relief = true`` in its terrain table).
-    """
-
-    enabled: bool = True
-    """Render the height field of terrains that have one (off: level ground, as a plain terrain)."""
-    method: Literal["parallax", "march"] = "parallax"
-    """``parallax``: fixed-point parallax iterations, shading baked on the grid, the march only where a
-    nearer bump may occlude (simulator.scene.parallax); ``march``: every ray marched, shading per point
-    (the reference)."""
-    march_step_terrain_px: float = Field(0.5, ge=0.05, le=2.0)
-    """Largest horizontal move of a ray (and of a sun ray) per march step, in terrain pixels."""
-    height_tolerance_m: float = Field(1.0e-3, ge=1.0e-6, le=0.1)
-    """The refined hit point is within this height of the surface (m)."""
-    slope_photometry: bool = True
-    """Shade each point with the photometric function at its local normal."""
-    cast_shadows: bool = True
-    """Relief casts shadows (sun rays marched over the height field)."""
-    shadow_edge_m: float = Field(0.05, ge=0.0, le=10.0)
-    """Height band over which a point goes from shadow to light (penumbra, m)."""
 
 
 def has_relief(terrain: Terrain, config) -> TypeGuard[ReliefTerrain]:

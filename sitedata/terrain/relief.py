@@ -35,7 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simulator.scene.relief import ReliefTerrain
+from simulator.scene.height_field import ReliefTerrain
 from sitedata.terrain import synthetic_features as feat
 from sitedata.terrain.synthetic_classes import ClassTerrainParams
 from sitedata.terrain.synthetic_terrain import (
