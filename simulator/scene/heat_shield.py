@@ -117,8 +117,8 @@ def intersect_cone(origin_m: np.ndarray, rays: np.ndarray, apex_m: np.ndarray, a
 
 
 def bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, diameter_m: float,
-                  cone_angle_rad: float) -> tuple[int, int, int, int] | None:
-    """Pixel window that can show the heat-shield cone.
+                 cone_angle_rad: float) -> tuple[int, int, int, int] | None:
+    """Image window that can hold the heat shield: its outline projected (:func:`box_of_outline`).
 
     Parameters
     ----------
@@ -138,15 +138,40 @@ def bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.n
     tuple of int or None
         ``(row0, row1, col0, col1)``, or None when the cone misses the image.
     """
-    height, width = camera.height_px, camera.width_px
-    outline = cone_outline_m(centre_m, diameter_m, cone_angle_rad)
-    pixels, in_front = ground_mapping.world_to_pixels(camera, pose, outline)
+    pixels, in_front = ground_mapping.world_to_pixels(camera, pose, cone_outline_m(centre_m, diameter_m,
+                                                                                   cone_angle_rad))
+    return box_of_outline(pixels, in_front, camera.width_px, camera.height_px)
+
+
+def box_of_outline(pixels: np.ndarray, in_front: np.ndarray, width_px: int,
+                   height_px: int) -> tuple[int, int, int, int] | None:
+    """The heat shield's image window from its projected outline (:func:`cone_outline_m`).
+
+    A supersampling sample's camera (offset ``(dc, dr)``) sees a point at the unshifted camera's pixel
+    minus the offset: its box is this of ``pixels - (dc, dr)``, so a pose projects the outline once.
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (N, 2)
+        (column, row) of the outline points (px).
+    in_front : ndarray, shape (N,), bool
+        Points in front of the camera.
+    width_px, height_px : int
+        Frame size (px).
+
+    Returns
+    -------
+    tuple of int or None
+        ``(row0, row1, col0, col1)``: the outline's :func:`~simulator.scene.ground_mapping.pixel_window`,
+        the whole frame when the camera is beside or inside the cone's extent, None when the cone misses
+        the image.
+    """
     if not in_front.any():
         return None
     if in_front.all():
-        row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width, height)
+        row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width_px, height_px)
     else:   # the camera is beside or inside the cone's extent: test every pixel
-        col0, col1, row0, row1 = 0, width, 0, height
+        col0, col1, row0, row1 = 0, width_px, 0, height_px
     if col1 <= col0 or row1 <= row0:
         return None
     return row0, row1, col0, col1
@@ -199,7 +224,8 @@ def visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.n
 def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                      pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
                      irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
-                     reflectance: float, edge_samples: int = 1) -> np.ndarray | None:
+                     reflectance: float, edge_samples: int = 1,
+                     box: tuple[int, int, int, int] | None = None) -> np.ndarray | None:
     """Paint the heat shield into a radiance field in place where it hides the ground or sky.
 
     ``edge_samples = s > 1`` antialiases the silhouette: pixels on its edge (centre sample differs from
@@ -230,6 +256,9 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
         Hemispherical reflectance of the lining.
     edge_samples : int, optional
         Sub-pixel rays per axis on the silhouette.
+    box : (int, int, int, int), optional
+        This camera's :func:`bounding_box` when already known (a supersampling sample's, from its pose's
+        projected outline: :func:`box_of_outline`); None computes it here.
 
     Returns
     -------
@@ -238,7 +267,8 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
         computed beyond the projection of its outline).
     """
     height, width = radiance.shape
-    box = bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
+    if box is None:
+        box = bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
     if box is None:
         return None
     row0, row1, col0, col1 = box

@@ -242,8 +242,66 @@ def subpixel_camera(camera: Camera, column_offset_px: float, row_offset_px: floa
     return cache[key]
 
 
+def _pose_outlines(camera: Camera, pose: Pose, sun_world: np.ndarray, config) -> dict:
+    """What a supersampled pose's samples share: casters, penumbra and heat-shield outlines.
+
+    The outlines are projected with the unshifted camera; :func:`_sample_windows` turns them into a
+    sample's windows.
+
+    Parameters
+    ----------
+    camera : Camera
+        The unshifted camera.
+    pose : Pose
+        Lander pose.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Scene parameters and switches.
+
+    Returns
+    -------
+    dict
+        ``casters`` (list of shadow.Caster), ``shadow_outlines`` (list per caster, or None when shadows are
+        off), ``heat_shield_outline`` (``(pixels, in_front)``, or None when the heat shield is not drawn).
+    """
+    sun = sun_unit_vector(sun_world)
+    cam = ground_mapping.camera_pose(camera, pose)
+    pose_casters = casters(pose, config)
+    shadow_outlines = (shadow.penumbra_outlines(camera, cam, pose_casters, sun,
+                                                photometry.solar_angular_radius_rad(config.sun_distance_au))
+                       if config.effects.shadows else None)
+    shield_outline = None
+    if config.effects.heat_shield and pose.heat_shield_position_m is not None:
+        shield_outline = ground_mapping.world_to_pixels(
+            camera, cam, heat_shield.cone_outline_m(np.asarray(pose.heat_shield_position_m, dtype=float),
+                                                    config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad))
+    return dict(casters=pose_casters, shadow_outlines=shadow_outlines, heat_shield_outline=shield_outline)
+
+
+def _sample_windows(outlines: dict, column_offset_px: float, row_offset_px: float, width_px: int,
+                    height_px: int) -> dict:
+    """A supersampling sample's casters, penumbra windows and heat-shield box from its pose's outlines.
+
+    The sample's camera (:func:`subpixel_camera`) sees a world point at the unshifted camera's pixel minus
+    its offset, so each window is that of the outline shifted by ``-(dc, dr)``: the windows the sample's own
+    projections give (up to the projection's rounding), without projecting again.
+    """
+    offset = np.array([column_offset_px, row_offset_px])
+    shadow_windows = None
+    if outlines["shadow_outlines"] is not None:
+        shadow_windows = [None if outline is None else
+                          shadow.outline_window(outline[0] - offset, outline[1], width_px, height_px)
+                          for outline in outlines["shadow_outlines"]]
+    box = None
+    if outlines["heat_shield_outline"] is not None:
+        pixels, in_front = outlines["heat_shield_outline"]
+        box = heat_shield.box_of_outline(pixels - offset, in_front, width_px, height_px)
+    return dict(casters=outlines["casters"], shadow_windows=shadow_windows, heat_shield_box=box)
+
+
 def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config,
-                     _sub_sample: bool = False, moving_shadows=None) -> PoseField:
+                     _sub_sample: bool = False, moving_shadows=None, _pose_windows: dict | None = None) -> PoseField:
     """The radiance field the camera sees at one instantaneous pose (see module doc).
 
     With ``config.supersample = s > 1`` each pixel is the mean of ``s x s`` sub-pixel point samples on
@@ -268,6 +326,9 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     moving_shadows : simulator.off_nominal.moving_shadows.MovingShadows, optional
         Darkens the ground where the dust-devil and cloud shadows are at ``pose.time_s``, after the
         casters' shadows.
+    _pose_windows : dict, optional
+        Internal: a supersampling sample's casters, penumbra windows and heat-shield box
+        (:func:`_sample_windows`, from outlines its pose projected once).
 
     Returns
     -------
@@ -280,9 +341,12 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         single = config.model_copy(update={"supersample": 1})
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
         # each sample's field lives in a scratch array: summed (in sample order, as average_fields) at once
+        outlines = _pose_outlines(camera, pose, sun_world, single)   # projected once, shifted per sample
+
         def sample(dc: float, dr: float) -> PoseField:
+            windows = _sample_windows(outlines, dc, dr, camera.width_px, camera.height_px)
             return radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single,
-                                    _sub_sample=True, moving_shadows=moving_shadows)
+                                    _sub_sample=True, moving_shadows=moving_shadows, _pose_windows=windows)
         first = sample(offsets[0], offsets[0])
         total, sky, outside, shield = first.radiance.copy(), first.sky.copy(), first.outside.copy(), first.heat_shield
         for dr in offsets:
@@ -358,11 +422,13 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         radiance *= relief.shading_factor(relief_hits, sun, config)
     centres = []
     if effects.shadows:
-        centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,
-                                       photometry.solar_angular_radius_rad(config.sun_distance_au),
+        centres = shadow.apply_shadows(radiance, gmap, camera, cam,
+                                       casters(pose, config) if _pose_windows is None else _pose_windows["casters"],
+                                       sun, photometry.solar_angular_radius_rad(config.sun_distance_au),
                                        config.shadow_diffuse_fraction,
                                        view_bounds_m=None if relief_hits is not None
-                                       else shadow.view_bounds_m(footprint, hit))
+                                       else shadow.view_bounds_m(footprint, hit),
+                                       windows=None if _pose_windows is None else _pose_windows["shadow_windows"])
     if moving_shadows is not None:
         moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s, terrain.origin_m, terrain.metres_per_pixel)
     if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky
@@ -370,12 +436,14 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         if gmap.any_sky:
             radiance[gmap.sky] = 0.0
     shield = None
-    if effects.heat_shield and pose.heat_shield_position_m is not None:
+    shield_box = None if _pose_windows is None else _pose_windows["heat_shield_box"]
+    if effects.heat_shield and pose.heat_shield_position_m is not None and (_pose_windows is None or shield_box):
         shield = heat_shield.draw_heat_shield(radiance, gmap, camera, cam,
                                               np.asarray(pose.heat_shield_position_m, dtype=float), sun,
                                               irradiance, config.heat_shield_diameter_m,
                                               config.heat_shield_cone_angle_rad, config.heat_shield_reflectance,
-                                              edge_samples=1 if _sub_sample else HEAT_SHIELD_EDGE_SAMPLES)
+                                              edge_samples=1 if _sub_sample else HEAT_SHIELD_EDGE_SAMPLES,
+                                              box=shield_box)
     if shield is not None:
         outside &= ~shield
     return PoseField(radiance, gmap.sky, outside, shield, cam, centres)
