@@ -609,5 +609,10 @@ def footprint_m(camera: Camera, pose: CameraPose, per_side: int = 16) -> tuple[n
     hit : ndarray, shape (n,), bool
         False where the border ray sees the sky.
     """
-    points, hit = ground_points(camera, pose, border_pixels(camera, per_side))
+    cache = camera_cache(camera)
+    key = ("border_pixels", per_side)
+    if key not in cache:           # the same pixels every call (and so the same cached camera-frame rays)
+        cache[key] = border_pixels(camera, per_side)
+        cache[key].setflags(write=False)
+    points, hit = ground_points(camera, pose, cache[key])
     return points[:, :2], hit

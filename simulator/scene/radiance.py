@@ -263,7 +263,9 @@ def _pose_outlines(camera: Camera, pose: Pose, sun_world: np.ndarray, config) ->
     -------
     dict
         ``casters`` (list of shadow.Caster), ``shadow_outlines`` (list per caster, or None when shadows are
-        off), ``heat_shield_outline`` (``(pixels, in_front)``, or None when the heat shield is not drawn).
+        off), ``heat_shield_outline`` (``(pixels, in_front)``, or None when the heat shield is not drawn),
+        ``sun`` (the checked sun vector) and ``camera_pose`` (every sample's: a sub-pixel camera differs
+        only in H and V, not in its mounting or C).
     """
     sun = sun_unit_vector(sun_world)
     cam = ground_mapping.camera_pose(camera, pose)
@@ -276,7 +278,8 @@ def _pose_outlines(camera: Camera, pose: Pose, sun_world: np.ndarray, config) ->
         shield_outline = ground_mapping.world_to_pixels(
             camera, cam, heat_shield.cone_outline_m(np.asarray(pose.heat_shield_position_m, dtype=float),
                                                     config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad))
-    return dict(casters=pose_casters, shadow_outlines=shadow_outlines, heat_shield_outline=shield_outline)
+    return dict(casters=pose_casters, shadow_outlines=shadow_outlines, heat_shield_outline=shield_outline,
+                sun=sun, camera_pose=cam)
 
 
 def _sample_windows(outlines: dict, column_offset_px: float, row_offset_px: float, width_px: int,
@@ -297,7 +300,8 @@ def _sample_windows(outlines: dict, column_offset_px: float, row_offset_px: floa
     if outlines["heat_shield_outline"] is not None:
         pixels, in_front = outlines["heat_shield_outline"]
         box = heat_shield.box_of_outline(pixels - offset, in_front, width_px, height_px)
-    return dict(casters=outlines["casters"], shadow_windows=shadow_windows, heat_shield_box=box)
+    return dict(casters=outlines["casters"], shadow_windows=shadow_windows, heat_shield_box=box,
+                sun=outlines["sun"], camera_pose=outlines["camera_pose"])
 
 
 def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config,
@@ -327,8 +331,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         Darkens the ground where the dust-devil and cloud shadows are at ``pose.time_s``, after the
         casters' shadows.
     _pose_windows : dict, optional
-        Internal: a supersampling sample's casters, penumbra windows and heat-shield box
-        (:func:`_sample_windows`, from outlines its pose projected once).
+        Internal: a supersampling sample's casters, penumbra windows, heat-shield box, sun vector and
+        camera pose (:func:`_sample_windows`, from what its pose computed once).
 
     Returns
     -------
@@ -360,10 +364,13 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                 if part.heat_shield is not None:
                     shield = part.heat_shield.copy() if shield is None else shield | part.heat_shield
         total *= np.float32(1.0 / samples**2)
-        return PoseField(total, sky, outside, shield, ground_mapping.camera_pose(camera, pose), first.shadow_centres_m)
+        return PoseField(total, sky, outside, shield, outlines["camera_pose"], first.shadow_centres_m)
     effects = config.effects
-    sun = sun_unit_vector(sun_world)
-    cam = ground_mapping.camera_pose(camera, pose)
+    if _pose_windows is None:
+        sun = sun_unit_vector(sun_world)
+        cam = ground_mapping.camera_pose(camera, pose)
+    else:      # a sample: the sun checked by its pose; its camera differs only in H and V, so the same pose
+        sun, cam = _pose_windows["sun"], _pose_windows["camera_pose"]
 
     footprint, hit = ground_mapping.footprint_m(camera, cam)
     foot_rows, foot_cols = terrain.world_to_pixel(footprint[hit, 0], footprint[hit, 1])
