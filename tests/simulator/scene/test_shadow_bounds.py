@@ -67,3 +67,31 @@ def test_bounds_change_no_bit(beyond_edge_m):
         fields.append(field)
     assert np.array_equal(fields[0], fields[1])
     assert (fields[0] < 40.0).any() == (beyond_edge_m < 0.0)
+
+
+OFFSETS_PX = [(-1.0 / 3.0, -1.0 / 3.0), (0.0, 1.0 / 3.0), (1.0 / 3.0, -1.0 / 3.0), (1.0 / 3.0, 1.0 / 3.0)]
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 25.0])
+@pytest.mark.parametrize("shift_m", [0.0, 700.0, 1150.0])
+def test_pose_outlines_shifted_give_each_sample_cameras_own_windows(tilt_deg, shift_m):
+    # a supersampling sample's windows come from its pose's outlines projected once with the unshifted
+    # camera and shifted by the sample's offset: they must be the windows the sample's own camera projects
+    from simulator.scene import heat_shield, radiance
+
+    cam = camera_pose(tilt_deg)
+    centre = shadow.shadow_centre_m(cam.ray_origin_m, SUN) + np.array([shift_m, -0.4 * shift_m, 0.0])
+    caster = shadow.Caster("parachute", centre + 300.0 * SUN / SUN[2], 7.5)
+    (outline,) = shadow.penumbra_outlines(CAMERA, cam, [caster], SUN, 3.05e-3)
+    shield_centre = cam.ray_origin_m + np.array([0.3 * shift_m, 0.1 * shift_m, -400.0])
+    shield_pixels, shield_front = ground_mapping.world_to_pixels(
+        CAMERA, cam, heat_shield.cone_outline_m(shield_centre, 2.6, np.radians(140.0)))
+    for dc, dr in OFFSETS_PX:
+        sample_camera = radiance.subpixel_camera(CAMERA, dc, dr)
+        offset = np.array([dc, dr])
+        circle_centre, outer = shadow._penumbra_circle_m(caster, SUN, 3.05e-3)
+        own = shadow._penumbra_window(sample_camera, cam, circle_centre, outer)
+        assert shadow.outline_window(outline[0] - offset, outline[1], CAMERA.width_px, CAMERA.height_px) == own
+        own_box = heat_shield.bounding_box(sample_camera, cam, shield_centre, 2.6, np.radians(140.0))
+        assert heat_shield.box_of_outline(shield_pixels - offset, shield_front, CAMERA.width_px,
+                                          CAMERA.height_px) == own_box
