@@ -118,7 +118,11 @@ def intersect_cone(origin_m: np.ndarray, rays: np.ndarray, apex_m: np.ndarray, a
 
 def bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, diameter_m: float,
                  cone_angle_rad: float) -> tuple[int, int, int, int] | None:
-    """Image window that can hold the heat shield: its outline projected (:func:`box_of_outline`).
+    """Image window that can hold the heat shield: its outline (:func:`cone_outline_m`) projected.
+
+    The outline's :func:`~simulator.scene.ground_mapping.pixel_window`; the whole frame when the camera is
+    beside or inside the cone's extent (part of the outline behind it). A supersampling sample's box is
+    :func:`~simulator.scene.ground_mapping.outline_window` of its pose's outline extent and its offset.
 
     Parameters
     ----------
@@ -140,41 +144,8 @@ def bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.n
     """
     pixels, in_front = ground_mapping.world_to_pixels(camera, pose, cone_outline_m(centre_m, diameter_m,
                                                                                    cone_angle_rad))
-    return box_of_outline(pixels, in_front, camera.width_px, camera.height_px)
-
-
-def box_of_outline(pixels: np.ndarray, in_front: np.ndarray, width_px: int,
-                   height_px: int) -> tuple[int, int, int, int] | None:
-    """The heat shield's image window from its projected outline (:func:`cone_outline_m`).
-
-    A supersampling sample's camera (offset ``(dc, dr)``) sees a point at the unshifted camera's pixel
-    minus the offset: its box is this of ``pixels - (dc, dr)``, so a pose projects the outline once.
-
-    Parameters
-    ----------
-    pixels : ndarray, shape (N, 2)
-        (column, row) of the outline points (px).
-    in_front : ndarray, shape (N,), bool
-        Points in front of the camera.
-    width_px, height_px : int
-        Frame size (px).
-
-    Returns
-    -------
-    tuple of int or None
-        ``(row0, row1, col0, col1)``: the outline's :func:`~simulator.scene.ground_mapping.pixel_window`,
-        the whole frame when the camera is beside or inside the cone's extent, None when the cone misses
-        the image.
-    """
-    if not in_front.any():
-        return None
-    if in_front.all():
-        row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width_px, height_px)
-    else:   # the camera is beside or inside the cone's extent: test every pixel
-        col0, col1, row0, row1 = 0, width_px, 0, height_px
-    if col1 <= col0 or row1 <= row0:
-        return None
-    return row0, row1, col0, col1
+    return ground_mapping.outline_window(ground_mapping.outline_extent(pixels, in_front), 0.0, 0.0,
+                                         camera.width_px, camera.height_px)
 
 
 def visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.ndarray, centre_m: np.ndarray,
@@ -258,7 +229,7 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
         Sub-pixel rays per axis on the silhouette.
     box : (int, int, int, int), optional
         This camera's :func:`bounding_box` when already known (a supersampling sample's, from its pose's
-        projected outline: :func:`box_of_outline`); None computes it here.
+        outline: :func:`~simulator.scene.ground_mapping.outline_window`); None computes it here.
 
     Returns
     -------

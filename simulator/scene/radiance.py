@@ -263,7 +263,8 @@ def _pose_outlines(camera: Camera, pose: Pose, sun_world: np.ndarray, config) ->
     -------
     dict
         ``casters`` (list of shadow.Caster), ``shadow_outlines`` (list per caster, or None when shadows are
-        off), ``heat_shield_outline`` (``(pixels, in_front)``, or None when the heat shield is not drawn),
+        off), ``heat_shield_outline`` (:func:`~simulator.scene.ground_mapping.outline_extent`, or None when
+        the heat shield is not drawn),
         ``sun`` (the checked sun vector) and ``camera_pose`` (every sample's: a sub-pixel camera differs
         only in H and V, not in its mounting or C).
     """
@@ -275,9 +276,9 @@ def _pose_outlines(camera: Camera, pose: Pose, sun_world: np.ndarray, config) ->
                        if config.effects.shadows else None)
     shield_outline = None
     if config.effects.heat_shield and pose.heat_shield_position_m is not None:
-        shield_outline = ground_mapping.world_to_pixels(
+        shield_outline = ground_mapping.outline_extent(*ground_mapping.world_to_pixels(
             camera, cam, heat_shield.cone_outline_m(np.asarray(pose.heat_shield_position_m, dtype=float),
-                                                    config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad))
+                                                    config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad)))
     return dict(casters=pose_casters, shadow_outlines=shadow_outlines, heat_shield_outline=shield_outline,
                 sun=sun, camera_pose=cam)
 
@@ -287,19 +288,19 @@ def _sample_windows(outlines: dict, column_offset_px: float, row_offset_px: floa
     """A supersampling sample's casters, penumbra windows and heat-shield box from its pose's outlines.
 
     The sample's camera (:func:`subpixel_camera`) sees a world point at the unshifted camera's pixel minus
-    its offset, so each window is that of the outline shifted by ``-(dc, dr)``: the windows the sample's own
-    projections give (up to the projection's rounding), without projecting again.
+    its offset, so each window is that of the outline shifted by ``-(dc, dr)``
+    (:func:`~simulator.scene.ground_mapping.outline_window`): the windows the sample's own projections give
+    (up to the projection's rounding), without projecting again.
     """
-    offset = np.array([column_offset_px, row_offset_px])
     shadow_windows = None
     if outlines["shadow_outlines"] is not None:
-        shadow_windows = [None if outline is None else
-                          shadow.outline_window(outline[0] - offset, outline[1], width_px, height_px)
-                          for outline in outlines["shadow_outlines"]]
+        shadow_windows = [None if extent is None else
+                          ground_mapping.outline_window(extent, column_offset_px, row_offset_px, width_px, height_px)
+                          for extent in outlines["shadow_outlines"]]
     box = None
     if outlines["heat_shield_outline"] is not None:
-        pixels, in_front = outlines["heat_shield_outline"]
-        box = heat_shield.box_of_outline(pixels - offset, in_front, width_px, height_px)
+        box = ground_mapping.outline_window(outlines["heat_shield_outline"], column_offset_px, row_offset_px,
+                                            width_px, height_px)
     return dict(casters=outlines["casters"], shadow_windows=shadow_windows, heat_shield_box=box,
                 sun=outlines["sun"], camera_pose=outlines["camera_pose"])
 

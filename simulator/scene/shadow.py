@@ -207,40 +207,11 @@ def _penumbra_outline(camera: Camera, pose: ground_mapping.CameraPose, centre_m:
     return ground_mapping.world_to_pixels(camera, pose, np.vstack([ring, centre_m]))
 
 
-def outline_window(pixels: np.ndarray, in_front: np.ndarray, width_px: int,
-                   height_px: int) -> tuple[int, int, int, int] | None:
-    """The image window to evaluate for a projected penumbra outline.
-
-    Parameters
-    ----------
-    pixels : ndarray, shape (N, 2)
-        (column, row) of the outline points (px).
-    in_front : ndarray, shape (N,), bool
-        Points in front of the camera.
-    width_px, height_px : int
-        Frame size (px).
-
-    Returns
-    -------
-    tuple of int or None
-        ``(row0, row1, col0, col1)`` (:func:`~simulator.scene.ground_mapping.pixel_window`), the whole
-        frame when the outline straddles the image plane, None when it is behind the camera or off the frame.
-    """
-    if not in_front.any():
-        return None
-    if not in_front.all():   # the shadow straddles the image plane: evaluate the whole frame
-        return 0, height_px, 0, width_px
-    row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width_px, height_px)
-    if col1 <= col0 or row1 <= row0:
-        return None
-    return row0, row1, col0, col1
-
-
 def _penumbra_window(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray,
                      radius_m: float) -> tuple[int, int, int, int] | None:
-    """:func:`outline_window` of a ground circle."""
-    pixels, in_front = _penumbra_outline(camera, pose, centre_m, radius_m)
-    return outline_window(pixels, in_front, camera.width_px, camera.height_px)
+    """The frame window of a ground circle (:func:`~simulator.scene.ground_mapping.outline_window`)."""
+    extent = ground_mapping.outline_extent(*_penumbra_outline(camera, pose, centre_m, radius_m))
+    return ground_mapping.outline_window(extent, 0.0, 0.0, camera.width_px, camera.height_px)
 
 
 def penumbra_outlines(camera: Camera, pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
@@ -248,8 +219,9 @@ def penumbra_outlines(camera: Camera, pose: ground_mapping.CameraPose, casters: 
     """Per caster, its projected penumbra outline, once for a pose's supersampling samples.
 
     A sample's camera (:func:`simulator.scene.radiance.subpixel_camera`, offset ``(dc, dr)``) sees a world
-    point at ``camera``'s pixel minus the offset, so :func:`outline_window` of ``pixels - (dc, dr)`` is that
-    sample's own window (the projection of :func:`apply_shadows`, up to the rounding of the projection).
+    point at ``camera``'s pixel minus the offset, so
+    :func:`~simulator.scene.ground_mapping.outline_window` of the extent and ``(dc, dr)`` is that sample's
+    own window (the projection of :func:`apply_shadows`, up to the rounding of the projection).
 
     Parameters
     ----------
@@ -266,8 +238,9 @@ def penumbra_outlines(camera: Camera, pose: ground_mapping.CameraPose, casters: 
 
     Returns
     -------
-    list of (ndarray, ndarray) or None
-        ``(pixels (25, 2), in_front (25,))`` per caster, None for a caster at or below the ground.
+    list of tuple or None
+        :func:`~simulator.scene.ground_mapping.outline_extent` of the projected penumbra circle per caster,
+        None for a caster at or below the ground.
     """
     outlines: list = []
     for caster in casters:
@@ -275,7 +248,7 @@ def penumbra_outlines(camera: Camera, pose: ground_mapping.CameraPose, casters: 
             outlines.append(None)
             continue
         centre, outer = _penumbra_circle_m(caster, sun_world, sun_radius_rad)
-        outlines.append(_penumbra_outline(camera, pose, centre, outer))
+        outlines.append(ground_mapping.outline_extent(*_penumbra_outline(camera, pose, centre, outer)))
     return outlines
 
 

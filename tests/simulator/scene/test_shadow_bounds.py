@@ -84,14 +84,26 @@ def test_pose_outlines_shifted_give_each_sample_cameras_own_windows(tilt_deg, sh
     caster = shadow.Caster("parachute", centre + 300.0 * SUN / SUN[2], 7.5)
     (outline,) = shadow.penumbra_outlines(CAMERA, cam, [caster], SUN, 3.05e-3)
     shield_centre = cam.ray_origin_m + np.array([0.3 * shift_m, 0.1 * shift_m, -400.0])
-    shield_pixels, shield_front = ground_mapping.world_to_pixels(
-        CAMERA, cam, heat_shield.cone_outline_m(shield_centre, 2.6, np.radians(140.0)))
+    shield_outline = ground_mapping.outline_extent(*ground_mapping.world_to_pixels(
+        CAMERA, cam, heat_shield.cone_outline_m(shield_centre, 2.6, np.radians(140.0))))
     for dc, dr in OFFSETS_PX:
         sample_camera = radiance.subpixel_camera(CAMERA, dc, dr)
-        offset = np.array([dc, dr])
         circle_centre, outer = shadow._penumbra_circle_m(caster, SUN, 3.05e-3)
         own = shadow._penumbra_window(sample_camera, cam, circle_centre, outer)
-        assert shadow.outline_window(outline[0] - offset, outline[1], CAMERA.width_px, CAMERA.height_px) == own
+        assert ground_mapping.outline_window(outline, dc, dr, CAMERA.width_px, CAMERA.height_px) == own
         own_box = heat_shield.bounding_box(sample_camera, cam, shield_centre, 2.6, np.radians(140.0))
-        assert heat_shield.box_of_outline(shield_pixels - offset, shield_front, CAMERA.width_px,
-                                          CAMERA.height_px) == own_box
+        assert ground_mapping.outline_window(shield_outline, dc, dr, CAMERA.width_px, CAMERA.height_px) == own_box
+
+
+def test_outline_window_is_the_pixel_window_of_the_shifted_points():
+    # closed form: bounds (10.2 .. 30.7, 5.5 .. 6.0) shifted by (+1/3, -1/3), 2 px margin below, 3 above
+    pixels = np.array([[10.2, 6.0], [30.7, 5.5], [20.0, 5.8]])
+    extent = ground_mapping.outline_extent(pixels, np.ones(3, dtype=bool))
+    assert ground_mapping.outline_window(extent, 1.0 / 3.0, -1.0 / 3.0, 1024, 1024) == (3, 10, 7, 34)
+    assert ground_mapping.pixel_window(pixels - [1.0 / 3.0, -1.0 / 3.0], 1024, 1024) == (3, 10, 7, 34)
+    assert ground_mapping.outline_window(extent, 0.0, 0.0, 20, 20) == (3, 9, 8, 20)           # clipped
+    straddling = ground_mapping.outline_extent(pixels, np.array([True, False, True]))
+    assert ground_mapping.outline_window(straddling, 0.3, 0.3, 1024, 512) == (0, 512, 0, 1024)
+    behind = ground_mapping.outline_extent(pixels, np.zeros(3, dtype=bool))
+    assert ground_mapping.outline_window(behind, 0.0, 0.0, 1024, 1024) is None
+    assert ground_mapping.outline_window(extent, -2000.0, 0.0, 1024, 1024) is None           # off the frame
