@@ -292,16 +292,19 @@ def _sample_windows(outlines: dict, column_offset_px: float, row_offset_px: floa
     (:func:`~simulator.scene.ground_mapping.outline_window`): the windows the sample's own projections give
     (up to the projection's rounding), without projecting again.
     """
-    shadow_windows = None
+    shadow_windows = circles = None
     if outlines["shadow_outlines"] is not None:
-        shadow_windows = [None if extent is None else
-                          ground_mapping.outline_window(extent, column_offset_px, row_offset_px, width_px, height_px)
-                          for extent in outlines["shadow_outlines"]]
+        shadow_windows = [None if outline is None else
+                          ground_mapping.outline_window(outline[2], column_offset_px, row_offset_px, width_px,
+                                                        height_px)
+                          for outline in outlines["shadow_outlines"]]
+        circles = [None if outline is None else outline[:2] for outline in outlines["shadow_outlines"]]
     box = None
     if outlines["heat_shield_outline"] is not None:
         box = ground_mapping.outline_window(outlines["heat_shield_outline"], column_offset_px, row_offset_px,
                                             width_px, height_px)
-    return dict(casters=outlines["casters"], shadow_windows=shadow_windows, heat_shield_box=box,
+    return dict(casters=outlines["casters"], shadow_windows=shadow_windows, shadow_circles=circles,
+                heat_shield_box=box,
                 sun=outlines["sun"], camera_pose=outlines["camera_pose"])
 
 
@@ -332,8 +335,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         Darkens the ground where the dust-devil and cloud shadows are at ``pose.time_s``, after the
         casters' shadows.
     _pose_windows : dict, optional
-        Internal: a supersampling sample's casters, penumbra windows, heat-shield box, sun vector and
-        camera pose (:func:`_sample_windows`, from what its pose computed once).
+        Internal: a supersampling sample's casters, penumbra circles and windows, heat-shield box, sun
+        vector and camera pose (:func:`_sample_windows`, from what its pose computed once).
 
     Returns
     -------
@@ -436,7 +439,8 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                        config.shadow_diffuse_fraction,
                                        view_bounds_m=None if relief_hits is not None
                                        else shadow.view_bounds_m(footprint, hit),
-                                       windows=None if _pose_windows is None else _pose_windows["shadow_windows"])
+                                       windows=None if _pose_windows is None else _pose_windows["shadow_windows"],
+                                       circles=None if _pose_windows is None else _pose_windows["shadow_circles"])
     if moving_shadows is not None:
         moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s, terrain.origin_m, terrain.metres_per_pixel)
     if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky

@@ -132,7 +132,7 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
                   pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
                   sun_radius_rad: float, diffuse_fraction: float,
                   view_bounds_m: tuple[float, float, float, float] | None = None,
-                  windows: list | None = None) -> list[np.ndarray]:
+                  windows: list | None = None, circles: list | None = None) -> list[np.ndarray]:
     """Darken a radiance field in place inside each caster's shadow.
 
     Only the image window that can hold the penumbra is computed: the ground circle of radius
@@ -163,6 +163,13 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
     view_bounds_m : (float, float, float, float), optional
         ``(west, east, south, north)`` (m) holding every ground point the image sees
         (:func:`view_bounds_m`); None projects every caster's circle.
+    windows : list, optional
+        Per caster, the ``(row0, row1, col0, col1)`` window to evaluate or None (nothing in view): this
+        camera's :func:`~simulator.scene.ground_mapping.outline_window` of its :func:`penumbra_outlines`
+        extent (a supersampling sample's, from its pose's outlines); None projects each circle here.
+    circles : list, optional
+        Per caster (above the ground) its shadow centre and penumbra radius as :func:`penumbra_outlines`
+        gives them for these casters and sun; None computes them here.
 
     Returns
     -------
@@ -173,7 +180,8 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
     for index, caster in enumerate(casters):
         if caster.centre_m[2] <= 0:
             continue
-        centre, outer = _penumbra_circle_m(caster, sun_world, sun_radius_rad)
+        centre, outer = (_penumbra_circle_m(caster, sun_world, sun_radius_rad) if circles is None
+                         else circles[index])
         centres.append(centre)
         if view_bounds_m is not None and not _circle_meets_box(centre, outer, view_bounds_m):
             continue
@@ -239,8 +247,9 @@ def penumbra_outlines(camera: Camera, pose: ground_mapping.CameraPose, casters: 
     Returns
     -------
     list of tuple or None
-        :func:`~simulator.scene.ground_mapping.outline_extent` of the projected penumbra circle per caster,
-        None for a caster at or below the ground.
+        Per caster ``(shadow centre (3,) m, penumbra circle radius m, extent)``, the extent the
+        :func:`~simulator.scene.ground_mapping.outline_extent` of the projected circle; None for a caster
+        at or below the ground.
     """
     outlines: list = []
     for caster in casters:
@@ -248,7 +257,7 @@ def penumbra_outlines(camera: Camera, pose: ground_mapping.CameraPose, casters: 
             outlines.append(None)
             continue
         centre, outer = _penumbra_circle_m(caster, sun_world, sun_radius_rad)
-        outlines.append(ground_mapping.outline_extent(*_penumbra_outline(camera, pose, centre, outer)))
+        outlines.append((centre, outer, ground_mapping.outline_extent(*_penumbra_outline(camera, pose, centre, outer))))
     return outlines
 
 

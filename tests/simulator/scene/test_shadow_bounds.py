@@ -89,8 +89,9 @@ def test_pose_outlines_shifted_give_each_sample_cameras_own_windows(tilt_deg, sh
     for dc, dr in OFFSETS_PX:
         sample_camera = radiance.subpixel_camera(CAMERA, dc, dr)
         circle_centre, outer = shadow._penumbra_circle_m(caster, SUN, 3.05e-3)
+        assert np.array_equal(outline[0], circle_centre) and outline[1] == outer
         own = shadow._penumbra_window(sample_camera, cam, circle_centre, outer)
-        assert ground_mapping.outline_window(outline, dc, dr, CAMERA.width_px, CAMERA.height_px) == own
+        assert ground_mapping.outline_window(outline[2], dc, dr, CAMERA.width_px, CAMERA.height_px) == own
         own_box = heat_shield.bounding_box(sample_camera, cam, shield_centre, 2.6, np.radians(140.0))
         assert ground_mapping.outline_window(shield_outline, dc, dr, CAMERA.width_px, CAMERA.height_px) == own_box
 
