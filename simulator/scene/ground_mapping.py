@@ -423,17 +423,35 @@ def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
         ``cos_phase`` (use them before the next call).
     """
     if ground_map.ray_dz is not None:
-        rotation = ground_map.camera_to_world
         cos_emission = np.negative(ground_map.ray_dz, out=scratch("cos_emission", ground_map.ray_dz.shape))
-        cos_phase = ground_map.cos_phase      # computed with the map (for this sun: radiance_at_pose's)
-        ground_map.cos_phase = None           # the caller overwrites it
-        if cos_phase is None:
-            cos_phase = cv2.transform(ground_map.camera_rays,
-                                      -(rotation.T @ np.asarray(sun_world, dtype=float))[None, :],
-                                      dst=scratch("cos_phase", ground_map.ray_dz.shape))
-        return cos_emission, cos_phase
+        return cos_emission, phase_cosines(ground_map, sun_world)
     view = view_directions(camera, pose, ground_map, 0)
     return np.ascontiguousarray(view[..., 2]), view @ np.asarray(sun_world, dtype=np.float32)
+
+
+def phase_cosines(ground_map: GroundMap, sun_world: np.ndarray) -> np.ndarray:
+    """Per-pixel cosines of the phase angle on an exact map: ``-(R^T s) . r`` of the cached camera-frame rays.
+
+    Parameters
+    ----------
+    ground_map : GroundMap
+        An exact map (``ray_dz`` set); the phase cosines computed with it are taken (once) when given.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun (the one the map's phase cosines were computed for, if any).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        This thread's :func:`~simulator.scratch.scratch` array ``cos_phase`` (use it before the next call).
+    """
+    assert ground_map.ray_dz is not None, "phase_cosines needs an exact map"
+    cos_phase = ground_map.cos_phase      # computed with the map (for this sun: radiance_at_pose's)
+    ground_map.cos_phase = None           # the caller overwrites it
+    if cos_phase is None:
+        cos_phase = cv2.transform(ground_map.camera_rays,
+                                  -(ground_map.camera_to_world.T @ np.asarray(sun_world, dtype=float))[None, :],
+                                  dst=scratch("cos_phase", ground_map.ray_dz.shape))
+    return cos_phase
 
 
 def field_at_pixels(values: np.ndarray, camera: Camera, grid_step_px: int,

@@ -157,6 +157,10 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
     ndarray, shape (H, W), float32
         The ratio: a :func:`~simulator.scratch.scratch` array, to multiply in before the next call.
     """
+    if grid_step_px == 0 and ground_map.ray_dz is not None:    # exact map: unit rays, cos e = -d_z
+        cos_phase = ground_mapping.phase_cosines(ground_map, sun)
+        return photometry.photometric_ratio_from_ray_dz(ground_map.ray_dz, cos_phase, float(sun[2]), moc_value,
+                                                        out=scratch("cos_emission", ground_map.ray_dz.shape))
     if grid_step_px == 0:
         cos_emission, cos_phase = ground_mapping.view_cosines(camera, pose, ground_map, sun)
         return photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, float(sun[2]), moc_value)
