@@ -24,6 +24,7 @@ division, an upsampled ratio or flow before it is applied) are written into per-
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -422,17 +423,35 @@ def view_cosines(camera: Camera, pose: CameraPose, ground_map: GroundMap,
         ``cos_phase`` (use them before the next call).
     """
     if ground_map.ray_dz is not None:
-        rotation = ground_map.camera_to_world
         cos_emission = np.negative(ground_map.ray_dz, out=scratch("cos_emission", ground_map.ray_dz.shape))
-        cos_phase = ground_map.cos_phase      # computed with the map (for this sun: radiance_at_pose's)
-        ground_map.cos_phase = None           # the caller overwrites it
-        if cos_phase is None:
-            cos_phase = cv2.transform(ground_map.camera_rays,
-                                      -(rotation.T @ np.asarray(sun_world, dtype=float))[None, :],
-                                      dst=scratch("cos_phase", ground_map.ray_dz.shape))
-        return cos_emission, cos_phase
+        return cos_emission, phase_cosines(ground_map, sun_world)
     view = view_directions(camera, pose, ground_map, 0)
     return np.ascontiguousarray(view[..., 2]), view @ np.asarray(sun_world, dtype=np.float32)
+
+
+def phase_cosines(ground_map: GroundMap, sun_world: np.ndarray) -> np.ndarray:
+    """Per-pixel cosines of the phase angle on an exact map: ``-(R^T s) . r`` of the cached camera-frame rays.
+
+    Parameters
+    ----------
+    ground_map : GroundMap
+        An exact map (``ray_dz`` set); the phase cosines computed with it are taken (once) when given.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun (the one the map's phase cosines were computed for, if any).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        This thread's :func:`~simulator.scratch.scratch` array ``cos_phase`` (use it before the next call).
+    """
+    assert ground_map.ray_dz is not None, "phase_cosines needs an exact map"
+    cos_phase = ground_map.cos_phase      # computed with the map (for this sun: radiance_at_pose's)
+    ground_map.cos_phase = None           # the caller overwrites it
+    if cos_phase is None:
+        cos_phase = cv2.transform(ground_map.camera_rays,
+                                  -(ground_map.camera_to_world.T @ np.asarray(sun_world, dtype=float))[None, :],
+                                  dst=scratch("cos_phase", ground_map.ray_dz.shape))
+    return cos_phase
 
 
 def field_at_pixels(values: np.ndarray, camera: Camera, grid_step_px: int,
@@ -559,10 +578,72 @@ def pixel_window(pixels: np.ndarray, width_px: int, height_px: int) -> tuple[int
     tuple of int
         ``(row0, row1, col0, col1)``; empty when ``row1 <= row0`` or ``col1 <= col0``.
     """
-    col0 = max(int(np.floor(pixels[:, 0].min())) - 2, 0)
-    col1 = min(int(np.ceil(pixels[:, 0].max())) + 3, width_px)
-    row0 = max(int(np.floor(pixels[:, 1].min())) - 2, 0)
-    row1 = min(int(np.ceil(pixels[:, 1].max())) + 3, height_px)
+    return _window_of_extent(float(pixels[:, 0].min()), float(pixels[:, 0].max()), float(pixels[:, 1].min()),
+                             float(pixels[:, 1].max()), width_px, height_px)
+
+
+def _window_of_extent(col_min: float, col_max: float, row_min: float, row_max: float, width_px: int,
+                      height_px: int) -> tuple[int, int, int, int]:
+    """:func:`pixel_window` of points whose coordinates span these bounds (px)."""
+    col0 = max(math.floor(col_min) - 2, 0)
+    col1 = min(math.ceil(col_max) + 3, width_px)
+    row0 = max(math.floor(row_min) - 2, 0)
+    row1 = min(math.ceil(row_max) + 3, height_px)
+    return row0, row1, col0, col1
+
+
+def outline_extent(pixels: np.ndarray, in_front: np.ndarray) -> tuple[float, float, float, float, bool, bool]:
+    """A projected outline reduced to what :func:`outline_window` needs, once for several shifted cameras.
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (N, 2)
+        (column, row) of the outline points (px).
+    in_front : ndarray, shape (N,), bool
+        Points in front of the camera.
+
+    Returns
+    -------
+    tuple
+        ``(col_min, col_max, row_min, row_max, any in front, all in front)``.
+    """
+    return (float(pixels[:, 0].min()), float(pixels[:, 0].max()), float(pixels[:, 1].min()),
+            float(pixels[:, 1].max()), bool(in_front.any()), bool(in_front.all()))
+
+
+def outline_window(extent: tuple[float, float, float, float, bool, bool], column_offset_px: float,
+                   row_offset_px: float, width_px: int, height_px: int) -> tuple[int, int, int, int] | None:
+    """The frame window of a projected outline, seen by a camera shifted by a sub-pixel offset.
+
+    A camera whose pixel (c, r) sees what the outline's camera sees at (c + dc, r + dr)
+    (:func:`simulator.scene.radiance.subpixel_camera`) sees each outline point at its pixel minus
+    ``(dc, dr)``; rounding is monotone, so the shifted points' bounds are the bounds shifted, bit for bit.
+
+    Parameters
+    ----------
+    extent : tuple
+        :func:`outline_extent` of the outline.
+    column_offset_px, row_offset_px : float
+        The offset ``(dc, dr)`` (px); 0, 0 for the outline's own camera.
+    width_px, height_px : int
+        Frame size (px).
+
+    Returns
+    -------
+    tuple of int or None
+        ``(row0, row1, col0, col1)``: :func:`pixel_window` of the shifted points; the whole frame when the
+        outline straddles the image plane (some points behind the camera); None when every point is
+        behind the camera or the window is empty.
+    """
+    col_min, col_max, row_min, row_max, any_in_front, all_in_front = extent
+    if not any_in_front:
+        return None
+    if not all_in_front:
+        return 0, height_px, 0, width_px
+    row0, row1, col0, col1 = _window_of_extent(col_min - column_offset_px, col_max - column_offset_px,
+                                               row_min - row_offset_px, row_max - row_offset_px, width_px, height_px)
+    if col1 <= col0 or row1 <= row0:
+        return None
     return row0, row1, col0, col1
 
 
@@ -609,5 +690,10 @@ def footprint_m(camera: Camera, pose: CameraPose, per_side: int = 16) -> tuple[n
     hit : ndarray, shape (n,), bool
         False where the border ray sees the sky.
     """
-    points, hit = ground_points(camera, pose, border_pixels(camera, per_side))
+    cache = camera_cache(camera)
+    key = ("border_pixels", per_side)
+    if key not in cache:           # the same pixels every call (and so the same cached camera-frame rays)
+        cache[key] = border_pixels(camera, per_side)
+        cache[key].setflags(write=False)
+    points, hit = ground_points(camera, pose, cache[key])
     return points[:, :2], hit

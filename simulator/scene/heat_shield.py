@@ -117,8 +117,12 @@ def intersect_cone(origin_m: np.ndarray, rays: np.ndarray, apex_m: np.ndarray, a
 
 
 def bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray, diameter_m: float,
-                  cone_angle_rad: float) -> tuple[int, int, int, int] | None:
-    """Pixel window that can show the heat-shield cone.
+                 cone_angle_rad: float) -> tuple[int, int, int, int] | None:
+    """Image window that can hold the heat shield: its outline (:func:`cone_outline_m`) projected.
+
+    The outline's :func:`~simulator.scene.ground_mapping.pixel_window`; the whole frame when the camera is
+    beside or inside the cone's extent (part of the outline behind it). A supersampling sample's box is
+    :func:`~simulator.scene.ground_mapping.outline_window` of its pose's outline extent and its offset.
 
     Parameters
     ----------
@@ -138,18 +142,10 @@ def bounding_box(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.n
     tuple of int or None
         ``(row0, row1, col0, col1)``, or None when the cone misses the image.
     """
-    height, width = camera.height_px, camera.width_px
-    outline = cone_outline_m(centre_m, diameter_m, cone_angle_rad)
-    pixels, in_front = ground_mapping.world_to_pixels(camera, pose, outline)
-    if not in_front.any():
-        return None
-    if in_front.all():
-        row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width, height)
-    else:   # the camera is beside or inside the cone's extent: test every pixel
-        col0, col1, row0, row1 = 0, width, 0, height
-    if col1 <= col0 or row1 <= row0:
-        return None
-    return row0, row1, col0, col1
+    pixels, in_front = ground_mapping.world_to_pixels(camera, pose, cone_outline_m(centre_m, diameter_m,
+                                                                                   cone_angle_rad))
+    return ground_mapping.outline_window(ground_mapping.outline_extent(pixels, in_front), 0.0, 0.0,
+                                         camera.width_px, camera.height_px)
 
 
 def visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.ndarray, centre_m: np.ndarray,
@@ -199,7 +195,8 @@ def visible_surface(rays: np.ndarray, pose: ground_mapping.CameraPose, sky: np.n
 def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                      pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
                      irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
-                     reflectance: float, edge_samples: int = 1) -> np.ndarray | None:
+                     reflectance: float, edge_samples: int = 1,
+                     box: tuple[int, int, int, int] | None = None) -> np.ndarray | None:
     """Paint the heat shield into a radiance field in place where it hides the ground or sky.
 
     ``edge_samples = s > 1`` antialiases the silhouette: pixels on its edge (centre sample differs from
@@ -230,6 +227,9 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
         Hemispherical reflectance of the lining.
     edge_samples : int, optional
         Sub-pixel rays per axis on the silhouette.
+    box : (int, int, int, int), optional
+        This camera's :func:`bounding_box` when already known (a supersampling sample's, from its pose's
+        outline: :func:`~simulator.scene.ground_mapping.outline_window`); None computes it here.
 
     Returns
     -------
@@ -238,7 +238,8 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
         computed beyond the projection of its outline).
     """
     height, width = radiance.shape
-    box = bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
+    if box is None:
+        box = bounding_box(camera, pose, centre_m, diameter_m, cone_angle_rad)
     if box is None:
         return None
     row0, row1, col0, col1 = box

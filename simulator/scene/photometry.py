@@ -201,6 +201,46 @@ def photometric_ratio_from_cosines(cos_emission: np.ndarray, cos_phase: np.ndarr
         np.divide(mu0, ratio, out=ratio)
     else:
         ratio[:] = 0.0
+    return _times_phase_function(ratio, cos_phase, moc_model_value)
+
+
+def photometric_ratio_from_ray_dz(ray_dz: np.ndarray, cos_phase: np.ndarray, sun_z: float,
+                                  moc_model_value: float, out: np.ndarray) -> np.ndarray:
+    """:func:`photometric_ratio_from_cosines` of unit pixel rays: ``cos e = -d_z``, one pass fewer.
+
+    ``mu0 / (max(-d_z, 0) + mu0)`` is computed as ``mu0 / (mu0 - min(d_z, 0))``: ``-min(d_z, 0)`` is
+    ``max(-d_z, 0)`` exactly and ``a - b`` is ``a + (-b)`` in IEEE arithmetic, so the same float32 values
+    (signed zeros vanish in the sum with mu0 > 0, NaN propagates) without negating into a new array first.
+
+    Parameters
+    ----------
+    ray_dz : ndarray, shape (H, W), float32
+        World z components of the unit pixel rays (unchanged).
+    cos_phase : ndarray, shape (H, W), float32
+        Cosines of the phase angles; overwritten.
+    sun_z : float
+        Cosine of the solar incidence on level ground (> 0: sun up).
+    moc_model_value : float
+        The MOC geometry's model value, the ratio's denominator.
+    out : ndarray, shape (H, W), float32
+        Where the ratio is written.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        The DIMES / MOC ratio (``out``).
+    """
+    mu0 = np.float32(max(sun_z, 0.0))
+    if not mu0 > 0:
+        return photometric_ratio_from_cosines(np.negative(ray_dz, out=out), cos_phase, sun_z, moc_model_value)
+    ratio = np.clip(ray_dz, np.float32(-np.inf), np.float32(0.0), out=out)    # -max(-d_z, 0)
+    np.subtract(mu0, ratio, out=ratio)
+    np.divide(mu0, ratio, out=ratio)
+    return _times_phase_function(ratio, cos_phase, moc_model_value)
+
+
+def _times_phase_function(ratio: np.ndarray, cos_phase: np.ndarray, moc_model_value: float) -> np.ndarray:
+    """``ratio`` times f(alpha) of eq. (2)/(3), over the MOC model value, in place (``cos_phase`` overwritten)."""
     alpha = np.clip(cos_phase, -1.0, 1.0, out=cos_phase)
     np.arccos(alpha, out=alpha)
     alpha *= _DEGREES_PER_RADIAN_F32                                          # np.degrees, bit for bit

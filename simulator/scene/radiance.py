@@ -157,6 +157,10 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
     ndarray, shape (H, W), float32
         The ratio: a :func:`~simulator.scratch.scratch` array, to multiply in before the next call.
     """
+    if grid_step_px == 0 and ground_map.ray_dz is not None:    # exact map: unit rays, cos e = -d_z
+        cos_phase = ground_mapping.phase_cosines(ground_map, sun)
+        return photometry.photometric_ratio_from_ray_dz(ground_map.ray_dz, cos_phase, float(sun[2]), moc_value,
+                                                        out=scratch("cos_emission", ground_map.ray_dz.shape))
     if grid_step_px == 0:
         cos_emission, cos_phase = ground_mapping.view_cosines(camera, pose, ground_map, sun)
         return photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, float(sun[2]), moc_value)
@@ -242,8 +246,74 @@ def subpixel_camera(camera: Camera, column_offset_px: float, row_offset_px: floa
     return cache[key]
 
 
+def _pose_outlines(camera: Camera, pose: Pose, sun_world: np.ndarray, config) -> dict:
+    """What a supersampled pose's samples share: casters, penumbra and heat-shield outlines.
+
+    The outlines are projected with the unshifted camera; :func:`_sample_windows` turns them into a
+    sample's windows.
+
+    Parameters
+    ----------
+    camera : Camera
+        The unshifted camera.
+    pose : Pose
+        Lander pose.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    config : simulator.scene_config.SceneConfig
+        Scene parameters and switches.
+
+    Returns
+    -------
+    dict
+        ``casters`` (list of shadow.Caster), ``shadow_outlines`` (list per caster, or None when shadows are
+        off), ``heat_shield_outline`` (:func:`~simulator.scene.ground_mapping.outline_extent`, or None when
+        the heat shield is not drawn),
+        ``sun`` (the checked sun vector) and ``camera_pose`` (every sample's: a sub-pixel camera differs
+        only in H and V, not in its mounting or C).
+    """
+    sun = sun_unit_vector(sun_world)
+    cam = ground_mapping.camera_pose(camera, pose)
+    pose_casters = casters(pose, config)
+    shadow_outlines = (shadow.penumbra_outlines(camera, cam, pose_casters, sun,
+                                                photometry.solar_angular_radius_rad(config.sun_distance_au))
+                       if config.effects.shadows else None)
+    shield_outline = None
+    if config.effects.heat_shield and pose.heat_shield_position_m is not None:
+        shield_outline = ground_mapping.outline_extent(*ground_mapping.world_to_pixels(
+            camera, cam, heat_shield.cone_outline_m(np.asarray(pose.heat_shield_position_m, dtype=float),
+                                                    config.heat_shield_diameter_m, config.heat_shield_cone_angle_rad)))
+    return dict(casters=pose_casters, shadow_outlines=shadow_outlines, heat_shield_outline=shield_outline,
+                sun=sun, camera_pose=cam)
+
+
+def _sample_windows(outlines: dict, column_offset_px: float, row_offset_px: float, width_px: int,
+                    height_px: int) -> dict:
+    """A supersampling sample's casters, penumbra windows and heat-shield box from its pose's outlines.
+
+    The sample's camera (:func:`subpixel_camera`) sees a world point at the unshifted camera's pixel minus
+    its offset, so each window is that of the outline shifted by ``-(dc, dr)``
+    (:func:`~simulator.scene.ground_mapping.outline_window`): the windows the sample's own projections give
+    (up to the projection's rounding), without projecting again.
+    """
+    shadow_windows = circles = None
+    if outlines["shadow_outlines"] is not None:
+        shadow_windows = [None if outline is None else
+                          ground_mapping.outline_window(outline[2], column_offset_px, row_offset_px, width_px,
+                                                        height_px)
+                          for outline in outlines["shadow_outlines"]]
+        circles = [None if outline is None else outline[:2] for outline in outlines["shadow_outlines"]]
+    box = None
+    if outlines["heat_shield_outline"] is not None:
+        box = ground_mapping.outline_window(outlines["heat_shield_outline"], column_offset_px, row_offset_px,
+                                            width_px, height_px)
+    return dict(casters=outlines["casters"], shadow_windows=shadow_windows, shadow_circles=circles,
+                heat_shield_box=box,
+                sun=outlines["sun"], camera_pose=outlines["camera_pose"])
+
+
 def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np.ndarray, config,
-                     _sub_sample: bool = False, moving_shadows=None) -> PoseField:
+                     _sub_sample: bool = False, moving_shadows=None, _pose_windows: dict | None = None) -> PoseField:
     """The radiance field the camera sees at one instantaneous pose (see module doc).
 
     With ``config.supersample = s > 1`` each pixel is the mean of ``s x s`` sub-pixel point samples on
@@ -268,6 +338,9 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     moving_shadows : simulator.off_nominal.moving_shadows.MovingShadows, optional
         Darkens the ground where the dust-devil and cloud shadows are at ``pose.time_s``, after the
         casters' shadows.
+    _pose_windows : dict, optional
+        Internal: a supersampling sample's casters, penumbra circles and windows, heat-shield box, sun
+        vector and camera pose (:func:`_sample_windows`, from what its pose computed once).
 
     Returns
     -------
@@ -280,9 +353,12 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         single = config.model_copy(update={"supersample": 1})
         offsets = (np.arange(samples) + 0.5) / samples - 0.5
         # each sample's field lives in a scratch array: summed (in sample order, as average_fields) at once
+        outlines = _pose_outlines(camera, pose, sun_world, single)   # projected once, shifted per sample
+
         def sample(dc: float, dr: float) -> PoseField:
+            windows = _sample_windows(outlines, dc, dr, camera.width_px, camera.height_px)
             return radiance_at_pose(terrain, subpixel_camera(camera, dc, dr), pose, sun_world, single,
-                                    _sub_sample=True, moving_shadows=moving_shadows)
+                                    _sub_sample=True, moving_shadows=moving_shadows, _pose_windows=windows)
         first = sample(offsets[0], offsets[0])
         total, sky, outside, shield = first.radiance.copy(), first.sky.copy(), first.outside.copy(), first.heat_shield
         for dr in offsets:
@@ -296,10 +372,13 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                 if part.heat_shield is not None:
                     shield = part.heat_shield.copy() if shield is None else shield | part.heat_shield
         total *= np.float32(1.0 / samples**2)
-        return PoseField(total, sky, outside, shield, ground_mapping.camera_pose(camera, pose), first.shadow_centres_m)
+        return PoseField(total, sky, outside, shield, outlines["camera_pose"], first.shadow_centres_m)
     effects = config.effects
-    sun = sun_unit_vector(sun_world)
-    cam = ground_mapping.camera_pose(camera, pose)
+    if _pose_windows is None:
+        sun = sun_unit_vector(sun_world)
+        cam = ground_mapping.camera_pose(camera, pose)
+    else:      # a sample: the sun checked by its pose; its camera differs only in H and V, so the same pose
+        sun, cam = _pose_windows["sun"], _pose_windows["camera_pose"]
 
     footprint, hit = ground_mapping.footprint_m(camera, cam)
     foot_rows, foot_cols = terrain.world_to_pixel(footprint[hit, 0], footprint[hit, 1])
@@ -358,11 +437,14 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         radiance *= relief.shading_factor(relief_hits, sun, config)
     centres = []
     if effects.shadows:
-        centres = shadow.apply_shadows(radiance, gmap, camera, cam, casters(pose, config), sun,
-                                       photometry.solar_angular_radius_rad(config.sun_distance_au),
+        centres = shadow.apply_shadows(radiance, gmap, camera, cam,
+                                       casters(pose, config) if _pose_windows is None else _pose_windows["casters"],
+                                       sun, photometry.solar_angular_radius_rad(config.sun_distance_au),
                                        config.shadow_diffuse_fraction,
                                        view_bounds_m=None if relief_hits is not None
-                                       else shadow.view_bounds_m(footprint, hit))
+                                       else shadow.view_bounds_m(footprint, hit),
+                                       windows=None if _pose_windows is None else _pose_windows["shadow_windows"],
+                                       circles=None if _pose_windows is None else _pose_windows["shadow_circles"])
     if moving_shadows is not None:
         moving_shadows.darken(radiance, gmap, camera, cam, pose.time_s, terrain.origin_m, terrain.metres_per_pixel)
     if added is not None:          # path and adjacency light: not shadowed, none where the ray sees sky
@@ -370,12 +452,14 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
         if gmap.any_sky:
             radiance[gmap.sky] = 0.0
     shield = None
-    if effects.heat_shield and pose.heat_shield_position_m is not None:
+    shield_box = None if _pose_windows is None else _pose_windows["heat_shield_box"]
+    if effects.heat_shield and pose.heat_shield_position_m is not None and (_pose_windows is None or shield_box):
         shield = heat_shield.draw_heat_shield(radiance, gmap, camera, cam,
                                               np.asarray(pose.heat_shield_position_m, dtype=float), sun,
                                               irradiance, config.heat_shield_diameter_m,
                                               config.heat_shield_cone_angle_rad, config.heat_shield_reflectance,
-                                              edge_samples=1 if _sub_sample else HEAT_SHIELD_EDGE_SAMPLES)
+                                              edge_samples=1 if _sub_sample else HEAT_SHIELD_EDGE_SAMPLES,
+                                              box=shield_box)
     if shield is not None:
         outside &= ~shield
     return PoseField(radiance, gmap.sky, outside, shield, cam, centres)

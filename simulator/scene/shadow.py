@@ -131,7 +131,8 @@ def occluded_fraction(points_m: np.ndarray, caster: Caster, sun_world: np.ndarra
 def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, camera: Camera,
                   pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
                   sun_radius_rad: float, diffuse_fraction: float,
-                  view_bounds_m: tuple[float, float, float, float] | None = None) -> list[np.ndarray]:
+                  view_bounds_m: tuple[float, float, float, float] | None = None,
+                  windows: list | None = None, circles: list | None = None) -> list[np.ndarray]:
     """Darken a radiance field in place inside each caster's shadow.
 
     Only the image window that can hold the penumbra is computed: the ground circle of radius
@@ -162,35 +163,32 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
     view_bounds_m : (float, float, float, float), optional
         ``(west, east, south, north)`` (m) holding every ground point the image sees
         (:func:`view_bounds_m`); None projects every caster's circle.
+    windows : list, optional
+        Per caster, the ``(row0, row1, col0, col1)`` window to evaluate or None (nothing in view): this
+        camera's :func:`~simulator.scene.ground_mapping.outline_window` of its :func:`penumbra_outlines`
+        extent (a supersampling sample's, from its pose's outlines); None projects each circle here.
+    circles : list, optional
+        Per caster (above the ground) its shadow centre and penumbra radius as :func:`penumbra_outlines`
+        gives them for these casters and sun; None computes them here.
 
     Returns
     -------
     list of ndarray, shape (3,)
         Shadow centres (world, m) of the casters above the ground.
     """
-    height, width = radiance.shape
     centres = []
-    for caster in casters:
+    for index, caster in enumerate(casters):
         if caster.centre_m[2] <= 0:
             continue
-        centre = shadow_centre_m(caster.centre_m, sun_world)
+        centre, outer = (_penumbra_circle_m(caster, sun_world, sun_radius_rad) if circles is None
+                         else circles[index])
         centres.append(centre)
-        reach = float(np.linalg.norm(caster.centre_m - centre))
-        # penumbra radius across the sun line, stretched by 1/cos(incidence) along it on the ground
-        outer = (caster.radius_m + reach * np.tan(sun_radius_rad)) / sun_world[2] + 1.0
         if view_bounds_m is not None and not _circle_meets_box(centre, outer, view_bounds_m):
             continue
-        angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
-        ring = centre + outer * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1)
-        pixels, in_front = ground_mapping.world_to_pixels(camera, pose, np.vstack([ring, centre]))
-        if not in_front.any():
+        window = windows[index] if windows is not None else _penumbra_window(camera, pose, centre, outer)
+        if window is None:
             continue
-        if not in_front.all():   # the shadow straddles the image plane: evaluate the whole frame
-            col0, col1, row0, row1 = 0, width, 0, height
-        else:
-            row0, row1, col0, col1 = ground_mapping.pixel_window(pixels, width, height)
-        if col1 <= col0 or row1 <= row0:
-            continue
+        row0, row1, col0, col1 = window
         rays = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
         window_sky = ground_map.sky[row0:row1, col0:col1]
         dz = np.where(window_sky, -1.0, rays[..., 2])
@@ -199,6 +197,68 @@ def apply_shadows(radiance: np.ndarray, ground_map: ground_mapping.GroundMap, ca
         occluded[window_sky] = 0.0
         radiance[row0:row1, col0:col1] *= 1.0 - np.float32(1.0 - diffuse_fraction) * occluded
     return centres
+
+
+def _penumbra_circle_m(caster: Caster, sun_world: np.ndarray, sun_radius_rad: float) -> tuple[np.ndarray, float]:
+    """A caster's shadow centre on the ground (m) and the radius (m) of the ground circle holding its penumbra."""
+    centre = shadow_centre_m(caster.centre_m, sun_world)
+    reach = float(np.linalg.norm(caster.centre_m - centre))
+    # penumbra radius across the sun line, stretched by 1/cos(incidence) along it on the ground
+    return centre, (caster.radius_m + reach * np.tan(sun_radius_rad)) / sun_world[2] + 1.0
+
+
+def _penumbra_outline(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray,
+                      radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A ground circle's 24 ring points and centre projected: ``(pixels (25, 2), in_front (25,))``."""
+    angles = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    ring = centre_m + radius_m * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1)
+    return ground_mapping.world_to_pixels(camera, pose, np.vstack([ring, centre_m]))
+
+
+def _penumbra_window(camera: Camera, pose: ground_mapping.CameraPose, centre_m: np.ndarray,
+                     radius_m: float) -> tuple[int, int, int, int] | None:
+    """The frame window of a ground circle (:func:`~simulator.scene.ground_mapping.outline_window`)."""
+    extent = ground_mapping.outline_extent(*_penumbra_outline(camera, pose, centre_m, radius_m))
+    return ground_mapping.outline_window(extent, 0.0, 0.0, camera.width_px, camera.height_px)
+
+
+def penumbra_outlines(camera: Camera, pose: ground_mapping.CameraPose, casters: list[Caster], sun_world: np.ndarray,
+                      sun_radius_rad: float) -> list:
+    """Per caster, its projected penumbra outline, once for a pose's supersampling samples.
+
+    A sample's camera (:func:`simulator.scene.radiance.subpixel_camera`, offset ``(dc, dr)``) sees a world
+    point at ``camera``'s pixel minus the offset, so
+    :func:`~simulator.scene.ground_mapping.outline_window` of the extent and ``(dc, dr)`` is that sample's
+    own window (the projection of :func:`apply_shadows`, up to the rounding of the projection).
+
+    Parameters
+    ----------
+    camera : Camera
+        The unshifted camera.
+    pose : CameraPose
+        The camera's world pose.
+    casters : list of Caster
+        The casters.
+    sun_world : ndarray, shape (3,)
+        World unit vector toward the sun.
+    sun_radius_rad : float
+        Angular radius of the solar disc (rad).
+
+    Returns
+    -------
+    list of tuple or None
+        Per caster ``(shadow centre (3,) m, penumbra circle radius m, extent)``, the extent the
+        :func:`~simulator.scene.ground_mapping.outline_extent` of the projected circle; None for a caster
+        at or below the ground.
+    """
+    outlines: list = []
+    for caster in casters:
+        if caster.centre_m[2] <= 0:
+            outlines.append(None)
+            continue
+        centre, outer = _penumbra_circle_m(caster, sun_world, sun_radius_rad)
+        outlines.append((centre, outer, ground_mapping.outline_extent(*_penumbra_outline(camera, pose, centre, outer))))
+    return outlines
 
 
 VIEW_BOUNDS_MARGIN = 0.05      # of the footprint's extent, on each side: the border between its samples

@@ -195,3 +195,25 @@ def test_ratio_from_cosines_is_equation_1_over_the_moc_value(sun_z):
     assert got.dtype == np.float32 and got.shape == (1, phase_deg.size)
     # float32 arccos near 0 and 180 deg is coarse (1e-3 deg): compare at float32 resolution of the angle
     assert np.allclose(got.ravel(), expected, rtol=2e-4, atol=2e-4)
+
+
+@pytest.mark.parametrize("sun_z", [0.87, 0.2, 0.0])
+def test_ratio_from_ray_dz_is_the_ratio_of_minus_dz_bit_for_bit(sun_z):
+    # the exact map's form (cos e = -d_z, computed as mu0 / (mu0 - min(d_z, 0))) against equation (1) in
+    # float64 on unit rays, and bit for bit against the cosine form given cos e = -d_z, with rays beyond
+    # the horizon (d_z >= 0, signed zeros) whose mu clips to 0
+    rng = np.random.default_rng(12)
+    dz = np.concatenate([-rng.uniform(0.0, 1.0, 2000), rng.uniform(0.0, 0.3, 50), [0.0, -0.0, -1.0]])
+    phase_deg = rng.uniform(0.0, 150.0, dz.size)
+    alpha = phase_deg
+    f_low = 2.05 - 3.93e-2 * alpha + 2.09e-3 * alpha**2 - 4.86e-5 * alpha**3 + 4.93e-7 * alpha**4 - 1.72e-9 * alpha**5
+    f = np.where(alpha < 10.0, f_low, 1.82 - 1.03e-2 * (alpha - 10.0))
+    mu = np.maximum(-dz, 0.0)
+    expected = (sun_z / (mu + sun_z) if sun_z > 0 else 0.0) * f / 0.61
+    ray_dz = dz.astype(np.float32).reshape(1, -1)
+    cos_phase = np.cos(np.radians(phase_deg)).astype(np.float32).reshape(1, -1)
+    got = photometry.photometric_ratio_from_ray_dz(ray_dz, cos_phase.copy(), sun_z, 0.61, out=np.empty_like(ray_dz))
+    assert np.allclose(got.ravel(), expected, rtol=2e-4, atol=2e-4)
+    from_cosines = photometry.photometric_ratio_from_cosines(-ray_dz, cos_phase.copy(), sun_z, 0.61)
+    assert np.array_equal(got, from_cosines)
+    assert np.array_equal(ray_dz.ravel(), dz.astype(np.float32))       # the rays are left as they were

@@ -67,3 +67,44 @@ def test_bounds_change_no_bit(beyond_edge_m):
         fields.append(field)
     assert np.array_equal(fields[0], fields[1])
     assert (fields[0] < 40.0).any() == (beyond_edge_m < 0.0)
+
+
+OFFSETS_PX = [(-1.0 / 3.0, -1.0 / 3.0), (0.0, 1.0 / 3.0), (1.0 / 3.0, -1.0 / 3.0), (1.0 / 3.0, 1.0 / 3.0)]
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 25.0])
+@pytest.mark.parametrize("shift_m", [0.0, 700.0, 1150.0])
+def test_pose_outlines_shifted_give_each_sample_cameras_own_windows(tilt_deg, shift_m):
+    # a supersampling sample's windows come from its pose's outlines projected once with the unshifted
+    # camera and shifted by the sample's offset: they must be the windows the sample's own camera projects
+    from simulator.scene import heat_shield, radiance
+
+    cam = camera_pose(tilt_deg)
+    centre = shadow.shadow_centre_m(cam.ray_origin_m, SUN) + np.array([shift_m, -0.4 * shift_m, 0.0])
+    caster = shadow.Caster("parachute", centre + 300.0 * SUN / SUN[2], 7.5)
+    (outline,) = shadow.penumbra_outlines(CAMERA, cam, [caster], SUN, 3.05e-3)
+    shield_centre = cam.ray_origin_m + np.array([0.3 * shift_m, 0.1 * shift_m, -400.0])
+    shield_outline = ground_mapping.outline_extent(*ground_mapping.world_to_pixels(
+        CAMERA, cam, heat_shield.cone_outline_m(shield_centre, 2.6, np.radians(140.0))))
+    for dc, dr in OFFSETS_PX:
+        sample_camera = radiance.subpixel_camera(CAMERA, dc, dr)
+        circle_centre, outer = shadow._penumbra_circle_m(caster, SUN, 3.05e-3)
+        assert np.array_equal(outline[0], circle_centre) and outline[1] == outer
+        own = shadow._penumbra_window(sample_camera, cam, circle_centre, outer)
+        assert ground_mapping.outline_window(outline[2], dc, dr, CAMERA.width_px, CAMERA.height_px) == own
+        own_box = heat_shield.bounding_box(sample_camera, cam, shield_centre, 2.6, np.radians(140.0))
+        assert ground_mapping.outline_window(shield_outline, dc, dr, CAMERA.width_px, CAMERA.height_px) == own_box
+
+
+def test_outline_window_is_the_pixel_window_of_the_shifted_points():
+    # closed form: bounds (10.2 .. 30.7, 5.5 .. 6.0) shifted by (+1/3, -1/3), 2 px margin below, 3 above
+    pixels = np.array([[10.2, 6.0], [30.7, 5.5], [20.0, 5.8]])
+    extent = ground_mapping.outline_extent(pixels, np.ones(3, dtype=bool))
+    assert ground_mapping.outline_window(extent, 1.0 / 3.0, -1.0 / 3.0, 1024, 1024) == (3, 10, 7, 34)
+    assert ground_mapping.pixel_window(pixels - [1.0 / 3.0, -1.0 / 3.0], 1024, 1024) == (3, 10, 7, 34)
+    assert ground_mapping.outline_window(extent, 0.0, 0.0, 20, 20) == (3, 9, 8, 20)           # clipped
+    straddling = ground_mapping.outline_extent(pixels, np.array([True, False, True]))
+    assert ground_mapping.outline_window(straddling, 0.3, 0.3, 1024, 512) == (0, 512, 0, 1024)
+    behind = ground_mapping.outline_extent(pixels, np.zeros(3, dtype=bool))
+    assert ground_mapping.outline_window(behind, 0.0, 0.0, 1024, 1024) is None
+    assert ground_mapping.outline_window(extent, -2000.0, 0.0, 1024, 1024) is None           # off the frame
