@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import math
 import queue
+import secrets
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -171,11 +172,19 @@ def batch_cases(client: Client, context: CampaignContext, rows: Sequence[dict], 
 
 
 def _case_batch(context: CampaignContext, store: CampaignStore, rows: Sequence[dict]) -> CaseBatch:
-    """One task of the plan rows ``rows`` (at least one), keyed by the campaign, its first case and its size."""
+    """One task of the plan rows ``rows`` (at least one), keyed by the campaign, its first case, its size and a
+    random token.
+
+    The token makes every key unique on the scheduler: dask takes a key it already holds for the same result,
+    so two runs of one configuration into two stores on a shared cluster (two users, or a resumed run while
+    the old one's tasks are still known) would otherwise share tasks, and the second store would get no
+    files (or wait on a key being forgotten). The key names no result: the cases' bits depend on the seed only.
+    """
     # a table of its own: a pickled slice of a larger table carries the whole of its buffers
     part = pa.Table.from_pylist(list(rows))
     first = int(rows[0]["case_id"])
-    return CaseBatch(context, store, part, f"cases-{context.config_hash[:12]}-{first:07d}-{len(part)}")
+    return CaseBatch(context, store, part,
+                     f"cases-{context.config_hash[:12]}-{first:07d}-{len(part)}-{secrets.token_hex(6)}")
 
 
 def balanced_tail(batches: Sequence[CaseBatch], workers: int) -> list[CaseBatch]:
