@@ -292,7 +292,7 @@ def test_import_bench_records_a_range_over_the_rows_a_fact_names(copy: Path):
     assert after["bench/offnominal/nightly/*/ratio_vs_nominal"]["value"] == "1.00-2.05"
     assert after["bench/offnominal/angular_rate_x60/ratio_vs_nominal"]["value"] == "1.90"
     readme = (copy / "README.md").read_text(encoding="utf-8")
-    assert "-->1.00-2.05<!-- measured:end --> (all within" in readme
+    assert "-->1.00-2.05<!-- measured:end --> (targets 1.3x" in readme
 
 
 def test_a_superseded_figure_fails_on_a_page_without_blocks_too(copy: Path):
