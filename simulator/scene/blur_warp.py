@@ -64,7 +64,7 @@ import numpy as np
 from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.fields import RadianceFields, block_means
-from simulator.scene import ground_mapping, motion_blur, node_grid, shadow
+from simulator.scene import ground_mapping, motion_blur, node_grid, resample, shadow
 from simulator.scene.descent_profile import Pose
 
 MARGIN_STEP_PX = 32            # margins are multiples of the flow node step (and of the binning rows)
@@ -226,13 +226,6 @@ def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: groun
                                          row_step_px=FLOW_STEP_PX // b)
 
 
-def _warped(field: np.ndarray, flow: np.ndarray, interpolation: int) -> np.ndarray:
-    """``field`` resampled at the (column, row) coordinates of ``flow`` (edge values beyond the frame)."""
-    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
-    return cv2.remap(field, flow, None, interpolation=interpolation,  # type: ignore[call-overload]
-                     borderMode=cv2.BORDER_REPLICATE)
-
-
 class _Plan:
     """Times and exact maps of the doubling scheme for one image (see module doc)."""
 
@@ -388,7 +381,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         if flow is None:
             return None
         # block rows: bicubic (bilinear at fractional-block shifts would smooth the rows at the block scale)
-        warped = _warped(accumulated, flow, cv2.INTER_LINEAR if block == 1 else cv2.INTER_CUBIC)
+        warped = resample.warped_field(accumulated, flow, cv2.INTER_LINEAR if block == 1 else cv2.INTER_CUBIC)
         accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0)
     if block == 1:
         accumulated = block_means(accumulated, b)
@@ -397,7 +390,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), (left, top), b)
         if flow is None:
             return None
-        averaged[period] = _warped(accumulated, flow, cv2.INTER_CUBIC if period == "exposure" else cv2.INTER_LINEAR)
+        averaged[period] = resample.warped_field(accumulated, flow, cv2.INTER_CUBIC if period == "exposure" else cv2.INTER_LINEAR)
     outside = _mask_union(field.outside, camera, (left, top), plan, cam_at)
     shield_full = field.heat_shield
     shield = (_mask_union(shield_full, camera, (left, top), plan, cam_at) if shield_full is not None

@@ -164,8 +164,8 @@ def sample_terrain(terrain: Terrain, col: np.ndarray, row: np.ndarray, invalid: 
     return sampled, outside
 
 
-def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """Resample a radiance field at the coordinates of a flow map, bilinear.
+def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """Resample a radiance field at the coordinates of a flow map (bilinear unless ``interpolation`` says).
 
     Pixels whose source lies beyond the frame take the nearest edge value.
 
@@ -175,12 +175,14 @@ def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray) -> np.ndarray:
         Radiance (W m^-2 sr^-1 um^-1).
     flow : ndarray, shape (H', W', 2), float32
         (column, row) source coordinates of every output pixel.
+    interpolation : int, optional
+        OpenCV interpolation flag (``cv2.INTER_LINEAR``; the warped blur's block warps use ``cv2.INTER_CUBIC``).
 
     Returns
     -------
     ndarray, shape (H', W'), float32
         The warped field.
     """
-    # map2=None (one two-channel map) is valid OpenCV but missing from the cv2 stubs
-    return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=cv2.INTER_LINEAR,  # type: ignore[call-overload]
+    # one two-channel map with map2=None: an OpenCV form the cv2 type stubs do not declare
+    return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=interpolation,  # type: ignore[call-overload]
                      borderMode=cv2.BORDER_REPLICATE)
