@@ -14,6 +14,13 @@ the reference's estimates: the estimator's scatter from noise alone) and
 ``fidelity/noise_floor/default_independent`` (the default's expected images read out on an independent
 stream against the reference: the velocity change the uncoupled protocol measured).
 
+Each render is reduced at once to what the rows need (the expected images, in charge and in DN, the
+stage times, the velocity and the sensor measurements), and the expected images are kept from the first
+repeat only (every repeat gives the same bits). A campaign worker keeps nothing of a case but its row;
+holding every repeat's full outcome (~35 MiB a case: full-resolution radiance, masks) grew the heap case
+after case and made each case pay fresh-page faults a worker never pays (measured idle: 102-108 ms a
+default case instead of 69-73 ms).
+
 Rows: for each preset, ms per image and per case (single thread), the per-stage breakdown (scene,
 camera, estimator), the RMS and max DN error of the expected (noise-free) image against the
 ``reference`` preset, and the change of the estimated velocity against the reference preset's estimate
@@ -27,6 +34,7 @@ beside it; <= 1 s per image at the reference preset.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -59,9 +67,32 @@ def _cases():
     return config, resources, chosen.to_dict("records")
 
 
-def _render_case(resources, row, scene_config):
-    """The case's three images (the campaign's seeds, with ``scene_config``) and its estimate:
-    (images, velocity or None, render + sensors seconds, estimator seconds, sensor measurements)."""
+@dataclass(frozen=True)
+class CaseOutcome:
+    """What the rows need of one rendered and estimated case.
+
+    ``expected_charge_e`` and ``expected_dn`` are the three noise-free images (binned rows x columns,
+    electrons and DN, float32), empty when the render was a timing repeat; ``scene_ms`` and ``camera_ms``
+    the per-image stage times (ms); ``velocity_mps`` the estimate (east, north; m/s) or None when not
+    valid; ``render_s`` and ``estimator_s`` the case's render + sensors and estimator times (s)."""
+
+    expected_charge_e: tuple[np.ndarray, ...]
+    expected_dn: tuple[np.ndarray, ...]
+    scene_ms: tuple[float, ...]
+    camera_ms: tuple[float, ...]
+    velocity_mps: np.ndarray | None
+    render_s: float
+    estimator_s: float
+    measurements: object
+
+    @property
+    def case_s(self) -> float:
+        return self.render_s + self.estimator_s
+
+
+def _render_case(resources, row, scene_config, keep_images: bool = True) -> CaseOutcome:
+    """The case's three images (the campaign's seeds, with ``scene_config``) and its estimate, reduced to
+    a :class:`CaseOutcome` (the expected images only when ``keep_images``)."""
     from campaign.case.compute import simulate_case_inputs
     from campaign.case.inputs import PlanRow
 
@@ -71,7 +102,13 @@ def _render_case(resources, row, scene_config):
     started = time.perf_counter()
     velocity = _estimate(resources, [image.dn for image in inputs.images], inputs.measurements)
     estimator_s = time.perf_counter() - started
-    return inputs.images, velocity, render_s, estimator_s, inputs.measurements
+    images = inputs.images
+    return CaseOutcome(
+        expected_charge_e=tuple(image.image.expected_charge_e for image in images) if keep_images else (),
+        expected_dn=tuple(image.image.expected_dn for image in images) if keep_images else (),
+        scene_ms=tuple(image.diagnostics.scene_ms for image in images),
+        camera_ms=tuple(image.diagnostics.camera_ms for image in images),
+        velocity_mps=velocity, render_s=render_s, estimator_s=estimator_s, measurements=inputs.measurements)
 
 
 def _estimate(resources, dn_images, measurements):
@@ -94,13 +131,12 @@ def _reread_velocity(resources, row, outcome, scene_config):
     preset's own noise model), and the reference estimator's velocity on them (None when not valid)."""
     from simulator.detector.camera_chain import read_out
 
-    images, measurements = outcome[0], outcome[4]
     dn_images = []
-    for index, image in enumerate(images):
+    for index, expected_charge_e in enumerate(outcome.expected_charge_e):
         stream = np.random.SeedSequence([resources.config.seed, int(row["case_id"]), INDEPENDENT_NOISE_STREAM, index])
-        dn_images.append(read_out(resources.camera, image.image.expected_charge_e, np.random.default_rng(stream),
+        dn_images.append(read_out(resources.camera, expected_charge_e, np.random.default_rng(stream),
                                   scene_config.camera_effects).dn)
-    return _estimate(resources, dn_images, measurements)
+    return _estimate(resources, dn_images, outcome.measurements)
 
 
 def _noise_floor_rows(resources, rows, results, configs) -> list[dict]:
@@ -111,7 +147,7 @@ def _noise_floor_rows(resources, rows, results, configs) -> list[dict]:
     for preset, name in NOISE_FLOOR_ROWS.items():
         dv = []
         for row, outcome, ref_outcome in zip(rows, results[preset], reference):
-            velocity, ref_velocity = _reread_velocity(resources, row, outcome, configs[preset]), ref_outcome[1]
+            velocity, ref_velocity = _reread_velocity(resources, row, outcome, configs[preset]), ref_outcome.velocity_mps
             if velocity is not None and ref_velocity is not None:
                 dv.append(float(np.hypot(*(velocity - ref_velocity))))
         table.append({"name": name, "cases": len(rows), "valid": len(dv),
@@ -132,35 +168,37 @@ def run() -> list[dict]:
     timed = [preset for preset in PRESETS if preset != "reference"]
     for preset in timed:
         _render_case(resources, rows[0], configs[preset])
-    outcomes: dict[str, list[list]] = {preset: [[] for _ in rows] for preset in timed}
-    for _ in range(TIMING_REPEATS):         # presets interleaved case by case: their ratios see the same machine
+    outcomes: dict[str, list[list[CaseOutcome]]] = {preset: [[] for _ in rows] for preset in timed}
+    for repeat in range(TIMING_REPEATS):    # presets interleaved case by case: their ratios see the same machine
         for index, row in enumerate(rows):
             for preset in timed:
-                outcomes[preset][index].append(_render_case(resources, row, configs[preset]))
+                outcomes[preset][index].append(_render_case(resources, row, configs[preset], keep_images=repeat == 0))
     for preset in timed:      # the fastest of the repeats (the first of equals): these machines are noisy
-        results[preset] = [min(repeats, key=lambda outcome: outcome[2] + outcome[3]) for repeats in outcomes[preset]]
+        results[preset] = [replace(repeats[0], render_s=fastest.render_s, estimator_s=fastest.estimator_s)
+                           for repeats in outcomes[preset]
+                           for fastest in [min(repeats, key=lambda outcome: outcome.case_s)]]
 
     reference = results["reference"]
     table = []
     for preset in PRESETS:
         per_case = results[preset]
         rms, peak, dv, scene_ms, camera_ms = [], [], [], [], []
-        for (images, velocity, *_), (ref_images, ref_velocity, *_) in zip(per_case, reference):
-            for image, ref_image in zip(images, ref_images):
-                error = image.image.expected_dn.astype(np.float64) - ref_image.image.expected_dn
+        for outcome, ref_outcome in zip(per_case, reference):
+            for expected_dn, ref_expected_dn in zip(outcome.expected_dn, ref_outcome.expected_dn):
+                error = expected_dn.astype(np.float64) - ref_expected_dn
                 rms.append(float(np.sqrt(np.mean(error ** 2))))
                 peak.append(float(np.abs(error).max()))
-                scene_ms.append(image.diagnostics.scene_ms)
-                camera_ms.append(image.diagnostics.camera_ms)
-            if velocity is not None and ref_velocity is not None:
-                dv.append(float(np.hypot(*(velocity - ref_velocity))))
-        case_ms = [1e3 * (render + estimate) for _, _, render, estimate, _ in per_case]
+            scene_ms += outcome.scene_ms
+            camera_ms += outcome.camera_ms
+            if outcome.velocity_mps is not None and ref_outcome.velocity_mps is not None:
+                dv.append(float(np.hypot(*(outcome.velocity_mps - ref_outcome.velocity_mps))))
+        case_ms = [1e3 * outcome.case_s for outcome in per_case]
         image_ms = [s + c for s, c in zip(scene_ms, camera_ms)]
-        valid = sum(velocity is not None for _, velocity, *_ in per_case)
+        valid = sum(outcome.velocity_mps is not None for outcome in per_case)
         row = {"name": f"fidelity/{preset}", "cases": len(per_case), "images": len(image_ms),
                "ms_per_image": float(np.median(image_ms)), "scene_ms": float(np.median(scene_ms)),
                "camera_ms": float(np.median(camera_ms)),
-               "estimator_ms": float(np.median([1e3 * e for _, _, _, e, _ in per_case])),
+               "estimator_ms": float(np.median([1e3 * outcome.estimator_s for outcome in per_case])),
                "ms_per_case": float(np.median(case_ms)),
                "rms_dn_vs_reference_mean": float(np.mean(rms)), "rms_dn_vs_reference_max": float(np.max(rms)),
                "max_dn_vs_reference": float(np.max(peak)), "valid": valid,
