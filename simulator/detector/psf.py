@@ -843,6 +843,127 @@ def row_blurred_block_sums(block_sums: np.ndarray, camera: Camera) -> np.ndarray
     return blurred[:, PAD_PX:PAD_PX + cols]
 
 
+def row_blurred_block_rate_sums(fields: tuple[np.ndarray, ...], camera: Camera, block_gain: np.ndarray,
+                                offset_e_per_s: float, binning_rows: int, toward_last_row: bool,
+                                ) -> list[tuple[np.ndarray, np.ndarray, float]] | None:
+    """The rate block sums of smear fields given per binning block, through the line-spread function.
+
+    Per field ``F`` (block means): the chain's ``rate = max(L(F), 0) x block gain + offset``, with ``L``
+    :func:`blur_field_along_rows`' filter, and the sums of a block-mean rate, ``b x rate`` and
+    ``b (b + 1) / 2 x rate`` (:func:`simulator.detector.charge_transfer.block_rate_sums`' plain and
+    ramp-weighted sums of ``b`` equal rows), in the order the charge moves (blocks reversed when it moves
+    toward the first row). The same float32 operations as the three steps one after the other, but the
+    fields share one row transform (each row is transformed alone: stacking rows changes no bit) and
+    the clip, the rate and both sums are one compiled pass.
+
+    Parameters
+    ----------
+    fields : tuple of one or two ndarrays, shape (H / b, W)
+        Smear-period radiance per binning block (W m^-2 sr^-1 um^-1).
+    camera : Camera
+        The camera.
+    block_gain : ndarray, shape (H / b, W), float32
+        Mean gain of each block (e-/s per W m^-2 sr^-1 um^-1), image order.
+    offset_e_per_s : float
+        Rate added to every pixel (dark current, e-/s).
+    binning_rows : int
+        Rows per block ``b``.
+    toward_last_row : bool
+        The charge moves toward the last row.
+
+    Returns
+    -------
+    list of (plain, ramp, largest) or None
+        Per field: the plain and ramp-weighted sums (float32 (H / b, W), e-/s; this thread's scratch
+        arrays, valid until the next call) and the largest blurred radiance; None when a field or a rate
+        is not finite, or negative (the caller's step-by-step path repairs or reports it).
+    """
+    import scipy.fft
+
+    count = len(fields)
+    if not 1 <= count <= 2:
+        raise ValueError(f"row-blurred rate sums: one or two smear fields; got {count}")
+    rows, cols = np.shape(fields[0])
+    padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX)
+    stacked = scratch("psf_smear_rows", (count * rows, padded_cols))
+    for index, radiance in enumerate(fields):
+        field = np.asarray(radiance, dtype=np.float32)
+        if field.shape != (rows, cols):
+            raise ValueError(f"row-blurred rate sums: fields of shapes {field.shape} and {(rows, cols)}")
+        if not _reflect_rows_checked(field, PAD_PX, stacked[index * rows:(index + 1) * rows]):
+            return None
+    spectrum = cv2.dft(stacked, dst=stacked, flags=cv2.DFT_ROWS)
+    spectrum *= _row_otf_packed(camera, padded_cols)
+    blurred = cv2.idft(spectrum, dst=spectrum, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    gain = np.ascontiguousarray(block_gain, dtype=np.float32)
+    results = []
+    for index in range(count):
+        plain = scratch(f"psf_smear_rate_plain_{index}", (rows, cols))
+        ramp = scratch(f"psf_smear_rate_ramp_{index}", (rows, cols))
+        largest = _clipped_block_rate_sums(blurred[index * rows:(index + 1) * rows, PAD_PX:PAD_PX + cols], gain,
+                                           np.float32(offset_e_per_s), bool(offset_e_per_s), np.float32(binning_rows),
+                                           np.float32(binning_rows * (binning_rows + 1) / 2), toward_last_row,
+                                           plain, ramp)
+        if not np.isfinite(largest):
+            return None
+        results.append((plain, ramp, float(largest)))
+    return results
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _reflect_rows_checked(field, pad_px, out):
+    """Each row of ``field`` into ``out``, mirrored beyond its ends; False when a value is not finite or negative.
+
+    ``pad_px`` columns before the row and on to ``out``'s width after it, as OpenCV's BORDER_REFLECT
+    (``f e d | d e f``).
+    """
+    rows, cols = field.shape
+    right = out.shape[1] - pad_px - cols
+    good = True
+    for row in range(rows):
+        values, target = field[row], out[row]
+        for col in range(cols):
+            value = values[col]
+            if not value >= 0.0 or value == np.inf:
+                good = False
+            target[pad_px + col] = value
+        for col in range(pad_px):
+            target[col] = values[pad_px - 1 - col]
+        for col in range(right):
+            target[pad_px + cols + col] = values[cols - 1 - col]
+    return good
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _clipped_block_rate_sums(blurred, gain, offset, with_offset, plain_factor, ramp_factor, toward_last_row, plain,
+                             ramp):
+    """:func:`row_blurred_block_rate_sums`' pass over one field's blurred rows.
+
+    ``r = max(B, 0) x g (+ offset)``, ``plain = plain_factor x r``, ``ramp = ramp_factor x r`` (rows reversed
+    unless ``toward_last_row``); returns the largest ``max(B, 0)``, or NaN when a rate is not finite or negative.
+    """
+    rows, cols = blurred.shape
+    zero = np.float32(0.0)
+    largest = -np.inf
+    good = True
+    for row in range(rows):
+        target = row if toward_last_row else rows - 1 - row
+        values, gains, out_plain, out_ramp = blurred[row], gain[row], plain[target], ramp[target]
+        for col in range(cols):
+            value = values[col]
+            if value <= zero:         # np.maximum(B, 0)'s bits: -0.0 gives +0.0 (SIMD max), a NaN stays NaN
+                value = zero
+            largest = max(largest, value)
+            rate = value * gains[col]
+            if with_offset:
+                rate = rate + offset
+            if not (rate >= zero and rate < np.inf):
+                good = False
+            out_plain[col] = rate * plain_factor
+            out_ramp[col] = rate * ramp_factor
+    return largest if good else np.nan
+
+
 def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:
     """The three period fields seen through the optics.
 
