@@ -238,6 +238,9 @@ class GroundMap:
         return interpolate_nodes_window(self._nodes, self._step, row0, row1, col0, col1)
 
 
+#: Scratch names of a coarse map's upsampled planes (P_c, P_r, d_z): dead once the map is divided, so the
+#: next full-frame intermediate of the same shape (a pose's upsampled photometric ratio) reuses one of them.
+COARSE_PLANE_SCRATCH = ("map_col", "map_row", "map_dz")
 EXACT_STRIP_ROWS = 128   # rows per strip of the exact map (1.5 MiB of rays): read from memory once, reused from cache
 
 
@@ -294,7 +297,7 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         dz_nodes = nodes[..., 2]
         planes = [col0 * dz_nodes - k * nodes[..., 0], row0 * dz_nodes + k * nodes[..., 1], dz_nodes]
         col_num, row_num, dz = (upsample_nodes(plane, grid_step_px, height, width, scratch_name=name)
-                                for plane, name in zip(planes, ("map_col", "map_row", "map_dz")))
+                                for plane, name in zip(planes, COARSE_PLANE_SCRATCH))
         # interpolation is a convex combination: all nodes below the horizon -> every pixel is
         unit_dz_max = float(np.max(dz_nodes / np.linalg.norm(nodes, axis=-1)))
         any_sky = altitude <= 0 or unit_dz_max >= -HORIZON_EPSILON

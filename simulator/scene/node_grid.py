@@ -106,6 +106,11 @@ def interpolate_nodes_window(node_values: np.ndarray, step_px: int, row0: int, r
     values = np.asarray(node_values, dtype=np.float64)
     fr = fr[..., None] if values.ndim == 3 else fr
     fc = fc[None, ...] if values.ndim == 3 else fc.T
-    top = values[r][:, c] * (1 - fc) + values[r][:, c + 1] * fc
-    bottom = values[r + 1][:, c] * (1 - fc) + values[r + 1][:, c + 1] * fc
-    return (top * (1 - fr) + bottom * fr).astype(np.float32)
+    if r.size == 0 or c.size == 0:
+        return np.empty((r.size, c.size) + values.shape[2:], dtype=np.float32)
+    # each node row the window reads, interpolated along the window's columns once (not once per pixel row)
+    first = int(r[0])
+    band = values[first:int(r[-1]) + 2]
+    across = band[:, c] * (1 - fc) + band[:, c + 1] * fc
+    local = r - first
+    return (across[local] * (1 - fr) + across[local + 1] * fr).astype(np.float32)

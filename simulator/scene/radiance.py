@@ -129,6 +129,9 @@ def casters(pose: Pose, config) -> list[shadow.Caster]:
     return result
 
 
+RATIO_SCRATCH = ground_mapping.COARSE_PLANE_SCRATCH[0]
+
+
 def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
     """DIMES/MOC photometric ratio of every pixel.
@@ -165,8 +168,9 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
         cos_emission, cos_phase = ground_mapping.view_cosines(camera, pose, ground_map, sun)
         return photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, float(sun[2]), moc_value)
     view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
+    # upsampled into the ground map's numerator plane: dead since the map's division, and recently in cache
     return ground_mapping.field_at_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px,
-                                          scratch_name="photometric_ratio")
+                                          scratch_name=RATIO_SCRATCH)
 
 
 def terrain_moc_model(terrain: Terrain) -> float:
