@@ -890,8 +890,10 @@ def row_blurred_block_rate_sums(fields: tuple[np.ndarray, ...], camera: Camera, 
         field = np.asarray(radiance, dtype=np.float32)
         if field.shape != (rows, cols):
             raise ValueError(f"row-blurred rate sums: fields of shapes {field.shape} and {(rows, cols)}")
-        if not _reflect_rows_checked(field, PAD_PX, stacked[index * rows:(index + 1) * rows]):
+        if not np.isfinite(field.sum()) or float(field.min()) < 0.0:     # as _checked: the steps repair or refuse
             return None
+        cv2.copyMakeBorder(field, 0, 0, PAD_PX, padded_cols - cols - PAD_PX, cv2.BORDER_REFLECT,
+                           dst=stacked[index * rows:(index + 1) * rows])
     spectrum = cv2.dft(stacked, dst=stacked, flags=cv2.DFT_ROWS)
     spectrum *= _row_otf_packed(camera, padded_cols)
     blurred = cv2.idft(spectrum, dst=spectrum, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
@@ -900,38 +902,15 @@ def row_blurred_block_rate_sums(fields: tuple[np.ndarray, ...], camera: Camera, 
     for index in range(count):
         plain = scratch(f"psf_smear_rate_plain_{index}", (rows, cols))
         ramp = scratch(f"psf_smear_rate_ramp_{index}", (rows, cols))
-        largest = _clipped_block_rate_sums(blurred[index * rows:(index + 1) * rows, PAD_PX:PAD_PX + cols], gain,
-                                           np.float32(offset_e_per_s), bool(offset_e_per_s), np.float32(binning_rows),
-                                           np.float32(binning_rows * (binning_rows + 1) / 2), toward_last_row,
-                                           plain, ramp)
-        if not np.isfinite(largest):
+        field_blurred = blurred[index * rows:(index + 1) * rows, PAD_PX:PAD_PX + cols]
+        _clipped_block_rate_sums(field_blurred, gain, np.float32(offset_e_per_s), bool(offset_e_per_s),
+                                 np.float32(binning_rows), np.float32(binning_rows * (binning_rows + 1) / 2),
+                                 toward_last_row, plain, ramp)
+        largest = max(float(field_blurred.max()), 0.0)      # the clipped field's (NaN propagates)
+        if not (np.isfinite(largest) and np.isfinite(plain.sum())) or float(plain.min()) < 0.0:
             return None
-        results.append((plain, ramp, float(largest)))
+        results.append((plain, ramp, largest))
     return results
-
-
-@njit(cache=True, nogil=True, boundscheck=False)
-def _reflect_rows_checked(field, pad_px, out):
-    """Each row of ``field`` into ``out``, mirrored beyond its ends; False when a value is not finite or negative.
-
-    ``pad_px`` columns before the row and on to ``out``'s width after it, as OpenCV's BORDER_REFLECT
-    (``f e d | d e f``).
-    """
-    rows, cols = field.shape
-    right = out.shape[1] - pad_px - cols
-    good = True
-    for row in range(rows):
-        values, target = field[row], out[row]
-        for col in range(cols):
-            value = values[col]
-            if not value >= 0.0 or value == np.inf:
-                good = False
-            target[pad_px + col] = value
-        for col in range(pad_px):
-            target[col] = values[pad_px - 1 - col]
-        for col in range(right):
-            target[pad_px + cols + col] = values[cols - 1 - col]
-    return good
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
@@ -940,28 +919,26 @@ def _clipped_block_rate_sums(blurred, gain, offset, with_offset, plain_factor, r
     """:func:`row_blurred_block_rate_sums`' pass over one field's blurred rows.
 
     ``r = max(B, 0) x g (+ offset)``, ``plain = plain_factor x r``, ``ramp = ramp_factor x r`` (rows reversed
-    unless ``toward_last_row``); returns the largest ``max(B, 0)``, or NaN when a rate is not finite or negative.
+    unless ``toward_last_row``). ``max(B, 0)`` as np.maximum's bits: ``-0.0`` gives ``+0.0`` (its SIMD max),
+    a NaN stays NaN.
     """
     rows, cols = blurred.shape
     zero = np.float32(0.0)
-    largest = -np.inf
-    good = True
     for row in range(rows):
         target = row if toward_last_row else rows - 1 - row
         values, gains, out_plain, out_ramp = blurred[row], gain[row], plain[target], ramp[target]
-        for col in range(cols):
-            value = values[col]
-            if value <= zero:         # np.maximum(B, 0)'s bits: -0.0 gives +0.0 (SIMD max), a NaN stays NaN
-                value = zero
-            largest = max(largest, value)
-            rate = value * gains[col]
-            if with_offset:
-                rate = rate + offset
-            if not (rate >= zero and rate < np.inf):
-                good = False
-            out_plain[col] = rate * plain_factor
-            out_ramp[col] = rate * ramp_factor
-    return largest if good else np.nan
+        if with_offset:
+            for col in range(cols):
+                value = values[col]
+                rate = (zero if value <= zero else value) * gains[col] + offset
+                out_plain[col] = rate * plain_factor
+                out_ramp[col] = rate * ramp_factor
+        else:
+            for col in range(cols):
+                value = values[col]
+                rate = (zero if value <= zero else value) * gains[col]
+                out_plain[col] = rate * plain_factor
+                out_ramp[col] = rate * ramp_factor
 
 
 def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:

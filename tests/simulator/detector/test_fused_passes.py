@@ -183,16 +183,12 @@ def test_per_block_smear_fields_give_the_chain_the_bits_of_the_step_by_step_path
 
 
 def test_the_block_smear_pass_clips_as_numpy_does():
-    """Ringing below 0 reads 0, a -0.0 reads +0.0 (np.maximum's bits), and a NaN rate reports NaN."""
+    """Ringing below 0 reads 0 and a -0.0 reads +0.0 (np.maximum's bits)."""
     blurred = np.array([[-2.0, -0.0, 0.0, 3.0]], dtype=np.float32)
     gain = np.full_like(blurred, 2.0)
     plain, ramp = np.empty_like(blurred), np.empty_like(blurred)
-    largest = psf._clipped_block_rate_sums(blurred, gain, np.float32(0.0), False, np.float32(4.0), np.float32(10.0),
-                                           True, plain, ramp)
+    psf._clipped_block_rate_sums(blurred, gain, np.float32(0.0), False, np.float32(4.0), np.float32(10.0), True,
+                                 plain, ramp)
     rate = np.maximum(blurred, np.float32(0.0)) * gain
     np.testing.assert_array_equal(plain.view(np.uint32), (rate * np.float32(4.0)).view(np.uint32))
     np.testing.assert_array_equal(ramp.view(np.uint32), (rate * np.float32(10.0)).view(np.uint32))
-    assert largest == 3.0
-    blurred[0, 3] = np.nan
-    assert np.isnan(psf._clipped_block_rate_sums(blurred, gain, np.float32(0.0), False, np.float32(4.0),
-                                                 np.float32(10.0), True, plain, ramp))
