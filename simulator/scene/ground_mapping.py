@@ -11,6 +11,8 @@ interpolated bilinearly (``cv2.resize``) to every pixel *before* the division by
 scaled to unit boresight component, which makes them exactly affine in pixel coordinates for a
 distortion-free camera, so the interpolation is exact there and the horizon stays sharp (the division is
 per pixel). Lens distortion adds a small smooth residual (measured by the tests and the benchmark).
+With no sky in view the interpolation and the divisions are one compiled pass that writes only the map
+(:func:`simulator.scene.node_grid.divided_node_planes`: OpenCV's arithmetic, the same bits).
 ``grid_step_px = 0`` uses every cached pixel ray (reference): the numerators ``P_c``, ``P_r`` and
 ``d_z`` are linear forms of the camera-frame ray, so each is one ``cv2.transform`` of the cached
 (H, W, 3) float32 rays with a 1 x 3 matrix (the rotation folded into the form) instead of rotating
