@@ -544,11 +544,15 @@ def binned_rate_sums(state: ChainState) -> None:
         sums["flush"] = sums["transfer"] = (zero, zero, zero, 0.0)
         state.timing = camera.timing.model_copy(update={"fast_flush_s": 0.0, "frame_transfer_s": 0.0})
     else:
+        block_smear = _row_blurred_block_smear(state, gains)
         for period in ("flush", "transfer"):
             radiance = getattr(fields, period)
             shared = [other for other in ("exposure", "flush") if other in sums and radiance is getattr(fields, other)]
             if shared:
                 sums[period] = sums[shared[0]]
+                continue
+            if id(radiance) in block_smear:
+                sums[period] = block_smear[id(radiance)]
                 continue
             if np.shape(radiance) != full_frame:        # per block: the full-resolution stages' way
                 field = psf.blur_field_along_rows(radiance, camera) if effects.optics_psf else radiance
@@ -570,6 +574,32 @@ def binned_rate_sums(state: ChainState) -> None:
         for block_sums in {id(value): value for value in sums.values()}.values():
             _add_hot_pixels(block_sums[0], block_sums[1], hot, camera)
     state.block_sums = sums
+
+
+def _row_blurred_block_smear(state: ChainState, gains: dict) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+    """The block sums of the smear fields given per binning block, by :func:`psf.row_blurred_block_rate_sums`.
+
+    ``id(field) -> (plain, ramp, plain, largest)`` as :func:`binned_rate_sums` keeps them: the distinct
+    per-block flush and transfer fields through one row transform, with the optics' blur on and no hot
+    pixels; empty otherwise, or when a field is not finite or negative (then each goes the step-by-step
+    way: :func:`psf.blur_field_along_rows`, :func:`generation_rate`, the sums of its block-mean rate).
+    """
+    camera, effects, fields = state.camera, state.effects, state.radiance
+    if not effects.optics_psf or (state.artefacts is not None and state.artefacts.hot_pixels is not None):
+        return {}
+    distinct: list[np.ndarray] = []
+    for period in ("flush", "transfer"):
+        radiance = getattr(fields, period)
+        if np.shape(radiance) == state.block_shape and not any(radiance is other for other in distinct):
+            distinct.append(radiance)
+    if not distinct:
+        return {}
+    sums = psf.row_blurred_block_rate_sums(tuple(distinct), camera, _block_gain(state, gains),
+                                           state.dark_rate_e_per_s, camera.binning_rows,
+                                           camera.timing.transfer_toward_last_row)
+    if sums is None:
+        return {}
+    return {id(field): (plain, ramp, plain, largest) for field, (plain, ramp, largest) in zip(distinct, sums)}
 
 
 def _max_gain(state: ChainState) -> float:

@@ -843,6 +843,104 @@ def row_blurred_block_sums(block_sums: np.ndarray, camera: Camera) -> np.ndarray
     return blurred[:, PAD_PX:PAD_PX + cols]
 
 
+def row_blurred_block_rate_sums(fields: tuple[np.ndarray, ...], camera: Camera, block_gain: np.ndarray,
+                                offset_e_per_s: float, binning_rows: int, toward_last_row: bool,
+                                ) -> list[tuple[np.ndarray, np.ndarray, float]] | None:
+    """The rate block sums of smear fields given per binning block, through the line-spread function.
+
+    Per field ``F`` (block means): the chain's ``rate = max(L(F), 0) x block gain + offset``, with ``L``
+    :func:`blur_field_along_rows`' filter, and the sums of a block-mean rate, ``b x rate`` and
+    ``b (b + 1) / 2 x rate`` (:func:`simulator.detector.charge_transfer.block_rate_sums`' plain and
+    ramp-weighted sums of ``b`` equal rows), in the order the charge moves (blocks reversed when it moves
+    toward the first row). The same float32 operations as the three steps one after the other, but the
+    fields share one row transform (each row is transformed alone: stacking rows changes no bit) and
+    the clip, the rate and both sums are one compiled pass.
+
+    Parameters
+    ----------
+    fields : tuple of one or two ndarrays, shape (H / b, W)
+        Smear-period radiance per binning block (W m^-2 sr^-1 um^-1).
+    camera : Camera
+        The camera.
+    block_gain : ndarray, shape (H / b, W), float32
+        Mean gain of each block (e-/s per W m^-2 sr^-1 um^-1), image order.
+    offset_e_per_s : float
+        Rate added to every pixel (dark current, e-/s).
+    binning_rows : int
+        Rows per block ``b``.
+    toward_last_row : bool
+        The charge moves toward the last row.
+
+    Returns
+    -------
+    list of (plain, ramp, largest) or None
+        Per field: the plain and ramp-weighted sums (float32 (H / b, W), e-/s; this thread's scratch
+        arrays, valid until the next call) and the largest blurred radiance; None when a field or a rate
+        is not finite, or negative (the caller's step-by-step path repairs or reports it).
+    """
+    import scipy.fft
+
+    count = len(fields)
+    if not 1 <= count <= 2:
+        raise ValueError(f"row-blurred rate sums: one or two smear fields; got {count}")
+    rows, cols = np.shape(fields[0])
+    padded_cols = scipy.fft.next_fast_len(cols + 2 * PAD_PX)
+    stacked = scratch("psf_smear_rows", (count * rows, padded_cols))
+    for index, radiance in enumerate(fields):
+        field = np.asarray(radiance, dtype=np.float32)
+        if field.shape != (rows, cols):
+            raise ValueError(f"row-blurred rate sums: fields of shapes {field.shape} and {(rows, cols)}")
+        if not np.isfinite(field.sum()) or float(field.min()) < 0.0:     # as _checked: the steps repair or refuse
+            return None
+        cv2.copyMakeBorder(field, 0, 0, PAD_PX, padded_cols - cols - PAD_PX, cv2.BORDER_REFLECT,
+                           dst=stacked[index * rows:(index + 1) * rows])
+    spectrum = cv2.dft(stacked, dst=stacked, flags=cv2.DFT_ROWS)
+    spectrum *= _row_otf_packed(camera, padded_cols)
+    blurred = cv2.idft(spectrum, dst=spectrum, flags=cv2.DFT_ROWS | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    gain = np.ascontiguousarray(block_gain, dtype=np.float32)
+    results = []
+    for index in range(count):
+        plain = scratch(f"psf_smear_rate_plain_{index}", (rows, cols))
+        ramp = scratch(f"psf_smear_rate_ramp_{index}", (rows, cols))
+        field_blurred = blurred[index * rows:(index + 1) * rows, PAD_PX:PAD_PX + cols]
+        _clipped_block_rate_sums(field_blurred, gain, np.float32(offset_e_per_s), bool(offset_e_per_s),
+                                 np.float32(binning_rows), np.float32(binning_rows * (binning_rows + 1) / 2),
+                                 toward_last_row, plain, ramp)
+        largest = max(float(field_blurred.max()), 0.0)      # the clipped field's (NaN propagates)
+        if not (np.isfinite(largest) and np.isfinite(plain.sum())) or float(plain.min()) < 0.0:
+            return None
+        results.append((plain, ramp, largest))
+    return results
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _clipped_block_rate_sums(blurred, gain, offset, with_offset, plain_factor, ramp_factor, toward_last_row, plain,
+                             ramp):
+    """:func:`row_blurred_block_rate_sums`' pass over one field's blurred rows.
+
+    ``r = max(B, 0) x g (+ offset)``, ``plain = plain_factor x r``, ``ramp = ramp_factor x r`` (rows reversed
+    unless ``toward_last_row``). ``max(B, 0)`` as np.maximum's bits: ``-0.0`` gives ``+0.0`` (its SIMD max),
+    a NaN stays NaN.
+    """
+    rows, cols = blurred.shape
+    zero = np.float32(0.0)
+    for row in range(rows):
+        target = row if toward_last_row else rows - 1 - row
+        values, gains, out_plain, out_ramp = blurred[row], gain[row], plain[target], ramp[target]
+        if with_offset:
+            for col in range(cols):
+                value = values[col]
+                rate = (zero if value <= zero else value) * gains[col] + offset
+                out_plain[col] = rate * plain_factor
+                out_ramp[col] = rate * ramp_factor
+        else:
+            for col in range(cols):
+                value = values[col]
+                rate = (zero if value <= zero else value) * gains[col]
+                out_plain[col] = rate * plain_factor
+                out_ramp[col] = rate * ramp_factor
+
+
 def blurred_fields(fields: RadianceFields, camera: Camera) -> RadianceFields:
     """The three period fields seen through the optics.
 

@@ -109,7 +109,13 @@ def period_windows(camera: Camera, exposure_start_s: float) -> dict[str, tuple[f
 
 
 def _mask_union(pose_fields: list[PoseField]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Union of the sky, outside-terrain and heat-shield masks of pose fields, each (H, W) bool."""
+    """Union of the sky, outside-terrain and heat-shield masks of pose fields, each (H, W) bool.
+
+    One field gives its own masks (new arrays of its render, written by nothing after it; no copy).
+    """
+    if len(pose_fields) == 1:
+        only = pose_fields[0]
+        return only.sky, only.outside, (np.zeros_like(only.sky) if only.heat_shield is None else only.heat_shield)
     sky = pose_fields[0].sky.copy()
     outside = pose_fields[0].outside.copy()
     shield = np.zeros_like(sky)

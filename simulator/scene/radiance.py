@@ -36,6 +36,7 @@ from simulator.scene import (
     atmosphere,
     ground_mapping,
     heat_shield,
+    node_grid,
     photometry,
     relief,
     resample,
@@ -129,6 +130,9 @@ def casters(pose: Pose, config) -> list[shadow.Caster]:
     return result
 
 
+RATIO_SCRATCH = ground_mapping.COARSE_PLANE_SCRATCH[0]
+
+
 def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
                             sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
     """DIMES/MOC photometric ratio of every pixel.
@@ -164,9 +168,29 @@ def photometric_ratio_field(camera: Camera, pose: ground_mapping.CameraPose, gro
     if grid_step_px == 0:
         cos_emission, cos_phase = ground_mapping.view_cosines(camera, pose, ground_map, sun)
         return photometry.photometric_ratio_from_cosines(cos_emission, cos_phase, float(sun[2]), moc_value)
+    # upsampled into the ground map's numerator plane: dead since the map's division, and recently in cache
+    return ground_mapping.field_at_pixels(photometric_ratio_nodes(camera, pose, ground_map, sun, moc_value, grid_step_px),
+                                          camera, grid_step_px, scratch_name=RATIO_SCRATCH)
+
+
+def photometric_ratio_nodes(camera: Camera, pose: ground_mapping.CameraPose, ground_map: ground_mapping.GroundMap,
+                            sun: np.ndarray, moc_value: float, grid_step_px: int) -> np.ndarray:
+    """The DIMES/MOC photometric ratio on the coarse node grid (:func:`photometric_ratio_field` before upsampling).
+
+    Parameters
+    ----------
+    camera, pose, ground_map, sun, moc_value
+        As :func:`photometric_ratio_field`.
+    grid_step_px : int
+        Node spacing (px), > 0.
+
+    Returns
+    -------
+    ndarray, shape (H / s + 2, W / s + 2), float32
+        The ratio at the nodes (:func:`simulator.scene.node_grid.node_positions`).
+    """
     view = ground_mapping.view_directions(camera, pose, ground_map, grid_step_px)
-    return ground_mapping.field_at_pixels(photometry.photometric_ratio(view, sun, moc_value), camera, grid_step_px,
-                                          scratch_name="photometric_ratio")
+    return photometry.photometric_ratio(view, sun, moc_value)
 
 
 def terrain_moc_model(terrain: Terrain) -> float:
@@ -196,6 +220,7 @@ HEAT_SHIELD_EDGE_SAMPLES = 3   # s x s sub-pixel rays on the heat-shield silhoue
 
 
 PIXEL_AREA_KERNEL = np.array([1.0 / 24.0, 11.0 / 12.0, 1.0 / 24.0], dtype=np.float32)
+PIXEL_AREA_TAPS = tuple(float(tap) for tap in PIXEL_AREA_KERNEL)
 
 
 def pixel_area_average(point_samples: np.ndarray) -> np.ndarray:
@@ -408,17 +433,24 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                               crop, may_leave_terrain=not inside,
                                               out=scratch("point_samples", gmap.col.shape)
                                               if area_filter or _sub_sample else None)
-    if area_filter:
+    irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
+    scale = irradiance / np.pi * (config.spectral_ratio if effects.spectral_ratio else 1.0)
+    moc_value = terrain_moc_model(terrain) if effects.photometric_correction else None
+    # no sky, coarse photometry: the pixel-area filter and the ratio's interpolation and product are one pass
+    fused_ratio = (area_filter and not gmap.any_sky and moc_value is not None and not config.atmosphere.enabled
+                   and photo_step > 0 and node_grid.fused_passes_match_opencv(*gmap.col.shape, photo_step,
+                                                                                PIXEL_AREA_TAPS))
+    if fused_ratio:
+        assert moc_value is not None
+        moc_if = node_grid.area_filtered_times_nodes(
+            moc_if, PIXEL_AREA_KERNEL, photometric_ratio_nodes(camera, cam, gmap, sun, moc_value / scale, photo_step),
+            photo_step)
+    elif area_filter:
         moc_if = pixel_area_average(moc_if)
         if gmap.any_sky:
             moc_if[gmap.sky] = 0.0        # no terrain bleeding across the horizon
 
-    irradiance = photometry.solar_band_irradiance_w_m2_um(config.sun_distance_au)
-    scale = irradiance / np.pi * (config.spectral_ratio if effects.spectral_ratio else 1.0)
     radiance = moc_if
-    moc_value = None
-    if effects.photometric_correction:
-        moc_value = terrain_moc_model(terrain)
     added = None
     if config.atmosphere.enabled:
         # orbital haze out, descent gain and added light on the photometry grid (simulator.scene.atmosphere)
@@ -428,8 +460,10 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                                  photo_step)
         radiance *= gain
     elif moc_value is not None:      # effects.photometric_correction
-        # the radiometric scale is folded into the ratio (on the node grid when coarse): one full-frame pass
-        radiance *= photometric_ratio_field(camera, cam, gmap, sun, moc_value / scale, photo_step)
+        # the radiometric scale is folded into the ratio (on the node grid when coarse): one full-frame pass,
+        # or none when fused with the pixel-area filter above
+        if not fused_ratio:
+            radiance *= photometric_ratio_field(camera, cam, gmap, sun, moc_value / scale, photo_step)
     else:
         radiance *= np.float32(scale)
 

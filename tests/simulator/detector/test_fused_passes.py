@@ -136,3 +136,59 @@ def test_an_image_is_not_overwritten_by_the_next_one(mer_a):
         np.testing.assert_array_equal(array, copy)
     again = render_image(mer_a, first_fields, np.random.default_rng(19))
     np.testing.assert_array_equal(again.dn, first.dn)
+
+
+def _block_field(seed: int, mean: float) -> np.ndarray:
+    return _field(seed, mean).reshape(256, 4, 1024).mean(axis=1).astype(np.float32)
+
+
+@pytest.mark.parametrize("toward_last", [True, False])
+@pytest.mark.parametrize("offset", [0.0, 12.5])
+def test_block_smear_fields_share_one_row_transform_with_the_steps_bits(mer_a, toward_last, offset):
+    """Two per-block smear fields through one row transform: the bits of the line-spread blur, its clip, the rate
+    and the sums of a block-mean rate (b and b (b + 1) / 2 times it), one field after the other."""
+    flush, transfer = _block_field(24, 10.0), _block_field(25, 50.0)
+    flush[:, 300:340] = 0.0                      # a dark band by a bright line
+    flush[:, 340] = 1000.0
+    gain = pixel_gain(mer_a, per_block=True)
+    read = psf.row_blurred_block_rate_sums((flush, transfer), mer_a, gain, offset, 4, toward_last)
+    assert read is not None
+    for field, (plain, ramp, largest) in zip((flush, transfer), read):
+        blurred = psf.blur_field_along_rows(field, mer_a)
+        rate = blurred * gain
+        if offset:
+            rate += np.float32(offset)
+        if not toward_last:
+            rate = rate[::-1]
+        np.testing.assert_array_equal(plain, rate * np.float32(4))
+        np.testing.assert_array_equal(ramp, rate * np.float32(10))
+        assert largest == float(blurred.max())
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -1.0])
+def test_a_block_smear_field_that_is_not_finite_or_negative_is_left_to_the_steps(mer_a, bad):
+    flush = _block_field(26, 10.0)
+    flush[7, 9] = bad
+    gain = pixel_gain(mer_a, per_block=True)
+    assert psf.row_blurred_block_rate_sums((flush,), mer_a, gain, 0.0, 4, True) is None
+
+
+def test_per_block_smear_fields_give_the_chain_the_bits_of_the_step_by_step_path(mer_a, monkeypatch):
+    from simulator.detector import camera_chain
+
+    fields = RadianceFields(_block_field(27, 20.0), _field(28), _block_field(29, 40.0))
+    fused = expected_charge_e(mer_a, fields)
+    monkeypatch.setattr(camera_chain, "_row_blurred_block_smear", lambda state, gains: {})
+    np.testing.assert_array_equal(fused, expected_charge_e(mer_a, fields))
+
+
+def test_the_block_smear_pass_clips_as_numpy_does():
+    """Ringing below 0 reads 0 and a -0.0 reads +0.0 (np.maximum's bits)."""
+    blurred = np.array([[-2.0, -0.0, 0.0, 3.0]], dtype=np.float32)
+    gain = np.full_like(blurred, 2.0)
+    plain, ramp = np.empty_like(blurred), np.empty_like(blurred)
+    psf._clipped_block_rate_sums(blurred, gain, np.float32(0.0), False, np.float32(4.0), np.float32(10.0), True,
+                                 plain, ramp)
+    rate = np.maximum(blurred, np.float32(0.0)) * gain
+    np.testing.assert_array_equal(plain.view(np.uint32), (rate * np.float32(4.0)).view(np.uint32))
+    np.testing.assert_array_equal(ramp.view(np.uint32), (rate * np.float32(10.0)).view(np.uint32))

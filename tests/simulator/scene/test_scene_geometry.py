@@ -196,3 +196,23 @@ def test_exact_map_with_phase_cosines_matches_the_world_rays():
         assert with_phase.cos_phase is None       # handed over once: a second call recomputes
         _, again = ground_mapping.view_cosines(CAMERA, cam, with_phase, SUN)
         assert np.max(np.abs(again - (-world_rays @ SUN))) < 1e-6
+
+
+@pytest.mark.parametrize("window", [(0, 1024, 0, 1024), (300, 345, 500, 546), (1000, 1024, 0, 7), (5, 6, 7, 8)])
+def test_node_window_interpolation_reproduces_an_affine_field_and_the_full_upsample(window):
+    """Bilinear interpolation reproduces an affine field exactly: every window of it reads the field's values at
+    its pixels, and agrees with the full-frame upsample (cv2.resize) on the window; channels stay separate."""
+    from simulator.scene.node_grid import interpolate_nodes_window, node_positions, upsample_nodes
+
+    step = 16
+    cols, rows = np.meshgrid(node_positions(1024, step), node_positions(1024, step))
+    nodes = np.stack([3.0 + 0.25 * cols - 0.5 * rows, -1.0 + 0.125 * rows], axis=-1)
+    row0, row1, col0, col1 = window
+    got = interpolate_nodes_window(nodes, step, row0, row1, col0, col1)
+    pixel_cols, pixel_rows = np.meshgrid(np.arange(col0, col1), np.arange(row0, row1))
+    want = np.stack([3.0 + 0.25 * pixel_cols - 0.5 * pixel_rows, -1.0 + 0.125 * pixel_rows], axis=-1)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-4)
+    full = upsample_nodes(nodes, step, 1024, 1024)[row0:row1, col0:col1]
+    np.testing.assert_allclose(got, full, rtol=1e-6, atol=1e-4)
+    np.testing.assert_array_equal(interpolate_nodes_window(nodes[..., 1], step, row0, row1, col0, col1), got[..., 1])
+    assert interpolate_nodes_window(nodes, step, row0, row0, col0, col1).shape == (0, col1 - col0, 2)
