@@ -672,3 +672,72 @@ def lobes_above(surface: np.ndarray, level: np.float32) -> int:
                             stack[size] = near_row * columns + near_column
                             size += 1
     return regions
+
+
+@numba.njit(cache=True)
+def inside_frame(map_x: np.ndarray, map_y: np.ndarray, last_column: np.float32, last_row: np.float32) -> np.ndarray:
+    """``(map_x >= 0) & (map_x <= last_column) & (map_y >= 0) & (map_y <= last_row)`` in one pass, as 0/1 uint8.
+
+    Parameters
+    ----------
+    map_x, map_y : ndarray, shape (rows, columns), float32
+        Image column and row of each rectified pixel (binned px).
+    last_column, last_row : float32
+        The image's last column and row (binned px).
+
+    Returns
+    -------
+    ndarray, shape (rows, columns), uint8
+        1 where the position lies on the image (NaN: 0, as numpy's comparisons).
+    """
+    rows, columns = map_x.shape
+    inside = np.empty((rows, columns), np.uint8)
+    for row in range(rows):
+        for column in range(columns):
+            x, y = map_x[row, column], map_y[row, column]
+            inside[row, column] = 1 if (x >= 0 and x <= last_column and y >= 0 and y <= last_row) else 0
+    return inside
+
+
+@numba.njit(cache=True)
+def cone_cells(cosines: np.ndarray, level: float, overshoot: float) -> tuple[bool, int, int, int, int]:
+    """``geometry._cone_cells``: the block of knot cells where ``max + overshoot (max - min) > level``.
+
+    Each cell's largest and smallest of its 4 x 4 knots (``cells = knots - 3`` per axis), the same float64
+    expression as the numpy definition (cv2.dilate / cv2.erode with a 4 x 4 kernel anchored at (0, 0)).
+
+    Parameters
+    ----------
+    cosines : ndarray, shape (K + 2, K + 2), float64
+        Cosine of each knot's ray to the cone's axis.
+    level : float
+        The test's level (the cone's cosine less the test margin).
+    overshoot : float
+        Largest Catmull-Rom overshoot, as a fraction of a cell's knot range.
+
+    Returns
+    -------
+    found : bool
+        Some cell passes.
+    first_row, end_row, first_column, end_column : int
+        The passing cells' bounding block (0 when none).
+    """
+    cells = cosines.shape[0] - 3
+    found = False
+    first_row, end_row, first_column, end_column = cells, 0, cells, 0
+    for row in range(cells):
+        for column in range(cells):
+            highest = cosines[row, column]
+            lowest = highest
+            for near_row in range(row, row + 4):
+                for near_column in range(column, column + 4):
+                    value = cosines[near_row, near_column]
+                    highest = max(highest, value)
+                    lowest = min(lowest, value)
+            if highest + overshoot * (highest - lowest) > level:
+                found = True
+                first_row, end_row = min(first_row, row), max(end_row, row + 1)
+                first_column, end_column = min(first_column, column), max(end_column, column + 1)
+    if not found:
+        return False, 0, 0, 0, 0
+    return True, first_row, end_row, first_column, end_column
