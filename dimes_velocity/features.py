@@ -19,6 +19,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from dimes_velocity import compiled
 from dimes_velocity.config import EstimatorConfig
 
 
@@ -259,19 +260,14 @@ class FeatureSelector:
                 interest = interest_window(image, config, top, bottom, left, right)
             else:
                 interest = interest[top:bottom, left:right]
-            row_edges = _edges(top, bottom, config.feature_grid)
-            column_edges = _edges(left, right, config.feature_grid)
-            scored = np.where(candidates[top:bottom, left:right], interest, -1.0)
-            for upper, lower in zip(row_edges[:-1], row_edges[1:]):
-                for first, last in zip(column_edges[:-1], column_edges[1:]):
-                    cell = scored[upper - top:lower - top, first - left:last - left]
-                    if cell.size == 0:
-                        continue
-                    index = int(cell.argmax())
-                    row, column = divmod(index, cell.shape[1])
-                    if cell[row, column] < 0:
-                        continue
-                    self._offers.append((float(cell[row, column]), first + column, upper + row))
+            # each grid cell's best allowed pixel (compiled: argmax of np.where(candidates, interest, -1) per cell)
+            row_edges = np.array(_edges(top, bottom, config.feature_grid)) - top
+            column_edges = np.array(_edges(left, right, config.feature_grid)) - left
+            scores, columns, rows = compiled.grid_maxima(np.ascontiguousarray(interest, dtype=np.float32),
+                                                         np.ascontiguousarray(candidates[top:bottom, left:right]),
+                                                         row_edges, column_edges)
+            self._offers = [(score, left + column, top + row)
+                            for score, column, row in zip(scores.tolist(), columns.tolist(), rows.tolist())]
             self._offers.sort(key=lambda offer: -offer[0])
         self.offered = len(self._offers)
         self._position = 0
