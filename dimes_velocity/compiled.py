@@ -787,3 +787,69 @@ def grid_maxima(interest: np.ndarray, candidates: np.ndarray, row_edges: np.ndar
             scores[kept], columns[kept], rows[kept] = best, best_column, best_row
             kept += 1
     return scores[:kept], columns[:kept], rows[:kept]
+
+
+@numba.njit(cache=True)
+def templates_statistics(image: np.ndarray, columns: np.ndarray, rows: np.ndarray, half: int,
+                         offsets: np.ndarray, norm: float) -> np.ndarray:
+    """``features.templates_statistics``: mean, standard deviation and detrended standard deviation of templates.
+
+    The same float64 operations as the numpy definition: whole-template sums and each template row's sum are
+    numpy's pairwise sums (:func:`pairwise_sum`), each column's sum runs down the rows in order (numpy's reduction
+    over a middle axis), the plane slopes are ``np.dot`` (BLAS ``ddot``, as numpy's ``@``) over ``norm``.
+
+    Parameters
+    ----------
+    image : ndarray, shape (N, M)
+        Rectified, flattened image (DN), any real dtype.
+    columns, rows : ndarray of int, shape (n,)
+        Template centres (px); every template lies inside the image.
+    half : int
+        Half size: the templates are (2 half + 1) x (2 half + 1) pixels.
+    offsets : ndarray, shape (2 half + 1,), float64
+        ``-half .. half``.
+    norm : float
+        ``(2 half + 1) * sum(offsets^2)``.
+
+    Returns
+    -------
+    ndarray, shape (n, 3), float64
+        Per template: mean, standard deviation, detrended standard deviation (DN).
+    """
+    side = 2 * half + 1
+    count = side * side
+    templates = len(columns)
+    out = np.empty((templates, 3))
+    patch = np.empty(count)
+    work = np.empty(count)
+    column_sums = np.empty(side)
+    row_sums = np.empty(side)
+    for k in range(templates):
+        top, left = rows[k] - half, columns[k] - half
+        for i in range(side):
+            for j in range(side):
+                patch[i * side + j] = np.float64(image[top + i, left + j])
+        mean = pairwise_sum(patch, 0, count) / count
+        for j in range(side):
+            total = patch[j]
+            for i in range(1, side):
+                total += patch[i * side + j]
+            column_sums[j] = total
+        for i in range(side):
+            row_sums[i] = pairwise_sum(patch, i * side, side)
+        slope_x = np.dot(column_sums, offsets) / norm
+        slope_y = np.dot(row_sums, offsets) / norm
+        for index in range(count):
+            deviation = patch[index] - mean
+            work[index] = deviation * deviation
+        spread = math.sqrt(pairwise_sum(work, 0, count) / count)
+        for i in range(side):
+            for j in range(side):
+                index = i * side + j
+                work[index] = ((patch[index] - mean) - slope_x * offsets[j]) - slope_y * offsets[i]
+        level = pairwise_sum(work, 0, count) / count
+        for index in range(count):
+            residual = work[index] - level
+            work[index] = residual * residual
+        out[k, 0], out[k, 1], out[k, 2] = mean, spread, math.sqrt(pairwise_sum(work, 0, count) / count)
+    return out

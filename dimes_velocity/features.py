@@ -167,11 +167,10 @@ def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> 
 
 def templates_statistics(image: np.ndarray, centres: list[tuple[int, int]],
                          half: int) -> list[tuple[float, float, float]]:
-    """:func:`template_statistics` of several templates, in fewer calls.
+    """:func:`template_statistics` of several templates, in one compiled call.
 
-    The same values: the same float64 operations on each template (a reduction over a C-contiguous template's
-    row of a ``(n, side * side)`` stack is the one over that template alone; the plane slopes are the same
-    per-template dot products).
+    The same values: :func:`compiled.templates_statistics` makes the same float64 operations on each template as
+    :func:`template_statistics` (numpy's pairwise sums, the column sums down the rows, the slopes' dot products).
 
     Parameters
     ----------
@@ -189,24 +188,11 @@ def templates_statistics(image: np.ndarray, centres: list[tuple[int, int]],
     """
     if not centres:
         return []
-    side = 2 * half + 1
-    count = side * side
     offsets, norm = _plane_offsets(half)
-    patches = np.stack([image[row - half: row + half + 1, column - half: column + half + 1]
-                        for column, row in centres]).astype(np.float64)             # (n, side, side)
-    templates = len(centres)
-    means = np.add.reduce(patches.reshape(templates, count), axis=1) / count
-    column_sums, row_sums = patches.sum(axis=1), patches.sum(axis=2)               # = patch.sum(axis=0 / 1)
-    slopes_x = np.array([float((column_sums[k] @ offsets) / norm) for k in range(templates)])
-    slopes_y = np.array([float((row_sums[k] @ offsets) / norm) for k in range(templates)])
-    centred = patches - means[:, None, None]
-    spreads = np.sqrt(np.add.reduce((centred * centred).reshape(templates, count), axis=1) / count)
-    residual = centred - slopes_x[:, None, None] * offsets[None, None, :]
-    residual -= slopes_y[:, None, None] * offsets[None, :, None]
-    residual -= (np.add.reduce(residual.reshape(templates, count), axis=1) / count)[:, None, None]
-    residual *= residual
-    detrended = np.sqrt(np.add.reduce(residual.reshape(templates, count), axis=1) / count)
-    return list(zip(means.tolist(), spreads.tolist(), detrended.tolist()))
+    columns = np.array([column for column, _ in centres], dtype=np.int64)
+    rows = np.array([row for _, row in centres], dtype=np.int64)
+    statistics = compiled.templates_statistics(np.asarray(image), columns, rows, half, offsets, norm)
+    return [(mean, std, detrended) for mean, std, detrended in statistics.tolist()]
 
 
 _STATISTICS_BATCH = 4       # offers whose contrast is measured together (a pair often stops after the first four)
