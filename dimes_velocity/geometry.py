@@ -128,7 +128,7 @@ def camera_pose(camera: Camera, attitude_quat: np.ndarray, altitude_m: float,
     model = camera.model.transformed(camera_to_world, origin)
     boresight = model.a / np.linalg.norm(model.a)
     return CameraPose(model=model, centre_m=model.c.copy(), boresight=boresight,
-                      off_nadir_rad=float(np.arccos(np.clip(-boresight[2], -1.0, 1.0))))
+                      off_nadir_rad=float(np.arccos(min(max(-float(boresight[2]), -1.0), 1.0))))
 
 
 def binned_focal_px(camera: Camera) -> float:
