@@ -54,13 +54,23 @@ def predicted_positions_m(measurements: DescentMeasurements) -> np.ndarray:
     ndarray, shape (K, 2)
         East and north positions (m); row 0 is zero.
     """
-    if all(image.imu_position_m is not None for image in measurements.images):
-        positions = np.array([np.asarray(image.imu_position_m, dtype=float)[:2] for image in measurements.images])
+    images = measurements.images
+    if all(image.imu_position_m is not None for image in images):
+        positions = np.array([np.asarray(image.imu_position_m, dtype=float)[:2] for image in images])
         return positions - positions[0]
-    times = np.array([image.time_s for image in measurements.images])
-    velocities = np.array([np.asarray(image.imu_velocity_mps, dtype=float)[:2] for image in measurements.images])
-    steps = 0.5 * (velocities[1:] + velocities[:-1]) * np.diff(times)[:, None]
-    return np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    # in Python floats, the same operations in the same order as the array form
+    # ``cumsum(0.5 * (v[1:] + v[:-1]) * diff(t))`` (a running sum from the first step)
+    times = [float(image.time_s) for image in images]
+    velocities = [np.asarray(image.imu_velocity_mps, dtype=float)[:2].tolist() for image in images]
+    east = north = 0.0
+    positions_list = [[0.0, 0.0]]
+    for k in range(len(images) - 1):
+        dt = times[k + 1] - times[k]
+        step_east = 0.5 * (velocities[k + 1][0] + velocities[k][0]) * dt
+        step_north = 0.5 * (velocities[k + 1][1] + velocities[k][1]) * dt
+        east, north = (step_east, step_north) if k == 0 else (east + step_east, north + step_north)
+        positions_list.append([east, north])
+    return np.array(positions_list)
 
 
 @dataclass(frozen=True)
