@@ -185,3 +185,18 @@ def test_compiled_inside_frame_is_the_four_comparisons():
     inside = compiled.inside_frame(map_x, map_y, np.float32(255.0), np.float32(255.0))
     expected = (map_x >= 0) & (map_x <= 255) & (map_y >= 0) & (map_y <= 255)
     assert inside.dtype == np.uint8 and np.array_equal(inside.view(bool), expected)
+
+
+def test_predicted_positions_are_the_numpy_trapezoid_bit_for_bit():
+    """The Python-float trapezoid gives the bits of ``cumsum(0.5 (v[1:] + v[:-1]) diff(t))`` (its definition)."""
+    rng = np.random.default_rng(14)
+    for _ in range(2000):
+        count = int(rng.integers(2, 6))
+        times = np.cumsum(rng.uniform(0.1, 5.0, count)) + rng.uniform(-10.0, 10.0)
+        velocities = rng.normal(size=(count, 3)) * 30.0
+        images = tuple(ImageMeasurement(float(t), np.array([1.0, 0, 0, 0]), np.zeros(3), 2000.0, velocity)
+                       for t, velocity in zip(times, velocities))
+        steps = 0.5 * (velocities[1:, :2] + velocities[:-1, :2]) * np.diff(times)[:, None]
+        expected = np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+        positions = geometry.predicted_positions_m(DescentMeasurements(images, np.array([0, 0, 1.0])))
+        assert positions.shape == expected.shape and np.array_equal(positions.view(np.uint64), expected.view(np.uint64))
