@@ -853,3 +853,38 @@ def templates_statistics(image: np.ndarray, columns: np.ndarray, rows: np.ndarra
             work[index] = residual * residual
         out[k, 0], out[k, 1], out[k, 2] = mean, spread, math.sqrt(pairwise_sum(work, 0, count) / count)
     return out
+
+
+@numba.njit(cache=True)
+def erode_columns(mask: np.ndarray, side: int) -> np.ndarray:
+    """Binary erosion along the columns by ``side`` (odd) pixels, outside the array counting as 0.
+
+    ``out[r, c] = 1`` when ``mask[r - half .. r + half, c]`` all lie inside the array and are 1 (``half = side // 2``):
+    the run of 1s down column ``c`` ending at row ``r + half`` is at least ``side`` long. One counter per column,
+    updated a row at a time (vectorised across the row), whatever ``side`` is.
+
+    Parameters
+    ----------
+    mask : ndarray, shape (rows, columns), uint8
+        0/1 values.
+    side : int
+        Odd length of the vertical structuring element (px).
+
+    Returns
+    -------
+    ndarray, shape (rows, columns), uint8
+        0/1, as ``cv2.erode`` with a ``(side, 1)`` kernel of ones and a constant 0 border.
+    """
+    rows, columns = mask.shape
+    half = side // 2
+    out = np.zeros((rows, columns), np.uint8)
+    runs = np.zeros(columns, np.int32)
+    for row in range(rows):
+        line = mask[row]
+        for column in range(columns):
+            runs[column] = (runs[column] + 1) * np.int32(line[column])
+        if row >= side - 1:
+            target = out[row - half]
+            for column in range(columns):
+                target[column] = np.uint8(runs[column] >= side)
+    return out

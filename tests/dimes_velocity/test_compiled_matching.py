@@ -296,3 +296,22 @@ def test_grid_maxima_is_the_per_cell_argmax_of_the_allowed_interest():
         for (score, column, row), (score_e, column_e, row_e) in zip(got, expected):
             assert (column, row) == (column_e, row_e)
             assert score == score_e or (np.isnan(score) and np.isnan(score_e))
+
+
+def test_square_erosion_is_opencvs_with_a_zero_border():
+    """The estimator's erosion (two run-counting passes) against ``cv2.erode`` by the square, outside = 0."""
+    import cv2
+
+    from dimes_velocity.estimator import _erode
+
+    rng = np.random.default_rng(13)
+    for trial in range(200):
+        rows, columns = (int(value) for value in rng.integers(1, 80, 2))
+        mask = rng.random((rows, columns)) < rng.uniform(0.6, 1.0)
+        if trial % 4 == 0:
+            mask[:] = True                                     # only the border erodes
+        half = int(rng.integers(0, 45))
+        kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
+        expected = cv2.erode(mask.view(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
+        eroded = _erode(mask, half)
+        assert eroded.dtype == bool and np.array_equal(eroded, expected)
