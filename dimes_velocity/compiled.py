@@ -672,3 +672,219 @@ def lobes_above(surface: np.ndarray, level: np.float32) -> int:
                             stack[size] = near_row * columns + near_column
                             size += 1
     return regions
+
+
+@numba.njit(cache=True)
+def inside_frame(map_x: np.ndarray, map_y: np.ndarray, last_column: np.float32, last_row: np.float32) -> np.ndarray:
+    """``(map_x >= 0) & (map_x <= last_column) & (map_y >= 0) & (map_y <= last_row)`` in one pass, as 0/1 uint8.
+
+    Parameters
+    ----------
+    map_x, map_y : ndarray, shape (rows, columns), float32
+        Image column and row of each rectified pixel (binned px).
+    last_column, last_row : float32
+        The image's last column and row (binned px).
+
+    Returns
+    -------
+    ndarray, shape (rows, columns), uint8
+        1 where the position lies on the image (NaN: 0, as numpy's comparisons).
+    """
+    rows, columns = map_x.shape
+    inside = np.empty((rows, columns), np.uint8)
+    for row in range(rows):
+        for column in range(columns):
+            x, y = map_x[row, column], map_y[row, column]
+            inside[row, column] = 1 if (x >= 0 and x <= last_column and y >= 0 and y <= last_row) else 0
+    return inside
+
+
+@numba.njit(cache=True)
+def cone_cells(cosines: np.ndarray, level: float, overshoot: float) -> tuple[bool, int, int, int, int]:
+    """``geometry._cone_cells``: the block of knot cells where ``max + overshoot (max - min) > level``.
+
+    Each cell's largest and smallest of its 4 x 4 knots (``cells = knots - 3`` per axis), the same float64
+    expression as the numpy definition (cv2.dilate / cv2.erode with a 4 x 4 kernel anchored at (0, 0)).
+
+    Parameters
+    ----------
+    cosines : ndarray, shape (K + 2, K + 2), float64
+        Cosine of each knot's ray to the cone's axis.
+    level : float
+        The test's level (the cone's cosine less the test margin).
+    overshoot : float
+        Largest Catmull-Rom overshoot, as a fraction of a cell's knot range.
+
+    Returns
+    -------
+    found : bool
+        Some cell passes.
+    first_row, end_row, first_column, end_column : int
+        The passing cells' bounding block (0 when none).
+    """
+    cells = cosines.shape[0] - 3
+    found = False
+    first_row, end_row, first_column, end_column = cells, 0, cells, 0
+    for row in range(cells):
+        for column in range(cells):
+            highest = cosines[row, column]
+            lowest = highest
+            for near_row in range(row, row + 4):
+                for near_column in range(column, column + 4):
+                    value = cosines[near_row, near_column]
+                    highest = max(highest, value)
+                    lowest = min(lowest, value)
+            if highest + overshoot * (highest - lowest) > level:
+                found = True
+                first_row, end_row = min(first_row, row), max(end_row, row + 1)
+                first_column, end_column = min(first_column, column), max(end_column, column + 1)
+    if not found:
+        return False, 0, 0, 0, 0
+    return True, first_row, end_row, first_column, end_column
+
+
+@numba.njit(cache=True)
+def grid_maxima(interest: np.ndarray, candidates: np.ndarray, row_edges: np.ndarray,
+                column_edges: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each grid cell's most interesting allowed pixel (``features.FeatureSelector``'s offers), in one pass.
+
+    The numpy definition: ``scored = np.where(candidates, interest, -1.0)``; per cell ``argmax`` (the first of
+    equal maxima in row-major order, or the first NaN), kept when its score is not negative. Cells are taken row by
+    row; empty cells are skipped.
+
+    Parameters
+    ----------
+    interest : ndarray, shape (rows, columns), float32
+        Interest of the window (its top-left is row 0, column 0).
+    candidates : ndarray, shape (rows, columns), bool
+        Where a centre is allowed.
+    row_edges, column_edges : ndarray of int
+        Cell boundaries in window coordinates (``cells + 1`` each).
+
+    Returns
+    -------
+    scores : ndarray, float64
+        Each kept cell's best score.
+    columns, rows : ndarray of int
+        Its position in the window (px).
+    """
+    cells = (len(row_edges) - 1) * (len(column_edges) - 1)
+    scores = np.empty(cells)
+    columns = np.empty(cells, np.int64)
+    rows = np.empty(cells, np.int64)
+    kept = 0
+    for cell_row in range(len(row_edges) - 1):
+        for cell_column in range(len(column_edges) - 1):
+            best = -np.inf
+            best_row = best_column = -1
+            for row in range(row_edges[cell_row], row_edges[cell_row + 1]):
+                for column in range(column_edges[cell_column], column_edges[cell_column + 1]):
+                    score = np.float64(interest[row, column]) if candidates[row, column] else -1.0
+                    if best_row < 0 or score > best or (score != score and best == best):   # the first NaN, as argmax
+                        best, best_row, best_column = score, row, column
+            if best_row < 0 or best < 0:
+                continue
+            scores[kept], columns[kept], rows[kept] = best, best_column, best_row
+            kept += 1
+    return scores[:kept], columns[:kept], rows[:kept]
+
+
+@numba.njit(cache=True)
+def templates_statistics(image: np.ndarray, columns: np.ndarray, rows: np.ndarray, half: int,
+                         offsets: np.ndarray, norm: float) -> np.ndarray:
+    """``features.templates_statistics``: mean, standard deviation and detrended standard deviation of templates.
+
+    The same float64 operations as the numpy definition: whole-template sums and each template row's sum are
+    numpy's pairwise sums (:func:`pairwise_sum`), each column's sum runs down the rows in order (numpy's reduction
+    over a middle axis), the plane slopes are ``np.dot`` (BLAS ``ddot``, as numpy's ``@``) over ``norm``.
+
+    Parameters
+    ----------
+    image : ndarray, shape (N, M)
+        Rectified, flattened image (DN), any real dtype.
+    columns, rows : ndarray of int, shape (n,)
+        Template centres (px); every template lies inside the image.
+    half : int
+        Half size: the templates are (2 half + 1) x (2 half + 1) pixels.
+    offsets : ndarray, shape (2 half + 1,), float64
+        ``-half .. half``.
+    norm : float
+        ``(2 half + 1) * sum(offsets^2)``.
+
+    Returns
+    -------
+    ndarray, shape (n, 3), float64
+        Per template: mean, standard deviation, detrended standard deviation (DN).
+    """
+    side = 2 * half + 1
+    count = side * side
+    templates = len(columns)
+    out = np.empty((templates, 3))
+    patch = np.empty(count)
+    work = np.empty(count)
+    column_sums = np.empty(side)
+    row_sums = np.empty(side)
+    for k in range(templates):
+        top, left = rows[k] - half, columns[k] - half
+        for i in range(side):
+            for j in range(side):
+                patch[i * side + j] = np.float64(image[top + i, left + j])
+        mean = pairwise_sum(patch, 0, count) / count
+        for j in range(side):
+            total = patch[j]
+            for i in range(1, side):
+                total += patch[i * side + j]
+            column_sums[j] = total
+        for i in range(side):
+            row_sums[i] = pairwise_sum(patch, i * side, side)
+        slope_x = np.dot(column_sums, offsets) / norm
+        slope_y = np.dot(row_sums, offsets) / norm
+        for index in range(count):
+            deviation = patch[index] - mean
+            work[index] = deviation * deviation
+        spread = math.sqrt(pairwise_sum(work, 0, count) / count)
+        for i in range(side):
+            for j in range(side):
+                index = i * side + j
+                work[index] = ((patch[index] - mean) - slope_x * offsets[j]) - slope_y * offsets[i]
+        level = pairwise_sum(work, 0, count) / count
+        for index in range(count):
+            residual = work[index] - level
+            work[index] = residual * residual
+        out[k, 0], out[k, 1], out[k, 2] = mean, spread, math.sqrt(pairwise_sum(work, 0, count) / count)
+    return out
+
+
+@numba.njit(cache=True)
+def erode_columns(mask: np.ndarray, side: int) -> np.ndarray:
+    """Binary erosion along the columns by ``side`` (odd) pixels, outside the array counting as 0.
+
+    ``out[r, c] = 1`` when ``mask[r - half .. r + half, c]`` all lie inside the array and are 1 (``half = side // 2``):
+    the run of 1s down column ``c`` ending at row ``r + half`` is at least ``side`` long. One counter per column,
+    updated a row at a time (vectorised across the row), whatever ``side`` is.
+
+    Parameters
+    ----------
+    mask : ndarray, shape (rows, columns), uint8
+        0/1 values.
+    side : int
+        Odd length of the vertical structuring element (px).
+
+    Returns
+    -------
+    ndarray, shape (rows, columns), uint8
+        0/1, as ``cv2.erode`` with a ``(side, 1)`` kernel of ones and a constant 0 border.
+    """
+    rows, columns = mask.shape
+    half = side // 2
+    out = np.zeros((rows, columns), np.uint8)
+    runs = np.zeros(columns, np.int32)
+    for row in range(rows):
+        line = mask[row]
+        for column in range(columns):
+            runs[column] = (runs[column] + 1) * np.int32(line[column])
+        if row >= side - 1:
+            target = out[row - half]
+            for column in range(columns):
+                target[column] = np.uint8(runs[column] >= side)
+    return out

@@ -163,12 +163,18 @@ def _all_agree(displacements_m: list, centres_px: list, count: int, tolerance_m:
 
 
 def _erode(mask: np.ndarray, half: int) -> np.ndarray:
-    """Pixels whose (2 half + 1)^2 neighbourhood is entirely inside ``mask`` (outside counts as False)."""
+    """Pixels whose (2 half + 1)^2 neighbourhood is entirely inside ``mask`` (outside counts as False).
+
+    ``cv2.erode`` by the square with a constant 0 border, separably: along the columns, then along the rows (the
+    columns of the transpose), each pass one run counter per column (:func:`compiled.erode_columns`): its cost does
+    not grow with the square (a 91 px square ~4x faster than OpenCV's).
+    """
     if half <= 0:
         return mask.copy()
-    kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
+    side = 2 * half + 1
     source = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)          # 0/1, no copy
-    return cv2.erode(source, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
+    down = compiled.erode_columns(source, side)
+    return cv2.transpose(compiled.erode_columns(cv2.transpose(down), side)).view(bool)
 
 
 def _shifted(mask: np.ndarray, shift_columns: int, shift_rows: int) -> np.ndarray:

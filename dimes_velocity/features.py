@@ -19,6 +19,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from dimes_velocity import compiled
 from dimes_velocity.config import EstimatorConfig
 
 
@@ -166,11 +167,10 @@ def template_statistics(image: np.ndarray, column: int, row: int, half: int) -> 
 
 def templates_statistics(image: np.ndarray, centres: list[tuple[int, int]],
                          half: int) -> list[tuple[float, float, float]]:
-    """:func:`template_statistics` of several templates, in fewer calls.
+    """:func:`template_statistics` of several templates, in one compiled call.
 
-    The same values: the same float64 operations on each template (a reduction over a C-contiguous template's
-    row of a ``(n, side * side)`` stack is the one over that template alone; the plane slopes are the same
-    per-template dot products).
+    The same values: :func:`compiled.templates_statistics` makes the same float64 operations on each template as
+    :func:`template_statistics` (numpy's pairwise sums, the column sums down the rows, the slopes' dot products).
 
     Parameters
     ----------
@@ -188,24 +188,11 @@ def templates_statistics(image: np.ndarray, centres: list[tuple[int, int]],
     """
     if not centres:
         return []
-    side = 2 * half + 1
-    count = side * side
     offsets, norm = _plane_offsets(half)
-    patches = np.stack([image[row - half: row + half + 1, column - half: column + half + 1]
-                        for column, row in centres]).astype(np.float64)             # (n, side, side)
-    templates = len(centres)
-    means = np.add.reduce(patches.reshape(templates, count), axis=1) / count
-    column_sums, row_sums = patches.sum(axis=1), patches.sum(axis=2)               # = patch.sum(axis=0 / 1)
-    slopes_x = np.array([float((column_sums[k] @ offsets) / norm) for k in range(templates)])
-    slopes_y = np.array([float((row_sums[k] @ offsets) / norm) for k in range(templates)])
-    centred = patches - means[:, None, None]
-    spreads = np.sqrt(np.add.reduce((centred * centred).reshape(templates, count), axis=1) / count)
-    residual = centred - slopes_x[:, None, None] * offsets[None, None, :]
-    residual -= slopes_y[:, None, None] * offsets[None, :, None]
-    residual -= (np.add.reduce(residual.reshape(templates, count), axis=1) / count)[:, None, None]
-    residual *= residual
-    detrended = np.sqrt(np.add.reduce(residual.reshape(templates, count), axis=1) / count)
-    return list(zip(means.tolist(), spreads.tolist(), detrended.tolist()))
+    columns = np.array([column for column, _ in centres], dtype=np.int64)
+    rows = np.array([row for _, row in centres], dtype=np.int64)
+    statistics = compiled.templates_statistics(np.asarray(image), columns, rows, half, offsets, norm)
+    return [(mean, std, detrended) for mean, std, detrended in statistics.tolist()]
 
 
 _STATISTICS_BATCH = 4       # offers whose contrast is measured together (a pair often stops after the first four)
@@ -259,19 +246,14 @@ class FeatureSelector:
                 interest = interest_window(image, config, top, bottom, left, right)
             else:
                 interest = interest[top:bottom, left:right]
-            row_edges = _edges(top, bottom, config.feature_grid)
-            column_edges = _edges(left, right, config.feature_grid)
-            scored = np.where(candidates[top:bottom, left:right], interest, -1.0)
-            for upper, lower in zip(row_edges[:-1], row_edges[1:]):
-                for first, last in zip(column_edges[:-1], column_edges[1:]):
-                    cell = scored[upper - top:lower - top, first - left:last - left]
-                    if cell.size == 0:
-                        continue
-                    index = int(cell.argmax())
-                    row, column = divmod(index, cell.shape[1])
-                    if cell[row, column] < 0:
-                        continue
-                    self._offers.append((float(cell[row, column]), first + column, upper + row))
+            # each grid cell's best allowed pixel (compiled: argmax of np.where(candidates, interest, -1) per cell)
+            row_edges = np.array(_edges(top, bottom, config.feature_grid)) - top
+            column_edges = np.array(_edges(left, right, config.feature_grid)) - left
+            scores, columns, rows = compiled.grid_maxima(np.ascontiguousarray(interest, dtype=np.float32),
+                                                         np.ascontiguousarray(candidates[top:bottom, left:right]),
+                                                         row_edges, column_edges)
+            self._offers = [(score, left + column, top + row)
+                            for score, column, row in zip(scores.tolist(), columns.tolist(), rows.tolist())]
             self._offers.sort(key=lambda offer: -offer[0])
         self.offered = len(self._offers)
         self._position = 0

@@ -31,6 +31,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from dimes_velocity import compiled
 from flight_interface import cahvor
 from flight_interface.camera import Camera
 from flight_interface.frames import quat_to_matrix
@@ -53,13 +54,23 @@ def predicted_positions_m(measurements: DescentMeasurements) -> np.ndarray:
     ndarray, shape (K, 2)
         East and north positions (m); row 0 is zero.
     """
-    if all(image.imu_position_m is not None for image in measurements.images):
-        positions = np.array([np.asarray(image.imu_position_m, dtype=float)[:2] for image in measurements.images])
+    images = measurements.images
+    if all(image.imu_position_m is not None for image in images):
+        positions = np.array([np.asarray(image.imu_position_m, dtype=float)[:2] for image in images])
         return positions - positions[0]
-    times = np.array([image.time_s for image in measurements.images])
-    velocities = np.array([np.asarray(image.imu_velocity_mps, dtype=float)[:2] for image in measurements.images])
-    steps = 0.5 * (velocities[1:] + velocities[:-1]) * np.diff(times)[:, None]
-    return np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    # in Python floats, the same operations in the same order as the array form
+    # ``cumsum(0.5 * (v[1:] + v[:-1]) * diff(t))`` (a running sum from the first step)
+    times = [float(image.time_s) for image in images]
+    velocities = [np.asarray(image.imu_velocity_mps, dtype=float)[:2].tolist() for image in images]
+    east = north = 0.0
+    positions_list = [[0.0, 0.0]]
+    for k in range(len(images) - 1):
+        dt = times[k + 1] - times[k]
+        step_east = 0.5 * (velocities[k + 1][0] + velocities[k][0]) * dt
+        step_north = 0.5 * (velocities[k + 1][1] + velocities[k][1]) * dt
+        east, north = (step_east, step_north) if k == 0 else (east + step_east, north + step_north)
+        positions_list.append([east, north])
+    return np.array(positions_list)
 
 
 @dataclass(frozen=True)
@@ -127,7 +138,7 @@ def camera_pose(camera: Camera, attitude_quat: np.ndarray, altitude_m: float,
     model = camera.model.transformed(camera_to_world, origin)
     boresight = model.a / np.linalg.norm(model.a)
     return CameraPose(model=model, centre_m=model.c.copy(), boresight=boresight,
-                      off_nadir_rad=float(np.arccos(np.clip(-boresight[2], -1.0, 1.0))))
+                      off_nadir_rad=float(np.arccos(min(max(-float(boresight[2]), -1.0), 1.0))))
 
 
 def binned_focal_px(camera: Camera) -> float:
@@ -275,6 +286,9 @@ def _segments(size: int, knots: int) -> tuple[tuple[int, int, int, np.ndarray, n
     return segments
 
 
+_UPSAMPLE_CHUNK_LINES = 512     # lines per column-pass chunk of _upsample: 1 MiB of float64 products at 256 columns
+
+
 def _upsample(size: int, knots: int, knot_values: np.ndarray,
               cells: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """Knot values (K+2, K+2, C) -> (C, size, size) float32 by separable Catmull-Rom (:func:`knot_operator`).
@@ -282,7 +296,10 @@ def _upsample(size: int, knots: int, knot_values: np.ndarray,
     One small matrix product per knot interval and axis (4 knots each), written straight into the
     output (``out=``): O(size^2) work, and no large BLAS call (a single big product may start BLAS
     threads that stall for ~20 ms on a busy machine). Both passes are 2-D products on contiguous
-    arrays: the row pass over all channels at once, the column pass over all channels' rows.
+    arrays: the row pass over all channels at once, the column pass over all channels' rows in chunks of
+    ``_UPSAMPLE_CHUNK_LINES`` lines, each converted to float32 while its float64 products are still in the cache
+    (one (C size, size) float64 product array is 3 MiB for six channels, beyond a core's 1 MiB L2; the same
+    products per pixel, so the same values).
 
     ``cells = (first row cell, end row cell, first column cell, end column cell)`` computes only the
     pixels of those knot intervals (the same products, fewer of them): (C, rows, columns) of that block.
@@ -304,17 +321,23 @@ def _upsample(size: int, knots: int, knot_values: np.ndarray,
         np.matmul(weights, flat[first: first + 4], out=rows[lo - row_lo: hi - row_lo])
     rows = np.ascontiguousarray(rows.reshape(row_count, extended, channels).transpose(2, 0, 1)).reshape(
         channels * row_count, extended)                                     # (C rows, K+2)
-    out = np.empty((channels * row_count, column_count))
-    for lo, hi, first, _, weights_t in column_segments:
-        np.matmul(rows[:, first: first + 4], weights_t, out=out[:, lo - column_lo: hi - column_lo])
-    return out.astype(np.float32).reshape(channels, row_count, column_count)
+    lines = channels * row_count
+    out = np.empty((lines, column_count), np.float32)
+    chunk = min(lines, _UPSAMPLE_CHUNK_LINES)
+    products = np.empty((chunk, column_count))
+    for start in range(0, lines, chunk):                 # float64 products of a chunk of lines, then float32
+        block = rows[start: start + chunk]
+        part = products[: len(block)]
+        for lo, hi, first, _, weights_t in column_segments:
+            np.matmul(block[:, first: first + 4], weights_t, out=part[:, lo - column_lo: hi - column_lo])
+        out[start: start + len(block)] = part
+    return out.reshape(channels, row_count, column_count)
 
 
 # Catmull-Rom weights of a cell sum to 1 with at most 0.28125 negative (1-D: -t (1 - t) / 2 <= 1/8 for each
 # axis; 2-D: (1 + 1/8) / 8 twice): an interpolated value is at most max + 0.28125 (max - min) of the cell's
 # 4 x 4 knots.
 _CATMULL_ROM_OVERSHOOT = 0.28125
-_KNOT_SUPPORT = np.ones((4, 4), np.uint8)      # a cell's 4 x 4 knots, from its first (anchor (0, 0))
 _CONE_TEST_MARGIN = 1e-6       # covers float64 rounding and the float32 map values
 
 
@@ -323,15 +346,10 @@ def _cone_cells(cosines: np.ndarray, threshold: float) -> tuple[int, int, int, i
 
     Outside the block no interpolated cosine can exceed ``threshold`` (None: nowhere).
     """
-    cells = len(cosines) - 3
-    # largest and smallest of every cell's 4 x 4 knots: (K+2, K+2) -> (K-1, K-1)
-    highest = cv2.dilate(cosines, _KNOT_SUPPORT, anchor=(0, 0))[:cells, :cells]
-    lowest = cv2.erode(cosines, _KNOT_SUPPORT, anchor=(0, 0))[:cells, :cells]
-    possible = highest + _CATMULL_ROM_OVERSHOOT * (highest - lowest) > threshold - _CONE_TEST_MARGIN
-    if not possible.any():
-        return None
-    rows, columns = np.flatnonzero(possible.any(axis=1)), np.flatnonzero(possible.any(axis=0))
-    return int(rows[0]), int(rows[-1]) + 1, int(columns[0]), int(columns[-1]) + 1
+    # every cell's largest and smallest of its 4 x 4 knots, tested in one compiled pass
+    found, first_row, end_row, first_column, end_column = compiled.cone_cells(
+        np.ascontiguousarray(cosines, dtype=np.float64), threshold - _CONE_TEST_MARGIN, _CATMULL_ROM_OVERSHOOT)
+    return (int(first_row), int(end_row), int(first_column), int(end_column)) if found else None
 
 
 _FIELD_RADIUS: dict[int, tuple[Camera, float]] = {}
@@ -517,7 +535,7 @@ def rectify_maps(requests: list[RectificationRequest], camera: Camera, size: int
         map_x, map_y = maps[2 * index], maps[2 * index + 1]
         rows_ok = usable[:-3] & usable[1:-2] & usable[2:-1] & usable[3:]
         cells = rows_ok[:, :-3] & rows_ok[:, 1:-2] & rows_ok[:, 2:-1] & rows_ok[:, 3:]     # (K-1, K-1)
-        visible = (map_x >= 0) & (map_x <= n_cols - 1) & (map_y >= 0) & (map_y <= n_rows - 1)
+        visible = compiled.inside_frame(map_x, map_y, np.float32(n_cols - 1), np.float32(n_rows - 1)).view(bool)
         if not cells.all():
             counts = np.bincount(cell_of_pixel(size, knots), minlength=knots - 1)
             visible &= np.repeat(np.repeat(cells, counts, axis=0), counts, axis=1)

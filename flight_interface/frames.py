@@ -14,6 +14,7 @@ Conventions (used everywhere in the project):
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -167,13 +168,34 @@ def quat_to_matrix(quaternion: np.ndarray) -> np.ndarray:
     ndarray, shape (..., 3, 3)
         Rotation matrices.
     """
-    unit = quat_normalize(quaternion)
+    values = np.asarray(quaternion, dtype=float)
+    if values.shape == (4,):
+        return _quat_to_matrix_one(values)
+    unit = quat_normalize(values)
     w, x, y, z = unit[..., 0], unit[..., 1], unit[..., 2], unit[..., 3]
     matrix = np.empty(unit.shape[:-1] + (3, 3))
     matrix[..., 0, 0], matrix[..., 0, 1], matrix[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
     matrix[..., 1, 0], matrix[..., 1, 1], matrix[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
     matrix[..., 2, 0], matrix[..., 2, 1], matrix[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
     return matrix
+
+
+def _quat_to_matrix_one(quaternion: np.ndarray) -> np.ndarray:
+    """:func:`quat_to_matrix` of one quaternion (shape (4,)) in Python floats, ~10x fewer calls.
+
+    The same IEEE operations in the same order: the squared norm summed left to right (numpy's reduction of four
+    values), each component divided by the norm, the sign of w made non-negative, the same matrix expressions.
+    """
+    w, x, y, z = quaternion.tolist()
+    norm = math.sqrt(((w * w + x * x) + y * y) + z * z)
+    if not (norm > 0 and math.isfinite(norm)):
+        raise ValueError(f"quaternion (w, x, y, z) must be finite with a non-zero norm; got {quaternion!r}")
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:

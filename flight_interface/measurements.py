@@ -5,6 +5,7 @@ up; attitude is the lander body-to-world quaternion ``(w, x, y, z)``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,7 +141,7 @@ def _vector(value, length: int, name: str) -> np.ndarray:
     array = np.asarray(value, dtype=float) if value is not None else None
     if array is None or array.shape != (length,):
         raise MeasurementError(f"{name} must be {length} numbers; got {value!r}")
-    if not np.all(np.isfinite(array)):
+    if not all(map(math.isfinite, array.tolist())):        # np.isfinite on a few numbers, without its overhead
         raise MeasurementError(f"{name} must be finite; got {value!r}")
     return array
 
@@ -183,7 +184,7 @@ def validate_measurements(measurements: DescentMeasurements, image_count: int | 
     for k, image in enumerate(images):
         prefix = f"images[{k}]."
         time_s = float(image.time_s)
-        if not np.isfinite(time_s) or time_s <= previous:
+        if not math.isfinite(time_s) or time_s <= previous:
             raise MeasurementError(f"{prefix}time_s = {image.time_s!r} must be finite and later than the previous image")
         previous = time_s
         quaternion = _vector(image.attitude_quat, 4, prefix + "attitude_quat")

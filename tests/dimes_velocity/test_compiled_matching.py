@@ -266,3 +266,52 @@ def test_variance_is_numpys():
         deviations = np.square(np.subtract(window, mean))
         assert compiled.variance(window) == float(np.add.reduce(deviations, axis=None, dtype=np.float64) / window.size)
         assert compiled.variance(window) == float(window.astype(np.float64).var())
+
+
+def test_grid_maxima_is_the_per_cell_argmax_of_the_allowed_interest():
+    """``compiled.grid_maxima`` against its numpy definition, ties, empty cells, refused cells and NaN included."""
+    rng = np.random.default_rng(12)
+    for trial in range(100):
+        rows, columns = rng.integers(1, 60, 2)
+        interest = rng.integers(0, 5, (rows, columns)).astype(np.float32)          # many equal maxima
+        if trial % 5 == 0:
+            interest[rng.integers(0, rows), rng.integers(0, columns)] = np.nan
+        candidates = rng.random((rows, columns)) < (0.05 if trial % 3 == 0 else 0.7)
+        cells = int(rng.integers(1, 6))
+        row_edges = np.linspace(0, rows, cells + 1).astype(int)
+        column_edges = np.linspace(0, columns, cells + 1).astype(int)
+        scored = np.where(candidates, interest, -1.0)
+        expected = []
+        for upper, lower in zip(row_edges[:-1], row_edges[1:]):
+            for first, last in zip(column_edges[:-1], column_edges[1:]):
+                cell = scored[upper:lower, first:last]
+                if cell.size == 0:
+                    continue
+                row, column = divmod(int(cell.argmax()), cell.shape[1])
+                if not cell[row, column] < 0:
+                    expected.append((float(cell[row, column]), first + column, upper + row))
+        scores, found_columns, found_rows = compiled.grid_maxima(interest, candidates, row_edges, column_edges)
+        got = list(zip(scores.tolist(), found_columns.tolist(), found_rows.tolist()))
+        assert len(got) == len(expected)
+        for (score, column, row), (score_e, column_e, row_e) in zip(got, expected):
+            assert (column, row) == (column_e, row_e)
+            assert score == score_e or (np.isnan(score) and np.isnan(score_e))
+
+
+def test_square_erosion_is_opencvs_with_a_zero_border():
+    """The estimator's erosion (two run-counting passes) against ``cv2.erode`` by the square, outside = 0."""
+    import cv2
+
+    from dimes_velocity.estimator import _erode
+
+    rng = np.random.default_rng(13)
+    for trial in range(200):
+        rows, columns = (int(value) for value in rng.integers(1, 80, 2))
+        mask = rng.random((rows, columns)) < rng.uniform(0.6, 1.0)
+        if trial % 4 == 0:
+            mask[:] = True                                     # only the border erodes
+        half = int(rng.integers(0, 45))
+        kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
+        expected = cv2.erode(mask.view(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
+        eroded = _erode(mask, half)
+        assert eroded.dtype == bool and np.array_equal(eroded, expected)

@@ -131,3 +131,72 @@ def test_rectifying_images_together_gives_each_image_its_own_maps(mer_a):
         for name in ("origin_m", "map_x", "map_y", "visible", "excluded_zone"):
             assert np.array_equal(getattr(rect, name), getattr(alone, name)), name
     assert any(rect.excluded_zone.any() for rect in together)          # a cone is in view: the test covers it
+
+
+def test_upsample_reproduces_a_bilinear_field_exactly_across_column_chunks():
+    """Catmull-Rom reproduces any linear function (its weights sum to 1 and have the right first moment).
+
+    Eight channels make 8 x 256 = 2048 lines: the column pass runs over several chunks, and every pixel of every
+    chunk must come out as the plane through the knots.
+    """
+    size, knots = 256, 17
+    positions = geometry.knot_operator(size, knots)[0]
+    channels = 8
+    slopes = np.linspace(-0.3, 0.4, channels)
+    values = (slopes[None, None, :] * positions[None, :, None] - 0.2 * positions[:, None, None]
+              + np.arange(channels)[None, None, :])
+    upsampled = geometry._upsample(size, knots, values)
+    pixel = np.arange(size, dtype=float)
+    expected = (slopes[:, None, None] * pixel[None, None, :] - 0.2 * pixel[None, :, None]
+                + np.arange(channels)[:, None, None])
+    assert upsampled.shape == (channels, size, size) and upsampled.dtype == np.float32
+    assert np.abs(upsampled - expected).max() < 1e-3 * np.abs(expected).max()
+
+
+def test_compiled_cone_cells_is_the_dilate_erode_definition():
+    """``compiled.cone_cells`` gives the block of the numpy definition (a 4 x 4 max and min of each cell's knots)."""
+    import cv2
+
+    from dimes_velocity import compiled
+
+    rng = np.random.default_rng(5)
+    support = np.ones((4, 4), np.uint8)
+    for trial in range(200):
+        cosines = np.cos(rng.uniform(0.0, 0.3, (19, 19)) + (0.0 if trial % 2 else rng.uniform(0, 0.2)))
+        level = float(np.cos(rng.uniform(0.0, 0.2)))
+        cells = len(cosines) - 3
+        highest = cv2.dilate(cosines, support, anchor=(0, 0))[:cells, :cells]
+        lowest = cv2.erode(cosines, support, anchor=(0, 0))[:cells, :cells]
+        possible = highest + 0.28125 * (highest - lowest) > level
+        found, first_row, end_row, first_column, end_column = compiled.cone_cells(cosines, level, 0.28125)
+        assert found == bool(possible.any())
+        if found:
+            rows, columns = np.flatnonzero(possible.any(axis=1)), np.flatnonzero(possible.any(axis=0))
+            assert (first_row, end_row, first_column, end_column) == (rows[0], rows[-1] + 1, columns[0], columns[-1] + 1)
+
+
+def test_compiled_inside_frame_is_the_four_comparisons():
+    from dimes_velocity import compiled
+
+    rng = np.random.default_rng(6)
+    map_x = rng.uniform(-2.0, 258.0, (64, 64)).astype(np.float32)
+    map_y = rng.uniform(-2.0, 258.0, (64, 64)).astype(np.float32)
+    map_x[0, :4] = [0.0, 255.0, np.nextafter(np.float32(255.0), np.float32(300.0)), np.nan]
+    inside = compiled.inside_frame(map_x, map_y, np.float32(255.0), np.float32(255.0))
+    expected = (map_x >= 0) & (map_x <= 255) & (map_y >= 0) & (map_y <= 255)
+    assert inside.dtype == np.uint8 and np.array_equal(inside.view(bool), expected)
+
+
+def test_predicted_positions_are_the_numpy_trapezoid_bit_for_bit():
+    """The Python-float trapezoid gives the bits of ``cumsum(0.5 (v[1:] + v[:-1]) diff(t))`` (its definition)."""
+    rng = np.random.default_rng(14)
+    for _ in range(2000):
+        count = int(rng.integers(2, 6))
+        times = np.cumsum(rng.uniform(0.1, 5.0, count)) + rng.uniform(-10.0, 10.0)
+        velocities = rng.normal(size=(count, 3)) * 30.0
+        images = tuple(ImageMeasurement(float(t), np.array([1.0, 0, 0, 0]), np.zeros(3), 2000.0, velocity)
+                       for t, velocity in zip(times, velocities))
+        steps = 0.5 * (velocities[1:, :2] + velocities[:-1, :2]) * np.diff(times)[:, None]
+        expected = np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+        positions = geometry.predicted_positions_m(DescentMeasurements(images, np.array([0, 0, 1.0])))
+        assert positions.shape == expected.shape and np.array_equal(positions.view(np.uint64), expected.view(np.uint64))

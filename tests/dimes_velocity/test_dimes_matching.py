@@ -14,7 +14,7 @@ from dimes_velocity.matching import (
     second_peak,
     shift_window,
 )
-from dimes_velocity.solution import combine_pairs, consensus
+from dimes_velocity.solution import combine_pairs, consensus, displacement_standard_error
 
 SIZE = 256
 
@@ -264,3 +264,16 @@ def test_combine_pairs_checks_agreement():
     assert not ok and reason == "low_contrast"
     ok, reason, bias = combine_pairs(np.array([[5.0, 1.0], [0.0, 0.0]]), np.array([True, False]), ["ok", "low_contrast"], 1.0, False)
     assert ok and np.allclose(bias, [5.0, 1.0])
+
+
+def test_displacement_standard_error_is_the_rms_axis_spread_over_root_n():
+    """Closed form: per-axis sample variances (ddof 1) averaged, square-rooted, over sqrt(n); floored."""
+    displacements = np.array([[1.0, 10.0], [3.0, 10.0], [5.0, 16.0]])     # east var 4, north var 12
+    assert displacement_standard_error(displacements, 0.01) == pytest.approx(np.sqrt((4.0 + 12.0) / 2) / np.sqrt(3))
+    assert displacement_standard_error(displacements, 5.0) == 5.0                      # the floor
+    assert displacement_standard_error(displacements[:1], 0.3) == 0.3                  # one match: the floor
+    rng = np.random.default_rng(9)
+    for count in range(2, 12):                                                         # numpy's var, same bits
+        sample = rng.normal(size=(count, 2)) * 40.0 + 300.0
+        expected = max(float(np.sqrt(sample.var(axis=0, ddof=1).mean())) / np.sqrt(count), 1e-9)
+        assert displacement_standard_error(sample, 1e-9) == expected

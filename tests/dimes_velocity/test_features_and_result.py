@@ -103,3 +103,8 @@ def test_templates_statistics_are_the_one_template_values_bit_for_bit():
     centres = [(int(c), int(r)) for c, r in rng.integers(7, 57, (9, 2))]
     assert templates_statistics(image, centres, 7) == [template_statistics(image, c, r, 7) for c, r in centres]
     assert templates_statistics(image, [], 7) == []
+    for trial in range(60):              # sizes on both sides of numpy's 8- and 128-value summation blocks, scales
+        half = int(rng.choice([1, 3, 5, 7, 9, 12]))
+        scene = (rng.gamma(2.0, 50.0, (64, 64)) * rng.uniform(0.01, 100.0)).astype(np.float32 if trial % 2 else np.float64)
+        centres = [(int(c), int(r)) for c, r in rng.integers(half, 64 - half, (int(rng.integers(1, 10)), 2))]
+        assert templates_statistics(scene, centres, half) == [template_statistics(scene, c, r, half) for c, r in centres]

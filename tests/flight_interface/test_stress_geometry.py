@@ -251,3 +251,20 @@ def test_degenerate_homographies_give_finite_maps_and_no_visible_ground(mer_a, t
     _check_rectification(mer_a, pose, rect)
     if tilt_deg != 90.0:
         assert not rect.visible.any()
+
+
+def test_one_quaternion_matrix_is_the_batched_matrix_bit_for_bit():
+    """A single quaternion takes a Python-float path: the same bits as the same quaternion in a batch (the numpy
+    path), for any norm and sign of w, and a rotation (orthonormal, det +1)."""
+    rng = np.random.default_rng(21)
+    quaternions = rng.normal(size=(4000, 4)) * rng.uniform(0.01, 100.0, (4000, 1))
+    quaternions[::7, 2] = 0.0
+    quaternions[::5, 0] *= -1.0
+    batched = quat_to_matrix(quaternions)
+    for quaternion, expected in zip(quaternions, batched):
+        single = quat_to_matrix(quaternion)
+        assert single.shape == (3, 3) and np.array_equal(single.view(np.uint64), expected.view(np.uint64))
+    assert np.allclose(single @ single.T, np.eye(3), atol=1e-12) and np.linalg.det(single) == pytest.approx(1.0)
+    for degenerate in ([0.0, 0.0, 0.0, 0.0], [np.nan, 1.0, 0.0, 0.0], [np.inf, 0.0, 0.0, 0.0]):
+        with pytest.raises(ValueError, match="finite with a non-zero norm"):
+            quat_to_matrix(np.array(degenerate))
