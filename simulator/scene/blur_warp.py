@@ -14,7 +14,7 @@ land within :data:`MOVING_TOLERANCE_PX` of where the warp puts them, else the sc
 sub-pose. The flush and transfer fields follow the ground flow everywhere, as the ``warp_smear_fields``
 shortcut always has (they reach the image only through column sums over the whole frame).
 
-Cost. One field is rendered at the exposure's first sub-pose on a camera enlarged by margins (the CAHVOR
+Cost. One field is rendered at the exposure's middle sub-pose on a camera enlarged by margins (the CAHVOR
 model with ``H' = H + L A``, ``V' = V + T A`` sees the original pixel (c, r) at (c + L, r + T)), each
 side's margin as wide as the path reaches beyond it, so every exposure sub-pose's view lies inside it (the
 flush and transfer reads may pass it by :data:`SMEAR_EDGE_PX` and take the edge values there, the bound of
@@ -27,16 +27,18 @@ doubling levels, whose step moves the rows by less than :data:`FULL_RESOLUTION_R
 resolution; by then the accumulated field is averaged along the motion over that length and the
 rest runs on block means. ``N = 2^K`` equally
 spaced sub-poses are averaged with ``K`` warps by recursive doubling,
-``G_{m+1}(y) = (G_m(y) + G_m(sigma_{2^m}(y))) / 2``, exact when the flow over a time step does not
+``G_{m+1}(y) = (G_m(y) + G_m(sigma_{s_m}(y))) / 2`` with steps ``s_m = 2^m`` sub-poses forward and the last
+one ``2^(K-1)`` backward, exact when the flow over a time step does not
 depend on when the step starts (constant rates: a rotation at constant rate is a one-parameter group
 of image maps; the translation's departure from it is second order). That assumption is verified, not
 trusted: for a 5 x 5 grid of pixels and 5 sub-poses spread along the path (ends included) the composed map is compared with the exact one
 and must agree to :data:`GROUP_TOLERANCE_PX`: half a pixel for the exposure (the default count rule
 itself spaces sub-poses up to several pixels apart on long paths, ``max_substeps``), one pixel for
 the flush and transfer fields, which reach the image only through column sums over many rows (smear),
-and whose average is moved furthest from the rendered pose (1 to 2 periods). Rendered at the exposure's
-first sub-pose, the doubling's leaves are the exposure's sub-poses themselves: their average is the
-exposure field, with no further warp; a last warp per smear period moves it by one period to the flush's
+and whose average is moved furthest from the rendered pose (1 to 1.5 periods). Rendered at the exposure's
+sub-pose N / 2 (half a sub-pose after the mid-time) with the last step backward, the doubling's leaves are
+the exposure's sub-poses themselves (leaf j takes the steps of the bits of ``j XOR N/2``): their average is
+the exposure field, with no further warp; a last warp per smear period moves it by one period to the flush's
 and the transfer's. So a 64-sub-pose blur costs about 6 + 2 block-resolution warps instead of 3 x 64
 rendered fields. Each warp resamples the accumulated field; bilinear resampling at fractional offsets is
 a low-pass filter, and compounded over the levels it took a third of the texture that survives a x60
@@ -54,11 +56,13 @@ the end cuts the error from 1.0-1.5e-3 to 0.16-0.36e-3 with bicubic levels (0.24
 the 0.19-0.21e-3 of warping the rendered field to each sub-pose once), but full-resolution bicubic
 warps of the enlarged field cost ~23 ms per image more here (the x60 case at 3.0x nominal instead of
 1.9-2.1x; bilinear levels with a bicubic last one: 2.4x, 0.4-0.6e-3): not taken. The last exposure warp,
-a shift by half the path on block rows, was the other large term: rendering at the first sub-pose
-removes it (x30: 1.48 -> 1.23e-3; one block warp and its flow map less). A self-moving feature in view
-(the parachute's and backshell's shadows swing with the scaled attitude) drifts by 0.07-0.3 px over an
-x30-x60 exposure against the ground flow (within :data:`MOVING_TOLERANCE_PX`): local errors of up to
-0.5 % of the signal in its 10-30 px; rendering a window around it per sub-pose removed them without
+a shift by half the path on block rows, was the other large term: leaves that are the sub-poses remove
+it (x30 image: 1.48 -> 1.19e-3, x60 image: 1.02 -> 0.73e-3; one block warp and its flow map less; rendered
+at the first sub-pose instead, with forward steps only, a self-moving feature would drift twice as far
+from where the warp puts it and sit half its drift off on average). A self-moving feature in view (the
+parachute's and backshell's shadows swing with the scaled attitude) drifts by 0.04-0.13 px over an x30-x60
+exposure against the ground flow (within :data:`MOVING_TOLERANCE_PX`): local errors of up to 0.5 % of the
+signal in its 10-30 px; rendering a window around it per sub-pose removed them without
 changing the estimated velocity. The estimated velocity answers these image changes at its own noise
 floor: ``benchmarks/bench_offnominal.py`` (rows ``dv_noise_draws_mps``).
 
@@ -117,7 +121,7 @@ class WarpedPeriods:
     substeps : dict of str to int
         Sub-poses averaged per period (a power of two).
     centre_radiance : ndarray, shape (H, W), float32
-        The one rendered field (at the exposure's first sub-pose; the scene's diagnostic exposure-centre field).
+        The one rendered field (at the exposure's sub-pose N / 2; the scene's diagnostic exposure-centre field).
     centre_heat_shield : ndarray, shape (H, W), bool, or None
         The heat shield in the rendered field.
     shadow_centres_m : list of ndarray, shape (3,)
@@ -259,14 +263,20 @@ class _Plan:
         self.step_s = {period: (end - start) / self.count for period, (start, end) in windows.items()}
         self.ok = len(lengths) == 1          # one chain serves the three periods of equal length
         self.delta_s = next(iter(self.step_s.values()))
-        # the field is rendered at the exposure's first sub-pose, so the doubling's leaves are the exposure's
-        # sub-poses themselves and their average needs no last warp (module doc)
-        self.base_s = float(self.leaf_times("exposure")[0])
-        self.average_centre_s = self.base_s + 0.5 * (self.count - 1) * self.delta_s
+        # the field is rendered at the exposure's middle sub-pose (index N / 2) and the last level steps
+        # backward, so the doubling's leaves are the exposure's sub-poses themselves: their average needs no
+        # last warp (module doc); leaf j takes the steps of the bits of j XOR N / 2
+        self.base_index = self.count // 2
+        self.base_s = float(self.leaf_times("exposure")[self.base_index])
+        self.average_centre_s = self.base_s - 0.5 * self.delta_s
+
+    def step_sub_poses(self, level: int) -> int:
+        """The step of ``level`` in sub-poses: ``2^level`` forward, the last level ``2^level`` backward."""
+        return -(2 ** level) if level == self.levels - 1 else 2 ** level
 
     def step_pose(self, level: int) -> ground_mapping.CameraPose:
-        """The camera pose one step of ``level`` (2^level sub-poses) after the rendered pose."""
-        return self.cam_at(self.base_s + (2 ** level) * self.delta_s)
+        """The camera pose one step of ``level`` away from the rendered pose."""
+        return self.cam_at(self.base_s + self.step_sub_poses(level) * self.delta_s)
 
     def row_shifts_px(self) -> list[float]:
         """Largest row motion (px) of the sample pixels over one step of each level (inf where a ray misses)."""
@@ -321,7 +331,7 @@ class _Plan:
             offsets = (first - pixels).reshape(-1, 2)
             extents.append(np.array([np.minimum(offsets.min(axis=0), 0.0), np.maximum(offsets.max(axis=0), 0.0)]))
         for level in reversed(range(self.levels)):
-            chosen = [(leaves >> level) & 1 == 1 for _, leaves, _, _ in queries]
+            chosen = [((leaves ^ self.base_index) >> level) & 1 == 1 for _, leaves, _, _ in queries]
             moving = [position[mask] for position, mask in zip(positions, chosen)]
             sizes = [len(item) for item in moving]
             if not any(sizes):
@@ -361,7 +371,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         ``period -> (start_s, end_s)`` (s).
     centre_s : float
         Exposure mid-time (s), where the averaged exposure is centred (the one field is rendered at the
-        exposure's first sub-pose, ``windows["exposure"][0]`` plus half a sub-pose step).
+        exposure's sub-pose N / 2, half a sub-pose step after it).
     count : int
         Sub-poses the blur needs (rounded up to a power of two).
     render : callable
@@ -521,7 +531,7 @@ def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan:
                 cam_at: Callable[[float], ground_mapping.CameraPose]) -> np.ndarray:
     """Exposure-period union of a mask of the enlarged rendered field.
 
-    The mask as rendered (the first exposure sub-pose) and at the middle and last sub-poses, each moved
+    The mask as rendered (the middle exposure sub-pose) and at the first and last sub-poses, each moved
     rigidly by the flow at the centre of the mask's bounding box (the masks are compact: the heat shield,
     terrain beyond the strip's edge), nearest pixel.
     """
@@ -535,8 +545,7 @@ def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan:
     box = mask[r0:r1, c0:c1]
     centre = np.array([[0.5 * (c0 + c1 - 1) - offset[0], 0.5 * (r0 + r1 - 1) - offset[1]]])
     rays = cahvor.unproject(camera.model, centre)
-    times = plan.leaf_times("exposure")
-    for time_s in times[[len(times) // 2, -1]]:
+    for time_s in plan.leaf_times("exposure")[[0, -1]]:
         source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.base_s), centre, rays)
         if source is None:
             continue
