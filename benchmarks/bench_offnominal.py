@@ -12,7 +12,17 @@ a default cloud) and every other effect. Beside the relief row, its accuracy aga
 largest |difference| of the expected (noise-free) images, and the change of the estimated velocity (m/s;
 <= 0.05 m/s, the presets' bound). Beside the x60 row, the same accuracy rows (for the x60 and the x30 points) against the exact sub-pose path
 (every sub-pose of the three periods rendered: ``warp_motion_blur`` and ``warp_smear_fields`` off), which the
-warp-and-accumulate of one rendered field (scene.blur_warp) stands for. The ``nightly/`` rows are the 9 points of the nightly
+warp-and-accumulate of one rendered field (scene.blur_warp) stands for. Protocol of those blur rows: the
+warp's numerical choices (interpolation kernels, resolution of the doubling levels) are chosen on the image
+rows (``rms_dn_vs_sub_poses``: the expected images against the exact path's, which is the reference) and the
+scene tests (tests/simulator/scene: field RMS and fine texture kept against the rendered sub-poses), never on
+a velocity row. The velocity row ``dv_vs_sub_poses_mps`` is one noise draw per case, and on these heavily
+blurred scenes the estimator answers tiny image changes at its own noise floor; so beside it
+``dv_noise_draws_mps`` repeats every case with BLUR_NOISE_DRAWS noise draws (the case's seeds with its
+case id offset: same scene and trajectory, other image noise and sensor draws) and gives the mean and
+largest change over cases x draws, and ``velocity_scatter_mps``, the exact path's own velocity scatter
+over those draws (median over cases): what the estimator does with a new noise draw, the scale the warp's
+change is to be read against. The ``nightly/`` rows are the 9 points of the nightly
 sweep (sitedata/sweeps/nightly.toml), each within 2x of the nominal point. The cost curve rows give the
 case time against the blur length (median pixels of image motion in the exposure, from the
 ``angular_rate_multiplier``) and against the dust particle count: it should flatten, not grow linearly.
@@ -46,6 +56,10 @@ POINTS: dict[str, dict[str, object]] = {
 RELIEF_VELOCITY_TARGET_MPS = 0.05
 #: the x60 point's velocity agreement with the exact sub-pose path (same cases; the presets' bound)
 BLUR_VELOCITY_TARGET_MPS = 0.05
+#: noise draws per case of the blur points' velocity rows (draw 0 is the case itself)
+BLUR_NOISE_DRAWS = 4
+#: case-id offset between two noise draws of one case (a prime: the draws' seeds never meet another case's)
+DRAW_CASE_ID_STEP = 7919
 #: extra points of the cost curves (the nominal point and the x60 / dust_100 rows complete them)
 CURVE: dict[str, list[tuple[str, float]]] = {
     "angular_rate": [("angular_rate_multiplier", value) for value in (5.0, 15.0, 30.0)],
@@ -171,28 +185,44 @@ def _blur_accuracy(name: str, resources, rows: list[dict]) -> list[dict]:
     """A high-rate point's images and velocities against the exact sub-pose path (every sub-pose of the three
     periods rendered: warp_motion_blur and warp_smear_fields off, the same sub-pose rule), case by case."""
     exact_scene = resources.config.scene.with_effects(warp_motion_blur=False, warp_smear_fields=False)
-    return _accuracy_rows(f"offnominal/{name}", "sub_poses", resources, rows, exact_scene, BLUR_VELOCITY_TARGET_MPS)
+    return _accuracy_rows(f"offnominal/{name}", "sub_poses", resources, rows, exact_scene, BLUR_VELOCITY_TARGET_MPS,
+                          noise_draws=BLUR_NOISE_DRAWS)
 
 
 def _accuracy_rows(prefix: str, against: str, resources, rows: list[dict], reference_scene,
-                   velocity_target_mps: float) -> list[dict]:
+                   velocity_target_mps: float, noise_draws: int = 1) -> list[dict]:
     """RMS (DN and relative to the mean signal) and largest |difference| of the expected (noise-free) images,
     and the change of the estimated velocity (m/s), of the point's scene against ``reference_scene`` on the
-    same cases (rows ``{prefix}/rms_dn_vs_{against}`` and ``{prefix}/dv_vs_{against}_mps``)."""
+    same cases (rows ``{prefix}/rms_dn_vs_{against}`` and ``{prefix}/dv_vs_{against}_mps``); with
+    ``noise_draws > 1`` also the row ``{prefix}/dv_noise_draws_mps`` (module doc)."""
     from campaign.case.compute import simulate_case_inputs
     from campaign.case.inputs import PlanRow
     from dimes_velocity.estimator import estimate_velocity
 
+    def outcome(row: dict, scene, draw: int):
+        record = {**row, "case_id": row["case_id"] + DRAW_CASE_ID_STEP * draw}
+        inputs = simulate_case_inputs(resources, PlanRow.from_record(record), scene)
+        estimate = estimate_velocity([image.dn for image in inputs.images], inputs.measurements,
+                                     resources.camera, resources.config.estimator)
+        velocity = np.array([estimate.velocity_east_mps, estimate.velocity_north_mps]) if estimate.valid else None
+        return inputs.images, velocity
+
     rms, peak, level, velocity_change = [], [], [], []
+    draw_changes, scatters = [], []
     for row in rows:
-        outcomes = []
-        for scene in (None, reference_scene):
-            inputs = simulate_case_inputs(resources, PlanRow.from_record(row), scene)
-            estimate = estimate_velocity([image.dn for image in inputs.images], inputs.measurements,
-                                         resources.camera, resources.config.estimator)
-            velocity = np.array([estimate.velocity_east_mps, estimate.velocity_north_mps]) if estimate.valid else None
-            outcomes.append((inputs.images, velocity))
+        outcomes = [outcome(row, scene, 0) for scene in (None, reference_scene)]
         (images, velocity), (reference_images, reference_velocity) = outcomes
+        reference_velocities = [reference_velocity]
+        for draw in range(noise_draws):
+            if draw:
+                velocity, reference_velocity = (outcome(row, scene, draw)[1] for scene in (None, reference_scene))
+                reference_velocities.append(reference_velocity)
+            if velocity is not None and reference_velocity is not None:
+                draw_changes.append(float(np.hypot(*(velocity - reference_velocity))))
+        valid = [item for item in reference_velocities if item is not None]
+        if noise_draws > 1 and len(valid) > 1:
+            scatters.append(float(np.sqrt(np.sum(np.var(np.array(valid), axis=0, ddof=1)))))
+        velocity, reference_velocity = outcomes[0][1], outcomes[1][1]
         for image, reference_image in zip(images, reference_images):
             error = image.image.expected_dn.astype(np.float64) - reference_image.image.expected_dn
             rms.append(float(np.sqrt(np.mean(error ** 2))))
@@ -201,12 +231,20 @@ def _accuracy_rows(prefix: str, against: str, resources, rows: list[dict], refer
         if velocity is not None and reference_velocity is not None:
             velocity_change.append(float(np.hypot(*(velocity - reference_velocity))))
     worst_change = float(np.max(velocity_change)) if velocity_change else float("nan")
-    return [{"name": f"{prefix}/rms_dn_vs_{against}", "images": len(rms), "rms_dn_mean": float(np.mean(rms)),
-             "rms_dn_max": float(np.max(rms)), f"max_dn_vs_{against}": float(np.max(peak)),
-             "rms_relative_max": float(np.max(np.asarray(rms) / np.asarray(level)))},
-            {"name": f"{prefix}/dv_vs_{against}_mps", "cases": len(velocity_change),
-             "dv_mean_mps": float(np.mean(velocity_change)) if velocity_change else float("nan"),
-             **target_columns(worst_change, velocity_target_mps, "m/s")}]
+    table = [{"name": f"{prefix}/rms_dn_vs_{against}", "images": len(rms), "rms_dn_mean": float(np.mean(rms)),
+              "rms_dn_max": float(np.max(rms)), f"max_dn_vs_{against}": float(np.max(peak)),
+              "rms_relative_max": float(np.max(np.asarray(rms) / np.asarray(level)))},
+             {"name": f"{prefix}/dv_vs_{against}_mps", "cases": len(velocity_change),
+              "dv_mean_mps": float(np.mean(velocity_change)) if velocity_change else float("nan"),
+              **target_columns(worst_change, velocity_target_mps, "m/s")}]
+    if noise_draws > 1:
+        nan = float("nan")
+        table.append({"name": f"{prefix}/dv_noise_draws_mps", "cases": len(rows), "draws": noise_draws,
+                      "estimates": len(draw_changes), "dv_mean_mps": float(np.mean(draw_changes)) if draw_changes else nan,
+                      "dv_median_mps": float(np.median(draw_changes)) if draw_changes else nan,
+                      "dv_max_mps": float(np.max(draw_changes)) if draw_changes else nan,
+                      "velocity_scatter_mps": float(np.median(scatters)) if scatters else nan})
+    return table
 
 
 def _nightly_name(dust: int, rate: float) -> str:

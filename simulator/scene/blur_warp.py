@@ -14,7 +14,7 @@ land within :data:`MOVING_TOLERANCE_PX` of where the warp puts them, else the sc
 sub-pose. The flush and transfer fields follow the ground flow everywhere, as the ``warp_smear_fields``
 shortcut always has (they reach the image only through column sums over the whole frame).
 
-Cost. One field is rendered at the exposure mid-time on a camera enlarged by margins (the CAHVOR
+Cost. One field is rendered at the exposure's middle sub-pose on a camera enlarged by margins (the CAHVOR
 model with ``H' = H + L A``, ``V' = V + T A`` sees the original pixel (c, r) at (c + L, r + T)), each
 side's margin as wide as the path reaches beyond it, so every exposure sub-pose's view lies inside it (the
 flush and transfer reads may pass it by :data:`SMEAR_EDGE_PX` and take the edge values there, the bound of
@@ -27,20 +27,44 @@ doubling levels, whose step moves the rows by less than :data:`FULL_RESOLUTION_R
 resolution; by then the accumulated field is averaged along the motion over that length and the
 rest runs on block means. ``N = 2^K`` equally
 spaced sub-poses are averaged with ``K`` warps by recursive doubling,
-``G_{m+1}(y) = (G_m(y) + G_m(sigma_{2^m}(y))) / 2``, exact when the flow over a time step does not
+``G_{m+1}(y) = (G_m(y) + G_m(sigma_{s_m}(y))) / 2`` with steps ``s_m = 2^m`` sub-poses forward and the last
+one ``2^(K-1)`` backward, exact when the flow over a time step does not
 depend on when the step starts (constant rates: a rotation at constant rate is a one-parameter group
 of image maps; the translation's departure from it is second order). That assumption is verified, not
 trusted: for a 5 x 5 grid of pixels and 5 sub-poses spread along the path (ends included) the composed map is compared with the exact one
 and must agree to :data:`GROUP_TOLERANCE_PX`: half a pixel for the exposure (the default count rule
 itself spaces sub-poses up to several pixels apart on long paths, ``max_substeps``), one pixel for
 the flush and transfer fields, which reach the image only through column sums over many rows (smear),
-and whose average is moved furthest from the rendered pose (1 to 1.5 periods). A last warp per period (flush, exposure, transfer) moves
-the average to the period's mid-time. So a 64-sub-pose blur costs about 6 + 3 block-resolution warps
-instead of 3 x 64 rendered fields. Each warp resamples the accumulated field; bilinear resampling at
-fractional offsets is a low-pass filter, and compounded over the levels it took a third of the texture
-that survives a x60 blur (RMS of the high-pass, against the exact sub-poses), which moved the estimated
-velocity by 0.2-0.3 m/s; the block-row levels and the exposure's last warp are therefore bicubic (the
-texture kept to 0.9-0.96; the full-resolution levels and the smear fields' warps stay bilinear).
+and whose average is moved furthest from the rendered pose (1 to 1.5 periods). Rendered at the exposure's
+sub-pose N / 2 (half a sub-pose after the mid-time) with the last step backward, the doubling's leaves are
+the exposure's sub-poses themselves (leaf j takes the steps of the bits of ``j XOR N/2``): their average is
+the exposure field, with no further warp; a last warp per smear period moves it by one period to the flush's
+and the transfer's. So a 64-sub-pose blur costs about 6 + 2 block-resolution warps instead of 3 x 64
+rendered fields. Each warp resamples the accumulated field; bilinear resampling at fractional offsets is
+a low-pass filter, and compounded over the levels it took a third of the texture that survives a x60
+blur (RMS of the high-pass, against the exact sub-poses), which moved the estimated velocity by 0.2-0.3
+m/s; the block-row levels are therefore bicubic (the texture kept to 0.9-0.96; the full-resolution
+levels and the smear fields' warps stay bilinear).
+
+Where the remaining difference from the exact sub-poses lives (the bench's x30 / x60 cases, exposure
+field block means against the 16 rendered sub-poses, relative RMS): not in the composition (the composed
+maps agree with the exact ones to 0.03 px, 0.004 px on average), nor at the margins or the flow's node
+seams (the error is largest inside the frame and has no 32-px period), nor in the sub-pose count; it is
+resampling, and mostly the block-row levels: a field averaged along the motion is still sharp across
+it, and block means of it alias. Warping every level at full resolution and taking the block means at
+the end cuts the error from 1.0-1.5e-3 to 0.16-0.36e-3 with bicubic levels (0.24e-3 with Lanczos, near
+the 0.19-0.21e-3 of warping the rendered field to each sub-pose once), but full-resolution bicubic
+warps of the enlarged field cost ~23 ms per image more here (the x60 case at 3.0x nominal instead of
+1.9-2.1x; bilinear levels with a bicubic last one: 2.4x, 0.4-0.6e-3): not taken. The last exposure warp,
+a shift by half the path on block rows, was the other large term: leaves that are the sub-poses remove
+it (x30 image: 1.48 -> 1.19e-3, x60 image: 1.02 -> 0.73e-3; one block warp and its flow map less; rendered
+at the first sub-pose instead, with forward steps only, a self-moving feature would drift twice as far
+from where the warp puts it and sit half its drift off on average). A self-moving feature in view (the
+parachute's and backshell's shadows swing with the scaled attitude) drifts by 0.04-0.13 px over an x30-x60
+exposure against the ground flow (within :data:`MOVING_TOLERANCE_PX`): local errors of up to 0.5 % of the
+signal in its 10-30 px; rendering a window around it per sub-pose removed them without
+changing the estimated velocity. The estimated velocity answers these image changes at its own noise
+floor: ``benchmarks/bench_offnominal.py`` (rows ``dv_noise_draws_mps``).
 
 Checks cost numpy's per-call overhead, not arithmetic (25 pixels): every map of the checks is computed
 in a few batched calls (:func:`_flows`: many target poses, one projection; one unprojection per doubling
@@ -74,6 +98,7 @@ GROUP_TOLERANCE_PX = {"exposure": 0.5, "flush": 1.0, "transfer": 1.0}   # compos
 MOVING_TOLERANCE_PX = 0.5      # shadows and heat shield: true pixel vs where the warp puts them
 FLOW_STEP_PX = 32
 FULL_RESOLUTION_ROW_SHIFT_PX = 4.0   # doubling levels with less row motion per step run at full resolution
+SMEAR_INTERPOLATION = cv2.INTER_LINEAR    # flush / transfer: the average moved by one period, block rows
 CHECK_GRID = 5
 SMEAR_EDGE_PX = 32.0           # flush / transfer reads allowed beyond the rendered field (smear_warp's node step)
 CHECKED_LEAVES = 5
@@ -96,11 +121,11 @@ class WarpedPeriods:
     substeps : dict of str to int
         Sub-poses averaged per period (a power of two).
     centre_radiance : ndarray, shape (H, W), float32
-        The exposure-centre field.
+        The one rendered field (at the exposure's sub-pose N / 2; the scene's diagnostic exposure-centre field).
     centre_heat_shield : ndarray, shape (H, W), bool, or None
-        The heat shield in the centre field.
+        The heat shield in the rendered field.
     shadow_centres_m : list of ndarray, shape (3,)
-        Ground shadow centres at the centre pose (m).
+        Ground shadow centres at the rendered pose (m).
     margins_px : tuple of int
         (left, right, top, bottom) margins of the enlarged rendered field (px).
     """
@@ -110,7 +135,7 @@ class WarpedPeriods:
     outside: np.ndarray
     heat_shield: np.ndarray
     substeps: dict
-    centre_radiance: np.ndarray       # the exposure-centre field, (H, W)
+    centre_radiance: np.ndarray       # the rendered field, (H, W)
     centre_heat_shield: np.ndarray | None
     shadow_centres_m: list
     margins_px: tuple[int, int, int, int]
@@ -223,36 +248,45 @@ def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: groun
     source_pixels = source_pixels + np.asarray(source_offset_px, dtype=float)
     source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (b - 1)) / b
     return node_grid.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
-                                         row_step_px=FLOW_STEP_PX // b)
+                                    row_step_px=FLOW_STEP_PX // b)
 
 
 class _Plan:
     """Times and exact maps of the doubling scheme for one image (see module doc)."""
 
-    def __init__(self, camera: Camera, cam_at: Callable[[float], ground_mapping.CameraPose], centre_s: float,
-                 windows: dict, count: int):
+    def __init__(self, camera: Camera, cam_at: Callable[[float], ground_mapping.CameraPose], windows: dict,
+                 count: int):
         self.levels = max(1, math.ceil(math.log2(count)))
         self.count = 2 ** self.levels
-        self.camera, self.cam_at, self.centre_s, self.windows = camera, cam_at, centre_s, windows
+        self.camera, self.cam_at, self.windows = camera, cam_at, windows
         lengths = {round(end - start, 12) for start, end in windows.values()}
         self.step_s = {period: (end - start) / self.count for period, (start, end) in windows.items()}
         self.ok = len(lengths) == 1          # one chain serves the three periods of equal length
         self.delta_s = next(iter(self.step_s.values()))
-        self.average_centre_s = centre_s + 0.5 * (self.count - 1) * self.delta_s
+        # the field is rendered at the exposure's middle sub-pose (index N / 2) and the last level steps
+        # backward, so the doubling's leaves are the exposure's sub-poses themselves: their average needs no
+        # last warp (module doc); leaf j takes the steps of the bits of j XOR N / 2
+        self.base_index = self.count // 2
+        self.base_s = float(self.leaf_times("exposure")[self.base_index])
+        self.average_centre_s = self.base_s - 0.5 * self.delta_s
+
+    def step_sub_poses(self, level: int) -> int:
+        """The step of ``level`` in sub-poses: ``2^level`` forward, the last level ``2^level`` backward."""
+        return -(2 ** level) if level == self.levels - 1 else 2 ** level
 
     def step_pose(self, level: int) -> ground_mapping.CameraPose:
-        """The camera pose one step of ``level`` (2^level sub-poses) after the centre."""
-        return self.cam_at(self.centre_s + (2 ** level) * self.delta_s)
+        """The camera pose one step of ``level`` away from the rendered pose."""
+        return self.cam_at(self.base_s + self.step_sub_poses(level) * self.delta_s)
 
     def row_shifts_px(self) -> list[float]:
         """Largest row motion (px) of the sample pixels over one step of each level (inf where a ray misses)."""
         pixels = motion_blur.sample_pixels(self.camera, CHECK_GRID)
         rays = ground_mapping.camera_frame_rays(self.camera, pixels)
-        centre = self.cam_at(self.centre_s)
-        together = _flows(self.camera, centre, [(self.step_pose(level), rays) for level in range(self.levels)])
+        base = self.cam_at(self.base_s)
+        together = _flows(self.camera, base, [(self.step_pose(level), rays) for level in range(self.levels)])
         moved_levels: list[np.ndarray | None] = list(together) if together is not None else []
         if together is None:                     # some level fails: level by level
-            moved_levels = [_flow_points(self.camera, self.step_pose(level), centre, pixels, rays)
+            moved_levels = [_flow_points(self.camera, self.step_pose(level), base, pixels, rays)
                             for level in range(self.levels)]
         return [math.inf if moved is None else float(np.abs(moved[:, 1] - pixels[:, 1]).max())
                 for moved in moved_levels]
@@ -271,7 +305,7 @@ class _Plan:
 
     def composed(self, queries: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
                  ) -> list[tuple[np.ndarray, np.ndarray]] | None:
-        """Where the doubling scheme reads the centre field for given leaves, for several queries at once.
+        """Where the doubling scheme reads the rendered field for given leaves, for several queries at once.
 
         Parameters
         ----------
@@ -281,12 +315,12 @@ class _Plan:
         Returns
         -------
         list of (ndarray (L, P, 2), ndarray (2, 2)) or None
-            Per query, the positions read in the centre field (px) and how far any intermediate position
+            Per query, the positions read in the rendered field (px) and how far any intermediate position
             lies from its pixel as (column, row) lows and highs (px; the end leaves, always checked, reach
             furthest on a path that does not turn back); None when a ray misses the ground. Each level
             moves the chosen positions of every query with one unprojection and one projection.
         """
-        centre = self.cam_at(self.centre_s)
+        centre = self.cam_at(self.base_s)
         firsts = _flows(self.camera, self.cam_at(self.average_centre_s),
                         [(self.cam_at(0.5 * sum(self.windows[period])), rays) for period, _, _, rays in queries])
         if firsts is None:
@@ -297,7 +331,7 @@ class _Plan:
             offsets = (first - pixels).reshape(-1, 2)
             extents.append(np.array([np.minimum(offsets.min(axis=0), 0.0), np.maximum(offsets.max(axis=0), 0.0)]))
         for level in reversed(range(self.levels)):
-            chosen = [(leaves >> level) & 1 == 1 for _, leaves, _, _ in queries]
+            chosen = [((leaves ^ self.base_index) >> level) & 1 == 1 for _, leaves, _, _ in queries]
             moving = [position[mask] for position, mask in zip(positions, chosen)]
             sizes = [len(item) for item in moving]
             if not any(sizes):
@@ -336,7 +370,8 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     windows : dict of str to (float, float)
         ``period -> (start_s, end_s)`` (s).
     centre_s : float
-        Exposure mid-time (s), where the one field is rendered.
+        Exposure mid-time (s), where the averaged exposure is centred (the one field is rendered at the
+        exposure's sub-pose N / 2, half a sub-pose step after it).
     count : int
         Sub-poses the blur needs (rounded up to a power of two).
     render : callable
@@ -349,7 +384,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     WarpedPeriods or None
         The fields, or None when the scene does not allow the warp (then render each sub-pose).
     """
-    plan = _Plan(camera, cam_at, centre_s, windows, count)
+    plan = _Plan(camera, cam_at, windows, count)
     if not plan.ok:
         return None
     extent = _checked_extent(plan, moving_points)
@@ -362,35 +397,39 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     if max(margins) > MAX_MARGIN_PX:
         return None
     big = expanded_camera(camera, margins)
-    field = render(big, pose_at(centre_s))
+    field = render(big, pose_at(plan.base_s))
     if field.sky.any():
         return None
     b = camera.binning_rows
     height, width = camera.height_px, camera.width_px
     inner = (slice(top, top + height), slice(left, left + width))
+    # every level at full resolution (block-mean levels alias the rows the blur leaves sharp: module doc)
     # early levels (short paths, fine structure along the motion) at full resolution, then block means:
-    # a field already averaged over >= FULL_RESOLUTION_ROW_SHIFT_PX of row motion is smooth along it, and
-    # its fractional-block shifts interpolate well (module doc)
+    # a field already averaged over >= FULL_RESOLUTION_ROW_SHIFT_PX of row motion is smoother along it, and
+    # its fractional-block shifts interpolate better (module doc)
     accumulated, block = field.radiance, 1
-    centre_cam = cam_at(centre_s)
+    base_cam = cam_at(plan.base_s)
     row_shifts = plan.row_shifts_px()
     for level in range(plan.levels):
         if block == 1 and row_shifts[level] >= FULL_RESOLUTION_ROW_SHIFT_PX:
             accumulated, block = block_means(accumulated, b), b
-        flow = _block_flow(big, plan.step_pose(level), centre_cam, (0.0, 0.0), block)
+        flow = _block_flow(big, plan.step_pose(level), base_cam, (0.0, 0.0), block)
         if flow is None:
             return None
         # block rows: bicubic (bilinear at fractional-block shifts would smooth the rows at the block scale)
         warped = resample.warped_field(accumulated, flow, cv2.INTER_LINEAR if block == 1 else cv2.INTER_CUBIC)
         accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0)
-    if block == 1:
-        accumulated = block_means(accumulated, b)
-    averaged = {}
-    for period, (start, end) in windows.items():
+    blocks = accumulated if block == b else block_means(accumulated, b)
+    # the leaves are the exposure's sub-poses: the exposure is the average itself; flush and transfer are it
+    # moved by one period, at block resolution (they reach the image only through column sums, as with
+    # warp_smear_fields)
+    averaged = {"exposure": np.ascontiguousarray(blocks[top // b:(top + height) // b, left:left + width])}
+    for period in ("flush", "transfer"):
+        start, end = windows[period]
         flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), (left, top), b)
         if flow is None:
             return None
-        averaged[period] = resample.warped_field(accumulated, flow, cv2.INTER_CUBIC if period == "exposure" else cv2.INTER_LINEAR)
+        averaged[period] = resample.warped_field(blocks, flow, SMEAR_INTERPOLATION)
     outside = _mask_union(field.outside, camera, (left, top), plan, cam_at)
     shield_full = field.heat_shield
     shield = (_mask_union(shield_full, camera, (left, top), plan, cam_at) if shield_full is not None
@@ -410,7 +449,7 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
     For a :data:`CHECK_GRID` grid of pixels and the :meth:`_Plan.checked_leaves` of each period, the
     composed map must agree with the exact one to :data:`GROUP_TOLERANCE_PX`; every self-moving point
     (shadow centres, heat shield) in or near the frame must land, at every checked exposure sub-pose,
-    within :data:`MOVING_TOLERANCE_PX` of where the composed warp reads it in the centre field (where
+    within :data:`MOVING_TOLERANCE_PX` of where the composed warp reads it in the rendered field (where
     the point is at the rendered pose). All maps are computed together (:func:`_flows`).
 
     Parameters
@@ -440,7 +479,7 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
     composed = plan.composed(queries)
     if composed is None:
         return None
-    centre = cam_at(plan.centre_s)
+    centre = cam_at(plan.base_s)
     leaf_times = {period: plan.leaf_times(period) for period in plan.windows}
     exact = _flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
                                     for period in plan.windows for leaf in checked])
@@ -470,11 +509,11 @@ def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[flo
     there are none.
     """
     camera = plan.camera
-    reference = moving_points(plan.centre_s)
+    reference = moving_points(plan.base_s)
     if not reference:
         return None
     times = plan.leaf_times("exposure")
-    items = [(plan.cam_at(plan.centre_s), np.asarray(reference))]
+    items = [(plan.cam_at(plan.base_s), np.asarray(reference))]
     items += [(plan.cam_at(float(times[leaf])), np.asarray(moving_points(float(times[leaf])))) for leaf in checked]
     projected = _project_many(camera, items)
     where_centre, seen = projected[0][0], np.array(projected[0][1], dtype=bool)
@@ -490,10 +529,11 @@ def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[flo
 
 def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan: _Plan,
                 cam_at: Callable[[float], ground_mapping.CameraPose]) -> np.ndarray:
-    """Exposure-period union of a mask of the enlarged centre field.
+    """Exposure-period union of a mask of the enlarged rendered field.
 
-    The mask at the centre, first and last exposure sub-poses, each moved rigidly by the flow at the centre of the mask's bounding box (the
-    masks are compact: the heat shield, terrain beyond the strip's edge), nearest pixel.
+    The mask as rendered (the middle exposure sub-pose) and at the first and last sub-poses, each moved
+    rigidly by the flow at the centre of the mask's bounding box (the masks are compact: the heat shield,
+    terrain beyond the strip's edge), nearest pixel.
     """
     height, width = camera.height_px, camera.width_px
     union = mask[offset[1]:offset[1] + height, offset[0]:offset[0] + width].copy()
@@ -506,10 +546,10 @@ def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan:
     centre = np.array([[0.5 * (c0 + c1 - 1) - offset[0], 0.5 * (r0 + r1 - 1) - offset[1]]])
     rays = cahvor.unproject(camera.model, centre)
     for time_s in plan.leaf_times("exposure")[[0, -1]]:
-        source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.centre_s), centre, rays)
+        source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.base_s), centre, rays)
         if source is None:
             continue
-        # a pixel x of the sub-pose image reads the centre field at x + d: the mask moves by -d
+        # a pixel x of the sub-pose image reads the rendered field at x + d: the mask moves by -d
         shift_col, shift_row = (int(round(v)) for v in (centre - source)[0])
         top, left = r0 - offset[1] + shift_row, c0 - offset[0] + shift_col
         dst_r0, dst_r1 = max(top, 0), min(top + box.shape[0], height)

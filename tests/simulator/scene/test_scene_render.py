@@ -13,7 +13,7 @@ from config_tables.toml_file import load_toml
 from flight_interface.camera import load_camera
 from flight_interface.frames import quat_from_axis_angle
 from simulator.descent_image import DescentImage, render_descent_image
-from simulator.scene import heat_shield, motion_blur, periods, photometry, radiance
+from simulator.scene import blur_warp, heat_shield, motion_blur, periods, photometry, radiance
 from simulator.scene.descent_profile import DescentProfile, constant_velocity_profile
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import SceneConfig
@@ -154,6 +154,23 @@ def test_warped_blur_matches_the_sub_pose_integration(rate_deg_s):
     assert not warped.sky.any() and warped.exposure_centre.radiance.shape == (1024, 1024)
     again = periods.period_fields(terrain, CAMERA, profile, 0.5, SUN, SceneConfig())   # cached enlarged camera
     assert all(np.array_equal(getattr(again.fields, p), getattr(warped.fields, p)) for p in windows)
+
+
+@pytest.mark.parametrize("count", [4, 8, 16, 64])
+def test_warped_blur_leaves_are_the_exposure_sub_poses(count):
+    """The doubling scheme's leaves (the rendered sub-pose N/2 moved by the steps of the bits of j XOR N/2,
+    the last step backward) are the exposure's N sub-poses, each once, so their average is the exposure
+    with no last warp; its time centre is the exposure mid-time."""
+    windows = periods.period_windows(CAMERA, 0.5)
+    plan = blur_warp._Plan(CAMERA, lambda time_s: None, windows, count)
+    leaves = np.arange(plan.count)
+    offsets = sum(((leaves ^ plan.base_index) >> level & 1) * plan.step_sub_poses(level) for level in range(plan.levels))
+    assert np.array_equal(np.sort(plan.base_index + offsets), leaves)
+    assert np.array_equal(plan.base_index + offsets, leaves)            # leaf j reads sub-pose j
+    times = motion_blur.substep_times(*windows["exposure"], count)
+    assert plan.base_s == times[count // 2]
+    assert plan.average_centre_s == pytest.approx(np.mean(times), abs=1e-12)
+    assert plan.average_centre_s == pytest.approx(CAMERA.timing.exposure_mid_time_s(0.5), abs=1e-12)
 
 
 def test_render_descent_image_end_to_end_and_deterministic():
