@@ -439,9 +439,9 @@ class RayFamily:
                     part.flags.c_contiguous for part in (z, self.col0, self.row0, self.col_per_m, self.row_per_m)):
                 col = np.empty_like(z) if out[0] is None else out[0]
                 row = np.empty_like(z) if out[1] is None else out[1]
-                _ray_points_kernel(z.reshape(-1), self.col0.reshape(-1), self.row0.reshape(-1),
-                                   self.col_per_m.reshape(-1), self.row_per_m.reshape(-1), col.reshape(-1),
-                                   row.reshape(-1))
+                _family_points_kernel(z.reshape(-1), self.col0.reshape(-1), self.row0.reshape(-1),
+                                      self.col_per_m.reshape(-1), self.row_per_m.reshape(-1), col.reshape(-1),
+                                      row.reshape(-1))
                 return col, row
             col = np.multiply(z, self.col_per_m, out=out[0])
             col += self.col0
@@ -452,7 +452,7 @@ class RayFamily:
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _ray_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
+def _family_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
     """:meth:`RayFamily.at` of every ray in one pass (float32 products and sums, as numpy rounds them)."""
     for ray in range(z.shape[0]):
         col[ray] = z[ray] * col_per_m[ray] + col0[ray]
@@ -460,33 +460,67 @@ def _ray_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _level_rays_kernel(level_col, level_row, sky, any_sky, window_col0, window_row0, origin_col, origin_row,
-                       inverse_altitude, col0, row0, col_per_m, row_per_m):
-    """The level map in window coordinates (0 at sky pixels) and :class:`RayFamily`'s lines, in one pass."""
-    for pixel in range(level_col.shape[0]):
-        if any_sky and sky[pixel]:
-            col, row = np.float32(0.0), np.float32(0.0)
-        else:
-            col, row = level_col[pixel] - window_col0, level_row[pixel] - window_row0
-        col0[pixel], row0[pixel] = col, row
-        col_per_m[pixel] = (origin_col - col) * inverse_altitude
-        row_per_m[pixel] = (origin_row - row) * inverse_altitude
+def _ray_points_kernel(z, col0, row0, origin_col, origin_row, inverse_altitude, col, row):
+    """Window coordinates of rays at heights z, their slopes formed from the origin on the way.
+
+    ``(origin - col0) / altitude`` rounded to float32, times z, plus ``col0``: the float32 operations of
+    :class:`RayFamily` and :meth:`RayFamily.at` (the same bits), without the slopes in memory.
+    """
+    for ray in range(z.shape[0]):
+        col_per_m = (origin_col - col0[ray]) * inverse_altitude
+        row_per_m = (origin_row - row0[ray]) * inverse_altitude
+        col[ray] = z[ray] * col_per_m + col0[ray]
+        row[ray] = z[ray] * row_per_m + row0[ray]
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _off_tolerance_kernel(z, heights_read, steep, sky, any_sky, tolerance, index, residual):
-    """Flat indices (and residuals ``z - H``) of the pixels with ``|z - H| > tolerance``, neither steep nor sky.
+def _level_lines_kernel(level_col, level_row, sky, any_sky, window_col0, window_row0, col0, row0):
+    """The level map in window coordinates (0 at sky pixels), in one pass."""
+    for pixel in range(level_col.shape[0]):
+        if any_sky and sky[pixel]:
+            col0[pixel], row0[pixel] = np.float32(0.0), np.float32(0.0)
+        else:
+            col0[pixel], row0[pixel] = level_col[pixel] - window_col0, level_row[pixel] - window_row0
 
-    ``heights_read``: (pixels, channels), the heights in channel 0. Returns their count.
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _hits_kernel(z, values, steep, any_steep, sky, any_sky, tolerance, shade, band, rough_above, col, row,
+                 window_col0, window_row0, sky_coordinate, factor, grid_col, grid_row, redo, residual,
+                 rough_index, rough_lit):
+    """The check of the heights, the radiance factor and the grid coordinates of flat pixels, in one pass.
+
+    ``values``: (pixels, channels), the values read at the hits (the heights in channel 0; with ``shade``
+    the four of :func:`shading_nodes`). Writes the indices and residuals ``z - H`` of the pixels with
+    ``|z - H| > tolerance`` (neither steep nor sky), with ``shade`` the factor
+    ``lit values[3] + values[2]`` (``lit = clip(values[1] band + 1/2, 0, 1)``; 1 for sky) and the indices and
+    direct-sun fractions of the pixels whose sky term exceeds ``rough_above`` (a rough node in their read),
+    and the terrain grid coordinates ``col + window_col0`` (``sky_coordinate`` for sky). Returns the counts
+    of pixels off the tolerance and of rough pixels.
     """
-    count = 0
+    redo_count = 0
+    rough_count = 0
     for pixel in range(z.shape[0]):
-        difference = z[pixel] - heights_read[pixel, 0]
-        if abs(difference) > tolerance and not steep[pixel] and not (any_sky and sky[pixel]):
-            index[count] = pixel
-            residual[count] = difference
-            count += 1
-    return count
+        if any_sky and sky[pixel]:
+            if shade:
+                factor[pixel] = np.float32(1.0)
+            grid_col[pixel] = sky_coordinate
+            grid_row[pixel] = sky_coordinate
+            continue
+        difference = z[pixel] - values[pixel, 0]
+        if abs(difference) > tolerance and not (any_steep and steep[pixel]):
+            redo[redo_count] = pixel
+            residual[redo_count] = difference
+            redo_count += 1
+        if shade:
+            lit = min(max(values[pixel, 1] * band + np.float32(0.5), np.float32(0.0)), np.float32(1.0))
+            factor[pixel] = lit * values[pixel, 3] + values[pixel, 2]
+            if values[pixel, 2] > rough_above:
+                rough_index[rough_count] = pixel
+                rough_lit[rough_count] = lit
+                rough_count += 1
+        grid_col[pixel] = col[pixel] + window_col0
+        grid_row[pixel] = row[pixel] + window_row0
+    return redo_count, rough_count
 
 
 def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, tolerance_m: float) -> np.ndarray:
@@ -655,20 +689,20 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
 
     def work(name, dtype=np.float32, channels=()):
         return _work_array(name, shape + channels, dtype) if pooled else np.empty(shape + channels, dtype=dtype)
-    # the level map in window coordinates (sky pixels: any point of the window, masked at the end) and the
-    # rays' lines, in one compiled pass
+    # the level map in window coordinates (sky pixels: any point of the window, masked at the end); the rays'
+    # slopes (grid px per metre of z) are formed where they are used, from these and the origin
     col0, row0 = work("col0"), work("row0")
-    full = RayFamily.__new__(RayFamily)
-    full.col0, full.row0, full.col_per_m, full.row_per_m = col0, row0, work("col_per_m"), work("row_per_m")
-    _level_rays_kernel(level_map.col.reshape(-1), level_map.row.reshape(-1), sky.reshape(-1), level_map.any_sky,
-                       np.float32(crop.col0), np.float32(crop.row0), np.float32(origin_col), np.float32(origin_row),
-                       np.float32(1.0 / altitude), col0.reshape(-1), row0.reshape(-1), full.col_per_m.reshape(-1),
-                       full.row_per_m.reshape(-1))
+    _level_lines_kernel(level_map.col.reshape(-1), level_map.row.reshape(-1), sky.reshape(-1), level_map.any_sky,
+                        np.float32(crop.col0), np.float32(crop.row0), col0.reshape(-1), row0.reshape(-1))
+    lines = (np.float32(origin_col), np.float32(origin_row), np.float32(1.0 / altitude))
+
+    def subset(index: np.ndarray) -> RayFamily:
+        """The rays ``index`` (flat) as a family of their own."""
+        return RayFamily(col0.reshape(-1)[index], row0.reshape(-1)[index], origin_col, origin_row, altitude)
 
     # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound and by
     #    the node normals' error
     even = height_px % 2 == 0 and width_px % 2 == 0 and min(height_px, width_px) >= 4
-    sample = full
     if even:
         size = (width_px // 2, height_px // 2)
         sample = RayFamily(cv2.resize(col0, size, interpolation=cv2.INTER_AREA),
@@ -676,74 +710,99 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         z_sample = solve_coarse(heights, sample, z_bottom, z_top, tolerance)
         z = cv2.resize(z_sample, (width_px, height_px), dst=work("z"), interpolation=cv2.INTER_LINEAR)
     else:
+        sample = RayFamily(col0, row0, origin_col, origin_row, altitude)
         z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
     spacing = _ray_spacing(sample) if even else 0.0
     bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1]
     steep = _steep_rays(bound, sample, z_bottom, z_top, mpp, spacing)
-    if not steep.any():
-        steep = np.zeros(shape, dtype=bool)
-    else:
+    any_steep = bool(steep.any())
+    if any_steep:
         if even:
             steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
         if level_map.any_sky:
             steep &= ~sky
+        any_steep = bool(steep.any())
 
     # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
     #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
-    col, row = full.at(z, out=(work("col"), work("row")))
+    col, row = work("col"), work("row")
+    _ray_points_kernel(z.reshape(-1), col0.reshape(-1), row0.reshape(-1), *lines, col.reshape(-1), row.reshape(-1))
     z = remap_points(heights, col, row, out=work("z_step"))          # z = H(P(z))
-    col, row = full.at(z, out=(col, row))
-    nodes = None
-    if sun is not None:
-        nodes = _nodes(heights, crop, terrain, origin, sun, config)
-        values = remap_points(nodes, col, row, out=work("values", channels=(4,)))
-        heights_read = values.reshape(-1, 4)
-    else:
-        heights_read = remap_points(heights, col, row).reshape(-1, 1)
-    # the pixels off the tolerance (not steep, not sky) and their residuals, in one compiled pass
-    redo_buffer, residual_buffer = work("redo", np.int32), work("residual")
-    count = _off_tolerance_kernel(z.reshape(-1), heights_read, steep.reshape(-1), sky.reshape(-1),
-                                  level_map.any_sky, np.float32(tolerance), redo_buffer.reshape(-1),
-                                  residual_buffer.reshape(-1))
-    redo = redo_buffer.reshape(-1)[:count].astype(np.intp)
-    flat_rays = RayFamily.__new__(RayFamily)
-    flat_rays.col0, flat_rays.row0 = full.col0.reshape(-1), full.row0.reshape(-1)
-    flat_rays.col_per_m, flat_rays.row_per_m = full.col_per_m.reshape(-1), full.row_per_m.reshape(-1)
+    _ray_points_kernel(z.reshape(-1), col0.reshape(-1), row0.reshape(-1), *lines, col.reshape(-1), row.reshape(-1))
+    # the values read at the hits: the four of the shading nodes when the sun is known, else the heights
+    source = heights if sun is None else _nodes(heights, crop, terrain, origin, sun, config)
+    shade = sun is not None
+    values = remap_points(source, col, row, out=work("values", channels=(4,)) if shade else None)
+    # in one compiled pass: the pixels off the tolerance (not steep, not sky), the radiance factor (when the
+    # sun is known) and the grid coordinates of the hits
+    band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
+    rough_above = np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN if relief_config.slope_photometry else np.inf)
+    factor = work("factor") if shade else np.empty((1, 1), dtype=np.float32)
+    grid_col, grid_row = work("grid_col"), work("grid_row")
+    pixels = height_px * width_px
+    redo_buffer, residual_buffer = work("redo", np.int32).reshape(-1), work("residual").reshape(-1)
+    rough_buffer = work("rough_index", np.int32).reshape(-1) if shade else np.empty(0, dtype=np.int32)
+    rough_lit_buffer = work("rough_lit").reshape(-1) if shade else np.empty(0, dtype=np.float32)
+    window = (np.float32(crop.col0), np.float32(crop.row0), np.float32(-ground_mapping.MAX_MAP_COORDINATE))
+    redo_count, rough_count = _hits_kernel(
+        z.reshape(-1), values.reshape(pixels, -1), steep.reshape(-1), any_steep, sky.reshape(-1),
+        level_map.any_sky, np.float32(tolerance), shade, band, rough_above, col.reshape(-1), row.reshape(-1),
+        *window, factor.reshape(-1), grid_col.reshape(-1), grid_row.reshape(-1), redo_buffer, residual_buffer,
+        rough_buffer, rough_lit_buffer)
+    redo = redo_buffer[:redo_count].astype(np.intp)
     z_flat = z.reshape(-1)
-    marched = steep.reshape(-1).copy()
+    marched_index = np.flatnonzero(steep) if any_steep else np.empty(0, dtype=np.intp)
     if redo.size:
-        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual_buffer.reshape(-1)[:count],
-                                         z_bottom, z_top, tolerance)
+        z_redo, converged = solve_points(heights, subset(redo), np.arange(redo.size), z_flat[redo],
+                                         residual_buffer[:redo_count], z_bottom, z_top, tolerance)
         z_flat[redo] = z_redo
-        marched[redo[~converged]] = True
+        if not converged.all():
+            marched_index = np.union1d(marched_index, redo[~converged])
         redo = redo[converged]
     # 3. rays where a nearer bump may hide the crossing: the reference march
-    marched_index = np.flatnonzero(marched)
     if marched_index.size:
-        z_flat[marched_index] = march(heights, flat_rays, marched_index, z_bottom, z_top)
-        marched[redo] = True
-        changed = np.flatnonzero(marched)
+        z_flat[marched_index] = march(heights, subset(marched_index), np.arange(marched_index.size), z_bottom, z_top)
+        changed = np.union1d(marched_index, redo)
     else:
         changed = redo
+    rough_index = rough_buffer[:rough_count].astype(np.intp)
+    rough_lit = rough_lit_buffer[:rough_count]
     if changed.size:
-        col_changed, row_changed = flat_rays.at(z_flat[changed], changed)
+        # the changed pixels read again, and their factor and grid coordinates formed again by the same pass
+        col_changed, row_changed = subset(changed).at(z_flat[changed])
         col.reshape(-1)[changed], row.reshape(-1)[changed] = col_changed, row_changed
-        if nodes is not None:
-            values.reshape(-1, 4)[changed] = remap_points(nodes, col_changed, row_changed)
+        values_changed = remap_points(source, col_changed, row_changed).reshape(changed.size, -1)
+        values.reshape(pixels, -1)[changed] = values_changed
+        count = changed.size
+        factor_changed, grid_col_changed, grid_row_changed = (np.empty(count if shade else 1, dtype=np.float32),
+                                                              np.empty(count, dtype=np.float32),
+                                                              np.empty(count, dtype=np.float32))
+        rough_changed = np.empty(count if shade else 0, dtype=np.int32)
+        rough_lit_changed = np.empty(count if shade else 0, dtype=np.float32)
+        _, rough_changed_count = _hits_kernel(
+            z_flat[changed], values_changed, steep.reshape(-1)[:1], False, sky.reshape(-1)[:1], False,
+            np.float32(np.inf), shade, band, rough_above, col_changed, row_changed, *window, factor_changed,
+            grid_col_changed, grid_row_changed, np.empty(count, dtype=np.int32), np.empty(count, dtype=np.float32),
+            rough_changed, rough_lit_changed)
+        grid_col.reshape(-1)[changed], grid_row.reshape(-1)[changed] = grid_col_changed, grid_row_changed
+        if shade:
+            factor.reshape(-1)[changed] = factor_changed
+            # the rough pixels: those of the first pass not changed, and the changed ones that are, in pixel order
+            kept = ~np.isin(rough_index, changed, assume_unique=True)
+            rough_index = np.concatenate([rough_index[kept], changed[rough_changed[:rough_changed_count]]])
+            rough_lit = np.concatenate([rough_lit[kept], rough_lit_changed[:rough_changed_count]])
+            order = np.argsort(rough_index, kind="stable")
+            rough_index, rough_lit = rough_index[order], rough_lit[order]
     counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
     hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
-    factor = None if nodes is None or sun is None else _factor(hits, values, sun, config,
-                                                                (work("rough_index", np.int32), work("factor")))
-
-    grid_col = np.add(col, np.float32(crop.col0), out=work("grid_col"))
-    grid_row = np.add(row, np.float32(crop.row0), out=work("grid_row"))
-    if level_map.any_sky:
-        grid_col[sky] = -ground_mapping.MAX_MAP_COORDINATE
-        grid_row[sky] = -ground_mapping.MAX_MAP_COORDINATE
+    if sun is not None:
+        if rough_index.size:        # pixels whose read touches a rough node: shaded at their own normal
+            factor.reshape(-1)[rough_index] = exact_shading(hits, rough_index, rough_lit, sun, config)
+        counts["exact_shading"] = int(rough_index.size)
     ground_map = ground_mapping.GroundMap(grid_col, grid_row, sky, level_map.any_sky, level_map._step,
                                           level_map._nodes, level_map._full, level_map.camera_rays,
                                           level_map.camera_to_world, level_map.ray_dz)
-    if factor is not None:
+    if sun is not None:
         hits = dataclasses.replace(hits, factor=factor, sun=np.asarray(sun, dtype=float))
     return ground_map, hits
 
