@@ -526,12 +526,16 @@ def _hits_kernel(z, values, steep, any_steep, sky, any_sky, tolerance, shade, ba
 def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, tolerance_m: float) -> np.ndarray:
     """Secant iterations of every ray of a family (all at once, no compaction).
 
+    Each iteration is a bilinear read of the heights and one compiled pass (:func:`_coarse_step_kernel`: the
+    residuals, their count off the tolerance, the safeguarded secant step of :func:`_secant` and the rays'
+    points at the new heights).
+
     Parameters
     ----------
     heights : ndarray, shape (rows, cols), float32
         Window heights (m).
     rays : RayFamily
-        The rays.
+        The rays (C-contiguous float32 arrays).
     z_bottom, z_top : float
         Height bounds (m).
     tolerance_m : float
@@ -542,16 +546,52 @@ def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: f
     ndarray, float32, shape of the rays
         Heights z (m).
     """
-    z_previous = np.zeros_like(rays.col0)
     level = remap_points(heights, rays.col0, rays.row0)
     f_previous = -level
     z = np.clip(level, np.float32(z_bottom), np.float32(z_top))
+    z_previous = np.zeros_like(rays.col0)
+    col, row = rays.at(z)
+    read = np.empty_like(z)
+    flat = [array.reshape(-1) for array in (z, read, z_previous, f_previous, rays.col0, rays.row0, rays.col_per_m,
+                                            rays.row_per_m, col, row)]
     for _ in range(MAX_COARSE_ITERATIONS):
-        f = z - remap_points(heights, *rays.at(z))
-        if np.count_nonzero(np.abs(f) > np.float32(tolerance_m)) <= COARSE_UNSOLVED_FRACTION * f.size:
-            break       # the rest are solved at full resolution
-        z, z_previous, f_previous = _secant(z, f, z_previous, f_previous, z_bottom, z_top), z, f
+        remap_points(heights, col, row, out=read)
+        off = _coarse_step_kernel(*flat[:4], np.float32(z_bottom), np.float32(z_top), np.float32(tolerance_m),
+                                  *flat[4:])
+        if off <= COARSE_UNSOLVED_FRACTION * z.size:
+            return z_previous    # the heights just checked; the rest are solved at full resolution
     return z
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _coarse_step_kernel(z, read, z_previous, f_previous, z_bottom, z_top, tolerance, col0, row0, col_per_m,
+                        row_per_m, col, row):
+    """One iteration of :func:`solve_coarse` after the read ``H(P(z))``, in place; returns the count off the tolerance.
+
+    ``f = z - read``; ``(z_previous, f_previous) <- (z, f)``; ``z <-`` the safeguarded secant step of
+    :func:`_secant` (its float32 operations: the same bits); ``(col, row) <-`` the rays at the new ``z``.
+    """
+    off = 0
+    for ray in range(z.shape[0]):
+        height = z[ray]
+        f = height - read[ray]
+        if abs(f) > tolerance:
+            off += 1
+        dz = height - z_previous[ray]
+        slope = (f - f_previous[ray]) / dz if abs(dz) > np.float32(1e-6) else np.float32(1.0)
+        if slope < np.float32(SECANT_SLOPE_RANGE[0]):
+            slope = np.float32(SECANT_SLOPE_RANGE[0])
+        if slope > np.float32(SECANT_SLOPE_RANGE[1]):
+            slope = np.float32(SECANT_SLOPE_RANGE[1])
+        following = height - f / slope
+        if following < z_bottom:
+            following = z_bottom
+        if following > z_top:
+            following = z_top
+        z_previous[ray], f_previous[ray], z[ray] = height, f, following
+        col[ray] = following * col_per_m[ray] + col0[ray]
+        row[ray] = following * row_per_m[ray] + row0[ray]
+    return off
 
 
 def solve_points(heights: np.ndarray, rays: RayFamily, index: np.ndarray, z: np.ndarray, f: np.ndarray,
