@@ -552,12 +552,13 @@ def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: f
     z_previous = np.zeros_like(rays.col0)
     col, row = rays.at(z)
     read = np.empty_like(z)
-    flat = [array.reshape(-1) for array in (z, read, z_previous, f_previous, rays.col0, rays.row0, rays.col_per_m,
-                                            rays.row_per_m, col, row)]
+    bounds = (np.float32(z_bottom), np.float32(z_top), np.float32(tolerance_m))
     for _ in range(MAX_COARSE_ITERATIONS):
         remap_points(heights, col, row, out=read)
-        off = _coarse_step_kernel(*flat[:4], np.float32(z_bottom), np.float32(z_top), np.float32(tolerance_m),
-                                  *flat[4:])
+        off = _coarse_step_kernel(z.reshape(-1), read.reshape(-1), z_previous.reshape(-1), f_previous.reshape(-1),
+                                  bounds[0], bounds[1], bounds[2], rays.col0.reshape(-1), rays.row0.reshape(-1),
+                                  rays.col_per_m.reshape(-1), rays.row_per_m.reshape(-1), col.reshape(-1),
+                                  row.reshape(-1))
         if off <= COARSE_UNSOLVED_FRACTION * z.size:
             return z_previous    # the heights just checked; the rest are solved at full resolution
     return z
