@@ -386,7 +386,8 @@ def _view_term_kernel(pack, normal_east, normal_north, to_camera_east, to_camera
                       direct_fraction, half_table, nodes):
     """:func:`shading_nodes` in one pass over the window.
 
-    The half-precision normals' bits are looked up in ``half_table`` (:func:`_half_table`). Channels 0-2 are copied from the static values, channel 3 is
+    The half-precision normals' bits are looked up in ``half_table`` (:func:`_half_table`). Channels 0-2 are
+    copied from the static values, channel 3 is
     ``(1 - d) LS(n, v) / LS(flat, v) = (1 - d) A (s_z D + v_z) / (s_z (A D + B))`` with ``A = n.s`` (channel 3
     of the static values), ``B = max(n.(O - X), 0)`` and ``D = |O - X|`` (the normal's length cancels).
     """
