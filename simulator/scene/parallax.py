@@ -60,8 +60,7 @@ from simulator.scene.resample import Crop
 from simulator.scene.terrain import Terrain
 
 UNIQUE_SLOPE_BOUND = 0.9       # |q| below this over the whole ray segment: one crossing, secant converges
-MAX_COARSE_ITERATIONS = 8
-COARSE_UNSOLVED_FRACTION = 0.005  # the half-resolution solve stops with this fraction off the tolerance
+COARSE_SECANT_STEPS = 1          # half-resolution secant steps before the full-resolution step and check
 MAX_PIXEL_ITERATIONS = 8
 SECANT_SLOPE_RANGE = (0.1, 2.0)   # f' = 1 - q lies in (0.1, 1.9) where the bound holds
 REMAP_ROW = 1024                 # a flat list of points is remapped as rows of this many (OpenCV maps < 32767)
@@ -549,12 +548,15 @@ def _hits_kernel(z, values, steep, any_steep, sky, any_sky, tolerance, shade, ba
     return redo_count, rough_count
 
 
-def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, tolerance_m: float) -> np.ndarray:
-    """Secant iterations of every ray of a family (all at once, no compaction).
+def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float,
+                 steps: int = COARSE_SECANT_STEPS) -> np.ndarray:
+    """Safeguarded secant steps of every ray of a family from the fixed-point start (all at once).
 
-    Each iteration is a bilinear read of the heights and one compiled pass (:func:`_coarse_step_kernel`: the
-    residuals, their count off the tolerance, the safeguarded secant step of :func:`_secant` and the rays'
-    points at the new heights).
+    The first secant point is the level ground ``(0, -H(P0))``, the second the fixed-point start
+    ``z0 = H(P0)``; each step is a bilinear read of the heights and one compiled pass
+    (:func:`_coarse_step_kernel`: the residuals, the step of :func:`_secant` and the rays' points at the
+    new heights). No residual is checked here: the full-resolution pass of :func:`parallax_hits` checks every
+    pixel against the tolerance.
 
     Parameters
     ----------
@@ -564,8 +566,8 @@ def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: f
         The rays (C-contiguous float32 arrays).
     z_bottom, z_top : float
         Height bounds (m).
-    tolerance_m : float
-        Stop when every ``|z - H(P(z))|`` is within this (m).
+    steps : int, optional
+        Secant steps (:data:`COARSE_SECANT_STEPS`).
 
     Returns
     -------
@@ -578,32 +580,24 @@ def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: f
     z_previous = np.zeros_like(rays.col0)
     col, row = rays.at(z)
     read = np.empty_like(z)
-    bounds = (np.float32(z_bottom), np.float32(z_top), np.float32(tolerance_m))
-    for _ in range(MAX_COARSE_ITERATIONS):
+    for _ in range(steps):
         remap_points(heights, col, row, out=read)
-        off = _coarse_step_kernel(z.reshape(-1), read.reshape(-1), z_previous.reshape(-1), f_previous.reshape(-1),
-                                  bounds[0], bounds[1], bounds[2], rays.col0.reshape(-1), rays.row0.reshape(-1),
-                                  rays.col_per_m.reshape(-1), rays.row_per_m.reshape(-1), col.reshape(-1),
-                                  row.reshape(-1))
-        if off <= COARSE_UNSOLVED_FRACTION * z.size:
-            return z_previous    # the heights just checked; the rest are solved at full resolution
+        _coarse_step_kernel(z.reshape(-1), read.reshape(-1), z_previous.reshape(-1), f_previous.reshape(-1),
+                            np.float32(z_bottom), np.float32(z_top), rays.col0.reshape(-1), rays.row0.reshape(-1),
+                            rays.col_per_m.reshape(-1), rays.row_per_m.reshape(-1), col.reshape(-1), row.reshape(-1))
     return z
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _coarse_step_kernel(z, read, z_previous, f_previous, z_bottom, z_top, tolerance, col0, row0, col_per_m,
-                        row_per_m, col, row):
-    """One iteration of :func:`solve_coarse` after the read ``H(P(z))``, in place; returns the count off the tolerance.
+def _coarse_step_kernel(z, read, z_previous, f_previous, z_bottom, z_top, col0, row0, col_per_m, row_per_m, col, row):
+    """One step of :func:`solve_coarse` after the read ``H(P(z))``, in place.
 
     ``f = z - read``; ``(z_previous, f_previous) <- (z, f)``; ``z <-`` the safeguarded secant step of
     :func:`_secant` (its float32 operations: the same bits); ``(col, row) <-`` the rays at the new ``z``.
     """
-    off = 0
     for ray in range(z.shape[0]):
         height = z[ray]
         f = height - read[ray]
-        if abs(f) > tolerance:
-            off += 1
         dz = height - z_previous[ray]
         slope = (f - f_previous[ray]) / dz if abs(dz) > np.float32(1e-6) else np.float32(1.0)
         if slope < np.float32(SECANT_SLOPE_RANGE[0]):
@@ -618,7 +612,6 @@ def _coarse_step_kernel(z, read, z_previous, f_previous, z_bottom, z_top, tolera
         z_previous[ray], f_previous[ray], z[ray] = height, f, following
         col[ray] = following * col_per_m[ray] + col0[ray]
         row[ray] = following * row_per_m[ray] + row0[ray]
-    return off
 
 
 def solve_points(heights: np.ndarray, rays: RayFamily, index: np.ndarray, z: np.ndarray, f: np.ndarray,
@@ -774,7 +767,7 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         size = (width_px // 2, height_px // 2)
         sample = RayFamily(cv2.resize(col0, size, interpolation=cv2.INTER_AREA),
                            cv2.resize(row0, size, interpolation=cv2.INTER_AREA), origin_col, origin_row, altitude)
-        z_sample = solve_coarse(heights, sample, z_bottom, z_top, tolerance)
+        z_sample = solve_coarse(heights, sample, z_bottom, z_top)
         z = cv2.resize(z_sample, (width_px, height_px), dst=work("z"), interpolation=cv2.INTER_LINEAR)
     else:
         sample = RayFamily(col0, row0, origin_col, origin_row, altitude)
