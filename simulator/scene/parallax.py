@@ -499,6 +499,19 @@ def _ray_points_kernel(z, col0, row0, origin_col, origin_row, inverse_altitude, 
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
+def _hit_points_kernel(z, col0, row0, origin_col, origin_row, inverse_altitude, window_col0, window_row0, col, row,
+                       grid_col, grid_row):
+    """:func:`_ray_points_kernel`, and the points' terrain grid coordinates ``col + window_col0`` (likewise rows)."""
+    for ray in range(z.shape[0]):
+        col_per_m = (origin_col - col0[ray]) * inverse_altitude
+        row_per_m = (origin_row - row0[ray]) * inverse_altitude
+        point_col = z[ray] * col_per_m + col0[ray]
+        point_row = z[ray] * row_per_m + row0[ray]
+        col[ray], row[ray] = point_col, point_row
+        grid_col[ray], grid_row[ray] = point_col + window_col0, point_row + window_row0
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
 def _level_lines_kernel(level_col, level_row, sky, any_sky, window_col0, window_row0, col0, row0):
     """The level map in window coordinates (0 at sky pixels), in one pass."""
     for pixel in range(level_col.shape[0]):
@@ -509,18 +522,17 @@ def _level_lines_kernel(level_col, level_row, sky, any_sky, window_col0, window_
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _hits_kernel(z, values, steep, any_steep, sky, any_sky, tolerance, shade, band, rough_above, col, row,
-                 window_col0, window_row0, sky_coordinate, factor, grid_col, grid_row, redo, residual,
-                 rough_index, rough_lit):
-    """The check of the heights, the radiance factor and the grid coordinates of flat pixels, in one pass.
+def _hits_kernel(z, values, steep, any_steep, sky, any_sky, tolerance, shade, band, rough_above, sky_coordinate,
+                 factor, grid_col, grid_row, redo, residual, rough_index, rough_lit):
+    """The check of the heights and the radiance factor of flat pixels, in one pass.
 
     ``values``: (pixels, channels), the values read at the hits (the heights in channel 0; with ``shade``
     the four of :func:`shading_nodes`). Writes the indices and residuals ``z - H`` of the pixels with
     ``|z - H| > tolerance`` (neither steep nor sky), with ``shade`` the factor
     ``lit values[3] + values[2]`` (``lit = clip(values[1] band + 1/2, 0, 1)``; 1 for sky) and the indices and
     direct-sun fractions of the pixels whose sky term exceeds ``rough_above`` (a rough node in their read),
-    and the terrain grid coordinates ``col + window_col0`` (``sky_coordinate`` for sky). Returns the counts
-    of pixels off the tolerance and of rough pixels.
+    and ``sky_coordinate`` as the grid coordinates of sky pixels. Returns the counts of pixels off the
+    tolerance and of rough pixels.
     """
     redo_count = 0
     rough_count = 0
@@ -543,8 +555,6 @@ def _hits_kernel(z, values, steep, any_steep, sky, any_sky, tolerance, shade, ba
                 rough_index[rough_count] = pixel
                 rough_lit[rough_count] = lit
                 rough_count += 1
-        grid_col[pixel] = col[pixel] + window_col0
-        grid_row[pixel] = row[pixel] + window_row0
     return redo_count, rough_count
 
 
@@ -736,7 +746,7 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     mpp = terrain.metres_per_pixel
     crop = height_field.march_window(terrain, camera, pose)
     heights = np.ascontiguousarray(terrain.height_m[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
-    z_top, z_bottom = float(heights.max()), float(heights.min())
+    z_bottom, z_top = (float(value) for value in cv2.minMaxLoc(heights)[:2])      # exact extremes, one pass
     origin = pose.ray_origin_m
     origin_row, origin_col = terrain.world_to_pixel(origin[0], origin[1])
     origin_col, origin_row = float(origin_col) - crop.col0, float(origin_row) - crop.row0
@@ -786,29 +796,30 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
     #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
     col, row = work("col"), work("row")
+    grid_col, grid_row = work("grid_col"), work("grid_row")
     _ray_points_kernel(z.reshape(-1), col0.reshape(-1), row0.reshape(-1), *lines, col.reshape(-1), row.reshape(-1))
     z = remap_points(heights, col, row, out=work("z_step"))          # z = H(P(z))
-    _ray_points_kernel(z.reshape(-1), col0.reshape(-1), row0.reshape(-1), *lines, col.reshape(-1), row.reshape(-1))
+    _hit_points_kernel(z.reshape(-1), col0.reshape(-1), row0.reshape(-1), *lines, np.float32(crop.col0),
+                       np.float32(crop.row0), col.reshape(-1), row.reshape(-1), grid_col.reshape(-1),
+                       grid_row.reshape(-1))
     # the values read at the hits: the four of the shading nodes when the sun is known, else the heights
     source = heights if sun is None else _nodes(heights, crop, terrain, origin, sun, config)
     shade = sun is not None
     values = remap_points(source, col, row, out=work("values", channels=(4,)) if shade else None)
-    # in one compiled pass: the pixels off the tolerance (not steep, not sky), the radiance factor (when the
-    # sun is known) and the grid coordinates of the hits
+    # in one compiled pass: the pixels off the tolerance (not steep, not sky) and the radiance factor (when the
+    # sun is known)
     band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
     rough_above = np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN if relief_config.slope_photometry else np.inf)
     factor = work("factor") if shade else np.empty((1, 1), dtype=np.float32)
-    grid_col, grid_row = work("grid_col"), work("grid_row")
     pixels = height_px * width_px
     redo_buffer, residual_buffer = work("redo", np.int32).reshape(-1), work("residual").reshape(-1)
     rough_buffer = work("rough_index", np.int32).reshape(-1) if shade else np.empty(0, dtype=np.int32)
     rough_lit_buffer = work("rough_lit").reshape(-1) if shade else np.empty(0, dtype=np.float32)
-    window = (np.float32(crop.col0), np.float32(crop.row0), np.float32(-ground_mapping.MAX_MAP_COORDINATE))
     redo_count, rough_count = _hits_kernel(
         z.reshape(-1), values.reshape(pixels, -1), steep.reshape(-1), any_steep, sky.reshape(-1),
-        level_map.any_sky, np.float32(tolerance), shade, band, rough_above, col.reshape(-1), row.reshape(-1),
-        *window, factor.reshape(-1), grid_col.reshape(-1), grid_row.reshape(-1), redo_buffer, residual_buffer,
-        rough_buffer, rough_lit_buffer)
+        level_map.any_sky, np.float32(tolerance), shade, band, rough_above,
+        np.float32(-ground_mapping.MAX_MAP_COORDINATE), factor.reshape(-1), grid_col.reshape(-1),
+        grid_row.reshape(-1), redo_buffer, residual_buffer, rough_buffer, rough_lit_buffer)
     redo = redo_buffer[:redo_count].astype(np.intp)
     z_flat = z.reshape(-1)
     marched_index = np.flatnonzero(steep) if any_steep else np.empty(0, dtype=np.intp)
@@ -834,17 +845,16 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         values_changed = remap_points(source, col_changed, row_changed).reshape(changed.size, -1)
         values.reshape(pixels, -1)[changed] = values_changed
         count = changed.size
-        factor_changed, grid_col_changed, grid_row_changed = (np.empty(count if shade else 1, dtype=np.float32),
-                                                              np.empty(count, dtype=np.float32),
-                                                              np.empty(count, dtype=np.float32))
+        factor_changed = np.empty(count if shade else 1, dtype=np.float32)
         rough_changed = np.empty(count if shade else 0, dtype=np.int32)
         rough_lit_changed = np.empty(count if shade else 0, dtype=np.float32)
+        no_pixels = np.empty(0, dtype=np.float32)
         _, rough_changed_count = _hits_kernel(
             z_flat[changed], values_changed, steep.reshape(-1)[:1], False, sky.reshape(-1)[:1], False,
-            np.float32(np.inf), shade, band, rough_above, col_changed, row_changed, *window, factor_changed,
-            grid_col_changed, grid_row_changed, np.empty(count, dtype=np.int32), np.empty(count, dtype=np.float32),
-            rough_changed, rough_lit_changed)
-        grid_col.reshape(-1)[changed], grid_row.reshape(-1)[changed] = grid_col_changed, grid_row_changed
+            np.float32(np.inf), shade, band, rough_above, np.float32(0.0), factor_changed, no_pixels, no_pixels,
+            np.empty(count, dtype=np.int32), np.empty(count, dtype=np.float32), rough_changed, rough_lit_changed)
+        grid_col.reshape(-1)[changed] = col_changed + np.float32(crop.col0)
+        grid_row.reshape(-1)[changed] = row_changed + np.float32(crop.row0)
         if shade:
             factor.reshape(-1)[changed] = factor_changed
             # the rough pixels: those of the first pass not changed, and the changed ones that are, in pixel order
@@ -1001,8 +1011,8 @@ def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_t
     """
     if z_top <= z_bottom:
         return np.zeros(rays.col0.shape, dtype=bool)
-    px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
-    largest_px_per_m = float(px_per_m.max())
+    # sqrt is monotone: the square root of the largest squared slope is the largest slope, exactly
+    largest_px_per_m = float(np.sqrt(_largest_squared_slope(rays.col_per_m.reshape(-1), rays.row_per_m.reshape(-1))))
     # the bound is >= 0, so its half-precision bits order as unsigned integers (an exact, faster maximum)
     largest_bound = float(heights_bound.view(np.uint16).max().view(np.float16)) if heights_bound.dtype == np.float16 \
         else float(heights_bound.max())
@@ -1014,4 +1024,16 @@ def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_t
                        borderType=cv2.BORDER_REPLICATE)
     middle = np.float32(0.5 * (z_top + z_bottom))
     local = remap_points(bound, *rays.at(middle))
+    px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
     return local * (px_per_m * np.float32(mpp)) >= np.float32(UNIQUE_SLOPE_BOUND)
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _largest_squared_slope(col_per_m, row_per_m):
+    """The largest ``col_per_m^2 + row_per_m^2`` (float32, as numpy rounds it) of flat rays (0 for none)."""
+    largest = np.float32(0.0)
+    for ray in range(col_per_m.shape[0]):
+        squared = col_per_m[ray] * col_per_m[ray] + row_per_m[ray] * row_per_m[ray]
+        if squared > largest:
+            largest = squared
+    return largest
