@@ -834,12 +834,12 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
                                          residual_buffer[:redo_count], z_bottom, z_top, tolerance)
         z_flat[redo] = z_redo
         if not converged.all():
-            marched_index = np.union1d(marched_index, redo[~converged])
+            marched_index = _sorted_union(marched_index, redo[~converged], pixels)
         redo = redo[converged]
     # 3. rays where a nearer bump may hide the crossing: the reference march
     if marched_index.size:
         z_flat[marched_index] = march(heights, subset(marched_index), np.arange(marched_index.size), z_bottom, z_top)
-        changed = np.union1d(marched_index, redo)
+        changed = _sorted_union(marched_index, redo, pixels)
     else:
         changed = redo
     rough_index = rough_buffer[:rough_count].astype(np.intp)
@@ -849,7 +849,6 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         col_changed, row_changed = subset(changed).at(z_flat[changed])
         col.reshape(-1)[changed], row.reshape(-1)[changed] = col_changed, row_changed
         values_changed = remap_points(source, col_changed, row_changed).reshape(changed.size, -1)
-        values.reshape(pixels, -1)[changed] = values_changed
         count = changed.size
         factor_changed = np.empty(count if shade else 1, dtype=np.float32)
         rough_changed = np.empty(count if shade else 0, dtype=np.int32)
@@ -864,11 +863,9 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
         if shade:
             factor.reshape(-1)[changed] = factor_changed
             # the rough pixels: those of the first pass not changed, and the changed ones that are, in pixel order
-            kept = ~np.isin(rough_index, changed, assume_unique=True)
-            rough_index = np.concatenate([rough_index[kept], changed[rough_changed[:rough_changed_count]]])
-            rough_lit = np.concatenate([rough_lit[kept], rough_lit_changed[:rough_changed_count]])
-            order = np.argsort(rough_index, kind="stable")
-            rough_index, rough_lit = rough_index[order], rough_lit[order]
+            rough_index, rough_lit = _replace_rough(rough_index, rough_lit, changed,
+                                                    changed[rough_changed[:rough_changed_count]],
+                                                    rough_lit_changed[:rough_changed_count], pixels)
     counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
     hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
     if sun is not None:
@@ -881,6 +878,40 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     if sun is not None:
         hits = dataclasses.replace(hits, factor=factor, sun=np.asarray(sun, dtype=float))
     return ground_map, hits
+
+
+def _sorted_union(first: np.ndarray, second: np.ndarray, pixels: int) -> np.ndarray:
+    """Sorted union of two sets of flat pixel indices (a frame mask when they are large, else a sort)."""
+    if first.size + second.size <= pixels // 64:
+        return np.union1d(first, second)
+    mask = np.zeros(pixels, dtype=bool)
+    mask[first] = True
+    mask[second] = True
+    return np.flatnonzero(mask)
+
+
+def _replace_rough(rough_index: np.ndarray, rough_lit: np.ndarray, changed: np.ndarray, changed_rough: np.ndarray,
+                   changed_rough_lit: np.ndarray, pixels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rough pixels (sorted) and their direct-sun fractions once the ``changed`` pixels were formed again.
+
+    Those of the first pass that did not change, and ``changed_rough`` (with ``changed_rough_lit``); a frame
+    mask when the sets are large, else a sorted merge.
+    """
+    if rough_index.size + changed.size <= pixels // 64:
+        kept = ~np.isin(rough_index, changed, assume_unique=True)
+        index = np.concatenate([rough_index[kept], changed_rough])
+        lit = np.concatenate([rough_lit[kept], changed_rough_lit])
+        order = np.argsort(index, kind="stable")
+        return index[order], lit[order]
+    mask = np.zeros(pixels, dtype=bool)
+    lit_of_pixel = np.empty(pixels, dtype=np.float32)
+    mask[rough_index] = True
+    lit_of_pixel[rough_index] = rough_lit
+    mask[changed] = False
+    mask[changed_rough] = True
+    lit_of_pixel[changed_rough] = changed_rough_lit
+    index = np.flatnonzero(mask)
+    return index, lit_of_pixel[index]
 
 
 def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarray, sun: np.ndarray, config):
