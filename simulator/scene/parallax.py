@@ -11,9 +11,11 @@ ray's horizontal direction times ``tan(view angle)``; where the terrain's slope 
 whole segment between the window's height extremes keeps ``|q| < UNIQUE_SLOPE_BOUND`` (0.9, a dilated map
 of the bilinear surface's per-cell gradient bound), ``f`` is increasing, the ray crosses the surface once
 (no occlusion is possible) and the secant iteration from the fixed-point start ``z1 = H(P0)`` converges
-(at 1.5-2 km over the Gusev classes: 2-4 iterations to 1 mm). The solve runs on a half-resolution pixel
-grid (block means of the level map), its heights are upsampled, and every pixel is then checked at full
-resolution: where ``|z - H(P(z))| > height_tolerance_m`` the pixel iterates on its own. Rays where the
+(at 1.5-2 km over the Gusev classes ``|q|`` is mostly 0.01-0.05: one secant step leaves 0.01-0.8 % of the
+rays off 1 mm). One secant step runs on a half-resolution pixel grid (block means of the level map), its
+heights are upsampled, then every pixel takes one fixed-point step ``z <- H(P(z))`` at full resolution
+(contracting the upsampling error by ``q``) and is checked: where ``|z - H(P(z))| > height_tolerance_m``
+(0.1-0.9 % of the pixels on the bench's poses) the pixel iterates on its own. Rays where the
 bound does not hold (steep knobs, mesa walls: where a nearer bump may hide the crossing) and the few
 that do not converge in ``MAX_PIXEL_ITERATIONS`` take the reference ray march
 (:func:`simulator.scene.relief.march_heights`): occlusion stays exact.
@@ -37,11 +39,15 @@ own normal as the reference does (measured difference: docs/simulator.md, "Terra
 pose-independent values are cached per terrain and sun (:func:`static_nodes`); per pose only the view term
 is computed on the window (:func:`shading_nodes`).
 
-**Compiled passes.** The elementwise work is fused into numba passes (``cache=True``; ~1.1 s of CPU to
-compile once per machine): the level rays' lines, the ray points, the off-tolerance pixels, the view term
-(reading the half-precision normals' bits exactly) and the radiance factor; OpenCV's remap keeps the
-bilinear reads (5x faster than a scalar compiled read here). They compute the same float32 operations as
-the numpy passes they replace: the same bits.
+**Compiled passes.** The elementwise work is fused into numba passes (``cache=True``; ~1.5 s of CPU to
+compile once per machine): the level map in window coordinates, the coarse secant step with its next ray
+points, the ray points (the rays' slopes formed on the way, never stored), the hit points with their grid
+coordinates, the view term (the half-precision normals' bits read through a table of their exact values),
+and one pass for the off-tolerance pixels and the radiance factor; OpenCV's remap keeps the bilinear reads
+(a scalar compiled read measured 2x slower here, and its 1/32-px snapping is what the check holds to the
+tolerance). They compute the same float32 operations as the numpy passes they replace: the same bits.
+The per-pose floor is the reads: two full-resolution remaps (the fixed-point step and the 4-channel check
+and shading read) and two half-resolution ones; the rest is memory-bound passes over 1 Mpx frames.
 """
 from __future__ import annotations
 
@@ -60,8 +66,7 @@ from simulator.scene.resample import Crop
 from simulator.scene.terrain import Terrain
 
 UNIQUE_SLOPE_BOUND = 0.9       # |q| below this over the whole ray segment: one crossing, secant converges
-MAX_COARSE_ITERATIONS = 8
-COARSE_UNSOLVED_FRACTION = 0.005  # the half-resolution solve stops with this fraction off the tolerance
+COARSE_SECANT_STEPS = 1          # half-resolution secant steps before the full-resolution step and check
 MAX_PIXEL_ITERATIONS = 8
 SECANT_SLOPE_RANGE = (0.1, 2.0)   # f' = 1 - q lies in (0.1, 1.9) where the bound holds
 REMAP_ROW = 1024                 # a flat list of points is remapped as rows of this many (OpenCV maps < 32767)
@@ -334,7 +339,7 @@ def shading_nodes(terrain: Terrain, crop: Crop, origin_m: np.ndarray, sun: np.nd
     _view_term_kernel(pack[window], normal_east[window].view(np.uint16), normal_north[window].view(np.uint16),
                       (origin_m[0] - east).astype(np.float32), (origin_m[1] - north).astype(np.float32),
                       np.float32(origin_m[2]), max(np.float32(sun[2]), np.float32(1e-12)),
-                      np.float32(1.0) - np.float32(config.shadow_diffuse_fraction), HALF_SCALES, nodes)
+                      np.float32(1.0) - np.float32(config.shadow_diffuse_fraction), _half_table(), nodes)
     return nodes
 
 
@@ -356,12 +361,38 @@ def _half_to_float32(bits, scales):
     return -value if bits & 0x8000 else value
 
 
+_half_tables: list[np.ndarray] = []
+
+
+def _half_table() -> np.ndarray:
+    """The float32 value of every IEEE half-precision bit pattern (:func:`_half_to_float32`), built once.
+
+    Returns
+    -------
+    ndarray, shape (65536,), float32
+        Indexed by the bits (256 KiB: a table read instead of a decode with branches per normal).
+    """
+    if not _half_tables:
+        table = np.empty(65536, dtype=np.float32)
+        _decode_all_halves(np.arange(65536, dtype=np.uint16), HALF_SCALES, table)
+        _half_tables.append(table)
+    return _half_tables[0]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _decode_all_halves(bits, scales, out):
+    """:func:`_half_to_float32` of each of ``bits``."""
+    for index in range(bits.size):
+        out[index] = _half_to_float32(bits[index], scales)
+
+
 @njit(cache=True, nogil=True, boundscheck=False)
 def _view_term_kernel(pack, normal_east, normal_north, to_camera_east, to_camera_north, origin_up, sun_z,
-                      direct_fraction, half_scales, nodes):
+                      direct_fraction, half_table, nodes):
     """:func:`shading_nodes` in one pass over the window.
 
-    Channels 0-2 are copied from the static values, channel 3 is
+    The half-precision normals' bits are looked up in ``half_table`` (:func:`_half_table`). Channels 0-2 are
+    copied from the static values, channel 3 is
     ``(1 - d) LS(n, v) / LS(flat, v) = (1 - d) A (s_z D + v_z) / (s_z (A D + B))`` with ``A = n.s`` (channel 3
     of the static values), ``B = max(n.(O - X), 0)`` and ``D = |O - X|`` (the normal's length cancels).
     """
@@ -370,8 +401,8 @@ def _view_term_kernel(pack, normal_east, normal_north, to_camera_east, to_camera
         north = to_camera_north[row]
         for col in range(cols):
             east = to_camera_east[col]
-            slope_east = _half_to_float32(normal_east[row, col], half_scales)
-            slope_north = _half_to_float32(normal_north[row, col], half_scales)
+            slope_east = half_table[normal_east[row, col]]
+            slope_north = half_table[normal_north[row, col]]
             height = pack[row, col, 0]
             up = origin_up - height
             distance = np.sqrt(up * up + (east * east + north * north))
@@ -439,9 +470,9 @@ class RayFamily:
                     part.flags.c_contiguous for part in (z, self.col0, self.row0, self.col_per_m, self.row_per_m)):
                 col = np.empty_like(z) if out[0] is None else out[0]
                 row = np.empty_like(z) if out[1] is None else out[1]
-                _ray_points_kernel(z.reshape(-1), self.col0.reshape(-1), self.row0.reshape(-1),
-                                   self.col_per_m.reshape(-1), self.row_per_m.reshape(-1), col.reshape(-1),
-                                   row.reshape(-1))
+                _family_points_kernel(z.reshape(-1), self.col0.reshape(-1), self.row0.reshape(-1),
+                                      self.col_per_m.reshape(-1), self.row_per_m.reshape(-1), col.reshape(-1),
+                                      row.reshape(-1))
                 return col, row
             col = np.multiply(z, self.col_per_m, out=out[0])
             col += self.col0
@@ -452,7 +483,7 @@ class RayFamily:
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _ray_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
+def _family_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
     """:meth:`RayFamily.at` of every ray in one pass (float32 products and sums, as numpy rounds them)."""
     for ray in range(z.shape[0]):
         col[ray] = z[ray] * col_per_m[ray] + col0[ray]
@@ -460,64 +491,143 @@ def _ray_points_kernel(z, col0, row0, col_per_m, row_per_m, col, row):
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _level_rays_kernel(level_col, level_row, sky, any_sky, window_col0, window_row0, origin_col, origin_row,
-                       inverse_altitude, col0, row0, col_per_m, row_per_m):
-    """The level map in window coordinates (0 at sky pixels) and :class:`RayFamily`'s lines, in one pass."""
-    for pixel in range(level_col.shape[0]):
-        if any_sky and sky[pixel]:
-            col, row = np.float32(0.0), np.float32(0.0)
-        else:
-            col, row = level_col[pixel] - window_col0, level_row[pixel] - window_row0
-        col0[pixel], row0[pixel] = col, row
-        col_per_m[pixel] = (origin_col - col) * inverse_altitude
-        row_per_m[pixel] = (origin_row - row) * inverse_altitude
+def _ray_points_kernel(z, col0, row0, origin_col, origin_row, inverse_altitude, col, row):
+    """Window coordinates of rays at heights z, their slopes formed from the origin on the way.
+
+    ``(origin - col0) / altitude`` rounded to float32, times z, plus ``col0``: the float32 operations of
+    :class:`RayFamily` and :meth:`RayFamily.at` (the same bits), without the slopes in memory.
+    """
+    for ray in range(z.shape[0]):
+        col_per_m = (origin_col - col0[ray]) * inverse_altitude
+        row_per_m = (origin_row - row0[ray]) * inverse_altitude
+        col[ray] = z[ray] * col_per_m + col0[ray]
+        row[ray] = z[ray] * row_per_m + row0[ray]
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _off_tolerance_kernel(z, heights_read, steep, sky, any_sky, tolerance, index, residual):
-    """Flat indices (and residuals ``z - H``) of the pixels with ``|z - H| > tolerance``, neither steep nor sky.
+def _hit_points_kernel(z, col0, row0, origin_col, origin_row, inverse_altitude, window_col0, window_row0, col, row,
+                       grid_col, grid_row):
+    """:func:`_ray_points_kernel`, and the points' terrain grid coordinates ``col + window_col0`` (likewise rows)."""
+    for ray in range(z.shape[0]):
+        col_per_m = (origin_col - col0[ray]) * inverse_altitude
+        row_per_m = (origin_row - row0[ray]) * inverse_altitude
+        point_col = z[ray] * col_per_m + col0[ray]
+        point_row = z[ray] * row_per_m + row0[ray]
+        col[ray], row[ray] = point_col, point_row
+        grid_col[ray], grid_row[ray] = point_col + window_col0, point_row + window_row0
 
-    ``heights_read``: (pixels, channels), the heights in channel 0. Returns their count.
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _level_lines_kernel(level_col, level_row, sky, any_sky, window_col0, window_row0, col0, row0):
+    """The level map in window coordinates (0 at sky pixels), in one pass."""
+    for pixel in range(level_col.shape[0]):
+        if any_sky and sky[pixel]:
+            col0[pixel], row0[pixel] = np.float32(0.0), np.float32(0.0)
+        else:
+            col0[pixel], row0[pixel] = level_col[pixel] - window_col0, level_row[pixel] - window_row0
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _hits_kernel(z, values, steep, any_steep, sky, any_sky, tolerance, shade, band, rough_above, sky_coordinate,
+                 factor, grid_col, grid_row, redo, residual, rough_index, rough_lit):
+    """The check of the heights and the radiance factor of flat pixels, in one pass.
+
+    ``values``: (pixels, channels), the values read at the hits (the heights in channel 0; with ``shade``
+    the four of :func:`shading_nodes`). Writes the indices and residuals ``z - H`` of the pixels with
+    ``|z - H| > tolerance`` (neither steep nor sky), with ``shade`` the factor
+    ``lit values[3] + values[2]`` (``lit = clip(values[1] band + 1/2, 0, 1)``; 1 for sky) and the indices and
+    direct-sun fractions of the pixels whose sky term exceeds ``rough_above`` (a rough node in their read),
+    and ``sky_coordinate`` as the grid coordinates of sky pixels. Returns the counts of pixels off the
+    tolerance and of rough pixels.
     """
-    count = 0
+    redo_count = 0
+    rough_count = 0
     for pixel in range(z.shape[0]):
-        difference = z[pixel] - heights_read[pixel, 0]
-        if abs(difference) > tolerance and not steep[pixel] and not (any_sky and sky[pixel]):
-            index[count] = pixel
-            residual[count] = difference
-            count += 1
-    return count
+        if any_sky and sky[pixel]:
+            if shade:
+                factor[pixel] = np.float32(1.0)
+            grid_col[pixel] = sky_coordinate
+            grid_row[pixel] = sky_coordinate
+            continue
+        difference = z[pixel] - values[pixel, 0]
+        if abs(difference) > tolerance and not (any_steep and steep[pixel]):
+            redo[redo_count] = pixel
+            residual[redo_count] = difference
+            redo_count += 1
+        if shade:
+            lit = min(max(values[pixel, 1] * band + np.float32(0.5), np.float32(0.0)), np.float32(1.0))
+            factor[pixel] = lit * values[pixel, 3] + values[pixel, 2]
+            if values[pixel, 2] > rough_above:
+                rough_index[rough_count] = pixel
+                rough_lit[rough_count] = lit
+                rough_count += 1
+    return redo_count, rough_count
 
 
-def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float, tolerance_m: float) -> np.ndarray:
-    """Secant iterations of every ray of a family (all at once, no compaction).
+def solve_coarse(heights: np.ndarray, rays: RayFamily, z_bottom: float, z_top: float,
+                 steps: int = COARSE_SECANT_STEPS) -> np.ndarray:
+    """Safeguarded secant steps of every ray of a family from the fixed-point start (all at once).
+
+    The first secant point is the level ground ``(0, -H(P0))``, the second the fixed-point start
+    ``z0 = H(P0)``; each step is a bilinear read of the heights and one compiled pass
+    (:func:`_coarse_step_kernel`: the residuals, the step of :func:`_secant` and the rays' points at the
+    new heights). No residual is checked here: the full-resolution pass of :func:`parallax_hits` checks every
+    pixel against the tolerance.
 
     Parameters
     ----------
     heights : ndarray, shape (rows, cols), float32
         Window heights (m).
     rays : RayFamily
-        The rays.
+        The rays (C-contiguous float32 arrays).
     z_bottom, z_top : float
         Height bounds (m).
-    tolerance_m : float
-        Stop when every ``|z - H(P(z))|`` is within this (m).
+    steps : int, optional
+        Secant steps (:data:`COARSE_SECANT_STEPS`).
 
     Returns
     -------
     ndarray, float32, shape of the rays
         Heights z (m).
     """
-    z_previous = np.zeros_like(rays.col0)
     level = remap_points(heights, rays.col0, rays.row0)
     f_previous = -level
     z = np.clip(level, np.float32(z_bottom), np.float32(z_top))
-    for _ in range(MAX_COARSE_ITERATIONS):
-        f = z - remap_points(heights, *rays.at(z))
-        if np.count_nonzero(np.abs(f) > np.float32(tolerance_m)) <= COARSE_UNSOLVED_FRACTION * f.size:
-            break       # the rest are solved at full resolution
-        z, z_previous, f_previous = _secant(z, f, z_previous, f_previous, z_bottom, z_top), z, f
+    z_previous = np.zeros_like(rays.col0)
+    col, row = rays.at(z)
+    read = np.empty_like(z)
+    for _ in range(steps):
+        remap_points(heights, col, row, out=read)
+        _coarse_step_kernel(z.reshape(-1), read.reshape(-1), z_previous.reshape(-1), f_previous.reshape(-1),
+                            np.float32(z_bottom), np.float32(z_top), rays.col0.reshape(-1), rays.row0.reshape(-1),
+                            rays.col_per_m.reshape(-1), rays.row_per_m.reshape(-1), col.reshape(-1), row.reshape(-1))
     return z
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _coarse_step_kernel(z, read, z_previous, f_previous, z_bottom, z_top, col0, row0, col_per_m, row_per_m, col, row):
+    """One step of :func:`solve_coarse` after the read ``H(P(z))``, in place.
+
+    ``f = z - read``; ``(z_previous, f_previous) <- (z, f)``; ``z <-`` the safeguarded secant step of
+    :func:`_secant` (its float32 operations: the same bits); ``(col, row) <-`` the rays at the new ``z``.
+    """
+    for ray in range(z.shape[0]):
+        height = z[ray]
+        f = height - read[ray]
+        dz = height - z_previous[ray]
+        slope = (f - f_previous[ray]) / dz if abs(dz) > np.float32(1e-6) else np.float32(1.0)
+        if slope < np.float32(SECANT_SLOPE_RANGE[0]):
+            slope = np.float32(SECANT_SLOPE_RANGE[0])
+        if slope > np.float32(SECANT_SLOPE_RANGE[1]):
+            slope = np.float32(SECANT_SLOPE_RANGE[1])
+        following = height - f / slope
+        if following < z_bottom:
+            following = z_bottom
+        if following > z_top:
+            following = z_top
+        z_previous[ray], f_previous[ray], z[ray] = height, f, following
+        col[ray] = following * col_per_m[ray] + col0[ray]
+        row[ray] = following * row_per_m[ray] + row0[ray]
 
 
 def solve_points(heights: np.ndarray, rays: RayFamily, index: np.ndarray, z: np.ndarray, f: np.ndarray,
@@ -642,7 +752,7 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
     mpp = terrain.metres_per_pixel
     crop = height_field.march_window(terrain, camera, pose)
     heights = np.ascontiguousarray(terrain.height_m[crop.row0:crop.row1, crop.col0:crop.col1], dtype=np.float32)
-    z_top, z_bottom = float(heights.max()), float(heights.min())
+    z_bottom, z_top = (float(value) for value in cv2.minMaxLoc(heights)[:2])      # exact extremes, one pass
     origin = pose.ray_origin_m
     origin_row, origin_col = terrain.world_to_pixel(origin[0], origin[1])
     origin_col, origin_row = float(origin_col) - crop.col0, float(origin_row) - crop.row0
@@ -655,97 +765,153 @@ def parallax_hits(terrain, camera, pose: ground_mapping.CameraPose, level_map: g
 
     def work(name, dtype=np.float32, channels=()):
         return _work_array(name, shape + channels, dtype) if pooled else np.empty(shape + channels, dtype=dtype)
-    # the level map in window coordinates (sky pixels: any point of the window, masked at the end) and the
-    # rays' lines, in one compiled pass
+    # the level map in window coordinates (sky pixels: any point of the window, masked at the end); the rays'
+    # slopes (grid px per metre of z) are formed where they are used, from these and the origin
     col0, row0 = work("col0"), work("row0")
-    full = RayFamily.__new__(RayFamily)
-    full.col0, full.row0, full.col_per_m, full.row_per_m = col0, row0, work("col_per_m"), work("row_per_m")
-    _level_rays_kernel(level_map.col.reshape(-1), level_map.row.reshape(-1), sky.reshape(-1), level_map.any_sky,
-                       np.float32(crop.col0), np.float32(crop.row0), np.float32(origin_col), np.float32(origin_row),
-                       np.float32(1.0 / altitude), col0.reshape(-1), row0.reshape(-1), full.col_per_m.reshape(-1),
-                       full.row_per_m.reshape(-1))
+    _level_lines_kernel(level_map.col.reshape(-1), level_map.row.reshape(-1), sky.reshape(-1), level_map.any_sky,
+                        np.float32(crop.col0), np.float32(crop.row0), col0.reshape(-1), row0.reshape(-1))
+    lines = (np.float32(origin_col), np.float32(origin_row), np.float32(1.0 / altitude))
+
+    def subset(index: np.ndarray) -> RayFamily:
+        """The rays ``index`` (flat) as a family of their own."""
+        return RayFamily(col0.reshape(-1)[index], row0.reshape(-1)[index], origin_col, origin_row, altitude)
 
     # 1. the solve on half-resolution pixels (2 x 2 block means), classified by the slope bound and by
     #    the node normals' error
     even = height_px % 2 == 0 and width_px % 2 == 0 and min(height_px, width_px) >= 4
-    sample = full
     if even:
         size = (width_px // 2, height_px // 2)
         sample = RayFamily(cv2.resize(col0, size, interpolation=cv2.INTER_AREA),
                            cv2.resize(row0, size, interpolation=cv2.INTER_AREA), origin_col, origin_row, altitude)
-        z_sample = solve_coarse(heights, sample, z_bottom, z_top, tolerance)
+        z_sample = solve_coarse(heights, sample, z_bottom, z_top)
         z = cv2.resize(z_sample, (width_px, height_px), dst=work("z"), interpolation=cv2.INTER_LINEAR)
     else:
+        sample = RayFamily(col0, row0, origin_col, origin_row, altitude)
         z_sample = z = np.clip(remap_points(heights, col0, row0), np.float32(z_bottom), np.float32(z_top))
     spacing = _ray_spacing(sample) if even else 0.0
     bound = terrain_slope_bound(terrain)[crop.row0:crop.row1, crop.col0:crop.col1]
     steep = _steep_rays(bound, sample, z_bottom, z_top, mpp, spacing)
-    if not steep.any():
-        steep = np.zeros(shape, dtype=bool)
-    else:
+    any_steep = bool(steep.any())
+    if any_steep:
         if even:
             steep = cv2.resize(steep.view(np.uint8), (width_px, height_px), interpolation=cv2.INTER_NEAREST).view(bool)
         if level_map.any_sky:
             steep &= ~sky
+        any_steep = bool(steep.any())
 
     # 2. at full resolution: one fixed-point step from the upsampled heights for every pixel, then a check
     #    (reading the shading in the same pass when the sun is known); pixels off the tolerance iterate
-    col, row = full.at(z, out=(work("col"), work("row")))
+    col, row = work("col"), work("row")
+    grid_col, grid_row = work("grid_col"), work("grid_row")
+    _ray_points_kernel(z.reshape(-1), col0.reshape(-1), row0.reshape(-1), *lines, col.reshape(-1), row.reshape(-1))
     z = remap_points(heights, col, row, out=work("z_step"))          # z = H(P(z))
-    col, row = full.at(z, out=(col, row))
-    nodes = None
-    if sun is not None:
-        nodes = _nodes(heights, crop, terrain, origin, sun, config)
-        values = remap_points(nodes, col, row, out=work("values", channels=(4,)))
-        heights_read = values.reshape(-1, 4)
-    else:
-        heights_read = remap_points(heights, col, row).reshape(-1, 1)
-    # the pixels off the tolerance (not steep, not sky) and their residuals, in one compiled pass
-    redo_buffer, residual_buffer = work("redo", np.int32), work("residual")
-    count = _off_tolerance_kernel(z.reshape(-1), heights_read, steep.reshape(-1), sky.reshape(-1),
-                                  level_map.any_sky, np.float32(tolerance), redo_buffer.reshape(-1),
-                                  residual_buffer.reshape(-1))
-    redo = redo_buffer.reshape(-1)[:count].astype(np.intp)
-    flat_rays = RayFamily.__new__(RayFamily)
-    flat_rays.col0, flat_rays.row0 = full.col0.reshape(-1), full.row0.reshape(-1)
-    flat_rays.col_per_m, flat_rays.row_per_m = full.col_per_m.reshape(-1), full.row_per_m.reshape(-1)
+    _hit_points_kernel(z.reshape(-1), col0.reshape(-1), row0.reshape(-1), *lines, np.float32(crop.col0),
+                       np.float32(crop.row0), col.reshape(-1), row.reshape(-1), grid_col.reshape(-1),
+                       grid_row.reshape(-1))
+    # the values read at the hits: the four of the shading nodes when the sun is known, else the heights
+    source = heights if sun is None else _nodes(heights, crop, terrain, origin, sun, config)
+    shade = sun is not None
+    values = remap_points(source, col, row, out=work("values", channels=(4,)) if shade else None)
+    # in one compiled pass: the pixels off the tolerance (not steep, not sky) and the radiance factor (when the
+    # sun is known)
+    band = np.float32(1.0 / max(relief_config.shadow_edge_m, 1e-9))
+    rough_above = np.float32(config.shadow_diffuse_fraction + ROUGH_MARGIN if relief_config.slope_photometry else np.inf)
+    factor = work("factor") if shade else np.empty((1, 1), dtype=np.float32)
+    pixels = height_px * width_px
+    redo_buffer, residual_buffer = work("redo", np.int32).reshape(-1), work("residual").reshape(-1)
+    rough_buffer = work("rough_index", np.int32).reshape(-1) if shade else np.empty(0, dtype=np.int32)
+    rough_lit_buffer = work("rough_lit").reshape(-1) if shade else np.empty(0, dtype=np.float32)
+    redo_count, rough_count = _hits_kernel(
+        z.reshape(-1), values.reshape(pixels, -1), steep.reshape(-1), any_steep, sky.reshape(-1),
+        level_map.any_sky, np.float32(tolerance), shade, band, rough_above,
+        np.float32(-ground_mapping.MAX_MAP_COORDINATE), factor.reshape(-1), grid_col.reshape(-1),
+        grid_row.reshape(-1), redo_buffer, residual_buffer, rough_buffer, rough_lit_buffer)
+    redo = redo_buffer[:redo_count].astype(np.intp)
     z_flat = z.reshape(-1)
-    marched = steep.reshape(-1).copy()
+    marched_index = np.flatnonzero(steep) if any_steep else np.empty(0, dtype=np.intp)
     if redo.size:
-        z_redo, converged = solve_points(heights, flat_rays, redo, z_flat[redo], residual_buffer.reshape(-1)[:count],
-                                         z_bottom, z_top, tolerance)
+        z_redo, converged = solve_points(heights, subset(redo), np.arange(redo.size), z_flat[redo],
+                                         residual_buffer[:redo_count], z_bottom, z_top, tolerance)
         z_flat[redo] = z_redo
-        marched[redo[~converged]] = True
+        if not converged.all():
+            marched_index = _sorted_union(marched_index, redo[~converged], pixels)
         redo = redo[converged]
     # 3. rays where a nearer bump may hide the crossing: the reference march
-    marched_index = np.flatnonzero(marched)
     if marched_index.size:
-        z_flat[marched_index] = march(heights, flat_rays, marched_index, z_bottom, z_top)
-        marched[redo] = True
-        changed = np.flatnonzero(marched)
+        z_flat[marched_index] = march(heights, subset(marched_index), np.arange(marched_index.size), z_bottom, z_top)
+        changed = _sorted_union(marched_index, redo, pixels)
     else:
         changed = redo
+    rough_index = rough_buffer[:rough_count].astype(np.intp)
+    rough_lit = rough_lit_buffer[:rough_count]
     if changed.size:
-        col_changed, row_changed = flat_rays.at(z_flat[changed], changed)
+        # the changed pixels read again, and their factor and grid coordinates formed again by the same pass
+        col_changed, row_changed = subset(changed).at(z_flat[changed])
         col.reshape(-1)[changed], row.reshape(-1)[changed] = col_changed, row_changed
-        if nodes is not None:
-            values.reshape(-1, 4)[changed] = remap_points(nodes, col_changed, row_changed)
+        values_changed = remap_points(source, col_changed, row_changed).reshape(changed.size, -1)
+        count = changed.size
+        factor_changed = np.empty(count if shade else 1, dtype=np.float32)
+        rough_changed = np.empty(count if shade else 0, dtype=np.int32)
+        rough_lit_changed = np.empty(count if shade else 0, dtype=np.float32)
+        no_pixels = np.empty(0, dtype=np.float32)
+        _, rough_changed_count = _hits_kernel(
+            z_flat[changed], values_changed, steep.reshape(-1)[:1], False, sky.reshape(-1)[:1], False,
+            np.float32(np.inf), shade, band, rough_above, np.float32(0.0), factor_changed, no_pixels, no_pixels,
+            np.empty(count, dtype=np.int32), np.empty(count, dtype=np.float32), rough_changed, rough_lit_changed)
+        grid_col.reshape(-1)[changed] = col_changed + np.float32(crop.col0)
+        grid_row.reshape(-1)[changed] = row_changed + np.float32(crop.row0)
+        if shade:
+            factor.reshape(-1)[changed] = factor_changed
+            # the rough pixels: those of the first pass not changed, and the changed ones that are, in pixel order
+            rough_index, rough_lit = _replace_rough(rough_index, rough_lit, changed,
+                                                    changed[rough_changed[:rough_changed_count]],
+                                                    rough_lit_changed[:rough_changed_count], pixels)
     counts = {"pixels": int(col.size), "pixel_iterated": int(redo.size), "marched": int(marched_index.size)}
     hits = ParallaxHits(terrain, crop, heights, col, row, sky, level_map.any_sky, origin, counts)
-    factor = None if nodes is None or sun is None else _factor(hits, values, sun, config,
-                                                                (work("rough_index", np.int32), work("factor")))
-
-    grid_col = np.add(col, np.float32(crop.col0), out=work("grid_col"))
-    grid_row = np.add(row, np.float32(crop.row0), out=work("grid_row"))
-    if level_map.any_sky:
-        grid_col[sky] = -ground_mapping.MAX_MAP_COORDINATE
-        grid_row[sky] = -ground_mapping.MAX_MAP_COORDINATE
+    if sun is not None:
+        if rough_index.size:        # pixels whose read touches a rough node: shaded at their own normal
+            factor.reshape(-1)[rough_index] = exact_shading(hits, rough_index, rough_lit, sun, config)
+        counts["exact_shading"] = int(rough_index.size)
     ground_map = ground_mapping.GroundMap(grid_col, grid_row, sky, level_map.any_sky, level_map._step,
                                           level_map._nodes, level_map._full, level_map.camera_rays,
                                           level_map.camera_to_world, level_map.ray_dz)
-    if factor is not None:
+    if sun is not None:
         hits = dataclasses.replace(hits, factor=factor, sun=np.asarray(sun, dtype=float))
     return ground_map, hits
+
+
+def _sorted_union(first: np.ndarray, second: np.ndarray, pixels: int) -> np.ndarray:
+    """Sorted union of two sets of flat pixel indices (a frame mask when they are large, else a sort)."""
+    if first.size + second.size <= pixels // 64:
+        return np.union1d(first, second)
+    mask = np.zeros(pixels, dtype=bool)
+    mask[first] = True
+    mask[second] = True
+    return np.flatnonzero(mask)
+
+
+def _replace_rough(rough_index: np.ndarray, rough_lit: np.ndarray, changed: np.ndarray, changed_rough: np.ndarray,
+                   changed_rough_lit: np.ndarray, pixels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rough pixels (sorted) and their direct-sun fractions once the ``changed`` pixels were formed again.
+
+    Those of the first pass that did not change, and ``changed_rough`` (with ``changed_rough_lit``); a frame
+    mask when the sets are large, else a sorted merge.
+    """
+    if rough_index.size + changed.size <= pixels // 64:
+        kept = ~np.isin(rough_index, changed, assume_unique=True)
+        index = np.concatenate([rough_index[kept], changed_rough])
+        lit = np.concatenate([rough_lit[kept], changed_rough_lit])
+        order = np.argsort(index, kind="stable")
+        return index[order], lit[order]
+    mask = np.zeros(pixels, dtype=bool)
+    lit_of_pixel = np.empty(pixels, dtype=np.float32)
+    mask[rough_index] = True
+    lit_of_pixel[rough_index] = rough_lit
+    mask[changed] = False
+    mask[changed_rough] = True
+    lit_of_pixel[changed_rough] = changed_rough_lit
+    index = np.flatnonzero(mask)
+    return index, lit_of_pixel[index]
 
 
 def _nodes(heights: np.ndarray, crop: Crop, terrain: Terrain, origin_m: np.ndarray, sun: np.ndarray, config):
@@ -882,8 +1048,8 @@ def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_t
     """
     if z_top <= z_bottom:
         return np.zeros(rays.col0.shape, dtype=bool)
-    px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
-    largest_px_per_m = float(px_per_m.max())
+    # sqrt is monotone: the square root of the largest squared slope is the largest slope, exactly
+    largest_px_per_m = float(np.sqrt(_largest_squared_slope(rays.col_per_m.reshape(-1), rays.row_per_m.reshape(-1))))
     # the bound is >= 0, so its half-precision bits order as unsigned integers (an exact, faster maximum)
     largest_bound = float(heights_bound.view(np.uint16).max().view(np.float16)) if heights_bound.dtype == np.float16 \
         else float(heights_bound.max())
@@ -895,4 +1061,16 @@ def _steep_rays(heights_bound: np.ndarray, rays: RayFamily, z_bottom: float, z_t
                        borderType=cv2.BORDER_REPLICATE)
     middle = np.float32(0.5 * (z_top + z_bottom))
     local = remap_points(bound, *rays.at(middle))
+    px_per_m = np.sqrt(rays.col_per_m * rays.col_per_m + rays.row_per_m * rays.row_per_m)
     return local * (px_per_m * np.float32(mpp)) >= np.float32(UNIQUE_SLOPE_BOUND)
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _largest_squared_slope(col_per_m, row_per_m):
+    """The largest ``col_per_m^2 + row_per_m^2`` (float32, as numpy rounds it) of flat rays (0 for none)."""
+    largest = np.float32(0.0)
+    for ray in range(col_per_m.shape[0]):
+        squared = col_per_m[ray] * col_per_m[ray] + row_per_m[ray] * row_per_m[ray]
+        if squared > largest:
+            largest = squared
+    return largest

@@ -425,7 +425,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     relief_hits = None
     if relief.has_relief(terrain, config):   # parallax and occlusion of the height field (scene.relief)
         gmap, relief_hits = relief.relief_ground_map(terrain, camera, cam, gmap, config, sun)
-        crop, inside = relief_hits.crop, False
+        crop, inside = relief_hits.crop, relief.hits_inside_terrain(terrain, relief_hits)
     area_filter = effects.pixel_area_filter and not _sub_sample   # (a supersampled render averages point samples)
     # the point samples are filtered into a new array at once, and a supersampling sample's field is summed
     # by the caller before the next sample: both live in scratch arrays
@@ -475,8 +475,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                        casters(pose, config) if _pose_windows is None else _pose_windows["casters"],
                                        sun, photometry.solar_angular_radius_rad(config.sun_distance_au),
                                        config.shadow_diffuse_fraction,
-                                       view_bounds_m=None if relief_hits is not None
-                                       else shadow.view_bounds_m(footprint, hit),
+                                       view_bounds_m=shadow.view_bounds_m(footprint, hit),
                                        windows=None if _pose_windows is None else _pose_windows["shadow_windows"],
                                        circles=None if _pose_windows is None else _pose_windows["shadow_circles"])
     if moving_shadows is not None:

@@ -352,6 +352,30 @@ def relief_ground_map(terrain: ReliefTerrain, camera: Camera, pose: ground_mappi
     return ground_mapping.GroundMap(col, row, level_map.sky, level_map.any_sky, 0, None, rays), hits
 
 
+def hits_inside_terrain(terrain: ReliefTerrain, hits) -> bool:
+    """Whether every hit point of a pose is inside the terrain (its reflectance needs no outside mask).
+
+    The hits lie in their window (:func:`simulator.scene.height_field.march_window`: the footprint between
+    the planes of the height extremes with a 3-px margin, clipped to the terrain); a window that no edge of
+    the terrain clipped holds them inside the terrain.
+
+    Parameters
+    ----------
+    terrain : ReliefTerrain
+        The terrain.
+    hits : ReliefHits or simulator.scene.parallax.ParallaxHits
+        The hits of the pose.
+
+    Returns
+    -------
+    bool
+        True when the window keeps off all four edges of the terrain.
+    """
+    rows, cols = terrain.shape
+    crop = hits.crop
+    return crop.row0 > 0 and crop.col0 > 0 and crop.row1 < rows and crop.col1 < cols
+
+
 def shading_factor(hits, sun_world: np.ndarray, config) -> np.ndarray:
     """Radiance factor of slope photometry and cast shadows over level-ground radiance (module doc).
 

@@ -322,3 +322,23 @@ def test_half_precision_normals_decode_exactly_in_the_compiled_view_term():
     decode(bits, parallax.HALF_SCALES, decoded)
     expected = bits.view(np.float16).astype(np.float32)
     assert np.array_equal(decoded[finite].view(np.uint32), expected[finite].view(np.uint32))
+
+
+def test_relief_hits_off_the_terrain_are_flagged_and_a_window_inside_needs_no_mask():
+    """A pose whose window keeps off the terrain's edges has every hit inside the strip (no outside mask is
+    needed); a pose over the east edge is not taken as inside, and its pixels beyond the edge are flagged."""
+    values, mpp = textured()
+    terrain = relief_terrain(values, 10.0 * (values - 0.2) / 0.03, mpp)      # heights of +-30 m
+    sun = np.array([0.5, 0.0, np.sqrt(0.75)])
+    config = SceneConfig()
+    east_edge_m = terrain.origin_m[0] + (values.shape[1] - 0.5) * mpp
+    for east_m, inside in ((0.0, True), (east_edge_m - 200.0, False)):
+        pose = constant_velocity_profile([east_m, 0.0, 2000.0], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.1]).pose(0.0)
+        camera_pose = ground_mapping.camera_pose(CAMERA, pose)
+        level_map = ground_mapping.map_to_ground_grid(CAMERA, camera_pose, tuple(terrain.origin_m), mpp, 0)
+        ground_map, hits = relief.relief_ground_map(terrain, CAMERA, camera_pose, level_map, config, sun)
+        beyond = ground_map.col > values.shape[1] - 0.5          # hit points east of the strip's last pixel edge
+        assert relief.hits_inside_terrain(terrain, hits) is inside
+        assert beyond.any() is not inside
+        field = radiance.radiance_at_pose(terrain, CAMERA, pose, sun, config)
+        assert np.array_equal(field.outside, beyond)
