@@ -57,6 +57,16 @@ def sample_pixels(camera: Camera, per_axis: int = 9) -> np.ndarray:
     return np.stack(np.meshgrid(cols, rows), axis=-1).reshape(-1, 2)
 
 
+def _cached_sample_pixels(camera: Camera) -> np.ndarray:
+    """:func:`sample_pixels` of the camera (default grid), computed once per camera (read-only)."""
+    cache = ground_mapping.camera_cache(camera)
+    pixels = cache.get("motion_blur_sample_pixels")
+    if pixels is None:
+        pixels = cache["motion_blur_sample_pixels"] = sample_pixels(camera)
+        pixels.setflags(write=False)
+    return pixels
+
+
 def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_mapping.CameraPose,
                 terrain_mpp: float, pixels: np.ndarray | None = None, ground: dict | None = None) -> float:
     """Largest shift of the sample pixels between two camera poses, in terrain pixels (see module doc).
@@ -246,7 +256,7 @@ def choose_blur(camera: Camera, cam_at: Callable[[float], ground_mapping.CameraP
     # the whole window's shift and the periods' in one projection (a still image wastes two ground-point sets)
     shifts = image_shifts(camera, [(cam_at(first), cam_at(last))]
                           + [(cam_at(windows[period][0]), cam_at(windows[period][1])) for period in measured],
-                          terrain_mpp, sample_pixels(camera))
+                          terrain_mpp, _cached_sample_pixels(camera))
     still = effects.share_still_fields and shifts[0] < config.still_shift_terrain_px
     if still or not effects.motion_blur and not need_smear_fields:
         return BlurChoice("still", {"flush": 0, "exposure": 1, "transfer": 0}, False)
