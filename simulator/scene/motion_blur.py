@@ -32,6 +32,7 @@ from typing import Literal
 
 import numpy as np
 
+from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.scene import ground_mapping
 
@@ -56,6 +57,16 @@ def sample_pixels(camera: Camera, per_axis: int = 9) -> np.ndarray:
     return np.stack(np.meshgrid(cols, rows), axis=-1).reshape(-1, 2)
 
 
+def _cached_sample_pixels(camera: Camera) -> np.ndarray:
+    """:func:`sample_pixels` of the camera (default grid), computed once per camera (read-only)."""
+    cache = ground_mapping.camera_cache(camera)
+    pixels = cache.get("motion_blur_sample_pixels")
+    if pixels is None:
+        pixels = cache["motion_blur_sample_pixels"] = sample_pixels(camera)
+        pixels.setflags(write=False)
+    return pixels
+
+
 def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_mapping.CameraPose,
                 terrain_mpp: float, pixels: np.ndarray | None = None, ground: dict | None = None) -> float:
     """Largest shift of the sample pixels between two camera poses, in terrain pixels (see module doc).
@@ -71,29 +82,62 @@ def image_shift(camera: Camera, start: ground_mapping.CameraPose, end: ground_ma
     pixels : ndarray, shape (n, 2), optional
         Sample pixels (default :func:`sample_pixels`).
     ground : dict, optional
-        Memo of the sample pixels' ground points per pose (``id(pose) -> (points, hit)``), shared by
-        the calls of one image (the window ends recur).
+        Memo of the sample pixels' ground points per pose (``id(pose) -> (pose, points, hit)``), shared
+        by the calls of one image (the window ends recur).
 
     Returns
     -------
     float
         Shift (terrain pixels); 0 when no sample sees the ground at both poses.
     """
+    return image_shifts(camera, [(start, end)], terrain_mpp, pixels, ground)[0]
+
+
+def image_shifts(camera: Camera, pairs: list[tuple[ground_mapping.CameraPose, ground_mapping.CameraPose]],
+                 terrain_mpp: float, pixels: np.ndarray | None = None, ground: dict | None = None) -> list[float]:
+    """:func:`image_shift` of several ``(start, end)`` pose pairs at once.
+
+    Each pose's ground points are computed once, and the start ground points of every pair are
+    projected with their end poses in one CAHVOR projection (a point's pixel does not depend on the
+    other points projected with it), so a window and its three periods cost one projection, not four.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera.
+    pairs : list of (CameraPose, CameraPose)
+        ``(start, end)`` world poses.
+    terrain_mpp : float
+        Terrain pixel size (m).
+    pixels : ndarray, shape (n, 2), optional
+        Sample pixels (default :func:`sample_pixels`).
+    ground : dict, optional
+        Memo of the sample pixels' ground points per pose (``id(pose) -> (pose, points, hit)``; each
+        pose object is kept alive in it, so its id is not reused).
+
+    Returns
+    -------
+    list of float
+        Per pair, the shift (terrain pixels); 0 when no sample sees the ground at both poses.
+    """
     pixels = sample_pixels(camera) if pixels is None else pixels
     ground = {} if ground is None else ground
-    for pose in (start, end):
-        if id(pose) not in ground:
-            ground[id(pose)] = (pose, *ground_mapping.ground_points(camera, pose, pixels))
-    _, ground_start, hit_start = ground[id(start)]
-    _, ground_end, hit_end = ground[id(end)]
-    hit = hit_start & hit_end
-    if not hit.any():
-        return 0.0
+    for pair in pairs:
+        for pose in pair:
+            if id(pose) not in ground:
+                ground[id(pose)] = (pose, *ground_mapping.ground_points(camera, pose, pixels))
+    ground_start = np.stack([ground[id(start)][1] for start, _ in pairs])      # (pairs, n, 3)
+    ground_end = np.stack([ground[id(end)][1] for _, end in pairs])
+    hit = np.stack([ground[id(start)][2] & ground[id(end)][2] for start, end in pairs])
+    # ground_mapping.world_to_pixels of each pair's start points with its end pose, one projection for all
+    in_camera = np.stack([(ground_start[index] - end.frame_origin_m) @ end.camera_to_world
+                          for index, (_, end) in enumerate(pairs)])
+    reprojected, in_front = cahvor.project(camera.model, in_camera)
     ground_shift = np.linalg.norm(ground_end - ground_start, axis=-1) / terrain_mpp
-    reprojected, in_front = ground_mapping.world_to_pixels(camera, end, ground_start)
     image_shift_px = np.where(in_front, np.linalg.norm(reprojected - pixels, axis=-1), np.inf)
-    shift = np.minimum(ground_shift, image_shift_px)[hit]
-    return float(np.max(shift))
+    shift = np.where(hit, np.minimum(ground_shift, image_shift_px), -np.inf).max(axis=-1)
+    seen = np.asarray(hit.any(axis=-1))
+    return [float(shift[index]) if seen[index] else 0.0 for index in range(len(pairs))]
 
 
 def substep_count(shift_terrain_px: float, max_substeps: int) -> int:
@@ -208,17 +252,20 @@ def choose_blur(camera: Camera, cam_at: Callable[[float], ground_mapping.CameraP
     effects = config.effects
     first = windows["flush"][0] if need_smear_fields else windows["exposure"][0]
     last = windows["transfer"][1] if need_smear_fields else windows["exposure"][1]
-    ground: dict = {}        # the window ends' ground points, computed once (each pose object is kept alive in it)
-    total_shift = image_shift(camera, cam_at(first), cam_at(last), terrain_mpp, ground=ground)
-    still = effects.share_still_fields and total_shift < config.still_shift_terrain_px
+    measured = [period for period in windows if effects.motion_blur and (period == "exposure" or need_smear_fields)]
+    # the whole window's shift and the periods' in one projection (a still image wastes two ground-point sets)
+    shifts = image_shifts(camera, [(cam_at(first), cam_at(last))]
+                          + [(cam_at(windows[period][0]), cam_at(windows[period][1])) for period in measured],
+                          terrain_mpp, _cached_sample_pixels(camera))
+    still = effects.share_still_fields and shifts[0] < config.still_shift_terrain_px
     if still or not effects.motion_blur and not need_smear_fields:
         return BlurChoice("still", {"flush": 0, "exposure": 1, "transfer": 0}, False)
     counts = {}
-    for period, (start, end) in windows.items():
+    for period in windows:
         if period != "exposure" and not need_smear_fields:
             counts[period] = 0
         elif effects.motion_blur:
-            shift = image_shift(camera, cam_at(start), cam_at(end), terrain_mpp, ground=ground)
+            shift = shifts[1 + measured.index(period)]
             counts[period] = substep_count(shift * config.substeps_per_terrain_px, config.max_substeps)
         else:
             counts[period] = 1

@@ -230,3 +230,32 @@ def test_scene_config_from_toml(tmp_path):
     path.write_text("[scene.effects]\nshadow = false\n")
     with pytest.raises(ConfigError, match="scene.effects.shadow is not a known field"):
         parse(SceneConfig, load_toml(path)["scene"], path, "scene")
+
+
+def test_batched_image_shifts_equal_one_projection_per_pair():
+    """The shifts of several pose pairs, projected together, are those of one pair at a time through
+    ground_mapping.world_to_pixels (bit for bit); a level translation by d metres moves every pixel's
+    ground point by d, the whole shift for a terrain pixel so coarse that the ground unit is the smaller."""
+    from simulator.scene import ground_mapping
+    drifting = constant_velocity_profile([0.0, 0.0, 1500.0], [12.0, -5.0, 0.0], LEVEL, 1.0, [0.5])
+    descending = constant_velocity_profile([0.0, 0.0, 1500.0], [12.0, -5.0, -60.0], LEVEL, 1.0, [0.5])
+    turning = rotating_profile(90.0)
+    poses = [ground_mapping.camera_pose(CAMERA, profile.pose(t)) for profile in (drifting, turning, descending)
+             for t in (0.40, 0.45, 0.50, 0.55)]
+    pairs = [(poses[0], poses[3]), (poses[0], poses[1]), (poses[1], poses[2]), (poses[4], poses[7]),
+             (poses[5], poses[6]), (poses[8], poses[11]), (poses[2], poses[2])]
+    pixels = motion_blur.sample_pixels(CAMERA)
+    terrain_mpp = 0.3
+    batched = motion_blur.image_shifts(CAMERA, pairs, terrain_mpp, pixels)
+    for (start, end), shift in zip(pairs, batched):
+        ground_start, hit_start = ground_mapping.ground_points(CAMERA, start, pixels)
+        ground_end, hit_end = ground_mapping.ground_points(CAMERA, end, pixels)
+        reprojected, in_front = ground_mapping.world_to_pixels(CAMERA, end, ground_start)
+        image_px = np.where(in_front, np.linalg.norm(reprojected - pixels, axis=-1), np.inf)
+        expected = np.minimum(np.linalg.norm(ground_end - ground_start, axis=-1) / terrain_mpp, image_px)
+        assert shift == float(np.max(expected[hit_start & hit_end]))
+        assert shift == motion_blur.image_shift(CAMERA, start, end, terrain_mpp, pixels)
+    assert batched[-1] == 0.0          # no motion, no shift
+    metres = (0.55 - 0.40) * np.hypot(12.0, -5.0)
+    coarse = motion_blur.image_shifts(CAMERA, pairs[:1], 1e3, pixels)[0]
+    assert coarse == pytest.approx(metres / 1e3, rel=1e-9)
