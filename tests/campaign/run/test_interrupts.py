@@ -66,7 +66,7 @@ def _interrupt(argv: list[str], stores: Path, pattern: str, count: int, number: 
     seconds = time.monotonic() - signalled
     deadline = time.monotonic() + 30
     while _group_processes(process.pid) and time.monotonic() < deadline:
-        time.sleep(0.5)
+        time.sleep(0.05)
     return process.returncode, err, _group_processes(process.pid), seconds
 
 
