@@ -12,6 +12,11 @@ modules beside this file (``service_campaigns``, ``fuzz_inputs``, ``planetary_fi
 """
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,6 +24,66 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = REPO.parent / "shared" / "realdata"
+#: environment variable naming the file tests/numba_warmup.py writes when the numba cache is warm (set by the
+#: controlling pytest process for its xdist processes, which wait for the file before their first test)
+NUMBA_WARMUP_DONE = "M2D_TESTS_NUMBA_WARMUP_DONE"
+_PACKAGES = ("simulator", "dimes_velocity", "campaign", "estimators", "sitedata", "flight_interface", "file_formats")
+
+
+def _numba_cache_is_stale() -> bool:
+    """Whether the checkout's numba cache needs the warm-up: no cached pass at all (a clean clone), or a module
+    of cached (``cache=True``) passes edited after its cache was written."""
+    cached_any = False
+    for package in _PACKAGES:
+        for source in (REPO / package).rglob("*.py"):
+            if "cache=True" not in source.read_text(errors="replace"):
+                continue
+            indexes = list((source.parent / "__pycache__").glob(f"{source.stem}.*.nbi"))
+            cached_any = cached_any or bool(indexes)
+            if any(index.stat().st_mtime < source.stat().st_mtime for index in indexes):
+                return True
+    return not cached_any
+
+
+_WARMUP = pytest.StashKey[subprocess.Popen]()
+
+
+def pytest_configure(config):
+    """In the controlling process of an xdist run (``-n 2``): when the numba cache is cold, start
+    tests/numba_warmup.py, which compiles the case code's passes once while the xdist processes start and collect;
+    they wait for it before their first test (``_numba_cache_warm``) instead of each compiling the same passes, with
+    the workers of their warm clusters, at the same time."""
+    if hasattr(config, "workerinput") or not config.getoption("numprocesses", None) or NUMBA_WARMUP_DONE in os.environ:
+        return
+    if not _numba_cache_is_stale():
+        return
+    done = Path(tempfile.mkdtemp(prefix="m2d-numba-warmup-")) / "done"
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+    config.stash[_WARMUP] = subprocess.Popen([sys.executable, str(Path(__file__).with_name("numba_warmup.py")), str(done)],
+                                             cwd=REPO, env=environment, stdout=subprocess.DEVNULL,
+                                             stderr=subprocess.DEVNULL)
+    os.environ[NUMBA_WARMUP_DONE] = str(done)          # inherited by the xdist processes started after this
+
+
+def pytest_unconfigure(config):
+    process = config.stash.get(_WARMUP, None)
+    if process is not None:
+        if process.poll() is None:
+            process.kill()
+        process.wait()
+        done = Path(os.environ.pop(NUMBA_WARMUP_DONE))
+        done.unlink(missing_ok=True)
+        done.parent.rmdir()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _numba_cache_warm() -> None:
+    """In an xdist process of a run whose controller started the numba warm-up (``pytest_configure``): wait until
+    it has written the cache (at most 10 minutes; it writes its file even when it fails)."""
+    done = os.environ.get(NUMBA_WARMUP_DONE)
+    deadline = time.monotonic() + 600
+    while done and not os.path.exists(done) and time.monotonic() < deadline:
+        time.sleep(0.2)
 
 
 @pytest.fixture(scope="session")

@@ -113,6 +113,19 @@ def wait_for_case_files(out: Path, count: int, process: subprocess.Popen, limit_
     raise AssertionError(f"no {count} case files in {limit_s} s")
 
 
+def scheduler_address(scheduler_file: Path, limit_s: float = 60.0) -> str:
+    """The address in the ``--scheduler-file`` a starting `dask scheduler` writes, once the whole file is there (the
+    scheduler writes it in place: the file can exist, empty or half-written, before it parses)."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        try:
+            return json.loads(scheduler_file.read_text())["address"]
+        except (OSError, ValueError, KeyError):
+            if time.monotonic() > deadline:
+                raise AssertionError(f"no scheduler address in {scheduler_file} within {limit_s} s") from None
+            time.sleep(0.05)
+
+
 class DaskProcesses:
     """A `dask scheduler` and `dask worker` processes on loopback (each in its own process group)."""
 
@@ -122,10 +135,7 @@ class DaskProcesses:
         self.scheduler = subprocess.Popen([*command, "scheduler", "--host", "127.0.0.1", "--port", "0",
                                            "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(scheduler_file)],
                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-        deadline = time.monotonic() + 60
-        while not scheduler_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        self.address = json.loads(scheduler_file.read_text())["address"]
+        self.address = scheduler_address(scheduler_file)
         environment = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
         self.workers = [subprocess.Popen([*command, "worker", self.address, "--nthreads", "1", "--nworkers", "1",
                                           "--host", "127.0.0.1", "--no-dashboard", "--memory-limit", memory_limit],

@@ -238,7 +238,7 @@ def interrupted(tmp_path_factory) -> Interrupted:
     out, err = process.communicate(timeout=120)
     deadline = time.monotonic() + 30
     while _session_processes(process.pid) and time.monotonic() < deadline:
-        time.sleep(0.5)
+        time.sleep(0.05)
     return Interrupted(store, process.returncode, out, err, _session_processes(process.pid))
 
 

@@ -6,7 +6,8 @@ once, estimate N times: neither the worker count nor an added estimator changes 
 
 The runs are `campaign` processes; the rerun and the tables are ``campaign.cli.main`` in this process with
 its file descriptors captured (``service_campaigns.campaign_in_process``: no interpreter start, imports and
-code digest for each)."""
+code digest for each). The example's two-worker run and its rerun use the test process's warm two-worker cluster
+(``warm_scheduler``, tests/conftest.py); the one-worker run starts its own."""
 from __future__ import annotations
 
 import os
@@ -32,15 +33,11 @@ def _campaign(*args, env=None, check=True):
                           timeout=900, check=check, cwd=REPO, env=env)
 
 
-def _submit(config: Path, out: Path, workers: int, env=None):
-    return _campaign("submit", config, "--output", out, "--cases-scale", SCALE, "--workers", workers, "--no-progress",
-                     env=env)
-
-
 @pytest.fixture(scope="module")
-def example_run(tmp_path_factory):
+def example_run(tmp_path_factory, warm_scheduler):
     out = tmp_path_factory.mktemp("compare2")
-    result = _submit(EXAMPLE, out, 2)
+    result = _campaign("submit", EXAMPLE, "--output", out, "--cases-scale", SCALE, "--scheduler", warm_scheduler,
+                       "--no-progress")
     assert "phase_correlation" in result.stdout, result.stdout + result.stderr
     return out
 
@@ -61,9 +58,9 @@ def test_example_has_both_estimators_for_every_case_and_table_prints_both(exampl
     assert set(csv["estimator"]) == {"dimes", "phase_correlation"} and "false_valid" in csv.columns
 
 
-def test_example_rerun_resumes_with_nothing_to_do(example_run, capfd):
-    rerun = campaign_in_process(capfd, "submit", EXAMPLE, "--output", example_run, "--cases-scale", SCALE, "--workers", 1,
-                                "--no-progress")
+def test_example_rerun_resumes_with_nothing_to_do(example_run, capfd, warm_scheduler):
+    rerun = campaign_in_process(capfd, "submit", EXAMPLE, "--output", example_run, "--cases-scale", SCALE,
+                                "--scheduler", warm_scheduler, "--no-progress")
     assert rerun.returncode == 0 and "(0 done, 0 failed this run)" in rerun.stdout, rerun.stdout + rerun.stderr
 
 

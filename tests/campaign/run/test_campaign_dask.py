@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import json
 import os
 import signal
 import subprocess
@@ -23,7 +22,7 @@ import pytest
 
 from campaign.cli import main
 from campaign.store.campaign_store import CampaignStore
-from service_campaigns import site_copy
+from service_campaigns import scheduler_address, site_copy
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -133,10 +132,7 @@ def dask_cluster(tmp_path):
     scheduler = subprocess.Popen([*command, "scheduler", "--host", "127.0.0.1", "--port", "0",
                                   "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(scheduler_file)],
                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.time() + 60
-    while not scheduler_file.exists() and time.time() < deadline:
-        time.sleep(0.1)
-    address = json.loads(scheduler_file.read_text())["address"]
+    address = scheduler_address(scheduler_file)
     workers = [subprocess.Popen([*command, "worker", address, "--nthreads", "1", "--nworkers", "1",
                                  "--host", "127.0.0.1", "--no-dashboard", "--memory-limit", "1.5GiB"],
                                 cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)

@@ -7,13 +7,12 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from service_campaigns import DASK, REPO, campaign_file, case_files, run_campaign
+from service_campaigns import DASK, REPO, campaign_file, case_files, run_campaign, scheduler_address
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -60,11 +59,7 @@ class _Dask:
                                                stderr=subprocess.DEVNULL, start_new_session=True))
         from dask.distributed import Client
 
-        for _ in range(600):
-            if scheduler_file.exists():
-                break
-            time.sleep(0.1)
-        with Client(scheduler_file=str(scheduler_file), timeout="60s") as client:
+        with Client(scheduler_address(scheduler_file), timeout="60s") as client:
             client.wait_for_workers(1, timeout=60)
             self.address = client.scheduler.address
             # the worker alone cannot import the plug-in (so what runs there was shipped)

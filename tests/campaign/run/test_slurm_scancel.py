@@ -19,7 +19,9 @@ from service_campaigns import REPO, campaign_command, campaign_file, stderr_line
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slurm, pytest.mark.slow]
 
-CASES = {"gcp": 1000, "gdcp": 600, "gkep": 400}
+# 600 no-op cases of one case per task: the job is cancelled once 20 case files are written, with over 500 tasks
+# (seconds of work for the other jobs even on an idle machine) still to run
+CASES = {"gcp": 300, "gdcp": 180, "gkep": 120}
 JOBS = 3          # on a 2-CPU node two run at a time; the third starts when one ends
 
 
@@ -37,7 +39,7 @@ def _execution(tmp_path: Path) -> str:
     settings = {"queue": SlurmNode.partition, "cores": 1, "memory": "1500MiB", "jobs": JOBS, "interface": "lo",
                 "walltime": "00:20:00", "job_extra": [f"--output={tmp_path}/slurm-%j.out"]}
     lines = [f"{key} = {json.dumps(value)}" for key, value in settings.items()]
-    # one case per task: 2000 tasks, so that the run lasts long enough to cancel a job in the middle of it
+    # one case per task: 600 tasks, so that the run lasts long enough to cancel a job in the middle of it
     return ('case_mode = "no_op"\ncases_per_task = 1\ncluster = "slurm"\nno_workers_timeout_s = 120\n'
             "[execution.slurm]\n" + "\n".join(lines))
 
@@ -58,7 +60,7 @@ def test_a_cancelled_worker_job_loses_and_duplicates_nothing_and_resume_complete
     with stdout_path.open("w") as stdout, (tmp_path / "submit.err").open("w") as stderr:
         process = subprocess.Popen(campaign_command("submit", config, "--output", out, "--no-progress"), stdout=stdout,
                                    stderr=stderr, cwd=tmp_path, env=environment)
-    cancelled, written_at_cancel = None, 0
+    cancelled, written_at_cancel, cancelled_at = None, 0, 0.0
     deadline = time.monotonic() + 600
     while process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.2)
@@ -68,9 +70,10 @@ def test_a_cancelled_worker_job_loses_and_duplicates_nothing_and_resume_complete
             states = slurm.jobs()
             running = [job for job in (jobs[0] if jobs else []) if states.get(job, ("", "", ""))[1] == "RUNNING"]
             if running:
-                cancelled, written_at_cancel = running[0], _written_cases(out)
+                cancelled, written_at_cancel, cancelled_at = running[0], _written_cases(out), time.monotonic()
                 slurm.run("scancel", cancelled)
     process.wait(timeout=max(1.0, deadline - time.monotonic()))
+    run_after_cancel_s = time.monotonic() - cancelled_at
     total = sum(CASES.values())
     assert cancelled is not None, stdout_path.read_text()
     assert written_at_cancel < total                     # the job was cancelled in the middle of the run
@@ -95,4 +98,4 @@ def test_a_cancelled_worker_job_loses_and_duplicates_nothing_and_resume_complete
     assert sorted(case_ids) == sorted(planned)           # every case once: none lost, none twice
     assert set(results.column("reason").to_pylist()) == {"no_op"}
     print(f"\nscancel {cancelled} with {written_at_cancel} of {total} case files written; first submit exit "
-          f"{process.returncode}, resume ran {left} cases")
+          f"{process.returncode} {run_after_cancel_s:.1f} s later, resume ran {left} cases")

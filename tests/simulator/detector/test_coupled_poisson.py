@@ -13,12 +13,18 @@ from simulator.detector.coupled_poisson import poisson_quantile
 
 
 def test_inversion_is_scipys_poisson_quantile_from_dim_to_huge_means():
-    """|u| <= 4, where scipy's CDF (and so its ppf) is accurate at every mean."""
+    """|u| <= 4, where scipy's CDF is accurate at every mean: each count k is the Poisson quantile of Phi(u) by its
+    definition, the smallest k with F(k) >= Phi(u), i.e. F(k - 1) < Phi(u) <= F(k) with scipy's F (what
+    ``stats.poisson.ppf`` returns, checked in two CDF calls instead of its search: 0.05 s instead of 10 s)."""
     rng = np.random.default_rng(20)
     deviate = rng.uniform(-4.0, 4.0, 60_000)
     mean = np.exp(rng.uniform(np.log(1e-3), np.log(1e10), deviate.size))
-    expected = stats.poisson.ppf(stats.norm.cdf(deviate), mean)
-    assert np.array_equal(poisson_quantile(deviate, mean), expected)
+    count = poisson_quantile(deviate, mean)
+    level = stats.norm.cdf(deviate)
+    assert np.array_equal(count, np.floor(count)) and (count >= 0).all()
+    below, at = stats.poisson.cdf(count - 1, mean), stats.poisson.cdf(count, mean)
+    wrong = ~((below < level) & (level <= at))
+    assert not wrong.any(), np.c_[deviate, mean, count][wrong][:10]
 
 
 @pytest.mark.parametrize("mean", [2.0e3, 7.0e4, 1.0e6, 1.0e7])
