@@ -23,6 +23,13 @@ are followed: :func:`plugin_modules`), and every plug-in's own files (a python c
 found on ``sys.path``, a command's program and script arguments) are hashed by
 :func:`campaign.configuration.estimators.estimator_code_digests`.
 
+Reading the imports is an :mod:`ast` parse of every file of the closure (~0.4 s a process, paid by every
+``campaign`` command). The parse's result, the set of dotted names a source names, is kept on disk
+(:func:`imports_cache_path`) keyed by the sha256 of the source's bytes *and* of this module's own source
+(the rules that read it), so an entry can only be reused for the very bytes it was read from under the
+very same rules; a missing, unreadable or malformed cache file is ignored (and rewritten), and a read-only
+cache directory only costs the parse. The digest itself is always computed from the files' bytes.
+
 The data that change results are hashed by :func:`campaign.configuration.campaign_file.hashed_content`:
 the site table as resolved content, the camera TOML, trajectory set, terrain files and sidecars by their bytes.
 """
@@ -31,6 +38,10 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+import json
+import os
+import sys
+import tempfile
 from pathlib import Path
 
 #: the top-level packages whose modules are followed (everything else is a dependency, not project code)
@@ -57,8 +68,76 @@ def module_file(name: str, root: Path = SOURCE_ROOT) -> Path | None:
 
 def imported_modules(name: str, path: Path, root: Path = SOURCE_ROOT) -> set[str]:
     """The project modules module ``name`` (source ``path``) imports or names, anywhere in its source."""
-    candidates = _named_modules(name, path.name == "__init__.py", path.read_bytes())
+    candidates = _IMPORTS_CACHE.named_modules(name, path.name == "__init__.py", path.read_bytes())
     return {module for module in candidates if module_file(module, root) is not None}
+
+
+def imports_cache_path() -> Path:
+    """The on-disk cache of :func:`_named_modules`' results: ``code-imports-py3.N.json`` in ``$MOC2DIMES_CACHE``
+    (``~/.cache/moc2dimes`` when unset: the same directory as the terrain strips' cache)."""
+    directory = os.environ.get("MOC2DIMES_CACHE")
+    base = Path(directory) if directory else Path.home() / ".cache" / "moc2dimes"
+    return base / f"code-imports-py{sys.version_info[0]}.{sys.version_info[1]}.json"
+
+
+class _ImportsOnDisk:
+    """:func:`_named_modules` behind the on-disk cache of the module doc (one per process)."""
+
+    def __init__(self) -> None:
+        self.path: Path | None = None
+        self.entries: dict[str, list[str]] = {}
+        self.used: set[str] = set()
+        self.added = False
+
+    def _load(self) -> None:
+        path = imports_cache_path()
+        if path == self.path:
+            return
+        self.path, self.entries, self.used, self.added = path, {}, set(), False
+        try:
+            loaded = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return
+        if isinstance(loaded, dict):
+            self.entries = {key: value for key, value in loaded.items()
+                            if isinstance(value, list) and all(isinstance(item, str) for item in value)}
+
+    def named_modules(self, name: str, is_package: bool, source: bytes) -> frozenset[str]:
+        self._load()
+        key = f"{_RULES_DIGEST}:{hashlib.sha256(source).hexdigest()}:{name}:{int(is_package)}"
+        self.used.add(key)
+        cached = self.entries.get(key)
+        if cached is not None:
+            return frozenset(cached)
+        found = _named_modules(name, is_package, source)
+        self.entries[key] = sorted(found)
+        self.added = True
+        return found
+
+    def save(self) -> None:
+        """Write the entries when this process added any (atomically; a cache that cannot be written is
+        skipped). Past :data:`IMPORTS_CACHE_ENTRIES` entries (sources edited many times), only those this
+        process used are kept."""
+        if not self.added or self.path is None:
+            return
+        if len(self.entries) > IMPORTS_CACHE_ENTRIES:
+            self.entries = {key: value for key, value in self.entries.items() if key in self.used}
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            handle, temporary = tempfile.mkstemp(dir=self.path.parent, prefix=".code-imports-", suffix=".tmp")
+            with os.fdopen(handle, "w") as stream:
+                json.dump(self.entries, stream, sort_keys=True)
+            os.replace(temporary, self.path)
+            self.added = False
+        except OSError:
+            pass
+
+
+#: entries of the on-disk import cache above which a write keeps only those the writing process used
+IMPORTS_CACHE_ENTRIES = 4096
+#: sha256 of this module's source: the rules a cached import list was read with
+_RULES_DIGEST = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+_IMPORTS_CACHE = _ImportsOnDisk()
 
 
 @functools.lru_cache(maxsize=1024)
@@ -115,6 +194,7 @@ def import_closure(starts: tuple[str, ...] = CASE_MODULES, root: Path = SOURCE_R
         parts = name.split(".")
         pending += [".".join(parts[:end]) for end in range(1, len(parts))]
         pending += sorted(imported_modules(name, path, root))
+    _IMPORTS_CACHE.save()
     return dict(sorted(closure.items()))
 
 

@@ -3,6 +3,7 @@ the case computation (read with ``ast`` from the sources) plus the estimator plu
 any module that can change a case's result changes the hash, and editing a report module does not."""
 from __future__ import annotations
 
+import json
 import shutil
 import sys
 import tomllib
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from campaign.configuration import code_identity
 from campaign.configuration.campaign_file import campaign_config_from_data
 from campaign.configuration.code_identity import (
     CASE_MODULES,
@@ -159,3 +161,60 @@ def test_a_project_plugin_changes_the_code_digest():
                      {"name": "pc", "kind": "python", "callable": "estimators.phase_correlation:estimate"}]).estimators
     assert plugin_modules(specs) == ("estimators.phase_correlation",)
     assert code_digest(plugin_modules(specs)) != code_digest()
+
+
+def _fresh_process_state(monkeypatch, cache_dir: Path) -> None:
+    """A process that has read nothing yet: the on-disk cache in ``cache_dir``, no parse cached in memory."""
+    monkeypatch.setenv("MOC2DIMES_CACHE", str(cache_dir))
+    monkeypatch.setattr(code_identity, "_IMPORTS_CACHE", code_identity._ImportsOnDisk())
+    code_identity._named_modules.cache_clear()
+
+
+def test_the_import_lists_kept_on_disk_give_the_same_closure_without_parsing(source_copy, tmp_path, monkeypatch):
+    """A second process reads the closure's import lists from the cache (no ``ast`` parse) and gets the same
+    closure and digest; an edited source misses the cache (its key is its bytes) and is parsed again, so a
+    new import in it joins the closure; a malformed cache file is ignored and rewritten."""
+    root, before = source_copy
+    _fresh_process_state(monkeypatch, tmp_path)
+    cold = import_closure(root=root)
+    assert code_identity.imports_cache_path().is_file()
+
+    _fresh_process_state(monkeypatch, tmp_path)
+    real_parse = code_identity.ast.parse
+
+    def no_parse(*args, **kwargs):
+        raise AssertionError("parsed although the cache holds this source")
+    monkeypatch.setattr(code_identity.ast, "parse", no_parse)
+    assert import_closure(root=root) == cold and closure_digest(root=root) == before
+
+    edited = root / "campaign" / "case" / "compute.py"
+    original = edited.read_bytes()
+    try:
+        edited.write_bytes(original + b"\nimport campaign.report.markdown as _edited\nimport campaign.cli\n")
+        with pytest.raises(AssertionError, match="parsed although"):
+            import_closure(root=root)
+        monkeypatch.setattr(code_identity.ast, "parse", real_parse)
+        assert "campaign.cli" in import_closure(root=root) and "campaign.cli" not in cold
+    finally:
+        edited.write_bytes(original)
+
+    code_identity.imports_cache_path().write_text("{not json")
+    _fresh_process_state(monkeypatch, tmp_path)
+    assert import_closure(root=root) == cold
+    assert isinstance(json.loads(code_identity.imports_cache_path().read_text()), dict)
+
+
+def test_a_cached_import_list_is_bound_to_the_rules_that_read_it(source_copy, tmp_path, monkeypatch):
+    """Entries written under other rules (another version of this module) are never used: a cache whose
+    every list claims ``campaign.cli`` does not put it in the closure once the rules' digest differs."""
+    root, _ = source_copy
+    _fresh_process_state(monkeypatch, tmp_path)
+    cold = import_closure(root=root)
+    path = code_identity.imports_cache_path()
+    poisoned = {key: value + ["campaign.cli"] for key, value in json.loads(path.read_text()).items()}
+    path.write_text(json.dumps(poisoned))
+    _fresh_process_state(monkeypatch, tmp_path)
+    assert "campaign.cli" in import_closure(root=root)          # the same rules: the cache is believed
+    _fresh_process_state(monkeypatch, tmp_path)
+    monkeypatch.setattr(code_identity, "_RULES_DIGEST", "0" * 64)
+    assert import_closure(root=root) == cold
