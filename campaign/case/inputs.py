@@ -16,13 +16,15 @@ built once per process.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import pickle
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from campaign.case import shipped_inputs
 from campaign.case.process_tuning import tune_once
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.plan.coverage import Coverage, coverage, fit_terrain, trajectory_boxes
@@ -97,10 +99,13 @@ class SharedInputs:
     ----------
     loaded : dict
         (kind, repr(source)[, file size in bytes, mtime in ns]) -> the loaded input.
+    shipped_keys : set
+        The keys of ``loaded`` whose input another process made (:meth:`absorb`).
     """
 
     def __init__(self) -> None:
         self.loaded: dict[tuple, Any] = {}
+        self.shipped_keys: set[tuple] = set()       # the keys of entries another process made (absorb)
 
     def get(self, kind: str, source: Any, loader: Callable[[Any], Any]) -> Any:
         """``loader(source)``, loaded once per process per source (a path, keyed with its size and mtime so
@@ -113,6 +118,15 @@ class SharedInputs:
         if key not in self.loaded:
             self.loaded[key] = loader(source)
         return self.loaded[key]
+
+    def absorb(self, entries: Mapping[tuple, Any]) -> None:
+        """Take ``entries`` (key -> input, as another process loaded them: :func:`shippable_inputs`) where
+        nothing is loaded under their key yet; their arrays are made read-only, as the loaders here make the
+        calibration products."""
+        for key, value in entries.items():
+            if key not in self.loaded:
+                self.loaded[key] = read_only_array(value) if isinstance(value, np.ndarray) else value
+                self.shipped_keys.add(key)
 
 
 PROCESS_SHARED = SharedInputs()
@@ -251,8 +265,32 @@ PROCESS_INPUTS = ProcessInputs()
 """The inputs of this process (the only instance outside tests)."""
 
 
+#: the kinds of :class:`SharedInputs` entries :func:`shippable_inputs` ships: what a worker would read (camera,
+#: trajectory set) or compute (the flat-field calibration, the same for every worker of a campaign) for its
+#: first case; terrains are left out (loaded in about 10 ms, 20 MB each)
+SHIPPED_KINDS = ("camera", "profiles", "flat_truth", "flat_calibrated")
+
+
+def shippable_inputs(configs: Sequence[CampaignConfig], shared: SharedInputs = PROCESS_SHARED) -> bytes:
+    """The campaigns' inputs every worker needs and would make alike, made here once and pickled (for
+    :class:`campaign.run.worker_startup.ShippedInputs`; the worker's first :func:`campaign_inputs` takes them).
+
+    The calibration products are made here as a worker makes them (:meth:`CampaignInputs.calibration`, in a
+    process tuned for cases): the same function of the same inputs, so the same bits; every entry keeps the key
+    a worker would look it up by (a file by its path, size and modification time: a worker that sees another
+    file loads its own). About 11 MB for Gusev and Meridiani (trajectory sets 10 MB, flat fields 1 MB)."""
+    tune_once()
+    for config in dict((config.config_hash, config) for config in configs).values():
+        CampaignInputs(config, shared).calibration()
+    entries = {key: value for key, value in shared.loaded.items() if key[0] in SHIPPED_KINDS}
+    return pickle.dumps(entries, protocol=pickle.HIGHEST_PROTOCOL)
+
+
 def campaign_inputs(config: CampaignConfig, cache: ProcessInputs = PROCESS_INPUTS) -> CampaignInputs:
-    """The campaign's inputs in this process (created on first use, in a process tuned for cases first)."""
+    """The campaign's inputs in this process (created on first use, in a process tuned for cases first, with
+    the inputs a driver shipped: :mod:`campaign.case.shipped_inputs`)."""
+    for payload in shipped_inputs.take():
+        cache.shared.absorb(pickle.loads(payload))
     if config.config_hash not in cache.campaigns:
         tune_once()
         cache.campaigns[config.config_hash] = CampaignInputs(config, cache.shared)

@@ -1,14 +1,16 @@
-"""The worker plug-in that tunes each dask worker process for cases as it starts.
+"""The worker plug-ins that tune each dask worker process for cases as it starts and hand it the inputs the
+driver made once.
 
-Kept apart from :mod:`campaign.run.worker` on purpose: a worker imports this module to run the plug-in
-when it starts, and it needs only ctypes and OpenCV (0.2 s, :mod:`campaign.case.process_tuning`), not the
-simulator and the estimators (5 s), which a worker loads with its first case anyway; the cluster's start
-waits for the plug-in.
+Kept apart from :mod:`campaign.run.worker` on purpose: a worker imports this module to run the plug-ins
+when it starts (or the inputs arrive), and it needs only ctypes and OpenCV (0.2 s,
+:mod:`campaign.case.process_tuning`), not the simulator and the estimators (5 s), which a worker loads with
+its first case anyway; the cluster's start waits for the plug-ins.
 """
 from __future__ import annotations
 
 from distributed import WorkerPlugin
 
+from campaign.case import shipped_inputs
 from campaign.case.process_tuning import tune_once
 
 
@@ -20,3 +22,17 @@ class CaseWorkerSetup(WorkerPlugin):
 
     def setup(self, worker) -> None:
         tune_once()
+
+
+class ShippedInputs(WorkerPlugin):
+    """Inputs the driver made once for every worker (:func:`campaign.case.inputs.shippable_inputs`, pickled):
+    kept as they arrive, unpickled by the worker's first case (:mod:`campaign.case.shipped_inputs`)."""
+
+    name = "moc2dimes-shipped-inputs"
+
+    def __init__(self, payload: bytes):
+        self.payload = payload
+
+    def setup(self, worker) -> None:
+        shipped_inputs.receive(self.payload)
+        self.payload = b""          # the worker keeps its plug-ins: the bytes live in shipped_inputs until taken

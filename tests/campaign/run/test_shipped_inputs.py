@@ -1,0 +1,66 @@
+"""The inputs every worker would make alike (trajectory set, camera, flat-field calibration) are made once by the
+driver while its cluster starts and shipped: a real embedded worker computes its cases with the driver's,
+and its cases keep the bits they had when each worker made its own."""
+from __future__ import annotations
+
+import pickle
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+
+from campaign.case import shipped_inputs
+from campaign.case.inputs import PROCESS_SHARED, SHIPPED_KINDS, SharedInputs, shippable_inputs
+from campaign.configuration.campaign_file import load_campaign_config
+from campaign.run.orchestrate import StorePoint, manifest_for, run_store_points
+from campaign.run.planning import plan_campaign
+from service_campaigns import campaign_file
+
+
+def _shared_report() -> dict:
+    """Run in a worker after its cases: which of its inputs came from the driver, and the flat field."""
+    from campaign.case.inputs import PROCESS_SHARED
+
+    flats = {key: value for key, value in PROCESS_SHARED.loaded.items() if key[0] == "flat_calibrated"}
+    return {"shipped": sorted(key[0] for key in PROCESS_SHARED.shipped_keys), "flats": flats}
+
+
+@pytest.mark.cluster
+def test_a_worker_computes_with_the_inputs_the_driver_made(tmp_path):
+    config = load_campaign_config(campaign_file(tmp_path, cases={"gcp": 1, "gdcp": 0, "gkep": 0}),
+                                  output_dir=tmp_path / "out")
+    point = StorePoint(config, manifest_for(config), plan_campaign(config)[1])
+    reports: list[dict] = []
+
+    @contextmanager
+    def inspect(client) -> Iterator[None]:
+        yield
+        reports.extend(client.run(_shared_report).values())
+
+    execution = config.execution.with_overrides(None, 1)
+    run = run_store_points([point], execution, progress=False, on_note=lambda line: None, client_hook=inspect,
+                           quiet=True)
+    assert run.done == 1 and run.failed == 0
+    [report] = reports
+    assert sorted(report["shipped"]) == ["camera", "flat_calibrated", "profiles"]
+    [(key, flat)] = report["flats"].items()
+    # the same key and bits as this process (the driver) made, and read-only like a worker's own
+    assert np.array_equal(flat, PROCESS_SHARED.loaded[key]) and not flat.flags.writeable
+
+
+def test_shipped_inputs_stand_for_loading_and_never_replace_what_a_process_has(tmp_path):
+    config = load_campaign_config(campaign_file(tmp_path), output_dir=tmp_path / "out")
+    maker = SharedInputs()
+    shipped_inputs.receive(shippable_inputs([config], maker))
+    [payload] = shipped_inputs.take()
+    assert shipped_inputs.take() == []                       # taken once
+    entries = pickle.loads(payload)
+    assert {key[0] for key in entries} == {"camera", "profiles", "flat_calibrated"} <= set(SHIPPED_KINDS)
+    receiver = SharedInputs()
+    own_profiles = receiver.get("profiles", config.site.trajectory_path, lambda path: "loaded here")
+    receiver.absorb(entries)
+    # a loader never runs for a shipped key; what the process loaded itself stands
+    assert receiver.get("camera", config.site.camera_path, lambda path: pytest.fail("loaded again")) is not None
+    assert receiver.get("profiles", config.site.trajectory_path, lambda path: "again") == own_profiles
+    assert {key[0] for key in receiver.shipped_keys} == {"camera", "flat_calibrated"}
