@@ -107,14 +107,19 @@ class SharedInputs:
         self.loaded: dict[tuple, Any] = {}
         self.shipped_keys: set[tuple] = set()       # the keys of entries another process made (absorb)
 
-    def get(self, kind: str, source: Any, loader: Callable[[Any], Any]) -> Any:
-        """``loader(source)``, loaded once per process per source (a path, keyed with its size and mtime so
-        a changed file is read again, or a terrain spec)."""
+    @staticmethod
+    def key(kind: str, source: Any) -> tuple:
+        """The key of ``source`` (a path, with its size and mtime so a changed file is read again, or a spec)."""
         key: tuple = (kind, repr(source))
         path = Path(source) if isinstance(source, (str, Path)) else getattr(source, "path", None)
         if path is not None and Path(path).exists():
             stat = Path(path).stat()
             key += (stat.st_size, stat.st_mtime_ns)
+        return key
+
+    def get(self, kind: str, source: Any, loader: Callable[[Any], Any]) -> Any:
+        """``loader(source)``, loaded once per process per source (:meth:`key`)."""
+        key = self.key(kind, source)
         if key not in self.loaded:
             self.loaded[key] = loader(source)
         return self.loaded[key]
@@ -280,10 +285,24 @@ def shippable_inputs(configs: Sequence[CampaignConfig], shared: SharedInputs = P
     a worker would look it up by (a file by its path, size and modification time: a worker that sees another
     file loads its own). About 11 MB for Gusev and Meridiani (trajectory sets 10 MB, flat fields 1 MB)."""
     tune_once()
+    used = _UsedKeys(shared)
     for config in dict((config.config_hash, config) for config in configs).values():
-        CampaignInputs(config, shared).calibration()
-    entries = {key: value for key, value in shared.loaded.items() if key[0] in SHIPPED_KINDS}
+        CampaignInputs(config, used).calibration()
+    entries = {key: shared.loaded[key] for key in sorted(used.keys, key=repr) if key[0] in SHIPPED_KINDS}
     return pickle.dumps(entries, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+class _UsedKeys(SharedInputs):
+    """``shared`` itself (the same entries), noting the keys asked for (only these campaigns' are shipped)."""
+
+    def __init__(self, shared: SharedInputs):
+        self.loaded = shared.loaded
+        self.shipped_keys = shared.shipped_keys
+        self.keys: set[tuple] = set()
+
+    def get(self, kind: str, source: Any, loader: Callable[[Any], Any]) -> Any:
+        self.keys.add(self.key(kind, source))
+        return super().get(kind, source, loader)
 
 
 def campaign_inputs(config: CampaignConfig, cache: ProcessInputs = PROCESS_INPUTS) -> CampaignInputs:

@@ -136,8 +136,9 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
     under the locks, start or connect to the cluster unless a ``client`` is given (:func:`cluster_session`:
     ``client_hook``, then the python plug-ins' code shipped to the workers; a worker that cannot import one
     stops the run before any store changes; meanwhile this process makes the inputs every worker would make
-    alike, :func:`~campaign.case.inputs.shippable_inputs`, and ships them as the cluster is up), and only then prepare the stores (with ``fresh``: move an old
-    store aside to ``DIR.previous-<UTC time>``; ``on_note`` gets one line per action), reject bad case files
+    alike, :func:`~campaign.case.inputs.shippable_inputs`, and ships them as the cluster is up), and only
+    then prepare the stores (with ``fresh``: move an old store aside to ``DIR.previous-<UTC time>``;
+    ``on_note`` gets one line per action), reject bad case files
     and run all missing cases together (:func:`run_locked_points`). The locks are released on return.
 
     Parameters
@@ -184,6 +185,7 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
             except BaseException:           # refused before any store changed: leave nothing behind
                 for path in new_lock_files:
                     path.unlink(missing_ok=True)        # still held: a waiter is refused by the directory lock
+                shipped.wait()                  # no thread left computing while the interpreter exits
                 raise
             client.register_plugin(ShippedInputs(shipped.result()))    # present and future workers
         return run_locked_points(client, points, stores, execution, fresh=fresh, progress=progress,
@@ -204,6 +206,10 @@ class InBackground:
             self._outcome["value"] = function(*arguments)
         except BaseException as exc:    # handed to the caller of result(), raised there
             self._outcome["error"] = exc
+
+    def wait(self) -> None:
+        """Wait for the function to end (its value or exception is kept for :meth:`result`)."""
+        self._thread.join()
 
     def result(self) -> Any:
         """The function's value, or its exception raised here."""

@@ -43,7 +43,7 @@ def test_a_worker_computes_with_the_inputs_the_driver_made(tmp_path):
                            quiet=True)
     assert run.done == 1 and run.failed == 0
     [report] = reports
-    assert sorted(report["shipped"]) == ["camera", "flat_calibrated", "profiles"]
+    assert report["shipped"] == ["camera", "flat_calibrated", "profiles"]     # this campaign's only
     [(key, flat)] = report["flats"].items()
     # the same key and bits as this process (the driver) made, and read-only like a worker's own
     assert np.array_equal(flat, PROCESS_SHARED.loaded[key]) and not flat.flags.writeable
@@ -52,11 +52,13 @@ def test_a_worker_computes_with_the_inputs_the_driver_made(tmp_path):
 def test_shipped_inputs_stand_for_loading_and_never_replace_what_a_process_has(tmp_path):
     config = load_campaign_config(campaign_file(tmp_path), output_dir=tmp_path / "out")
     maker = SharedInputs()
+    maker.get("camera", "another camera", lambda source: "not this campaign's")
     shipped_inputs.receive(shippable_inputs([config], maker))
     [payload] = shipped_inputs.take()
     assert shipped_inputs.take() == []                       # taken once
     entries = pickle.loads(payload)
-    assert {key[0] for key in entries} == {"camera", "profiles", "flat_calibrated"} <= set(SHIPPED_KINDS)
+    assert sorted(key[0] for key in entries) == ["camera", "flat_calibrated", "profiles"]
+    assert {key[0] for key in entries} <= set(SHIPPED_KINDS)
     receiver = SharedInputs()
     own_profiles = receiver.get("profiles", config.site.trajectory_path, lambda path: "loaded here")
     receiver.absorb(entries)
