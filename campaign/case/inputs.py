@@ -270,24 +270,24 @@ PROCESS_INPUTS = ProcessInputs()
 """The inputs of this process (the only instance outside tests)."""
 
 
-#: the kinds of :class:`SharedInputs` entries :func:`shippable_inputs` ships: what a worker would read (camera,
-#: trajectory set) or compute (the flat-field calibration, the same for every worker of a campaign) for its
-#: first case; terrains are left out (loaded in about 10 ms, 20 MB each)
-SHIPPED_KINDS = ("camera", "profiles", "flat_truth", "flat_calibrated")
+#: the kinds of :class:`SharedInputs` entries :func:`shippable_inputs` ships: what a worker would read for its first
+#: case and the driver has read already to plan; terrains are left out (loaded in about 10 ms, 20 MB each)
+SHIPPED_KINDS = ("camera", "profiles")
 
 
 def shippable_inputs(configs: Sequence[CampaignConfig], shared: SharedInputs = PROCESS_SHARED) -> bytes:
-    """The campaigns' inputs every worker needs and would make alike, made here once and pickled (for
-    :class:`campaign.run.worker_startup.ShippedInputs`; the worker's first :func:`campaign_inputs` takes them).
+    """The campaigns' inputs this process has loaded (planning did) that every worker would load alike, pickled
+    (for :class:`campaign.run.worker_startup.ShippedInputs`; the worker's first :func:`campaign_inputs` takes them).
 
-    The calibration products are made here as a worker makes them (:meth:`CampaignInputs.calibration`, in a
-    process tuned for cases): the same function of the same inputs, so the same bits; every entry keeps the key
-    a worker would look it up by (a file by its path, size and modification time: a worker that sees another
-    file loads its own). About 11 MB for Gusev and Meridiani (trajectory sets 10 MB, flat fields 1 MB)."""
-    tune_once()
+    Nothing is computed for the workers here: made in the driver while the cluster starts, the flat-field
+    calibrations (0.7 s each) held the first task back by 0.6-1.2 s (the driver shares the cores with the starting
+    workers), and Gusev + Meridiani took 47-50 s against 39 s without (2026-11-27, loaded 2-core machine).
+    Every entry keeps the key a worker would look it up by (a file by its path, size and modification time: a
+    worker that sees another file loads its own), so the worker computes with the same objects. About 10 MB
+    for Gusev and Meridiani."""
     used = _UsedKeys(shared)
     for config in dict((config.config_hash, config) for config in configs).values():
-        CampaignInputs(config, used).calibration()
+        CampaignInputs(config, used)
     entries = {key: shared.loaded[key] for key in sorted(used.keys, key=repr) if key[0] in SHIPPED_KINDS}
     return pickle.dumps(entries, protocol=pickle.HIGHEST_PROTOCOL)
 

@@ -1,10 +1,10 @@
-"""Inputs a driver made once and shipped to its workers, held here (pickled) until the process's cases take them.
+"""Inputs a driver loaded and shipped to its workers, held here (pickled) until the process's cases take them.
 
 Light on purpose (standard library only): a dask worker stores what arrives as it joins
 (:class:`campaign.run.worker_startup.ShippedInputs`) without importing the simulator; the first
 :func:`campaign.case.inputs.campaign_inputs` of the process unpickles it into the process's
-:class:`~campaign.case.inputs.SharedInputs`, where it stands for what the worker would otherwise load or compute
-under the same keys (:func:`campaign.case.inputs.shippable_inputs` says which).
+:class:`~campaign.case.inputs.SharedInputs`, where it stands for what the worker would otherwise load under the
+same keys (:func:`campaign.case.inputs.shippable_inputs` says which).
 """
 from __future__ import annotations
 

@@ -135,8 +135,8 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
     (:class:`~campaign.store.lock.StoreBusy` when another writer holds one, unless ``wait``), check again
     under the locks, start or connect to the cluster unless a ``client`` is given (:func:`cluster_session`:
     ``client_hook``, then the python plug-ins' code shipped to the workers; a worker that cannot import one
-    stops the run before any store changes; meanwhile this process makes the inputs every worker would make
-    alike, :func:`~campaign.case.inputs.shippable_inputs`, and ships them as the cluster is up), and only
+    stops the run before any store changes; the inputs every worker would load alike and planning loaded here,
+    :func:`~campaign.case.inputs.shippable_inputs`, are shipped as the cluster is up), and only
     then prepare the stores (with ``fresh``: move an old store aside to ``DIR.previous-<UTC time>``;
     ``on_note`` gets one line per action), reject bad case files
     and run all missing cases together (:func:`run_locked_points`). The locks are released on return.
@@ -178,7 +178,7 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
         lock_stores(points, stores, stack, fresh=fresh, wait=wait)
         if client is None:
             specs = [spec for point in points for spec in point.config.estimators]
-            # the inputs every worker would make alike, made once here while the cluster starts
+            # the inputs every worker would load alike (planning loaded them here), pickled while the cluster starts
             shipped = InBackground(shippable_inputs, [point.config for point in points])
             try:
                 client = stack.enter_context(cluster_session(execution, specs, client_hook=client_hook, quiet=quiet))

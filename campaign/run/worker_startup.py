@@ -1,5 +1,5 @@
 """The worker plug-ins that tune each dask worker process for cases as it starts and hand it the inputs the
-driver made once.
+driver loaded already.
 
 Kept apart from :mod:`campaign.run.worker` on purpose: a worker imports this module to run the plug-ins
 when it starts (or the inputs arrive), and it needs only ctypes and OpenCV (0.2 s,
@@ -25,7 +25,7 @@ class CaseWorkerSetup(WorkerPlugin):
     checks and estimator set-up run single-threaded too, not only the cases (which tune on first use).
 
     Then imports the case code (:data:`CASE_MODULE`, 1.2-1.8 s of CPU) in a thread of its own, while the driver
-    still prepares the run (ships the plug-ins' code and the inputs it made, prepares the stores): the first
+    still prepares the run (ships the plug-ins' code and the inputs it loaded, prepares the stores): the first
     task finds it imported (or waits on Python's import lock for the rest) instead of starting it. A failing
     import is left to the first task, which reports it as before."""
 
@@ -45,7 +45,7 @@ def _import_quietly(module: str) -> None:
 
 
 class ShippedInputs(WorkerPlugin):
-    """Inputs the driver made once for every worker (:func:`campaign.case.inputs.shippable_inputs`, pickled):
+    """Inputs the driver loaded that every worker would load alike (:func:`campaign.case.inputs.shippable_inputs`, pickled):
     kept as they arrive, unpickled by the worker's first case (:mod:`campaign.case.shipped_inputs`)."""
 
     name = "moc2dimes-shipped-inputs"

@@ -1,13 +1,12 @@
-"""The inputs every worker would make alike (trajectory set, camera, flat-field calibration) are made once by the
-driver while its cluster starts and shipped: a real embedded worker computes its cases with the driver's,
-and its cases keep the bits they had when each worker made its own."""
+"""The inputs every worker would load alike and the driver has loaded to plan (camera, trajectory set) are shipped
+as the cluster starts: a real embedded worker computes its cases with the driver's, and its cases keep the bits
+they had when each worker loaded its own (the baseline comparison)."""
 from __future__ import annotations
 
 import pickle
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-import numpy as np
 import pytest
 
 from campaign.case import shipped_inputs
@@ -19,11 +18,11 @@ from service_campaigns import campaign_file
 
 
 def _shared_report() -> dict:
-    """Run in a worker after its cases: which of its inputs came from the driver, and the flat field."""
+    """Run in a worker after its cases: which of its inputs came from the driver, and its trajectory sets."""
     from campaign.case.inputs import PROCESS_SHARED
 
-    flats = {key: value for key, value in PROCESS_SHARED.loaded.items() if key[0] == "flat_calibrated"}
-    return {"shipped": sorted(key[0] for key in PROCESS_SHARED.shipped_keys), "flats": flats}
+    profiles = {key: value for key, value in PROCESS_SHARED.loaded.items() if key[0] == "profiles"}
+    return {"shipped": sorted(key[0] for key in PROCESS_SHARED.shipped_keys), "profiles": profiles}
 
 
 @pytest.mark.cluster
@@ -43,10 +42,10 @@ def test_a_worker_computes_with_the_inputs_the_driver_made(tmp_path):
                            quiet=True)
     assert run.done == 1 and run.failed == 0
     [report] = reports
-    assert report["shipped"] == ["camera", "flat_calibrated", "profiles"]     # this campaign's only
-    [(key, flat)] = report["flats"].items()
-    # the same key and bits as this process (the driver) made, and read-only like a worker's own
-    assert np.array_equal(flat, PROCESS_SHARED.loaded[key]) and not flat.flags.writeable
+    assert report["shipped"] == ["camera", "profiles"]     # this campaign's only
+    [(key, profiles)] = report["profiles"].items()
+    # the same key and trajectories as this process (the driver) loaded
+    assert pickle.dumps(profiles) == pickle.dumps(PROCESS_SHARED.loaded[key])
 
 
 def test_shipped_inputs_stand_for_loading_and_never_replace_what_a_process_has(tmp_path):
@@ -57,7 +56,7 @@ def test_shipped_inputs_stand_for_loading_and_never_replace_what_a_process_has(t
     [payload] = shipped_inputs.take()
     assert shipped_inputs.take() == []                       # taken once
     entries = pickle.loads(payload)
-    assert sorted(key[0] for key in entries) == ["camera", "flat_calibrated", "profiles"]
+    assert sorted(key[0] for key in entries) == ["camera", "profiles"]
     assert {key[0] for key in entries} <= set(SHIPPED_KINDS)
     receiver = SharedInputs()
     own_profiles = receiver.get("profiles", config.site.trajectory_path, lambda path: "loaded here")
@@ -65,4 +64,4 @@ def test_shipped_inputs_stand_for_loading_and_never_replace_what_a_process_has(t
     # a loader never runs for a shipped key; what the process loaded itself stands
     assert receiver.get("camera", config.site.camera_path, lambda path: pytest.fail("loaded again")) is not None
     assert receiver.get("profiles", config.site.trajectory_path, lambda path: "again") == own_profiles
-    assert {key[0] for key in receiver.shipped_keys} == {"camera", "flat_calibrated"}
+    assert {key[0] for key in receiver.shipped_keys} == {"camera"}
