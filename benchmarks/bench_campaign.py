@@ -7,16 +7,24 @@ the workers' usage before the cluster closes): wall time from planning to the co
 cluster start included (target <= 35 s, issue #33), and each worker process's peak RSS (``ru_maxrss``, asked of
 the workers before the cluster closes; target <= 1 GiB).
 
-``campaign/parallel_efficiency``: every ``EVERY``-th case of each campaign is run again in this process, one thread,
-by the workers' own function (:func:`campaign.run.worker.execute_case`, into a scratch store), half of them
-before the cluster run and half after, so that a change of load on the machine hits both alike.
-Efficiency = the one-thread median case wall time (``t_case_ms``, the same timer the workers record) /
-the median on the 2 workers of the same cases (target >= 95 %). On a machine with other work the 2
+``campaign/parallel_efficiency``: every ``EVERY``-th case of each campaign is run again, one case at a time, on an
+embedded cluster of ONE worker started by the same code as the campaign's two
+(:func:`campaign.run.cluster.connected_client`), by the workers' own function
+(:func:`campaign.run.worker.execute_case`, into a scratch store), half of them before the cluster run and half
+after, so that a change of load on the machine hits both alike. Protocol: both sides are worker processes
+spawned the same way, so they compute in the same heap (:mod:`simulator.heap`: the same malloc thresholds
+and arena, set by the environment the nanny spawns them with) in the same kind of thread (the worker's task
+thread), with the same imports; the one-worker side runs a warm-up case of each campaign first (terrain strip,
+caches, as a campaign worker's first case). A one-thread side in this process instead (main thread, main
+arena, this process's own heap settings) compared unlike heaps: 76-87 against 108 ms a case on the workers on
+2026-11-27. Efficiency = the one-worker median case wall time (``t_case_ms``, the same timer the workers
+record) / the median on the 2 workers of the same cases (target >= 95 %). On a machine with other work the 2
 workers share the cores with it, so the wall-time ratio also shows that load; the median thread CPU time
-per case (``cpu_ms_*``: on the workers the CPU clock of the executing thread around each task,
-:class:`TaskCpuClock`; here around the same calls) does not, and ``cpu_efficiency`` (one thread / workers)
-tells extra work in the workers from waiting for a core. ``load_average`` is the machine's 1-minute
-load average at the end.
+per case (``cpu_ms_*``: the CPU clock of the executing thread; around each case on the one worker, around each
+task on the two, a batch of cases, divided by its cases: the median over all tasks, whose few first ones per
+worker and campaign also load the inputs) does not, and
+``cpu_efficiency`` (one worker / two) tells extra work in the workers from waiting for a core.
+``load_average`` is the machine's 1-minute load average at the end.
 """
 from __future__ import annotations
 
@@ -74,9 +82,9 @@ def _worker_usage(dask_worker) -> dict:
             "task_cpu_s": dict(clock.cpu_s) if clock is not None else {}}
 
 
-def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
+def _run_campaigns(root: Path) -> tuple[float, int, list[float], list[float]]:
     """Plan and run both campaigns on one embedded cluster: (wall s, cases run, peak RSS MiB per worker,
-    thread CPU ms per case by (site, case_id))."""
+    thread CPU ms per case of each task, a batch of cases)."""
     from campaign.configuration.campaign_file import load_campaign_config
     from campaign.run.orchestrate import StorePoint, manifest_for, run_store_points
     from campaign.run.planning import plan_campaign
@@ -99,40 +107,54 @@ def _run_campaigns(root: Path) -> tuple[float, int, list[float], dict]:
     execution = points[0].config.execution.with_overrides(None, WORKERS)
     run = run_store_points(points, execution, progress=False, on_note=lambda line: None, client_hook=measured,
                            quiet=True)
-    keys = {point.config.config_hash[:12]: site for point, site in zip(points, SITES)}
-    task_cpu_ms = {(keys[key.split("-")[1]], int(key.split("-")[2])): 1e3 * cpu_s      # keys case-<hash>-<case id>
-                   for worker in usage for key, cpu_s in worker["task_cpu_s"].items() if str(key).startswith("case-")}
-    return time.perf_counter() - start, run.done + run.failed, [worker["peak_rss_mib"] for worker in usage], task_cpu_ms
+    # a task is a batch of cases, keyed cases-<hash>-<first case id>-<cases>-<token>: its CPU per case
+    case_cpu_ms = [1e3 * cpu_s / int(str(key).split("-")[3])
+                   for worker in usage for key, cpu_s in worker["task_cpu_s"].items() if str(key).startswith("cases-")]
+    return time.perf_counter() - start, run.done + run.failed, [worker["peak_rss_mib"] for worker in usage], case_cpu_ms
 
 
-def _one_thread(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
-    """Run the ``sample`` cases ((site, plan record)) in this process as a worker runs them, into scratch stores
-    under ``root``: t_case_ms (as recorded) and thread CPU ms per case, indexed by (site, case_id)."""
+def _cases_one_at_a_time(root: str, site: str, records: list[dict]) -> list[dict]:
+    """Run ``records`` of ``site``'s campaign here (a worker's task thread) as a worker runs them, into a scratch
+    store under ``root``, after a warm-up case: t_case_ms (as recorded) and thread CPU ms per case."""
     from campaign.case.compute import compute_case
     from campaign.case.inputs import PlanRow, campaign_inputs
     from campaign.configuration.campaign_file import load_campaign_config
     from campaign.run.worker import CampaignContext, execute_case, set_up_estimators
     from campaign.store.case_files import read_case_table
 
+    store = Path(root) / site
+    config = load_campaign_config(REPO / "sitedata" / f"{site}.toml", output_dir=store, cases_scale=CASES_SCALE)
+    (store / "cases").mkdir(parents=True, exist_ok=True)
+    resources = campaign_inputs(config)                    # per-process inputs, as a worker's first case
+    set_up_estimators(resources)
+    compute_case(resources, PlanRow.from_record(records[0]))  # warm: terrain strip and caches
+    context = CampaignContext.from_config(config, store)
+    cpu_ms = {}
+    for record in records:
+        start = time.thread_time()
+        execute_case(context, record)
+        cpu_ms[int(record["case_id"])] = 1e3 * (time.thread_time() - start)
     rows = []
-    for site in dict.fromkeys(site for site, _ in sample):
-        config = load_campaign_config(REPO / "sitedata" / f"{site}.toml", output_dir=root / site,
-                                     cases_scale=CASES_SCALE)
-        (root / site / "cases").mkdir(parents=True, exist_ok=True)
-        resources = campaign_inputs(config)                    # per-process inputs, as a worker's first case
-        set_up_estimators(resources)
-        records = [record for name, record in sample if name == site]
-        compute_case(resources, PlanRow.from_record(records[0]))  # warm: terrain strip and caches
-        context = CampaignContext.from_config(config, root / site)
-        cpu_ms = {}
-        for record in records:
-            start = time.thread_time()
-            execute_case(context, record)
-            cpu_ms[int(record["case_id"])] = 1e3 * (time.thread_time() - start)
-        for path in sorted((root / site / "cases").glob("??/batch-*.parquet")):   # a batch file per case here
-            for case in read_case_table(path).to_pandas().drop_duplicates("case_id").itertuples():
-                rows.append({"site": site, "case_id": int(case.case_id), "t_case_ms": float(case.t_case_ms),
-                             "cpu_ms": cpu_ms[int(case.case_id)]})
+    for path in sorted((store / "cases").glob("??/batch-*.parquet")):   # a batch file per case here
+        for case in read_case_table(path).to_pandas().drop_duplicates("case_id").itertuples():
+            rows.append({"site": site, "case_id": int(case.case_id), "t_case_ms": float(case.t_case_ms),
+                         "cpu_ms": cpu_ms[int(case.case_id)]})
+    return rows
+
+
+def _one_worker(root: Path, sample: list[tuple[str, dict]]) -> pd.DataFrame:
+    """Run the ``sample`` cases ((site, plan record)) one at a time on an embedded cluster of one worker, started
+    as the campaign's (module doc: the protocol), into scratch stores under ``root``: t_case_ms (as recorded)
+    and thread CPU ms per case, indexed by (site, case_id)."""
+    from campaign.configuration.campaign_file import load_campaign_config
+    from campaign.run.cluster import connected_client
+
+    execution = load_campaign_config(REPO / "sitedata" / f"{SITES[0]}.toml").execution.with_overrides(None, 1)
+    rows: list[dict] = []
+    with connected_client(execution, quiet=True) as client:
+        for site in dict.fromkeys(site for site, _ in sample):
+            records = [record for name, record in sample if name == site]
+            rows += client.submit(_cases_one_at_a_time, str(root), site, records, pure=False).result()
     return pd.DataFrame(rows).set_index(["site", "case_id"])
 
 
@@ -145,16 +167,15 @@ def run() -> list[dict]:
         sample = [(site, record) for site in SITES
                   for record in plan_campaign(load_campaign_config(REPO / "sitedata" / f"{site}.toml", cases_scale=CASES_SCALE))[1]
                   .to_dict("records")[::EVERY]]
-        before = _one_thread(root / "one-thread-before", sample[0::2])
-        wall_s, cases, peak_rss_mib, task_cpu_ms = _run_campaigns(root)
-        after = _one_thread(root / "one-thread-after", sample[1::2])
-        one_thread = pd.concat([before, after])
+        before = _one_worker(root / "one-worker-before", sample[0::2])
+        wall_s, cases, peak_rss_mib, case_cpu_ms = _run_campaigns(root)
+        after = _one_worker(root / "one-worker-after", sample[1::2])
+        one_worker = pd.concat([before, after])
         timings = pd.concat([pd.read_parquet(root / site / "timings.parquet").drop_duplicates("case_id").assign(site=site)
                              for site in SITES]).set_index(["site", "case_id"])
-        on_workers = timings.loc[one_thread.index, "t_case_ms"]
-        workers_cpu = pd.Series([task_cpu_ms.get(index, float("nan")) for index in one_thread.index])
-        one_thread_ms, workers_ms = float(one_thread["t_case_ms"].median()), float(on_workers.median())
-        one_thread_cpu_ms, workers_cpu_ms = float(one_thread["cpu_ms"].median()), float(workers_cpu.median())
+        on_workers = timings.loc[one_worker.index, "t_case_ms"]
+        one_worker_ms, workers_ms = float(one_worker["t_case_ms"].median()), float(on_workers.median())
+        one_worker_cpu_ms, workers_cpu_ms = float(one_worker["cpu_ms"].median()), float(pd.Series(case_cpu_ms).median())
         return [
             {"name": "campaign/gusev+meridiani", "cases": cases, "workers": WORKERS, "wall_s": wall_s,
              "ms_per_case_median": float(timings["t_case_ms"].median()),
@@ -164,11 +185,11 @@ def run() -> list[dict]:
              **target_columns(wall_s, CAMPAIGNS_WALL_S, "s")},
             {"name": "campaign/worker_peak_rss", "workers": WORKERS,
              **target_columns(max(peak_rss_mib), WORKER_RSS_MIB, "MiB")},
-            {"name": "campaign/parallel_efficiency", "cases": len(one_thread),
-             "case_ms_one_thread": one_thread_ms, "case_ms_2_workers": workers_ms,
-             "cpu_ms_one_thread": one_thread_cpu_ms, "cpu_ms_2_workers": workers_cpu_ms,
-             "cpu_efficiency": one_thread_cpu_ms / workers_cpu_ms, "load_average": os.getloadavg()[0],
-             **target_columns(one_thread_ms / workers_ms, PARALLEL_EFFICIENCY, "x", at_most=False)},
+            {"name": "campaign/parallel_efficiency", "cases": len(one_worker),
+             "case_ms_one_worker": one_worker_ms, "case_ms_2_workers": workers_ms,
+             "cpu_ms_one_worker": one_worker_cpu_ms, "cpu_ms_2_workers": workers_cpu_ms,
+             "cpu_efficiency": one_worker_cpu_ms / workers_cpu_ms, "load_average": os.getloadavg()[0],
+             **target_columns(one_worker_ms / workers_ms, PARALLEL_EFFICIENCY, "x", at_most=False)},
         ]
     finally:
         shutil.rmtree(root, ignore_errors=True)

@@ -7,9 +7,9 @@ cases (``campaign export``, the report's gallery, benchmarks).
 """
 from __future__ import annotations
 
-import ctypes
-
 import cv2
+
+from simulator.heap import keep_freed_buffers
 
 _tuned = False
 
@@ -20,17 +20,13 @@ def keep_freed_memory_for_reuse() -> bool:
     dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also freezes glibc's
     mmap threshold at 128 KiB: every 1024 x 1024 array is then a fresh ``mmap`` whose pages the
     kernel zero-fills on first touch, and a case runs 2.5 times slower (measured: 311 vs 125 ms),
-    most of it as system time. Raising both thresholds (mmap 32 MiB, the largest glibc accepts; trim
-    64 MiB) keeps a case's image buffers (4-12 MiB each) in the heap for reuse while larger scratch
-    (terrain generation) is still returned at once, so a worker stays well under its memory limit. Returns False where there is no
-    glibc (the setting is then simply not needed).
+    most of it as system time. :func:`simulator.heap.keep_freed_buffers` raises both thresholds (mmap
+    32 MiB, the largest glibc accepts; trim 64 MiB), keeping a case's image buffers (4-12 MiB each) in the
+    heap for reuse while larger scratch (terrain generation) is still returned at once, so a worker stays
+    well under its memory limit; dask's value counts as unset, a user's own malloc setting stands. Returns
+    False where there is no glibc (the setting is then simply not needed) or the user's setting stands.
     """
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return False
-    m_trim_threshold, m_mmap_threshold = -1, -3
-    return bool(libc.mallopt(m_trim_threshold, 64 << 20)) and bool(libc.mallopt(m_mmap_threshold, 32 << 20))
+    return keep_freed_buffers()
 
 
 def tune_process() -> None:

@@ -11,6 +11,16 @@
 Every worker runs one thread (a case is one CPU-bound task; BLAS and OpenCV threads are pinned to 1, the
 environment before the worker process starts and :class:`~campaign.run.worker_startup.CaseWorkerSetup` when it has
 started), without dask's statistical profiler (:data:`WORKER_DASK_CONFIG`).
+
+**Workers' heap.** Every worker process we start keeps freed frame-sized buffers for reuse and computes in
+one malloc arena (:mod:`simulator.heap`; glibc reads the variables when a process starts, so they are in the
+environment it starts with, never a user's own malloc setting replaced): the embedded cluster's nannies spawn
+(and restart) workers with :func:`case_worker_pre_spawn_environ` in place of dask's 64 KiB trim threshold;
+batch jobs export :func:`~simulator.heap.case_process_environment` of the driver's environment before their
+workers start; worker pods have :data:`~simulator.heap.CASE_PROCESS_ENVIRONMENT` in their env. Workers
+started by someone else (``scheduler``) set the thresholds with ``mallopt`` when they join
+(:class:`~campaign.run.worker_startup.CaseWorkerSetup`, dask's trim threshold counting as unset); their
+malloc arenas stay as their environment made them.
 Batch jobs are submitted and watched until their first worker connects by :mod:`campaign.run.batch_jobs`
 (a batch-system failure is one line naming the command and its error); :func:`cluster_description` is
 what ``campaign cluster FILE`` prints (job script or DaskCluster resource, nothing submitted); a
@@ -39,7 +49,7 @@ import os
 import sys
 import threading
 import weakref
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
@@ -70,6 +80,12 @@ from campaign.run.security import (
 )
 from campaign.run.worker_startup import CaseWorkerSetup
 from config_tables.errors import ConfigError
+from simulator.heap import (
+    CASE_PROCESS_ENVIRONMENT,
+    DASK_NANNY_TRIM_THRESHOLD,
+    case_process_environment,
+    users_thresholds,
+)
 
 #: backend -> (module it needs, pip distribution, extra of moc2dimes)
 OPTIONAL_BACKENDS = {"slurm": ("dask_jobqueue", "dask-jobqueue", "slurm"),
@@ -200,7 +216,8 @@ def _job_options(execution: ExecutionConfig) -> dict:
     (:func:`worker_python`) after the ``prologue``."""
     jobs: BatchJobs = _batch_jobs(execution)
     shape = job_shape(execution)
-    prologue = [f"export {name}={value}" for name, value in WORKER_ENVIRONMENT.items()] + list(jobs.prologue)
+    environment = {**WORKER_ENVIRONMENT, **case_process_environment()}   # the heap settings, unless the user's
+    prologue = [f"export {name}={value}" for name, value in environment.items()] + list(jobs.prologue)
     # each worker's own dashboard on the same host as the scheduler's (default: the compute node's loopback)
     worker_dashboard = f"{execution.dashboard_address.rsplit(':', 1)[0]}:0"
     return dict(cores=shape.workers_per_job, processes=shape.workers_per_job, memory=shape.memory,
@@ -318,7 +335,8 @@ def kubernetes_cluster_spec(execution: ExecutionConfig, tls: bool = True) -> dic
     pods = execution.kubernetes
     resources = {"requests": {"cpu": pods.cpu, "memory": pods.memory}, "limits": {"cpu": pods.cpu, "memory": pods.memory}}
     spec = make_cluster_spec(name=pods.name, image=pods.image, n_workers=execution.workers or pods.workers,
-                             resources=resources, env=dict(WORKER_ENVIRONMENT), worker_command="dask worker")
+                             resources=resources, env={**WORKER_ENVIRONMENT, **CASE_PROCESS_ENVIRONMENT},
+                             worker_command="dask worker")
     spec["metadata"]["namespace"] = pods.namespace
     worker = spec["spec"]["worker"]["spec"]["containers"][0]
     worker["args"] += ["--nthreads", "1", "--memory-limit", str(kubernetes_worker_memory_limit(pods.memory))]
@@ -430,27 +448,40 @@ def _kubernetes_cluster(execution: ExecutionConfig):
                          "nothing was run or changed") from None
 
 
-@contextmanager
-def one_malloc_arena() -> Iterator[None]:
-    """Worker processes started inside start with one glibc malloc arena (``MALLOC_ARENA_MAX=1``).
+def case_worker_pre_spawn_environ(environ: Mapping[str, str] | None = None) -> dict[str, Any]:
+    """dask's ``distributed.nanny.pre-spawn-environ`` for the campaign's embedded workers: the configured one
+    (a user's dask configuration stands) with the heap settings of :func:`simulator.heap.case_process_environment`
+    (glibc's mmap and trim thresholds in place of dask's 64 KiB trim threshold, one malloc arena), except what
+    the user set in ``environ`` (default: this process's environment, which the nanny prefers anyway) or in the
+    configuration."""
+    environ = os.environ if environ is None else environ
+    configured = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+    # what the nanny would give a worker without us: the environment first, then the configuration
+    inherited = {**{name: str(value) for name, value in configured.items() if value is not None}, **environ}
+    return {**configured, **case_process_environment(inherited)}
 
-    A worker runs its cases in a thread of its own, and glibc gives each new thread an arena of its own,
-    which dask's ``MALLOC_TRIM_THRESHOLD_`` of 64 KiB trims back to the kernel: every frame-sized array of
-    a case then starts on fresh pages (a page fault per 4 KiB). glibc reads the variable when a process
-    starts, so it is set in this process's environment while the workers are spawned (they inherit it),
-    then removed. Measured (``python -m benchmarks campaign``, idle 2-core machine, 2026-11-27, single runs,
-    noisy): median case on the workers 98-108 ms without, 84-87 ms with the variable set for the whole run
-    (Gusev + Meridiani 35.3-36.5 s against 39-41 s), 93 ms and 37.0 s set here for the workers only.
-    A ``MALLOC_ARENA_MAX`` of the user's own environment stands.
-    """
-    if "MALLOC_ARENA_MAX" in os.environ:
-        yield
-        return
-    os.environ["MALLOC_ARENA_MAX"] = "1"
+
+@contextmanager
+def case_worker_heap() -> Iterator[None]:
+    """Worker processes spawned inside (by a nanny created inside) start with the heap settings of
+    :func:`case_worker_pre_spawn_environ`.
+
+    The nanny keeps its pre-spawn environment, so a worker it restarts gets the same. A nanny writes that
+    environment into this process's own before it spawns (dask's behaviour): the variables are put back as
+    they were when the block ends. dask's own trim threshold left here by an earlier cluster's nanny is taken
+    out meanwhile (the nanny would prefer it to its configuration)."""
+    saved = {name: os.environ.get(name) for name in CASE_PROCESS_ENVIRONMENT}
+    if not users_thresholds(os.environ) and os.environ.get("MALLOC_TRIM_THRESHOLD_") == DASK_NANNY_TRIM_THRESHOLD:
+        del os.environ["MALLOC_TRIM_THRESHOLD_"]
     try:
-        yield
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": case_worker_pre_spawn_environ()}):
+            yield
     finally:
-        os.environ.pop("MALLOC_ARENA_MAX", None)
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Client, Closable | None]:
@@ -475,7 +506,7 @@ def start_cluster(execution: ExecutionConfig, quiet: bool = False) -> tuple[Clie
     elif execution.cluster == "local":
         # a stop signal while the workers start is raised once the cluster is whole (below, where it is closed)
         with held(deliver=False), workers_ignore_stop_signals(), dask.config.set(LOCAL_WORKER_DASK_CONFIG), \
-                one_malloc_arena():
+                case_worker_heap():
             cluster = LocalCluster(n_workers=execution.workers or default_worker_count(), threads_per_worker=1,
                                    processes=True, memory_limit=execution.memory_limit,
                                    dashboard_address=execution.dashboard_address, host="127.0.0.1", silence_logs=DRIVER_LOG_LEVEL)

@@ -12,6 +12,7 @@ import importlib.metadata
 import os
 import platform
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, ExitStack, contextmanager, nullcontext
@@ -22,6 +23,7 @@ from typing import Any
 import pandas as pd
 from distributed import Client
 
+from campaign.case.inputs import shippable_inputs
 from campaign.configuration.campaign_file import CampaignConfig
 from campaign.configuration.execution import ExecutionConfig
 from campaign.run.batch_jobs import SUBMIT_COMMANDS, require_submit_command
@@ -41,6 +43,7 @@ from campaign.run.planning import plan_campaign
 from campaign.run.plugin_setup import PluginSetupError, ship_plugin_code
 from campaign.run.security import require_secure_transport
 from campaign.run.worker import CampaignContext
+from campaign.run.worker_startup import ShippedInputs
 from campaign.store.campaign_store import CampaignStore
 from campaign.store.lock import StoreBusy
 from estimators.entries import EstimatorSpec
@@ -132,8 +135,10 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
     (:class:`~campaign.store.lock.StoreBusy` when another writer holds one, unless ``wait``), check again
     under the locks, start or connect to the cluster unless a ``client`` is given (:func:`cluster_session`:
     ``client_hook``, then the python plug-ins' code shipped to the workers; a worker that cannot import one
-    stops the run before any store changes), and only then prepare the stores (with ``fresh``: move an old
-    store aside to ``DIR.previous-<UTC time>``; ``on_note`` gets one line per action), reject bad case files
+    stops the run before any store changes; the inputs every worker would load alike and planning loaded here,
+    :func:`~campaign.case.inputs.shippable_inputs`, are shipped as the cluster is up), and only
+    then prepare the stores (with ``fresh``: move an old store aside to ``DIR.previous-<UTC time>``;
+    ``on_note`` gets one line per action), reject bad case files
     and run all missing cases together (:func:`run_locked_points`). The locks are released on return.
 
     Parameters
@@ -173,14 +178,45 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
         lock_stores(points, stores, stack, fresh=fresh, wait=wait)
         if client is None:
             specs = [spec for point in points for spec in point.config.estimators]
+            # the inputs every worker would load alike (planning loaded them here), pickled while the cluster starts
+            shipped = InBackground(shippable_inputs, [point.config for point in points])
             try:
                 client = stack.enter_context(cluster_session(execution, specs, client_hook=client_hook, quiet=quiet))
             except BaseException:           # refused before any store changed: leave nothing behind
                 for path in new_lock_files:
                     path.unlink(missing_ok=True)        # still held: a waiter is refused by the directory lock
+                shipped.wait()                  # no thread left computing while the interpreter exits
                 raise
+            client.register_plugin(ShippedInputs(shipped.result()))    # present and future workers
         return run_locked_points(client, points, stores, execution, fresh=fresh, progress=progress,
                                  on_note=on_note)
+
+
+class InBackground:
+    """``function(*arguments)`` run in a daemon thread from now on; :meth:`result` waits for it."""
+
+    def __init__(self, function: Callable[..., Any], *arguments: Any):
+        self._outcome: dict[str, Any] = {}
+        self._thread = threading.Thread(target=self._run, args=(function, arguments), daemon=True,
+                                        name=f"moc2dimes-{function.__name__}")
+        self._thread.start()
+
+    def _run(self, function: Callable[..., Any], arguments: tuple) -> None:
+        try:
+            self._outcome["value"] = function(*arguments)
+        except BaseException as exc:    # handed to the caller of result(), raised there
+            self._outcome["error"] = exc
+
+    def wait(self) -> None:
+        """Wait for the function to end (its value or exception is kept for :meth:`result`)."""
+        self._thread.join()
+
+    def result(self) -> Any:
+        """The function's value, or its exception raised here."""
+        self._thread.join()
+        if "error" in self._outcome:
+            raise self._outcome["error"]
+        return self._outcome["value"]
 
 
 @contextmanager
