@@ -252,3 +252,56 @@ def test_fast_preset_renders_block_fields_with_full_frame_masks():
     default = render_descent_image(flat, profile, CAMERA, 0, SUN, SceneConfig().with_effects(**exact))
     assert fast.radiance.exposure.shape == (256, 1024) and fast.sky_mask.shape == (1024, 1024)
     np.testing.assert_allclose(fast.radiance.exposure, block_means(default.radiance.exposure, 4), rtol=1e-3)
+
+
+def test_fast_takes_a_window_moving_less_than_3_terrain_px_as_still():
+    """Level flight at 2000 m, 490 m/s east: the ground moves 490 x 15.3 ms / 3 m = 2.5 terrain px over the
+    fast flush + exposure + frame transfer (0.83 px in the exposure: one sub-pose either way). Fast (< 3 px)
+    gives the exposure field to all three periods; default (< 1 px) gives the smear periods their own poses'
+    fields; high and reference never share. What fast drops is the smear periods' pose offset (~0.8 px,
+    across the columns here: the worst direction). Smear reads column means: each pixel collects
+    (T_flush + T_transfer) x its column's mean radiance, so the expected image moves by at most that
+    much of the column means' change, which the offset hardly makes (the column averages it out)."""
+    from simulator.descent_image import binned_render_camera
+    from simulator.fidelity import PRESETS
+    from simulator.scene_config import preset_config
+
+    timing = CAMERA.timing
+    window_s = timing.fast_flush_s + timing.exposure_s + timing.frame_transfer_s
+    terrain = smooth_terrain()
+    speed_mps = 2.5 * terrain.metres_per_pixel / window_s
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [speed_mps, 0.0, 0.0], LEVEL, 1.0, [0.5])
+    shares = {}
+    for preset in PRESETS:
+        config = preset_config(preset)
+        shares[preset] = config.effects.share_still_fields and config.still_shift_terrain_px > 2.5
+    assert shares == {"reference": False, "high": False, "default": False, "fast": True}
+    fast = preset_config("fast").with_effects(shadows=False)
+    exact = fast.with_fields(still_shift_terrain_px=1.0)
+    blocks = binned_render_camera(CAMERA)                     # the fast render's camera: one ray per block
+    still = periods.period_fields(terrain, blocks, profile, 0.5, SUN, fast)
+    moving = periods.period_fields(terrain, blocks, profile, 0.5, SUN, exact)
+    default = periods.period_fields(terrain, CAMERA, profile, 0.5, SUN,
+                                    preset_config("default").with_effects(shadows=False))
+    assert still.shared and still.fields.flush is still.fields.exposure is still.fields.transfer
+    assert not moving.shared and not default.shared
+    assert moving.substeps["exposure"] == 1                    # the exposure field is the same either way
+    np.testing.assert_array_equal(moving.fields.exposure, still.fields.exposure)
+    exposure = still.fields.exposure
+    column_changes = []
+    for period in ("flush", "transfer"):
+        own = getattr(moving.fields, period)
+        pixel_change = np.abs(own[2:-2, 8:-8] - exposure[2:-2, 8:-8]).mean()
+        column_change = own.mean(axis=0) - exposure.mean(axis=0)
+        assert pixel_change > 0.05 * exposure[2:-2, 8:-8].std()                # the poses differ
+        assert np.abs(column_change[8:-8]).mean() < 0.2 * pixel_change          # the column means hardly
+        column_changes.append(column_change)
+    images = [render_descent_image(terrain, profile, CAMERA, 0, SUN, config).image.expected_dn
+              for config in (fast, exact)]
+    change_dn = np.sqrt(np.mean((images[0] - images[1]) ** 2))
+    # bound: T_f |dF| + T_t |dT| of the column means, in DN: a uniform scene's image collects its radiance
+    # over the whole window (exposure + smear), so DN per (radiance x second) is about mean DN / (mean F x window)
+    dn_per_radiance_s = images[1].mean() / (exposure.mean() * window_s)
+    worst = timing.fast_flush_s * np.abs(column_changes[0]) + timing.frame_transfer_s * np.abs(column_changes[1])
+    bound_dn = np.sqrt(np.mean(worst ** 2)) * dn_per_radiance_s
+    assert 0.0 < change_dn < bound_dn
