@@ -18,6 +18,7 @@ warped smear       no         no     yes      yes
 warped blur        no         no     yes      yes     (>= 4 sub-poses: warp-and-accumulate, scene.blur_warp)
 shot noise         Poisson    Poiss. Gauss.   Gauss.  (Gaussian above 1000 e-, see readout; same deviates)
 binned render      no         no     no       yes     (one ray per 4-row block: descent_image)
+edge rays          exact      exact  exact    interp. (heat-shield silhouette sub-pixel rays: scene.heat_shield)
 =================  =========  =====  =======  =====
 
 Fast's still threshold: a window (fast flush + exposure + frame transfer, three equal periods of the MER
@@ -48,7 +49,7 @@ DEFAULT_PRESET: Preset = "default"
 #: Scene effect switches of the exact reference render (every shortcut off).
 REFERENCE_EFFECTS = dict(coarse_ray_grid=False, coarse_photometry=False, share_still_fields=False,
                          warp_smear_fields=False, warp_motion_blur=False, pixel_area_filter=False,
-                         binned_render=False)
+                         binned_render=False, interpolated_edge_rays=False)
 
 
 def preset_fields(name: str, max_substeps: int = 16) -> dict:
@@ -82,7 +83,7 @@ def preset_fields(name: str, max_substeps: int = 16) -> dict:
     fast = name == "fast"
     return dict(effects=dict(coarse_ray_grid=True, coarse_photometry=True, share_still_fields=True,
                              warp_smear_fields=True, warp_motion_blur=True, pixel_area_filter=True,
-                             binned_render=fast),
+                             binned_render=fast, interpolated_edge_rays=fast),
                 supersample=1, substeps_per_terrain_px=1.0, ray_grid_step_px=32 if fast else 16,
                 photometry_grid_step_px=32 if fast else 16, still_shift_terrain_px=3.0 if fast else 1.0,
                 max_substeps=4 if fast else max_substeps, camera_effects=dict(exact_poisson=False))

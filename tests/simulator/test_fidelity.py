@@ -305,3 +305,45 @@ def test_fast_takes_a_window_moving_less_than_3_terrain_px_as_still():
     worst = timing.fast_flush_s * np.abs(column_changes[0]) + timing.frame_transfer_s * np.abs(column_changes[1])
     bound_dn = np.sqrt(np.mean(worst ** 2)) * dn_per_radiance_s
     assert 0.0 < change_dn < bound_dn
+
+
+def test_interpolated_edge_rays_are_the_camera_models_rays_and_only_fast_takes_them():
+    """The heat shield's silhouette sub-pixel rays moved to first order from the pixel rays of an exact ground
+    map agree with CAHVOR's unprojection of the sub-pixel positions to ~1e-7 rad (the camera model's
+    second-order change over a third of a pixel); the edge pixels then read the same pixel-area mean. Only
+    the fast preset takes them."""
+    from flight_interface import cahvor
+    from simulator.scene import heat_shield
+    from simulator.scene_config import preset_config
+
+    assert {preset: preset_config(preset).effects.interpolated_edge_rays
+            for preset in ("reference", "high", "default", "fast")} == \
+        {"reference": False, "high": False, "default": False, "fast": True}
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.1])
+    cam = ground_mapping.camera_pose(CAMERA, profile.pose(0.1))
+    exact_map = ground_mapping.map_to_ground_grid(CAMERA, cam, (0.0, 0.0), 3.0, 0)
+    rng = np.random.default_rng(3)
+    rows = np.concatenate([[0, 1023, 0, 1023], rng.integers(0, 1024, 40)])     # corners: one-sided differences
+    cols = np.concatenate([[0, 0, 1023, 1023], rng.integers(0, 1024, 40)])
+    offsets = (np.arange(3) + 0.5) / 3 - 0.5
+    d_col, d_row = (axis.ravel() for axis in np.meshgrid(offsets, offsets))
+    moved = heat_shield.edge_rays(exact_map, rows, cols, d_row, d_col)
+    pixels = np.stack([cols[:, None] + d_col, rows[:, None] + d_row], axis=-1).reshape(-1, 2)
+    unprojected = (cahvor.unproject(CAMERA.model, pixels) @ cam.camera_to_world.T).reshape(moved.shape)
+    moved_unit = moved / np.linalg.norm(moved, axis=-1, keepdims=True)
+    angle = np.linalg.norm(np.cross(moved_unit, unprojected), axis=-1)
+    assert angle.max() < 1e-6
+    # the silhouette's pixel-area mean: the same as with the unprojected rays, to a small fraction of the contrast
+    terrain = smooth_terrain()
+    base = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.1])
+    shield = np.tile([20.0, 10.0, ALTITUDE_M - 150.0], (2, 1))
+    with_shield = DescentProfile(base.time_s, base.position_m, base.velocity_mps, base.attitude_quat,
+                                 base.angular_rate_radps, base.wind_mps, shield, base.image_times_s, "shield")
+    config = SceneConfig().with_effects(shadows=False, coarse_ray_grid=False)
+    pose = with_shield.pose(0.1)
+    unproject = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, config)
+    moved_field = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, config.with_effects(interpolated_edge_rays=True))
+    assert unproject.heat_shield.sum() > 100
+    np.testing.assert_array_equal(moved_field.heat_shield, unproject.heat_shield)
+    contrast = np.median(unproject.radiance[~unproject.heat_shield]) - np.median(unproject.radiance[unproject.heat_shield])
+    assert np.abs(moved_field.radiance - unproject.radiance).max() < 0.02 * contrast
