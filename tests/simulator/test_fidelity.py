@@ -347,3 +347,19 @@ def test_interpolated_edge_rays_are_the_camera_models_rays_and_only_fast_takes_t
     np.testing.assert_array_equal(moved_field.heat_shield, unproject.heat_shield)
     contrast = np.median(unproject.radiance[~unproject.heat_shield]) - np.median(unproject.radiance[unproject.heat_shield])
     assert np.abs(moved_field.radiance - unproject.radiance).max() < 0.02 * contrast
+
+
+def test_block_masks_become_full_frame_masks_block_row_by_block_row():
+    """The binned render's masks: block k's value on rows 4k .. 4k + 3 of its column, empty or not."""
+    from simulator.descent_image import _full_frame_mask
+
+    empty = np.zeros((256, 1024), dtype=bool)
+    some = empty.copy()
+    some[3, 7] = some[255, 1023] = True
+    for block_mask in (empty, some):
+        full = _full_frame_mask(block_mask, 4)
+        assert full.shape == (1024, 1024) and full.dtype == bool and full.flags.writeable
+        rows, cols = np.nonzero(full)
+        expected_rows = (4 * np.nonzero(block_mask)[0][:, None] + np.arange(4)).ravel()
+        np.testing.assert_array_equal(np.sort(rows), np.sort(expected_rows))
+        assert set(cols) == set(np.nonzero(block_mask)[1])
