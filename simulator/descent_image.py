@@ -285,12 +285,16 @@ def binned_render_camera(camera: Camera) -> Camera:
 def _full_frame_mask(block_mask: np.ndarray, binning_rows: int) -> np.ndarray:
     """A per-block mask (H / b, W) as the full frame's (H, W): each block's rows take its value.
 
-    A mask with no True value (the usual sky, outside-terrain and heat-shield masks) is a fresh zero array,
-    which costs no pass over the frame (np.repeat's writes cost ~0.17 ms a mask, mostly page faults).
+    A fresh zero array with only the span of block rows holding a True value written (the sky,
+    outside-terrain and heat-shield masks are usually empty or a few rows; np.repeat's writes of the whole
+    frame cost ~0.17 ms a mask, mostly page faults).
     """
-    if not block_mask.any():
-        return np.zeros((block_mask.shape[0] * binning_rows, block_mask.shape[1]), dtype=bool)
-    return np.repeat(block_mask, binning_rows, axis=0)
+    block_rows = np.flatnonzero(block_mask.any(axis=1))
+    full = np.zeros((block_mask.shape[0] * binning_rows, block_mask.shape[1]), dtype=bool)
+    if block_rows.size:
+        first, last = int(block_rows[0]), int(block_rows[-1]) + 1
+        full[first * binning_rows:last * binning_rows] = np.repeat(block_mask[first:last], binning_rows, axis=0)
+    return full
 
 
 def _camera_artefacts(off_nominal: OffNominalConfig, artefacts: OffNominalArtefacts | None) -> OffNominalArtefacts | None:
