@@ -227,6 +227,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     binned = config.effects.binned_render and camera.binning_rows > 1
     periods = period_fields(terrain, binned_render_camera(camera) if binned else camera, profile, start_s, sun, config,
                             need_smear_fields=camera_effects.smear, moving_shadows=moving)
+    heat_shield_visible = bool(periods.heat_shield.any())     # (on the binned render's block mask: 1/b the pass)
     if binned:     # the masks of the full frame: each block's rows share its ray
         b = camera.binning_rows
         periods = replace(periods, sky=_full_frame_mask(periods.sky, b), outside=_full_frame_mask(periods.outside, b),
@@ -246,7 +247,7 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
         exposure_start_s=start_s, pose=profile.pose(float(np.clip(start_s, profile.time_s[0], profile.time_s[-1]))),
         camera_pose=cam, substeps=periods.substeps, shared_fields=periods.shared, anti_sun_ground_m=anti_sun,
         anti_sun_pixel=pixel if in_image else None, shadow_centres_m=periods.exposure_centre.shadow_centres_m,
-        footprint_m=footprint, footprint_hit=hit, heat_shield_visible=bool(periods.heat_shield.any()),
+        footprint_m=footprint, footprint_hit=hit, heat_shield_visible=heat_shield_visible,
         scene_ms=scene_ms, camera_ms=camera_ms,
     )
     return DescentImage(rendered, periods.fields, periods.sky, periods.outside, periods.heat_shield, diagnostics)
