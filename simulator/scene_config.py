@@ -35,7 +35,7 @@ class SceneEffects(ConfigModel):
     Physics switches: ``photometric_correction``, ``spectral_ratio``, ``shadows``, ``heat_shield``,
     ``motion_blur``. Fidelity shortcuts (switch off for the reference render): ``coarse_ray_grid``,
     ``coarse_photometry``, ``share_still_fields``, ``warp_smear_fields``, ``warp_motion_blur``,
-    ``pixel_area_filter``, ``binned_render``.
+    ``pixel_area_filter``, ``binned_render``, ``interpolated_edge_rays``.
     """
 
     photometric_correction: bool = True
@@ -67,6 +67,9 @@ class SceneEffects(ConfigModel):
     """Shortcut (the fast preset): the scene rendered at the read-out's resolution, one ray per binning
     block (simulator.descent_image.binned_render_camera); the camera chain takes the fields as block means,
     which drops the in-block structure the optics' blur and the PRNU act on (see docs/simulator.md)."""
+    interpolated_edge_rays: bool = False
+    """Shortcut (the fast preset): the heat shield's silhouette sub-pixel rays moved to first order from the
+    ground map's pixel rays (simulator.scene.heat_shield.edge_rays) instead of unprojected by the camera model."""
 
 
 class AtmosphereConfig(ConfigModel):

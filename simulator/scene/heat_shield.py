@@ -196,12 +196,15 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
                      pose: ground_mapping.CameraPose, centre_m: np.ndarray, sun_world: np.ndarray,
                      irradiance_w_m2_um: float, diameter_m: float, cone_angle_rad: float,
                      reflectance: float, edge_samples: int = 1,
-                     box: tuple[int, int, int, int] | None = None) -> np.ndarray | None:
+                     box: tuple[int, int, int, int] | None = None,
+                     interpolated_edge_rays: bool = False) -> np.ndarray | None:
     """Paint the heat shield into a radiance field in place where it hides the ground or sky.
 
     ``edge_samples = s > 1`` antialiases the silhouette: pixels on its edge (centre sample differs from
     one of its 8 neighbours) are re-sampled with ``s x s`` sub-pixel rays and read
-    ``coverage * shield + (1 - coverage) * background``, the pixel-area mean of a sharp edge.
+    ``coverage * shield + (1 - coverage) * background``, the pixel-area mean of a sharp edge. The
+    sub-pixel rays are the camera model's (CAHVOR unprojection), or with ``interpolated_edge_rays`` (the
+    fast preset's shortcut) the ground map's pixel rays moved to first order (:func:`edge_rays`).
 
     Parameters
     ----------
@@ -230,6 +233,9 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     box : (int, int, int, int), optional
         This camera's :func:`bounding_box` when already known (a supersampling sample's, from its pose's
         outline: :func:`~simulator.scene.ground_mapping.outline_window`); None computes it here.
+    interpolated_edge_rays : bool, optional
+        Take the edge's sub-pixel rays from the ground map's rays (:func:`edge_rays`) instead of
+        unprojecting each.
 
     Returns
     -------
@@ -254,7 +260,7 @@ def draw_heat_shield(radiance: np.ndarray, ground_map: ground_mapping.GroundMap,
     window = radiance[row0:row1, col0:col1]
     edge_blend = (_edge_blend(camera, pose, hit, window, ground_map.sky[row0:row1, col0:col1], row0, col0,
                               centre_m, diameter_m, cone_angle_rad, sun_world,
-                              lambert_scale, edge_samples)
+                              lambert_scale, edge_samples, ground_map if interpolated_edge_rays else None)
                   if edge_samples > 1 else None)
     window[hit] = value[hit].astype(np.float32)
     if edge_blend is not None:
@@ -285,12 +291,50 @@ def lambert_radiance(normal: np.ndarray, sun_world: np.ndarray, scale_w_m2_sr_um
     return scale_w_m2_sr_um * np.maximum(normal @ sun_world, 0.0)
 
 
+def edge_rays(ground_map: ground_mapping.GroundMap, rows: np.ndarray, cols: np.ndarray, row_offsets: np.ndarray,
+              col_offsets: np.ndarray) -> np.ndarray:
+    """World rays at sub-pixel offsets from pixels, moved to first order from the ground map's pixel rays.
+
+    ``ray(r + dr, c + dc) = ray(r, c) + dr d ray / d row + dc d ray / d col``, the derivatives central
+    differences of the neighbouring pixels' rays (one-sided on the frame's border). On a coarse ray map
+    (rays bilinear between its nodes) this is the map's own ray inside a node cell; on an exact map it
+    errs by the second-order change of the camera model over the offset (~1e-7 rad for a third of a pixel).
+
+    Parameters
+    ----------
+    ground_map : GroundMap
+        The pose's ground map (its rays).
+    rows, cols : ndarray, shape (n,), int
+        Frame pixels.
+    row_offsets, col_offsets : ndarray, shape (m,)
+        Sub-pixel offsets (px), within half a pixel.
+
+    Returns
+    -------
+    ndarray, shape (n, m, 3), float64
+        World ray directions (the map's length, ~unit).
+    """
+    height, width = ground_map.col.shape
+    row0, row1 = max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, height)
+    col0, col1 = max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, width)
+    window = ground_map.rays(row0, row1, col0, col1).astype(np.float64)
+    if window.shape[0] < 2 or window.shape[1] < 2:      # a one-pixel frame side: no difference to take
+        raise ValueError(f"edge rays: a {window.shape[:2]} ray window has no neighbours to differentiate")
+    per_row, per_col = (np.asarray(change) for change in np.gradient(window, axis=(0, 1)))
+    local_rows, local_cols = rows - row0, cols - col0
+    return (window[local_rows, local_cols][:, None, :]
+            + np.asarray(row_offsets, dtype=float)[None, :, None] * per_row[local_rows, local_cols][:, None, :]
+            + np.asarray(col_offsets, dtype=float)[None, :, None] * per_col[local_rows, local_cols][:, None, :])
+
+
 def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray, background: np.ndarray,
                 sky: np.ndarray, row0: int, col0: int, centre_m: np.ndarray, diameter_m: float,
-                cone_angle_rad: float, sun_world: np.ndarray, lambert_scale: float, samples: int):
+                cone_angle_rad: float, sun_world: np.ndarray, lambert_scale: float, samples: int,
+                ground_map: ground_mapping.GroundMap | None = None):
     """Pixel-area radiance of the silhouette's edge pixels (see :func:`draw_heat_shield`).
 
-    ``(rows, cols, radiance float32)`` in window coordinates, or None when there is no edge.
+    ``(rows, cols, radiance float32)`` in window coordinates, or None when there is no edge. With
+    ``ground_map`` the sub-pixel rays come from its rays (:func:`edge_rays`), else from the camera model.
     """
     padded = np.pad(hit, 1, mode="edge")   # 8-neighbourhood: corner-covered pixels count too
     edge = np.zeros_like(hit)
@@ -302,8 +346,11 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
         return None
     offsets = (np.arange(samples) + 0.5) / samples - 0.5
     d_col, d_row = (axis.ravel() for axis in np.meshgrid(offsets, offsets))
-    pixels = np.stack([(col0 + cols)[:, None] + d_col, (row0 + rows)[:, None] + d_row], axis=-1)
-    rays = cahvor.unproject(camera.model, pixels.reshape(-1, 2)) @ pose.camera_to_world.T
+    if ground_map is not None:
+        rays = edge_rays(ground_map, row0 + rows, col0 + cols, d_row, d_col).reshape(-1, 3)
+    else:
+        pixels = np.stack([(col0 + cols)[:, None] + d_col, (row0 + rows)[:, None] + d_row], axis=-1)
+        rays = cahvor.unproject(camera.model, pixels.reshape(-1, 2)) @ pose.camera_to_world.T
     surface = visible_surface(rays[:, None, :], pose, np.repeat(sky[rows, cols], samples * samples)[:, None],
                                centre_m, diameter_m, cone_angle_rad)
     if surface is None:

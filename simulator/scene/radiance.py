@@ -492,7 +492,7 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
                                               irradiance, config.heat_shield_diameter_m,
                                               config.heat_shield_cone_angle_rad, config.heat_shield_reflectance,
                                               edge_samples=1 if _sub_sample else HEAT_SHIELD_EDGE_SAMPLES,
-                                              box=shield_box)
+                                              box=shield_box, interpolated_edge_rays=effects.interpolated_edge_rays)
     if shield is not None:
         outside &= ~shield
     return PoseField(radiance, gmap.sky, outside, shield, cam, centres)

@@ -252,3 +252,114 @@ def test_fast_preset_renders_block_fields_with_full_frame_masks():
     default = render_descent_image(flat, profile, CAMERA, 0, SUN, SceneConfig().with_effects(**exact))
     assert fast.radiance.exposure.shape == (256, 1024) and fast.sky_mask.shape == (1024, 1024)
     np.testing.assert_allclose(fast.radiance.exposure, block_means(default.radiance.exposure, 4), rtol=1e-3)
+
+
+def test_fast_takes_a_window_moving_less_than_3_terrain_px_as_still():
+    """Level flight at 2000 m, 490 m/s east: the ground moves 490 x 15.3 ms / 3 m = 2.5 terrain px over the
+    fast flush + exposure + frame transfer (0.83 px in the exposure: one sub-pose either way). Fast (< 3 px)
+    gives the exposure field to all three periods; default (< 1 px) gives the smear periods their own poses'
+    fields; high and reference never share. What fast drops is the smear periods' pose offset (~0.8 px,
+    across the columns here: the worst direction). Smear reads column means: each pixel collects
+    (T_flush + T_transfer) x its column's mean radiance, so the expected image moves by at most that
+    much of the column means' change, which the offset hardly makes (the column averages it out)."""
+    from simulator.descent_image import binned_render_camera
+    from simulator.fidelity import PRESETS
+    from simulator.scene_config import preset_config
+
+    timing = CAMERA.timing
+    window_s = timing.fast_flush_s + timing.exposure_s + timing.frame_transfer_s
+    terrain = smooth_terrain()
+    speed_mps = 2.5 * terrain.metres_per_pixel / window_s
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [speed_mps, 0.0, 0.0], LEVEL, 1.0, [0.5])
+    shares = {}
+    for preset in PRESETS:
+        config = preset_config(preset)
+        shares[preset] = config.effects.share_still_fields and config.still_shift_terrain_px > 2.5
+    assert shares == {"reference": False, "high": False, "default": False, "fast": True}
+    fast = preset_config("fast").with_effects(shadows=False)
+    exact = fast.with_fields(still_shift_terrain_px=1.0)
+    blocks = binned_render_camera(CAMERA)                     # the fast render's camera: one ray per block
+    still = periods.period_fields(terrain, blocks, profile, 0.5, SUN, fast)
+    moving = periods.period_fields(terrain, blocks, profile, 0.5, SUN, exact)
+    default = periods.period_fields(terrain, CAMERA, profile, 0.5, SUN,
+                                    preset_config("default").with_effects(shadows=False))
+    assert still.shared and still.fields.flush is still.fields.exposure is still.fields.transfer
+    assert not moving.shared and not default.shared
+    assert moving.substeps["exposure"] == 1                    # the exposure field is the same either way
+    np.testing.assert_array_equal(moving.fields.exposure, still.fields.exposure)
+    exposure = still.fields.exposure
+    column_changes = []
+    for period in ("flush", "transfer"):
+        own = getattr(moving.fields, period)
+        pixel_change = np.abs(own[2:-2, 8:-8] - exposure[2:-2, 8:-8]).mean()
+        column_change = own.mean(axis=0) - exposure.mean(axis=0)
+        assert pixel_change > 0.05 * exposure[2:-2, 8:-8].std()                # the poses differ
+        assert np.abs(column_change[8:-8]).mean() < 0.2 * pixel_change          # the column means hardly
+        column_changes.append(column_change)
+    images = [render_descent_image(terrain, profile, CAMERA, 0, SUN, config).image.expected_dn
+              for config in (fast, exact)]
+    change_dn = np.sqrt(np.mean((images[0] - images[1]) ** 2))
+    # bound: T_f |dF| + T_t |dT| of the column means, in DN: a uniform scene's image collects its radiance
+    # over the whole window (exposure + smear), so DN per (radiance x second) is about mean DN / (mean F x window)
+    dn_per_radiance_s = images[1].mean() / (exposure.mean() * window_s)
+    worst = timing.fast_flush_s * np.abs(column_changes[0]) + timing.frame_transfer_s * np.abs(column_changes[1])
+    bound_dn = np.sqrt(np.mean(worst ** 2)) * dn_per_radiance_s
+    assert 0.0 < change_dn < bound_dn
+
+
+def test_interpolated_edge_rays_are_the_camera_models_rays_and_only_fast_takes_them():
+    """The heat shield's silhouette sub-pixel rays moved to first order from the pixel rays of an exact ground
+    map agree with CAHVOR's unprojection of the sub-pixel positions to ~1e-7 rad (the camera model's
+    second-order change over a third of a pixel); the edge pixels then read the same pixel-area mean. Only
+    the fast preset takes them."""
+    from flight_interface import cahvor
+    from simulator.scene import heat_shield
+    from simulator.scene_config import preset_config
+
+    assert {preset: preset_config(preset).effects.interpolated_edge_rays
+            for preset in ("reference", "high", "default", "fast")} == \
+        {"reference": False, "high": False, "default": False, "fast": True}
+    profile = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.1])
+    cam = ground_mapping.camera_pose(CAMERA, profile.pose(0.1))
+    exact_map = ground_mapping.map_to_ground_grid(CAMERA, cam, (0.0, 0.0), 3.0, 0)
+    rng = np.random.default_rng(3)
+    rows = np.concatenate([[0, 1023, 0, 1023], rng.integers(0, 1024, 40)])     # corners: one-sided differences
+    cols = np.concatenate([[0, 0, 1023, 1023], rng.integers(0, 1024, 40)])
+    offsets = (np.arange(3) + 0.5) / 3 - 0.5
+    d_col, d_row = (axis.ravel() for axis in np.meshgrid(offsets, offsets))
+    moved = heat_shield.edge_rays(exact_map, rows, cols, d_row, d_col)
+    pixels = np.stack([cols[:, None] + d_col, rows[:, None] + d_row], axis=-1).reshape(-1, 2)
+    unprojected = (cahvor.unproject(CAMERA.model, pixels) @ cam.camera_to_world.T).reshape(moved.shape)
+    moved_unit = moved / np.linalg.norm(moved, axis=-1, keepdims=True)
+    angle = np.linalg.norm(np.cross(moved_unit, unprojected), axis=-1)
+    assert angle.max() < 1e-6
+    # the silhouette's pixel-area mean: the same as with the unprojected rays, to a small fraction of the contrast
+    terrain = smooth_terrain()
+    base = constant_velocity_profile([0.0, 0.0, ALTITUDE_M], [0.0, 0.0, 0.0], LEVEL, 1.0, [0.1])
+    shield = np.tile([20.0, 10.0, ALTITUDE_M - 150.0], (2, 1))
+    with_shield = DescentProfile(base.time_s, base.position_m, base.velocity_mps, base.attitude_quat,
+                                 base.angular_rate_radps, base.wind_mps, shield, base.image_times_s, "shield")
+    config = SceneConfig().with_effects(shadows=False, coarse_ray_grid=False)
+    pose = with_shield.pose(0.1)
+    unproject = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, config)
+    moved_field = radiance.radiance_at_pose(terrain, CAMERA, pose, SUN, config.with_effects(interpolated_edge_rays=True))
+    assert unproject.heat_shield.sum() > 100
+    np.testing.assert_array_equal(moved_field.heat_shield, unproject.heat_shield)
+    contrast = np.median(unproject.radiance[~unproject.heat_shield]) - np.median(unproject.radiance[unproject.heat_shield])
+    assert np.abs(moved_field.radiance - unproject.radiance).max() < 0.02 * contrast
+
+
+def test_block_masks_become_full_frame_masks_block_row_by_block_row():
+    """The binned render's masks: block k's value on rows 4k .. 4k + 3 of its column, empty or not."""
+    from simulator.descent_image import _full_frame_mask
+
+    empty = np.zeros((256, 1024), dtype=bool)
+    some = empty.copy()
+    some[3, 7] = some[255, 1023] = True
+    for block_mask in (empty, some):
+        full = _full_frame_mask(block_mask, 4)
+        assert full.shape == (1024, 1024) and full.dtype == bool and full.flags.writeable
+        rows, cols = np.nonzero(full)
+        expected_rows = (4 * np.nonzero(block_mask)[0][:, None] + np.arange(4)).ravel()
+        np.testing.assert_array_equal(np.sort(rows), np.sort(expected_rows))
+        assert set(cols) == set(np.nonzero(block_mask)[1])
