@@ -128,9 +128,6 @@ class WarpedPeriods:
         Ground shadow centres at the rendered pose (m).
     margins_px : tuple of int
         (left, right, top, bottom) margins of the enlarged rendered field (px).
-    centre_time_s : float
-        Time of the rendered pose, the exposure's sub-pose N / 2 (s): half a sub-pose step after the
-        exposure mid-time.
     """
 
     fields: RadianceFields
@@ -142,7 +139,6 @@ class WarpedPeriods:
     centre_heat_shield: np.ndarray | None
     shadow_centres_m: list
     margins_px: tuple[int, int, int, int]
-    centre_time_s: float
 
 
 def expanded_camera(camera: Camera, margins_px: tuple[int, int, int, int]) -> Camera:
@@ -358,7 +354,8 @@ class _Plan:
 
 
 def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
-                         cam_at: Callable[[float], ground_mapping.CameraPose], windows: dict, count: int, render: Callable[[Camera, Pose], Any],
+                         cam_at: Callable[[float], ground_mapping.CameraPose], windows: dict, centre_s: float,
+                         count: int, render: Callable[[Camera, Pose], Any],
                          moving_points: Callable[[float], list]) -> WarpedPeriods | None:
     """The flush, exposure and transfer fields of one image by warp-and-accumulate (module doc).
 
@@ -372,6 +369,9 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         ``time_s -> CameraPose``.
     windows : dict of str to (float, float)
         ``period -> (start_s, end_s)`` (s).
+    centre_s : float
+        Exposure mid-time (s), where the averaged exposure is centred (the one field is rendered at the
+        exposure's sub-pose N / 2, half a sub-pose step after it).
     count : int
         Sub-poses the blur needs (rounded up to a power of two).
     render : callable
@@ -440,7 +440,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         {period: plan.count for period in windows},
         np.ascontiguousarray(field.radiance[inner]),
         None if shield_full is None else np.ascontiguousarray(shield_full[inner]),
-        field.shadow_centres_m, margins, plan.base_s)
+        field.shadow_centres_m, margins)
 
 
 def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.ndarray | None:

@@ -54,8 +54,7 @@ class PeriodScene:
     shared : bool
         One field stands for all three periods.
     exposure_centre : PoseField
-        The field at the exposure mid-time (diagnostics); on the warp-and-accumulate path the one rendered
-        field, at the exposure's sub-pose N / 2 (half a sub-pose step after the mid-time), with its own pose.
+        The field at the exposure mid-time (diagnostics).
     """
 
     fields: RadianceFields
@@ -187,7 +186,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
         fields = RadianceFields(centre.radiance, centre.radiance, centre.radiance)
         scene = PeriodScene(fields, sky, outside, shield, choice.substeps, True, centre)
     else:
-        warped = (_warped_periods(terrain, camera, pose_at, cam_at, windows, choice, sun_world, config,
+        warped = (_warped_periods(terrain, camera, pose_at, cam_at, windows, centre_s, choice, sun_world, config,
                                   render, moving_shadows) if choice.method == "warp" else None)
         scene = warped if warped is not None else _sub_pose_periods(
             terrain, camera, pose_at, windows, centre_s, choice, sun_world, config, render, moving_shadows)
@@ -199,7 +198,7 @@ def period_fields(terrain: Terrain, camera: Camera, profile: DescentProfile, exp
     return scene
 
 
-def _warped_periods(terrain, camera, pose_at, cam_at, windows, choice, sun_world, config, render,
+def _warped_periods(terrain, camera, pose_at, cam_at, windows, centre_s, choice, sun_world, config, render,
                     moving_shadows) -> PeriodScene | None:
     """The periods by warp-and-accumulate, or None when the scene does not allow it.
 
@@ -207,7 +206,7 @@ def _warped_periods(terrain, camera, pose_at, cam_at, windows, choice, sun_world
     """
     effects = config.effects
     warped = blur_warp.warped_period_fields(
-        camera, pose_at, cam_at, windows, max(choice.substeps.values()),
+        camera, pose_at, cam_at, windows, centre_s, max(choice.substeps.values()),
         lambda cam, pose: render(terrain, cam, pose, sun_world, config),
         lambda time_s: (blur_warp.moving_world_points(pose_at(time_s), casters(pose_at(time_s), config),
                                                       sun_unit_vector(sun_world)) if effects.shadows else [])
@@ -215,7 +214,7 @@ def _warped_periods(terrain, camera, pose_at, cam_at, windows, choice, sun_world
     if warped is None:
         return None
     centre = PoseField(warped.centre_radiance, warped.sky, warped.outside, warped.centre_heat_shield,
-                       ground_mapping.camera_pose(camera, pose_at(warped.centre_time_s)), warped.shadow_centres_m)
+                       ground_mapping.camera_pose(camera, pose_at(centre_s)), warped.shadow_centres_m)
     return PeriodScene(warped.fields, warped.sky, warped.outside, warped.heat_shield, warped.substeps, False, centre)
 
 
