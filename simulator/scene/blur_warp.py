@@ -354,8 +354,7 @@ class _Plan:
 
 
 def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
-                         cam_at: Callable[[float], ground_mapping.CameraPose], windows: dict, centre_s: float,
-                         count: int, render: Callable[[Camera, Pose], Any],
+                         cam_at: Callable[[float], ground_mapping.CameraPose], windows: dict, count: int, render: Callable[[Camera, Pose], Any],
                          moving_points: Callable[[float], list]) -> WarpedPeriods | None:
     """The flush, exposure and transfer fields of one image by warp-and-accumulate (module doc).
 
@@ -369,9 +368,6 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         ``time_s -> CameraPose``.
     windows : dict of str to (float, float)
         ``period -> (start_s, end_s)`` (s).
-    centre_s : float
-        Exposure mid-time (s), where the averaged exposure is centred (the one field is rendered at the
-        exposure's sub-pose N / 2, half a sub-pose step after it).
     count : int
         Sub-poses the blur needs (rounded up to a power of two).
     render : callable

@@ -54,7 +54,9 @@ class PeriodScene:
     shared : bool
         One field stands for all three periods.
     exposure_centre : PoseField
-        The field at the exposure mid-time (diagnostics).
+        The field at the exposure mid-time (diagnostics: its camera pose is the image's). On the
+        warp-and-accumulate path its radiance, masks and shadow centres are those of the one rendered field,
+        at the exposure's sub-pose N / 2 (half a sub-pose step after the mid-time).
     """
 
     fields: RadianceFields
@@ -206,7 +208,7 @@ def _warped_periods(terrain, camera, pose_at, cam_at, windows, centre_s, choice,
     """
     effects = config.effects
     warped = blur_warp.warped_period_fields(
-        camera, pose_at, cam_at, windows, centre_s, max(choice.substeps.values()),
+        camera, pose_at, cam_at, windows, max(choice.substeps.values()),
         lambda cam, pose: render(terrain, cam, pose, sun_world, config),
         lambda time_s: (blur_warp.moving_world_points(pose_at(time_s), casters(pose_at(time_s), config),
                                                       sun_unit_vector(sun_world)) if effects.shadows else [])
