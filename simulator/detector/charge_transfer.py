@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from flight_interface.camera_file import Timing
+from simulator.detector import float_bits
 from simulator.fields import bin_rows
 from simulator.scratch import scratch
 
@@ -359,7 +360,7 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
 
     One compiled pass over the rows (numba): per pixel the float32 product ``radiance x gain`` (inf where it
     overflows: a saturating rate), summed into its block's plain and ramp-weighted sums in the order
-    the charge moves, the radiance summed likewise, and the extremes kept per column.
+    the charge moves, the radiance summed likewise, and its extremes from the bit patterns (:mod:`simulator.detector.float_bits`).
 
     Parameters
     ----------
@@ -385,31 +386,23 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
     plain = output("plain", (blocks, width))
     ramp = output("ramp", (blocks, width))
     field_sums = output("radiance", (blocks if radiance_sums else 1, width))
-    extremes = np.empty((3, width), dtype=np.float32)
+    bit_state = float_bits.new_state()
     _block_rate_sums_kernel(field, gains, binning_rows, toward_last_row, np.float32(binning_rows * offset_e_per_s),
                             np.float32(binning_rows * (binning_rows + 1) / 2 * offset_e_per_s), bool(offset_e_per_s),
-                            plain, ramp, bool(radiance_sums), field_sums, extremes)
-    if not np.isfinite(extremes[2].sum()):
-        smallest = largest = float("nan")
-    else:
-        smallest, largest = float(extremes[0].min()), float(extremes[1].max())
+                            plain, ramp, bool(radiance_sums), field_sums, bit_state[0])
+    smallest, largest = float_bits.extremes(bit_state[0], field)
     return plain, ramp, field_sums if radiance_sums else None, smallest, largest
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_offset, ramp_offset, add_offset,
-                            plain, ramp, with_sums, field_sums, extremes):
+                            plain, ramp, with_sums, field_sums, bit_state):
     """:func:`checked_block_rate_sums`' pass.
 
-    ``field_sums`` has one unused row unless ``with_sums``. ``extremes``: per column min, max, and a sum
-    that is NaN where a value is not finite (``x - x``).
+    ``field_sums`` has one unused row unless ``with_sums``. ``bit_state``: the field's extremes as bit
+    patterns (:mod:`simulator.detector.float_bits`), updated.
     """
     blocks, width = plain.shape
-    smallest, largest, finite = extremes[0], extremes[1], extremes[2]
-    for col in range(width):
-        smallest[col] = np.inf
-        largest[col] = -np.inf
-        finite[col] = 0.0
     for block in range(blocks):
         image_block = block if toward_last_row else blocks - 1 - block
         block_plain, block_ramp = plain[block], ramp[block]
@@ -434,11 +427,7 @@ def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_of
                 else:
                     for col in range(width):
                         block_field[col] += values[col]
-            for col in range(width):
-                value = values[col]
-                smallest[col] = min(smallest[col], value)
-                largest[col] = max(largest[col], value)
-                finite[col] += value - value
+            float_bits.add_row(values, bit_state)
         if add_offset:
             for col in range(width):
                 block_plain[col] += plain_offset
