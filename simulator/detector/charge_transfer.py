@@ -138,7 +138,7 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
 
 def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_blocks: np.ndarray,
                             transfer_sums: tuple[np.ndarray, np.ndarray], timing: Timing, binning_rows: int,
-                            rows: int) -> np.ndarray:
+                            rows: int, row_offset_e: np.ndarray | None = None) -> np.ndarray:
     """Binned charge from the block sums of the three periods' rates (module doc).
 
     Parameters
@@ -155,6 +155,9 @@ def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_
         Rows per block ``b``.
     rows : int
         Full-frame rows N.
+    row_offset_e : ndarray, shape (N / b, 1), optional
+        Charge added to every pixel of a binned row after the rest (e-; the storage dark), in the same
+        pass: the float32 sum ``charge + offset`` a separate addition gives.
 
     Returns
     -------
@@ -165,12 +168,15 @@ def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_
     shared = transfer_sums[0] is flush_sums[0]
     transfer_blocks, transfer_ramp = (np.ascontiguousarray(sums, dtype=np.float32) for sums in transfer_sums)
     charge = np.empty(flush_blocks.shape, dtype=np.float32)
+    with_offset = row_offset_e is not None
+    offsets = (np.ascontiguousarray(np.reshape(row_offset_e, -1), dtype=np.float32) if row_offset_e is not None
+               else np.zeros(flush_blocks.shape[0], dtype=np.float32))
     _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, transfer_ramp,
                           np.ascontiguousarray(exposure_blocks, dtype=np.float32), timing.transfer_toward_last_row,
                           np.float32(binning_rows), np.float32(timing.fast_flush_s / rows),
                           np.float32(timing.frame_transfer_s / rows), np.float32(timing.exposure_s),
                           _cumsum_group(flush_blocks.shape[0]), scratch("charge_flush_through", charge.shape),
-                          scratch("charge_transfer_from", charge.shape), charge)
+                          scratch("charge_transfer_from", charge.shape), with_offset, offsets, charge)
     return charge
 
 
@@ -216,10 +222,11 @@ def _grouped_cumsum(values, reverse, group, out):
 @njit(cache=True, nogil=True, boundscheck=False)
 def _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, transfer_ramp, exposure_blocks,
                           toward_last_row, binning_rows, flush_scale, transfer_scale, exposure_s, group, flush_through,
-                          transfer_from, charge):
+                          transfer_from, with_offset, row_offsets, charge):
     """:func:`binned_charge_from_sums`, compiled: the float32 operations of the numpy form, in its order.
 
-    ``flush_through``, ``transfer_from``: work arrays of the charge's shape.
+    ``flush_through``, ``transfer_from``: work arrays of the charge's shape. With ``with_offset``,
+    ``row_offsets[k]`` (float32) is added to every pixel of binned row ``k`` (image order) last.
     """
     blocks, width = flush_blocks.shape
     _grouped_cumsum(flush_blocks, False, group, flush_through)        # blocks up to and including
@@ -240,6 +247,10 @@ def _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, tra
             flush_smear = ((through[col] - plain[col]) * binning_rows + ramp[col]) * flush_scale
             transfer_smear = ((after * binning_rows + ramp_weight * transfer_plain[col]) - transfer_weighted[col]) * transfer_scale
             out[col] = exposure[col] * exposure_s + (flush_smear + transfer_smear)
+        if with_offset:
+            row_offset = row_offsets[image_block]
+            for col in range(width):
+                out[col] += row_offset
 
 
 def add_blur_change(plain: np.ndarray, ramp: np.ndarray, blurred: np.ndarray, unblurred: np.ndarray,
