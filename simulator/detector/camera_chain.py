@@ -176,6 +176,9 @@ class ChainState:
         The binned path's per-period block sums (period name -> (plain sums, in-block ramp-weighted sums,
         sums for the gain, largest field value)), set by the binned generation stage; None when the
         full-resolution stages take the image.
+    storage_dark_added : bool, optional
+        The storage dark is in ``charge_e`` already (added in :func:`collect_binned_charge`'s pass), so
+        :func:`add_storage_dark` leaves it.
     """
 
     camera: Camera
@@ -187,6 +190,7 @@ class ChainState:
     timing: Timing | None = None
     charge_e: np.ndarray | None = field(default=None, repr=False)
     block_sums: dict | None = field(default=None, repr=False)
+    storage_dark_added: bool = False
 
     @property
     def block_shape(self) -> tuple[int, int]:
@@ -401,7 +405,7 @@ def add_storage_dark(state: ChainState) -> None:
     -------
     None
     """
-    if state.dark_rate_e_per_s:
+    if state.dark_rate_e_per_s and not state.storage_dark_added:
         assert state.charge_e is not None
         dark = _storage_dark_e(state.camera, state.dark_rate_e_per_s)
         if state.charge_e.dtype == np.float32 and state.charge_e.flags.writeable:
@@ -637,7 +641,9 @@ def collect_binned_charge(state: ChainState) -> None:
     Parameters
     ----------
     state : ChainState
-        Reads ``block_sums``, ``timing``; sets ``charge_e`` ((H / b, W), e-) or leaves it None.
+        Reads ``block_sums``, ``timing``; sets ``charge_e`` ((H / b, W), e-) or leaves it None. Without particle
+        hits the storage dark is added in the same pass (the bits of :func:`add_storage_dark`'s addition;
+        ``storage_dark_added``).
 
     Returns
     -------
@@ -663,11 +669,14 @@ def collect_binned_charge(state: ChainState) -> None:
         bound += hits.max_pixel_charge_e
     if not bound <= camera.electronics.full_well_e:      # (a NaN bound too)
         return
-    charge = charge_transfer.binned_charge_from_sums(sums["flush"][:2], sums["exposure"][2], sums["transfer"][:2],
-                                                     timing, camera.binning_rows, rows)
+    fuse_dark = bool(state.dark_rate_e_per_s) and hits is None      # (hits are added before the storage dark)
+    charge = charge_transfer.binned_charge_from_sums(
+        sums["flush"][:2], sums["exposure"][2], sums["transfer"][:2], timing, camera.binning_rows, rows,
+        _storage_dark_e(camera, state.dark_rate_e_per_s) if fuse_dark else None)
     if hits is not None:
         particle_hits.add_to_binned(charge, hits, camera.binning_rows)
     state.charge_e = charge
+    state.storage_dark_added = fuse_dark
 
 
 #: The stages from radiance to mean binned charge at full resolution, in the order the light meets them.

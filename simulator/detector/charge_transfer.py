@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from flight_interface.camera_file import Timing
+from simulator.detector import float_bits
 from simulator.fields import bin_rows
 from simulator.scratch import scratch
 
@@ -137,7 +138,7 @@ def binned_charge_e(rate_flush: np.ndarray, rate_exposure: np.ndarray, rate_tran
 
 def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_blocks: np.ndarray,
                             transfer_sums: tuple[np.ndarray, np.ndarray], timing: Timing, binning_rows: int,
-                            rows: int) -> np.ndarray:
+                            rows: int, row_offset_e: np.ndarray | None = None) -> np.ndarray:
     """Binned charge from the block sums of the three periods' rates (module doc).
 
     Parameters
@@ -154,6 +155,9 @@ def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_
         Rows per block ``b``.
     rows : int
         Full-frame rows N.
+    row_offset_e : ndarray, shape (N / b, 1), optional
+        Charge added to every pixel of a binned row after the rest (e-; the storage dark), in the same
+        pass: the float32 sum ``charge + offset`` a separate addition gives.
 
     Returns
     -------
@@ -164,12 +168,15 @@ def binned_charge_from_sums(flush_sums: tuple[np.ndarray, np.ndarray], exposure_
     shared = transfer_sums[0] is flush_sums[0]
     transfer_blocks, transfer_ramp = (np.ascontiguousarray(sums, dtype=np.float32) for sums in transfer_sums)
     charge = np.empty(flush_blocks.shape, dtype=np.float32)
+    with_offset = row_offset_e is not None
+    offsets = (np.ascontiguousarray(np.reshape(row_offset_e, -1), dtype=np.float32) if row_offset_e is not None
+               else np.zeros(flush_blocks.shape[0], dtype=np.float32))
     _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, transfer_ramp,
                           np.ascontiguousarray(exposure_blocks, dtype=np.float32), timing.transfer_toward_last_row,
                           np.float32(binning_rows), np.float32(timing.fast_flush_s / rows),
                           np.float32(timing.frame_transfer_s / rows), np.float32(timing.exposure_s),
                           _cumsum_group(flush_blocks.shape[0]), scratch("charge_flush_through", charge.shape),
-                          scratch("charge_transfer_from", charge.shape), charge)
+                          scratch("charge_transfer_from", charge.shape), with_offset, offsets, charge)
     return charge
 
 
@@ -215,10 +222,11 @@ def _grouped_cumsum(values, reverse, group, out):
 @njit(cache=True, nogil=True, boundscheck=False)
 def _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, transfer_ramp, exposure_blocks,
                           toward_last_row, binning_rows, flush_scale, transfer_scale, exposure_s, group, flush_through,
-                          transfer_from, charge):
+                          transfer_from, with_offset, row_offsets, charge):
     """:func:`binned_charge_from_sums`, compiled: the float32 operations of the numpy form, in its order.
 
-    ``flush_through``, ``transfer_from``: work arrays of the charge's shape.
+    ``flush_through``, ``transfer_from``: work arrays of the charge's shape. With ``with_offset``,
+    ``row_offsets[k]`` (float32) is added to every pixel of binned row ``k`` (image order) last.
     """
     blocks, width = flush_blocks.shape
     _grouped_cumsum(flush_blocks, False, group, flush_through)        # blocks up to and including
@@ -239,6 +247,10 @@ def _binned_charge_kernel(flush_blocks, flush_ramp, shared, transfer_blocks, tra
             flush_smear = ((through[col] - plain[col]) * binning_rows + ramp[col]) * flush_scale
             transfer_smear = ((after * binning_rows + ramp_weight * transfer_plain[col]) - transfer_weighted[col]) * transfer_scale
             out[col] = exposure[col] * exposure_s + (flush_smear + transfer_smear)
+        if with_offset:
+            row_offset = row_offsets[image_block]
+            for col in range(width):
+                out[col] += row_offset
 
 
 def add_blur_change(plain: np.ndarray, ramp: np.ndarray, blurred: np.ndarray, unblurred: np.ndarray,
@@ -359,7 +371,7 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
 
     One compiled pass over the rows (numba): per pixel the float32 product ``radiance x gain`` (inf where it
     overflows: a saturating rate), summed into its block's plain and ramp-weighted sums in the order
-    the charge moves, the radiance summed likewise, and the extremes kept per column.
+    the charge moves, the radiance summed likewise, and its extremes from the bit patterns (:mod:`simulator.detector.float_bits`).
 
     Parameters
     ----------
@@ -385,31 +397,23 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
     plain = output("plain", (blocks, width))
     ramp = output("ramp", (blocks, width))
     field_sums = output("radiance", (blocks if radiance_sums else 1, width))
-    extremes = np.empty((3, width), dtype=np.float32)
+    bit_state = float_bits.new_state()
     _block_rate_sums_kernel(field, gains, binning_rows, toward_last_row, np.float32(binning_rows * offset_e_per_s),
                             np.float32(binning_rows * (binning_rows + 1) / 2 * offset_e_per_s), bool(offset_e_per_s),
-                            plain, ramp, bool(radiance_sums), field_sums, extremes)
-    if not np.isfinite(extremes[2].sum()):
-        smallest = largest = float("nan")
-    else:
-        smallest, largest = float(extremes[0].min()), float(extremes[1].max())
+                            plain, ramp, bool(radiance_sums), field_sums, bit_state[0])
+    smallest, largest = float_bits.extremes(bit_state[0], field)
     return plain, ramp, field_sums if radiance_sums else None, smallest, largest
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_offset, ramp_offset, add_offset,
-                            plain, ramp, with_sums, field_sums, extremes):
+                            plain, ramp, with_sums, field_sums, bit_state):
     """:func:`checked_block_rate_sums`' pass.
 
-    ``field_sums`` has one unused row unless ``with_sums``. ``extremes``: per column min, max, and a sum
-    that is NaN where a value is not finite (``x - x``).
+    ``field_sums`` has one unused row unless ``with_sums``. ``bit_state``: the field's extremes as bit
+    patterns (:mod:`simulator.detector.float_bits`), updated.
     """
     blocks, width = plain.shape
-    smallest, largest, finite = extremes[0], extremes[1], extremes[2]
-    for col in range(width):
-        smallest[col] = np.inf
-        largest[col] = -np.inf
-        finite[col] = 0.0
     for block in range(blocks):
         image_block = block if toward_last_row else blocks - 1 - block
         block_plain, block_ramp = plain[block], ramp[block]
@@ -434,11 +438,7 @@ def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_of
                 else:
                     for col in range(width):
                         block_field[col] += values[col]
-            for col in range(width):
-                value = values[col]
-                smallest[col] = min(smallest[col], value)
-                largest[col] = max(largest[col], value)
-                finite[col] += value - value
+            float_bits.add_row(values, bit_state)
         if add_offset:
             for col in range(width):
                 block_plain[col] += plain_offset

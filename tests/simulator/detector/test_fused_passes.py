@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from simulator.detector import charge_transfer, psf, readout
+from simulator.detector import charge_transfer, float_bits, psf, readout
 from simulator.detector.camera_chain import expected_charge_e, pixel_gain, render_image
 from simulator.fields import RadianceFields
 
@@ -47,6 +47,27 @@ def test_a_value_that_is_not_finite_makes_both_extremes_nan(bad):
     field[700, 3] = bad
     *_, smallest, largest = charge_transfer.checked_block_rate_sums(field, np.ones_like(field), 4, True)
     assert np.isnan(smallest) and np.isnan(largest)
+
+
+def _bit_extremes(field: np.ndarray) -> tuple[float, float]:
+    state = float_bits.new_state()[0]
+    for row in field:
+        float_bits.add_row(np.ascontiguousarray(row), state)
+    return float_bits.extremes(state, field)
+
+
+@pytest.mark.parametrize("special", [None, 0.0, 1e-42, 3.0e38, -0.0, -2.5, np.nan, -np.nan, np.inf, -np.inf])
+def test_extremes_from_bit_patterns_are_numpys(special):
+    """Min and max (both NaN when a value is not finite) from the patterns: zero, subnormal, huge, signed, special."""
+    field = np.random.default_rng(13).uniform(0.5, 40.0, (64, 96)).astype(np.float32)
+    if special is not None:
+        field[17, 41] = special
+    smallest, largest = _bit_extremes(field)
+    if not np.isfinite(field).all():
+        assert np.isnan(smallest) and np.isnan(largest)
+    else:
+        assert (smallest, largest) == (float(field.min()), float(field.max()))
+        assert np.signbit(smallest) == np.signbit(field.min())
 
 
 def test_fold_of_the_spectrum_samples_every_fourth_row():
