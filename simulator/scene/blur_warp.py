@@ -231,24 +231,41 @@ def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, n
     return list(zip(np.split(pixels, ends), np.split(in_front, ends)))
 
 
-def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
-                source_offset_px: tuple[float, float], block_rows: int) -> np.ndarray | None:
-    """Flow map over ``camera``'s frame at ``block_rows``-row resolution.
+def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, int]],
+                 source: ground_mapping.CameraPose, source_offset_px: tuple[float, float]) -> list[np.ndarray] | None:
+    """Flow maps over ``camera``'s frame from several target poses to one source pose, one projection for all.
 
-    (H / b, W, 2) float32 (column, block row) of the source pixels, shifted by ``source_offset_px`` (column, row; the source is an
-    enlarged frame).
+    Parameters
+    ----------
+    camera : Camera
+        The camera of both images.
+    targets : list of (CameraPose, int)
+        Per map, the pose of the image made and its row resolution ``block_rows`` (1: full resolution).
+    source : CameraPose
+        The pose of the image read from.
+    source_offset_px : tuple of float
+        (column, row) shift of the source pixels (px; the source is an enlarged frame).
+
+    Returns
+    -------
+    list of ndarray, shape (H / b, W, 2), float32, or None
+        Per target, the (column, block row) source pixels of every output pixel (bilinear between nodes
+        every :data:`FLOW_STEP_PX` pixels); None when any node ray misses the ground.
     """
-    b = block_rows
     rows = node_grid.node_positions(camera.height_px, FLOW_STEP_PX)
     cols = node_grid.node_positions(camera.width_px, FLOW_STEP_PX)
     grid = np.stack(np.meshgrid(cols, rows), axis=-1)
-    source_pixels = _flow_points(camera, target, source, grid, ground_mapping.camera_frame_rays(camera, grid))
-    if source_pixels is None:
+    rays = ground_mapping.camera_frame_rays(camera, grid)
+    nodes = _flows(camera, source, [(target, rays) for target, _ in targets])
+    if nodes is None:
         return None
-    source_pixels = source_pixels + np.asarray(source_offset_px, dtype=float)
-    source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (b - 1)) / b
-    return node_grid.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
-                                    row_step_px=FLOW_STEP_PX // b)
+    maps = []
+    for source_pixels, (_, block_rows) in zip(nodes, targets):
+        source_pixels = source_pixels + np.asarray(source_offset_px, dtype=float)
+        source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (block_rows - 1)) / block_rows
+        maps.append(node_grid.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // block_rows,
+                                             camera.width_px, row_step_px=FLOW_STEP_PX // block_rows))
+    return maps
 
 
 class _Plan:
@@ -406,12 +423,15 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     accumulated, block = field.radiance, 1
     base_cam = cam_at(plan.base_s)
     row_shifts = plan.row_shifts_px()
-    for level in range(plan.levels):
-        if block == 1 and row_shifts[level] >= FULL_RESOLUTION_ROW_SHIFT_PX:
+    # a level's block rows: b from the first level whose step moves the rows by FULL_RESOLUTION_ROW_SHIFT_PX on
+    level_blocks = np.where(np.maximum.accumulate(np.asarray(row_shifts) >= FULL_RESOLUTION_ROW_SHIFT_PX), b, 1)
+    flows = _block_flows(big, [(plan.step_pose(level), int(level_blocks[level])) for level in range(plan.levels)],
+                         base_cam, (0.0, 0.0))
+    if flows is None:
+        return None
+    for level, flow in enumerate(flows):
+        if block == 1 and level_blocks[level] == b:
             accumulated, block = block_means(accumulated, b), b
-        flow = _block_flow(big, plan.step_pose(level), base_cam, (0.0, 0.0), block)
-        if flow is None:
-            return None
         # block rows: bicubic (bilinear at fractional-block shifts would smooth the rows at the block scale)
         warped = resample.warped_field(accumulated, flow, cv2.INTER_LINEAR if block == 1 else cv2.INTER_CUBIC)
         accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0)
@@ -420,11 +440,12 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     # moved by one period, at block resolution (they reach the image only through column sums, as with
     # warp_smear_fields)
     averaged = {"exposure": np.ascontiguousarray(blocks[top // b:(top + height) // b, left:left + width])}
-    for period in ("flush", "transfer"):
-        start, end = windows[period]
-        flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), (left, top), b)
-        if flow is None:
-            return None
+    smear_periods = ("flush", "transfer")
+    smear_flows = _block_flows(camera, [(cam_at(0.5 * sum(windows[period])), b) for period in smear_periods],
+                               cam_at(plan.average_centre_s), (left, top))
+    if smear_flows is None:
+        return None
+    for period, flow in zip(smear_periods, smear_flows):
         averaged[period] = resample.warped_field(blocks, flow, SMEAR_INTERPOLATION)
     outside = _mask_union(field.outside, camera, (left, top), plan, cam_at)
     shield_full = field.heat_shield
