@@ -434,7 +434,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
             accumulated, block = block_means(accumulated, b), b
         # block rows: bicubic (bilinear at fractional-block shifts would smooth the rows at the block scale)
         warped = resample.warped_field(accumulated, flow, cv2.INTER_LINEAR if block == 1 else cv2.INTER_CUBIC)
-        accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0)
+        accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0, dst=warped)   # in place: no new array
     blocks = accumulated if block == b else block_means(accumulated, b)
     # the leaves are the exposure's sub-poses: the exposure is the average itself; flush and transfer are it
     # moved by one period, at block resolution (they reach the image only through column sums, as with
