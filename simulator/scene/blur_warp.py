@@ -295,19 +295,6 @@ class _Plan:
         """The camera pose one step of ``level`` away from the rendered pose."""
         return self.cam_at(self.base_s + self.step_sub_poses(level) * self.delta_s)
 
-    def row_shifts_px(self) -> list[float]:
-        """Largest row motion (px) of the sample pixels over one step of each level (inf where a ray misses)."""
-        pixels = motion_blur.sample_pixels(self.camera, CHECK_GRID)
-        rays = ground_mapping.camera_frame_rays(self.camera, pixels)
-        base = self.cam_at(self.base_s)
-        together = _flows(self.camera, base, [(self.step_pose(level), rays) for level in range(self.levels)])
-        moved_levels: list[np.ndarray | None] = list(together) if together is not None else []
-        if together is None:                     # some level fails: level by level
-            moved_levels = [_flow_points(self.camera, self.step_pose(level), base, pixels, rays)
-                            for level in range(self.levels)]
-        return [math.inf if moved is None else float(np.abs(moved[:, 1] - pixels[:, 1]).max())
-                for moved in moved_levels]
-
     def leaf_times(self, period: str) -> np.ndarray:
         start, end = self.windows[period]
         return motion_blur.substep_times(start, end, self.count)
@@ -400,9 +387,10 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     plan = _Plan(camera, cam_at, windows, count)
     if not plan.ok:
         return None
-    extent = _checked_extent(plan, moving_points)
-    if extent is None:
+    checked = _checked_extent(plan, moving_points)
+    if checked is None:
         return None
+    extent, row_shifts = checked
     # per side: the furthest any read position lies beyond the frame (+10 % for pixels between samples)
     left, top = (MARGIN_STEP_PX * math.ceil((1.1 * max(-low, 0.0) + 4.0) / MARGIN_STEP_PX) for low in extent[0])
     right, bottom = (MARGIN_STEP_PX * math.ceil((1.1 * max(high, 0.0) + 4.0) / MARGIN_STEP_PX) for high in extent[1])
@@ -422,7 +410,6 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     # its fractional-block shifts interpolate better (module doc)
     accumulated, block = field.radiance, 1
     base_cam = cam_at(plan.base_s)
-    row_shifts = plan.row_shifts_px()
     # a level's block rows: b from the first level whose step moves the rows by FULL_RESOLUTION_ROW_SHIFT_PX on
     level_blocks = np.where(np.maximum.accumulate(np.asarray(row_shifts) >= FULL_RESOLUTION_ROW_SHIFT_PX), b, 1)
     flows = _block_flows(big, [(plan.step_pose(level), int(level_blocks[level])) for level in range(plan.levels)],
@@ -460,8 +447,8 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         field.shadow_centres_m, margins)
 
 
-def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.ndarray | None:
-    """Verify the doubling scheme on this image and measure how far its reads reach (module doc).
+def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tuple[np.ndarray, list[float]] | None:
+    """Verify the doubling scheme on this image, measure how far its reads reach and each level's row motion (module doc).
 
     For a :data:`CHECK_GRID` grid of pixels and the :meth:`_Plan.checked_leaves` of each period, the
     composed map must agree with the exact one to :data:`GROUP_TOLERANCE_PX`; every self-moving point
@@ -478,9 +465,10 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
 
     Returns
     -------
-    ndarray, shape (2, 2), or None
-        (column, row) lows and highs of the read positions relative to their pixels (px), or None when a
-        check fails (then the scene is rendered per sub-pose).
+    (ndarray (2, 2), list of float) or None
+        (column, row) lows and highs of the read positions relative to their pixels (px) and each doubling
+        level's largest row motion of those pixels over one step (px), or None when a check fails or a step's
+        ray misses the ground (then the scene is rendered per sub-pose).
     """
     camera, cam_at = plan.camera, plan.cam_at
     pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
@@ -498,10 +486,13 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
         return None
     centre = cam_at(plan.base_s)
     leaf_times = {period: plan.leaf_times(period) for period in plan.windows}
+    # with the exact maps, each level's step (its row motion decides the level's resolution): one projection
     exact = _flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
-                                    for period in plan.windows for leaf in checked])
+                                    for period in plan.windows for leaf in checked]
+                   + [(plan.step_pose(level), rays) for level in range(plan.levels)])
     if exact is None:
         return None
+    row_shifts = [float(np.abs(moved[:, 1] - pixels[:, 1]).max()) for moved in exact[len(exact) - plan.levels:]]
     extent = np.zeros((2, 2))
     for index, period in enumerate(plan.windows):
         positions, period_extent = composed[index]
@@ -515,7 +506,7 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
         extent = np.array([np.minimum(extent[0], period_extent[0]), np.maximum(extent[1], period_extent[1])])
     if moving is not None and not float(np.max(np.abs(composed[-1][0] - where_centre))) <= MOVING_TOLERANCE_PX:
         return None
-    return extent
+    return extent, row_shifts
 
 
 def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[float], list]
