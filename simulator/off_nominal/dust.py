@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
@@ -238,6 +239,59 @@ def _node_beam_centres_m(camera: Camera, distance_m: float) -> tuple[np.ndarray,
     return cache[key]
 
 
+@njit(cache=True, nogil=True)
+def _near_pairs(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii: np.ndarray, pupil: float,
+                particles: np.ndarray, row0: np.ndarray, row1: np.ndarray, col0: np.ndarray,
+                col1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (node, particle) pairs whose beam and particle discs overlap, particle by particle, each box row-major.
+
+    Parameters
+    ----------
+    x, y : ndarray, shape (ny, nx)
+        Beam centres of the nodes on the front element (m).
+    positions : ndarray, shape (n, 2)
+        Particle centres (m).
+    radii : ndarray, shape (n,)
+        Particle radii (m).
+    pupil : float
+        Beam (entrance pupil) radius (m).
+    particles : ndarray, shape (k,), int64
+        The particles to pair, in order.
+    row0, row1, col0, col1 : ndarray, shape (k,), int64
+        Each particle's box of nodes (end exclusive; empty when end <= start).
+
+    Returns
+    -------
+    node : ndarray, int64
+        Flat node index of each overlapping pair.
+    radius : ndarray
+        The pair's particle radius (m).
+    separation : ndarray
+        Distance between the beam centre and the particle centre (m).
+    """
+    total = 0
+    for index in range(particles.size):
+        total += max(row1[index] - row0[index], 0) * max(col1[index] - col0[index], 0)
+    node = np.empty(total, dtype=np.int64)
+    radius = np.empty(total)
+    separation = np.empty(total)
+    count = 0
+    width = x.shape[1]
+    for index in range(particles.size):
+        particle = particles[index]
+        centre_x, centre_y, particle_radius = positions[particle, 0], positions[particle, 1], radii[particle]
+        reach = pupil + particle_radius
+        for row in range(row0[index], row1[index]):
+            for col in range(col0[index], col1[index]):
+                distance = np.hypot(x[row, col] - centre_x, y[row, col] - centre_y)
+                if distance < reach:
+                    node[count] = row * width + col
+                    radius[count] = particle_radius
+                    separation[count] = distance
+                    count += 1
+    return node[:count], radius[:count], separation[:count]
+
+
 def transmission_map(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
     """Relative transmission of every pixel, evaluated on the node grid and interpolated (module doc).
 
@@ -263,28 +317,19 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
     positions = np.asarray(particles.positions_m, dtype=float).reshape(-1, 2)
     directions = (positions[:, :1] * e1 + positions[:, 1:] * e2) / distance_m + axis
     centres, in_front = cahvor.project(camera.model, camera.model.c + directions)
-    # every (particle, node) pair in the particles' shadow boxes, evaluated in one vectorised pass
-    pair_nodes, pair_particles = [], []
-    for k in np.flatnonzero(np.atleast_1d(in_front)):
-        half = 1.1 * (pupil + radii[k]) / distance_m * focal_px + 3.0 + NODE_STEP_PX
-        col0 = max(int((centres[k, 0] - half - first) / NODE_STEP_PX), 0)
-        col1 = min(int((centres[k, 0] + half - first) / NODE_STEP_PX) + 2, x.shape[1])
-        row0 = max(int((centres[k, 1] - half - first) / NODE_STEP_PX), 0)
-        row1 = min(int((centres[k, 1] + half - first) / NODE_STEP_PX) + 2, x.shape[0])
-        if col1 <= col0 or row1 <= row0:
-            continue
-        box_nodes = np.add.outer(np.arange(row0, row1) * x.shape[1], np.arange(col0, col1)).ravel()
-        pair_nodes.append(box_nodes)
-        pair_particles.append(np.full(box_nodes.size, k))
+    # every (particle, node) pair in the particles' shadow boxes (particle by particle, each box row by row: the
+    # order of the sums below); only the pairs whose discs overlap block light (the others add log 1 = 0: the
+    # same sums); of those, only the transition band needs the lens area, the core blocks the particle's whole disc
+    seen = np.flatnonzero(np.atleast_1d(in_front))
+    half = 1.1 * (pupil + radii[seen]) / distance_m * focal_px + 3.0 + NODE_STEP_PX
+    col0 = np.maximum(((centres[seen, 0] - half - first) / NODE_STEP_PX).astype(np.int64), 0)
+    col1 = np.minimum(((centres[seen, 0] + half - first) / NODE_STEP_PX).astype(np.int64) + 2, x.shape[1])
+    row0 = np.maximum(((centres[seen, 1] - half - first) / NODE_STEP_PX).astype(np.int64), 0)
+    row1 = np.minimum(((centres[seen, 1] + half - first) / NODE_STEP_PX).astype(np.int64) + 2, x.shape[0])
     nodes: np.ndarray = np.ones(x.shape, dtype=np.float32)
-    if pair_nodes:
-        node, particle = np.concatenate(pair_nodes), np.concatenate(pair_particles)
-        separation = np.hypot(x.ravel()[node] - positions[particle, 0], y.ravel()[node] - positions[particle, 1])
-        # only the pairs whose discs overlap block light (the others add log 1 = 0: the same sums); of those,
-        # only the transition band needs the lens area, the core blocks the particle's whole disc
-        radius = radii[particle]
-        near = separation < pupil + radius
-        node, radius, separation = node[near], radius[near], separation[near]
+    node, radius, separation = _near_pairs(np.ascontiguousarray(x), np.ascontiguousarray(y), positions, radii,
+                                           float(pupil), seen.astype(np.int64), row0, row1, col0, col1)
+    if node.size:
         core = separation <= np.abs(pupil - radius)
         blocked = np.empty(separation.shape)
         blocked[core] = np.pi * np.minimum(pupil, radius[core])**2 / (np.pi * pupil**2)

@@ -231,24 +231,41 @@ def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, n
     return list(zip(np.split(pixels, ends), np.split(in_front, ends)))
 
 
-def _block_flow(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
-                source_offset_px: tuple[float, float], block_rows: int) -> np.ndarray | None:
-    """Flow map over ``camera``'s frame at ``block_rows``-row resolution.
+def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, int]],
+                 source: ground_mapping.CameraPose, source_offset_px: tuple[float, float]) -> list[np.ndarray] | None:
+    """Flow maps over ``camera``'s frame from several target poses to one source pose, one projection for all.
 
-    (H / b, W, 2) float32 (column, block row) of the source pixels, shifted by ``source_offset_px`` (column, row; the source is an
-    enlarged frame).
+    Parameters
+    ----------
+    camera : Camera
+        The camera of both images.
+    targets : list of (CameraPose, int)
+        Per map, the pose of the image made and its row resolution ``block_rows`` (1: full resolution).
+    source : CameraPose
+        The pose of the image read from.
+    source_offset_px : tuple of float
+        (column, row) shift of the source pixels (px; the source is an enlarged frame).
+
+    Returns
+    -------
+    list of ndarray, shape (H / b, W, 2), float32, or None
+        Per target, the (column, block row) source pixels of every output pixel (bilinear between nodes
+        every :data:`FLOW_STEP_PX` pixels); None when any node ray misses the ground.
     """
-    b = block_rows
     rows = node_grid.node_positions(camera.height_px, FLOW_STEP_PX)
     cols = node_grid.node_positions(camera.width_px, FLOW_STEP_PX)
     grid = np.stack(np.meshgrid(cols, rows), axis=-1)
-    source_pixels = _flow_points(camera, target, source, grid, ground_mapping.camera_frame_rays(camera, grid))
-    if source_pixels is None:
+    rays = ground_mapping.camera_frame_rays(camera, grid)
+    nodes = _flows(camera, source, [(target, rays) for target, _ in targets])
+    if nodes is None:
         return None
-    source_pixels = source_pixels + np.asarray(source_offset_px, dtype=float)
-    source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (b - 1)) / b
-    return node_grid.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // b, camera.width_px,
-                                    row_step_px=FLOW_STEP_PX // b)
+    maps = []
+    for source_pixels, (_, block_rows) in zip(nodes, targets):
+        source_pixels = source_pixels + np.asarray(source_offset_px, dtype=float)
+        source_pixels[..., 1] = (source_pixels[..., 1] - 0.5 * (block_rows - 1)) / block_rows
+        maps.append(node_grid.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // block_rows,
+                                             camera.width_px, row_step_px=FLOW_STEP_PX // block_rows))
+    return maps
 
 
 class _Plan:
@@ -277,19 +294,6 @@ class _Plan:
     def step_pose(self, level: int) -> ground_mapping.CameraPose:
         """The camera pose one step of ``level`` away from the rendered pose."""
         return self.cam_at(self.base_s + self.step_sub_poses(level) * self.delta_s)
-
-    def row_shifts_px(self) -> list[float]:
-        """Largest row motion (px) of the sample pixels over one step of each level (inf where a ray misses)."""
-        pixels = motion_blur.sample_pixels(self.camera, CHECK_GRID)
-        rays = ground_mapping.camera_frame_rays(self.camera, pixels)
-        base = self.cam_at(self.base_s)
-        together = _flows(self.camera, base, [(self.step_pose(level), rays) for level in range(self.levels)])
-        moved_levels: list[np.ndarray | None] = list(together) if together is not None else []
-        if together is None:                     # some level fails: level by level
-            moved_levels = [_flow_points(self.camera, self.step_pose(level), base, pixels, rays)
-                            for level in range(self.levels)]
-        return [math.inf if moved is None else float(np.abs(moved[:, 1] - pixels[:, 1]).max())
-                for moved in moved_levels]
 
     def leaf_times(self, period: str) -> np.ndarray:
         start, end = self.windows[period]
@@ -383,9 +387,10 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     plan = _Plan(camera, cam_at, windows, count)
     if not plan.ok:
         return None
-    extent = _checked_extent(plan, moving_points)
-    if extent is None:
+    checked = _checked_extent(plan, moving_points)
+    if checked is None:
         return None
+    extent, row_shifts = checked
     # per side: the furthest any read position lies beyond the frame (+10 % for pixels between samples)
     left, top = (MARGIN_STEP_PX * math.ceil((1.1 * max(-low, 0.0) + 4.0) / MARGIN_STEP_PX) for low in extent[0])
     right, bottom = (MARGIN_STEP_PX * math.ceil((1.1 * max(high, 0.0) + 4.0) / MARGIN_STEP_PX) for high in extent[1])
@@ -405,26 +410,29 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
     # its fractional-block shifts interpolate better (module doc)
     accumulated, block = field.radiance, 1
     base_cam = cam_at(plan.base_s)
-    row_shifts = plan.row_shifts_px()
-    for level in range(plan.levels):
-        if block == 1 and row_shifts[level] >= FULL_RESOLUTION_ROW_SHIFT_PX:
+    # a level's block rows: b from the first level whose step moves the rows by FULL_RESOLUTION_ROW_SHIFT_PX on
+    level_blocks = np.where(np.maximum.accumulate(np.asarray(row_shifts) >= FULL_RESOLUTION_ROW_SHIFT_PX), b, 1)
+    flows = _block_flows(big, [(plan.step_pose(level), int(level_blocks[level])) for level in range(plan.levels)],
+                         base_cam, (0.0, 0.0))
+    if flows is None:
+        return None
+    for level, flow in enumerate(flows):
+        if block == 1 and level_blocks[level] == b:
             accumulated, block = block_means(accumulated, b), b
-        flow = _block_flow(big, plan.step_pose(level), base_cam, (0.0, 0.0), block)
-        if flow is None:
-            return None
         # block rows: bicubic (bilinear at fractional-block shifts would smooth the rows at the block scale)
         warped = resample.warped_field(accumulated, flow, cv2.INTER_LINEAR if block == 1 else cv2.INTER_CUBIC)
-        accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0)
+        accumulated = cv2.addWeighted(accumulated, 0.5, warped, 0.5, 0.0, dst=warped)   # in place: no new array
     blocks = accumulated if block == b else block_means(accumulated, b)
     # the leaves are the exposure's sub-poses: the exposure is the average itself; flush and transfer are it
     # moved by one period, at block resolution (they reach the image only through column sums, as with
     # warp_smear_fields)
     averaged = {"exposure": np.ascontiguousarray(blocks[top // b:(top + height) // b, left:left + width])}
-    for period in ("flush", "transfer"):
-        start, end = windows[period]
-        flow = _block_flow(camera, cam_at(0.5 * (start + end)), cam_at(plan.average_centre_s), (left, top), b)
-        if flow is None:
-            return None
+    smear_periods = ("flush", "transfer")
+    smear_flows = _block_flows(camera, [(cam_at(0.5 * sum(windows[period])), b) for period in smear_periods],
+                               cam_at(plan.average_centre_s), (left, top))
+    if smear_flows is None:
+        return None
+    for period, flow in zip(smear_periods, smear_flows):
         averaged[period] = resample.warped_field(blocks, flow, SMEAR_INTERPOLATION)
     outside = _mask_union(field.outside, camera, (left, top), plan, cam_at)
     shield_full = field.heat_shield
@@ -439,8 +447,8 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         field.shadow_centres_m, margins)
 
 
-def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.ndarray | None:
-    """Verify the doubling scheme on this image and measure how far its reads reach (module doc).
+def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tuple[np.ndarray, list[float]] | None:
+    """Verify the doubling scheme on this image, measure how far its reads reach and each level's row motion (module doc).
 
     For a :data:`CHECK_GRID` grid of pixels and the :meth:`_Plan.checked_leaves` of each period, the
     composed map must agree with the exact one to :data:`GROUP_TOLERANCE_PX`; every self-moving point
@@ -457,9 +465,10 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
 
     Returns
     -------
-    ndarray, shape (2, 2), or None
-        (column, row) lows and highs of the read positions relative to their pixels (px), or None when a
-        check fails (then the scene is rendered per sub-pose).
+    (ndarray (2, 2), list of float) or None
+        (column, row) lows and highs of the read positions relative to their pixels (px) and each doubling
+        level's largest row motion of those pixels over one step (px), or None when a check fails or a step's
+        ray misses the ground (then the scene is rendered per sub-pose).
     """
     camera, cam_at = plan.camera, plan.cam_at
     pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
@@ -477,10 +486,13 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
         return None
     centre = cam_at(plan.base_s)
     leaf_times = {period: plan.leaf_times(period) for period in plan.windows}
+    # with the exact maps, each level's step (its row motion decides the level's resolution): one projection
     exact = _flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
-                                    for period in plan.windows for leaf in checked])
+                                    for period in plan.windows for leaf in checked]
+                   + [(plan.step_pose(level), rays) for level in range(plan.levels)])
     if exact is None:
         return None
+    row_shifts = [float(np.abs(moved[:, 1] - pixels[:, 1]).max()) for moved in exact[len(exact) - plan.levels:]]
     extent = np.zeros((2, 2))
     for index, period in enumerate(plan.windows):
         positions, period_extent = composed[index]
@@ -494,7 +506,7 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> np.n
         extent = np.array([np.minimum(extent[0], period_extent[0]), np.maximum(extent[1], period_extent[1])])
     if moving is not None and not float(np.max(np.abs(composed[-1][0] - where_centre))) <= MOVING_TOLERANCE_PX:
         return None
-    return extent
+    return extent, row_shifts
 
 
 def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[float], list]
