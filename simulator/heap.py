@@ -63,6 +63,16 @@ def users_thresholds(environ: Mapping[str, str]) -> bool:
     """Tell whether ``environ`` holds malloc thresholds (or malloc tunables) of the user's (module doc).
 
     Any threshold variable or ``malloc.`` tunable counts, except dask's nanny trim threshold alone.
+
+    Parameters
+    ----------
+    environ : mapping of str to str
+        A process environment.
+
+    Returns
+    -------
+    bool
+        True when the user's malloc settings must stand.
     """
     if "malloc." in environ.get("GLIBC_TUNABLES", ""):
         return True
@@ -71,14 +81,28 @@ def users_thresholds(environ: Mapping[str, str]) -> bool:
 
 
 def thresholds_in_environment(environ: Mapping[str, str]) -> bool:
-    """Tell whether ``environ`` sets exactly this module's thresholds (glibc applied them at the process's start)."""
+    """Tell whether ``environ`` sets exactly this module's thresholds (glibc applied them at the process's start).
+
+    Parameters
+    ----------
+    environ : mapping of str to str
+        A process environment.
+
+    Returns
+    -------
+    bool
+        True when both threshold variables hold :data:`CASE_PROCESS_ENVIRONMENT`'s values.
+    """
     return all(environ.get(name) == CASE_PROCESS_ENVIRONMENT[name] for name in THRESHOLD_VARIABLES)
 
 
 def case_process_environment(environ: Mapping[str, str] | None = None) -> dict[str, str]:
     """Give the glibc malloc variables to start a process for cases with (module doc).
 
-    ``environ`` is the environment the process would otherwise inherit (default: this process's).
+    Parameters
+    ----------
+    environ : mapping of str to str, optional
+        The environment the process would otherwise inherit (default: this process's).
 
     Returns
     -------

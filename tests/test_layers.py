@@ -179,6 +179,12 @@ LAZY_BY_DESIGN = {
     "campaign.commands": "each command loads its own stack when it runs: a read-only command only what it reads",
     "dimes_velocity": "DimesEstimator and estimate_velocity load the estimator (its compiled passes: numba, which "
                       "imports scipy) on first use: reading an estimator's table (dimes_velocity.config) loads none",
+    "simulator.off_nominal.dust": "the dust map's compiled pass (dust_pairs: numba, which imports scipy) loads when a "
+                                  "map is made: declaring [scene.off_nominal] imports the particle types only",
+    "simulator.off_nominal.moving_shadows": "the ground map (its compiled passes) loads when shadows are placed or "
+                                            "drawn: declaring [scene.off_nominal] loads no numba",
+    "simulator.scene.ground_mapping": "the fused node-grid passes (node_grid_fused: numba) load with the first ground "
+                                      "map: the atmosphere's table, declared through scene_config, imports this module",
 }
 
 

@@ -42,7 +42,15 @@ def new_state(fields: int = 1) -> np.ndarray:
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def add_row(values, state):
-    """Fold one C-contiguous float32 row into a field's state (uint32 (3,), updated in place)."""
+    """Fold one C-contiguous float32 row into a field's state.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,), float32
+        The row (C-contiguous).
+    state : ndarray, shape (3,), uint32
+        Smallest and largest bit pattern so far and the OR of all of them; updated in place.
+    """
     words = values.view(np.uint32)
     low, high, seen = state[0], state[1], state[2]
     for col in range(words.shape[0]):

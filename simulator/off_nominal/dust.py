@@ -48,7 +48,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
@@ -239,59 +238,6 @@ def _node_beam_centres_m(camera: Camera, distance_m: float) -> tuple[np.ndarray,
     return cache[key]
 
 
-@njit(cache=True, nogil=True)
-def _near_pairs(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii: np.ndarray, pupil: float,
-                particles: np.ndarray, row0: np.ndarray, row1: np.ndarray, col0: np.ndarray,
-                col1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The (node, particle) pairs whose beam and particle discs overlap, particle by particle, each box row-major.
-
-    Parameters
-    ----------
-    x, y : ndarray, shape (ny, nx)
-        Beam centres of the nodes on the front element (m).
-    positions : ndarray, shape (n, 2)
-        Particle centres (m).
-    radii : ndarray, shape (n,)
-        Particle radii (m).
-    pupil : float
-        Beam (entrance pupil) radius (m).
-    particles : ndarray, shape (k,), int64
-        The particles to pair, in order.
-    row0, row1, col0, col1 : ndarray, shape (k,), int64
-        Each particle's box of nodes (end exclusive; empty when end <= start).
-
-    Returns
-    -------
-    node : ndarray, int64
-        Flat node index of each overlapping pair.
-    radius : ndarray
-        The pair's particle radius (m).
-    separation : ndarray
-        Distance between the beam centre and the particle centre (m).
-    """
-    total = 0
-    for index in range(particles.size):
-        total += max(row1[index] - row0[index], 0) * max(col1[index] - col0[index], 0)
-    node = np.empty(total, dtype=np.int64)
-    radius = np.empty(total)
-    separation = np.empty(total)
-    count = 0
-    width = x.shape[1]
-    for index in range(particles.size):
-        particle = particles[index]
-        centre_x, centre_y, particle_radius = positions[particle, 0], positions[particle, 1], radii[particle]
-        reach = pupil + particle_radius
-        for row in range(row0[index], row1[index]):
-            for col in range(col0[index], col1[index]):
-                distance = np.hypot(x[row, col] - centre_x, y[row, col] - centre_y)
-                if distance < reach:
-                    node[count] = row * width + col
-                    radius[count] = particle_radius
-                    separation[count] = distance
-                    count += 1
-    return node[:count], radius[:count], separation[:count]
-
-
 def transmission_map(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
     """Relative transmission of every pixel, evaluated on the node grid and interpolated (module doc).
 
@@ -327,7 +273,9 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
     row0 = np.maximum(((centres[seen, 1] - half - first) / NODE_STEP_PX).astype(np.int64), 0)
     row1 = np.minimum(((centres[seen, 1] + half - first) / NODE_STEP_PX).astype(np.int64) + 2, x.shape[0])
     nodes: np.ndarray = np.ones(x.shape, dtype=np.float32)
-    node, radius, separation = _near_pairs(np.ascontiguousarray(x), np.ascontiguousarray(y), positions, radii,
+    from simulator.off_nominal.dust_pairs import near_pairs  # numba: loaded when a map is made, not with the config
+
+    node, radius, separation = near_pairs(np.ascontiguousarray(x), np.ascontiguousarray(y), positions, radii,
                                            float(pupil), seen.astype(np.int64), row0, row1, col0, col1)
     if node.size:
         core = separation <= np.abs(pupil - radius)

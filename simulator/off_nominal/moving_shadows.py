@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -45,8 +46,10 @@ from pydantic import Field
 
 from config_tables.models import ConfigModel
 from flight_interface.camera import Camera
-from simulator.scene import ground_mapping
 from simulator.scene.descent_profile import DescentProfile
+
+if TYPE_CHECKING:
+    from simulator.scene import ground_mapping
 
 EDGE_FRACTION = 0.1          # diffuse edge of the dust, as a fraction of the caster's diameter
 PLACEMENT_FRAME_FRACTION = 0.8
@@ -239,6 +242,8 @@ class MovingShadows:
         metres_per_pixel : float
             Grid spacing (m).
         """
+        from simulator.scene import ground_mapping  # numba-compiled passes: loaded by rendering, not the config
+
         height, width = radiance.shape
         shift = self.velocity_mps * (time_s - self.reference_time_s)
         angles = np.linspace(0.0, 2 * np.pi, RING_POINTS, endpoint=False)
@@ -386,6 +391,8 @@ def _may_overlap_footprint(camera: Camera, pose: ground_mapping.CameraPose, outl
     False only when the bounding box of a shadow's outline (k, 2) and that of the image's ground
     footprint (from its border pixels) are disjoint; True when a border ray misses the ground.
     """
+    from simulator.scene import ground_mapping
+
     footprint, hit = ground_mapping.footprint_m(camera, pose, per_side=4)
     if not hit.all():
         return True
@@ -420,6 +427,8 @@ def place_moving_shadows(draws: MovingShadowDraws, config: MovingShadowsConfig, 
     MovingShadows
         The placed shadows.
     """
+    from simulator.scene import ground_mapping
+
     reference_s = camera.timing.exposure_mid_time_s(float(profile.image_times_s[len(profile.image_times_s) // 2]))
     pose = profile.pose(float(np.clip(reference_s, profile.time_s[0], profile.time_s[-1])))
     cam = ground_mapping.camera_pose(camera, pose)

@@ -12,7 +12,7 @@ scaled to unit boresight component, which makes them exactly affine in pixel coo
 distortion-free camera, so the interpolation is exact there and the horizon stays sharp (the division is
 per pixel). Lens distortion adds a small smooth residual (measured by the tests and the benchmark).
 With no sky in view the interpolation and the divisions are one compiled pass that writes only the map
-(:func:`simulator.scene.node_grid.divided_node_planes`: OpenCV's arithmetic, the same bits).
+(:func:`simulator.scene.node_grid_fused.divided_node_planes`: OpenCV's arithmetic, the same bits).
 ``grid_step_px = 0`` uses every cached pixel ray (reference): the numerators ``P_c``, ``P_r`` and
 ``d_z`` are linear forms of the camera-frame ray, so each is one ``cv2.transform`` of the cached
 (H, W, 3) float32 rays with a 1 x 3 matrix (the rotation folded into the form) instead of rotating
@@ -36,13 +36,7 @@ from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.derived_cache import DERIVED
 from simulator.scene.descent_profile import Pose, unit_quat
-from simulator.scene.node_grid import (
-    divided_node_planes,
-    fused_passes_match_opencv,
-    interpolate_nodes_window,
-    node_positions,
-    upsample_nodes,
-)
+from simulator.scene.node_grid import interpolate_nodes_window, node_positions, upsample_nodes
 from simulator.scratch import scratch
 
 HORIZON_EPSILON = 1e-6      # |d_z| below this (unit ray) counts as sky
@@ -294,6 +288,8 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
     camera, one camera per supersampling offset - are read from memory once per pose instead of once
     per form.
     """
+    from simulator.scene import node_grid_fused  # numba: loaded by rendering, not with the configuration
+
     height, width = camera.height_px, camera.width_px
     altitude = float(pose.ray_origin_m[2])
     inv_mpp = 1.0 / metres_per_pixel
@@ -307,11 +303,11 @@ def map_to_ground_grid(camera: Camera, pose: CameraPose, grid_origin_m: tuple[fl
         # interpolation is a convex combination: all nodes below the horizon -> every pixel is
         unit_dz_max = float(np.max(dz_nodes / np.linalg.norm(nodes, axis=-1)))
         any_sky = altitude <= 0 or unit_dz_max >= -HORIZON_EPSILON
-        if not any_sky and fused_passes_match_opencv(height, width, grid_step_px):
+        if not any_sky and node_grid_fused.fused_passes_match_opencv(height, width, grid_step_px):
             # no sky: the planes are interpolated and divided in one pass, never written upsampled (node_grid)
             col, row = ((scratch(name, (height, width)) if scratch_maps else np.empty((height, width), np.float32))
                         for name in ("map_col_out", "map_row_out"))
-            divided_node_planes(planes[0], planes[1], planes[2], grid_step_px, col, row)
+            node_grid_fused.divided_node_planes(planes[0], planes[1], planes[2], grid_step_px, col, row)
             return GroundMap(col, row, np.zeros((height, width), dtype=bool), False, grid_step_px, nodes)
         col_num, row_num, dz = (upsample_nodes(plane, grid_step_px, height, width, scratch_name=name)
                                 for plane, name in zip(planes, COARSE_PLANE_SCRATCH))

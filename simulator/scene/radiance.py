@@ -36,7 +36,7 @@ from simulator.scene import (
     atmosphere,
     ground_mapping,
     heat_shield,
-    node_grid,
+    node_grid_fused,
     photometry,
     relief,
     resample,
@@ -438,11 +438,11 @@ def radiance_at_pose(terrain: Terrain, camera: Camera, pose: Pose, sun_world: np
     moc_value = terrain_moc_model(terrain) if effects.photometric_correction else None
     # no sky, coarse photometry: the pixel-area filter and the ratio's interpolation and product are one pass
     fused_ratio = (area_filter and not gmap.any_sky and moc_value is not None and not config.atmosphere.enabled
-                   and photo_step > 0 and node_grid.fused_passes_match_opencv(*gmap.col.shape, photo_step,
+                   and photo_step > 0 and node_grid_fused.fused_passes_match_opencv(*gmap.col.shape, photo_step,
                                                                                 PIXEL_AREA_TAPS))
     if fused_ratio:
         assert moc_value is not None
-        moc_if = node_grid.area_filtered_times_nodes(
+        moc_if = node_grid_fused.area_filtered_times_nodes(
             moc_if, PIXEL_AREA_KERNEL, photometric_ratio_nodes(camera, cam, gmap, sun, moc_value / scale, photo_step),
             photo_step)
     elif area_filter:

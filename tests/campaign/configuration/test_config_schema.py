@@ -90,7 +90,7 @@ def test_schema_command_prints_one_table_or_all(capsys):
 
 
 def test_the_schema_loads_only_what_the_tables_declare():
-    """Declaring every table imports no numerical or run stack: scipy, dask, pandas, pyarrow and matplotlib are
+    """Declaring every table imports no numerical or run stack: scipy, numba, dask, pandas, pyarrow and matplotlib are
     loaded by the functions that compute, read or run with them (`campaign schema` answers in well under a
     second: benchmarks/bench_cli.py)."""
     import subprocess
@@ -99,7 +99,7 @@ def test_the_schema_loads_only_what_the_tables_declare():
     probe = ("import sys\nfrom campaign.configuration.schemas import SCHEMA_TABLES, schema_model\n"
              "models = [schema_model(name) for name in SCHEMA_TABLES]\n"
              "print(sorted({name.split('.')[0] for name in sys.modules} & "
-             "{'scipy', 'dask', 'distributed', 'pandas', 'pyarrow', 'matplotlib'}))")
+             "{'scipy', 'numba', 'dask', 'distributed', 'pandas', 'pyarrow', 'matplotlib'}))")
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=REPO, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "[]", result.stdout

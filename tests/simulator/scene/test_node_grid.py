@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from flight_interface.camera import load_camera
-from simulator.scene import ground_mapping, node_grid, radiance
+from simulator.scene import ground_mapping, node_grid, node_grid_fused, radiance
 from simulator.scene.descent_profile import constant_velocity_profile
 from simulator.scene.terrain import Terrain
 from simulator.scene_config import SceneConfig
@@ -30,12 +30,12 @@ def test_divided_planes_are_the_quotient_of_the_interpolated_planes():
     numerator_col, numerator_row = 40.0 + 0.5 * cols - 0.25 * rows, -7.0 + 0.125 * rows
     denominator = -1.0 - 1e-4 * cols - 2e-4 * rows
     col, row = np.empty((1024, 1024), np.float32), np.empty((1024, 1024), np.float32)
-    node_grid.divided_node_planes(numerator_col, numerator_row, denominator, STEP, col, row)
+    node_grid_fused.divided_node_planes(numerator_col, numerator_row, denominator, STEP, col, row)
     pixel_cols, pixel_rows = np.meshgrid(np.arange(1024.0), np.arange(1024.0))
     divisor = -1.0 - 1e-4 * pixel_cols - 2e-4 * pixel_rows
     np.testing.assert_allclose(col, (40.0 + 0.5 * pixel_cols - 0.25 * pixel_rows) / divisor, rtol=2e-6, atol=2e-4)
     np.testing.assert_allclose(row, (-7.0 + 0.125 * pixel_rows) / divisor, rtol=2e-6, atol=2e-4)
-    if node_grid.fused_passes_match_opencv(1024, 1024, STEP):
+    if node_grid_fused.fused_passes_match_opencv(1024, 1024, STEP):
         upsampled = [node_grid.upsample_nodes(plane, STEP, 1024, 1024)
                      for plane in (numerator_col, numerator_row, denominator)]
         np.testing.assert_array_equal(col.view(np.uint32), cv2.divide(upsampled[0], upsampled[2]).view(np.uint32))
@@ -48,22 +48,22 @@ def test_area_filter_times_nodes_is_the_filter_written_out_times_the_interpolate
     samples = rng.uniform(0.05, 0.35, (1024, 1024)).astype(np.float32)
     cols, rows = _node_grid()
     factor_nodes = 1.3 + 1e-4 * cols - 5e-5 * rows
-    got = node_grid.area_filtered_times_nodes(samples, radiance.PIXEL_AREA_KERNEL, factor_nodes, STEP)
+    got = node_grid_fused.area_filtered_times_nodes(samples, radiance.PIXEL_AREA_KERNEL, factor_nodes, STEP)
     padded = np.pad(samples.astype(np.float64), 1, mode="edge")
     across = (padded[:, :-2] + 22.0 * padded[:, 1:-1] + padded[:, 2:]) / 24.0
     filtered = (across[:-2] + 22.0 * across[1:-1] + across[2:]) / 24.0
     pixel_cols, pixel_rows = np.meshgrid(np.arange(1024.0), np.arange(1024.0))
     np.testing.assert_allclose(got, filtered * (1.3 + 1e-4 * pixel_cols - 5e-5 * pixel_rows), rtol=2e-6)
     taps = tuple(float(tap) for tap in radiance.PIXEL_AREA_KERNEL)
-    if node_grid.fused_passes_match_opencv(1024, 1024, STEP, taps):
+    if node_grid_fused.fused_passes_match_opencv(1024, 1024, STEP, taps):
         separate = radiance.pixel_area_average(samples) * node_grid.upsample_nodes(factor_nodes, STEP, 1024, 1024)
         np.testing.assert_array_equal(got.view(np.uint32), separate.view(np.uint32))
 
 
 def test_fused_passes_refuse_what_they_do_not_cover():
-    assert not node_grid.fused_passes_match_opencv(1024, 1024, 1)          # no interpolation to fuse
+    assert not node_grid_fused.fused_passes_match_opencv(1024, 1024, 1)          # no interpolation to fuse
     with pytest.raises(ValueError, match="symmetric"):
-        node_grid.area_filtered_times_nodes(np.ones((8, 8), np.float32), np.array([1.0, 2.0, 3.0], np.float32),
+        node_grid_fused.area_filtered_times_nodes(np.ones((8, 8), np.float32), np.array([1.0, 2.0, 3.0], np.float32),
                                             np.ones((3, 3)), 8)
 
 
@@ -84,8 +84,7 @@ def test_a_pose_renders_the_same_bits_with_and_without_the_fused_passes(monkeypa
                                                  (-half, half), mpp, STEP).any_sky
     fused = radiance.radiance_at_pose(terrain, CAMERA, pose, sun, config)
     radiance_fused, outside_fused = fused.radiance.copy(), fused.outside.copy()
-    monkeypatch.setattr(node_grid, "fused_passes_match_opencv", lambda *args: False)
-    monkeypatch.setattr(ground_mapping, "fused_passes_match_opencv", lambda *args: False)
+    monkeypatch.setattr(node_grid_fused, "fused_passes_match_opencv", lambda *args: False)
     separate = radiance.radiance_at_pose(terrain, CAMERA, pose, sun, config)
     np.testing.assert_array_equal(radiance_fused.view(np.uint32), separate.radiance.view(np.uint32))
     np.testing.assert_array_equal(outside_fused, separate.outside)
