@@ -25,7 +25,9 @@ def _thread_settings(dask_worker) -> dict:
                                                                      "MKL_NUM_THREADS")},
             "profiler_config": dask.config.get("distributed.worker.profile.enabled"),
             "profiler_callbacks": sorted(name for name in dask_worker.periodic_callbacks if "profile" in name),
-            "dask_threads": dask_worker.state.nthreads}
+            "dask_threads": dask_worker.state.nthreads,
+            "housekeeping_ms": {name: dask_worker.periodic_callbacks[name].callback_time
+                                for name in ("tick", "monitor", "memory_monitor")}}
 
 
 @pytest.mark.cluster
@@ -37,6 +39,8 @@ def test_embedded_worker_is_single_threaded_before_its_first_case():
     assert settings["environment"] == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     assert settings["profiler_config"] is False and settings["profiler_callbacks"] == []
     assert settings["dask_threads"] == 1
+    # dask's housekeeping wakes the worker seldom (cluster.HOUSEKEEPING_DASK_CONFIG), its memory limit still watched
+    assert settings["housekeeping_ms"] == {"tick": 1000, "monitor": 2000, "memory_monitor": 250}
 
 
 def test_workers_started_elsewhere_get_the_same_settings():
