@@ -33,8 +33,9 @@ campaign overrides any answer to invalid; ``truth.json`` says so):
                OUT/estimators/NAME/answer.json OUT/image_1.png ...`` (:mod:`estimators.run_python`: the callable
                on the same arrays, read-only, with a deep copy of its parameters; ``ROOT`` is where the
                campaign imported its module from)
-``command``    in ``OUT/estimators/NAME``, the entry's ``argv`` with its placeholders filled
-               exactly as a worker fills them (:func:`estimators.command.write_inputs`: images in its
+``command``    in ``OUT/estimators/NAME``, the entry's ``argv`` with ``{images}``, ``{measurements}``,
+               ``{camera}``, ``{flat_field}``, ``{parameters}``, ``{output}``, ``{workdir}`` and ``{python}``
+               replaced by the written files' paths exactly as a worker replaces them (:func:`estimators.command.write_inputs`: images in its
                ``image_format``, the flat field in its ``flat_field_format``, ``parameters.json``,
                ``camera.toml``), so the program reads the same files and writes ``result.json`` there
 

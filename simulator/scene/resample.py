@@ -183,6 +183,7 @@ def warped_field(field_w_m2_sr_um: np.ndarray, flow: np.ndarray, interpolation: 
     ndarray, shape (H', W'), float32
         The warped field.
     """
-    # one two-channel map with map2=None: an OpenCV form the cv2 type stubs do not declare
+    # OpenCV's documented float-map form: one two-channel CV_32FC2 map and map2=None. The cv2 stubs type map2
+    # as required (hence the ignore); an empty array in its place gives other bits under INTER_LINEAR.
     return cv2.remap(field_w_m2_sr_um, flow, None, interpolation=interpolation,  # type: ignore[call-overload]
                      borderMode=cv2.BORDER_REPLICATE)
