@@ -406,6 +406,43 @@ def checked_block_rate_sums(radiance: np.ndarray, gain: np.ndarray, binning_rows
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
+def add_row_to_block(values, gains, first, block_plain, block_ramp, with_field, block_field):
+    """Add one frame row's rate ``values x gains`` to its binning block's running sums (in place).
+
+    Parameters
+    ----------
+    values, gains : ndarray, shape (W,), float32
+        The row's radiance and gain.
+    first : bool
+        The block's first row read (the sums start from it).
+    block_plain, block_ramp : ndarray, shape (W,), float32
+        The block's plain rate sum and its ramp-weighted sum (the running sum of the plain sums).
+    with_field : bool
+        Also add the row's values to ``block_field``.
+    block_field : ndarray, shape (W,), float32
+        The block's sum of ``values`` (unused unless ``with_field``).
+    """
+    width = values.shape[0]
+    if first:
+        for col in range(width):
+            product = values[col] * gains[col]
+            block_plain[col] = product
+            block_ramp[col] = product
+    else:
+        for col in range(width):
+            total = block_plain[col] + values[col] * gains[col]
+            block_plain[col] = total
+            block_ramp[col] += total
+    if with_field:
+        if first:
+            for col in range(width):
+                block_field[col] = values[col]
+        else:
+            for col in range(width):
+                block_field[col] += values[col]
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
 def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_offset, ramp_offset, add_offset,
                             plain, ramp, with_sums, field_sums, bit_state):
     """:func:`checked_block_rate_sums`' pass.
@@ -420,24 +457,8 @@ def _block_rate_sums_kernel(field, gain, binning_rows, toward_last_row, plain_of
         block_field = field_sums[block if with_sums else 0]
         for offset in range(binning_rows):
             row = image_block * binning_rows + (offset if toward_last_row else binning_rows - 1 - offset)
-            values, gains = field[row], gain[row]
-            if offset == 0:
-                for col in range(width):
-                    product = values[col] * gains[col]
-                    block_plain[col] = product
-                    block_ramp[col] = product
-            else:
-                for col in range(width):
-                    total = block_plain[col] + values[col] * gains[col]
-                    block_plain[col] = total
-                    block_ramp[col] += total
-            if with_sums:
-                if offset == 0:
-                    for col in range(width):
-                        block_field[col] = values[col]
-                else:
-                    for col in range(width):
-                        block_field[col] += values[col]
+            values = field[row]
+            add_row_to_block(values, gain[row], offset == 0, block_plain, block_ramp, with_sums, block_field)
             float_bits.add_row(values, bit_state)
         if add_offset:
             for col in range(width):

@@ -56,6 +56,7 @@ from flight_interface.camera import Camera
 from flight_interface.camera_file import MAX_WAVEFRONT_ERROR_WAVES
 from simulator.derived_cache import DERIVED
 from simulator.detector import float_bits
+from simulator.detector.charge_transfer import add_row_to_block
 from simulator.fields import RadianceFields
 from simulator.scratch import scratch
 
@@ -545,25 +546,9 @@ def _field_rate_sums(field, gain, binning_rows, plain, ramp, field_sums, with_fi
     rows, cols = field.shape
     for frame_row in range(rows):
         block, offset = frame_row // binning_rows, frame_row % binning_rows
-        values, gains, block_plain, block_ramp = field[frame_row], gain[frame_row], plain[block], ramp[block]
-        if offset == 0:
-            for col in range(cols):
-                product = values[col] * gains[col]
-                block_plain[col] = product
-                block_ramp[col] = product
-        else:
-            for col in range(cols):
-                total = block_plain[col] + values[col] * gains[col]
-                block_plain[col] = total
-                block_ramp[col] += total
-        if with_field:
-            block_field = field_sums[block]
-            if offset == 0:
-                for col in range(cols):
-                    block_field[col] = values[col]
-            else:
-                for col in range(cols):
-                    block_field[col] += values[col]
+        values, block_plain, block_ramp = field[frame_row], plain[block], ramp[block]
+        add_row_to_block(values, gain[frame_row], offset == 0, block_plain, block_ramp, with_field,
+                         field_sums[block if with_field else 0])
         float_bits.add_row(values, bit_state)
         if offset == binning_rows - 1 and plain_offset != 0.0:
             for col in range(cols):
