@@ -304,6 +304,38 @@ def upsample_nodes(nodes: np.ndarray, height_px: int, width_px: int) -> np.ndarr
     return pixels
 
 
+def _band_log_transmission(band_terms: np.ndarray, pupil_m: float, pupil_area_m2: float) -> np.ndarray:
+    """Log of the light left in the beam by each transition-band pair: :func:`lens_area`'s last steps, in place.
+
+    ``log(clip(1 - (R^2 acos(cos_a) + a^2 acos(cos_b) - half_root) / (pi R^2), 0, 1))``, each step the
+    arithmetic of ``lens_area`` and of the blocked fraction (numpy's arc cosine and log).
+
+    Parameters
+    ----------
+    band_terms : ndarray, shape (4, b)
+        ``cos_a``, ``cos_b``, ``a^2`` (m^2), ``half_root`` (m^2) per band pair
+        (:func:`simulator.off_nominal.dust_pairs.overlapping_nodes`); overwritten.
+    pupil_m : float
+        Beam (entrance pupil) radius R (m).
+    pupil_area_m2 : float
+        Beam area ``pi R^2`` (m^2).
+
+    Returns
+    -------
+    ndarray, shape (b,)
+        Natural log of the transmitted fraction (-inf where nothing passes); a view of ``band_terms``.
+    """
+    cos_a, cos_b, radius_squared, half_root = band_terms
+    lens = np.arccos(cos_a, out=cos_a)
+    lens *= np.asarray(pupil_m) ** 2
+    lens += np.multiply(radius_squared, np.arccos(cos_b, out=cos_b), out=cos_b)
+    lens -= half_root
+    lens /= pupil_area_m2
+    transmitted = np.subtract(1.0, lens, out=lens)
+    with np.errstate(divide="ignore"):
+        return np.log(np.clip(transmitted, 0.0, 1.0, out=transmitted), out=transmitted)
+
+
 def transmission_map(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
     """Relative transmission of every pixel, evaluated on the node grid and interpolated (module doc).
 
@@ -339,7 +371,7 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
     row1 = np.minimum(((centres[seen, 1] + half - first) / NODE_STEP_PX).astype(np.int64) + 2, x.shape[0])
     from simulator.off_nominal.dust_pairs import node_log_sums, overlapping_nodes  # numba: with a map, not the config
 
-    core_nodes, core_end, band_nodes, band_radius, band_separation, band_end = overlapping_nodes(
+    core_nodes, core_end, band_nodes, band_terms, band_end = overlapping_nodes(
         np.ascontiguousarray(x), np.ascontiguousarray(y), positions, radii, float(pupil), seen.astype(np.int64),
         row0, row1, col0, col1)
     if not (core_nodes.size or band_nodes.size):     # no beam overlaps a particle (all outside the frame)
@@ -347,7 +379,7 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
     pupil_area = np.pi * pupil**2
     with np.errstate(divide="ignore"):     # a black core (a > R) is log 0 = -inf: transmission 0
         core_log = np.log(np.clip(1.0 - np.pi * np.minimum(pupil, radii[seen])**2 / pupil_area, 0.0, 1.0))
-        band_log = np.log(np.clip(1.0 - lens_area(pupil, band_radius, band_separation) / pupil_area, 0.0, 1.0))
+        band_log = _band_log_transmission(band_terms, float(pupil), pupil_area)
     log_sum = node_log_sums(x.size, core_log, core_nodes, core_end, band_nodes, band_log, band_end)
     nodes = np.exp(log_sum).reshape(x.shape).astype(np.float32)
     return upsample_nodes(nodes, camera.height_px, camera.width_px)

@@ -1,8 +1,8 @@
 """The dust map's compiled passes: which node beams each particle overlaps, then the nodes' log-transmission sums.
 
-:func:`simulator.off_nominal.dust.transmission_map` calls :func:`overlapping_nodes`, evaluates the transition
-band's lens areas with numpy (its vectorised ``arccos`` and ``log``, several times faster than one libm call per
-pair), then :func:`node_log_sums`.
+:func:`simulator.off_nominal.dust.transmission_map` calls :func:`overlapping_nodes` (which also does the transition
+band's lens-area arithmetic up to the arc cosines), takes the arc cosines and logs with numpy (vectorised: several
+times faster than one libm call per pair, and numpy's bits), then :func:`node_log_sums`.
 
 Kept apart from :mod:`simulator.off_nominal.dust` so that declaring ``[scene.off_nominal]`` (which imports the
 dust module's particle types) loads no numba: :func:`~simulator.off_nominal.dust.transmission_map` imports this
@@ -23,14 +23,18 @@ SQUARED_MARGIN = 1e-9
 @njit(cache=True, nogil=True)
 def overlapping_nodes(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii: np.ndarray, pupil: float,
                       particles: np.ndarray, row0: np.ndarray, row1: np.ndarray, col0: np.ndarray,
-                      col1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                 np.ndarray]:
+                      col1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The nodes whose beam disc each particle's disc overlaps, split into the shadow's core and transition band.
 
     A pair overlaps when the separation ``s = hypot(node - particle)`` is below ``pupil + radius``; it is in the
     core when ``s <= |pupil - radius|`` (one disc inside the other: the blocked area is the smaller disc), in the
     band otherwise (the blocked area is the lens of two crossing circles). Particles in the given order, each box
-    row by row.
+    row by row. For a band pair, the terms of :func:`simulator.off_nominal.dust.lens_area` (same arithmetic, step
+    for step; ``R`` the pupil, ``a`` the radius)::
+
+        lens = R^2 acos(cos_a) + a^2 acos(cos_b) - half_root
+        cos_a = clip((s^2 + R^2 - a^2) / (2 s R), -1, 1),  cos_b = clip((s^2 + a^2 - R^2) / (2 s a), -1, 1)
+        half_root = sqrt(max((-s + R + a)(s + R - a)(s - R + a)(s + R + a), 0)) / 2
 
     Parameters
     ----------
@@ -55,10 +59,8 @@ def overlapping_nodes(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii
         End of each particle's run in ``core_nodes`` (particle i's run starts at ``core_end[i - 1]``, or 0).
     band_nodes : ndarray, shape (b,), int32
         Flat node index of each band pair.
-    band_radius : ndarray, shape (b,)
-        The band pair's particle radius (m).
-    band_separation : ndarray, shape (b,)
-        The band pair's separation ``s`` (m).
+    band_terms : ndarray, shape (4, b)
+        Per band pair: ``cos_a``, ``cos_b``, ``a^2`` (m^2) and ``half_root`` (m^2).
     band_end : ndarray, shape (k,), int64
         End of each particle's run in the band arrays.
     """
@@ -67,8 +69,7 @@ def overlapping_nodes(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii
         box_nodes += max(row1[index] - row0[index], 0) * max(col1[index] - col0[index], 0)
     core_nodes = np.empty(box_nodes, dtype=np.int32)
     band_nodes = np.empty(box_nodes, dtype=np.int32)
-    band_radius = np.empty(box_nodes)
-    band_separation = np.empty(box_nodes)
+    band_terms = np.empty((4, box_nodes))
     core_end = np.empty(particles.size, dtype=np.int64)
     band_end = np.empty(particles.size, dtype=np.int64)
     core_count = band_count = 0
@@ -80,6 +81,7 @@ def overlapping_nodes(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii
         core_edge = abs(pupil - particle_radius)
         reach_squared_bound = reach * reach * (1.0 + SQUARED_MARGIN)
         core_squared_bound = core_edge * core_edge * (1.0 - SQUARED_MARGIN)
+        pupil_squared, radius_squared = pupil * pupil, particle_radius * particle_radius
         for row in range(row0[index], row1[index]):
             for col in range(col0[index], col1[index]):
                 offset_x, offset_y = x[row, col] - centre_x, y[row, col] - centre_y
@@ -92,16 +94,23 @@ def overlapping_nodes(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii
                         continue
                     if distance > core_edge:
                         band_nodes[band_count] = row * width + col
-                        band_radius[band_count] = particle_radius
-                        band_separation[band_count] = distance
+                        separation_squared = distance * distance
+                        band_terms[0, band_count] = min(max(
+                            (separation_squared + pupil_squared - radius_squared) / (2.0 * distance * pupil), -1.0), 1.0)
+                        band_terms[1, band_count] = min(max(
+                            (separation_squared + radius_squared - pupil_squared) / (2.0 * distance * particle_radius),
+                            -1.0), 1.0)
+                        kite = ((-distance + pupil + particle_radius) * (distance + pupil - particle_radius)
+                                * (distance - pupil + particle_radius) * (distance + pupil + particle_radius))
+                        band_terms[2, band_count] = radius_squared
+                        band_terms[3, band_count] = 0.5 * np.sqrt(max(kite, 0.0))
                         band_count += 1
                         continue
                 core_nodes[core_count] = row * width + col
                 core_count += 1
         core_end[index] = core_count
         band_end[index] = band_count
-    return (core_nodes[:core_count], core_end, band_nodes[:band_count], band_radius[:band_count],
-            band_separation[:band_count], band_end)
+    return core_nodes[:core_count], core_end, band_nodes[:band_count], band_terms[:, :band_count], band_end
 
 
 @njit(cache=True, nogil=True)
