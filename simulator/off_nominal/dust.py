@@ -36,7 +36,9 @@ the particle is hundreds of wavelengths across and ~5000 pupil-to-wavelength Fre
 
 Cost: the map is evaluated on nodes every :data:`NODE_STEP_PX` pixels (one node beyond each edge), each
 particle touching only the nodes in the bounding box of its shadow, and interpolated bilinearly to every
-pixel once (one full-frame pass per case, whatever the particle count). The shadow is smooth on that
+pixel once (one full-frame pass per case, whatever the particle count). The nodes take two compiled passes
+(:mod:`simulator.off_nominal.dust_pairs`: each particle's core and band nodes, then the log sums particle by
+particle) around numpy's arc cosines and logs of the band pairs. The shadow is smooth on that
 scale: its transition band is ``2 a f_px / d`` pixels wide (~23 px at the mean diameter) and a band
 narrower than the node step belongs to a particle whose depth ``(a / R)^2`` is below 1e-3; measured
 against the per-pixel evaluation (:func:`transmission_map_exact`) on 100-particle populations: max
@@ -156,32 +158,6 @@ def clear_aperture_radius_m(camera: Camera, distance_m: float) -> float:
     return float(np.hypot(x, y).max()) + entrance_pupil_radius_m(camera)
 
 
-def lens_area(radius_a: float | np.ndarray, radius_b: float | np.ndarray, separation) -> np.ndarray:
-    """Intersection area of two discs whose circles cross, ``|radius_a - radius_b| < separation < radius_a + radius_b``.
-
-    ``a^2 acos(cos_a) + b^2 acos(cos_b) - sqrt((-s + a + b)(s + a - b)(s - a + b)(s + a + b)) / 2`` with
-    ``cos_a = (s^2 + a^2 - b^2) / (2 s a)``, ``cos_b = (s^2 + b^2 - a^2) / (2 s b)`` (each clipped to [-1, 1]).
-
-    Parameters
-    ----------
-    radius_a, radius_b : float or ndarray
-        Radii a, b of the discs (any one length unit).
-    separation : float or ndarray
-        Distance s between their centres (same unit); arrays broadcast.
-
-    Returns
-    -------
-    ndarray
-        Area (the unit squared).
-    """
-    ra, rb = np.asarray(radius_a, dtype=float), np.asarray(radius_b, dtype=float)
-    s = np.asarray(separation, dtype=float)
-    cos_a = np.clip((s**2 + ra**2 - rb**2) / (2 * s * ra), -1.0, 1.0)
-    cos_b = np.clip((s**2 + rb**2 - ra**2) / (2 * s * rb), -1.0, 1.0)
-    kite = (-s + ra + rb) * (s + ra - rb) * (s - ra + rb) * (s + ra + rb)
-    return ra**2 * np.arccos(cos_a) + rb**2 * np.arccos(cos_b) - 0.5 * np.sqrt(np.maximum(kite, 0.0))
-
-
 def overlap_area(radius_a: float | np.ndarray, radius_b: float | np.ndarray, separation) -> np.ndarray:
     """Intersection area of two discs.
 
@@ -195,15 +171,18 @@ def overlap_area(radius_a: float | np.ndarray, radius_b: float | np.ndarray, sep
     Returns
     -------
     ndarray
-        Area (the unit squared): 0 for discs apart, the smaller disc's area for one inside the other,
-        :func:`lens_area` between.
+        Area (the unit squared).
     """
     ra, rb = np.asarray(radius_a, dtype=float), np.asarray(radius_b, dtype=float)
     s = np.asarray(separation, dtype=float)
     small, large = np.minimum(ra, rb), np.maximum(ra, rb)
     inside = s <= large - small
     apart = s >= ra + rb
-    lens = lens_area(ra, rb, np.where(inside | apart, 1.0, s))
+    safe = np.where(inside | apart, 1.0, s)
+    cos_a = np.clip((safe**2 + ra**2 - rb**2) / (2 * safe * ra), -1.0, 1.0)
+    cos_b = np.clip((safe**2 + rb**2 - ra**2) / (2 * safe * rb), -1.0, 1.0)
+    kite = (-safe + ra + rb) * (safe + ra - rb) * (safe - ra + rb) * (safe + ra + rb)
+    lens = ra**2 * np.arccos(cos_a) + rb**2 * np.arccos(cos_b) - 0.5 * np.sqrt(np.maximum(kite, 0.0))
     return np.where(apart, 0.0, np.where(inside, np.pi * small**2, lens))
 
 
@@ -281,9 +260,9 @@ def upsample_nodes(nodes: np.ndarray, height_px: int, width_px: int) -> np.ndarr
     Parameters
     ----------
     nodes : ndarray, shape (ny, nx), float32
-        Node values, ``ny = H / step + 2``, ``nx = W / step + 2`` (step :data:`NODE_STEP_PX`).
+        Node values, ``ny = H // step + 2``, ``nx = W // step + 2`` (step :data:`NODE_STEP_PX`).
     height_px, width_px : int
-        Image size H, W (pixels, multiples of the step).
+        Image size H, W (pixels; a size that is no multiple of the step takes the full resize).
 
     Returns
     -------
@@ -292,6 +271,9 @@ def upsample_nodes(nodes: np.ndarray, height_px: int, width_px: int) -> np.ndarr
     """
     step = NODE_STEP_PX
     node_rows, node_cols = nodes.shape
+    if height_px % step or width_px % step:      # the inner nodes would not span the frame at the step's scale
+        full = cv2.resize(nodes, (node_cols * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
+        return np.ascontiguousarray(full[step:step + height_px, step:step + width_px])
     pixels = cv2.resize(nodes[1:-1, 1:-1], (width_px, height_px), interpolation=cv2.INTER_LINEAR)
     top = cv2.resize(nodes[:3], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
     bottom = cv2.resize(nodes[-3:], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
@@ -305,10 +287,10 @@ def upsample_nodes(nodes: np.ndarray, height_px: int, width_px: int) -> np.ndarr
 
 
 def _band_log_transmission(band_terms: np.ndarray, pupil_m: float, pupil_area_m2: float) -> np.ndarray:
-    """Log of the light left in the beam by each transition-band pair: :func:`lens_area`'s last steps, in place.
+    """Log of the light left in the beam by each transition-band pair: the last steps of the lens area, in place.
 
     ``log(clip(1 - (R^2 acos(cos_a) + a^2 acos(cos_b) - half_root) / (pi R^2), 0, 1))``, each step the
-    arithmetic of ``lens_area`` and of the blocked fraction (numpy's arc cosine and log).
+    arithmetic of :func:`overlap_area`'s lens and of the blocked fraction (numpy's arc cosine and log).
 
     Parameters
     ----------

@@ -29,8 +29,8 @@ def overlapping_nodes(x: np.ndarray, y: np.ndarray, positions: np.ndarray, radii
     A pair overlaps when the separation ``s = hypot(node - particle)`` is below ``pupil + radius``; it is in the
     core when ``s <= |pupil - radius|`` (one disc inside the other: the blocked area is the smaller disc), in the
     band otherwise (the blocked area is the lens of two crossing circles). Particles in the given order, each box
-    row by row. For a band pair, the terms of :func:`simulator.off_nominal.dust.lens_area` (same arithmetic, step
-    for step; ``R`` the pupil, ``a`` the radius)::
+    row by row. For a band pair, the terms of the lens area of :func:`simulator.off_nominal.dust.overlap_area`
+    (same arithmetic, step for step; ``R`` the pupil, ``a`` the radius)::
 
         lens = R^2 acos(cos_a) + a^2 acos(cos_b) - half_root
         cos_a = clip((s^2 + R^2 - a^2) / (2 s R), -1, 1),  cos_b = clip((s^2 + a^2 - R^2) / (2 s a), -1, 1)

@@ -186,6 +186,9 @@ def test_upsampling_equals_the_full_resize_and_interpolates_linear_ramps_exactly
         nodes = (rng.random((258, 258)) ** rng.uniform(0.2, 5.0)).astype(np.float32)
         full = cv2.resize(nodes, (258 * step, 258 * step), interpolation=cv2.INTER_LINEAR)
         assert np.array_equal(dust.upsample_nodes(nodes, 1024, 1024), full[step:step + 1024, step:step + 1024])
+    nodes = rng.random((1022 // step + 2, 1026 // step + 2)).astype(np.float32)   # sizes off the step: full resize
+    full = cv2.resize(nodes, (nodes.shape[1] * step, nodes.shape[0] * step), interpolation=cv2.INTER_LINEAR)
+    assert np.array_equal(dust.upsample_nodes(nodes, 1022, 1026), full[step:step + 1022, step:step + 1026])
     # node k sits at pixel (k + 0.5) step - 0.5, k from -1: a ramp over the nodes is the same ramp over the pixels
     node_col = np.arange(258) - 1.0
     nodes = (0.5 + 1e-3 * ((node_col + 0.5) * step - 0.5))[None, :].repeat(258, axis=0).astype(np.float32)
