@@ -36,7 +36,9 @@ the particle is hundreds of wavelengths across and ~5000 pupil-to-wavelength Fre
 
 Cost: the map is evaluated on nodes every :data:`NODE_STEP_PX` pixels (one node beyond each edge), each
 particle touching only the nodes in the bounding box of its shadow, and interpolated bilinearly to every
-pixel once (one full-frame pass per case, whatever the particle count). The shadow is smooth on that
+pixel once (one full-frame pass per case, whatever the particle count). The nodes take two compiled passes
+(:mod:`simulator.off_nominal.dust_pairs`: each particle's core and band nodes, then the log sums particle by
+particle) around numpy's arc cosines and logs of the band pairs. The shadow is smooth on that
 scale: its transition band is ``2 a f_px / d`` pixels wide (~23 px at the mean diameter) and a band
 narrower than the node step belongs to a particle whose depth ``(a / R)^2`` is below 1e-3; measured
 against the per-pixel evaluation (:func:`transmission_map_exact`) on 100-particle populations: max
@@ -238,6 +240,84 @@ def _node_beam_centres_m(camera: Camera, distance_m: float) -> tuple[np.ndarray,
     return cache[key]
 
 
+def _map_optics(camera: Camera) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+    """The camera's constants of a map (cached per camera): pupil radius (m), focal length (px), axis basis."""
+    cache = DERIVED.of(camera, "dust")
+    if "optics" not in cache:
+        cache["optics"] = (entrance_pupil_radius_m(camera), max(camera.model.hs, camera.model.vs),
+                           *_axis_basis(camera))
+    return cache["optics"]
+
+
+def upsample_nodes(nodes: np.ndarray, height_px: int, width_px: int) -> np.ndarray:
+    """Bilinear interpolation of the node grid to the pixels (node k at pixel ``(k + 0.5) step - 0.5``, k from -1).
+
+    The values of ``cv2.resize(nodes, (nx step, ny step), INTER_LINEAR)[step:step + H, step:step + W]``, made
+    without the full (ny step, nx step) image: a resize of the inner nodes straight to the (H, W) pixels (same
+    sample positions), whose two outer rows and columns, which also weigh the outer nodes, come from resizes of
+    the three outer node rows and columns.
+
+    Parameters
+    ----------
+    nodes : ndarray, shape (ny, nx), float32
+        Node values, ``ny = H // step + 2``, ``nx = W // step + 2`` (step :data:`NODE_STEP_PX`).
+    height_px, width_px : int
+        Image size H, W (pixels; a size that is no multiple of the step takes the full resize).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Interpolated values.
+    """
+    step = NODE_STEP_PX
+    node_rows, node_cols = nodes.shape
+    if height_px % step or width_px % step:      # the inner nodes would not span the frame at the step's scale
+        full = cv2.resize(nodes, (node_cols * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
+        return np.ascontiguousarray(full[step:step + height_px, step:step + width_px])
+    pixels = cv2.resize(nodes[1:-1, 1:-1], (width_px, height_px), interpolation=cv2.INTER_LINEAR)
+    top = cv2.resize(nodes[:3], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
+    bottom = cv2.resize(nodes[-3:], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
+    left = cv2.resize(nodes[:, :3], (3 * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
+    right = cv2.resize(nodes[:, -3:], (3 * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
+    pixels[:2] = top[step:step + 2, step:step + width_px]
+    pixels[-2:] = bottom[2 * step - 2:2 * step, step:step + width_px]
+    pixels[:, :2] = left[step:step + height_px, step:step + 2]
+    pixels[:, -2:] = right[step:step + height_px, 2 * step - 2:2 * step]
+    return pixels
+
+
+def _band_log_transmission(band_terms: np.ndarray, pupil_m: float, pupil_area_m2: float) -> np.ndarray:
+    """Log of the light left in the beam by each transition-band pair: the last steps of the lens area, in place.
+
+    ``log(clip(1 - (R^2 acos(cos_a) + a^2 acos(cos_b) - half_root) / (pi R^2), 0, 1))``, each step the
+    arithmetic of :func:`overlap_area`'s lens and of the blocked fraction (numpy's arc cosine and log).
+
+    Parameters
+    ----------
+    band_terms : ndarray, shape (4, b)
+        ``cos_a``, ``cos_b``, ``a^2`` (m^2), ``half_root`` (m^2) per band pair
+        (:func:`simulator.off_nominal.dust_pairs.overlapping_nodes`); overwritten.
+    pupil_m : float
+        Beam (entrance pupil) radius R (m).
+    pupil_area_m2 : float
+        Beam area ``pi R^2`` (m^2).
+
+    Returns
+    -------
+    ndarray, shape (b,)
+        Natural log of the transmitted fraction (-inf where nothing passes); a view of ``band_terms``.
+    """
+    cos_a, cos_b, radius_squared, half_root = band_terms
+    lens = np.arccos(cos_a, out=cos_a)
+    lens *= np.asarray(pupil_m) ** 2
+    lens += np.multiply(radius_squared, np.arccos(cos_b, out=cos_b), out=cos_b)
+    lens -= half_root
+    lens /= pupil_area_m2
+    transmitted = np.subtract(1.0, lens, out=lens)
+    with np.errstate(divide="ignore"):
+        return np.log(np.clip(transmitted, 0.0, 1.0, out=transmitted), out=transmitted)
+
+
 def transmission_map(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:
     """Relative transmission of every pixel, evaluated on the node grid and interpolated (module doc).
 
@@ -256,41 +336,35 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
         Transmission, 1 where no particle shadows the pixel's beam.
     """
     x, y, first = _node_beam_centres_m(camera, distance_m)
-    pupil = entrance_pupil_radius_m(camera)
-    e1, e2, axis = _axis_basis(camera)
-    focal_px = max(camera.model.hs, camera.model.vs)
+    pupil, focal_px, e1, e2, axis = _map_optics(camera)
     radii = 0.5 * np.asarray(particles.diameters_m, dtype=float)
     positions = np.asarray(particles.positions_m, dtype=float).reshape(-1, 2)
     directions = (positions[:, :1] * e1 + positions[:, 1:] * e2) / distance_m + axis
     centres, in_front = cahvor.project(camera.model, camera.model.c + directions)
-    # every (particle, node) pair in the particles' shadow boxes (particle by particle, each box row by row: the
-    # order of the sums below); only the pairs whose discs overlap block light (the others add log 1 = 0: the
-    # same sums); of those, only the transition band needs the lens area, the core blocks the particle's whole disc
     seen = np.flatnonzero(np.atleast_1d(in_front))
+    if not seen.size:
+        return np.ones((camera.height_px, camera.width_px), dtype=np.float32)
+    # each particle's box of nodes (its shadow's bounding box); the compiled pass lists the nodes whose beam the
+    # particle overlaps, in its shadow's core (blocking the smaller disc) or transition band (a lens area)
     half = 1.1 * (pupil + radii[seen]) / distance_m * focal_px + 3.0 + NODE_STEP_PX
     col0 = np.maximum(((centres[seen, 0] - half - first) / NODE_STEP_PX).astype(np.int64), 0)
     col1 = np.minimum(((centres[seen, 0] + half - first) / NODE_STEP_PX).astype(np.int64) + 2, x.shape[1])
     row0 = np.maximum(((centres[seen, 1] - half - first) / NODE_STEP_PX).astype(np.int64), 0)
     row1 = np.minimum(((centres[seen, 1] + half - first) / NODE_STEP_PX).astype(np.int64) + 2, x.shape[0])
-    nodes: np.ndarray = np.ones(x.shape, dtype=np.float32)
-    from simulator.off_nominal.dust_pairs import near_pairs  # numba: loaded when a map is made, not with the config
+    from simulator.off_nominal.dust_pairs import node_log_sums, overlapping_nodes  # numba: with a map, not the config
 
-    node, radius, separation = near_pairs(np.ascontiguousarray(x), np.ascontiguousarray(y), positions, radii,
-                                           float(pupil), seen.astype(np.int64), row0, row1, col0, col1)
-    if node.size:
-        core = separation <= np.abs(pupil - radius)
-        blocked = np.empty(separation.shape)
-        blocked[core] = np.pi * np.minimum(pupil, radius[core])**2 / (np.pi * pupil**2)
-        band = ~core
-        blocked[band] = overlap_area(pupil, radius[band], separation[band]) / (np.pi * pupil**2)
-        with np.errstate(divide="ignore"):     # a black core (a > R) is log 0 = -inf: transmission 0
-            log_sum = np.bincount(node, weights=np.log(np.clip(1.0 - blocked, 0.0, 1.0)), minlength=x.size)
-        nodes = np.exp(log_sum).reshape(x.shape).astype(np.float32)
-    step = NODE_STEP_PX
-    node_rows, node_cols = nodes.shape
-    big = cv2.resize(nodes.astype(np.float32), (node_cols * step, node_rows * step),
-                     interpolation=cv2.INTER_LINEAR)
-    return np.ascontiguousarray(big[step:step + camera.height_px, step:step + camera.width_px])
+    core_nodes, core_end, band_nodes, band_terms, band_end = overlapping_nodes(
+        np.ascontiguousarray(x), np.ascontiguousarray(y), positions, radii, float(pupil), seen.astype(np.int64),
+        row0, row1, col0, col1)
+    if not (core_nodes.size or band_nodes.size):     # no beam overlaps a particle (all outside the frame)
+        return np.ones((camera.height_px, camera.width_px), dtype=np.float32)
+    pupil_area = np.pi * pupil**2
+    with np.errstate(divide="ignore"):     # a black core (a > R) is log 0 = -inf: transmission 0
+        core_log = np.log(np.clip(1.0 - np.pi * np.minimum(pupil, radii[seen])**2 / pupil_area, 0.0, 1.0))
+        band_log = _band_log_transmission(band_terms, float(pupil), pupil_area)
+    log_sum = node_log_sums(x.size, core_log, core_nodes, core_end, band_nodes, band_log, band_end)
+    nodes = np.exp(log_sum).reshape(x.shape).astype(np.float32)
+    return upsample_nodes(nodes, camera.height_px, camera.width_px)
 
 
 def transmission_map_exact(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -104,6 +105,106 @@ def test_node_grid_transmission_matches_the_per_pixel_map():
         assert exact.min() < 0.9                          # the populations do shadow the image
         difference = np.abs(fast.astype(np.float64) - exact)
         assert difference.max() < 2e-3 and difference.mean() < 1e-4
+
+
+def _pairwise_numpy_map(camera, particles, distance_m):
+    """Reference of the node-grid map: every particle against every node (no boxes) in numpy, the blocked
+    fraction from :func:`dust.overlap_area`, the logs summed particle by particle, the full-size resize cropped."""
+    x, y, _ = dust._node_beam_centres_m(camera, distance_m)
+    pupil = dust.entrance_pupil_radius_m(camera)
+    log_sum = np.zeros(x.shape)
+    for (position_x, position_y), diameter in zip(particles.positions_m, particles.diameters_m):
+        separation = np.hypot(x - position_x, y - position_y)
+        overlapping = separation < pupil + 0.5 * diameter
+        blocked = dust.overlap_area(pupil, 0.5 * diameter, separation[overlapping]) / (np.pi * pupil**2)
+        with np.errstate(divide="ignore"):
+            log_sum[overlapping] += np.log(np.clip(1.0 - blocked, 0.0, 1.0))
+    nodes = np.exp(log_sum).astype(np.float32)
+    step = dust.NODE_STEP_PX
+    full = cv2.resize(nodes, (nodes.shape[1] * step, nodes.shape[0] * step), interpolation=cv2.INTER_LINEAR)
+    return full[step:step + camera.height_px, step:step + camera.width_px]
+
+
+@pytest.mark.parametrize("seed, count, diameter_scale_m, diameter_max_m", [
+    (11, 100, 150e-6, 1e-3), (12, 250, 150e-6, 1e-3), (13, 40, 600e-6, 4e-3)])   # the last with black cores
+def test_node_grid_map_equals_the_pairwise_numpy_sums(seed, count, diameter_scale_m, diameter_max_m):
+    """The compiled passes (boxes, core / band split, numpy lens areas, sums in particle order) give the bits of
+    the plain every-pair numpy evaluation of the same node grid."""
+    particles = dust.draw_particles(CAMERA, np.random.default_rng(seed), count, diameter_scale_m, diameter_max_m,
+                                    8e-3)
+    fast = dust.transmission_map(CAMERA, particles, 8e-3)
+    reference = _pairwise_numpy_map(CAMERA, particles, 8e-3)
+    assert fast.dtype == np.float32 and fast.flags.c_contiguous and fast.shape == (1024, 1024)
+    assert reference.min() < 0.9
+    if diameter_scale_m > 200e-6:
+        assert reference.min() == 0.0                     # a black core (particle wider than the pupil)
+    assert np.array_equal(fast, reference)
+
+
+def test_compiled_passes_give_the_closed_form_blocked_fraction():
+    """One particle against nodes at chosen separations: the core blocks the particle's (or the beam's) whole
+    disc, the band the lens area (the classic chord form, not the code's), nothing beyond the reach."""
+    from simulator.off_nominal.dust_pairs import node_log_sums, overlapping_nodes
+
+    pupil = 0.6e-3
+    pupil_area = np.pi * pupil**2
+    for radius in (0.2e-3, 0.9e-3):
+        separations = np.array([0.0, 0.5, 0.99, 1.01, 1.3, 1.7, 1.99, 2.01, 3.0]) * abs(pupil - radius)
+        separations = np.concatenate([separations, np.linspace(abs(pupil - radius), pupil + radius, 41)[1:-1],
+                                      [pupil + radius, 1.2 * (pupil + radius)]])
+        x = (separations + 2e-3)[None, :]                 # one row of node beams, the particle at (2 mm, 1 mm)
+        y = np.full_like(x, 1e-3)
+        separations = np.hypot(x[0] - 2e-3, y[0] - 1e-3)  # as placed (rounding of the sums)
+        with np.errstate(divide="ignore"):                # the black core of the wide particle: log 0
+            core_log = np.log(np.clip(np.array([1.0 - min(radius, pupil) ** 2 / pupil**2]), 0.0, 1.0))
+        core_nodes, core_end, band_nodes, band_terms, band_end = overlapping_nodes(
+            x, y, np.array([[2e-3, 1e-3]]), np.array([radius]), pupil, np.array([0]), np.array([0]), np.array([1]),
+            np.array([0]), np.array([x.size]))
+        band_log = dust._band_log_transmission(band_terms, pupil, pupil_area)
+        transmission = np.exp(node_log_sums(x.size, core_log, core_nodes, core_end, band_nodes, band_log, band_end))
+        # lens of crossing circles: the common chord at distance d1 from the pupil's centre, d2 from the particle's
+        core = separations <= abs(pupil - radius)
+        band = ~core & (separations < pupil + radius)
+        s = separations[band]
+        d1 = (s**2 + pupil**2 - radius**2) / (2 * s)
+        d2 = s - d1
+        lens = (pupil**2 * np.arccos(d1 / pupil) - d1 * np.sqrt(pupil**2 - d1**2)
+                + radius**2 * np.arccos(d2 / radius) - d2 * np.sqrt(radius**2 - d2**2))
+        expected = np.ones(separations.size)
+        expected[core] = 1.0 - min(radius, pupil) ** 2 / pupil**2
+        expected[band] = 1.0 - lens / pupil_area
+        assert core.sum() >= 3 and band.sum() >= 40 and (~core & ~band).sum() >= 2
+        assert np.allclose(transmission, expected, rtol=0.0, atol=1e-9)
+        assert core_nodes.size == core.sum() and band_nodes.size == band.sum()
+        assert np.all(transmission[separations >= pupil + radius] == 1.0)
+
+
+def test_upsampling_equals_the_full_resize_and_interpolates_linear_ramps_exactly():
+    rng = np.random.default_rng(3)
+    step = dust.NODE_STEP_PX
+    for _ in range(20):
+        nodes = (rng.random((258, 258)) ** rng.uniform(0.2, 5.0)).astype(np.float32)
+        full = cv2.resize(nodes, (258 * step, 258 * step), interpolation=cv2.INTER_LINEAR)
+        assert np.array_equal(dust.upsample_nodes(nodes, 1024, 1024), full[step:step + 1024, step:step + 1024])
+    nodes = rng.random((1022 // step + 2, 1026 // step + 2)).astype(np.float32)   # sizes off the step: full resize
+    full = cv2.resize(nodes, (nodes.shape[1] * step, nodes.shape[0] * step), interpolation=cv2.INTER_LINEAR)
+    assert np.array_equal(dust.upsample_nodes(nodes, 1022, 1026), full[step:step + 1022, step:step + 1026])
+    # node k sits at pixel (k + 0.5) step - 0.5, k from -1: a ramp over the nodes is the same ramp over the pixels
+    node_col = np.arange(258) - 1.0
+    nodes = (0.5 + 1e-3 * ((node_col + 0.5) * step - 0.5))[None, :].repeat(258, axis=0).astype(np.float32)
+    pixels = dust.upsample_nodes(nodes, 1024, 1024)
+    assert np.allclose(pixels, (0.5 + 1e-3 * np.arange(1024.0))[None, :], rtol=0.0, atol=1e-6)
+    assert np.allclose(dust.upsample_nodes(np.ascontiguousarray(nodes.T), 1024, 1024),
+                       (0.5 + 1e-3 * np.arange(1024.0))[:, None], rtol=0.0, atol=1e-6)
+
+
+def test_particles_off_the_frame_or_none_leave_the_map_clear():
+    far = dust.DustParticles(np.array([[0.05, 0.05], [-0.04, 0.0]]), np.array([300e-6, 300e-6]))
+    none = dust.DustParticles(np.zeros((0, 2)), np.zeros(0))
+    for particles in (far, none):
+        transmission = dust.transmission_map(CAMERA, particles, 8e-3)
+        assert transmission.dtype == np.float32 and transmission.shape == (1024, 1024)
+        assert np.all(transmission == 1.0)
 
 
 def test_dust_darkens_the_photoelectron_rate_after_falloff():
