@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from flight_interface.camera_file import Electronics
-from simulator.detector import coupled_poisson
+from simulator.detector import coupled_poisson, opencv_normal
 from simulator.scratch import scratch
 
 
@@ -134,9 +134,14 @@ def standard_normal_f32(rng: np.random.Generator, shape: tuple[int, ...], out: n
         Samples of N(0, 1).
     """
     samples = np.empty(shape, dtype=np.float32) if out is None else out
-    cv2.setRNGSeed(int(rng.integers(1, 2**31 - 1)))
+    cv2.setRNGSeed(_opencv_seed(rng))
     cv2.randn(samples, 0.0, 1.0)  # type: ignore[call-overload]  # cv2 stubs want array mean/stddev; scalars work
     return samples
+
+
+def _opencv_seed(rng: np.random.Generator) -> int:
+    """The OpenCV seed of one image's normal draws: one draw of ``rng`` in 1 .. 2^31 - 2."""
+    return int(rng.integers(1, 2**31 - 1))
 
 
 def read_noise_e(rng: np.random.Generator, shape: tuple[int, ...], sigma_e: float) -> np.ndarray:
@@ -231,18 +236,24 @@ def read_out_dn(rng: np.random.Generator, mean_e: np.ndarray, electronics: Elect
         noisy = noisy_charge_e(rng, mean_e, electronics.read_noise_e, shot_noise, read_noise, exact_poisson)
         return digitize(noisy, electronics), expected_dn(mean_e, electronics)
     mean_f32 = np.ascontiguousarray(mean_e, dtype=np.float32)
-    noisy = standard_normal_f32(rng, mean_f32.shape, out=scratch("readout_noisy", mean_f32.shape))  # -> charge (e-)
     dn = np.empty(mean_f32.shape, dtype=np.uint16)
     expected = np.empty(mean_f32.shape, dtype=np.float32)
     gain, offset, full_well, max_dn = _adc_constants(electronics)
-    low_count = _gaussian_read_out_kernel(mean_f32, noisy, np.float32(read_sigma ** 2), np.float32(GAUSSIAN_MIN_MEAN_E),
-                                          full_well, gain, offset, max_dn, _expected_dn_top(electronics), dn, expected)
+    read_variance, gaussian_min, top = np.float32(read_sigma ** 2), np.float32(GAUSSIAN_MIN_MEAN_E), _expected_dn_top(electronics)
+    if mean_f32.ndim == 2 and opencv_normal.generator_matches_opencv(*mean_f32.shape):
+        low_count = _fused_gaussian_read_out_kernel(mean_f32, _opencv_seed(rng), opencv_normal.ZIGGURAT_K,
+                                                    opencv_normal.ZIGGURAT_W, opencv_normal.ZIGGURAT_F, read_variance,
+                                                    gaussian_min, full_well, gain, offset, max_dn, top, dn, expected)
+    else:
+        noisy = standard_normal_f32(rng, mean_f32.shape, out=scratch("readout_noisy", mean_f32.shape))
+        low_count = _gaussian_read_out_kernel(mean_f32, noisy, read_variance, gaussian_min, full_well, gain, offset,
+                                              max_dn, top, dn, expected)
     if low_count:
         mean = np.maximum(mean_f32, np.float32(0.0))
-        low = mean < np.float32(GAUSSIAN_MIN_MEAN_E)
+        low = mean < gaussian_min
         dim = shot_noise_e(rng, mean[low].astype(np.float64))
-        noisy[low] = dim + read_noise_e(rng, dim.shape, read_sigma) if read_sigma else dim
-        dn[low] = _dn_of_charge(noisy[low], electronics)
+        charge = (dim + read_noise_e(rng, dim.shape, read_sigma) if read_sigma else dim).astype(np.float32)
+        dn[low] = _dn_of_charge(charge, electronics)
     return dn, expected
 
 
@@ -273,30 +284,78 @@ def _dn_value(charge, gain, offset):
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
+def _read_out_pixel(mean_e, draw, read_variance, full_well, gain, offset, max_dn, top):
+    """One pixel of the default read-out: ``(charge (e-), DN, expected DN)`` from its mean and normal draw.
+
+    ``mean + sqrt(mean + read variance) x draw`` (mean clipped at 0, float32 as the numpy form), then full
+    well, gain, offset, rounding to nearest even and the ADC range; the expected DN of the unclipped mean.
+    """
+    zero = np.float32(0.0)
+    mean = max(mean_e, zero)
+    charge = draw * np.sqrt(mean + read_variance) + mean
+    value = np.rint(_dn_value(min(charge, full_well), gain, offset))
+    count = np.uint16(min(max(value, zero), np.float32(max_dn)))
+    level = _dn_value(mean_e, gain, offset)
+    return charge, count, min(max(level, zero), top)
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
 def _gaussian_read_out_kernel(mean_e, noisy, read_variance, gaussian_min, full_well, gain, offset, max_dn, top,
                               dn, expected):
     """The default read-out in one pass; returns how many pixels have a mean below ``gaussian_min``.
 
-    ``noisy`` (standard normal draws on entry) becomes ``mean + sqrt(mean + read variance) x draw`` (mean
-    clipped at 0, float32 as the numpy form), then full well, gain, offset, rounding to nearest even, the
-    ADC range; the expected DN alongside. The pixels below ``gaussian_min`` are the caller's to redraw
+    ``noisy`` (standard normal draws on entry) becomes the charge of :func:`_read_out_pixel`, ``dn`` and
+    ``expected`` its DN and expected DN. The pixels below ``gaussian_min`` are the caller's to redraw
     (exact Poisson).
     """
     rows, width = mean_e.shape
     low = 0
-    zero = np.float32(0.0)
     for row in range(rows):
         means, draws, counts, expectation = mean_e[row], noisy[row], dn[row], expected[row]
         for col in range(width):
-            mean = max(means[col], zero)
-            if mean < gaussian_min:
+            if max(means[col], np.float32(0.0)) < gaussian_min:
                 low += 1
-            charge = draws[col] * np.sqrt(mean + read_variance) + mean
-            draws[col] = charge
-            value = np.rint(_dn_value(min(charge, full_well), gain, offset))
-            counts[col] = np.uint16(min(max(value, zero), np.float32(max_dn)))
-            level = _dn_value(means[col], gain, offset)
-            expectation[col] = min(max(level, zero), top)
+            draws[col], counts[col], expectation[col] = _read_out_pixel(means[col], draws[col], read_variance,
+                                                                        full_well, gain, offset, max_dn, top)
+    return low
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _fused_gaussian_read_out_kernel(mean_e, seed, ziggurat_k, ziggurat_w, ziggurat_f, read_variance, gaussian_min,
+                                    full_well, gain, offset, max_dn, top, dn, expected):
+    """:func:`_gaussian_read_out_kernel` drawing its normals itself: OpenCV's ``randn`` from ``seed``, row-major.
+
+    Parameters
+    ----------
+    mean_e : ndarray, float32, shape (rows, width)
+        Expected charge (e-).
+    seed : int
+        OpenCV seed of the draws (what :func:`standard_normal_f32` passes to ``cv2.setRNGSeed``).
+    ziggurat_k, ziggurat_w, ziggurat_f : ndarray uint32, float32, float32, shape (128,)
+        :func:`simulator.detector.opencv_normal.ziggurat_tables`.
+    read_variance, gaussian_min, full_well, gain, offset, max_dn, top
+        As :func:`_gaussian_read_out_kernel` (e-^2, e-, e-, DN/e-, DN, DN, DN).
+    dn, expected : ndarray uint16 and float32, shape (rows, width)
+        Written: the DN and the expected DN.
+
+    Returns
+    -------
+    int
+        How many pixels have a mean below ``gaussian_min`` (the caller's to redraw).
+    """
+    rows, width = mean_e.shape
+    low = 0
+    state = np.uint64(seed)
+    draws = np.empty(width, dtype=np.float32)         # one row's draws (stays in L1)
+    for row in range(rows):
+        for col in range(width):
+            draws[col], state = opencv_normal.standard_normal(state, ziggurat_k, ziggurat_w, ziggurat_f)
+        means, counts, expectation = mean_e[row], dn[row], expected[row]
+        for col in range(width):
+            if max(means[col], np.float32(0.0)) < gaussian_min:
+                low += 1
+            _, counts[col], expectation[col] = _read_out_pixel(means[col], draws[col], read_variance, full_well, gain,
+                                                               offset, max_dn, top)
     return low
 
 
