@@ -50,12 +50,14 @@ def ziggurat_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Returns
     -------
     (k, w, f) : ndarray uint32, ndarray float32, ndarray float32, each shape (128,)
-        ``k[i]``: acceptance bound of strip ``i`` on ``|hz|`` (a 31-bit fraction of the strip's width;
-        ``k[1] = 0`` sends every draw of strip 1 to its wedge); ``w[i]``: the strip's width over 2^31 (a
-        sample is ``hz * w[i]``); ``f[i]``: the normal density ``exp(-x_i^2 / 2)`` at the strip's edge.
+        Strip ``i`` (1 .. 127, ``x_i`` increasing with ``i`` up to ``x_127 = r``) spans ``|x| <= x_i``:
+        ``w[i] = x_i / 2^31`` (a sample is ``hz * w[i]``), ``f[i] = exp(-x_i^2 / 2)`` (``f[0] = 1``), and
+        ``k[i] = 2^31 x_(i-1) / x_i`` bounds the draws accepted at once, ``|hz| < k[i]`` (``k[1] = 0``: every
+        draw of strip 1 goes to its wedge). Strip 0 is the base: ``w[0]`` and ``k[0]`` from its equivalent
+        width ``v / f(r)``.
     """
     scale = 2147483648.0                      # 2^31
-    edge = 3.442619855899                     # right edge of the top strip (the tail start r, in double)
+    edge = 3.442619855899                     # x_127: the outermost strip's edge, the tail start r in double
     previous_edge = edge
     strip_area = 9.91256303526217e-3
     k = np.zeros(128, dtype=np.uint32)
