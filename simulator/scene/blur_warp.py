@@ -77,6 +77,7 @@ integration of the reference preset: ``make bench`` (offnominal rows) and tests/
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -194,20 +195,36 @@ def _flows(camera: Camera, source: ground_mapping.CameraPose,
         point lies behind the source camera. One projection serves every group (the small arrays of
         the checks cost numpy's per-call overhead, not arithmetic).
     """
+    pixels = _flat_flows(camera, source, groups)
+    if pixels is None:
+        return None
+    if len(groups) == 1:
+        return [pixels]
+    parts, start = [], 0
+    for _, rays in groups:          # views of the one projection, each shaped as its group's rays
+        stop = start + rays.size // 3
+        parts.append(pixels[start:stop].reshape(*rays.shape[:-1], 2))
+        start = stop
+    return parts
+
+
+def _flat_flows(camera: Camera, source: ground_mapping.CameraPose,
+                groups: list[tuple[ground_mapping.CameraPose, np.ndarray]]) -> np.ndarray | None:
+    """:func:`_flows` before the split: every group's source pixels in group order, (n, 2).
+
+    Shaped as the one group's rays (..., 2) when there is one group; None as :func:`_flows`.
+    """
     points = []
     for target, rays in groups:
         world = rays @ target.camera_to_world.T
-        if not (target.ray_origin_m[2] > 0 and np.all(world[..., 2] < -ground_mapping.HORIZON_EPSILON)):
+        down = world[..., 2]
+        origin = target.ray_origin_m
+        if not (origin[2] > 0 and bool((down < -ground_mapping.HORIZON_EPSILON).all())):
             return None
-        points.append(target.ray_origin_m + (-target.ray_origin_m[2] / world[..., 2])[..., None] * world)
+        points.append(origin + (-origin[2] / down)[..., None] * world)
     flat = points[0] if len(points) == 1 else np.concatenate([item.reshape(-1, 3) for item in points])
     pixels, in_front = ground_mapping.world_to_pixels(camera, source, flat)
-    if not bool(np.all(in_front)):
-        return None
-    if len(points) == 1:
-        return [pixels]
-    ends = np.cumsum([item[..., 0].size for item in points])[:-1]
-    return [part.reshape(*item.shape[:-1], 2) for part, item in zip(np.split(pixels, ends), points)]
+    return pixels if bool(in_front.all()) else None
 
 
 def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
@@ -217,8 +234,7 @@ def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: grou
     Camera-frame ``rays`` of the pixels when known; None when any of them sees the sky or lands behind the camera.
     """
     rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) if rays is None else rays
-    flows = _flows(camera, source, [(target, rays)])
-    return None if flows is None else flows[0]
+    return _flat_flows(camera, source, [(target, rays)])
 
 
 def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, np.ndarray]]
@@ -227,8 +243,12 @@ def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, n
     in_camera = np.concatenate([(np.asarray(points, dtype=float) - pose.frame_origin_m) @ pose.camera_to_world
                                 for pose, points in items])
     pixels, in_front = cahvor.project(camera.model, in_camera)
-    ends = np.cumsum([len(points) for _, points in items])[:-1]
-    return list(zip(np.split(pixels, ends), np.split(in_front, ends)))
+    parts, start = [], 0
+    for _, points in items:
+        stop = start + len(points)
+        parts.append((pixels[start:stop], in_front[start:stop]))
+        start = stop
+    return parts
 
 
 def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, int]],
@@ -268,6 +288,14 @@ def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, 
     return maps
 
 
+@functools.lru_cache(maxsize=16)
+def _checked_leaves(count: int) -> np.ndarray:
+    """:meth:`_Plan.checked_leaves` of a sub-pose count (read-only, computed once per count)."""
+    leaves = np.unique(np.linspace(0, count - 1, min(count, CHECKED_LEAVES)).round().astype(int))
+    leaves.setflags(write=False)
+    return leaves
+
+
 class _Plan:
     """Times and exact maps of the doubling scheme for one image (see module doc)."""
 
@@ -305,7 +333,7 @@ class _Plan:
         Both ends and at most CHECKED_LEAVES in all, evenly spread (the composition error varies smoothly
         along the path; measured on the nightly cases).
         """
-        return np.unique(np.linspace(0, self.count - 1, min(self.count, CHECKED_LEAVES)).round().astype(int))
+        return _checked_leaves(self.count)
 
     def composed(self, queries: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
                  ) -> list[tuple[np.ndarray, np.ndarray]] | None:
@@ -325,36 +353,38 @@ class _Plan:
             moves the chosen positions of every query with one unprojection and one projection.
         """
         centre = self.cam_at(self.base_s)
-        firsts = _flows(self.camera, self.cam_at(self.average_centre_s),
-                        [(self.cam_at(0.5 * sum(self.windows[period])), rays) for period, _, _, rays in queries])
-        if firsts is None:
+        # every query's positions in one (n, 2) array, query by query, leaf by leaf: the rows a level moves,
+        # taken in that order, are the concatenation of each query's chosen leaves (one unprojection)
+        first = _flat_flows(self.camera, self.cam_at(self.average_centre_s),
+                            [(self.cam_at(0.5 * sum(self.windows[period])), rays) for period, _, _, rays in queries])
+        if first is None:
             return None
-        positions = [first.copy() for first in firsts]
-        extents = []
-        for first, (_, _, pixels, _) in zip(firsts, queries):
-            offsets = (first - pixels).reshape(-1, 2)
-            extents.append(np.array([np.minimum(offsets.min(axis=0), 0.0), np.maximum(offsets.max(axis=0), 0.0)]))
+        positions = first.reshape(-1, 2)
+        pixels = np.concatenate([query_pixels.reshape(-1, 2) for _, _, query_pixels, _ in queries])
+        leaf_bits = np.concatenate([np.repeat(leaves, query_pixels[0, ..., 0].size)
+                                    for _, leaves, query_pixels, _ in queries]) ^ self.base_index
+        # the offsets of every intermediate position from its pixel, one snapshot per moving level
+        offsets = np.empty((self.levels + 1, *positions.shape))
+        np.subtract(positions, pixels, out=offsets[0])
+        snapshots = 1
         for level in reversed(range(self.levels)):
-            chosen = [((leaves ^ self.base_index) >> level) & 1 == 1 for _, leaves, _, _ in queries]
-            moving = [position[mask] for position, mask in zip(positions, chosen)]
-            sizes = [len(item) for item in moving]
-            if not any(sizes):
+            chosen = (leaf_bits >> level) & 1 == 1
+            if not chosen.any():
                 continue
-            stacked = np.concatenate([item.reshape(-1, 2) for item in moving])
-            moved = _flow_points(self.camera, self.step_pose(level), centre, stacked)
+            moved = _flow_points(self.camera, self.step_pose(level), centre, positions[chosen])
             if moved is None:
                 return None
-            offset = 0
-            for index, (item, mask) in enumerate(zip(moving, chosen)):
-                if not len(item):
-                    continue
-                count = item[..., 0].size
-                positions[index][mask] = moved[offset:offset + count].reshape(item.shape)
-                offset += count
-                offsets = (positions[index] - queries[index][2]).reshape(-1, 2)
-                extents[index][0] = np.minimum(extents[index][0], offsets.min(axis=0))
-                extents[index][1] = np.maximum(extents[index][1], offsets.max(axis=0))
-        return list(zip(positions, extents))
+            positions[chosen] = moved
+            np.subtract(positions, pixels, out=offsets[snapshots])
+            snapshots += 1
+        results, start = [], 0
+        for _, _, query_pixels, _ in queries:
+            stop = start + query_pixels[..., 0].size
+            reached = offsets[:snapshots, start:stop]
+            extent = np.array([np.minimum(reached.min(axis=(0, 1)), 0.0), np.maximum(reached.max(axis=(0, 1)), 0.0)])
+            results.append((positions[start:stop].reshape(query_pixels.shape), extent))
+            start = stop
+        return results
 
 
 def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
@@ -471,12 +501,11 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tupl
         ray misses the ground (then the scene is rendered per sub-pose).
     """
     camera, cam_at = plan.camera, plan.cam_at
-    pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
-    rays = ground_mapping.camera_frame_rays(camera, pixels)
+    pixels, rays = _check_pixels(camera)
     checked = plan.checked_leaves()
     shape = (len(checked), *pixels.shape)
-    queries = [(period, checked, np.broadcast_to(pixels, shape), np.broadcast_to(rays, (*shape[:2], 3)))
-               for period in plan.windows]
+    grid_pixels, grid_rays = np.broadcast_to(pixels, shape), np.broadcast_to(rays, (*shape[:2], 3))
+    queries = [(period, checked, grid_pixels, grid_rays) for period in plan.windows]
     moving = _moving_query(plan, checked, moving_points)
     if moving is not None:
         where_centre, moving_pixels = moving
@@ -487,19 +516,21 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tupl
     centre = cam_at(plan.base_s)
     leaf_times = {period: plan.leaf_times(period) for period in plan.windows}
     # with the exact maps, each level's step (its row motion decides the level's resolution): one projection
-    exact = _flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
-                                    for period in plan.windows for leaf in checked]
-                   + [(plan.step_pose(level), rays) for level in range(plan.levels)])
+    exact = _flat_flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
+                                         for period in plan.windows for leaf in checked]
+                        + [(plan.step_pose(level), rays) for level in range(plan.levels)])
     if exact is None:
         return None
-    row_shifts = [float(np.abs(moved[:, 1] - pixels[:, 1]).max()) for moved in exact[len(exact) - plan.levels:]]
+    exact = exact.reshape(-1, *pixels.shape)      # (periods x checked leaves, then levels, P, 2)
+    row_shifts = np.abs(exact[len(exact) - plan.levels:, :, 1] - pixels[:, 1]).max(axis=1).tolist()
     extent = np.zeros((2, 2))
+    leaves = len(checked)
     for index, period in enumerate(plan.windows):
         positions, period_extent = composed[index]
-        for leaf_index in range(len(checked)):
-            error = float(np.max(np.abs(positions[leaf_index] - exact[index * len(checked) + leaf_index])))
-            if not error <= GROUP_TOLERANCE_PX[period]:
-                return None
+        # the largest error over the period's checked leaves
+        error = float(np.abs(positions - exact[index * leaves:(index + 1) * leaves]).max())
+        if not error <= GROUP_TOLERANCE_PX[period]:
+            return None
         if period != "exposure":      # the smear fields may read up to SMEAR_EDGE_PX beyond the field (edge values)
             period_extent = np.array([np.minimum(period_extent[0] + SMEAR_EDGE_PX, 0.0),
                                       np.maximum(period_extent[1] - SMEAR_EDGE_PX, 0.0)])
@@ -507,6 +538,17 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tupl
     if moving is not None and not float(np.max(np.abs(composed[-1][0] - where_centre))) <= MOVING_TOLERANCE_PX:
         return None
     return extent, row_shifts
+
+
+def _check_pixels(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """The :data:`CHECK_GRID` grid of pixels (P, 2) and their camera-frame unit rays (P, 3), once per camera (read-only)."""
+    cache = ground_mapping.camera_cache(camera)
+    found = cache.get("blur_warp_check_pixels")
+    if found is None:
+        pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
+        pixels.setflags(write=False)
+        found = cache["blur_warp_check_pixels"] = (pixels, ground_mapping.camera_frame_rays(camera, pixels))
+    return found
 
 
 def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[float], list]
