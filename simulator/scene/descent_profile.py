@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from functools import cached_property
 
 import numpy as np
@@ -37,7 +37,7 @@ def unit_quat(quaternion: Sequence[float]) -> list[float]:
     list of 4 float
         The unit quaternion with w >= 0.
     """
-    w, x, y, z = (float(value) for value in quaternion)
+    w, x, y, z = map(float, quaternion)
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if not (norm > 0 and math.isfinite(norm)):
         raise ValueError(f"quaternion (w, x, y, z) must be finite with a non-zero norm; got {quaternion!r}")
@@ -170,25 +170,36 @@ class DescentProfile:
             The interpolated state.
         """
         index, fraction = self._locate(time_s)
+        attitude, rate = self._attitude_and_rate(index, fraction)
+        return self._pose_with(time_s, index, fraction, np.array(attitude), np.array(rate))
+
+    def _attitude_and_rate(self, index: int, fraction: float) -> tuple[list[float], list[float]]:
+        """The slerped attitude quaternion and the interpolated body rate, as floats (:meth:`pose`).
+
+        Between samples ``index`` and ``index + 1`` at ``fraction`` (:meth:`_locate`).
+        """
+        rate = [(1.0 - fraction) * a + fraction * b
+                for a, b in zip(self.angular_rate_radps[index].tolist(), self.angular_rate_radps[index + 1].tolist())]
+        return scalar_slerp(self.attitude_quat[index].tolist(), self.attitude_quat[index + 1].tolist(), fraction), rate
+
+    def _pose_with(self, time_s: float, index: int, fraction: float, attitude_quat: np.ndarray,
+                   angular_rate_radps: np.ndarray) -> Pose:
+        """:meth:`pose` at ``time_s`` (located at ``index``, ``fraction``) with the given attitude and body rate."""
         step = float(self.time_s[index + 1]) - float(self.time_s[index])
         p0, p1 = self.position_m[index].tolist(), self.position_m[index + 1].tolist()
         v0, v1 = self.velocity_mps[index].tolist(), self.velocity_mps[index + 1].tolist()
         s = fraction
         h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
         position = [h00 * a + h10 * step * b + h01 * c + h11 * step * d for a, b, c, d in zip(p0, v0, p1, v1)]
-
-        def lerp(values: np.ndarray) -> np.ndarray:
-            start, end = values[index].tolist(), values[index + 1].tolist()
-            return np.array([(1.0 - fraction) * a + fraction * b for a, b in zip(start, end)])
-
+        shield = self.heat_shield_position_m
         return Pose(
             time_s=float(time_s),
             position_m=np.array(position),
             velocity_mps=np.array([(1.0 - fraction) * a + fraction * b for a, b in zip(v0, v1)]),
-            attitude_quat=np.array(scalar_slerp(self.attitude_quat[index].tolist(),
-                                                self.attitude_quat[index + 1].tolist(), fraction)),
-            angular_rate_radps=lerp(self.angular_rate_radps),
-            heat_shield_position_m=None if self.heat_shield_position_m is None else lerp(self.heat_shield_position_m),
+            attitude_quat=attitude_quat,
+            angular_rate_radps=angular_rate_radps,
+            heat_shield_position_m=None if shield is None else np.array(
+                [(1.0 - fraction) * a + fraction * b for a, b in zip(shield[index].tolist(), shield[index + 1].tolist())]),
         )
 
     def wind_at(self, time_s: float) -> np.ndarray:
@@ -335,6 +346,11 @@ class RateScaledProfile(DescentProfile):
         """Attitude at the (clamped) rate centre: the same for every pose of this profile."""
         return DescentProfile.pose(self, float(np.clip(self.rate_centre_s, self.time_s[0], self.time_s[-1]))).attitude_quat
 
+    @cached_property
+    def _centre_attitude_values(self) -> list[float]:
+        """:attr:`_centre_attitude` as floats."""
+        return self._centre_attitude.tolist()
+
     def pose(self, time_s: float) -> Pose:
         """Lander state at a time, with the rotation about ``rate_centre_s`` scaled.
 
@@ -348,11 +364,11 @@ class RateScaledProfile(DescentProfile):
         Pose
             The state (angular rate times ``rate_multiplier``).
         """
-        base = super().pose(time_s)
+        index, fraction = self._locate(time_s)
+        (bw, bx, by, bz), rate = self._attitude_and_rate(index, fraction)
         # scalar arithmetic (a pose is a handful of numbers; the motion-blur checks ask for ~30 per image):
         # quat_to_rotation_vector(conj(c) * q), scaled by k, quat_from_rotation_vector, c * that, normalised
-        cw, cx, cy, cz = self._centre_attitude.tolist()
-        bw, bx, by, bz = base.attitude_quat.tolist()
+        cw, cx, cy, cz = self._centre_attitude_values
         rw, rx, ry, rz = unit_quat([cw * bw + cx * bx + cy * by + cz * bz, cw * bx - cx * bw - cy * bz + cz * by,
                                     cw * by + cx * bz - cy * bw - cz * bx, cw * bz - cx * by + cy * bx - cz * bw])
         sin_half = math.sqrt(rx * rx + ry * ry + rz * rz)
@@ -364,7 +380,7 @@ class RateScaledProfile(DescentProfile):
         ew, ex, ey, ez = math.cos(half), to_quat * vx, to_quat * vy, to_quat * vz
         attitude = np.array(unit_quat([cw * ew - cx * ex - cy * ey - cz * ez, cw * ex + cx * ew + cy * ez - cz * ey,
                                        cw * ey - cx * ez + cy * ew + cz * ex, cw * ez + cx * ey - cy * ex + cz * ew]))
-        return replace(base, attitude_quat=attitude, angular_rate_radps=self.rate_multiplier * base.angular_rate_radps)
+        return self._pose_with(time_s, index, fraction, attitude, self.rate_multiplier * np.array(rate))
 
 
 def scale_angular_rates(profile: DescentProfile, multiplier: float, centre_time_s: float) -> DescentProfile:
