@@ -272,10 +272,7 @@ def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, 
         Per target, the (column, block row) source pixels of every output pixel (bilinear between nodes
         every :data:`FLOW_STEP_PX` pixels); None when any node ray misses the ground.
     """
-    rows = node_grid.node_positions(camera.height_px, FLOW_STEP_PX)
-    cols = node_grid.node_positions(camera.width_px, FLOW_STEP_PX)
-    grid = np.stack(np.meshgrid(cols, rows), axis=-1)
-    rays = ground_mapping.camera_frame_rays(camera, grid)
+    rays = _node_rays(camera)
     nodes = _flows(camera, source, [(target, rays) for target, _ in targets])
     if nodes is None:
         return None
@@ -294,6 +291,22 @@ def _checked_leaves(count: int) -> np.ndarray:
     leaves = np.unique(np.linspace(0, count - 1, min(count, CHECKED_LEAVES)).round().astype(int))
     leaves.setflags(write=False)
     return leaves
+
+
+def _node_rays(camera: Camera) -> np.ndarray:
+    """Camera-frame unit rays (ny, nx, 3) of the flow nodes, once per camera (read-only).
+
+    The nodes are :func:`~simulator.scene.node_grid.node_positions` every :data:`FLOW_STEP_PX` pixels.
+    """
+    cache = ground_mapping.camera_cache(camera)
+    rays = cache.get("blur_warp_node_rays")
+    if rays is None:
+        rows = node_grid.node_positions(camera.height_px, FLOW_STEP_PX)
+        cols = node_grid.node_positions(camera.width_px, FLOW_STEP_PX)
+        rays = cache["blur_warp_node_rays"] = ground_mapping.camera_frame_rays(camera, np.stack(np.meshgrid(cols, rows),
+                                                                                                 axis=-1))
+        rays.setflags(write=False)
+    return rays
 
 
 class _Plan:
