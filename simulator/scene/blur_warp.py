@@ -122,9 +122,10 @@ class WarpedPeriods:
     substeps : dict of str to int
         Sub-poses averaged per period (a power of two).
     centre_radiance : ndarray, shape (H, W), float32
-        The one rendered field (at the exposure's sub-pose N / 2; the scene's diagnostic exposure-centre field).
+        The one rendered field (at the exposure's sub-pose N / 2; the scene's diagnostic exposure-centre field),
+        a view of the enlarged field's frame (the image chain does not read it: no copy).
     centre_heat_shield : ndarray, shape (H, W), bool, or None
-        The heat shield in the rendered field.
+        The heat shield in the rendered field (a view, as ``centre_radiance``).
     shadow_centres_m : list of ndarray, shape (3,)
         Ground shadow centres at the rendered pose (m).
     margins_px : tuple of int
@@ -485,8 +486,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         RadianceFields(averaged["flush"], averaged["exposure"], averaged["transfer"]),
         np.zeros((height, width), dtype=bool), outside, shield,
         {period: plan.count for period in windows},
-        np.ascontiguousarray(field.radiance[inner]),
-        None if shield_full is None else np.ascontiguousarray(shield_full[inner]),
+        field.radiance[inner], None if shield_full is None else shield_full[inner],   # diagnostics: views, no copy
         field.shadow_centres_m, margins)
 
 
