@@ -234,8 +234,18 @@ def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: grou
 
     Camera-frame ``rays`` of the pixels when known; None when any of them sees the sky or lands behind the camera.
     """
-    rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) if rays is None else rays
+    rays = _unproject(camera, pixels) if rays is None else rays
     return _flat_flows(camera, source, [(target, rays)])
+
+
+def _unproject(camera: Camera, pixels: np.ndarray) -> np.ndarray:
+    """Camera-frame unit rays (..., 3) of a few pixels (..., 2): :func:`flight_interface.cahvor.unproject`'s bits.
+
+    Compiled (:mod:`simulator.scene.unproject_compiled`): the checks' small sets cost numpy's per-call
+    overhead, ~100 us each, not arithmetic.
+    """
+    from simulator.scene import unproject_compiled  # numba: loaded by rendering, not with the configuration
+    return unproject_compiled.unproject(camera.model, pixels)
 
 
 def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, np.ndarray]]
@@ -522,7 +532,7 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tupl
     moving = _moving_query(plan, checked, moving_points)
     if moving is not None:
         where_centre, moving_pixels = moving
-        queries.append(("exposure", checked, moving_pixels, cahvor.unproject(camera.model, moving_pixels)))
+        queries.append(("exposure", checked, moving_pixels, _unproject(camera, moving_pixels)))
     composed = plan.composed(queries)
     if composed is None:
         return None
@@ -607,7 +617,7 @@ def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan:
     r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
     box = mask[r0:r1, c0:c1]
     centre = np.array([[0.5 * (c0 + c1 - 1) - offset[0], 0.5 * (r0 + r1 - 1) - offset[1]]])
-    rays = cahvor.unproject(camera.model, centre)
+    rays = _unproject(camera, centre)
     for time_s in plan.leaf_times("exposure")[[0, -1]]:
         source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.base_s), centre, rays)
         if source is None:
