@@ -60,12 +60,25 @@ def scalar_slerp(q0: Sequence[float], q1: Sequence[float], fraction: float) -> l
     list of 4 floats
         The unit quaternion (w >= 0).
     """
+    return _slerp_between(_slerp_ends(q0, q1), fraction)
+
+
+def _slerp_ends(q0: Sequence[float], q1: Sequence[float]) -> tuple[list[float], list[float], float, float]:
+    """:func:`scalar_slerp`'s part that does not depend on the fraction (kept per profile interval).
+
+    The unit ends (the second on the first's hemisphere), the angle between them and its sine.
+    """
     start, end = unit_quat(q0), unit_quat(q1)
     dot = sum(a * b for a, b in zip(start, end))
     if dot < 0:
         end = [-value for value in end]
     theta = math.acos(min(max(abs(dot), -1.0), 1.0))
-    sin_theta = math.sin(theta)
+    return start, end, theta, math.sin(theta)
+
+
+def _slerp_between(ends: tuple[list[float], list[float], float, float], fraction: float) -> list[float]:
+    """:func:`scalar_slerp` at ``fraction`` from its :func:`_slerp_ends`."""
+    start, end, theta, sin_theta = ends
     if sin_theta < 1e-9:
         w0, w1 = 1.0 - fraction, fraction
     else:
@@ -142,15 +155,45 @@ class DescentProfile:
         if self.heat_shield_position_m is not None and np.shape(self.heat_shield_position_m) != (count, 3):
             raise ValueError(f"profile {self.name}: heat_shield_position_m must have shape ({count}, 3)")
 
+    @cached_property
+    def _sample_times(self) -> list[float]:
+        """:attr:`time_s` as floats (s)."""
+        return self.time_s.tolist()
+
+    @cached_property
+    def _intervals(self) -> dict[int, tuple]:
+        """Per sample interval, what every pose in it reads (:meth:`_interval`), filled as poses are asked for."""
+        return {}
+
+    def _interval(self, index: int) -> tuple:
+        """The samples ``index`` and ``index + 1`` as floats, read once per interval.
+
+        Time step (s), positions, velocities, body rates, heat-shield positions (or None) and the attitude
+        slerp's fraction-independent part (:func:`_slerp_ends`). The poses of one image fall in one or two
+        intervals: each interval's values are read from the arrays and normalised once (the same values
+        every time).
+        """
+        found = self._intervals.get(index)
+        if found is None:
+            times, shield = self._sample_times, self.heat_shield_position_m
+            found = self._intervals[index] = (
+                times[index + 1] - times[index],
+                self.position_m[index].tolist(), self.position_m[index + 1].tolist(),
+                self.velocity_mps[index].tolist(), self.velocity_mps[index + 1].tolist(),
+                self.angular_rate_radps[index].tolist(), self.angular_rate_radps[index + 1].tolist(),
+                None if shield is None else (shield[index].tolist(), shield[index + 1].tolist()),
+                _slerp_ends(self.attitude_quat[index].tolist(), self.attitude_quat[index + 1].tolist()))
+        return found
+
     def _locate(self, time_s: float) -> tuple[int, float]:
-        times = self.time_s
+        times = self._sample_times
         time_s = float(time_s)
-        first, last = float(times[0]), float(times[-1])
+        first, last = times[0], times[-1]
         if not (first <= time_s <= last):
             raise ValueError(f"profile {self.name}: time {time_s:.4f} s outside [{first:.4f}, {last:.4f}] s")
         index = min(max(bisect.bisect_right(times, time_s) - 1, 0), len(times) - 2)
-        start = float(times[index])
-        return index, (time_s - start) / (float(times[index + 1]) - start)
+        start = times[index]
+        return index, (time_s - start) / (times[index + 1] - start)
 
     def pose(self, time_s: float) -> Pose:
         """Lander state at a time: linear interpolation of vectors, slerp of attitude.
@@ -178,20 +221,17 @@ class DescentProfile:
 
         Between samples ``index`` and ``index + 1`` at ``fraction`` (:meth:`_locate`).
         """
-        rate = [(1.0 - fraction) * a + fraction * b
-                for a, b in zip(self.angular_rate_radps[index].tolist(), self.angular_rate_radps[index + 1].tolist())]
-        return scalar_slerp(self.attitude_quat[index].tolist(), self.attitude_quat[index + 1].tolist(), fraction), rate
+        interval = self._interval(index)
+        rate = [(1.0 - fraction) * a + fraction * b for a, b in zip(interval[5], interval[6])]
+        return _slerp_between(interval[8], fraction), rate
 
     def _pose_with(self, time_s: float, index: int, fraction: float, attitude_quat: np.ndarray,
                    angular_rate_radps: np.ndarray) -> Pose:
         """:meth:`pose` at ``time_s`` (located at ``index``, ``fraction``) with the given attitude and body rate."""
-        step = float(self.time_s[index + 1]) - float(self.time_s[index])
-        p0, p1 = self.position_m[index].tolist(), self.position_m[index + 1].tolist()
-        v0, v1 = self.velocity_mps[index].tolist(), self.velocity_mps[index + 1].tolist()
+        step, p0, p1, v0, v1, _, _, shield, _ = self._interval(index)
         s = fraction
         h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
         position = [h00 * a + h10 * step * b + h01 * c + h11 * step * d for a, b, c, d in zip(p0, v0, p1, v1)]
-        shield = self.heat_shield_position_m
         return Pose(
             time_s=float(time_s),
             position_m=np.array(position),
@@ -199,7 +239,7 @@ class DescentProfile:
             attitude_quat=attitude_quat,
             angular_rate_radps=angular_rate_radps,
             heat_shield_position_m=None if shield is None else np.array(
-                [(1.0 - fraction) * a + fraction * b for a, b in zip(shield[index].tolist(), shield[index + 1].tolist())]),
+                [(1.0 - fraction) * a + fraction * b for a, b in zip(*shield)]),
         )
 
     def wind_at(self, time_s: float) -> np.ndarray:
