@@ -215,15 +215,25 @@ def _flat_flows(camera: Camera, source: ground_mapping.CameraPose,
 
     Shaped as the one group's rays (..., 2) when there is one group; None as :func:`_flows`.
     """
-    points = []
-    for target, rays in groups:
-        world = rays @ target.camera_to_world.T
+    if not all(target.ray_origin_m[2] > 0 for target, _ in groups):
+        return None
+    # each group's rays turned by its own rotation (one product per group, as always); the ray / ground
+    # intersection is elementwise, so it runs once on all the groups' rays with each row's own origin
+    worlds = [rays @ target.camera_to_world.T for target, rays in groups]
+    if len(groups) == 1:
+        world, origin = worlds[0], groups[0][0].ray_origin_m
         down = world[..., 2]
-        origin = target.ray_origin_m
-        if not (origin[2] > 0 and bool((down < -ground_mapping.HORIZON_EPSILON).all())):
+        if not bool((down < -ground_mapping.HORIZON_EPSILON).all()):
             return None
-        points.append(origin + (-origin[2] / down)[..., None] * world)
-    flat = points[0] if len(points) == 1 else np.concatenate([item.reshape(-1, 3) for item in points])
+        flat = origin + (-origin[2] / down)[..., None] * world
+    else:
+        world = np.concatenate([item.reshape(-1, 3) for item in worlds])
+        down = world[:, 2]
+        if not bool((down < -ground_mapping.HORIZON_EPSILON).all()):
+            return None
+        origins = np.repeat(np.stack([target.ray_origin_m for target, _ in groups]),
+                            [item.size // 3 for item in worlds], axis=0)
+        flat = origins + (-origins[:, 2] / down)[:, None] * world
     pixels, in_front = ground_mapping.world_to_pixels(camera, source, flat)
     return pixels if bool(in_front.all()) else None
 
