@@ -597,7 +597,10 @@ def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[flo
         return None
     times = plan.leaf_times("exposure")
     items = [(plan.cam_at(plan.base_s), np.asarray(reference))]
-    items += [(plan.cam_at(float(times[leaf])), np.asarray(moving_points(float(times[leaf])))) for leaf in checked]
+    # the rendered pose is the exposure leaf N / 2, itself a checked leaf: its points are the reference's
+    items += [(plan.cam_at(float(times[leaf])),
+               np.asarray(reference if float(times[leaf]) == plan.base_s else moving_points(float(times[leaf]))))
+              for leaf in checked]
     projected = _project_many(camera, items)
     where_centre, seen = projected[0][0], np.array(projected[0][1], dtype=bool)
     pixels = np.stack([leaf_pixels for leaf_pixels, _ in projected[1:]])
