@@ -67,8 +67,9 @@ changing the estimated velocity. The estimated velocity answers these image chan
 floor: ``benchmarks/bench_offnominal.py`` (rows ``dv_noise_draws_mps``).
 
 Checks cost numpy's per-call overhead, not arithmetic (25 pixels): every map of the checks is computed
-in a few batched calls (:func:`_flows`: many target poses, one projection; one unprojection per doubling
-level for every period's composed positions).
+in a few batched calls (:func:`_flows`: many target poses, one ray / ground pass and one projection; one
+unprojection per doubling level for every period's composed positions, held in one array), and the small
+unprojections run compiled (:mod:`simulator.scene.unproject_compiled`, the array code's bits).
 
 Bounds: the path (with margin) must stay within :data:`MAX_MARGIN_PX`, no pixel of the enlarged field
 may see the sky (the flow is defined on the ground only); otherwise :func:`warped_period_fields`
