@@ -197,7 +197,10 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
     row = pixels[..., 1]
     # (V - y A) x (H - x A) = V x H - x (V x A) - y (A x H)   (A x A = 0): three constant vectors, one
     # component at a time (no (..., 3) temporaries: a full frame is 10^6 rays)
-    base, per_column, per_row = np.cross(model.v, model.h), -np.cross(model.v, model.a), -np.cross(model.a, model.h)
+    # (np.cross's products and differences in scalar arithmetic: the same bits without its per-call cost)
+    base = _cross(model.v, model.h)
+    per_column = [-value for value in _cross(model.v, model.a)]
+    per_row = [-value for value in _cross(model.a, model.h)]
     ray = [base[k] + column * per_column[k] + row * per_row[k] for k in range(3)]
     # unit length, pointing in front of the camera (+A)
     sign = np.where(_dot(ray, model.a) < 0, -1.0, 1.0) / np.sqrt(_dot(ray, ray))
@@ -212,6 +215,13 @@ def unproject(model: Cahvor, pixels: np.ndarray, tolerance_rad: float = 1e-12,
         length = np.sqrt(_dot(ray, ray))
         ray = [component / length for component in ray]
     return np.stack(ray, axis=-1)
+
+
+def _cross(first, second) -> tuple[float, float, float]:
+    """:func:`numpy.cross` of two 3-vectors in scalar arithmetic: the same products and differences, same bits."""
+    a0, a1, a2 = (float(value) for value in first)
+    b0, b1, b2 = (float(value) for value in second)
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
 def _dot(components, vector) -> np.ndarray:
@@ -256,22 +266,26 @@ def _undistort_tangent(u_distorted: np.ndarray, r: np.ndarray, tolerance: float,
     Iterates stay in ``[0, u*]`` (:func:`distortion_turning_point`), where the map increases; a
     ``u_distorted`` beyond the largest distorted value returns ``u*``.
     """
-    r0, r1, r2 = r
+    # Python floats for the coefficients and their constant products (left-to-right evaluation forms
+    # 1 + R0, 3 R1 and 5 R2 first anyway): the same operations as numpy scalars, at less per-call cost
+    r0, r1, r2 = (float(value) for value in r)
+    one_plus_r0, three_r1, five_r2 = 1.0 + r0, 3.0 * r1, 5.0 * r2
     turning = distortion_turning_point(r)
-    u = np.minimum(u_distorted / (1.0 + r0), turning)
+    u = np.minimum(u_distorted / one_plus_r0, turning)
     if np.isfinite(turning):
-        beyond = u_distorted >= turning * (1.0 + r0 + r1 * turning**2 + r2 * turning**4)
+        beyond = u_distorted >= turning * (one_plus_r0 + r1 * turning**2 + r2 * turning**4)
         u = np.where(beyond, turning, u)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for _ in range(max_iterations):
             u2 = u * u
-            residual = u * (1.0 + r0 + r1 * u2 + r2 * u2 * u2) - u_distorted
-            slope = 1.0 + r0 + 3.0 * r1 * u2 + 5.0 * r2 * u2 * u2
-            step = np.where(slope > 0, residual / np.where(slope > 0, slope, 1.0), 0.0)
+            residual = u * (one_plus_r0 + r1 * u2 + r2 * u2 * u2) - u_distorted
+            slope = one_plus_r0 + three_r1 * u2 + five_r2 * u2 * u2
+            positive = slope > 0
+            step = np.where(positive, residual / np.where(positive, slope, 1.0), 0.0)
             updated = np.clip(u - step, 0.0, turning)
             change = np.abs(updated - u)
             u = updated
-            if np.all(change < tolerance):
+            if (change < tolerance).all():
                 break
     return u
 

@@ -67,8 +67,9 @@ changing the estimated velocity. The estimated velocity answers these image chan
 floor: ``benchmarks/bench_offnominal.py`` (rows ``dv_noise_draws_mps``).
 
 Checks cost numpy's per-call overhead, not arithmetic (25 pixels): every map of the checks is computed
-in a few batched calls (:func:`_flows`: many target poses, one projection; one unprojection per doubling
-level for every period's composed positions).
+in a few batched calls (:func:`_flows`: many target poses, one ray / ground pass and one projection; one
+unprojection per doubling level for every period's composed positions, held in one array), and the small
+unprojections run compiled (:mod:`simulator.scene.unproject_compiled`, the array code's bits).
 
 Bounds: the path (with margin) must stay within :data:`MAX_MARGIN_PX`, no pixel of the enlarged field
 may see the sky (the flow is defined on the ground only); otherwise :func:`warped_period_fields`
@@ -77,6 +78,7 @@ integration of the reference preset: ``make bench`` (offnominal rows) and tests/
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -121,9 +123,10 @@ class WarpedPeriods:
     substeps : dict of str to int
         Sub-poses averaged per period (a power of two).
     centre_radiance : ndarray, shape (H, W), float32
-        The one rendered field (at the exposure's sub-pose N / 2; the scene's diagnostic exposure-centre field).
+        The one rendered field (at the exposure's sub-pose N / 2; the scene's diagnostic exposure-centre field),
+        a view of the enlarged field's frame (the image chain does not read it: no copy).
     centre_heat_shield : ndarray, shape (H, W), bool, or None
-        The heat shield in the rendered field.
+        The heat shield in the rendered field (a view, as ``centre_radiance``).
     shadow_centres_m : list of ndarray, shape (3,)
         Ground shadow centres at the rendered pose (m).
     margins_px : tuple of int
@@ -194,20 +197,46 @@ def _flows(camera: Camera, source: ground_mapping.CameraPose,
         point lies behind the source camera. One projection serves every group (the small arrays of
         the checks cost numpy's per-call overhead, not arithmetic).
     """
-    points = []
-    for target, rays in groups:
-        world = rays @ target.camera_to_world.T
-        if not (target.ray_origin_m[2] > 0 and np.all(world[..., 2] < -ground_mapping.HORIZON_EPSILON)):
-            return None
-        points.append(target.ray_origin_m + (-target.ray_origin_m[2] / world[..., 2])[..., None] * world)
-    flat = points[0] if len(points) == 1 else np.concatenate([item.reshape(-1, 3) for item in points])
-    pixels, in_front = ground_mapping.world_to_pixels(camera, source, flat)
-    if not bool(np.all(in_front)):
+    pixels = _flat_flows(camera, source, groups)
+    if pixels is None:
         return None
-    if len(points) == 1:
+    if len(groups) == 1:
         return [pixels]
-    ends = np.cumsum([item[..., 0].size for item in points])[:-1]
-    return [part.reshape(*item.shape[:-1], 2) for part, item in zip(np.split(pixels, ends), points)]
+    parts, start = [], 0
+    for _, rays in groups:          # views of the one projection, each shaped as its group's rays
+        stop = start + rays.size // 3
+        parts.append(pixels[start:stop].reshape(*rays.shape[:-1], 2))
+        start = stop
+    return parts
+
+
+def _flat_flows(camera: Camera, source: ground_mapping.CameraPose,
+                groups: list[tuple[ground_mapping.CameraPose, np.ndarray]]) -> np.ndarray | None:
+    """:func:`_flows` before the split: every group's source pixels in group order, (n, 2).
+
+    Shaped as the one group's rays (..., 2) when there is one group; None as :func:`_flows`.
+    """
+    if not all(target.ray_origin_m[2] > 0 for target, _ in groups):
+        return None
+    # each group's rays turned by its own rotation (one product per group, as always); the ray / ground
+    # intersection is elementwise, so it runs once on all the groups' rays with each row's own origin
+    worlds = [rays @ target.camera_to_world.T for target, rays in groups]
+    if len(groups) == 1:
+        world, origin = worlds[0], groups[0][0].ray_origin_m
+        down = world[..., 2]
+        if not bool((down < -ground_mapping.HORIZON_EPSILON).all()):
+            return None
+        flat = origin + (-origin[2] / down)[..., None] * world
+    else:
+        world = np.concatenate([item.reshape(-1, 3) for item in worlds])
+        down = world[:, 2]
+        if not bool((down < -ground_mapping.HORIZON_EPSILON).all()):
+            return None
+        origins = np.repeat(np.stack([target.ray_origin_m for target, _ in groups]),
+                            [item.size // 3 for item in worlds], axis=0)
+        flat = origins + (-origins[:, 2] / down)[:, None] * world
+    pixels, in_front = ground_mapping.world_to_pixels(camera, source, flat)
+    return pixels if bool(in_front.all()) else None
 
 
 def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: ground_mapping.CameraPose,
@@ -216,9 +245,18 @@ def _flow_points(camera: Camera, target: ground_mapping.CameraPose, source: grou
 
     Camera-frame ``rays`` of the pixels when known; None when any of them sees the sky or lands behind the camera.
     """
-    rays = cahvor.unproject(camera.model, np.asarray(pixels, dtype=float)) if rays is None else rays
-    flows = _flows(camera, source, [(target, rays)])
-    return None if flows is None else flows[0]
+    rays = _unproject(camera, pixels) if rays is None else rays
+    return _flat_flows(camera, source, [(target, rays)])
+
+
+def _unproject(camera: Camera, pixels: np.ndarray) -> np.ndarray:
+    """Camera-frame unit rays (..., 3) of a few pixels (..., 2): :func:`flight_interface.cahvor.unproject`'s bits.
+
+    Compiled (:mod:`simulator.scene.unproject_compiled`): the checks' small sets cost numpy's per-call
+    overhead, ~100 us each, not arithmetic.
+    """
+    from simulator.scene import unproject_compiled  # numba: loaded by rendering, not with the configuration
+    return unproject_compiled.unproject(camera.model, pixels)
 
 
 def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, np.ndarray]]
@@ -227,8 +265,12 @@ def _project_many(camera: Camera, items: list[tuple[ground_mapping.CameraPose, n
     in_camera = np.concatenate([(np.asarray(points, dtype=float) - pose.frame_origin_m) @ pose.camera_to_world
                                 for pose, points in items])
     pixels, in_front = cahvor.project(camera.model, in_camera)
-    ends = np.cumsum([len(points) for _, points in items])[:-1]
-    return list(zip(np.split(pixels, ends), np.split(in_front, ends)))
+    parts, start = [], 0
+    for _, points in items:
+        stop = start + len(points)
+        parts.append((pixels[start:stop], in_front[start:stop]))
+        start = stop
+    return parts
 
 
 def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, int]],
@@ -252,10 +294,7 @@ def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, 
         Per target, the (column, block row) source pixels of every output pixel (bilinear between nodes
         every :data:`FLOW_STEP_PX` pixels); None when any node ray misses the ground.
     """
-    rows = node_grid.node_positions(camera.height_px, FLOW_STEP_PX)
-    cols = node_grid.node_positions(camera.width_px, FLOW_STEP_PX)
-    grid = np.stack(np.meshgrid(cols, rows), axis=-1)
-    rays = ground_mapping.camera_frame_rays(camera, grid)
+    rays = _node_rays(camera)
     nodes = _flows(camera, source, [(target, rays) for target, _ in targets])
     if nodes is None:
         return None
@@ -266,6 +305,30 @@ def _block_flows(camera: Camera, targets: list[tuple[ground_mapping.CameraPose, 
         maps.append(node_grid.upsample_nodes(source_pixels, FLOW_STEP_PX, camera.height_px // block_rows,
                                              camera.width_px, row_step_px=FLOW_STEP_PX // block_rows))
     return maps
+
+
+@functools.lru_cache(maxsize=16)
+def _checked_leaves(count: int) -> np.ndarray:
+    """:meth:`_Plan.checked_leaves` of a sub-pose count (read-only, computed once per count)."""
+    leaves = np.unique(np.linspace(0, count - 1, min(count, CHECKED_LEAVES)).round().astype(int))
+    leaves.setflags(write=False)
+    return leaves
+
+
+def _node_rays(camera: Camera) -> np.ndarray:
+    """Camera-frame unit rays (ny, nx, 3) of the flow nodes, once per camera (read-only).
+
+    The nodes are :func:`~simulator.scene.node_grid.node_positions` every :data:`FLOW_STEP_PX` pixels.
+    """
+    cache = ground_mapping.camera_cache(camera)
+    rays = cache.get("blur_warp_node_rays")
+    if rays is None:
+        rows = node_grid.node_positions(camera.height_px, FLOW_STEP_PX)
+        cols = node_grid.node_positions(camera.width_px, FLOW_STEP_PX)
+        rays = cache["blur_warp_node_rays"] = ground_mapping.camera_frame_rays(camera, np.stack(np.meshgrid(cols, rows),
+                                                                                                 axis=-1))
+        rays.setflags(write=False)
+    return rays
 
 
 class _Plan:
@@ -305,7 +368,7 @@ class _Plan:
         Both ends and at most CHECKED_LEAVES in all, evenly spread (the composition error varies smoothly
         along the path; measured on the nightly cases).
         """
-        return np.unique(np.linspace(0, self.count - 1, min(self.count, CHECKED_LEAVES)).round().astype(int))
+        return _checked_leaves(self.count)
 
     def composed(self, queries: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
                  ) -> list[tuple[np.ndarray, np.ndarray]] | None:
@@ -325,36 +388,38 @@ class _Plan:
             moves the chosen positions of every query with one unprojection and one projection.
         """
         centre = self.cam_at(self.base_s)
-        firsts = _flows(self.camera, self.cam_at(self.average_centre_s),
-                        [(self.cam_at(0.5 * sum(self.windows[period])), rays) for period, _, _, rays in queries])
-        if firsts is None:
+        # every query's positions in one (n, 2) array, query by query, leaf by leaf: the rows a level moves,
+        # taken in that order, are the concatenation of each query's chosen leaves (one unprojection)
+        first = _flat_flows(self.camera, self.cam_at(self.average_centre_s),
+                            [(self.cam_at(0.5 * sum(self.windows[period])), rays) for period, _, _, rays in queries])
+        if first is None:
             return None
-        positions = [first.copy() for first in firsts]
-        extents = []
-        for first, (_, _, pixels, _) in zip(firsts, queries):
-            offsets = (first - pixels).reshape(-1, 2)
-            extents.append(np.array([np.minimum(offsets.min(axis=0), 0.0), np.maximum(offsets.max(axis=0), 0.0)]))
+        positions = first.reshape(-1, 2)
+        pixels = np.concatenate([query_pixels.reshape(-1, 2) for _, _, query_pixels, _ in queries])
+        leaf_bits = np.concatenate([np.repeat(leaves, query_pixels[0, ..., 0].size)
+                                    for _, leaves, query_pixels, _ in queries]) ^ self.base_index
+        # the offsets of every intermediate position from its pixel, one snapshot per moving level
+        offsets = np.empty((self.levels + 1, *positions.shape))
+        np.subtract(positions, pixels, out=offsets[0])
+        snapshots = 1
         for level in reversed(range(self.levels)):
-            chosen = [((leaves ^ self.base_index) >> level) & 1 == 1 for _, leaves, _, _ in queries]
-            moving = [position[mask] for position, mask in zip(positions, chosen)]
-            sizes = [len(item) for item in moving]
-            if not any(sizes):
+            chosen = (leaf_bits >> level) & 1 == 1
+            if not chosen.any():
                 continue
-            stacked = np.concatenate([item.reshape(-1, 2) for item in moving])
-            moved = _flow_points(self.camera, self.step_pose(level), centre, stacked)
+            moved = _flow_points(self.camera, self.step_pose(level), centre, positions[chosen])
             if moved is None:
                 return None
-            offset = 0
-            for index, (item, mask) in enumerate(zip(moving, chosen)):
-                if not len(item):
-                    continue
-                count = item[..., 0].size
-                positions[index][mask] = moved[offset:offset + count].reshape(item.shape)
-                offset += count
-                offsets = (positions[index] - queries[index][2]).reshape(-1, 2)
-                extents[index][0] = np.minimum(extents[index][0], offsets.min(axis=0))
-                extents[index][1] = np.maximum(extents[index][1], offsets.max(axis=0))
-        return list(zip(positions, extents))
+            positions[chosen] = moved
+            np.subtract(positions, pixels, out=offsets[snapshots])
+            snapshots += 1
+        results, start = [], 0
+        for _, _, query_pixels, _ in queries:
+            stop = start + query_pixels[..., 0].size
+            reached = offsets[:snapshots, start:stop]
+            extent = np.array([np.minimum(reached.min(axis=(0, 1)), 0.0), np.maximum(reached.max(axis=(0, 1)), 0.0)])
+            results.append((positions[start:stop].reshape(query_pixels.shape), extent))
+            start = stop
+        return results
 
 
 def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
@@ -442,8 +507,7 @@ def warped_period_fields(camera: Camera, pose_at: Callable[[float], Pose],
         RadianceFields(averaged["flush"], averaged["exposure"], averaged["transfer"]),
         np.zeros((height, width), dtype=bool), outside, shield,
         {period: plan.count for period in windows},
-        np.ascontiguousarray(field.radiance[inner]),
-        None if shield_full is None else np.ascontiguousarray(shield_full[inner]),
+        field.radiance[inner], None if shield_full is None else shield_full[inner],   # diagnostics: views, no copy
         field.shadow_centres_m, margins)
 
 
@@ -471,35 +535,36 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tupl
         ray misses the ground (then the scene is rendered per sub-pose).
     """
     camera, cam_at = plan.camera, plan.cam_at
-    pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
-    rays = ground_mapping.camera_frame_rays(camera, pixels)
+    pixels, rays = _check_pixels(camera)
     checked = plan.checked_leaves()
     shape = (len(checked), *pixels.shape)
-    queries = [(period, checked, np.broadcast_to(pixels, shape), np.broadcast_to(rays, (*shape[:2], 3)))
-               for period in plan.windows]
+    grid_pixels, grid_rays = np.broadcast_to(pixels, shape), np.broadcast_to(rays, (*shape[:2], 3))
+    queries = [(period, checked, grid_pixels, grid_rays) for period in plan.windows]
     moving = _moving_query(plan, checked, moving_points)
     if moving is not None:
         where_centre, moving_pixels = moving
-        queries.append(("exposure", checked, moving_pixels, cahvor.unproject(camera.model, moving_pixels)))
+        queries.append(("exposure", checked, moving_pixels, _unproject(camera, moving_pixels)))
     composed = plan.composed(queries)
     if composed is None:
         return None
     centre = cam_at(plan.base_s)
     leaf_times = {period: plan.leaf_times(period) for period in plan.windows}
     # with the exact maps, each level's step (its row motion decides the level's resolution): one projection
-    exact = _flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
-                                    for period in plan.windows for leaf in checked]
-                   + [(plan.step_pose(level), rays) for level in range(plan.levels)])
+    exact = _flat_flows(camera, centre, [(cam_at(float(leaf_times[period][leaf])), rays)
+                                         for period in plan.windows for leaf in checked]
+                        + [(plan.step_pose(level), rays) for level in range(plan.levels)])
     if exact is None:
         return None
-    row_shifts = [float(np.abs(moved[:, 1] - pixels[:, 1]).max()) for moved in exact[len(exact) - plan.levels:]]
+    exact = exact.reshape(-1, *pixels.shape)      # (periods x checked leaves, then levels, P, 2)
+    row_shifts = np.abs(exact[len(exact) - plan.levels:, :, 1] - pixels[:, 1]).max(axis=1).tolist()
     extent = np.zeros((2, 2))
+    leaves = len(checked)
     for index, period in enumerate(plan.windows):
         positions, period_extent = composed[index]
-        for leaf_index in range(len(checked)):
-            error = float(np.max(np.abs(positions[leaf_index] - exact[index * len(checked) + leaf_index])))
-            if not error <= GROUP_TOLERANCE_PX[period]:
-                return None
+        # the largest error over the period's checked leaves
+        error = float(np.abs(positions - exact[index * leaves:(index + 1) * leaves]).max())
+        if not error <= GROUP_TOLERANCE_PX[period]:
+            return None
         if period != "exposure":      # the smear fields may read up to SMEAR_EDGE_PX beyond the field (edge values)
             period_extent = np.array([np.minimum(period_extent[0] + SMEAR_EDGE_PX, 0.0),
                                       np.maximum(period_extent[1] - SMEAR_EDGE_PX, 0.0)])
@@ -507,6 +572,17 @@ def _checked_extent(plan: _Plan, moving_points: Callable[[float], list]) -> tupl
     if moving is not None and not float(np.max(np.abs(composed[-1][0] - where_centre))) <= MOVING_TOLERANCE_PX:
         return None
     return extent, row_shifts
+
+
+def _check_pixels(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """The :data:`CHECK_GRID` grid of pixels (P, 2) and their camera-frame unit rays (P, 3), once per camera (read-only)."""
+    cache = ground_mapping.camera_cache(camera)
+    found = cache.get("blur_warp_check_pixels")
+    if found is None:
+        pixels = motion_blur.sample_pixels(camera, CHECK_GRID)
+        pixels.setflags(write=False)
+        found = cache["blur_warp_check_pixels"] = (pixels, ground_mapping.camera_frame_rays(camera, pixels))
+    return found
 
 
 def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[float], list]
@@ -522,7 +598,10 @@ def _moving_query(plan: _Plan, checked: np.ndarray, moving_points: Callable[[flo
         return None
     times = plan.leaf_times("exposure")
     items = [(plan.cam_at(plan.base_s), np.asarray(reference))]
-    items += [(plan.cam_at(float(times[leaf])), np.asarray(moving_points(float(times[leaf])))) for leaf in checked]
+    # the rendered pose is the exposure leaf N / 2, itself a checked leaf: its points are the reference's
+    items += [(plan.cam_at(float(times[leaf])),
+               np.asarray(reference if float(times[leaf]) == plan.base_s else moving_points(float(times[leaf]))))
+              for leaf in checked]
     projected = _project_many(camera, items)
     where_centre, seen = projected[0][0], np.array(projected[0][1], dtype=bool)
     pixels = np.stack([leaf_pixels for leaf_pixels, _ in projected[1:]])
@@ -552,7 +631,7 @@ def _mask_union(mask: np.ndarray, camera: Camera, offset: tuple[int, int], plan:
     r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
     box = mask[r0:r1, c0:c1]
     centre = np.array([[0.5 * (c0 + c1 - 1) - offset[0], 0.5 * (r0 + r1 - 1) - offset[1]]])
-    rays = cahvor.unproject(camera.model, centre)
+    rays = _unproject(camera, centre)
     for time_s in plan.leaf_times("exposure")[[0, -1]]:
         source = _flow_points(camera, cam_at(float(time_s)), cam_at(plan.base_s), centre, rays)
         if source is None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from functools import cached_property
 
 import numpy as np
@@ -37,7 +37,7 @@ def unit_quat(quaternion: Sequence[float]) -> list[float]:
     list of 4 float
         The unit quaternion with w >= 0.
     """
-    w, x, y, z = (float(value) for value in quaternion)
+    w, x, y, z = map(float, quaternion)
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if not (norm > 0 and math.isfinite(norm)):
         raise ValueError(f"quaternion (w, x, y, z) must be finite with a non-zero norm; got {quaternion!r}")
@@ -60,12 +60,25 @@ def scalar_slerp(q0: Sequence[float], q1: Sequence[float], fraction: float) -> l
     list of 4 floats
         The unit quaternion (w >= 0).
     """
+    return _slerp_between(_slerp_ends(q0, q1), fraction)
+
+
+def _slerp_ends(q0: Sequence[float], q1: Sequence[float]) -> tuple[list[float], list[float], float, float]:
+    """:func:`scalar_slerp`'s part that does not depend on the fraction (kept per profile interval).
+
+    The unit ends (the second on the first's hemisphere), the angle between them and its sine.
+    """
     start, end = unit_quat(q0), unit_quat(q1)
     dot = sum(a * b for a, b in zip(start, end))
     if dot < 0:
         end = [-value for value in end]
     theta = math.acos(min(max(abs(dot), -1.0), 1.0))
-    sin_theta = math.sin(theta)
+    return start, end, theta, math.sin(theta)
+
+
+def _slerp_between(ends: tuple[list[float], list[float], float, float], fraction: float) -> list[float]:
+    """:func:`scalar_slerp` at ``fraction`` from its :func:`_slerp_ends`."""
+    start, end, theta, sin_theta = ends
     if sin_theta < 1e-9:
         w0, w1 = 1.0 - fraction, fraction
     else:
@@ -142,15 +155,45 @@ class DescentProfile:
         if self.heat_shield_position_m is not None and np.shape(self.heat_shield_position_m) != (count, 3):
             raise ValueError(f"profile {self.name}: heat_shield_position_m must have shape ({count}, 3)")
 
+    @cached_property
+    def _sample_times(self) -> list[float]:
+        """:attr:`time_s` as floats (s)."""
+        return self.time_s.tolist()
+
+    @cached_property
+    def _intervals(self) -> dict[int, tuple]:
+        """Per sample interval, what every pose in it reads (:meth:`_interval`), filled as poses are asked for."""
+        return {}
+
+    def _interval(self, index: int) -> tuple:
+        """The samples ``index`` and ``index + 1`` as floats, read once per interval.
+
+        Time step (s), positions, velocities, body rates, heat-shield positions (or None) and the attitude
+        slerp's fraction-independent part (:func:`_slerp_ends`). The poses of one image fall in one or two
+        intervals: each interval's values are read from the arrays and normalised once (the same values
+        every time).
+        """
+        found = self._intervals.get(index)
+        if found is None:
+            times, shield = self._sample_times, self.heat_shield_position_m
+            found = self._intervals[index] = (
+                times[index + 1] - times[index],
+                self.position_m[index].tolist(), self.position_m[index + 1].tolist(),
+                self.velocity_mps[index].tolist(), self.velocity_mps[index + 1].tolist(),
+                self.angular_rate_radps[index].tolist(), self.angular_rate_radps[index + 1].tolist(),
+                None if shield is None else (shield[index].tolist(), shield[index + 1].tolist()),
+                _slerp_ends(self.attitude_quat[index].tolist(), self.attitude_quat[index + 1].tolist()))
+        return found
+
     def _locate(self, time_s: float) -> tuple[int, float]:
-        times = self.time_s
+        times = self._sample_times
         time_s = float(time_s)
-        first, last = float(times[0]), float(times[-1])
+        first, last = times[0], times[-1]
         if not (first <= time_s <= last):
             raise ValueError(f"profile {self.name}: time {time_s:.4f} s outside [{first:.4f}, {last:.4f}] s")
         index = min(max(bisect.bisect_right(times, time_s) - 1, 0), len(times) - 2)
-        start = float(times[index])
-        return index, (time_s - start) / (float(times[index + 1]) - start)
+        start = times[index]
+        return index, (time_s - start) / (times[index + 1] - start)
 
     def pose(self, time_s: float) -> Pose:
         """Lander state at a time: linear interpolation of vectors, slerp of attitude.
@@ -170,25 +213,33 @@ class DescentProfile:
             The interpolated state.
         """
         index, fraction = self._locate(time_s)
-        step = float(self.time_s[index + 1]) - float(self.time_s[index])
-        p0, p1 = self.position_m[index].tolist(), self.position_m[index + 1].tolist()
-        v0, v1 = self.velocity_mps[index].tolist(), self.velocity_mps[index + 1].tolist()
+        attitude, rate = self._attitude_and_rate(index, fraction)
+        return self._pose_with(time_s, index, fraction, np.array(attitude), np.array(rate))
+
+    def _attitude_and_rate(self, index: int, fraction: float) -> tuple[list[float], list[float]]:
+        """The slerped attitude quaternion and the interpolated body rate, as floats (:meth:`pose`).
+
+        Between samples ``index`` and ``index + 1`` at ``fraction`` (:meth:`_locate`).
+        """
+        interval = self._interval(index)
+        rate = [(1.0 - fraction) * a + fraction * b for a, b in zip(interval[5], interval[6])]
+        return _slerp_between(interval[8], fraction), rate
+
+    def _pose_with(self, time_s: float, index: int, fraction: float, attitude_quat: np.ndarray,
+                   angular_rate_radps: np.ndarray) -> Pose:
+        """:meth:`pose` at ``time_s`` (located at ``index``, ``fraction``) with the given attitude and body rate."""
+        step, p0, p1, v0, v1, _, _, shield, _ = self._interval(index)
         s = fraction
         h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
         position = [h00 * a + h10 * step * b + h01 * c + h11 * step * d for a, b, c, d in zip(p0, v0, p1, v1)]
-
-        def lerp(values: np.ndarray) -> np.ndarray:
-            start, end = values[index].tolist(), values[index + 1].tolist()
-            return np.array([(1.0 - fraction) * a + fraction * b for a, b in zip(start, end)])
-
         return Pose(
             time_s=float(time_s),
             position_m=np.array(position),
             velocity_mps=np.array([(1.0 - fraction) * a + fraction * b for a, b in zip(v0, v1)]),
-            attitude_quat=np.array(scalar_slerp(self.attitude_quat[index].tolist(),
-                                                self.attitude_quat[index + 1].tolist(), fraction)),
-            angular_rate_radps=lerp(self.angular_rate_radps),
-            heat_shield_position_m=None if self.heat_shield_position_m is None else lerp(self.heat_shield_position_m),
+            attitude_quat=attitude_quat,
+            angular_rate_radps=angular_rate_radps,
+            heat_shield_position_m=None if shield is None else np.array(
+                [(1.0 - fraction) * a + fraction * b for a, b in zip(*shield)]),
         )
 
     def wind_at(self, time_s: float) -> np.ndarray:
@@ -335,6 +386,11 @@ class RateScaledProfile(DescentProfile):
         """Attitude at the (clamped) rate centre: the same for every pose of this profile."""
         return DescentProfile.pose(self, float(np.clip(self.rate_centre_s, self.time_s[0], self.time_s[-1]))).attitude_quat
 
+    @cached_property
+    def _centre_attitude_values(self) -> list[float]:
+        """:attr:`_centre_attitude` as floats."""
+        return self._centre_attitude.tolist()
+
     def pose(self, time_s: float) -> Pose:
         """Lander state at a time, with the rotation about ``rate_centre_s`` scaled.
 
@@ -348,11 +404,11 @@ class RateScaledProfile(DescentProfile):
         Pose
             The state (angular rate times ``rate_multiplier``).
         """
-        base = super().pose(time_s)
+        index, fraction = self._locate(time_s)
+        (bw, bx, by, bz), rate = self._attitude_and_rate(index, fraction)
         # scalar arithmetic (a pose is a handful of numbers; the motion-blur checks ask for ~30 per image):
         # quat_to_rotation_vector(conj(c) * q), scaled by k, quat_from_rotation_vector, c * that, normalised
-        cw, cx, cy, cz = self._centre_attitude.tolist()
-        bw, bx, by, bz = base.attitude_quat.tolist()
+        cw, cx, cy, cz = self._centre_attitude_values
         rw, rx, ry, rz = unit_quat([cw * bw + cx * bx + cy * by + cz * bz, cw * bx - cx * bw - cy * bz + cz * by,
                                     cw * by + cx * bz - cy * bw - cz * bx, cw * bz - cx * by + cy * bx - cz * bw])
         sin_half = math.sqrt(rx * rx + ry * ry + rz * rz)
@@ -364,7 +420,7 @@ class RateScaledProfile(DescentProfile):
         ew, ex, ey, ez = math.cos(half), to_quat * vx, to_quat * vy, to_quat * vz
         attitude = np.array(unit_quat([cw * ew - cx * ex - cy * ey - cz * ez, cw * ex + cx * ew + cy * ez - cz * ey,
                                        cw * ey - cx * ez + cy * ew + cz * ex, cw * ez + cx * ey - cy * ex + cz * ew]))
-        return replace(base, attitude_quat=attitude, angular_rate_radps=self.rate_multiplier * base.angular_rate_radps)
+        return self._pose_with(time_s, index, fraction, attitude, self.rate_multiplier * np.array(rate))
 
 
 def scale_angular_rates(profile: DescentProfile, multiplier: float, centre_time_s: float) -> DescentProfile:
