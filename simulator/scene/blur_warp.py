@@ -90,7 +90,7 @@ import numpy as np
 from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.fields import RadianceFields, block_means
-from simulator.scene import ground_mapping, motion_blur, node_grid, resample, shadow
+from simulator.scene import ground_mapping, motion_blur, node_grid, resample, shadow, unproject_compiled
 from simulator.scene.descent_profile import Pose
 
 MARGIN_STEP_PX = 32            # margins are multiples of the flow node step (and of the binning rows)
@@ -255,7 +255,6 @@ def _unproject(camera: Camera, pixels: np.ndarray) -> np.ndarray:
     Compiled (:mod:`simulator.scene.unproject_compiled`): the checks' small sets cost numpy's per-call
     overhead, ~100 us each, not arithmetic.
     """
-    from simulator.scene import unproject_compiled  # numba: loaded by rendering, not with the configuration
     return unproject_compiled.unproject(camera.model, pixels)
 
 
