@@ -41,6 +41,8 @@ from numba import njit
 
 MWC_MULTIPLIER = 4164903690          # OpenCV's CV_RNG_COEFF
 TAIL_START = 3.442620                # r: where the base strip's tail starts (float32 in OpenCV)
+#: cv2.randn's mean and standard deviation as the arrays its stubs declare (the same samples as the scalars 0, 1)
+_RANDN_MEAN, _RANDN_STDDEV = np.zeros(1), np.ones(1)
 _PROBE_SEED = 1_927_364_101          # the seed of the one-off comparison with cv2.randn
 
 
@@ -186,8 +188,8 @@ def standard_normal_f32(seed: int, shape: tuple[int, ...], out: np.ndarray | Non
     return samples
 
 
-def opencv_standard_normal_f32(seed: int, shape: tuple[int, ...]) -> np.ndarray:
-    """``cv2.setRNGSeed(seed)`` then ``cv2.randn`` (mean 0, standard deviation 1) on a new float32 array.
+def opencv_standard_normal_f32(seed: int, shape: tuple[int, ...], out: np.ndarray | None = None) -> np.ndarray:
+    """``cv2.setRNGSeed(seed)`` then ``cv2.randn`` (mean 0, standard deviation 1): OpenCV's own samples.
 
     Parameters
     ----------
@@ -195,15 +197,17 @@ def opencv_standard_normal_f32(seed: int, shape: tuple[int, ...]) -> np.ndarray:
         OpenCV seed, 1 .. 2^31 - 1.
     shape : tuple of int
         Shape of the samples (2-D or 1-D: OpenCV reads a third axis as channels).
+    out : ndarray, float32, shape ``shape``, optional
+        Where to write them (else a new array).
 
     Returns
     -------
     ndarray, float32, shape ``shape``
         Samples of N(0, 1).
     """
-    samples = np.empty(shape, dtype=np.float32)
+    samples = np.empty(shape, dtype=np.float32) if out is None else out
     cv2.setRNGSeed(seed)
-    cv2.randn(samples, 0.0, 1.0)  # type: ignore[call-overload]  # cv2 stubs want array mean/stddev; scalars work
+    cv2.randn(samples, _RANDN_MEAN, _RANDN_STDDEV)
     return samples
 
 

@@ -140,9 +140,7 @@ def standard_normal_f32(rng: np.random.Generator, shape: tuple[int, ...], out: n
     if (samples.dtype == np.float32 and samples.ndim <= 2 and samples.flags.c_contiguous
             and opencv_normal.generator_matches_opencv(samples.shape)):
         return opencv_normal.standard_normal_f32(seed, samples.shape, out=samples)
-    cv2.setRNGSeed(seed)
-    cv2.randn(samples, 0.0, 1.0)  # type: ignore[call-overload]  # cv2 stubs want array mean/stddev; scalars work
-    return samples
+    return opencv_normal.opencv_standard_normal_f32(seed, samples.shape, out=samples)
 
 
 def read_noise_e(rng: np.random.Generator, shape: tuple[int, ...], sigma_e: float) -> np.ndarray:
