@@ -14,6 +14,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
@@ -114,6 +115,20 @@ class Pose:
     heat_shield_position_m: np.ndarray | None = None  # (3,) world, None when not tracked
 
 
+class _Interval(NamedTuple):
+    """Two consecutive profile samples as floats, what every pose between them reads (:meth:`DescentProfile._interval`)."""
+
+    step_s: float                                   # time between the samples (s)
+    position0_m: list[float]
+    position1_m: list[float]
+    velocity0_mps: list[float]
+    velocity1_mps: list[float]
+    rate0_radps: list[float]                        # body rates
+    rate1_radps: list[float]
+    heat_shield_m: tuple[list[float], list[float]] | None    # the heat shield's positions, when the profile has them
+    attitude_ends: tuple[list[float], list[float], float, float]   # the attitude slerp's fixed part (_slerp_ends)
+
+
 @dataclass(frozen=True)
 class DescentProfile:
     """Time-tagged lander states (N samples, strictly increasing time).
@@ -161,22 +176,20 @@ class DescentProfile:
         return self.time_s.tolist()
 
     @cached_property
-    def _intervals(self) -> dict[int, tuple]:
+    def _intervals(self) -> dict[int, _Interval]:
         """Per sample interval, what every pose in it reads (:meth:`_interval`), filled as poses are asked for."""
         return {}
 
-    def _interval(self, index: int) -> tuple:
-        """The samples ``index`` and ``index + 1`` as floats, read once per interval.
+    def _interval(self, index: int) -> _Interval:
+        """The samples ``index`` and ``index + 1`` as floats (:class:`_Interval`), read once per interval.
 
-        Time step (s), positions, velocities, body rates, heat-shield positions (or None) and the attitude
-        slerp's fraction-independent part (:func:`_slerp_ends`). The poses of one image fall in one or two
-        intervals: each interval's values are read from the arrays and normalised once (the same values
-        every time).
+        The poses of one image fall in one or two intervals: each interval's values are read from the arrays
+        and normalised once (the same values every time).
         """
         found = self._intervals.get(index)
         if found is None:
             times, shield = self._sample_times, self.heat_shield_position_m
-            found = self._intervals[index] = (
+            found = self._intervals[index] = _Interval(
                 times[index + 1] - times[index],
                 self.position_m[index].tolist(), self.position_m[index + 1].tolist(),
                 self.velocity_mps[index].tolist(), self.velocity_mps[index + 1].tolist(),
@@ -222,13 +235,15 @@ class DescentProfile:
         Between samples ``index`` and ``index + 1`` at ``fraction`` (:meth:`_locate`).
         """
         interval = self._interval(index)
-        rate = [(1.0 - fraction) * a + fraction * b for a, b in zip(interval[5], interval[6])]
-        return _slerp_between(interval[8], fraction), rate
+        rate = [(1.0 - fraction) * a + fraction * b for a, b in zip(interval.rate0_radps, interval.rate1_radps)]
+        return _slerp_between(interval.attitude_ends, fraction), rate
 
     def _pose_with(self, time_s: float, index: int, fraction: float, attitude_quat: np.ndarray,
                    angular_rate_radps: np.ndarray) -> Pose:
         """:meth:`pose` at ``time_s`` (located at ``index``, ``fraction``) with the given attitude and body rate."""
-        step, p0, p1, v0, v1, _, _, shield, _ = self._interval(index)
+        interval = self._interval(index)
+        step, shield = interval.step_s, interval.heat_shield_m
+        p0, p1, v0, v1 = interval.position0_m, interval.position1_m, interval.velocity0_mps, interval.velocity1_mps
         s = fraction
         h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
         position = [h00 * a + h10 * step * b + h01 * c + h11 * step * d for a, b, c, d in zip(p0, v0, p1, v1)]
