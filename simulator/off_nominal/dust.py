@@ -48,12 +48,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from flight_interface import cahvor
 from flight_interface.camera import Camera
 from simulator.derived_cache import DERIVED
+from simulator.scene import node_grid
 
 NODE_STEP_PX = 4
 
@@ -249,43 +249,6 @@ def _map_optics(camera: Camera) -> tuple[float, float, np.ndarray, np.ndarray, n
     return cache["optics"]
 
 
-def upsample_nodes(nodes: np.ndarray, height_px: int, width_px: int) -> np.ndarray:
-    """Bilinear interpolation of the node grid to the pixels (node k at pixel ``(k + 0.5) step - 0.5``, k from -1).
-
-    The values of ``cv2.resize(nodes, (nx step, ny step), INTER_LINEAR)[step:step + H, step:step + W]``, made
-    without the full (ny step, nx step) image: a resize of the inner nodes straight to the (H, W) pixels (same
-    sample positions), whose two outer rows and columns, which also weigh the outer nodes, come from resizes of
-    the three outer node rows and columns.
-
-    Parameters
-    ----------
-    nodes : ndarray, shape (ny, nx), float32
-        Node values, ``ny = H // step + 2``, ``nx = W // step + 2`` (step :data:`NODE_STEP_PX`).
-    height_px, width_px : int
-        Image size H, W (pixels; a size that is no multiple of the step takes the full resize).
-
-    Returns
-    -------
-    ndarray, shape (H, W), float32
-        Interpolated values.
-    """
-    step = NODE_STEP_PX
-    node_rows, node_cols = nodes.shape
-    if height_px % step or width_px % step:      # the inner nodes would not span the frame at the step's scale
-        full = cv2.resize(nodes, (node_cols * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
-        return np.ascontiguousarray(full[step:step + height_px, step:step + width_px])
-    pixels = cv2.resize(nodes[1:-1, 1:-1], (width_px, height_px), interpolation=cv2.INTER_LINEAR)
-    top = cv2.resize(nodes[:3], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
-    bottom = cv2.resize(nodes[-3:], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
-    left = cv2.resize(nodes[:, :3], (3 * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
-    right = cv2.resize(nodes[:, -3:], (3 * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
-    pixels[:2] = top[step:step + 2, step:step + width_px]
-    pixels[-2:] = bottom[2 * step - 2:2 * step, step:step + width_px]
-    pixels[:, :2] = left[step:step + height_px, step:step + 2]
-    pixels[:, -2:] = right[step:step + height_px, 2 * step - 2:2 * step]
-    return pixels
-
-
 def _band_log_transmission(band_terms: np.ndarray, pupil_m: float, pupil_area_m2: float) -> np.ndarray:
     """Log of the light left in the beam by each transition-band pair: the last steps of the lens area, in place.
 
@@ -364,7 +327,7 @@ def transmission_map(camera: Camera, particles: DustParticles, distance_m: float
         band_log = _band_log_transmission(band_terms, float(pupil), pupil_area)
     log_sum = node_log_sums(x.size, core_log, core_nodes, core_end, band_nodes, band_log, band_end)
     nodes = np.exp(log_sum).reshape(x.shape).astype(np.float32)
-    return upsample_nodes(nodes, camera.height_px, camera.width_px)
+    return node_grid.upsample_nodes_contiguous(nodes, NODE_STEP_PX, camera.height_px, camera.width_px)
 
 
 def transmission_map_exact(camera: Camera, particles: DustParticles, distance_m: float) -> np.ndarray:

@@ -81,6 +81,45 @@ def upsample_nodes(node_values: np.ndarray, step_px: int, height_px: int, width_
     return big[row_step_px:row_step_px + height_px, step_px:step_px + width_px]
 
 
+def upsample_nodes_contiguous(node_values: np.ndarray, step_px: int, height_px: int, width_px: int) -> np.ndarray:
+    """:func:`upsample_nodes` as a new C-contiguous array, without resizing to the grid's full extent.
+
+    The same values: a resize of the inner nodes straight to the (H, W) pixels (the same sample positions,
+    ``(p + 0.5) / step - 0.5`` in inner-node units), whose ``step // 2`` outer rows and columns, which also
+    weigh the outer nodes, come from resizes of the three outer node rows and columns. Sizes that are no
+    multiple of the step take :func:`upsample_nodes` and a copy.
+
+    Parameters
+    ----------
+    node_values : ndarray, shape (ny, nx)
+        Values at the nodes, ``ny = H / step + 2``, ``nx = W / step + 2``.
+    step_px : int
+        Node spacing (px), rows and columns.
+    height_px, width_px : int
+        Size H, W of the output (px).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Interpolated values.
+    """
+    step, edge = step_px, step_px // 2
+    nodes = np.ascontiguousarray(node_values, dtype=np.float32)
+    if height_px % step or width_px % step or not edge:   # the inner nodes would not span the frame at the step
+        return np.ascontiguousarray(upsample_nodes(nodes, step, height_px, width_px))
+    node_rows, node_cols = nodes.shape
+    pixels = cv2.resize(nodes[1:-1, 1:-1], (width_px, height_px), interpolation=cv2.INTER_LINEAR)
+    top = cv2.resize(nodes[:3], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
+    bottom = cv2.resize(nodes[-3:], (node_cols * step, 3 * step), interpolation=cv2.INTER_LINEAR)
+    left = cv2.resize(nodes[:, :3], (3 * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
+    right = cv2.resize(nodes[:, -3:], (3 * step, node_rows * step), interpolation=cv2.INTER_LINEAR)
+    pixels[:edge] = top[step:step + edge, step:step + width_px]
+    pixels[-edge:] = bottom[2 * step - edge:2 * step, step:step + width_px]
+    pixels[:, :edge] = left[step:step + height_px, step:step + edge]
+    pixels[:, -edge:] = right[step:step + height_px, 2 * step - edge:2 * step]
+    return pixels
+
+
 def interpolate_nodes_window(node_values: np.ndarray, step_px: int, row0: int, row1: int, col0: int,
                              col1: int) -> np.ndarray:
     """Bilinear node-grid interpolation (as :func:`upsample_nodes`) of a pixel window only.

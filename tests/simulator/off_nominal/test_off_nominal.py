@@ -179,25 +179,6 @@ def test_compiled_passes_give_the_closed_form_blocked_fraction():
         assert np.all(transmission[separations >= pupil + radius] == 1.0)
 
 
-def test_upsampling_equals_the_full_resize_and_interpolates_linear_ramps_exactly():
-    rng = np.random.default_rng(3)
-    step = dust.NODE_STEP_PX
-    for _ in range(20):
-        nodes = (rng.random((258, 258)) ** rng.uniform(0.2, 5.0)).astype(np.float32)
-        full = cv2.resize(nodes, (258 * step, 258 * step), interpolation=cv2.INTER_LINEAR)
-        assert np.array_equal(dust.upsample_nodes(nodes, 1024, 1024), full[step:step + 1024, step:step + 1024])
-    nodes = rng.random((1022 // step + 2, 1026 // step + 2)).astype(np.float32)   # sizes off the step: full resize
-    full = cv2.resize(nodes, (nodes.shape[1] * step, nodes.shape[0] * step), interpolation=cv2.INTER_LINEAR)
-    assert np.array_equal(dust.upsample_nodes(nodes, 1022, 1026), full[step:step + 1022, step:step + 1026])
-    # node k sits at pixel (k + 0.5) step - 0.5, k from -1: a ramp over the nodes is the same ramp over the pixels
-    node_col = np.arange(258) - 1.0
-    nodes = (0.5 + 1e-3 * ((node_col + 0.5) * step - 0.5))[None, :].repeat(258, axis=0).astype(np.float32)
-    pixels = dust.upsample_nodes(nodes, 1024, 1024)
-    assert np.allclose(pixels, (0.5 + 1e-3 * np.arange(1024.0))[None, :], rtol=0.0, atol=1e-6)
-    assert np.allclose(dust.upsample_nodes(np.ascontiguousarray(nodes.T), 1024, 1024),
-                       (0.5 + 1e-3 * np.arange(1024.0))[:, None], rtol=0.0, atol=1e-6)
-
-
 def test_particles_off_the_frame_or_none_leave_the_map_clear():
     far = dust.DustParticles(np.array([[0.05, 0.05], [-0.04, 0.0]]), np.array([300e-6, 300e-6]))
     none = dust.DustParticles(np.zeros((0, 2)), np.zeros(0))

@@ -88,3 +88,25 @@ def test_a_pose_renders_the_same_bits_with_and_without_the_fused_passes(monkeypa
     separate = radiance.radiance_at_pose(terrain, CAMERA, pose, sun, config)
     np.testing.assert_array_equal(radiance_fused.view(np.uint32), separate.radiance.view(np.uint32))
     np.testing.assert_array_equal(outside_fused, separate.outside)
+
+
+@pytest.mark.parametrize("step", [4, 8, 32])
+def test_contiguous_upsampling_equals_the_full_resize_and_interpolates_linear_ramps_exactly(step):
+    rng = np.random.default_rng(3)
+    rows, cols = 1024 // step + 2, 1024 // step + 2
+    for _ in range(10):
+        nodes = (rng.random((rows, cols)) ** rng.uniform(0.2, 5.0)).astype(np.float32)
+        full = cv2.resize(nodes, (cols * step, rows * step), interpolation=cv2.INTER_LINEAR)
+        upsampled = node_grid.upsample_nodes_contiguous(nodes, step, 1024, 1024)
+        assert upsampled.flags.c_contiguous
+        assert np.array_equal(upsampled, full[step:step + 1024, step:step + 1024])
+    nodes = rng.random((1022 // step + 2, 1026 // step + 2)).astype(np.float32)   # sizes off the step: full resize
+    full = cv2.resize(nodes, (nodes.shape[1] * step, nodes.shape[0] * step), interpolation=cv2.INTER_LINEAR)
+    assert np.array_equal(node_grid.upsample_nodes_contiguous(nodes, step, 1022, 1026), full[step:step + 1022, step:step + 1026])
+    # node k sits at pixel (k + 0.5) step - 0.5, k from -1: a ramp over the nodes is the same ramp over the pixels
+    node_col = np.arange(cols) - 1.0
+    nodes = (0.5 + 1e-3 * ((node_col + 0.5) * step - 0.5))[None, :].repeat(rows, axis=0).astype(np.float32)
+    ramp = 0.5 + 1e-3 * np.arange(1024.0)
+    assert np.allclose(node_grid.upsample_nodes_contiguous(nodes, step, 1024, 1024), ramp[None, :], rtol=0.0, atol=1e-6)
+    assert np.allclose(node_grid.upsample_nodes_contiguous(np.ascontiguousarray(nodes.T), step, 1024, 1024),
+                       ramp[:, None], rtol=0.0, atol=1e-6)
