@@ -139,7 +139,7 @@ def standard_normal_f32(rng: np.random.Generator, shape: tuple[int, ...], out: n
     seed = int(rng.integers(1, 2**31 - 1))
     if (samples.dtype == np.float32 and samples.ndim <= 2 and samples.flags.c_contiguous
             and opencv_normal.generator_matches_opencv(samples.shape)):
-        return opencv_normal.standard_normal_f32(seed, samples.shape, out=samples)
+        return opencv_normal.reproduced_standard_normal_f32(seed, samples.shape, out=samples)
     return opencv_normal.opencv_standard_normal_f32(seed, samples.shape, out=samples)
 
 
