@@ -164,56 +164,50 @@ def _fill_kernel(seed, samples, k, w, f):
     return state
 
 
-def reproduced_standard_normal_f32(seed: int, shape: tuple[int, ...], out: np.ndarray | None = None) -> np.ndarray:
-    """The samples of ``cv2.setRNGSeed(seed); cv2.randn(out, 0.0, 1.0)`` for a float32 array, from numba.
+def seeded_standard_normal_f32(seed: int, shape: tuple[int, ...], out: np.ndarray | None = None,
+                               generator: str = "checked") -> np.ndarray:
+    """The samples of ``cv2.setRNGSeed(seed); cv2.randn(out, 0.0, 1.0)`` on a float32 array.
 
     Parameters
     ----------
     seed : int
         OpenCV seed, 1 .. 2^31 - 1.
     shape : tuple of int
-        Shape of the samples (filled in row-major order).
-    out : ndarray, float32, C-contiguous, shape ``shape``, optional
-        Where to write them (else a new array).
-
-    Returns
-    -------
-    ndarray, float32, shape ``shape``
-        Samples of N(0, 1).
-    """
-    samples = np.empty(shape, dtype=np.float32) if out is None else out
-    if samples.dtype != np.float32 or not samples.flags.c_contiguous:
-        raise ValueError("out must be a C-contiguous float32 array")
-    _fill_kernel(seed, samples.reshape(-1), ZIGGURAT_K, ZIGGURAT_W, ZIGGURAT_F)
-    return samples
-
-
-def opencv_standard_normal_f32(seed: int, shape: tuple[int, ...], out: np.ndarray | None = None) -> np.ndarray:
-    """``cv2.setRNGSeed(seed)`` then ``cv2.randn`` (mean 0, standard deviation 1): OpenCV's own samples.
-
-    Parameters
-    ----------
-    seed : int
-        OpenCV seed, 1 .. 2^31 - 1.
-    shape : tuple of int
-        Shape of the samples (2-D or 1-D: OpenCV reads a third axis as channels).
+        Shape of the samples (filled in row-major order; 1-D or 2-D: OpenCV reads a third axis as channels).
     out : ndarray, float32, shape ``shape``, optional
         Where to write them (else a new array).
+    generator : {"checked", "numba", "opencv"}
+        ``"numba"``: the reproduction (:func:`_fill_kernel`; ``out`` C-contiguous); ``"opencv"``: OpenCV's own
+        call; ``"checked"``: the reproduction where :func:`generator_matches_opencv` holds for this shape and
+        ``out`` is C-contiguous, else OpenCV's.
 
     Returns
     -------
     ndarray, float32, shape ``shape``
         Samples of N(0, 1).
+
+    Raises
+    ------
+    ValueError
+        ``"numba"`` with an ``out`` that is not a C-contiguous float32 array, or another generator name.
     """
     samples = np.empty(shape, dtype=np.float32) if out is None else out
-    cv2.setRNGSeed(seed)
-    cv2.randn(samples, _RANDN_MEAN, _RANDN_STDDEV)
+    if generator not in ("checked", "numba", "opencv"):
+        raise ValueError(f"generator {generator!r}: expected 'checked', 'numba' or 'opencv'")
+    fits = samples.dtype == np.float32 and samples.ndim <= 2 and samples.flags.c_contiguous
+    if generator == "numba" and not fits:
+        raise ValueError("out must be a C-contiguous float32 array of 1 or 2 dimensions")
+    if generator == "numba" or (generator == "checked" and fits and generator_matches_opencv(samples.shape)):
+        _fill_kernel(seed, samples.reshape(-1), ZIGGURAT_K, ZIGGURAT_W, ZIGGURAT_F)
+    else:
+        cv2.setRNGSeed(seed)
+        cv2.randn(samples, _RANDN_MEAN, _RANDN_STDDEV)
     return samples
 
 
 @lru_cache(maxsize=64)
 def generator_matches_opencv(shape: tuple[int, ...]) -> bool:
-    """Whether :func:`reproduced_standard_normal_f32` gives ``cv2.randn``'s bits for this shape (checked once, on one seed).
+    """Whether the reproduction gives ``cv2.randn``'s bits for this shape (checked once, on one seed).
 
     Parameters
     ----------
@@ -226,5 +220,6 @@ def generator_matches_opencv(shape: tuple[int, ...]) -> bool:
         True when all samples of the probe seed are bit-identical to OpenCV's (a 256 x 1024 image takes
         ~150 tail and ~4000 wedge samples).
     """
-    ours = reproduced_standard_normal_f32(_PROBE_SEED, shape)
-    return bool(np.array_equal(ours.view(np.uint32), opencv_standard_normal_f32(_PROBE_SEED, shape).view(np.uint32)))
+    ours = seeded_standard_normal_f32(_PROBE_SEED, shape, generator="numba")
+    theirs = seeded_standard_normal_f32(_PROBE_SEED, shape, generator="opencv")
+    return bool(np.array_equal(ours.view(np.uint32), theirs.view(np.uint32)))

@@ -135,12 +135,7 @@ def standard_normal_f32(rng: np.random.Generator, shape: tuple[int, ...], out: n
     ndarray, float32, shape ``shape``
         Samples of N(0, 1).
     """
-    samples = np.empty(shape, dtype=np.float32) if out is None else out
-    seed = int(rng.integers(1, 2**31 - 1))
-    if (samples.dtype == np.float32 and samples.ndim <= 2 and samples.flags.c_contiguous
-            and opencv_normal.generator_matches_opencv(samples.shape)):
-        return opencv_normal.reproduced_standard_normal_f32(seed, samples.shape, out=samples)
-    return opencv_normal.opencv_standard_normal_f32(seed, samples.shape, out=samples)
+    return opencv_normal.seeded_standard_normal_f32(int(rng.integers(1, 2**31 - 1)), shape, out=out)
 
 
 def read_noise_e(rng: np.random.Generator, shape: tuple[int, ...], sigma_e: float) -> np.ndarray:

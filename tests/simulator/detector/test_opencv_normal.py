@@ -35,7 +35,7 @@ def test_samples_are_cv2_randns_bit_for_bit_over_seeds_and_sizes():
                                                                 (512, 1024), (1024, 1024), (7, 333), (2, 2)])]
     tails = 0
     for seed, shape in cases:
-        ours = opencv_normal.reproduced_standard_normal_f32(seed, shape)
+        ours = opencv_normal.seeded_standard_normal_f32(seed, shape, generator="numba")
         theirs = _opencv_samples(seed, shape)
         assert ours.shape == theirs.shape and ours.dtype == np.float32
         differ = ours.view(np.uint32) != theirs.view(np.uint32)
@@ -110,4 +110,4 @@ def test_read_out_is_the_same_with_opencvs_generator(mer_a, monkeypatch, exact_p
 
 def test_out_must_be_contiguous_float32():
     with pytest.raises(ValueError, match="C-contiguous float32"):
-        opencv_normal.reproduced_standard_normal_f32(5, (4, 4), out=np.empty((4, 8), dtype=np.float32)[:, ::2])
+        opencv_normal.seeded_standard_normal_f32(5, (4, 4), out=np.empty((4, 8), dtype=np.float32)[:, ::2], generator="numba")
