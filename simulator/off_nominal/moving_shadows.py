@@ -40,7 +40,6 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 from pydantic import Field
 
@@ -55,8 +54,6 @@ EDGE_FRACTION = 0.1          # diffuse edge of the dust, as a fraction of the ca
 PLACEMENT_FRAME_FRACTION = 0.8
 RING_POINTS = 24
 TRUSTED_PROJECTION_FRAMES = 1.0   # outline pixels farther than this (frames) from the centre: whole frame
-COARSE_BLOCK_PX = 4              # a wide-edged shadow is evaluated at the centres of blocks this wide ...
-COARSE_EDGE_PX = 32.0            # ... when its edge spans at least this many pixels
 
 
 class MovingShadowsConfig(ConfigModel):
@@ -242,7 +239,8 @@ class MovingShadows:
         metres_per_pixel : float
             Grid spacing (m).
         """
-        from simulator.scene import ground_mapping  # numba-compiled passes: loaded by rendering, not the config
+        from simulator.off_nominal import shadow_darkening  # numba-compiled passes: loaded by rendering, not the config
+        from simulator.scene import ground_mapping
 
         height, width = radiance.shape
         shift = self.velocity_mps * (time_s - self.reference_time_s)
@@ -267,122 +265,14 @@ class MovingShadows:
                 windows.append((k, start, row0, row1, col0, col1))
         if not windows:
             return
-        top, bottom = min(w[2] for w in windows), max(w[3] for w in windows)
-        left, right = min(w[4] for w in windows), max(w[5] for w in windows)
-        direct = np.ones((bottom - top, right - left), dtype=np.float32)
-        for k, start, row0, row1, col0, col1 in windows:
-            covered = self._covered_fraction(k, start, ground_map, row0, row1, col0, col1, grid_origin_m,
-                                             metres_per_pixel)
-            if ground_map.any_sky:
-                covered[ground_map.sky[row0:row1, col0:col1]] = 0.0
-            covered *= np.float32(-(1.0 - self.core_factor[k]))
-            covered += np.float32(1.0)
-            direct[row0 - top:row1 - top, col0 - left:col1 - left] *= covered
-        f = np.float32(self.diffuse_fraction)
-        radiance[top:bottom, left:right] *= f + (np.float32(1.0) - f) * direct
-
-
-    def _covered_fraction(self, k: int, start: np.ndarray, ground_map: ground_mapping.GroundMap, row0: int, row1: int,
-                          col0: int, col1: int, grid_origin_m, metres_per_pixel: float) -> np.ndarray:
-        """Shadow ``k``'s covered fraction ``clip(0.5 - (distance - r) / w, 0, 1)`` on an image window.
-
-        A shadow whose edge spans at least ``COARSE_EDGE_PX`` pixels (a cloud's: 100 m and more) is evaluated
-        at the centres of ``COARSE_BLOCK_PX``-pixel blocks (block means of the ground coordinates) and
-        interpolated bilinearly where the four blocks around a pixel are all in the core, all outside, or all
-        on the linear edge (there the fraction is linear in a distance whose curvature over a block is
-        ~1e-4 of the fraction); pixels between blocks on either side of a kink, and the outermost blocks, are
-        evaluated exactly. Other shadows are evaluated at every pixel.
-
-        Parameters
-        ----------
-        k : int
-            The shadow.
-        start : ndarray, shape (2,)
-            East, north of its axis start at the time (m).
-        ground_map : GroundMap
-            Ground point of every pixel.
-        row0, row1, col0, col1 : int
-            The window.
-        grid_origin_m : (float, float)
-            East, north of the grid's (row 0, col 0) pixel centre (m).
-        metres_per_pixel : float
-            Grid spacing (m).
-
-        Returns
-        -------
-        ndarray, shape (row1 - row0, col1 - col0), float32
-            The fraction, 0 .. 1.
-        """
-        height, width = ground_map.col.shape
-        rows, cols = row1 - row0, col1 - col0
-        block = COARSE_BLOCK_PX
-        block_rows, block_cols = -(-rows // block), -(-cols // block)
-        if not (block * block_rows <= height and block * block_cols <= width and min(block_rows, block_cols) >= 2
-                and self.edge_m[k] >= COARSE_EDGE_PX * _pixel_ground_m(ground_map, row0, row1, col0, col1,
-                                                                       metres_per_pixel)):
-            return self._covered_at(k, start, ground_map.col[row0:row1, col0:col1], ground_map.row[row0:row1, col0:col1],
-                                    grid_origin_m, metres_per_pixel)
-        top = min(row0, height - block * block_rows)
-        left = min(col0, width - block * block_cols)
-        window = (slice(top, top + block * block_rows), slice(left, left + block * block_cols))
-        size = (block_cols, block_rows)
-        coarse = self._covered_at(k, start, cv2.resize(ground_map.col[window], size, interpolation=cv2.INTER_AREA),
-                                  cv2.resize(ground_map.row[window], size, interpolation=cv2.INTER_AREA),
-                                  grid_origin_m, metres_per_pixel)
-        fine_size = (block * block_cols, block * block_rows)
-        crop = (slice(row0 - top, row1 - top), slice(col0 - left, col1 - left))
-        covered = np.ascontiguousarray(cv2.resize(coarse, fine_size, interpolation=cv2.INTER_LINEAR)[crop])
-        # the regime of each block (0 outside, 1 on the edge, 2 in the core); a pixel reads the blocks within one
-        # block of its own: where those differ, the interpolation crosses a kink
-        regime = (coarse > 0).view(np.uint8) + (coarse >= 1).view(np.uint8)
-        kernel = np.ones((3, 3), np.uint8)
-        mixed = cv2.dilate(regime, kernel) != cv2.erode(regime, kernel)
-        mixed[[0, -1], :] = mixed[:, [0, -1]] = True      # the outer half blocks are extrapolated: exact there
-        mixed = cv2.resize(mixed.view(np.uint8), fine_size, interpolation=cv2.INTER_NEAREST)[crop].view(bool)
-        index = np.flatnonzero(mixed)
-        if index.size:        # the frame's flat indices of those window pixels (the maps are whole frames)
-            frame_index = (row0 + index // cols) * width + (col0 + index % cols)
-            covered.reshape(-1)[index] = self._covered_at(k, start, ground_map.col.reshape(-1)[frame_index],
-                                                          ground_map.row.reshape(-1)[frame_index], grid_origin_m,
-                                                          metres_per_pixel)
-        return covered
-
-    def _covered_at(self, k: int, start: np.ndarray, col: np.ndarray, row: np.ndarray, grid_origin_m,
-                    metres_per_pixel: float) -> np.ndarray:
-        """Shadow ``k``'s covered fraction at ground grid coordinates (a new float32 array)."""
-        # ground east/north relative to the shadow's start (float32: mm at km)
-        east = col * np.float32(metres_per_pixel) + np.float32(grid_origin_m[0] - start[0])
-        north = np.float32(grid_origin_m[1] - start[1]) - row * np.float32(metres_per_pixel)
-        if self.length_m[k] > 0:      # distance to the segment: remove the clipped along-axis part
-            along = np.clip(east * np.float32(self.anti_sun[0]) + north * np.float32(self.anti_sun[1]),
-                            np.float32(0.0), np.float32(self.length_m[k]))
-            east -= along * np.float32(self.anti_sun[0])
-            north -= along * np.float32(self.anti_sun[1])
-        # clip(0.5 - (distance - r) / w, 0, 1), in place
-        east *= east                  # distance as sqrt(e^2 + n^2): np.hypot costs ~10x more per pixel
-        north *= north
-        east += north
-        covered = np.sqrt(east, out=east)
-        covered *= np.float32(-1.0 / self.edge_m[k])
-        covered += np.float32(0.5 + self.radius_m[k] / self.edge_m[k])
-        np.clip(covered, np.float32(0.0), np.float32(1.0), out=covered)
-        return covered
-
-
-def _pixel_ground_m(ground_map: ground_mapping.GroundMap, row0: int, row1: int, col0: int, col1: int,
-                    metres_per_pixel: float) -> float:
-    """Largest ground step between neighbouring pixels at a window's corners and centre (m); inf near sky."""
-    height, width = ground_map.col.shape
-    steps = []
-    for row, col in ((row0, col0), (row0, col1 - 1), (row1 - 1, col0), (row1 - 1, col1 - 1),
-                     ((row0 + row1) // 2, (col0 + col1) // 2)):
-        row, col = max(min(row, height - 2), 0), max(min(col, width - 2), 0)
-        if ground_map.any_sky and ground_map.sky[row:row + 2, col:col + 2].any():
-            return float("inf")
-        for d_row, d_col in ((0, 1), (1, 0)):
-            steps.append(np.hypot(ground_map.col[row + d_row, col + d_col] - ground_map.col[row, col],
-                                  ground_map.row[row + d_row, col + d_col] - ground_map.row[row, col]))
-    return float(max(steps)) * metres_per_pixel
+        chosen = [window[0] for window in windows]
+        table = shadow_darkening.shadow_table(np.array([window[1] for window in windows]), grid_origin_m, self.anti_sun,
+                                              self.length_m[chosen], self.radius_m[chosen], self.edge_m[chosen],
+                                              self.core_factor[chosen])
+        shadow_darkening.darken_windows(radiance, ground_map.col, ground_map.row, ground_map.sky, bool(ground_map.any_sky),
+                                        np.float32(metres_per_pixel), table,
+                                        np.array([window[2:] for window in windows], dtype=np.int64),
+                                        np.float32(self.diffuse_fraction))
 
 
 def _may_overlap_footprint(camera: Camera, pose: ground_mapping.CameraPose, outline_m: np.ndarray) -> bool:

@@ -157,3 +157,67 @@ def test_keys_have_ranges_in_the_schema_and_bad_values_are_one_line():
         parse(SceneConfig, {"off_nominal": {"dust_devil_count": 50}}, "case.toml", "scene")
     text = str(error.value)
     assert "\n" not in text and "scene.off_nominal.dust_devil_count" in text and "20" in text
+
+
+def numpy_darkened(radiance, col_map, row_map, sky, mpp, shadows, windows, diffuse):
+    """The darkening of simulator/off_nominal/shadow_darkening.py written with numpy float32 array passes."""
+    out = radiance.copy()
+    top, bottom = windows[:, 0].min(), windows[:, 1].max()
+    left, right = windows[:, 2].min(), windows[:, 3].max()
+    direct = np.ones((bottom - top, right - left), dtype=np.float32)
+    for (east_offset, north_offset, anti_east, anti_north, length, slope, intercept, change), window in zip(shadows, windows):
+        row0, row1, col0, col1 = window
+        east = col_map[row0:row1, col0:col1] * mpp + east_offset
+        north = north_offset - row_map[row0:row1, col0:col1] * mpp
+        if length > 0:
+            along = np.clip(east * anti_east + north * anti_north, np.float32(0), length)
+            east = east - along * anti_east
+            north = north - along * anti_north
+        covered = np.clip(np.sqrt(east * east + north * north) * slope + intercept, np.float32(0), np.float32(1))
+        covered[sky[row0:row1, col0:col1]] = 0
+        direct[row0 - top:row1 - top, col0 - left:col1 - left] *= covered * change + np.float32(1)
+    out[top:bottom, left:right] *= diffuse + (np.float32(1) - diffuse) * direct
+    return out
+
+
+def test_the_compiled_darkening_is_the_distance_ramp_of_every_pixel():
+    from simulator.off_nominal import shadow_darkening
+
+    height, width, mpp = 96, 128, 0.5
+    rows, cols = np.mgrid[0:height, 0:width].astype(np.float32)
+    rng = np.random.default_rng(4)
+    col_map = cols + rng.uniform(-0.3, 0.3, cols.shape).astype(np.float32)        # a slightly warped ground grid
+    row_map = rows + rng.uniform(-0.3, 0.3, rows.shape).astype(np.float32)
+    sky = np.zeros((height, width), bool)
+    sky[:6, 100:] = True
+    radiance = rng.uniform(5.0, 40.0, (height, width)).astype(np.float32)
+    origin = (3.0, 40.0)
+    anti_sun = np.array([0.6, -0.8])
+    start = np.array([[20.0, 20.0], [40.0, 25.0], [25.0, 10.0]])             # a segment, two discs (m)
+    length, radius, edge = np.array([12.0, 0.0, 0.0]), np.array([4.0, 9.0, 30.0]), np.array([1.5, 3.0, 12.0])
+    core = np.array([0.2, 0.5, 0.7])
+    table = shadow_darkening.shadow_table(start, origin, anti_sun, length, radius, edge, core)
+    windows = np.array([[10, 60, 20, 90], [0, 50, 60, 128], [30, 96, 0, 110]], dtype=np.int64)
+    darkened = radiance.copy()
+    shadow_darkening.darken_windows(darkened, col_map, row_map, sky, True, np.float32(mpp), table, windows,
+                                    np.float32(DIFFUSE))
+    # the same float32 operations with numpy: the same bits
+    assert np.array_equal(darkened, numpy_darkened(radiance, col_map, row_map, sky, np.float32(mpp), table, windows,
+                                                   np.float32(DIFFUSE)))
+    # closed form in float64: covered = clip(0.5 - (d - r) / w, 0, 1), d the distance to the axis segment
+    east = origin[0] + col_map.astype(float) * mpp
+    north = origin[1] - row_map.astype(float) * mpp
+    direct = np.ones((height, width))
+    for index, (row0, row1, col0, col1) in enumerate(windows):
+        relative = np.stack([east - start[index, 0], north - start[index, 1]], axis=-1)
+        along = np.clip(relative @ anti_sun, 0.0, length[index])
+        distance = np.linalg.norm(relative - along[..., None] * anti_sun, axis=-1)
+        covered = np.clip(0.5 - (distance - radius[index]) / edge[index], 0.0, 1.0)
+        covered[sky] = 0.0
+        inside = np.zeros((height, width), bool)
+        inside[row0:row1, col0:col1] = True
+        direct[inside] *= 1.0 - covered[inside] * (1.0 - core[index])
+        seen = covered[inside & ~sky]
+        assert (seen == 1).any() and (seen == 0).any() and ((seen > 0.05) & (seen < 0.95)).any()   # core, out, ramp
+    ratio = darkened.astype(float) / radiance
+    np.testing.assert_allclose(ratio, DIFFUSE + (1 - DIFFUSE) * direct, rtol=0, atol=2e-6)
