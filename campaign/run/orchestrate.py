@@ -133,7 +133,9 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
     with :func:`~campaign.run.cluster.require_backend`): check every store read-only (StoreError: another
     configuration, corrupt manifest, ... unless ``fresh``), take every store's lock in path order
     (:class:`~campaign.store.lock.StoreBusy` when another writer holds one, unless ``wait``), check again
-    under the locks, start or connect to the cluster unless a ``client`` is given (:func:`cluster_session`:
+    under the locks (when every store has every planned case already, :meth:`CampaignStore.has_every_case`, no
+    cluster is started: the stores are only prepared and, if out of date, compacted), start or connect to the
+    cluster unless a ``client`` is given (:func:`cluster_session`:
     ``client_hook``, then the python plug-ins' code shipped to the workers; a worker that cannot import one
     stops the run before any store changes; the inputs every worker would load alike and planning loaded here,
     :func:`~campaign.case.inputs.shippable_inputs`, are shipped as the cluster is up), and only
@@ -176,6 +178,11 @@ def run_store_points(points: list[StorePoint], execution: ExecutionConfig, *, cl
     with ExitStack() as stack:
         new_lock_files = [store.lock_path for store in stores if not store.lock_path.exists()]
         lock_stores(points, stores, stack, fresh=fresh, wait=wait)
+        if client is None and not fresh and all(store.has_every_case(point.manifest, point.plan)
+                                                for point, store in zip(points, stores)):
+            for store in stores:
+                on_note(f"{store.root}: every planned case is done; no cluster started")
+            return run_locked_points(None, points, stores, execution, on_note=on_note)
         if client is None:
             specs = [spec for point in points for spec in point.config.estimators]
             # the inputs every worker would load alike (planning loaded them here), pickled while the cluster starts
@@ -296,6 +303,8 @@ def run_locked_points(client, points: list[StorePoint], stores: list[CampaignSto
             finished = store.finished_case_ids()
             todo = [row for row in store.plan().to_dict("records") if int(row["case_id"]) not in finished]
             prepared.append(PreparedPoint(point, store, todo))
+            if todo and client is None:
+                raise RuntimeError(f"{store.root}: {len(todo)} cases to run and no cluster")  # has_every_case said none
             if todo:
                 for session in _SESSION_STORES:
                     session.add(store.root)

@@ -310,6 +310,25 @@ class CampaignStore:
                          "(see rejected.log); their cases are computed again")
         return notes
 
+    def has_every_case(self, manifest: dict, plan: pd.DataFrame) -> bool:
+        """Whether :meth:`prepare` would leave no case of ``plan`` to run; changes nothing.
+
+        True only when the store records this configuration (hash, estimator list) with a verified plan of
+        the same case ids, ``cases/`` holds no bad or superseded file (``prepare`` would reject it and its case
+        be computed again) and every planned case is counted. A run may then skip its cluster.
+        """
+        import numpy as np
+
+        existing, problem = self._manifest_state()
+        if (problem is not None or existing is None or existing["config_hash"] != manifest["config_hash"]
+                or existing.get("estimators") != manifest.get("estimators") or self._plan_problem(existing) is not None):
+            return False
+        planned = np.sort(pq.read_table(self.plan_path, columns=["case_id"]).column("case_id").to_numpy())
+        if not _same_case_ids(planned, plan["case_id"].to_numpy()):
+            return False
+        scan = self.scan(record=False)
+        return not scan.bad and not scan.superseded and bool(scan.in_plan(planned).sum() == len(planned))
+
     def _record_plan(self, manifest: dict, plan: pd.DataFrame) -> None:
         """Write the plan, then the manifest recording its digest (the manifest is the commit point)."""
         digest = atomic_write_table(self.plan_path, pa.Table.from_pandas(plan, preserve_index=False))

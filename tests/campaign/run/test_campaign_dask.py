@@ -84,6 +84,7 @@ def test_rerun_runs_nothing_and_changed_config_is_refused(reference_run, tmp_pat
     before = {p.name: p.stat().st_mtime_ns for p in (reference_run / "cases").iterdir()}
     rerun = _in_process(*_submit_args(reference_run, "--workers", "1"))
     assert "(0 done, 0 failed this run)" in rerun
+    assert "no cluster started" in rerun and "dask dashboard" not in rerun      # nothing to run: no cluster
     assert {p.name: p.stat().st_mtime_ns for p in (reference_run / "cases").iterdir()} == before
     other_seed = site_copy(tmp_path, "\n[campaign]\nseed = 2\n")
     changed = _campaign("submit", str(other_seed), "--output", str(reference_run), "--cases-scale", SCALE,

@@ -326,3 +326,20 @@ def test_a_changed_results_part_is_not_trusted_and_verify_rehashes_the_parts(tmp
     with store.lock():
         assert CampaignStore(store.root).compact() == 30, "compaction re-hashes the parts it keeps"
     assert verify_store(store.root, progress=None).clean
+
+
+def test_a_store_has_every_case_only_when_prepare_would_leave_none_to_run(tmp_path):
+    manifest = {"config_hash": "c" * 64, "seed": 1, "estimators": ["dimes"], "cases_per_class": {}}
+    plan = pd.DataFrame({"case_id": list(range(20))})
+    store = make_store(tmp_path / "store", range(20))
+    assert not store.has_every_case(manifest, plan)                    # nothing computed yet
+    batches = [_batch(store, range(start, start + 10)) for start in (0, 10)]
+    assert CampaignStore(store.root).has_every_case(manifest, plan)
+    assert not store.has_every_case(manifest, pd.DataFrame({"case_id": list(range(21))}))     # a bigger plan
+    assert not store.has_every_case({**manifest, "estimators": ["dimes", "other"]}, plan)     # another estimator list
+    assert not store.has_every_case({**manifest, "config_hash": "d" * 64}, plan)
+    os.truncate(batches[1], batches[1].stat().st_size // 2)             # prepare would reject it: 10 cases to run
+    assert not CampaignStore(store.root).has_every_case(manifest, plan)
+    with store.lock():
+        store.prepare(manifest, plan)
+    assert CampaignStore(store.root).status().missing == 10
