@@ -245,7 +245,7 @@ def shift_window(window: np.ndarray, offset: np.ndarray, out_size: int) -> np.nd
     """Sample a square ``window`` at ``(x + offset_x, y + offset_y)`` by Keys cubic convolution.
 
     Exact in sub-pixel position (no fixed-point quantisation of the coordinates, unlike
-    ``cv2.warpAffine``, which rounds to 1/32 pixel).
+    ``cv2.warpAffine`` of OpenCV 4.x, which rounds to 1/32 pixel).
 
     Parameters
     ----------

@@ -276,7 +276,7 @@ def test_parallax_hits_agree_with_a_brute_force_march_and_the_cone_in_closed_for
                                    origin[1] + (z - origin[2]) / rays[:, 2] * rays[:, 1])
     fast_col, fast_row = ground_map.col[rows_px, cols_px], ground_map.row[rows_px, cols_px]
     offset_px = np.hypot(fast_col - brute_col, fast_row - brute_row)
-    # the fast path reads heights at coordinates snapped to 1/32 px: within 1/64 px of the ray, plus the
+    # the fast path reads heights where OpenCV's remap reads (OpenCV 4.x snaps to 1/32 px: within 1/64 px of the ray), plus the
     # 1 mm tolerance. Where a nearer bump may hide the crossing it takes the reference march, which can miss
     # a chord shorter than its 0.5 px step at the knob's silhouette: there it must be the march's point.
     off = offset_px > 0.03
