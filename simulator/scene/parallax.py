@@ -44,8 +44,8 @@ compile once per machine): the level map in window coordinates, the coarse secan
 points, the ray points (the rays' slopes formed on the way, never stored), the hit points with their grid
 coordinates, the view term (the half-precision normals' bits read through a table of their exact values),
 and one pass for the off-tolerance pixels and the radiance factor; OpenCV's remap keeps the bilinear reads
-(a scalar compiled read measured 2x slower here, with OpenCV 4's 1/32-px snapping and with OpenCV 5's float
-coordinates alike: 3.3 against 1.7 ms for 1 Mpx; the check holds whatever the remap read to the tolerance).
+(a scalar compiled read measured 2x slower here: 3.3 against 1.7 ms for 1 Mpx, OpenCV 5.0's bits reproduced;
+the check holds whatever the remap read to the tolerance).
 They compute the same float32 operations as the numpy passes they replace: the same bits.
 The per-pose floor is the reads: two full-resolution remaps (the fixed-point step and the 4-channel check
 and shading read) and two half-resolution ones; the rest is memory-bound passes over 1 Mpx frames.
