@@ -9,64 +9,18 @@ interrupted run are not computed again.
 """
 from __future__ import annotations
 
-import os
 import re
-import signal
-import subprocess
-import threading
 import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
+# the large sweep's grid and its run until the first case file are the benchmark sweep/2000_points_first_batch's
+from benchmarks.bench_sweep_start import WIDE_AXES
+from benchmarks.bench_sweep_start import start_and_interrupt as _interrupt_at_first_case
+from benchmarks.bench_sweep_start import sweep_file as _sweep_file
 from campaign.cli import main
-from service_campaigns import GUSEV, REPO, campaign_command, project_environment
-
-#: 40 x 50 = 2000 grid points (the grid of the benchmark sweep/2000_points_first_batch)
-WIDE_AXES = {"scene.camera_effects.dark_current_scale": [1.0 + i for i in range(40)],
-             "sensors.attitude_random_sigma_deg": [0.01 + 0.01 * i for i in range(50)]}
-
-
-def _sweep_file(path: Path, axes: dict[str, list[float]]) -> Path:
-    """A sweep of the Gusev site, one gcp case per point, over ``axes`` (field -> values)."""
-    fields = "\n".join(f'"{field}" = [{", ".join(map(repr, values))}]' for field, values in axes.items())
-    path.write_text(f'[sweep]\nbase = "{GUSEV}"\n[sweep.cases]\ngcp = 1\ngdcp = 0\ngkep = 0\n[axes]\n{fields}\n')
-    return path
-
-
-def _interrupt_at_first_case(sweep: Path, out: Path, limit_s: float = 180.0):
-    """`campaign sweep` in its own process until its first case file exists, then SIGINT to its process group (a
-    user's Ctrl-C). Returns its stderr lines with their times (s since launch), the time of the first case file
-    (None when none came within ``limit_s``), the point stores prepared by then, and the exit status."""
-    started = time.monotonic()
-    process = subprocess.Popen(campaign_command("sweep", sweep, "--output", out, "--workers", "1"),
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO,
-                               env=project_environment(), start_new_session=True)
-    lines: list[tuple[float, str]] = []
-
-    def read() -> None:
-        for line in process.stderr:
-            lines.append((time.monotonic() - started, line.rstrip()))
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    first_case, stores = None, 0
-    while time.monotonic() - started < limit_s and process.poll() is None:
-        if any(out.glob("points/*/cases/*/batch-*.parquet")):
-            first_case = time.monotonic() - started
-            stores = sum(1 for _ in out.glob("points/*/manifest.json"))
-            break
-        time.sleep(0.1)
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-    try:
-        code = process.wait(60)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        code = process.wait()
-    reader.join(10)
-    return lines, first_case, stores, code
 
 
 def _case_files(out: Path) -> dict:
