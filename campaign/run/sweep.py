@@ -131,8 +131,11 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
     them; each store is prepared and its cases submitted at once (workers compute while the next store is
     prepared); the batch's cases are waited for, its stores compacted and unlocked before the next batch.
     A sweep of 10^4 points starts computing within seconds, and a sweep stopped at any time keeps every
-    finished case (the next run reuses finished points and runs the rest). With ``progress``, one line on
-    stderr when the cluster starts and per batch (points reached, cases done, failed, reused points).
+    finished case (the next run reuses finished points and runs the rest). A new sweep starts the cluster at
+    once (while its first point is planned); a sweep run before (``points/`` exists) starts it at the first
+    batch with a case to run (:meth:`CampaignStore.has_every_case`), so a finished sweep run again starts none.
+    With ``progress``, one line on stderr when the cluster starts and per batch (points reached, cases done,
+    failed, reused points).
 
     Raises StoreBusy (a point store locked by another writer), StoreError, ConfigError (a point that
     does not validate) or RunStopped, each after the batches before it were completed and compacted."""
@@ -147,15 +150,24 @@ def run_sweep(spec: SweepSpec, scheduler: str | None = None, workers: int | None
         if progress:
             print(f"sweep: {line}", file=sys.stderr, flush=True)
 
-    say(f"{total} points of {planned_each} cases; starting the cluster")
+    # a sweep run before (its point stores exist) starts the cluster at its first point with a case to run: a
+    # finished sweep run again starts none (no batch job queued); a new one starts it at once, while the first
+    # point is planned
+    rerun = (Path(spec.output_dir) / "points").is_dir()
+    say(f"{total} points of {planned_each} cases; "
+        + ("the cluster starts at the first point with a case to run" if rerun else "starting the cluster"))
     stores_of = PointStores(spec)
     reached = reused = submitted = done = failed = unfinished = 0
     with ThreadPoolExecutor(max_workers=1) as planner, ExitStack() as cluster:
         first_plan = planner.submit(stores_of, spec.points[0])      # planned while the cluster starts
-        client = cluster.enter_context(cluster_session(execution, spec.estimators))
+        client = None if rerun else cluster.enter_context(cluster_session(execution, spec.estimators))
         first_plan.result()
         for first, batch in point_batches(spec, planned_each):
             points = [stores_of(point) for point in batch]
+            if client is None and not all(CampaignStore(point.store_dir).has_every_case(point.manifest, point.plan)
+                                          for point in points):
+                say("starting the cluster")
+                client = cluster.enter_context(cluster_session(execution, spec.estimators))
             say(f"points {batch[0].point_id}-{batch[-1].point_id} ({first + len(batch)} of {total}): "
                 f"{done} cases done, {failed} failed, {reused} points reused so far, "
                 f"{time.perf_counter() - start:.0f} s")

@@ -242,10 +242,11 @@ def test_rerun_computes_nothing_and_a_changed_value_only_its_point(first_sweep, 
     before = _case_files(out)
     code, stdout, _ = _run(capsys, path, "--output", out, "--scheduler", scheduler)
     assert code == 0 and "2 points, 2 reused; 0 cases done" in stdout
+    assert "dask dashboard" not in stdout, stdout          # every point finished: no cluster connected
     assert _case_files(out) == before
     changed = _sweep_file(path.parent, '"scene.camera_effects.dark_current_scale" = [1.0, 3.0]', name="changed.toml")
     code, stdout, _ = _run(capsys, changed, "--output", out, "--scheduler", scheduler)
-    assert code == 0 and "2 points, 1 reused; 5 cases done" in stdout
+    assert code == 0 and "2 points, 1 reused; 5 cases done" in stdout and "dask dashboard" in stdout
     after = _case_files(out)
     assert {k: after[k] for k in before} == before and len(after) == len(before) + 5
     results = pd.read_parquet(out / "results.parquet")
