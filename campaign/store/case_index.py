@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from campaign.store.case_files import (
     BATCH_FILE,
@@ -44,6 +43,7 @@ from campaign.store.case_files import (
     TEMPORARY_PREFIX,
     UNRECORDED_CASE_FILE,
     atomic_write_bytes,
+    parquet_file_of_bytes,
     sha256_bytes,
     table_bytes,
 )
@@ -104,7 +104,7 @@ def verify_case_file(path: Path, relative: str, expected: StoreIdentity | None,
         return None, (f"corrupted: sha256 {digest[:16]}... differs from the {recorded_digest[:16]}... recorded "
                       "at write time")
     try:
-        parquet = pq.ParquetFile(pa.BufferReader(data))
+        parquet = parquet_file_of_bytes(data)
         schema = parquet.schema_arrow
         problem = schema_problem(schema, CASE_FILE_SCHEMA)
         if problem is not None:
@@ -356,7 +356,7 @@ class CaseIndex:
         if len(data) != int(match.group(2)) or sha256_bytes(data) != match.group(3):
             return None, "corrupted or truncated: its size or sha256 differs from its name (its files are verified again)"
         try:
-            table = pq.read_table(pa.BufferReader(data), read_dictionary=["batch"])
+            table = parquet_file_of_bytes(data, read_dictionary=["batch"]).read(use_threads=False)
         except pa.ArrowException as exc:
             return None, f"unreadable as Parquet: {str(exc).splitlines()[0]}"
         identity = (table.schema.metadata or {}).get(INDEX_KEY)
