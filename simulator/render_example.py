@@ -217,7 +217,7 @@ def truth_record(profile: DescentProfile, rendered: list[DescentImage], sensor_e
         "altitude_image1_m": float(profile.pose(float(profile.image_times_s[0])).position_m[2]),
         "altitude_image3_m": float(profile.pose(last).position_m[2]),
         "heat_shield_in_view": [bool(r.diagnostics.heat_shield_visible) for r in rendered],
-        "outside_terrain_fraction": [float(r.outside_terrain_mask.mean()) for r in rendered],
+        "outside_terrain_fraction": [r.outside_terrain_fraction for r in rendered],
         "sensor_errors": sensor_errors, "replay": shlex.join(replay)})
 
 

@@ -243,7 +243,7 @@ def case_truth(resources: CampaignInputs, inputs: CaseInputs) -> CaseTruth:
             float(profile.pose(first_mid).position_m[2]), float(profile.pose(last_mid).position_m[2]),
             first_mid, last_mid),
         heat_shield_in_view=tuple(bool(rendered.diagnostics.heat_shield_visible) for rendered in inputs.images),
-        outside_terrain_fraction=tuple(float(rendered.outside_terrain_mask.mean()) for rendered in inputs.images),
+        outside_terrain_fraction=tuple(rendered.outside_terrain_fraction for rendered in inputs.images),
         sensor_errors=dict(inputs.sensor_truth),
         t_scene_ms=sum(rendered.diagnostics.scene_ms for rendered in inputs.images),
         t_camera_ms=sum(rendered.diagnostics.camera_ms for rendered in inputs.images),
