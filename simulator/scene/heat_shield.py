@@ -21,9 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from flight_interface import cahvor
 from flight_interface.camera import Camera
-from simulator.scene import ground_mapping
+from simulator.scene import ground_mapping, unproject_compiled
 
 
 def cone_depth_m(diameter_m: float, cone_angle_rad: float) -> float:
@@ -350,7 +349,9 @@ def _edge_blend(camera: Camera, pose: ground_mapping.CameraPose, hit: np.ndarray
         rays = edge_rays(ground_map, row0 + rows, col0 + cols, d_row, d_col).reshape(-1, 3)
     else:
         pixels = np.stack([(col0 + cols)[:, None] + d_col, (row0 + rows)[:, None] + d_row], axis=-1)
-        rays = cahvor.unproject(camera.model, pixels.reshape(-1, 2)) @ pose.camera_to_world.T
+        # compiled: cahvor.unproject's bits (simulator.scene.unproject_compiled), without numpy's Newton passes
+        # over every sub-pixel sample (1.1 of the 3.4 ms the edge took per case)
+        rays = unproject_compiled.unproject(camera.model, pixels.reshape(-1, 2)) @ pose.camera_to_world.T
     surface = visible_surface(rays[:, None, :], pose, np.repeat(sky[rows, cols], samples * samples)[:, None],
                                centre_m, diameter_m, cone_angle_rad)
     if surface is None:
