@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from campaign.plan.halton import scrambled_halton
 from flight_interface.camera import Camera
 from simulator.scene.descent_profile import DescentProfile
 from simulator.scene.ground_mapping import border_pixels, camera_pose, ground_points
@@ -81,10 +82,7 @@ def even_points(count: int, seed_sequence: np.random.SeedSequence) -> np.ndarray
 
     Prefix-stable: ``even_points(n)`` is the first ``n`` rows of ``even_points(N)`` for ``n <= N``, and
     every prefix is low-discrepancy (its points fill the unit cube evenly, with no clusters)."""
-    from scipy.stats import qmc  # 0.5 s to import: only planning needs it, not a worker's cases
-
-    sequence = qmc.Halton(d=3, scramble=True, rng=np.random.default_rng(seed_sequence))
-    return sequence.random(count) if count > 0 else np.zeros((0, 3))
+    return scrambled_halton(count, 3, seed_sequence)
 
 
 def case_id_of(class_index: int, case_in_class: int) -> int:
