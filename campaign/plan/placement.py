@@ -11,8 +11,8 @@ For each appearance class, case ``k`` (its index within the class) gets
   mid-exposure) stay inside the strip form a rectangle; a point ``(u, v)`` of the unit square is mapped
   onto that rectangle.
 
-``(u, v)`` and the heading fraction are point ``k`` of a scrambled 3-D Halton sequence (seeded by the
-campaign seed and the class): a low-discrepancy sequence covers the headings and the strip evenly for
+``(u, v)`` and the heading fraction are point ``k`` of a scrambled 3-D Halton sequence
+(:mod:`campaign.plan.halton`: scipy's engine's bits, seeded by the campaign seed and the class): a low-discrepancy sequence covers the headings and the strip evenly for
 *every* prefix, so the plan does not depend on the number of cases. Case ``k`` is the same whether the
 class has 10 or 1000 cases: a quick look (``--cases-scale 0.1``) is the first tenth of the full run,
 and a later full run reuses it. Case identity is (class, k): ``case_id = class_index *``
