@@ -12,11 +12,11 @@ For each appearance class, case ``k`` (its index within the class) gets
   onto that rectangle.
 
 ``(u, v)`` and the heading fraction are point ``k`` of a scrambled 3-D Halton sequence
-(:mod:`campaign.plan.halton`: scipy's engine's bits, seeded by the campaign seed and the class): a low-discrepancy sequence covers the headings and the strip evenly for
-*every* prefix, so the plan does not depend on the number of cases. Case ``k`` is the same whether the
-class has 10 or 1000 cases: a quick look (``--cases-scale 0.1``) is the first tenth of the full run,
-and a later full run reuses it. Case identity is (class, k): ``case_id = class_index *``
-:data:`CASE_ID_STRIDE` ``+ k``.
+(:mod:`campaign.plan.halton`: scipy's engine's bits, seeded by the campaign seed and the class): a
+low-discrepancy sequence covers the headings and the strip evenly for *every* prefix, so the plan does not
+depend on the number of cases. Case ``k`` is the same whether the class has 10 or 1000 cases: a quick look
+(``--cases-scale 0.1``) is the first tenth of the full run, and a later full run reuses it. Case identity is
+(class, k): ``case_id = class_index *`` :data:`CASE_ID_STRIDE` ``+ k``.
 
 A case whose footprints cannot fit at any heading is still planned (never dropped) with
 ``footprint_inside = False``; the simulator then renders the outside as "no texture" like the paper's
