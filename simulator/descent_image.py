@@ -27,7 +27,7 @@ from simulator.fields import RadianceFields
 from simulator.heap import keep_freed_buffers
 from simulator.off_nominal import OffNominalArtefacts, OffNominalConfig
 from simulator.off_nominal.moving_shadows import place_moving_shadows
-from simulator.scene import ground_mapping, photometry, shadow
+from simulator.scene import ground_mapping, photometry, shadow, unproject_compiled
 from simulator.scene.descent_profile import DescentProfile, Pose, scale_angular_rates
 from simulator.scene.periods import period_fields
 from simulator.scene.radiance import sun_unit_vector
@@ -234,7 +234,10 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
 
     started = time.perf_counter()
     binned = config.effects.binned_render and camera.binning_rows > 1
-    periods = period_fields(terrain, binned_render_camera(camera) if binned else camera, profile, start_s, sun, config,
+    render_camera = binned_render_camera(camera) if binned else camera
+    for used in {id(camera): camera, id(render_camera): render_camera}.values():
+        unproject_compiled.prime_pixel_rays(used)     # its rays by the compiled pass: once per camera, same bits
+    periods = period_fields(terrain, render_camera, profile, start_s, sun, config,
                             need_smear_fields=camera_effects.smear, moving_shadows=moving)
     heat_shield_visible = bool(periods.heat_shield.any())     # (on the binned render's block mask: 1/b the pass)
     if binned:     # the masks of the full frame: each block's rows share its ray

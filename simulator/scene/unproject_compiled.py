@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from flight_interface import cahvor
+from flight_interface.camera import Camera
 from simulator.derived_cache import DERIVED
 
 TOLERANCE_RAD = 1e-12    # cahvor.unproject's defaults
@@ -155,3 +156,28 @@ def unproject(model: cahvor.Cahvor, pixels: np.ndarray) -> np.ndarray:
     if parameters is None:
         return cahvor.unproject(model, pixels)
     return _compiled(model, pixels, parameters)
+
+
+def prime_pixel_rays(camera: Camera) -> None:
+    """Give ``camera`` its full-frame rays (:attr:`flight_interface.camera.Camera.pixel_rays`) by the compiled pass.
+
+    The camera computes them with the array code on first use, 0.40 s for 1024 x 1024 pixels; the compiled
+    pass gives the same bits (:func:`unproject`) in 0.08 s. They are kept where the camera's cached property
+    keeps its value (the instance dict, as :func:`functools.cached_property` stores it), read-only as the
+    camera makes them, so ``pixel_rays``, ``field_angle_rad`` and ``falloff_map`` read them from then on.
+    Nothing is done when the camera already holds its rays.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera (a frozen dataclass whose derived arrays are cached properties).
+
+    Returns
+    -------
+    None
+    """
+    if "pixel_rays" in vars(camera):
+        return
+    rays = unproject(camera.model, cahvor.pixel_grid(camera.width_px, camera.height_px))
+    rays.setflags(write=False)
+    vars(camera)["pixel_rays"] = rays

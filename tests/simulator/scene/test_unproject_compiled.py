@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from flight_interface import cahvor
+from flight_interface.camera import load_camera
 from simulator.scene import unproject_compiled
 
 
@@ -62,3 +63,17 @@ def test_compiled_rays_project_back_onto_their_pixels():
     projected, in_front = cahvor.project(model, unproject_compiled.unproject(model, pixels))
     assert in_front.all()
     np.testing.assert_allclose(projected, pixels, atol=1e-6)
+
+
+def test_primed_pixel_rays_are_the_camera_s_own_bit_for_bit(mer_a_path):
+    primed, own = load_camera(mer_a_path), load_camera(mer_a_path)
+    unproject_compiled.prime_pixel_rays(primed)
+    assert "pixel_rays" in vars(primed) and "pixel_rays" not in vars(own)
+    assert primed.pixel_rays.shape == (own.height_px, own.width_px, 3)
+    assert primed.pixel_rays.tobytes() == own.pixel_rays.tobytes()      # own: cahvor.unproject, the array code
+    assert not primed.pixel_rays.flags.writeable
+    assert primed.falloff_map.tobytes() == own.falloff_map.tobytes()
+    kept = primed.pixel_rays
+    unproject_compiled.prime_pixel_rays(primed)                         # held already: left as it is
+    unproject_compiled.prime_pixel_rays(own)
+    assert primed.pixel_rays is kept and own.pixel_rays.tobytes() == kept.tobytes()
