@@ -295,8 +295,7 @@ class CampaignStore:
                 self._reject(self.plan_path, problem)
             notes.append(f"{self.plan_path}: {problem}; written again from the configuration")
             self._record_plan({**existing, **recorded}, plan)
-        elif not _same_case_ids(pq.read_table(self.plan_path, columns=["case_id"]).column("case_id").to_numpy(),
-                                plan["case_id"].to_numpy()):
+        elif not _same_case_ids(self._plan_case_ids(), plan["case_id"].to_numpy()):
             old_size = existing.get("plan_cases", "?")   # check() found the cases in both planned identically
             self._record_plan({**existing, **recorded}, plan)
             notes.append(f"{self.root}: same configuration, plan of {len(plan)} cases recorded (was {old_size}); "
@@ -317,13 +316,11 @@ class CampaignStore:
         the same case ids, ``cases/`` holds no bad or superseded file (``prepare`` would reject it and its case
         be computed again) and every planned case is counted. A run may then skip its cluster.
         """
-        import numpy as np
-
         existing, problem = self._manifest_state()
         if (problem is not None or existing is None or existing["config_hash"] != manifest["config_hash"]
                 or existing.get("estimators") != manifest.get("estimators") or self._plan_problem(existing) is not None):
             return False
-        planned = np.sort(pq.read_table(self.plan_path, columns=["case_id"]).column("case_id").to_numpy())
+        planned = self._plan_case_ids()
         if not _same_case_ids(planned, plan["case_id"].to_numpy()):
             return False
         scan = self.scan(record=False)
@@ -387,7 +384,12 @@ class CampaignStore:
 
     def planned_case_array(self) -> np.ndarray:
         """The case ids of the verified plan, sorted."""
-        plan = pq.ParquetFile(self._verified_plan_path()).read(columns=["case_id"])   # no pandas, no dataset
+        self._verified_plan_path()
+        return self._plan_case_ids()
+
+    def _plan_case_ids(self) -> np.ndarray:
+        """The case ids of plan.parquet as it is (the caller has checked it), sorted."""
+        plan = pq.ParquetFile(self.plan_path).read(columns=["case_id"])   # no pandas, no dataset
         return np.sort(plan.column("case_id").to_numpy())
 
     def status(self) -> CaseStatus:

@@ -72,7 +72,7 @@ def parquet_file_of_bytes(data: bytes, read_dictionary: list[str] | None = None)
     "terminate called without an active exception") after the command's output was written. Measured with
     pyarrow 26 on the 2-core machine: 8 of 168 ``campaign report`` runs, four at once, on a store whose plan
     is missing; a reference was still held right after 46 of 200 ``read_table`` calls, after none of 200
-    ``read(use_threads=False)`` calls (``tests/campaign/store/test_store_integrity.py``)."""
+    ``read(use_threads=False)`` calls (``tests/campaign/store/test_bytes_read_on_calling_thread.py``)."""
     return pq.ParquetFile(pa.BufferReader(data), read_dictionary=read_dictionary)
 
 
