@@ -644,7 +644,8 @@ def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_
     reuse : bool, optional
         Give every array in this thread's scratch arrays (:func:`simulator.scratch.scratch`: a fresh 1 MiB
         array costs its page faults, ~0.3 ms here), valid until the next call with ``reuse``; else new
-        arrays, except ``blurred``, a view of the inverse transform's scratch output (valid until the next call).
+        arrays, except ``blurred``, a view of the fold's scratch array, which the inverse transform overwrites
+        in place (valid until the next fold).
 
     Returns
     -------
@@ -686,7 +687,7 @@ def binned_blur_rate_sums(field_w_m2_sr_um: np.ndarray, camera: Camera, binning_
     spectrum = cv2.dft(running, dst=running)
     folded = _fold_packed_rows(spectrum, binning_rows, _otf_packed(camera, padded_shape, camera.pixel_pitch_m,
                                                                    1.0 / binning_rows))
-    sampled = cv2.idft(folded, dst=scratch("psf_sampled", folded.shape), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    sampled = cv2.idft(folded, dst=folded, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)   # in place: same bits, ~0.1 ms less
     first = PAD_PX // binning_rows
     blurred = sampled[first:first + blocks, PAD_PX:PAD_PX + cols]
     if not with_rate:
