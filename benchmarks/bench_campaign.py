@@ -25,7 +25,7 @@ task on the two, a batch of cases, divided by its cases: the median over all tas
 worker and campaign also load the inputs) does not, and
 ``cpu_efficiency`` (one worker / two) tells extra work in the workers from waiting for a core. The two CPU
 columns are not measured quite alike: the one worker's includes a batch file written per case, the two's one
-per task of up to 16 cases, so ``cpu_efficiency`` is flattered by about that write's CPU; the wall-time target
+per task of up to 64 cases, so ``cpu_efficiency`` is flattered by about that write's CPU; the wall-time target
 compares ``t_case_ms`` on both sides: the case's computation without its case file (a class's first case also
 writes its example PNGs, on both sides alike).
 ``load_average`` is the machine's 1-minute load average at the end.

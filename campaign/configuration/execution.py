@@ -253,8 +253,9 @@ class ExecutionConfig(ConfigModel):
     paused_timeout_s: float = Field(20.0, ge=1.0, le=86400.0)
     """Stop the run when every worker has been paused at its memory limit, with no case finishing, for this long (s)."""
     cases_per_task: int = Field(0, ge=0, le=CASES_PER_TASK_LIMIT)
-    """Cases one dask task runs, one after the other (0 = automatic: a few tasks per worker, at most 16 cases
-    per task when computing, 2000 for no-op cases); each case is written to the store as it finishes."""
+    """Cases one dask task runs, one after the other (0 = automatic: a few tasks per worker, at most 64 cases
+    per task when computing, 2000 for no-op cases); a task writes its finished cases to the store at least
+    every 10 s and when it ends."""
     case_mode: CaseMode = "compute"
     """"compute" (default), or "no_op": an orchestration test that renders and estimates nothing and writes
     rows marked reason = "no_op" (part of the configuration hash; table and report say so on top)."""

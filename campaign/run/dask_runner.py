@@ -53,12 +53,19 @@ IN_FLIGHT_PER_WORKER = 2
 """Tasks submitted and not finished, per worker: one running and one queued, so a worker never waits for
 the driver; at least :data:`MIN_IN_FLIGHT` (before the first worker has joined)."""
 MIN_IN_FLIGHT = 8
-TASKS_PER_WORKER = 8
-"""Automatic batch size (:func:`cases_per_task`): a point's cases cut into about this many tasks per worker,
-so the last tasks of a run are short next to the whole."""
-MAX_CASES_PER_TASK = {"compute": 16, "no_op": 2000}
-"""Automatic batch size cap per ``[execution] case_mode``: a computed case takes seconds (a task of at most
-16 of them keeps the progress and the stall watch fine-grained), a no-op case about a millisecond."""
+TASKS_PER_WORKER = 4
+"""Automatic batch size (:func:`cases_per_task`): a point's cases cut into about this many tasks per worker
+(:func:`balanced_tail` then cuts the last ones of a run short)."""
+MAX_CASES_PER_TASK = {"compute": 64, "no_op": 2000}
+"""Automatic batch size cap per ``[execution] case_mode``. A computed case takes about 60 ms on the 2-core
+machine (seconds with the heaviest off-nominal effects), so 64 of them keep a task to a few seconds: the
+progress moves per task, and the stall watch also counts the cases a task writes every :data:`FLUSH_S`.
+Each task costs the run a scheduler round trip, about 7 ms of the driver's CPU (measured: the driver used
+2.8 % of a core during the Gusev campaign on 2 workers with 16-case tasks, 2.05 % with 48-case ones) and a
+batch file. With every core computing that cost comes out of the cases: Gusev + Meridiani on 2 workers, 16
+cases a task at most and 8 tasks per worker against these sizes, three alternations on the idle machine
+(2026-11-27): median case 59.1-62.1 against 56.9-59.9 ms, parallel efficiency 0.90-0.95 against 0.96-1.01.
+A no-op case takes about a millisecond."""
 TAIL_SHARES = 2
 """:func:`balanced_tail`: a task near the end of a run takes at most 1 / (this x workers) of the cases left."""
 TAIL_MIN_CASES = 2
@@ -192,7 +199,7 @@ def balanced_tail(batches: Sequence[CaseBatch], workers: int) -> list[CaseBatch]
 
     The driver hands tasks out as workers free up (:func:`run_batches`), so a run ends when its last task
     does: with batches of :func:`cases_per_task` cases, a worker can be left running a whole batch while the
-    others idle (up to 16 computed cases, about 1.7 s at 108 ms a case). Here each task takes at most
+    others idle (up to 64 computed cases, about 4 s at 60 ms a case). Here each task takes at most
     1 / (:data:`TAIL_SHARES` x ``workers``) of the cases left from its start to the end of the run (at least
     :data:`TAIL_MIN_CASES`): the sizes fall towards the end (guided self-scheduling), and only the last few
     batches of a run are cut (their cases re-cut as one run per store, so the sizes fall steadily). A batch

@@ -37,7 +37,7 @@ def test_tasks_are_batches_far_fewer_than_cases(cases, workers, mode):
     # every worker has several tasks (the last ones short next to the run), unless the cap bounds the size
     assert tasks >= min(cases, 4 * workers) or size == MAX_CASES_PER_TASK[mode]
     if cases >= 10**5:
-        assert tasks <= cases / MAX_CASES_PER_TASK["compute"]      # at least 16 cases per task at 10^5+
+        assert tasks <= cases / MAX_CASES_PER_TASK["compute"]      # the cap: computed tasks that large at 10^5+
     if cases >= 10**5 and mode == "no_op":
         assert tasks <= cases / 100
 
