@@ -235,8 +235,8 @@ def render_descent_image(terrain: Terrain, profile: DescentProfile, camera: Came
     started = time.perf_counter()
     binned = config.effects.binned_render and camera.binning_rows > 1
     render_camera = binned_render_camera(camera) if binned else camera
-    for used in {id(camera): camera, id(render_camera): render_camera}.values():
-        unproject_compiled.prime_pixel_rays(used)     # its rays by the compiled pass: once per camera, same bits
+    for used in (camera, render_camera):      # their rays by the compiled pass, same bits (a no-op once they have them)
+        unproject_compiled.prime_pixel_rays(used)
     periods = period_fields(terrain, render_camera, profile, start_s, sun, config,
                             need_smear_fields=camera_effects.smear, moving_shadows=moving)
     heat_shield_visible = bool(periods.heat_shield.any())     # (on the binned render's block mask: 1/b the pass)
